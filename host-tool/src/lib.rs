@@ -1,0 +1,1 @@
+//! `driftid` library: everything the binary does, callable from tests.
