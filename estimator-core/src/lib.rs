@@ -1,1 +1,55 @@
+//! # estimator-core
+//!
+//! The estimator of a space-stable INS's gyro drift coefficients from its accelerometers: the
+//! platform model, the physical effects, the averaging of raw samples and the extended Kalman
+//! filter. `no_std`, no heap, `f64`, nalgebra with `libm`; the firmware and the host tool run this
+//! same code. `std`/`alloc` are opt-in features for the host.
+//!
+//! ## Why a fixed capacity with a run-time dimension
+//! The state grows by blocks as physical effects are added (g²-sensitive drift, accelerometer
+//! errors, drift trend, …). On the host the user picks the effects at run time; on the navigation
+//! computer there is no heap. We keep one filter, [`filter::Ekf`]`<CAP>`, whose arrays have a
+//! compile-time capacity `CAP` and whose active dimension is the model's (`≤ CAP`), with the
+//! effects chosen as a slice of `&dyn` [`effects::Effect`] (no allocation). The alternative,
+//! nalgebra generic dimensions (`Const<N>` on target, `Dyn` on the host), would need
+//! allocation on the host and monomorphised copies per model on the target. With a
+//! capacity the firmware sizes `CAP` to its model (15 for the paper's: no wasted flops or RAM),
+//! the host uses [`model::MAX_STATES`], and the structured step (Φ ≠ I only in the dynamic rows,
+//! H ≠ 0 only in the measured columns) does the work of the active block only.
+//!
+//! ## Modules
+//! - [`units`]: constants and conversions (deg/h ↔ rad/s, ARW).
+//! - [`frames`]: frame 0 (ENU), C_0^p(θ) and its derivatives, the site and normal gravity.
+//! - [`kinematics`]: θ̇ from the platform rate (paper eq. 4).
+//! - [`effects`]: the [`effects::Effect`] trait and the catalog (the paper's drift model first).
+//! - [`model`]: state layout, f/F and h/H.
+//! - [`propagate`]: RK4 (default) or the paper's Euler step for the state and Φ.
+//! - [`filter`]: the EKF with Joseph-form update, returning a [`residual::Residual`] per update.
+//! - [`averaging`]: raw samples → filter-period means tagged at the mean sample time.
 #![no_std]
+#![warn(missing_docs)]
+
+#[cfg(feature = "alloc")]
+extern crate alloc;
+#[cfg(feature = "std")]
+extern crate std;
+
+pub mod averaging;
+pub mod effects;
+pub mod filter;
+pub mod frames;
+pub mod kinematics;
+pub mod model;
+pub mod propagate;
+pub mod residual;
+pub mod units;
+
+pub use averaging::{Averager, Measurement, Sample};
+pub use effects::{Effect, PaperDrift};
+pub use filter::{Ekf, FilterError};
+pub use frames::Site;
+pub use model::{Model, Propagation};
+pub use residual::Residual;
+
+/// The paper's model as a ready-made effect list: the 12 drift coefficients.
+pub static PAPER_EFFECTS: [&dyn Effect; 1] = [&PaperDrift];

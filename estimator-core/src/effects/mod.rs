@@ -1,0 +1,94 @@
+//! Physical effects: named blocks of states appended to the platform angles.
+//!
+//! The paper's drift model is itself an effect ([`PaperDrift`], 12 coefficients), always first.
+//! Every further effect (g²-sensitive drift, accelerometer bias, …) is one implementation of
+//! [`Effect`]; the filter ([`crate::filter::Ekf`]) and the host's smoother treat them all the same,
+//! so adding an effect never touches the filter code. An effect can
+//! - add to the gyro drift rate (deg/h, platform axes): it then drives the platform angles;
+//! - add to the accelerometer output (m/s²): it then enters the measurement;
+//! - give its own states first-order Gauss–Markov dynamics (time constant, driving noise).
+//!
+//! Effects report their value *and* their partial derivatives with respect to their own
+//! parameters and to the specific force; the model chains these into the analytic F and H.
+//! Each implementation is tested against finite differences (see the crate's tests).
+
+use nalgebra::{Matrix3, Vector3};
+
+mod acc_bias;
+mod drift_markov;
+mod paper;
+
+pub use acc_bias::AccBias;
+pub use drift_markov::DriftMarkov;
+pub use paper::PaperDrift;
+
+/// What an effect sees at one instant.
+#[derive(Clone, Copy, Debug)]
+pub struct Context {
+    /// Seconds since the gyros reached stable operation (θ = 0).
+    pub t_s: f64,
+    /// True specific force along the platform axes, `A = C·g0`, m/s².
+    pub specific_force: Vector3<f64>,
+    /// Platform temperature minus its value at the start of the run, °C (0 when not recorded).
+    pub temp_dev_c: f64,
+}
+
+/// One parameter of an effect: its name, unit and default prior 1σ.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct Param {
+    /// Short name, e.g. `DX0`, `BAx`.
+    pub name: &'static str,
+    /// Unit as printed, e.g. `deg/h`, `m/s^2`.
+    pub unit: &'static str,
+    /// Default prior 1σ, in `unit`. Must be wide enough not to bias the estimate.
+    pub prior_sigma: f64,
+}
+
+/// First-order Gauss–Markov dynamics of one state: `ṗ = −p/τ + w`, `E[w wᵀ] = q δ(t)`.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct Markov {
+    /// Correlation time, s.
+    pub tau_s: f64,
+    /// Driving-noise spectral density, unit²/s (`2σ²/τ` for a stationary σ).
+    pub q: f64,
+}
+
+/// The value of an effect's contribution and its partial derivatives, accumulated by the model.
+pub struct Partials<'a> {
+    /// Value: deg/h for a drift contribution, m/s² for an accelerometer contribution. Add to it.
+    pub value: &'a mut Vector3<f64>,
+    /// ∂value/∂(own parameter k), one column per parameter (length = `params().len()`). Set them.
+    pub d_params: &'a mut [Vector3<f64>],
+    /// ∂value/∂A (specific force), per (m/s²). Add to it.
+    pub d_force: &'a mut Matrix3<f64>,
+}
+
+/// A physical effect: a block of parameters (states) with its drift and/or accelerometer terms.
+///
+/// Implement this trait to add an effect of your own; see the README's worked example.
+pub trait Effect: Sync {
+    /// Catalog name used on the command line (`--with name`), e.g. `acc-bias`.
+    fn name(&self) -> &'static str;
+    /// One paragraph: what physical mechanism this is and what signature it leaves.
+    fn about(&self) -> &'static str;
+    /// The effect's parameters, in state order.
+    fn params(&self) -> &[Param];
+    /// Prior 1σ of parameter `k` (default: the `Param`'s); configurable effects override it.
+    fn prior_sigma(&self, k: usize) -> f64 {
+        self.params()[k].prior_sigma
+    }
+    /// Adds the effect's gyro drift rate (deg/h, platform axes) at parameters `p`.
+    /// Default: the effect does not touch the drift.
+    fn drift(&self, _p: &[f64], _ctx: &Context, _out: Partials<'_>) {}
+    /// Adds the effect's accelerometer error (m/s², platform axes) at parameters `p`.
+    /// Default: the effect does not touch the accelerometers.
+    fn accel_error(&self, _p: &[f64], _ctx: &Context, _out: Partials<'_>) {}
+    /// Whether [`Effect::drift`] is non-trivial (lets the filter skip work).
+    fn touches_drift(&self) -> bool;
+    /// Whether [`Effect::accel_error`] is non-trivial.
+    fn touches_accel(&self) -> bool;
+    /// Dynamics of parameter `k`: `None` (constant, the default) or first-order Gauss–Markov.
+    fn markov(&self, _k: usize) -> Option<Markov> {
+        None
+    }
+}

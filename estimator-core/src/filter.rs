@@ -1,0 +1,340 @@
+//! The extended Kalman filter of the paper (eqs. 11–20), one implementation for firmware and host.
+//!
+//! Fixed capacity `CAP`, active dimension `model.dim() ≤ CAP`: the state lives in arrays sized at
+//! compile time (no heap), while the host chooses the effects — and so the dimension — at run
+//! time. The firmware sets `CAP` to exactly its model's size (15 for the paper's).
+//!
+//! Each step exploits the structure of the model: Φ differs from I only in the dynamic rows
+//! (3 angle rows for the paper's model) and H is non-zero only in the measured columns (the angles
+//! and accelerometer-effect parameters), so prediction costs O(r·n²) and the Joseph-form update
+//! O(3·n²) instead of O(n³).
+
+use nalgebra::{Matrix3, SMatrix, Vector3};
+
+use crate::averaging::Measurement;
+use crate::model::{Model, ANGLES, MAX_DYNAMIC};
+use crate::propagate::{propagate, Transition};
+use crate::residual::Residual;
+
+/// Default prior 1σ of the platform angles at t = 0, rad. θ(0) = 0 by definition (frame 0 is
+/// the platform at gyro start), so this only keeps P positive definite: 0.2 arcsec.
+pub const ANGLE_PRIOR_SIGMA_RAD: f64 = 1e-6;
+
+/// Why a filter step was refused. The filter state is unchanged after an error.
+#[derive(Clone, Copy, Debug, PartialEq)]
+#[allow(missing_docs)] // fields are named by what they hold: step number, times in s, state index
+pub enum FilterError {
+    /// The model has more states than the filter's capacity.
+    Capacity { needed: usize, capacity: usize },
+    /// Initial state or 1σ has the wrong length.
+    Dimension { expected: usize, got: usize },
+    /// A measurement's time is not after the filter's time.
+    TimeNotIncreasing { step: u32, t_s: f64, filter_t_s: f64 },
+    /// A measurement or its variance is NaN/∞ or the variance is not positive.
+    BadMeasurement { step: u32 },
+    /// The innovation covariance is not positive definite.
+    SingularInnovation { step: u32 },
+    /// The covariance lost symmetry/positivity or the state became non-finite at `index`.
+    Unhealthy { step: u32, index: usize },
+}
+
+impl core::fmt::Display for FilterError {
+    fn fmt(&self, f: &mut core::fmt::Formatter<'_>) -> core::fmt::Result {
+        match *self {
+            FilterError::Capacity { needed, capacity } => {
+                write!(f, "model needs {needed} states, filter capacity is {capacity}")
+            }
+            FilterError::Dimension { expected, got } => write!(f, "expected {expected} values, got {got}"),
+            FilterError::TimeNotIncreasing { step, t_s, filter_t_s } => write!(
+                f,
+                "step {step}: measurement at t = {t_s} s is not after the filter time {filter_t_s} s"
+            ),
+            FilterError::BadMeasurement { step } => {
+                write!(f, "step {step}: measurement or its variance is not finite and positive")
+            }
+            FilterError::SingularInnovation { step } => {
+                write!(f, "step {step}: innovation covariance is not positive definite")
+            }
+            FilterError::Unhealthy { step, index } => {
+                write!(f, "step {step}: covariance or state unhealthy at state {index}")
+            }
+        }
+    }
+}
+
+/// The EKF: state, covariance and time, over a [`Model`].
+#[derive(Clone)]
+pub struct Ekf<'m, const CAP: usize> {
+    model: Model<'m>,
+    x: [f64; CAP],
+    p: SMatrix<f64, CAP, CAP>,
+    t_s: f64,
+    temp_ref_c: f64,
+    temp_dev_c: f64,
+    steps: u32,
+}
+
+impl<'m, const CAP: usize> Ekf<'m, CAP> {
+    /// A filter at t = 0 with state `x0` and diagonal prior 1σ `sigma0` (both `model.dim()` long).
+    pub fn new(model: Model<'m>, x0: &[f64], sigma0: &[f64]) -> Result<Self, FilterError> {
+        let n = model.dim();
+        if n > CAP {
+            return Err(FilterError::Capacity { needed: n, capacity: CAP });
+        }
+        for len in [x0.len(), sigma0.len()] {
+            if len != n {
+                return Err(FilterError::Dimension { expected: n, got: len });
+            }
+        }
+        let mut x = [0.0; CAP];
+        x[..n].copy_from_slice(x0);
+        let mut p = SMatrix::<f64, CAP, CAP>::zeros();
+        for (i, s) in sigma0.iter().enumerate() {
+            p[(i, i)] = s * s;
+        }
+        Ok(Ekf { model, x, p, t_s: 0.0, temp_ref_c: f64::NAN, temp_dev_c: 0.0, steps: 0 })
+    }
+
+    /// A filter started as the paper starts it: zero angles and coefficients, each effect's prior 1σ.
+    pub fn with_default_prior(model: Model<'m>) -> Result<Self, FilterError> {
+        let n = model.dim();
+        if n > CAP {
+            return Err(FilterError::Capacity { needed: n, capacity: CAP });
+        }
+        let mut sigma = [ANGLE_PRIOR_SIGMA_RAD; CAP];
+        for (i, s) in sigma.iter_mut().enumerate().take(n).skip(ANGLES) {
+            *s = model.param(i).prior_sigma;
+        }
+        Self::new(model, &[0.0; CAP][..n], &sigma[..n])
+    }
+
+    /// Restores a full filter state (checkpoint resume). `p` is row-major n×n.
+    pub fn restore(&mut self, x: &[f64], p: &[f64], t_s: f64, steps: u32, temp_ref_c: f64) -> Result<(), FilterError> {
+        let n = self.model.dim();
+        if x.len() != n || p.len() != n * n {
+            return Err(FilterError::Dimension { expected: n, got: x.len() });
+        }
+        self.x[..n].copy_from_slice(x);
+        for i in 0..n {
+            for j in 0..n {
+                self.p[(i, j)] = p[i * n + j];
+            }
+        }
+        self.t_s = t_s;
+        self.steps = steps;
+        self.temp_ref_c = temp_ref_c;
+        Ok(())
+    }
+
+    /// The model.
+    pub fn model(&self) -> &Model<'m> {
+        &self.model
+    }
+    /// Current state (length `model.dim()`): angles in rad, parameters in their units.
+    pub fn state(&self) -> &[f64] {
+        &self.x[..self.model.dim()]
+    }
+    /// Covariance entry (i, j).
+    pub fn cov(&self, i: usize, j: usize) -> f64 {
+        self.p[(i, j)]
+    }
+    /// The full covariance storage (only the leading `dim()×dim()` block is meaningful).
+    pub fn covariance(&self) -> &SMatrix<f64, CAP, CAP> {
+        &self.p
+    }
+    /// 1σ of state `i`.
+    pub fn sigma(&self, i: usize) -> f64 {
+        libm::sqrt(self.p[(i, i)])
+    }
+    /// Filter time, s.
+    pub fn time_s(&self) -> f64 {
+        self.t_s
+    }
+    /// Number of updates done.
+    pub fn steps(&self) -> u32 {
+        self.steps
+    }
+    /// Temperature at the first measurement, the reference of temperature deviations (°C; NaN if none).
+    pub fn temp_ref_c(&self) -> f64 {
+        self.temp_ref_c
+    }
+
+    fn temp_dev(&mut self, temp_c: f64) -> f64 {
+        if !temp_c.is_finite() {
+            return self.temp_dev_c;
+        }
+        if !self.temp_ref_c.is_finite() {
+            self.temp_ref_c = temp_c;
+        }
+        temp_c - self.temp_ref_c
+    }
+
+    /// Propagates state and covariance to `t_s` (paper eqs. 11–12), with the temperature
+    /// deviation moving linearly to `temp_dev_c`.
+    fn predict(&mut self, t_s: f64, temp_dev_c: f64) {
+        let dt = t_s - self.t_s;
+        if dt <= 0.0 {
+            return;
+        }
+        let n = self.model.dim();
+        let mut tr = Transition::<CAP>::default();
+        propagate(&self.model, &mut self.x[..n], self.t_s, dt, self.temp_dev_c, temp_dev_c, &mut tr);
+        let dynamic = self.model.dynamic_states();
+        let nd = dynamic.len();
+        let mut is_dyn = [false; CAP];
+        for &d in dynamic {
+            is_dyn[d] = true;
+        }
+        // B = Φ_D P (rows of Φ P that differ from P).
+        let mut b = [[0.0; CAP]; MAX_DYNAMIC];
+        let data = self.p.as_slice();
+        for c in 0..n {
+            let col = &data[c * CAP..c * CAP + n];
+            for r in 0..nd {
+                b[r][c] = dot(&tr.rows[r][..n], col);
+            }
+        }
+        // P⁺ = B Φᵀ + Q: only rows/columns of dynamic states change.
+        for r in 0..nd {
+            let d = dynamic[r];
+            for c in 0..n {
+                if !is_dyn[c] {
+                    self.p[(d, c)] = b[r][c];
+                    self.p[(c, d)] = b[r][c];
+                }
+            }
+            for s in 0..=r {
+                let v = dot(&b[r][..n], &tr.rows[s][..n]) + tr.q[r][s];
+                self.p[(d, dynamic[s])] = v;
+                self.p[(dynamic[s], d)] = v;
+            }
+        }
+        self.t_s = t_s;
+        self.temp_dev_c = temp_dev_c;
+    }
+
+    /// Predicts to the measurement's time and updates with it (paper eqs. 11–20, Joseph form).
+    /// Returns the residual record of the update. On error the filter is left unchanged.
+    pub fn step(&mut self, m: &Measurement) -> Result<Residual, FilterError> {
+        let step = self.steps;
+        let ok_time = m.t_s > self.t_s || (self.steps == 0 && m.t_s >= self.t_s);
+        if !ok_time || !m.t_s.is_finite() {
+            return Err(FilterError::TimeNotIncreasing { step, t_s: m.t_s, filter_t_s: self.t_s });
+        }
+        if m.specific_force.iter().any(|v| !v.is_finite()) || m.variance.iter().any(|v| !(v.is_finite() && *v > 0.0)) {
+            return Err(FilterError::BadMeasurement { step });
+        }
+        let saved = self.clone();
+        let temp_ref = self.temp_ref_c;
+        let temp_dev = self.temp_dev(m.temp_c);
+        self.predict(m.t_s, temp_dev);
+        match self.update(m, temp_dev) {
+            Ok(r) => {
+                self.steps += 1;
+                Ok(r)
+            }
+            Err(e) => {
+                *self = saved;
+                self.temp_ref_c = temp_ref;
+                Err(e)
+            }
+        }
+    }
+
+    fn update(&mut self, m: &Measurement, temp_dev: f64) -> Result<Residual, FilterError> {
+        let step = self.steps;
+        let n = self.model.dim();
+        let mut h = [Vector3::zeros(); CAP];
+        let predicted = self.model.measurement(&self.x[..n], m.t_s, temp_dev, &mut h);
+        let nu = Vector3::from(m.specific_force) - predicted;
+        let mut cols = [0usize; CAP];
+        let mut nm = 0;
+        for j in 0..n {
+            if self.model.is_measured(j) {
+                cols[nm] = j;
+                nm += 1;
+            }
+        }
+        let cols = &cols[..nm];
+        // P Hᵀ (n×3), using only the measured columns of H.
+        let mut pht = [Vector3::zeros(); CAP];
+        {
+            let data = self.p.as_slice();
+            for &j in cols {
+                let hj = h[j];
+                for (acc, &pij) in pht[..n].iter_mut().zip(&data[j * CAP..j * CAP + n]) {
+                    *acc += hj * pij;
+                }
+            }
+        }
+        let r = Vector3::from(m.variance);
+        let mut s = Matrix3::from_diagonal(&r);
+        for &j in cols {
+            s += h[j] * pht[j].transpose();
+        }
+        s = (s + s.transpose()) * 0.5;
+        let chol = s.cholesky().ok_or(FilterError::SingularInnovation { step })?;
+        let s_inv = chol.inverse();
+        let whitened = chol.l().solve_lower_triangular(&nu).ok_or(FilterError::SingularInnovation { step })?;
+        let nis = nu.dot(&(s_inv * nu));
+        let mut k = [Vector3::zeros(); CAP];
+        for i in 0..n {
+            k[i] = s_inv * pht[i];
+        }
+        // Joseph form P⁺ = (I−KH) P (I−KH)ᵀ + K R Kᵀ, in two passes over P:
+        // (1) P₁ = P − K (P Hᵀ)ᵀ;  (2) P⁺ = P₁ − (P₁ Hᵀ) Kᵀ + K R Kᵀ.
+        let data = self.p.as_mut_slice();
+        for c in 0..n {
+            let phc = pht[c];
+            for (v, ki) in data[c * CAP..c * CAP + n].iter_mut().zip(&k[..n]) {
+                *v -= ki.dot(&phc);
+            }
+        }
+        let mut g = [Vector3::zeros(); CAP];
+        for &j in cols {
+            let hj = h[j];
+            for (acc, &p1) in g[..n].iter_mut().zip(&data[j * CAP..j * CAP + n]) {
+                *acc += hj * p1;
+            }
+        }
+        for i in 0..n {
+            g[i] = k[i].component_mul(&r) - g[i];
+        }
+        for c in 0..n {
+            let kc = k[c];
+            for (v, gi) in data[c * CAP..c * CAP + n].iter_mut().zip(&g[..n]) {
+                *v += gi.dot(&kc);
+            }
+        }
+        for c in 0..n {
+            for i in 0..c {
+                let v = 0.5 * (data[c * CAP + i] + data[i * CAP + c]);
+                data[c * CAP + i] = v;
+                data[i * CAP + c] = v;
+            }
+        }
+        for i in 0..n {
+            self.x[i] += k[i].dot(&nu);
+        }
+        for i in 0..n {
+            let d = self.p[(i, i)];
+            if !(d.is_finite() && d > 0.0 && self.x[i].is_finite()) {
+                return Err(FilterError::Unhealthy { step, index: i });
+            }
+        }
+        Ok(Residual {
+            step,
+            t_s: m.t_s,
+            measured: m.specific_force,
+            predicted: predicted.into(),
+            innovation: nu.into(),
+            s: s.transpose().into(),
+            whitened: whitened.into(),
+            nis,
+        })
+    }
+}
+
+fn dot(a: &[f64], b: &[f64]) -> f64 {
+    a.iter().zip(b).map(|(x, y)| x * y).sum()
+}

@@ -1,0 +1,262 @@
+//! The platform model: state layout, the angle rate f(x) with its analytic Jacobian F, and the
+//! accelerometer measurement h(x) with its analytic Jacobian H (paper eqs. 5, 7–10).
+//!
+//! State: `[tx, ty, tz]` (rad) followed by the parameter blocks of the model's effects, in order.
+//! The first effect is normally [`crate::effects::PaperDrift`] (the 12 drift coefficients).
+
+use nalgebra::{Matrix3, Vector3};
+
+use crate::effects::{Context, Effect, Markov, Param, Partials};
+use crate::frames::{Attitude, Site};
+use crate::kinematics::{d_rate_to_euler, rate_to_euler};
+use crate::units::RADPS_PER_DEGPH;
+
+/// Number of platform-angle states at the head of the state vector.
+pub const ANGLES: usize = 3;
+/// Largest state the model accepts (the host's capacity; the firmware uses less).
+pub const MAX_STATES: usize = 64;
+/// Largest number of effects in one model.
+pub const MAX_EFFECTS: usize = 8;
+/// Largest number of states with dynamics (3 angles + Gauss–Markov states).
+pub const MAX_DYNAMIC: usize = 9;
+
+/// How the state and its transition matrix are carried over one filter period.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub enum Propagation {
+    /// Classic 4th-order Runge–Kutta on the state and on Φ together, in sub-steps of at most
+    /// `max_step_s` (default 60 s: one step of 60 s is exact to ~2.5e-10 m/s²).
+    Rk4 {
+        /// Largest integration sub-step, s.
+        max_step_s: f64,
+    },
+    /// The paper's `X + f(X)·dt`, `Φ = I + F·dt` (kept to reproduce its figures; not accurate).
+    Euler,
+}
+
+impl Default for Propagation {
+    fn default() -> Self {
+        Propagation::Rk4 { max_step_s: 60.0 }
+    }
+}
+
+/// Why a model cannot be built.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+#[allow(missing_docs)] // fields: state counts
+pub enum ModelError {
+    /// More than [`MAX_EFFECTS`] effects.
+    TooManyEffects,
+    /// More than the state capacity (`needed`, `capacity`).
+    TooManyStates { needed: usize, capacity: usize },
+    /// More than [`MAX_DYNAMIC`] states with dynamics.
+    TooManyDynamicStates,
+}
+
+impl core::fmt::Display for ModelError {
+    fn fmt(&self, f: &mut core::fmt::Formatter<'_>) -> core::fmt::Result {
+        match self {
+            ModelError::TooManyEffects => write!(f, "more than {MAX_EFFECTS} effects in one model"),
+            ModelError::TooManyStates { needed, capacity } => {
+                write!(f, "the model needs {needed} states but the filter holds {capacity}")
+            }
+            ModelError::TooManyDynamicStates => {
+                write!(f, "more than {} Gauss-Markov states", MAX_DYNAMIC - ANGLES)
+            }
+        }
+    }
+}
+
+/// The process and measurement model: site, effects (state layout) and noise.
+#[derive(Clone, Copy)]
+pub struct Model<'m> {
+    site: Site,
+    effects: &'m [&'m dyn Effect],
+    offsets: [usize; MAX_EFFECTS + 1],
+    /// Indices of states with dynamics (angles first, then Gauss–Markov states).
+    dynamic: [usize; MAX_DYNAMIC],
+    n_dynamic: usize,
+    /// Gauss–Markov parameters of each dynamic state (unused for the angles).
+    markov: [Markov; MAX_DYNAMIC],
+    /// States that enter the measurement (angles + accelerometer-effect parameters), as a bit set.
+    measured: u64,
+    arw_rad2ps: f64,
+    propagation: Propagation,
+}
+
+impl<'m> Model<'m> {
+    /// A model of the platform at `site` with the given effects (the paper's drift first, as a
+    /// rule), gyro rate-noise density `arw_rad2ps` (rad²/s per axis; see
+    /// [`crate::units::arw_deg2ph_to_rad2ps`]) and propagation method.
+    pub fn new(
+        site: Site,
+        effects: &'m [&'m dyn Effect],
+        arw_rad2ps: f64,
+        propagation: Propagation,
+    ) -> Result<Self, ModelError> {
+        if effects.len() > MAX_EFFECTS {
+            return Err(ModelError::TooManyEffects);
+        }
+        let mut offsets = [0; MAX_EFFECTS + 1];
+        let mut dynamic = [0; MAX_DYNAMIC];
+        let mut markov = [Markov { tau_s: f64::INFINITY, q: 0.0 }; MAX_DYNAMIC];
+        dynamic[..ANGLES].copy_from_slice(&[0, 1, 2]);
+        let mut n_dynamic = ANGLES;
+        let mut measured: u64 = 0b111;
+        let mut n = ANGLES;
+        for (e, effect) in effects.iter().enumerate() {
+            offsets[e] = n;
+            let dim = effect.params().len();
+            if n + dim > MAX_STATES {
+                return Err(ModelError::TooManyStates { needed: n + dim, capacity: MAX_STATES });
+            }
+            for k in 0..dim {
+                if let Some(m) = effect.markov(k) {
+                    if n_dynamic == MAX_DYNAMIC {
+                        return Err(ModelError::TooManyDynamicStates);
+                    }
+                    dynamic[n_dynamic] = n + k;
+                    markov[n_dynamic] = m;
+                    n_dynamic += 1;
+                }
+                if effect.touches_accel() {
+                    measured |= 1 << (n + k);
+                }
+            }
+            n += dim;
+        }
+        offsets[effects.len()] = n;
+        Ok(Model { site, effects, offsets, dynamic, n_dynamic, markov, measured, arw_rad2ps, propagation })
+    }
+
+    /// Number of states.
+    pub fn dim(&self) -> usize {
+        self.offsets[self.effects.len()]
+    }
+    /// The site (latitude, gravity).
+    pub fn site(&self) -> &Site {
+        &self.site
+    }
+    /// The effects, in state order.
+    pub fn effects(&self) -> &'m [&'m dyn Effect] {
+        self.effects
+    }
+    /// First state index of effect `e`.
+    pub fn offset(&self, e: usize) -> usize {
+        self.offsets[e]
+    }
+    /// Gyro rate-noise spectral density, rad²/s per axis.
+    pub fn arw_rad2ps(&self) -> f64 {
+        self.arw_rad2ps
+    }
+    /// The propagation method.
+    pub fn propagation(&self) -> Propagation {
+        self.propagation
+    }
+    /// Indices of the states with dynamics (the angles, then Gauss–Markov states).
+    pub fn dynamic_states(&self) -> &[usize] {
+        &self.dynamic[..self.n_dynamic]
+    }
+    /// Gauss–Markov dynamics of the `r`-th dynamic state (`r ≥ 3`).
+    pub fn markov(&self, r: usize) -> Markov {
+        self.markov[r]
+    }
+    /// Whether state `i` enters the measurement directly (H column may be non-zero).
+    pub fn is_measured(&self, i: usize) -> bool {
+        self.measured >> i & 1 == 1
+    }
+    /// The effect owning state `i ≥ 3` and the parameter's index within it.
+    pub fn owner(&self, i: usize) -> Option<(usize, usize)> {
+        (0..self.effects.len()).find(|&e| i >= self.offsets[e] && i < self.offsets[e + 1]).map(|e| (e, i - self.offsets[e]))
+    }
+    /// Name, unit and prior of state `i` (angles are reported as `tx`, `ty`, `tz` in rad).
+    pub fn param(&self, i: usize) -> Param {
+        const ANG: [&str; 3] = ["tx", "ty", "tz"];
+        match self.owner(i) {
+            Some((e, k)) => {
+                let mut p = self.effects[e].params()[k];
+                p.prior_sigma = self.effects[e].prior_sigma(k);
+                p
+            }
+            None => Param { name: ANG[i.min(2)], unit: "rad", prior_sigma: 0.0 },
+        }
+    }
+    /// Index of the state named `name`, if any.
+    pub fn index_of(&self, name: &str) -> Option<usize> {
+        (ANGLES..self.dim()).find(|&i| self.param(i).name == name)
+    }
+
+    fn context(&self, att: &Attitude, t_s: f64, temp_dev_c: f64) -> Context {
+        Context { t_s, specific_force: att.specific_force(self.site.gravity_mps2), temp_dev_c }
+    }
+
+    /// Total gyro drift rate at state `x`, deg/h along the platform axes (for reports).
+    pub fn drift_rate(&self, x: &[f64], t_s: f64, temp_dev_c: f64, scratch: &mut [Vector3<f64>]) -> Vector3<f64> {
+        let att = Attitude::new(&Vector3::new(x[0], x[1], x[2]));
+        let ctx = self.context(&att, t_s, temp_dev_c);
+        let (drift, _) = self.effect_terms(x, &ctx, scratch, true);
+        drift
+    }
+
+    /// Sum of drift (`drift = true`, deg/h) or accelerometer (m/s²) terms of all effects, their
+    /// ∂/∂A, and their ∂/∂parameters written into `d_dx` (all other columns zero).
+    fn effect_terms(
+        &self,
+        x: &[f64],
+        ctx: &Context,
+        d_dx: &mut [Vector3<f64>],
+        drift: bool,
+    ) -> (Vector3<f64>, Matrix3<f64>) {
+        let n = self.dim();
+        d_dx[..n].iter_mut().for_each(|c| *c = Vector3::zeros());
+        let mut value = Vector3::zeros();
+        let mut d_force = Matrix3::zeros();
+        for (e, effect) in self.effects.iter().enumerate() {
+            let (a, b) = (self.offsets[e], self.offsets[e + 1]);
+            let out = Partials { value: &mut value, d_params: &mut d_dx[a..b], d_force: &mut d_force };
+            if drift && effect.touches_drift() {
+                effect.drift(&x[a..b], ctx, out);
+            } else if !drift && effect.touches_accel() {
+                effect.accel_error(&x[a..b], ctx, out);
+            }
+        }
+        (value, d_force)
+    }
+
+    /// Platform angle rate θ̇ (rad/s) at state `x`, and its Jacobian: `d_dx[j] = ∂θ̇/∂x_j`
+    /// (`d_dx.len() ≥ dim()`). This is rows 0..3 of f and F.
+    pub fn angle_rate(&self, x: &[f64], t_s: f64, temp_dev_c: f64, d_dx: &mut [Vector3<f64>]) -> Vector3<f64> {
+        let n = self.dim();
+        let att = Attitude::new(&Vector3::new(x[0], x[1], x[2]));
+        let ctx = self.context(&att, t_s, temp_dev_c);
+        let (drift_degph, d_force) = self.effect_terms(x, &ctx, d_dx, true);
+        let k = rate_to_euler(&att);
+        let we0 = self.site.earth_rate_0();
+        let w = drift_degph * RADPS_PER_DEGPH - att.c * we0;
+        let k_deg = k * RADPS_PER_DEGPH;
+        for col in d_dx[ANGLES..n].iter_mut() {
+            if col.x != 0.0 || col.y != 0.0 || col.z != 0.0 {
+                *col = k_deg * *col;
+            }
+        }
+        let dk = d_rate_to_euler(&att, &w);
+        let g = self.site.gravity_mps2;
+        for j in 0..ANGLES {
+            let dw = d_force * att.d_specific_force(g, j) * RADPS_PER_DEGPH - att.dc[j] * we0;
+            d_dx[j] = dk[j] + k * dw;
+        }
+        k * w
+    }
+
+    /// Predicted accelerometer output h(x) (m/s², platform axes) and its Jacobian
+    /// `d_dx[j] = ∂h/∂x_j` (zero except for the angles and accelerometer-effect parameters).
+    pub fn measurement(&self, x: &[f64], t_s: f64, temp_dev_c: f64, d_dx: &mut [Vector3<f64>]) -> Vector3<f64> {
+        let att = Attitude::new(&Vector3::new(x[0], x[1], x[2]));
+        let ctx = self.context(&att, t_s, temp_dev_c);
+        let (error, d_force) = self.effect_terms(x, &ctx, d_dx, false);
+        let g = self.site.gravity_mps2;
+        let d_total = Matrix3::identity() + d_force;
+        for j in 0..ANGLES {
+            d_dx[j] = d_total * att.d_specific_force(g, j);
+        }
+        ctx.specific_force + error
+    }
+}

@@ -1,0 +1,176 @@
+//! Carrying the state and its transition matrix Φ over one filter period.
+//!
+//! Only the dynamic states (the platform angles and any Gauss–Markov states) move; every other
+//! parameter is constant, so Φ differs from the identity only in the dynamic rows. We integrate
+//! just those rows: `dΦ_D/dt = F_D·Φ` with the non-dynamic rows of Φ equal to the identity. For
+//! the paper's model that is 3 rows of 15 instead of 15×15, which is what makes a step cheap.
+
+use nalgebra::{Matrix3, Vector3};
+
+use crate::kinematics::rate_to_euler;
+use crate::frames::Attitude;
+use crate::model::{Model, Propagation, ANGLES, MAX_DYNAMIC};
+
+/// Φ and the discrete process noise Q of one period, restricted to the dynamic states.
+#[derive(Clone, Copy, Debug)]
+pub struct Transition<const CAP: usize> {
+    /// `rows[r][c] = Φ[dynamic[r], c]`; all other rows of Φ are rows of the identity.
+    pub rows: [[f64; CAP]; MAX_DYNAMIC],
+    /// `q[r][s] = Q[dynamic[r], dynamic[s]]`; Q is zero elsewhere.
+    pub q: [[f64; MAX_DYNAMIC]; MAX_DYNAMIC],
+}
+
+impl<const CAP: usize> Default for Transition<CAP> {
+    fn default() -> Self {
+        Transition { rows: [[0.0; CAP]; MAX_DYNAMIC], q: [[0.0; MAX_DYNAMIC]; MAX_DYNAMIC] }
+    }
+}
+
+impl<const CAP: usize> Transition<CAP> {
+    /// Φ as a dense n×n row-major array (tests and the host smoother).
+    pub fn phi_entry(&self, model: &Model<'_>, i: usize, j: usize) -> f64 {
+        match model.dynamic_states().iter().position(|&d| d == i) {
+            Some(r) => self.rows[r][j],
+            None => f64::from(u8::from(i == j)),
+        }
+    }
+}
+
+/// Scratch space for one derivative evaluation.
+struct Stage<const CAP: usize> {
+    xdot: [f64; MAX_DYNAMIC],
+    phidot: [[f64; CAP]; MAX_DYNAMIC],
+}
+
+/// Evaluates the dynamic part of f and `F_D·Φ` at state `x` (full length) and `phi`.
+fn derivative<const CAP: usize>(
+    model: &Model<'_>,
+    x: &[f64],
+    t_s: f64,
+    temp_dev_c: f64,
+    phi: &[[f64; CAP]; MAX_DYNAMIC],
+    jac: &mut [Vector3<f64>; CAP],
+    out: &mut Stage<CAP>,
+) {
+    let n = model.dim();
+    let dynamic = model.dynamic_states();
+    let rate = model.angle_rate(x, t_s, temp_dev_c, jac);
+    for i in 0..ANGLES {
+        out.xdot[i] = rate[i];
+        let row = &mut out.phidot[i][..n];
+        // Columns of non-dynamic states: Φ's row there is the identity → F[i][c].
+        for (c, v) in row.iter_mut().enumerate() {
+            *v = jac[c][i];
+        }
+        for &d in dynamic {
+            row[d] = 0.0;
+        }
+        for (r, &d) in dynamic.iter().enumerate() {
+            let f = jac[d][i];
+            if f != 0.0 {
+                for (v, p) in row.iter_mut().zip(&phi[r][..n]) {
+                    *v += f * p;
+                }
+            }
+        }
+    }
+    for r in ANGLES..dynamic.len() {
+        let inv_tau = 1.0 / model.markov(r).tau_s;
+        out.xdot[r] = -x[dynamic[r]] * inv_tau;
+        for (v, p) in out.phidot[r][..n].iter_mut().zip(&phi[r][..n]) {
+            *v = -p * inv_tau;
+        }
+    }
+}
+
+/// Propagates `x` (length `model.dim()`) from `t0_s` over `dt_s` and returns Φ and Q of the
+/// interval. Temperature deviation is interpolated linearly from `temp0` to `temp1` (°C).
+pub fn propagate<const CAP: usize>(
+    model: &Model<'_>,
+    x: &mut [f64],
+    t0_s: f64,
+    dt_s: f64,
+    temp0: f64,
+    temp1: f64,
+    tr: &mut Transition<CAP>,
+) {
+    let n = model.dim();
+    let dynamic = model.dynamic_states();
+    let nd = dynamic.len();
+    for (r, &d) in dynamic.iter().enumerate() {
+        tr.rows[r][..n].iter_mut().for_each(|v| *v = 0.0);
+        tr.rows[r][d] = 1.0;
+    }
+    let theta0 = Vector3::new(x[0], x[1], x[2]);
+    let mut jac = [Vector3::zeros(); CAP];
+    let mut k = [
+        Stage { xdot: [0.0; MAX_DYNAMIC], phidot: [[0.0; CAP]; MAX_DYNAMIC] },
+        Stage { xdot: [0.0; MAX_DYNAMIC], phidot: [[0.0; CAP]; MAX_DYNAMIC] },
+        Stage { xdot: [0.0; MAX_DYNAMIC], phidot: [[0.0; CAP]; MAX_DYNAMIC] },
+        Stage { xdot: [0.0; MAX_DYNAMIC], phidot: [[0.0; CAP]; MAX_DYNAMIC] },
+    ];
+    let temp_at = |t: f64| if dt_s > 0.0 { temp0 + (temp1 - temp0) * (t - t0_s) / dt_s } else { temp1 };
+    match model.propagation() {
+        Propagation::Euler => {
+            derivative(model, x, t0_s, temp0, &tr.rows, &mut jac, &mut k[0]);
+            for r in 0..nd {
+                x[dynamic[r]] += k[0].xdot[r] * dt_s;
+                for c in 0..n {
+                    tr.rows[r][c] += k[0].phidot[r][c] * dt_s;
+                }
+            }
+        }
+        Propagation::Rk4 { max_step_s } => {
+            let steps = if dt_s > max_step_s { libm::ceil(dt_s / max_step_s) as usize } else { 1 };
+            let h = dt_s / steps as f64;
+            let mut xs = [0.0; CAP];
+            let mut phis = [[0.0; CAP]; MAX_DYNAMIC];
+            for s in 0..steps {
+                let t = t0_s + s as f64 * h;
+                const C: [f64; 4] = [0.0, 0.5, 0.5, 1.0];
+                for stage in 0..4 {
+                    xs[..n].copy_from_slice(&x[..n]);
+                    phis[..nd].copy_from_slice(&tr.rows[..nd]);
+                    if stage > 0 {
+                        let (prev, _) = k.split_at_mut(stage);
+                        let kp = &prev[stage - 1];
+                        let a = C[stage] * h;
+                        for r in 0..nd {
+                            xs[dynamic[r]] += a * kp.xdot[r];
+                            for (v, d) in phis[r][..n].iter_mut().zip(&kp.phidot[r][..n]) {
+                                *v += a * d;
+                            }
+                        }
+                    }
+                    let ts = t + C[stage] * h;
+                    derivative(model, &xs[..n], ts, temp_at(ts), &phis, &mut jac, &mut k[stage]);
+                }
+                let w = h / 6.0;
+                for r in 0..nd {
+                    x[dynamic[r]] += w * (k[0].xdot[r] + 2.0 * (k[1].xdot[r] + k[2].xdot[r]) + k[3].xdot[r]);
+                    for c in 0..n {
+                        tr.rows[r][c] +=
+                            w * (k[0].phidot[r][c] + 2.0 * (k[1].phidot[r][c] + k[2].phidot[r][c]) + k[3].phidot[r][c]);
+                    }
+                }
+            }
+        }
+    }
+    // Process noise: gyro rate noise mapped to Euler rates through K(θ) at mid-interval; exact
+    // discrete variance for the Gauss–Markov states.
+    for row in tr.q[..nd].iter_mut() {
+        row[..nd].iter_mut().for_each(|v| *v = 0.0);
+    }
+    let theta_mid = (theta0 + Vector3::new(x[0], x[1], x[2])) * 0.5;
+    let kk = rate_to_euler(&Attitude::new(&theta_mid));
+    let q: Matrix3<f64> = kk * kk.transpose() * (model.arw_rad2ps() * dt_s);
+    for i in 0..ANGLES {
+        for j in 0..ANGLES {
+            tr.q[i][j] = q[(i, j)];
+        }
+    }
+    for r in ANGLES..nd {
+        let m = model.markov(r);
+        tr.q[r][r] = 0.5 * m.q * m.tau_s * (1.0 - libm::exp(-2.0 * dt_s / m.tau_s));
+    }
+}
