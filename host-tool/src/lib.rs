@@ -1,1 +1,2 @@
 //! `driftid` library: everything the binary does, callable from tests.
+pub mod identify;
