@@ -1,0 +1,292 @@
+//! The messages. Units: seconds, m/s², °C; the state as the estimator core holds it (angles in
+//! rad, drift coefficients in deg/h and deg/h/(m/s²)).
+
+use serde::{Deserialize, Serialize};
+
+use crate::STATE_DIM;
+
+/// What travels in one frame: protocol version, the sender's link sequence number (one counter
+/// per direction, +1 per frame, wrapping), and the message.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct Packet {
+    /// [`crate::PROTOCOL_VERSION`] of the sender. First byte of every packet.
+    pub version: u8,
+    /// Link sequence number: gaps mean lost frames.
+    pub seq: u32,
+    /// The message.
+    pub msg: Message,
+}
+
+impl Packet {
+    /// A packet of the current protocol version.
+    pub fn new(seq: u32, msg: Message) -> Self {
+        Packet {
+            version: crate::PROTOCOL_VERSION,
+            seq,
+            msg,
+        }
+    }
+}
+
+/// Every message of the link, both directions.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub enum Message {
+    /// Firmware → host, at boot and on request: who is talking.
+    Hello(Hello),
+    /// Firmware → host: one raw accelerometer sample (sensor mode, when enabled).
+    Raw(RawSample),
+    /// Firmware → host: one filter update.
+    Estimate(Estimate),
+    /// Firmware → host: counters and resources, periodically and on request.
+    Status(Status),
+    /// Firmware → host: something went wrong (also sent by the panic handler where possible).
+    Fault(Fault),
+    /// Host → firmware.
+    Command(Command),
+}
+
+/// Which board the firmware runs on.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize)]
+pub enum Board {
+    /// The navigation computer (STM32H743-class, ADXL355 over SPI).
+    Stm32h743,
+    /// QEMU `mps2-an500` (Cortex-M7): samples only by replay over the link.
+    QemuMps2An500,
+    /// A host-side simulation of the application (tests).
+    Host,
+}
+
+/// Firmware identification.
+#[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
+pub struct Hello {
+    /// The board.
+    pub board: Board,
+    /// Firmware version (major, minor, patch).
+    pub firmware: [u16; 3],
+    /// Number of filter states.
+    pub state_dim: u8,
+    /// The configuration in force.
+    pub config: Config,
+}
+
+/// One raw accelerometer sample.
+#[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
+pub struct RawSample {
+    /// Sample number since start (gaps: samples lost or rejected at the source).
+    pub seq: u32,
+    /// Seconds since the gyros reached stable operation.
+    pub t_s: f64,
+    /// Specific force along the platform axes, m/s².
+    pub specific_force: [f64; 3],
+    /// Platform temperature, °C (NaN when not measured).
+    pub temp_c: f64,
+}
+
+/// One filter update: the state after it, its 1σ, and the update's innovation.
+#[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
+pub struct Estimate {
+    /// Update number, 0-based (the estimator's `steps()` before this update).
+    pub step: u32,
+    /// Time tag of the averaged measurement (mean sample time), s.
+    pub t_s: f64,
+    /// Raw samples averaged into this measurement.
+    pub samples: u32,
+    /// State after the update: 3 angles (rad), 12 drift coefficients (deg/h, deg/h/(m/s²)).
+    pub state: [f64; STATE_DIM],
+    /// 1σ of each state.
+    pub sigma: [f64; STATE_DIM],
+    /// Innovation (measured − predicted specific force), m/s².
+    pub innovation: [f64; 3],
+    /// Normalised innovation squared (χ²(3) when the model holds).
+    pub nis: f64,
+}
+
+/// Where the samples come from.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize)]
+pub enum Source {
+    /// The board's accelerometer, at the configured rate.
+    Sensor,
+    /// Samples injected over the link ([`Command::Replay`]): hardware-in-the-loop replay.
+    Replay,
+}
+
+/// Which physical effects the filter estimates. Only the paper's model for now; the firmware
+/// refuses anything it was not built for.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize)]
+pub enum EffectSet {
+    /// The paper's 12 drift coefficients (15 states).
+    Paper,
+}
+
+/// Run configuration (host → firmware while stopped; echoed in [`Hello`]).
+#[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
+pub struct Config {
+    /// Filter (averaging) period, s.
+    pub filter_period_s: f64,
+    /// Accelerometer sample rate in sensor mode, Hz.
+    pub sample_rate_hz: f64,
+    /// Latitude, degrees north.
+    pub latitude_deg: f64,
+    /// Gravity, m/s²; `None`: WGS-84 normal gravity at the latitude.
+    pub gravity_mps2: Option<f64>,
+    /// 1σ noise of one raw sample per axis, m/s².
+    pub raw_sigma_mps2: [f64; 3],
+    /// Gyro angle random walk as a variance density, deg²/h (the paper's Var(ε)).
+    pub arw_deg2_per_h: f64,
+    /// Effects estimated.
+    pub effects: EffectSet,
+    /// Samples beyond this magnitude on any axis are saturated and rejected, m/s².
+    pub saturation_mps2: f64,
+    /// Send every accepted raw sample back as [`Message::Raw`] (sensor mode).
+    pub echo_raw: bool,
+    /// Send a [`Status`] every this many filter updates (0: only on request).
+    pub status_every: u32,
+}
+
+impl Default for Config {
+    /// The paper's scenario: 60-s filter period, 1-Hz samples, 39.1° N, normal gravity,
+    /// 1e-5 g per 60-s mean (7.6e-4 m/s² per 1-s sample), ARW 1e-8 deg²/h, ADXL355 ±2 g range.
+    fn default() -> Self {
+        Config {
+            filter_period_s: 60.0,
+            sample_rate_hz: 1.0,
+            latitude_deg: 39.1,
+            gravity_mps2: None,
+            raw_sigma_mps2: [7.6e-4; 3],
+            arw_deg2_per_h: 1e-8,
+            effects: EffectSet::Paper,
+            saturation_mps2: 2.0 * 9.806_65,
+            echo_raw: true,
+            status_every: 60,
+        }
+    }
+}
+
+/// Host → firmware.
+#[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
+pub enum Command {
+    /// Replace the configuration (only while stopped; otherwise refused with a fault).
+    Configure(Config),
+    /// Start a run from the given source: a fresh filter at t = 0.
+    Start(Source),
+    /// One replayed sample (replay mode).
+    Replay(RawSample),
+    /// End of input: average the last partial window, step the filter with it, and stop.
+    Finish,
+    /// Stop without flushing.
+    Stop,
+    /// Send [`Message::Hello`] and [`Message::Status`] now.
+    Ping,
+    /// End the firmware (QEMU: semihosting exit with success; real board: reset).
+    Shutdown,
+}
+
+/// Counters of everything that was rejected or lost, since boot.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Serialize, Deserialize)]
+pub struct Counters {
+    /// Samples accepted into the averaging.
+    pub samples_ok: u32,
+    /// Samples with a NaN/∞ component or time.
+    pub samples_nan: u32,
+    /// Samples beyond the saturation limit.
+    pub samples_saturated: u32,
+    /// Sensor read errors (SPI, data not ready).
+    pub read_errors: u32,
+    /// Samples not after the previous one in time (duplicate or out of order).
+    pub samples_out_of_order: u32,
+    /// Filter updates done.
+    pub filter_steps: u32,
+    /// Filter updates refused by the estimator.
+    pub filter_errors: u32,
+    /// Frames received and decoded.
+    pub frames_rx: u32,
+    /// Received frames lost (COBS/CRC/version/overflow/malformed).
+    pub frames_rx_bad: u32,
+    /// Gaps in the host's sequence numbers (frames missing entirely).
+    pub frames_rx_missing: u32,
+    /// Commands refused (wrong state, bad configuration).
+    pub commands_refused: u32,
+    /// Frames sent.
+    pub frames_tx: u32,
+}
+
+/// Firmware state and resources.
+#[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
+pub struct Status {
+    /// Filter time, s.
+    pub t_s: f64,
+    /// A run is in progress.
+    pub running: bool,
+    /// Source of the current or last run.
+    pub source: Source,
+    /// Counters since boot.
+    pub counters: Counters,
+    /// Stack used so far (high-water mark of the painted stack), bytes; 0 if not measured.
+    pub stack_used_bytes: u32,
+    /// Stack size, bytes.
+    pub stack_size_bytes: u32,
+    /// Static RAM (.data + .bss + .uninit), bytes.
+    pub static_ram_bytes: u32,
+    /// Cost of the last filter update in timer ticks (board-specific clock; 0 if not measured).
+    pub last_step_ticks: u32,
+    /// Frequency of those ticks, Hz (0 if not measured).
+    pub tick_hz: u32,
+}
+
+/// Kinds of fault.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize)]
+pub enum FaultCode {
+    /// The firmware panicked (detail: location and message).
+    Panic,
+    /// A HardFault (detail: program counter).
+    HardFault,
+    /// The accelerometer's ID registers do not match.
+    SensorId,
+    /// The accelerometer's self-test failed.
+    SensorSelfTest,
+    /// The accelerometer could not be read.
+    SensorRead,
+    /// The estimator refused an update (detail: the error).
+    Filter,
+    /// A configuration was refused (detail: why).
+    BadConfig,
+    /// A command came in a state where it cannot be done.
+    BadCommand,
+}
+
+/// A fault report.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct Fault {
+    /// What.
+    pub code: FaultCode,
+    /// Filter update count when it happened.
+    pub step: u32,
+    /// Human-readable detail (truncated to 80 bytes).
+    pub detail: heapless::String<80>,
+}
+
+impl Fault {
+    /// A fault with `detail` formatted and truncated to fit.
+    pub fn new(code: FaultCode, step: u32, detail: core::fmt::Arguments<'_>) -> Self {
+        let mut w = Truncating(heapless::String::new());
+        let _ = core::fmt::write(&mut w, detail);
+        Fault {
+            code,
+            step,
+            detail: w.0,
+        }
+    }
+}
+
+struct Truncating(heapless::String<80>);
+
+impl core::fmt::Write for Truncating {
+    fn write_str(&mut self, s: &str) -> core::fmt::Result {
+        for c in s.chars() {
+            if self.0.push(c).is_err() {
+                break;
+            }
+        }
+        Ok(())
+    }
+}
