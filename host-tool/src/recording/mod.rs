@@ -1,0 +1,122 @@
+//! The CSV recording interchange format (`docs/recording-format.md`): reading and writing.
+//!
+//! ```text
+//! # latitude_deg: 39.1
+//! # gravity_mps2: 9.800898
+//! # description: anything
+//! t_s,ax_mps2,ay_mps2,az_mps2[,temp_c]
+//! 0.0,0.0001,-0.0002,9.800898
+//! ```
+//!
+//! Reading never panics: every defect is a [`RecordingError`] naming the file, the 1-based line
+//! and, where it applies, the column. Accepted: CRLF line endings, a UTF-8 byte-order mark,
+//! blank lines, `#` comment lines, unknown columns (ignored), columns in any order, fields in
+//! double quotes, a last line without newline if it is complete. Rejected: missing required
+//! columns, wrong field counts, a cut-off last line, values that are not numbers, NaN/Inf,
+//! |a| > 1000 m/s², time not strictly increasing, bad `latitude_deg`/`gravity_mps2`,
+//! invalid UTF-8, no samples.
+
+mod error;
+mod reader;
+mod writer;
+
+use std::fs::File;
+use std::io::BufReader;
+use std::path::{Path, PathBuf};
+
+pub use error::RecordingError;
+pub use reader::{
+    RecordingReader, GRAVITY_RANGE_MPS2, MAX_ABS_SPECIFIC_FORCE_MPS2, REQUIRED_COLUMNS,
+    TEMP_COLUMN, TEMP_RANGE_C,
+};
+pub use writer::{write_recording, RecordingWriter};
+
+/// The `# key: value` lines before the header.
+#[derive(Clone, Debug, Default, PartialEq, serde::Serialize, serde::Deserialize)]
+pub struct Metadata {
+    /// `latitude_deg`, in [-90, 90].
+    pub latitude_deg: Option<f64>,
+    /// `gravity_mps2`; `None`: normal gravity at the latitude.
+    pub gravity_mps2: Option<f64>,
+    /// `description`.
+    pub description: Option<String>,
+    /// Other keys, in file order.
+    pub extra: Vec<(String, String)>,
+}
+
+/// One accelerometer sample.
+#[derive(Clone, Copy, Debug, PartialEq, serde::Serialize, serde::Deserialize)]
+pub struct RawSample {
+    /// Seconds since the gyros reached stable operation (θ = 0).
+    pub t_s: f64,
+    /// Specific force along the platform axes x_p, y_p, z_p, m/s².
+    pub specific_force_mps2: [f64; 3],
+    /// Platform temperature, °C, if recorded.
+    pub temp_c: Option<f64>,
+}
+
+/// A whole recording in memory.
+#[derive(Clone, Debug, PartialEq)]
+pub struct Recording {
+    /// Where it was read from.
+    pub path: PathBuf,
+    /// Its metadata.
+    pub meta: Metadata,
+    /// Its samples, time strictly increasing; never empty.
+    pub samples: Vec<RawSample>,
+    /// 1-based file line of each sample (for error messages further on).
+    pub lines: Vec<u32>,
+    /// Whether the file has a `temp_c` column.
+    pub has_temp: bool,
+}
+
+/// Reads a whole recording. Fails if it holds no samples.
+pub fn read_recording(path: &Path) -> Result<Recording, RecordingError> {
+    let name = path.display().to_string();
+    let f = File::open(path).map_err(|source| RecordingError::Open {
+        file: name.clone(),
+        source,
+    })?;
+    let reader = RecordingReader::new(BufReader::with_capacity(1 << 16, f), name)?;
+    collect(reader, path)
+}
+
+/// Reads a whole recording from any buffered reader; `display_name` is used in errors.
+pub fn read_recording_from<R: std::io::BufRead>(
+    reader: R,
+    display_name: &str,
+) -> Result<Recording, RecordingError> {
+    let reader = RecordingReader::new(reader, display_name)?;
+    collect(reader, Path::new(display_name))
+}
+
+fn collect<R: std::io::BufRead>(
+    mut reader: RecordingReader<R>,
+    path: &Path,
+) -> Result<Recording, RecordingError> {
+    let meta = reader.metadata().clone();
+    let has_temp = reader.has_temp();
+    let mut samples = Vec::new();
+    let mut lines = Vec::new();
+    for item in &mut reader {
+        let (line, s) = item?;
+        lines.push(line);
+        samples.push(s);
+    }
+    if samples.is_empty() {
+        return Err(RecordingError::NoSamples {
+            file: reader.display_name().to_string(),
+            reason: "header only",
+        });
+    }
+    Ok(Recording {
+        path: path.to_path_buf(),
+        meta,
+        samples,
+        lines,
+        has_temp,
+    })
+}
+
+#[cfg(test)]
+mod tests;

@@ -1,0 +1,424 @@
+//! Streaming reader of the CSV recording format.
+
+use std::io::BufRead;
+
+use super::{Metadata, RawSample, RecordingError};
+
+/// Largest plausible magnitude of a specific-force component, m/s².
+pub const MAX_ABS_SPECIFIC_FORCE_MPS2: f64 = 1000.0;
+/// Plausible platform temperatures, °C.
+pub const TEMP_RANGE_C: (f64, f64) = (-273.15, 1000.0);
+/// Plausible local gravity at the Earth's surface, m/s².
+pub const GRAVITY_RANGE_MPS2: (f64, f64) = (9.0, 10.5);
+
+/// The header's required columns, in the order of [`RawSample::specific_force_mps2`] after `t_s`.
+pub const REQUIRED_COLUMNS: [&str; 4] = ["t_s", "ax_mps2", "ay_mps2", "az_mps2"];
+/// The optional temperature column.
+pub const TEMP_COLUMN: &str = "temp_c";
+
+/// Reads a recording as a stream: [`RecordingReader::new`] parses the metadata and the header,
+/// then the reader yields `(line, sample)` for each data row, `line` being the 1-based file line.
+///
+/// After the first error the iterator ends. An error-free iteration that yields nothing means the
+/// file has a header but no samples; [`super::read_recording`] turns that into an error.
+pub struct RecordingReader<R: BufRead> {
+    reader: R,
+    file: String,
+    meta: Metadata,
+    header: Vec<String>,
+    header_line: u32,
+    /// Field index of t_s, ax, ay, az.
+    idx: [usize; 4],
+    temp_idx: Option<usize>,
+    line_no: u32,
+    buf: Vec<u8>,
+    prev: Option<(f64, u32)>,
+    done: bool,
+}
+
+/// Reads the next line into `buf` without its line ending. `Ok(None)` at end of file, otherwise
+/// `Ok(Some(had_newline))`.
+fn read_line<R: BufRead>(
+    reader: &mut R,
+    buf: &mut Vec<u8>,
+    line_no: &mut u32,
+    file: &str,
+) -> Result<Option<bool>, RecordingError> {
+    buf.clear();
+    let n = reader
+        .read_until(b'\n', buf)
+        .map_err(|source| RecordingError::Read {
+            file: file.to_string(),
+            line: line_no.saturating_add(1),
+            source,
+        })?;
+    if n == 0 {
+        return Ok(None);
+    }
+    *line_no = line_no.saturating_add(1);
+    let had_newline = buf.last() == Some(&b'\n');
+    if had_newline {
+        buf.pop();
+        if buf.last() == Some(&b'\r') {
+            buf.pop();
+        }
+    }
+    Ok(Some(had_newline))
+}
+
+fn as_utf8<'a>(buf: &'a [u8], line: u32, file: &str) -> Result<&'a str, RecordingError> {
+    std::str::from_utf8(buf).map_err(|e| {
+        let offset = e.valid_up_to();
+        RecordingError::InvalidUtf8 {
+            file: file.to_string(),
+            line,
+            byte: buf[offset],
+            offset,
+        }
+    })
+}
+
+/// A field without surrounding white space and without one pair of surrounding double quotes.
+fn clean_field(f: &str) -> &str {
+    let f = f.trim();
+    if f.len() >= 2 && f.starts_with('"') && f.ends_with('"') {
+        f[1..f.len() - 1].trim()
+    } else {
+        f
+    }
+}
+
+fn parse_number(text: &str, file: &str, line: u32, column: &str) -> Result<f64, RecordingError> {
+    if text.is_empty() {
+        return Err(RecordingError::EmptyValue {
+            file: file.to_string(),
+            line,
+            column: column.to_string(),
+        });
+    }
+    let v: f64 = text.parse().map_err(|_| RecordingError::NotANumber {
+        file: file.to_string(),
+        line,
+        column: column.to_string(),
+        text: text.to_string(),
+    })?;
+    if !v.is_finite() {
+        return Err(RecordingError::NotFinite {
+            file: file.to_string(),
+            line,
+            column: column.to_string(),
+            text: text.to_string(),
+        });
+    }
+    Ok(v)
+}
+
+/// Parses one metadata value as a number; `reason` strings for the error.
+fn parse_meta_number(value: &str) -> Result<f64, String> {
+    match value.parse::<f64>() {
+        Ok(v) if v.is_finite() => Ok(v),
+        Ok(_) => Err(format!("{value} is not finite")),
+        Err(_) => Err(format!("{value:?} is not a number")),
+    }
+}
+
+struct MetaParser {
+    lat_line: Option<u32>,
+    g_line: Option<u32>,
+    desc_line: Option<u32>,
+}
+
+impl MetaParser {
+    /// Handles a line starting with '#'. Lines that are not `# key: value` (key without white
+    /// space) are plain comments.
+    fn line(
+        &mut self,
+        meta: &mut Metadata,
+        text: &str,
+        line: u32,
+        file: &str,
+    ) -> Result<(), RecordingError> {
+        let body = text.trim_start_matches('#').trim();
+        let Some((key, value)) = body.split_once(':') else {
+            return Ok(());
+        };
+        let key = key.trim();
+        let value = value.trim();
+        if key.is_empty() || key.contains(char::is_whitespace) {
+            return Ok(());
+        }
+        let err = |reason: String| RecordingError::Metadata {
+            file: file.to_string(),
+            line,
+            key: key.to_string(),
+            reason,
+        };
+        let twice = |first: u32| err(format!("given twice (first on line {first})"));
+        match key {
+            "latitude_deg" => {
+                if let Some(first) = self.lat_line {
+                    return Err(twice(first));
+                }
+                let v = parse_meta_number(value).map_err(err)?;
+                if !(-90.0..=90.0).contains(&v) {
+                    return Err(err(format!("{v:?} is outside [-90, 90] degrees")));
+                }
+                self.lat_line = Some(line);
+                meta.latitude_deg = Some(v);
+            }
+            "gravity_mps2" => {
+                if let Some(first) = self.g_line {
+                    return Err(twice(first));
+                }
+                let v = parse_meta_number(value).map_err(err)?;
+                let (lo, hi) = GRAVITY_RANGE_MPS2;
+                if !(lo..=hi).contains(&v) {
+                    return Err(err(format!(
+                        "{v:?} is not a plausible gravity at the Earth's surface (expected {lo}..{hi} m/s^2)"
+                    )));
+                }
+                self.g_line = Some(line);
+                meta.gravity_mps2 = Some(v);
+            }
+            "description" => {
+                if let Some(first) = self.desc_line {
+                    return Err(twice(first));
+                }
+                self.desc_line = Some(line);
+                meta.description = Some(value.to_string());
+            }
+            _ => meta.extra.push((key.to_string(), value.to_string())),
+        }
+        Ok(())
+    }
+}
+
+impl<R: BufRead> RecordingReader<R> {
+    /// Parses the metadata lines and the header row. `display_name` is used in error messages
+    /// (typically the path as the user gave it).
+    pub fn new(mut reader: R, display_name: impl Into<String>) -> Result<Self, RecordingError> {
+        let file: String = display_name.into();
+        let mut buf = Vec::new();
+        let mut line_no = 0u32;
+        let mut meta = Metadata::default();
+        let mut mp = MetaParser {
+            lat_line: None,
+            g_line: None,
+            desc_line: None,
+        };
+        let mut saw_content = false;
+        let header_text = loop {
+            if read_line(&mut reader, &mut buf, &mut line_no, &file)?.is_none() {
+                let reason = if saw_content {
+                    "no header row, only comments"
+                } else {
+                    "file is empty"
+                };
+                return Err(RecordingError::NoSamples { file, reason });
+            }
+            let mut text = as_utf8(&buf, line_no, &file)?;
+            if line_no == 1 {
+                text = text.strip_prefix('\u{feff}').unwrap_or(text);
+            }
+            let text = text.trim();
+            if text.is_empty() {
+                continue;
+            }
+            saw_content = true;
+            if text.starts_with('#') {
+                mp.line(&mut meta, text, line_no, &file)?;
+                continue;
+            }
+            break text.to_string();
+        };
+        let header_line = line_no;
+        let header: Vec<String> = header_text
+            .split(',')
+            .map(|f| clean_field(f).to_string())
+            .collect();
+        // Duplicates among the columns we read.
+        for (i, name) in header.iter().enumerate() {
+            if !(REQUIRED_COLUMNS.contains(&name.as_str()) || name == TEMP_COLUMN) {
+                continue;
+            }
+            if let Some(j) = header[i + 1..].iter().position(|n| n == name) {
+                return Err(RecordingError::DuplicateColumn {
+                    file,
+                    line: header_line,
+                    column: name.clone(),
+                    first: i + 1,
+                    second: i + 2 + j,
+                });
+            }
+        }
+        let mut idx = [0usize; 4];
+        for (k, col) in REQUIRED_COLUMNS.iter().enumerate() {
+            match header.iter().position(|n| n == col) {
+                Some(i) => idx[k] = i,
+                None => {
+                    return Err(RecordingError::MissingColumn {
+                        file,
+                        line: header_line,
+                        column: col,
+                        header: header.join(", "),
+                    })
+                }
+            }
+        }
+        let temp_idx = header.iter().position(|n| n == TEMP_COLUMN);
+        Ok(RecordingReader {
+            reader,
+            file,
+            meta,
+            header,
+            header_line,
+            idx,
+            temp_idx,
+            line_no,
+            buf,
+            prev: None,
+            done: false,
+        })
+    }
+
+    /// The metadata found before the header.
+    pub fn metadata(&self) -> &Metadata {
+        &self.meta
+    }
+
+    /// Whether the header has a `temp_c` column.
+    pub fn has_temp(&self) -> bool {
+        self.temp_idx.is_some()
+    }
+
+    /// The header's column names.
+    pub fn header(&self) -> &[String] {
+        &self.header
+    }
+
+    /// The 1-based line of the header row.
+    pub fn header_line(&self) -> u32 {
+        self.header_line
+    }
+
+    /// The display name used in error messages.
+    pub fn display_name(&self) -> &str {
+        &self.file
+    }
+
+    fn next_sample(&mut self) -> Result<Option<(u32, RawSample)>, RecordingError> {
+        loop {
+            let Some(had_newline) = read_line(
+                &mut self.reader,
+                &mut self.buf,
+                &mut self.line_no,
+                &self.file,
+            )?
+            else {
+                return Ok(None);
+            };
+            let line = self.line_no;
+            let file = self.file.as_str();
+            let text = as_utf8(&self.buf, line, file)?;
+            let trimmed = text.trim();
+            if trimmed.is_empty() || trimmed.starts_with('#') {
+                continue;
+            }
+            let expected = self.header.len();
+            let found = text.split(',').count();
+            if found != expected {
+                if !had_newline && found < expected {
+                    return Err(RecordingError::Truncated {
+                        file: file.to_string(),
+                        line,
+                        expected,
+                        found,
+                    });
+                }
+                return Err(RecordingError::FieldCount {
+                    file: file.to_string(),
+                    line,
+                    expected,
+                    found,
+                    header_line: self.header_line,
+                });
+            }
+            let mut vals = [0.0f64; 4];
+            let mut temp = None;
+            for (i, field) in text.split(',').enumerate() {
+                if let Some(k) = self.idx.iter().position(|&j| j == i) {
+                    let column = REQUIRED_COLUMNS[k];
+                    let v = parse_number(clean_field(field), file, line, column)?;
+                    if k > 0 && v.abs() > MAX_ABS_SPECIFIC_FORCE_MPS2 {
+                        return Err(RecordingError::OutOfRange {
+                            file: file.to_string(),
+                            line,
+                            column: column.to_string(),
+                            value: v,
+                            reason: "m/s^2 is implausibly large (|a| > 1000 m/s^2)",
+                        });
+                    }
+                    vals[k] = v;
+                } else if Some(i) == self.temp_idx {
+                    let f = clean_field(field);
+                    if !f.is_empty() {
+                        let v = parse_number(f, file, line, TEMP_COLUMN)?;
+                        if !(TEMP_RANGE_C.0..=TEMP_RANGE_C.1).contains(&v) {
+                            return Err(RecordingError::OutOfRange {
+                                file: file.to_string(),
+                                line,
+                                column: TEMP_COLUMN.to_string(),
+                                value: v,
+                                reason: "deg C is outside the plausible range [-273.15, 1000]",
+                            });
+                        }
+                        temp = Some(v);
+                    }
+                }
+            }
+            let t = vals[0];
+            if let Some((prev, prev_line)) = self.prev {
+                // `!(t > prev)` also catches what the finiteness check already excludes.
+                if t.partial_cmp(&prev) != Some(std::cmp::Ordering::Greater) {
+                    return Err(RecordingError::TimeNotIncreasing {
+                        file: file.to_string(),
+                        line,
+                        t,
+                        prev,
+                        prev_line,
+                    });
+                }
+            }
+            self.prev = Some((t, line));
+            return Ok(Some((
+                line,
+                RawSample {
+                    t_s: t,
+                    specific_force_mps2: [vals[1], vals[2], vals[3]],
+                    temp_c: temp,
+                },
+            )));
+        }
+    }
+}
+
+impl<R: BufRead> Iterator for RecordingReader<R> {
+    type Item = Result<(u32, RawSample), RecordingError>;
+
+    fn next(&mut self) -> Option<Self::Item> {
+        if self.done {
+            return None;
+        }
+        match self.next_sample() {
+            Ok(Some(s)) => Some(Ok(s)),
+            Ok(None) => {
+                self.done = true;
+                None
+            }
+            Err(e) => {
+                self.done = true;
+                Some(Err(e))
+            }
+        }
+    }
+}

@@ -1,0 +1,302 @@
+//! Unit tests: every error names the file, the line and the reason; round trips are exact.
+
+use super::*;
+
+const HDR: &str = "# latitude_deg: 39.1\n# gravity_mps2: 9.800898\nt_s,ax_mps2,ay_mps2,az_mps2\n";
+
+fn read(bytes: &[u8]) -> Result<Recording, RecordingError> {
+    read_recording_from(bytes, "run.csv")
+}
+
+/// Asserts the read fails and the message contains every fragment.
+fn fails(bytes: &[u8], fragments: &[&str]) -> RecordingError {
+    let e = match read(bytes) {
+        Ok(r) => panic!("expected an error, read {} samples", r.samples.len()),
+        Err(e) => e,
+    };
+    let msg = e.to_string();
+    for f in fragments {
+        assert!(msg.contains(f), "message {msg:?} lacks {f:?}");
+    }
+    e
+}
+
+#[test]
+fn reads_a_good_file() {
+    let text = format!("{HDR}0.0,0.1,0.2,9.8\n1.0,0.1,0.2,9.8\n");
+    let r = read(text.as_bytes()).unwrap();
+    assert_eq!(r.meta.latitude_deg, Some(39.1));
+    assert_eq!(r.meta.gravity_mps2, Some(9.800898));
+    assert_eq!(r.samples.len(), 2);
+    assert_eq!(r.lines, vec![4, 5]);
+    assert!(!r.has_temp);
+    assert_eq!(r.samples[1].specific_force_mps2, [0.1, 0.2, 9.8]);
+}
+
+#[test]
+fn not_a_number_names_line_and_column() {
+    let text = format!("{HDR}0.0,0.1,0.2,9.8\n1.0,1.2.3,0.2,9.8\n");
+    let e = fails(
+        text.as_bytes(),
+        &["run.csv:5: column ax_mps2: \"1.2.3\" is not a number"],
+    );
+    assert_eq!(e.line(), Some(5));
+    assert_eq!(e.file(), "run.csv");
+}
+
+#[test]
+fn missing_column_lists_header() {
+    let text = "# latitude_deg: 39.1\n\n# x\nt_s, ax_mps2, ay_mps2\n0,1,2\n";
+    fails(
+        text.as_bytes(),
+        &["run.csv:4: missing required column az_mps2 (header has: t_s, ax_mps2, ay_mps2)"],
+    );
+}
+
+#[test]
+fn duplicate_column() {
+    let text = "t_s,ax_mps2,ay_mps2,az_mps2,ax_mps2\n0,1,2,3,4\n";
+    fails(
+        text.as_bytes(),
+        &["run.csv:1:", "ax_mps2 appears twice", "fields 2 and 5"],
+    );
+}
+
+#[test]
+fn time_must_increase() {
+    let text = format!("{HDR}11.0,0,0,9.8\n12.0,0,0,9.8\n12.0,0,0,9.8\n");
+    fails(
+        text.as_bytes(),
+        &["run.csv:6: t_s = 12.0 is not after the previous sample's 12.0 (line 5); time must strictly increase"],
+    );
+    let text = format!("{HDR}11.0,0,0,9.8\n10.0,0,0,9.8\n");
+    fails(text.as_bytes(), &["run.csv:5:", "t_s = 10.0", "(line 4)"]);
+}
+
+#[test]
+fn empty_and_header_only() {
+    fails(b"", &["run.csv: no samples (file is empty)"]);
+    fails(b"\n\r\n  \n", &["run.csv: no samples (file is empty)"]);
+    fails(HDR.as_bytes(), &["run.csv: no samples (header only)"]);
+    fails(
+        b"# latitude_deg: 10\n# hi\n",
+        &["run.csv: no samples (no header row"],
+    );
+    let text = format!("{HDR}\n\n");
+    fails(text.as_bytes(), &["run.csv: no samples (header only)"]);
+}
+
+#[test]
+fn nan_and_inf_rejected() {
+    for bad in ["NaN", "nan", "inf", "-inf", "Infinity"] {
+        let text = format!("{HDR}0.0,0,0,9.8\n1.0,0,{bad},9.8\n");
+        fails(
+            text.as_bytes(),
+            &[&format!("run.csv:5: column ay_mps2: {bad} is not finite")],
+        );
+    }
+    let text = format!("{HDR}NaN,0,0,9.8\n");
+    fails(text.as_bytes(), &["run.csv:4: column t_s:", "not finite"]);
+}
+
+#[test]
+fn empty_value_rejected() {
+    let text = format!("{HDR}0.0,0,,9.8\n");
+    fails(text.as_bytes(), &["run.csv:4: column ay_mps2: empty value"]);
+}
+
+#[test]
+fn wrong_field_count() {
+    let text = format!("{HDR}0.0,0,0,9.8\n1.0,0,0,9.8,7\n2.0,0,0,9.8\n");
+    fails(
+        text.as_bytes(),
+        &["run.csv:5: expected 4 fields (as in the header on line 3), found 5"],
+    );
+    // Too few fields in a line that does end with a newline: not truncation, a bad row.
+    let text = format!("{HDR}0.0,0,0,9.8\n1.0,0,0\n2.0,0,0,9.8\n");
+    fails(
+        text.as_bytes(),
+        &["run.csv:5: expected 4 fields", "found 3"],
+    );
+}
+
+#[test]
+fn non_utf8_reports_line() {
+    let mut bytes = format!("{HDR}0.0,0,0,9.8\n").into_bytes();
+    bytes.extend_from_slice(b"1.0,0,\xff\xfe,9.8\n");
+    fails(&bytes, &["run.csv:5: not valid UTF-8", "0xff", "byte 6"]);
+    let mut bytes = b"# description: caf".to_vec();
+    bytes.extend_from_slice(b"\xe9\n");
+    fails(&bytes, &["run.csv:1: not valid UTF-8"]);
+}
+
+#[test]
+fn crlf_bom_blank_lines_quotes_and_unknown_columns_accepted() {
+    let text = "\u{feff}# latitude_deg: -33.5\r\n# site: lab 2\r\n\"az_mps2\",foo,t_s,ax_mps2,ay_mps2,temp_c\r\n9.8,x,0.0,0.1,0.2,21.5\r\n\r\n9.7,,1.0,0.1,0.2,\r\n\r\n\r\n";
+    let r = read(text.as_bytes()).unwrap();
+    assert_eq!(r.meta.latitude_deg, Some(-33.5));
+    assert_eq!(
+        r.meta.extra,
+        vec![("site".to_string(), "lab 2".to_string())]
+    );
+    assert!(r.has_temp);
+    assert_eq!(r.samples.len(), 2);
+    assert_eq!(r.samples[0].specific_force_mps2, [0.1, 0.2, 9.8]);
+    assert_eq!(r.samples[0].temp_c, Some(21.5));
+    assert_eq!(r.samples[1].temp_c, None);
+    assert_eq!(r.lines, vec![4, 6]);
+}
+
+#[test]
+fn complete_last_line_without_newline_accepted() {
+    let text = format!("{HDR}0.0,0,0,9.8\n1.0,0,0,9.8");
+    assert_eq!(read(text.as_bytes()).unwrap().samples.len(), 2);
+}
+
+#[test]
+fn truncated_last_line_is_an_error() {
+    let text = format!("{HDR}0.0,0,0,9.8\n1.0,0,0");
+    fails(
+        text.as_bytes(),
+        &["run.csv:5: truncated last line: 3 of 4 fields and no final newline"],
+    );
+    let text = format!("{HDR}0.0,0,0,9.8\n1.0,0,0,");
+    // Four fields, the last empty: the value is missing.
+    fails(text.as_bytes(), &["run.csv:5: column az_mps2: empty value"]);
+}
+
+#[test]
+fn latitude_checked() {
+    fails(
+        b"# latitude_deg: 95\nt_s,ax_mps2,ay_mps2,az_mps2\n0,0,0,9.8\n",
+        &["run.csv:1: metadata latitude_deg: 95.0 is outside [-90, 90] degrees"],
+    );
+    fails(
+        b"# hello\n# latitude_deg: north\nt_s,ax_mps2,ay_mps2,az_mps2\n0,0,0,9.8\n",
+        &["run.csv:2: metadata latitude_deg: \"north\" is not a number"],
+    );
+    fails(
+        b"# latitude_deg: NaN\nt_s,ax_mps2,ay_mps2,az_mps2\n0,0,0,9.8\n",
+        &["run.csv:1: metadata latitude_deg: NaN is not finite"],
+    );
+    fails(
+        b"# latitude_deg: 10\n# latitude_deg: 11\nt_s,ax_mps2,ay_mps2,az_mps2\n0,0,0,9.8\n",
+        &["run.csv:2: metadata latitude_deg: given twice (first on line 1)"],
+    );
+    fails(
+        b"# gravity_mps2: 1.0\nt_s,ax_mps2,ay_mps2,az_mps2\n0,0,0,9.8\n",
+        &[
+            "run.csv:1: metadata gravity_mps2:",
+            "not a plausible gravity",
+        ],
+    );
+}
+
+#[test]
+fn absurd_magnitude_rejected() {
+    let text = format!("{HDR}0.0,0,0,9.8\n1.0,0,0,-1000.5\n");
+    fails(
+        text.as_bytes(),
+        &["run.csv:5: column az_mps2: -1000.5 m/s^2 is implausibly large"],
+    );
+    let text = "t_s,ax_mps2,ay_mps2,az_mps2,temp_c\n0,0,0,9.8,5000\n";
+    fails(
+        text.as_bytes(),
+        &["run.csv:2: column temp_c: 5000.0", "plausible range"],
+    );
+}
+
+#[test]
+fn comment_lines_that_look_like_text_are_not_metadata() {
+    let text = "# Recorded with rig 3: cold start\n# latitude_deg: 1\nt_s,ax_mps2,ay_mps2,az_mps2\n0,0,0,9.8\n";
+    let r = read(text.as_bytes()).unwrap();
+    assert!(r.meta.extra.is_empty());
+    assert_eq!(r.meta.latitude_deg, Some(1.0));
+}
+
+#[test]
+fn never_panics_on_junk() {
+    // A crude fuzz: deterministic pseudo-random bytes drawn from a CSV-ish alphabet.
+    let alphabet = b"0123456789.,-+eE#:\n\r \xff\xc3naiftsxyz_mp2";
+    let mut state = 0x9e3779b97f4a7c15u64;
+    for len in 0..400usize {
+        let mut bytes = Vec::with_capacity(len);
+        for _ in 0..len {
+            state ^= state << 13;
+            state ^= state >> 7;
+            state ^= state << 17;
+            bytes.push(alphabet[(state % alphabet.len() as u64) as usize]);
+        }
+        let mut with_hdr = HDR.as_bytes().to_vec();
+        with_hdr.extend_from_slice(&bytes);
+        for b in [&bytes, &with_hdr] {
+            if let Err(e) = read(b) {
+                assert!(e.to_string().starts_with("run.csv"));
+            }
+        }
+    }
+}
+
+#[test]
+fn streaming_reader_stops_after_error() {
+    let text = format!("{HDR}0.0,0,0,9.8\n1.0,x,0,9.8\n2.0,0,0,9.8\n");
+    let r = RecordingReader::new(text.as_bytes(), "run.csv").unwrap();
+    let items: Vec<_> = r.collect();
+    assert_eq!(items.len(), 2);
+    assert!(items[0].is_ok());
+    assert!(items[1].is_err());
+}
+
+#[test]
+fn round_trip_in_memory_is_exact() {
+    let meta = Metadata {
+        latitude_deg: Some(39.1),
+        gravity_mps2: Some(9.800_898_123_456_7),
+        description: Some("two\nlines".into()),
+        extra: vec![("k".into(), "v".into())],
+    };
+    let samples: Vec<RawSample> = (0..50)
+        .map(|i| {
+            let x = i as f64;
+            RawSample {
+                t_s: x * 0.1 + 1e-13 * x,
+                specific_force_mps2: [(x * 1.234567).sin() * 1e-3, 1.0 / 3.0 + x, -9.8 - 1e-17 * x],
+                temp_c: if i % 7 == 3 {
+                    None
+                } else {
+                    Some(20.0 + x / 3.0)
+                },
+            }
+        })
+        .collect();
+    let mut w = RecordingWriter::new(Vec::new(), &meta, true).unwrap();
+    for s in &samples {
+        w.write_sample(s).unwrap();
+    }
+    assert_eq!(w.rows_written(), 50);
+    let bytes = w.into_inner().unwrap();
+    let r = read(&bytes).unwrap();
+    assert_eq!(r.samples, samples);
+    assert_eq!(r.meta.latitude_deg, meta.latitude_deg);
+    assert_eq!(r.meta.gravity_mps2, meta.gravity_mps2);
+    assert_eq!(r.meta.description.as_deref(), Some("two lines"));
+    assert_eq!(r.meta.extra, meta.extra);
+}
+
+#[test]
+fn writer_refuses_what_the_reader_would_reject() {
+    let mut w = RecordingWriter::new(Vec::new(), &Metadata::default(), false).unwrap();
+    let s = RawSample {
+        t_s: 1.0,
+        specific_force_mps2: [0.0, 0.0, 9.8],
+        temp_c: None,
+    };
+    w.write_sample(&s).unwrap();
+    assert!(w.write_sample(&s).is_err());
+    let bad = RawSample {
+        t_s: 2.0,
+        specific_force_mps2: [f64::NAN, 0.0, 9.8],
+        temp_c: None,
+    };
+    assert!(w.write_sample(&bad).is_err());
+}

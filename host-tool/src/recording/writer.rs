@@ -1,0 +1,137 @@
+//! Writing the CSV recording format, streaming or in one go.
+
+use std::fs::File;
+use std::io::{self, BufWriter, Write};
+use std::path::Path;
+
+use super::reader::{REQUIRED_COLUMNS, TEMP_COLUMN};
+use super::{Metadata, RawSample};
+
+/// Metadata values are single-line: line breaks become spaces.
+fn one_line(s: &str) -> String {
+    s.replace(['\r', '\n'], " ")
+}
+
+/// Writes a recording row by row (for the recorder and the simulator). Numbers are written in
+/// Rust's shortest round-trip representation, so reading gives back the same `f64`s.
+pub struct RecordingWriter<W: Write> {
+    w: W,
+    has_temp: bool,
+    prev_t: Option<f64>,
+    rows: u64,
+}
+
+impl RecordingWriter<BufWriter<File>> {
+    /// Creates (truncates) `path` and writes the metadata and the header.
+    pub fn create(path: &Path, meta: &Metadata, has_temp: bool) -> io::Result<Self> {
+        let f = File::create(path)?;
+        RecordingWriter::new(BufWriter::with_capacity(1 << 16, f), meta, has_temp)
+    }
+}
+
+fn invalid(msg: String) -> io::Error {
+    io::Error::new(io::ErrorKind::InvalidInput, msg)
+}
+
+impl<W: Write> RecordingWriter<W> {
+    /// Writes the metadata lines and the header row to `w`. With `has_temp` the rows carry a
+    /// `temp_c` column (empty where a sample has no temperature).
+    pub fn new(mut w: W, meta: &Metadata, has_temp: bool) -> io::Result<Self> {
+        if let Some(l) = meta.latitude_deg {
+            writeln!(w, "# latitude_deg: {l:?}")?;
+        }
+        if let Some(g) = meta.gravity_mps2 {
+            writeln!(w, "# gravity_mps2: {g:?}")?;
+        }
+        if let Some(d) = &meta.description {
+            writeln!(w, "# description: {}", one_line(d))?;
+        }
+        for (k, v) in &meta.extra {
+            let k: String = one_line(k)
+                .replace(':', "_")
+                .split_whitespace()
+                .collect::<Vec<_>>()
+                .join("_");
+            if k.is_empty() {
+                continue;
+            }
+            writeln!(w, "# {k}: {}", one_line(v))?;
+        }
+        write!(w, "{}", REQUIRED_COLUMNS.join(","))?;
+        if has_temp {
+            write!(w, ",{TEMP_COLUMN}")?;
+        }
+        writeln!(w)?;
+        Ok(RecordingWriter {
+            w,
+            has_temp,
+            prev_t: None,
+            rows: 0,
+        })
+    }
+
+    /// Appends one row. Refuses (`InvalidInput`) non-finite values and times that do not
+    /// strictly increase, which the reader would reject.
+    pub fn write_sample(&mut self, s: &RawSample) -> io::Result<()> {
+        let a = s.specific_force_mps2;
+        if !s.t_s.is_finite() || a.iter().any(|v| !v.is_finite()) {
+            return Err(invalid(format!(
+                "non-finite value in sample at t_s = {:?}",
+                s.t_s
+            )));
+        }
+        if let Some(p) = self.prev_t {
+            if s.t_s <= p {
+                return Err(invalid(format!(
+                    "t_s = {:?} is not after the previous sample's {p:?}",
+                    s.t_s
+                )));
+            }
+        }
+        write!(self.w, "{:?},{:?},{:?},{:?}", s.t_s, a[0], a[1], a[2])?;
+        if self.has_temp {
+            match s.temp_c {
+                Some(t) if t.is_finite() => write!(self.w, ",{t:?}")?,
+                Some(_) => {
+                    return Err(invalid(format!(
+                        "non-finite temperature at t_s = {:?}",
+                        s.t_s
+                    )))
+                }
+                None => write!(self.w, ",")?,
+            }
+        }
+        writeln!(self.w)?;
+        self.prev_t = Some(s.t_s);
+        self.rows += 1;
+        Ok(())
+    }
+
+    /// Flushes buffered rows to the underlying writer.
+    pub fn flush(&mut self) -> io::Result<()> {
+        self.w.flush()
+    }
+
+    /// Number of rows written so far.
+    pub fn rows_written(&self) -> u64 {
+        self.rows
+    }
+
+    /// Flushes and returns the underlying writer.
+    pub fn into_inner(mut self) -> io::Result<W> {
+        self.w.flush()?;
+        Ok(self.w)
+    }
+}
+
+/// Writes a whole recording to `path`. A `temp_c` column is written if any sample has a
+/// temperature.
+pub fn write_recording(path: &Path, meta: &Metadata, samples: &[RawSample]) -> io::Result<()> {
+    let has_temp = samples.iter().any(|s| s.temp_c.is_some());
+    let mut w = RecordingWriter::create(path, meta, has_temp)?;
+    for s in samples {
+        w.write_sample(s)?;
+    }
+    w.into_inner()?;
+    Ok(())
+}

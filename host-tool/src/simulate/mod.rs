@@ -1,0 +1,557 @@
+//! The truth simulator: accelerometer recordings of a space-stable platform whose gyros drift
+//! by the paper's model (plus injectable effects), with the true values written beside them.
+//!
+//! Independent of the estimator core by design (its own DCM kinematics in [`dcm`] and
+//! [`engine`]), so a bug in the filter math cannot hide in the truth. Conventions follow
+//! `docs/model.md`: frame 0 = local ENU at latitude L fixed to the Earth, platform frame p
+//! space-stable, C = C_0^p passive with C(0) = I, A = C [0, 0, g].
+//!
+//! Drift per platform axis i (deg/h, converted with π/180/3600):
+//! w_d,i = D(i)_0 + Σ_j D(i)_j A_j + injected drift effects + ε_i, ε white with density
+//! `arw_deg2_per_h`. Accelerometer sample: z = A + accelerometer effects + N(0, σ²),
+//! σ = `accel_sigma_mps2`·sqrt(60 / rate_s) (`accel_sigma_mps2` is the std of a 60-s mean).
+
+pub mod dcm;
+mod effects;
+mod engine;
+
+use std::collections::BTreeMap;
+use std::path::{Path, PathBuf};
+
+use anyhow::Context as _;
+use nalgebra::{Matrix3, Vector3};
+use rand_distr::{Distribution, StandardNormal};
+
+pub use effects::{InjectedEffect, EFFECT_NAMES, EFFECT_SYNTAX_HELP};
+pub use engine::Simulator;
+
+use crate::recording::{Metadata, RawSample, RecordingWriter};
+
+/// Names of the 12 drift coefficients, in [`Scenario::coefficients`] order.
+pub const COEFFICIENT_NAMES: [&str; 12] = [
+    "DX0", "DXx", "DXy", "DXz", "DY0", "DYx", "DYy", "DYz", "DZ0", "DZx", "DZy", "DZz",
+];
+
+/// The paper's Table 1 coefficients (deg/h and deg/h/(m/s²)).
+pub const PAPER_COEFFICIENTS: [f64; 12] = [
+    0.5, -0.1, -0.05, -0.05, -0.5, 0.05, 0.1, 0.05, 0.5, -0.05, 0.05, -0.1,
+];
+
+/// Platform temperature profile, °C:
+/// T(t) = base + amp·sin(2π t / period) + step·(1 − exp(−t / step_tau)); the file gets
+/// T(t) + N(0, noise²).
+#[derive(Clone, Debug, PartialEq, serde::Serialize, serde::Deserialize)]
+pub struct TempProfile {
+    pub base_c: f64,
+    pub amplitude_c: f64,
+    pub period_h: f64,
+    pub step_c: f64,
+    pub step_tau_h: f64,
+    pub noise_c: f64,
+}
+
+impl Default for TempProfile {
+    fn default() -> Self {
+        TempProfile {
+            base_c: 20.0,
+            amplitude_c: 0.8,
+            period_h: 30.0,
+            step_c: 0.3,
+            step_tau_h: 5.0,
+            noise_c: 0.01,
+        }
+    }
+}
+
+impl TempProfile {
+    /// Smooth temperature at t, °C.
+    pub fn at(&self, t_s: f64) -> f64 {
+        let th = t_s / 3600.0;
+        self.base_c
+            + self.amplitude_c * (std::f64::consts::TAU * th / self.period_h).sin()
+            + self.step_c * (1.0 - (-th / self.step_tau_h).exp())
+    }
+}
+
+fn default_max_substep() -> f64 {
+    1.0
+}
+
+/// Everything that defines a simulated run.
+#[derive(Clone, Debug, PartialEq, serde::Serialize, serde::Deserialize)]
+pub struct Scenario {
+    /// Preset name this scenario started from (informational).
+    #[serde(default)]
+    pub name: String,
+    /// Latitude, deg.
+    pub latitude_deg: f64,
+    /// Gravity, m/s²; `None`: WGS-84 normal gravity at the latitude.
+    pub gravity_mps2: Option<f64>,
+    /// Duration, h.
+    pub hours: f64,
+    /// Sample interval, s.
+    pub rate_s: f64,
+    /// Seed of all random streams.
+    pub seed: u64,
+    /// DX0 DXx DXy DXz DY0 DYx DYy DYz DZ0 DZx DZy DZz: deg/h and deg/h/(m/s²).
+    pub coefficients: [f64; 12],
+    /// Gyro angle-random-walk density, deg²/h.
+    pub arw_deg2_per_h: f64,
+    /// Accelerometer noise: std of one 60-s average, m/s².
+    pub accel_sigma_mps2: f64,
+    /// Injected effects.
+    pub effects: Vec<InjectedEffect>,
+    /// Write a `temp_c` column even without `temp-drift`.
+    pub write_temp: bool,
+    /// Temperature profile (used by `temp-drift` and the `temp_c` column).
+    #[serde(default)]
+    pub temp_profile: TempProfile,
+    /// Longest integration substep, s (≤ 1; finer if `rate_s` is shorter).
+    #[serde(default = "default_max_substep")]
+    pub max_substep_s: f64,
+}
+
+impl Scenario {
+    /// The paper's scenario: Table 1 coefficients, 39.1° N, normal gravity, 60 h at 1 s, seed 1,
+    /// ARW 1e-8 deg²/h, accelerometer 1e-5 g per 60-s mean.
+    pub fn paper() -> Self {
+        let latitude_deg = 39.1;
+        Scenario {
+            name: "paper".into(),
+            latitude_deg,
+            gravity_mps2: None,
+            hours: 60.0,
+            rate_s: 1.0,
+            seed: 1,
+            coefficients: PAPER_COEFFICIENTS,
+            arw_deg2_per_h: 1e-8,
+            accel_sigma_mps2: 1e-5 * dcm::normal_gravity(latitude_deg.to_radians()),
+            effects: Vec::new(),
+            write_temp: false,
+            temp_profile: TempProfile::default(),
+            max_substep_s: 1.0,
+        }
+    }
+
+    /// The gravity used: `gravity_mps2` or normal gravity at the latitude.
+    pub fn gravity(&self) -> f64 {
+        self.gravity_mps2
+            .unwrap_or_else(|| dcm::normal_gravity(self.latitude_deg.to_radians()))
+    }
+
+    /// Zero gyro random walk and accelerometer noise (temperature sensor noise too).
+    pub fn without_noise(mut self) -> Self {
+        self.arw_deg2_per_h = 0.0;
+        self.accel_sigma_mps2 = 0.0;
+        self.temp_profile.noise_c = 0.0;
+        self
+    }
+
+    /// Number of samples: t = 0, rate_s, … up to hours·3600 inclusive.
+    pub fn sample_count(&self) -> u64 {
+        ((self.hours * 3600.0) / self.rate_s + 1e-9).floor() as u64 + 1
+    }
+
+    /// Whether the recording gets a `temp_c` column.
+    pub fn has_temp(&self) -> bool {
+        self.write_temp
+            || self
+                .effects
+                .iter()
+                .any(|e| matches!(e, InjectedEffect::TempDrift { .. }))
+    }
+
+    /// Checks ranges: latitude in [−90, 90], hours ≥ 0, rate_s > 0, finite coefficients,
+    /// non-negative noise, valid effects, at most 1e8 samples.
+    pub fn validate(&self) -> Result<(), String> {
+        let fin = |x: f64, what: &str| {
+            if x.is_finite() {
+                Ok(())
+            } else {
+                Err(format!("{what} must be finite"))
+            }
+        };
+        fin(self.latitude_deg, "latitude_deg")?;
+        if !(-90.0..=90.0).contains(&self.latitude_deg) {
+            return Err(format!(
+                "latitude_deg {} is outside [-90, 90]",
+                self.latitude_deg
+            ));
+        }
+        if let Some(g) = self.gravity_mps2 {
+            if !(g.is_finite() && g > 0.0) {
+                return Err(format!("gravity_mps2 {g} must be positive"));
+            }
+        }
+        if !(self.hours.is_finite() && self.hours >= 0.0) {
+            return Err(format!("hours {} must be >= 0", self.hours));
+        }
+        if !(self.rate_s.is_finite() && self.rate_s > 0.0) {
+            return Err(format!("rate_s {} must be > 0", self.rate_s));
+        }
+        if !(self.max_substep_s.is_finite() && self.max_substep_s > 0.0) {
+            return Err(format!("max_substep_s {} must be > 0", self.max_substep_s));
+        }
+        for (c, n) in self.coefficients.iter().zip(COEFFICIENT_NAMES) {
+            fin(*c, n)?;
+        }
+        if !(self.arw_deg2_per_h.is_finite() && self.arw_deg2_per_h >= 0.0) {
+            return Err("arw_deg2_per_h must be >= 0".into());
+        }
+        if !(self.accel_sigma_mps2.is_finite() && self.accel_sigma_mps2 >= 0.0) {
+            return Err("accel_sigma_mps2 must be >= 0".into());
+        }
+        let tp = &self.temp_profile;
+        for (v, n) in [
+            (tp.base_c, "temp base"),
+            (tp.amplitude_c, "temp amplitude"),
+            (tp.step_c, "temp step"),
+        ] {
+            fin(v, n)?;
+        }
+        if !(tp.period_h > 0.0 && tp.step_tau_h > 0.0 && tp.noise_c >= 0.0) {
+            return Err("temperature profile: period and step tau must be > 0, noise >= 0".into());
+        }
+        for e in &self.effects {
+            e.validate()?;
+        }
+        let n = (self.hours * 3600.0) / self.rate_s;
+        if n > 1e8 {
+            return Err(format!("{n:.0} samples is too many (at most 1e8)"));
+        }
+        Ok(())
+    }
+}
+
+/// A simulated recording with its truth.
+#[derive(Clone, Debug)]
+pub struct Simulation {
+    pub meta: Metadata,
+    pub samples: Vec<RawSample>,
+    pub truth: Truth,
+}
+
+/// What the simulation really did; written as `NAME.truth.json` beside `NAME.csv`.
+#[derive(Clone, Debug, PartialEq, serde::Serialize, serde::Deserialize)]
+pub struct Truth {
+    /// The full scenario.
+    pub scenario: Scenario,
+    /// The 12 coefficients by name (DX0 … DZz).
+    pub coefficients: BTreeMap<String, f64>,
+    /// Units of the quantities above.
+    pub units: BTreeMap<String, String>,
+    /// The injected effects (same as `scenario.effects`).
+    pub effects: Vec<InjectedEffect>,
+    /// Gravity used, m/s².
+    pub gravity_mps2: f64,
+    /// Number of samples written.
+    pub sample_count: u64,
+    /// Time of the last sample, s.
+    pub final_t_s: f64,
+    /// θ = (tx, ty, tz) of C_0^p at the last sample, rad, unwrapped (continuous from 0).
+    pub final_theta_rad: [f64; 3],
+    /// C_0^p at the last sample, row-major.
+    pub final_c_0p: [[f64; 3]; 3],
+}
+
+impl Truth {
+    /// The 12 true coefficients in `COEFFICIENT_NAMES` order.
+    pub fn coefficient_array(&self) -> [f64; 12] {
+        self.scenario.coefficients
+    }
+}
+
+fn units() -> BTreeMap<String, String> {
+    [
+        ("coefficients D0", "deg/h"),
+        ("coefficients Dx Dy Dz", "deg/h/(m/s^2)"),
+        ("latitude_deg", "deg"),
+        ("gravity_mps2", "m/s^2"),
+        ("hours", "h"),
+        ("rate_s", "s"),
+        (
+            "arw_deg2_per_h",
+            "deg^2/h (angle random walk variance density)",
+        ),
+        (
+            "accel_sigma_mps2",
+            "m/s^2 (std of one 60-s average; raw samples carry sigma*sqrt(60/rate_s))",
+        ),
+        ("final_theta_rad", "rad"),
+        ("g2", "deg/h/(m/s^2)^2"),
+        ("acc-bias", "m/s^2"),
+        ("acc-scale", "ppm"),
+        ("acc-misalign", "rad"),
+        ("drift-trend", "deg/h per h"),
+        ("drift-markov", "sigma deg/h, tau h"),
+        ("temp-drift", "deg/h per deg C"),
+    ]
+    .into_iter()
+    .map(|(k, v)| (k.to_string(), v.to_string()))
+    .collect()
+}
+
+fn to_rows(m: &Matrix3<f64>) -> [[f64; 3]; 3] {
+    let mut r = [[0.0; 3]; 3];
+    for (i, row) in r.iter_mut().enumerate() {
+        for (j, v) in row.iter_mut().enumerate() {
+            *v = m[(i, j)];
+        }
+    }
+    r
+}
+
+/// Accelerometer model: z = K A + b with K = I + diag(scale) + misalignment.
+fn accel_model(effects: &[InjectedEffect]) -> (Matrix3<f64>, Vector3<f64>) {
+    let mut k = Matrix3::identity();
+    let mut b = Vector3::zeros();
+    for e in effects {
+        match e {
+            InjectedEffect::AccBias { b_mps2 } => b += Vector3::from(*b_mps2),
+            InjectedEffect::AccScale { s_ppm } => {
+                for i in 0..3 {
+                    k[(i, i)] += s_ppm[i] * 1e-6;
+                }
+            }
+            InjectedEffect::AccMisalign { m_rad } => {
+                let [xy, xz, yx, yz, zx, zy] = *m_rad;
+                k[(0, 1)] += xy;
+                k[(0, 2)] += xz;
+                k[(1, 0)] += yx;
+                k[(1, 2)] += yz;
+                k[(2, 0)] += zx;
+                k[(2, 1)] += zy;
+            }
+            _ => {}
+        }
+    }
+    (k, b)
+}
+
+/// A one-line description of the scenario for the recording's metadata.
+pub fn describe(s: &Scenario) -> String {
+    let mut d = format!(
+        "driftid simulate: scenario {}, seed {}, {} h at {} s, latitude {} deg, arw {} deg^2/h, accel sigma {} m/s^2 per 60 s",
+        if s.name.is_empty() { "custom" } else { &s.name },
+        s.seed,
+        s.hours,
+        s.rate_s,
+        s.latitude_deg,
+        s.arw_deg2_per_h,
+        s.accel_sigma_mps2
+    );
+    if !s.effects.is_empty() {
+        let e: Vec<String> = s.effects.iter().map(|e| e.to_string()).collect();
+        d.push_str(&format!(", effects: {}", e.join(" ")));
+    }
+    d
+}
+
+/// Simulates the scenario. Panics if [`Scenario::validate`] fails.
+pub fn simulate(s: &Scenario) -> Simulation {
+    if let Err(e) = s.validate() {
+        panic!("invalid scenario: {e}");
+    }
+    let g = s.gravity();
+    let mut sim = Simulator::new(s);
+    let mut rng_acc = engine::rng(s.seed, engine::stream::ACCEL);
+    let mut rng_temp = engine::rng(s.seed, engine::stream::TEMP);
+    let sigma = s.accel_sigma_mps2 * (60.0 / s.rate_s).sqrt();
+    let (k, b) = accel_model(&s.effects);
+    let has_temp = s.has_temp();
+    let max_sub = s.max_substep_s.min(1.0);
+    let n = s.sample_count();
+    let mut samples = Vec::with_capacity(n as usize);
+    for i in 0..n {
+        let t = i as f64 * s.rate_s;
+        sim.advance_to(t, max_sub);
+        let a = sim.specific_force();
+        let mut z = k * a + b;
+        if sigma > 0.0 {
+            for j in 0..3 {
+                let e: f64 = StandardNormal.sample(&mut rng_acc);
+                z[j] += sigma * e;
+            }
+        }
+        let temp_c = has_temp.then(|| {
+            let mut tc = s.temp_profile.at(t);
+            if s.temp_profile.noise_c > 0.0 {
+                let e: f64 = StandardNormal.sample(&mut rng_temp);
+                tc += s.temp_profile.noise_c * e;
+            }
+            tc
+        });
+        samples.push(RawSample {
+            t_s: t,
+            specific_force_mps2: [z.x, z.y, z.z],
+            temp_c,
+        });
+    }
+    let coefficients = COEFFICIENT_NAMES
+        .iter()
+        .zip(s.coefficients)
+        .map(|(n, v)| (n.to_string(), v))
+        .collect();
+    let truth = Truth {
+        scenario: s.clone(),
+        coefficients,
+        units: units(),
+        effects: s.effects.clone(),
+        gravity_mps2: g,
+        sample_count: n,
+        final_t_s: sim.time_s(),
+        final_theta_rad: sim.theta_rad(),
+        final_c_0p: to_rows(&sim.c_0p()),
+    };
+    let meta = Metadata {
+        latitude_deg: Some(s.latitude_deg),
+        gravity_mps2: Some(g),
+        description: Some(describe(s)),
+        extra: Vec::new(),
+    };
+    Simulation {
+        meta,
+        samples,
+        truth,
+    }
+}
+
+/// `NAME.csv` → `NAME.truth.json` (any other name: `NAME.truth.json` appended).
+pub fn truth_path_for(csv: &Path) -> PathBuf {
+    let stem = match csv.extension() {
+        Some(e) if e.eq_ignore_ascii_case("csv") => csv.with_extension(""),
+        _ => csv.to_path_buf(),
+    };
+    let mut name = stem.file_name().unwrap_or_default().to_os_string();
+    name.push(".truth.json");
+    stem.with_file_name(name)
+}
+
+/// Writes the recording to `csv` and the truth beside it; returns the truth file's path.
+pub fn write_simulation(csv: &Path, sim: &Simulation) -> anyhow::Result<PathBuf> {
+    let mut w = RecordingWriter::create(csv, &sim.meta, sim.truth.scenario.has_temp())
+        .with_context(|| format!("creating {}", csv.display()))?;
+    for s in &sim.samples {
+        w.write_sample(s)
+            .with_context(|| format!("writing {}", csv.display()))?;
+    }
+    w.into_inner()
+        .with_context(|| format!("writing {}", csv.display()))?;
+    let tp = truth_path_for(csv);
+    write_truth(&tp, &sim.truth)?;
+    Ok(tp)
+}
+
+/// Writes a truth file (pretty JSON).
+pub fn write_truth(path: &Path, truth: &Truth) -> anyhow::Result<()> {
+    let json = serde_json::to_string_pretty(truth)?;
+    std::fs::write(path, json + "\n").with_context(|| format!("writing {}", path.display()))
+}
+
+/// Reads a truth file and checks that its named coefficients agree with its scenario.
+pub fn read_truth(path: &Path) -> anyhow::Result<Truth> {
+    let text =
+        std::fs::read_to_string(path).with_context(|| format!("reading {}", path.display()))?;
+    let truth: Truth = serde_json::from_str(&text)
+        .with_context(|| format!("{}: not a valid truth file", path.display()))?;
+    for (name, v) in COEFFICIENT_NAMES.iter().zip(truth.scenario.coefficients) {
+        match truth.coefficients.get(*name) {
+            Some(c) if *c == v => {}
+            Some(c) => anyhow::bail!(
+                "{}: coefficient {name} = {c} disagrees with the scenario's {v}",
+                path.display()
+            ),
+            None => anyhow::bail!("{}: coefficient {name} missing", path.display()),
+        }
+    }
+    Ok(truth)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn effect_syntax_round_trips() {
+        let cases = [
+            "acc-bias=1e-4,0,0",
+            "acc-scale=100,-50,3",
+            "acc-misalign=1e-4,0,0,2e-4,0,-1e-4",
+            "drift-trend=0.01,0,0",
+            "drift-markov=0.01,0.01,0.01:5,5,5",
+            "temp-drift=0.001,0.002,0.003",
+            "g2=1,2,3,4,5,6,7,8,9,10,11,12,13,14,15,16,17,18",
+        ];
+        for c in cases {
+            let e: InjectedEffect = c.parse().unwrap();
+            let back: InjectedEffect = e.to_string().parse().unwrap();
+            assert_eq!(e, back, "{c}");
+            let json = serde_json::to_value(&e).unwrap();
+            assert_eq!(json["name"], e.name());
+            assert_eq!(serde_json::from_value::<InjectedEffect>(json).unwrap(), e);
+        }
+        let g2: InjectedEffect = cases[6].parse().unwrap();
+        match g2 {
+            InjectedEffect::G2 {
+                d_deg_h_per_mps2_sq: d,
+            } => {
+                assert_eq!(d[1][0], 7.0);
+                assert_eq!(d[2][5], 18.0);
+            }
+            _ => unreachable!(),
+        }
+    }
+
+    #[test]
+    fn effect_syntax_errors() {
+        for bad in [
+            "acc-bias",
+            "acc-bias=1,2",
+            "acc-bias=1,2,x",
+            "acc-bias=1,2,3:4,5,6",
+            "drift-markov=1,1,1",
+            "drift-markov=1,1,1:0,1,1",
+            "drift-markov=-1,1,1:1,1,1",
+            "nope=1,2,3",
+            "acc-bias=1,2,inf",
+        ] {
+            assert!(bad.parse::<InjectedEffect>().is_err(), "{bad}");
+        }
+    }
+
+    #[test]
+    fn paper_scenario_defaults() {
+        let s = Scenario::paper();
+        assert_eq!(s.sample_count(), 216_001);
+        assert!((s.gravity() - 9.800898).abs() < 5e-7);
+        assert!((s.accel_sigma_mps2 * 60f64.sqrt() - 7.6e-4).abs() < 1e-5);
+        s.validate().unwrap();
+    }
+
+    #[test]
+    fn truth_paths() {
+        assert_eq!(
+            truth_path_for(Path::new("a/run.csv")),
+            PathBuf::from("a/run.truth.json")
+        );
+        assert_eq!(
+            truth_path_for(Path::new("run.CSV")),
+            PathBuf::from("run.truth.json")
+        );
+        assert_eq!(
+            truth_path_for(Path::new("run.dat")),
+            PathBuf::from("run.dat.truth.json")
+        );
+    }
+
+    #[test]
+    fn sample_times_and_count() {
+        let mut s = Scenario::paper().without_noise();
+        s.hours = 0.01;
+        s.rate_s = 0.5;
+        let sim = simulate(&s);
+        assert_eq!(sim.samples.len(), 73);
+        assert_eq!(sim.samples[72].t_s, 36.0);
+        assert_eq!(sim.samples[0].specific_force_mps2, [0.0, 0.0, s.gravity()]);
+    }
+}
