@@ -1,0 +1,463 @@
+//! The application loop, generic over the board: serial link (embedded-io), accelerometer
+//! ([`Accelerometer`]), sample timer ([`SampleTimer`]) and board services ([`Platform`]).
+//!
+//! Per call of [`App::poll`]: drain the received bytes (commands, replayed samples), then, in
+//! sensor mode, take a sample if the timer says one is due. Every sample goes through
+//! [`App::accept`]: NaN/∞, saturation and time order are checked and counted, good samples are
+//! averaged to the filter period with the core's [`Averager`], each full window steps the
+//! real-time EKF, and each update is sent as an [`Estimate`]. No heap; every buffer is fixed.
+
+use embedded_io::{Read, ReadReady, Write};
+use estimator_core::{units, Averager, Ekf, Measurement, Model, Propagation, Sample, Site, PAPER_EFFECTS};
+use protocol::{
+    Board, Command, Config, Counters, Decoder, EffectSet, Encoder, Estimate, Fault, FaultCode, Hello, Message, Packet,
+    RawSample, SeqEvent, SeqTracker, Source, Status, STATE_DIM,
+};
+
+use crate::accel::Accelerometer;
+
+/// Firmware version sent in [`Hello`].
+pub const FIRMWARE_VERSION: [u16; 3] = [0, 1, 0];
+
+/// One due sample of the sample timer.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub struct Tick {
+    /// Tick number since `start` (sample time = index / rate).
+    pub index: u32,
+    /// Ticks skipped before this one because the loop was late (samples lost, counted).
+    pub missed: u32,
+}
+
+/// The fixed-rate sample clock.
+pub trait SampleTimer {
+    /// Starts ticking at `rate_hz`, tick 0 now.
+    fn start(&mut self, rate_hz: f64);
+    /// Stops ticking.
+    fn stop(&mut self);
+    /// Non-blocking: the tick that is due, if any.
+    fn poll(&mut self) -> Option<Tick>;
+}
+
+/// A timer that never ticks (boards without a sensor).
+#[derive(Clone, Copy, Debug, Default)]
+pub struct NoTimer;
+
+impl SampleTimer for NoTimer {
+    fn start(&mut self, _rate_hz: f64) {}
+    fn stop(&mut self) {}
+    fn poll(&mut self) -> Option<Tick> {
+        None
+    }
+}
+
+/// Board services the application reports on.
+pub trait Platform {
+    /// The board.
+    const BOARD: Board;
+    /// A free-running counter for timing filter updates (0 if none).
+    fn ticks(&self) -> u32 {
+        0
+    }
+    /// Its frequency, Hz (0 if none).
+    fn tick_hz(&self) -> u32 {
+        0
+    }
+    /// (stack used so far, stack size), bytes.
+    fn stack_usage(&self) -> (u32, u32) {
+        (0, 0)
+    }
+    /// Static RAM (.data + .bss + .uninit), bytes.
+    fn static_ram(&self) -> u32 {
+        0
+    }
+}
+
+/// What the board should do after a poll.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum Event {
+    /// Keep polling.
+    Continue,
+    /// The host asked to end the firmware ([`Command::Shutdown`]); the link is flushed.
+    Shutdown,
+}
+
+/// The filter of the paper's model, sized exactly.
+pub type Filter = Ekf<'static, STATE_DIM>;
+
+struct Run {
+    source: Source,
+    averager: Averager,
+    ekf: Filter,
+    last_t_s: Option<f64>,
+    sample_seq: u32,
+}
+
+/// The application.
+pub struct App<S, A, T, P> {
+    serial: S,
+    accel: A,
+    timer: T,
+    platform: P,
+    config: Config,
+    run: Option<Run>,
+    last_source: Source,
+    counters: Counters,
+    decoder: Decoder,
+    encoder: Encoder,
+    rx_seq: SeqTracker,
+    last_step_ticks: u32,
+    last_t_s: f64,
+}
+
+/// Checks a configuration; `Err` says why it is refused.
+pub fn validate(c: &Config) -> Result<(), &'static str> {
+    let pos = |v: f64| v.is_finite() && v > 0.0;
+    if !pos(c.filter_period_s) {
+        return Err("filter period must be finite and > 0");
+    }
+    if !pos(c.sample_rate_hz) {
+        return Err("sample rate must be finite and > 0");
+    }
+    if !(c.latitude_deg.is_finite() && c.latitude_deg.abs() < 89.0) {
+        return Err("latitude must be within +-89 deg");
+    }
+    if let Some(g) = c.gravity_mps2 {
+        if !(g.is_finite() && (9.7..9.9).contains(&g)) {
+            return Err("gravity must be within 9.7..9.9 m/s^2");
+        }
+    }
+    if !c.raw_sigma_mps2.iter().all(|&s| pos(s)) {
+        return Err("raw noise sigma must be finite and > 0");
+    }
+    if !(c.arw_deg2_per_h.is_finite() && c.arw_deg2_per_h >= 0.0) {
+        return Err("ARW must be finite and >= 0");
+    }
+    if !pos(c.saturation_mps2) {
+        return Err("saturation limit must be finite and > 0");
+    }
+    match c.effects {
+        EffectSet::Paper => Ok(()),
+    }
+}
+
+/// The filter a configuration asks for (the firmware's and the host's single pass alike).
+pub fn filter_for(c: &Config) -> Result<Filter, &'static str> {
+    let site = Site::new(c.latitude_deg, c.gravity_mps2);
+    let arw = units::arw_deg2ph_to_rad2ps(c.arw_deg2_per_h);
+    let model = Model::new(site, &PAPER_EFFECTS, arw, Propagation::default()).map_err(|_| "model refused")?;
+    Ekf::with_default_prior(model).map_err(|_| "filter refused")
+}
+
+/// The estimate message of one filter update.
+pub fn estimate_of(ekf: &Filter, step: u32, m: &Measurement, innovation: [f64; 3], nis: f64) -> Estimate {
+    let mut state = [0.0; STATE_DIM];
+    state.copy_from_slice(ekf.state());
+    Estimate {
+        step,
+        t_s: m.t_s,
+        samples: m.count,
+        state,
+        sigma: core::array::from_fn(|i| ekf.sigma(i)),
+        innovation,
+        nis,
+    }
+}
+
+impl<S, A, T, P> App<S, A, T, P>
+where
+    S: Read + ReadReady + Write,
+    A: Accelerometer,
+    T: SampleTimer,
+    P: Platform,
+{
+    /// The application over a board's peripherals, with the default configuration.
+    pub fn new(serial: S, accel: A, timer: T, platform: P) -> Self {
+        App {
+            serial,
+            accel,
+            timer,
+            platform,
+            config: Config::default(),
+            run: None,
+            last_source: Source::Replay,
+            counters: Counters::default(),
+            decoder: Decoder::new(),
+            encoder: Encoder::new(),
+            rx_seq: SeqTracker::new(),
+            last_step_ticks: 0,
+            last_t_s: 0.0,
+        }
+    }
+
+    /// Announces the firmware (call once after boot).
+    pub fn boot(&mut self) {
+        self.send_hello();
+        self.send_status();
+    }
+
+    /// Counters so far.
+    pub fn counters(&self) -> &Counters {
+        &self.counters
+    }
+
+    /// The configuration in force.
+    pub fn config(&self) -> &Config {
+        &self.config
+    }
+
+    /// The running filter, if any.
+    pub fn filter(&self) -> Option<&Filter> {
+        self.run.as_ref().map(|r| &r.ekf)
+    }
+
+    /// The board services.
+    pub fn platform(&self) -> &P {
+        &self.platform
+    }
+
+    /// The serial port (tests).
+    pub fn serial_mut(&mut self) -> &mut S {
+        &mut self.serial
+    }
+
+    /// One pass of the loop; never blocks except on serial output.
+    pub fn poll(&mut self) -> Event {
+        let mut buf = [0u8; 64];
+        while let Ok(true) = self.serial.read_ready() {
+            let n = match self.serial.read(&mut buf) {
+                Ok(n) if n > 0 => n,
+                _ => break,
+            };
+            for &b in &buf[..n] {
+                match self.decoder.push(b) {
+                    None => {}
+                    Some(Ok(p)) => {
+                        if self.handle(p) == Event::Shutdown {
+                            let _ = self.serial.flush();
+                            return Event::Shutdown;
+                        }
+                    }
+                    Some(Err(_)) => self.counters.frames_rx_bad = self.counters.frames_rx_bad.wrapping_add(1),
+                }
+            }
+        }
+        let sensor_run = matches!(
+            self.run,
+            Some(Run {
+                source: Source::Sensor,
+                ..
+            })
+        );
+        if sensor_run {
+            if let Some(tick) = self.timer.poll() {
+                self.counters.read_errors = self.counters.read_errors.wrapping_add(tick.missed);
+                let t_s = f64::from(tick.index) / self.config.sample_rate_hz;
+                match self.accel.sample(t_s) {
+                    Ok(s) => {
+                        let sample = Sample {
+                            t_s: s.t_s,
+                            specific_force: s.specific_force,
+                            temp_c: s.temp_c,
+                        };
+                        self.accept(&sample, s.saturated);
+                    }
+                    Err(_) => self.counters.read_errors = self.counters.read_errors.wrapping_add(1),
+                }
+            }
+        }
+        Event::Continue
+    }
+
+    fn handle(&mut self, p: Packet) -> Event {
+        self.counters.frames_rx = self.counters.frames_rx.wrapping_add(1);
+        if let SeqEvent::Gap { missing } = self.rx_seq.observe(p.seq) {
+            self.counters.frames_rx_missing = self.counters.frames_rx_missing.wrapping_add(missing);
+        }
+        let Message::Command(cmd) = p.msg else {
+            return self.refuse(FaultCode::BadCommand, "not a command");
+        };
+        match cmd {
+            Command::Configure(c) => {
+                if self.run.is_some() {
+                    return self.refuse(FaultCode::BadCommand, "configure while running");
+                }
+                if let Err(why) = validate(&c) {
+                    return self.refuse(FaultCode::BadConfig, why);
+                }
+                self.config = c;
+                self.send_hello();
+            }
+            Command::Start(source) => {
+                if self.run.is_some() {
+                    return self.refuse(FaultCode::BadCommand, "start while running");
+                }
+                if source == Source::Sensor && !self.accel.present() {
+                    return self.refuse(FaultCode::BadCommand, "no accelerometer on this board");
+                }
+                let ekf = match filter_for(&self.config) {
+                    Ok(f) => f,
+                    Err(why) => return self.refuse(FaultCode::BadConfig, why),
+                };
+                let averager = Averager::new(self.config.filter_period_s, self.config.raw_sigma_mps2);
+                self.run = Some(Run {
+                    source,
+                    averager,
+                    ekf,
+                    last_t_s: None,
+                    sample_seq: 0,
+                });
+                self.last_source = source;
+                if source == Source::Sensor {
+                    self.timer.start(self.config.sample_rate_hz);
+                }
+                self.send_status();
+            }
+            Command::Replay(s) => match &self.run {
+                Some(Run {
+                    source: Source::Replay, ..
+                }) => {
+                    let sample = Sample {
+                        t_s: s.t_s,
+                        specific_force: s.specific_force,
+                        temp_c: s.temp_c,
+                    };
+                    self.accept(&sample, false);
+                }
+                _ => return self.refuse(FaultCode::BadCommand, "replay sample while not replaying"),
+            },
+            Command::Finish => {
+                if let Some(m) = self.run.as_mut().and_then(|r| r.averager.flush()) {
+                    self.step(&m);
+                }
+                self.end_run();
+            }
+            Command::Stop => self.end_run(),
+            Command::Ping => {
+                self.send_hello();
+                self.send_status();
+            }
+            Command::Shutdown => {
+                self.end_run();
+                return Event::Shutdown;
+            }
+        }
+        Event::Continue
+    }
+
+    fn end_run(&mut self) {
+        if self.run.take().is_some() {
+            self.timer.stop();
+        }
+        self.send_status();
+    }
+
+    fn refuse(&mut self, code: FaultCode, why: &str) -> Event {
+        self.counters.commands_refused = self.counters.commands_refused.wrapping_add(1);
+        let step = self.counters.filter_steps;
+        self.send(Message::Fault(Fault::new(code, step, format_args!("{why}"))));
+        Event::Continue
+    }
+
+    /// Validates one sample, averages it and steps the filter when a window is complete.
+    /// Returns whether the sample was accepted.
+    pub fn accept(&mut self, s: &Sample, saturated: bool) -> bool {
+        let Some(run) = self.run.as_mut() else { return false };
+        let c = &mut self.counters;
+        if !(s.t_s.is_finite() && s.specific_force.iter().all(|v| v.is_finite())) {
+            c.samples_nan = c.samples_nan.wrapping_add(1);
+            return false;
+        }
+        if saturated || s.specific_force.iter().any(|v| v.abs() >= self.config.saturation_mps2) {
+            c.samples_saturated = c.samples_saturated.wrapping_add(1);
+            return false;
+        }
+        if run.last_t_s.is_some_and(|t| s.t_s <= t) || s.t_s < 0.0 {
+            c.samples_out_of_order = c.samples_out_of_order.wrapping_add(1);
+            return false;
+        }
+        run.last_t_s = Some(s.t_s);
+        c.samples_ok = c.samples_ok.wrapping_add(1);
+        let seq = run.sample_seq;
+        run.sample_seq = seq.wrapping_add(1);
+        let done = run.averager.push(s);
+        if run.source == Source::Sensor && self.config.echo_raw {
+            let raw = RawSample {
+                seq,
+                t_s: s.t_s,
+                specific_force: s.specific_force,
+                temp_c: s.temp_c,
+            };
+            self.send(Message::Raw(raw));
+        }
+        if let Some(m) = done {
+            self.step(&m);
+        }
+        true
+    }
+
+    fn step(&mut self, m: &Measurement) {
+        let Some(run) = self.run.as_mut() else { return };
+        let step = run.ekf.steps();
+        let t0 = self.platform.ticks();
+        let r = run.ekf.step(m);
+        self.last_step_ticks = self.platform.ticks().wrapping_sub(t0);
+        match r {
+            Ok(res) => {
+                let e = estimate_of(&run.ekf, step, m, res.innovation, res.nis);
+                self.last_t_s = run.ekf.time_s();
+                self.counters.filter_steps = self.counters.filter_steps.wrapping_add(1);
+                self.send(Message::Estimate(e));
+                let every = self.config.status_every;
+                if every > 0 && self.counters.filter_steps % every == 0 {
+                    self.send_status();
+                }
+            }
+            Err(e) => {
+                self.counters.filter_errors = self.counters.filter_errors.wrapping_add(1);
+                self.send(Message::Fault(Fault::new(FaultCode::Filter, step, format_args!("{e}"))));
+            }
+        }
+    }
+
+    /// The current status.
+    pub fn status(&self) -> Status {
+        let (stack_used_bytes, stack_size_bytes) = self.platform.stack_usage();
+        Status {
+            t_s: self.run.as_ref().map_or(self.last_t_s, |r| r.ekf.time_s()),
+            running: self.run.is_some(),
+            source: self.last_source,
+            counters: self.counters,
+            stack_used_bytes,
+            stack_size_bytes,
+            static_ram_bytes: self.platform.static_ram(),
+            last_step_ticks: self.last_step_ticks,
+            tick_hz: self.platform.tick_hz(),
+        }
+    }
+
+    fn send_status(&mut self) {
+        // Count this frame in the status it carries.
+        self.counters.frames_tx = self.counters.frames_tx.wrapping_add(1);
+        let st = self.status();
+        self.counters.frames_tx = self.counters.frames_tx.wrapping_sub(1);
+        self.send(Message::Status(st));
+    }
+
+    fn send_hello(&mut self) {
+        let h = Hello {
+            board: P::BOARD,
+            firmware: FIRMWARE_VERSION,
+            state_dim: STATE_DIM as u8,
+            config: self.config,
+        };
+        self.send(Message::Hello(h));
+    }
+
+    /// Frames and sends one message (blocking on the serial port).
+    pub fn send(&mut self, msg: Message) {
+        if let Ok(frame) = self.encoder.frame(msg) {
+            let _ = self.serial.write_all(frame);
+            self.counters.frames_tx = self.counters.frames_tx.wrapping_add(1);
+        }
+    }
+}

@@ -1,0 +1,18 @@
+//! # firmware-app — the navigation computer's application, board-independent
+//!
+//! Builds for the target (`thumbv7em-none-eabihf`, used by the `firmware` crate's boards) and for
+//! the host, where its drivers and loop are tested with `embedded-hal-mock` and an in-memory link.
+//!
+//! - [`accel`]: the [`accel::Accelerometer`] trait (specific force in m/s² with a sample time).
+//! - [`adxl355`]: the ADXL355 driver over `embedded_hal::spi::SpiDevice`.
+//! - [`app`]: the loop: commands and replayed samples from the link, sampling at a fixed rate,
+//!   rejection and counting of invalid samples, averaging, the real-time EKF, telemetry.
+#![no_std]
+#![warn(missing_docs)]
+
+pub mod accel;
+pub mod adxl355;
+pub mod app;
+
+pub use accel::{AccelSample, Accelerometer, NoSensor};
+pub use app::{App, Event, NoTimer, Platform, SampleTimer, Tick};

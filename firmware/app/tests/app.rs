@@ -1,0 +1,316 @@
+//! The application loop on the host, over an in-memory link: replay gives the core's single-pass
+//! estimates bit for bit; bad samples and bad frames are rejected and counted; commands in the
+//! wrong state are refused; sensor mode samples at the timer's ticks.
+
+use std::collections::VecDeque;
+use std::convert::Infallible;
+
+use estimator_core::{Averager, Sample};
+use firmware_app::app::{filter_for, App, Event, NoTimer, Platform, SampleTimer, Tick};
+use firmware_app::{AccelSample, Accelerometer, NoSensor};
+use protocol::*;
+
+#[derive(Default)]
+struct Link {
+    rx: VecDeque<u8>,
+    tx: Vec<u8>,
+}
+
+impl embedded_io::ErrorType for Link {
+    type Error = Infallible;
+}
+impl embedded_io::Read for Link {
+    fn read(&mut self, buf: &mut [u8]) -> Result<usize, Infallible> {
+        let n = buf.len().min(self.rx.len());
+        for b in buf.iter_mut().take(n) {
+            *b = self.rx.pop_front().unwrap();
+        }
+        Ok(n)
+    }
+}
+impl embedded_io::ReadReady for Link {
+    fn read_ready(&mut self) -> Result<bool, Infallible> {
+        Ok(!self.rx.is_empty())
+    }
+}
+impl embedded_io::Write for Link {
+    fn write(&mut self, buf: &[u8]) -> Result<usize, Infallible> {
+        self.tx.extend_from_slice(buf);
+        Ok(buf.len())
+    }
+    fn flush(&mut self) -> Result<(), Infallible> {
+        Ok(())
+    }
+}
+
+struct HostBoard;
+impl Platform for HostBoard {
+    const BOARD: Board = Board::Host;
+}
+
+struct Host {
+    enc: Encoder,
+    dec: Decoder,
+}
+
+impl Host {
+    fn new() -> Self {
+        Host {
+            enc: Encoder::new(),
+            dec: Decoder::new(),
+        }
+    }
+    fn send<A: Accelerometer, T: SampleTimer>(&mut self, app: &mut App<Link, A, T, HostBoard>, cmd: Command) -> Event {
+        let f = self.enc.frame(Message::Command(cmd)).unwrap().to_vec();
+        app.serial_mut().rx.extend(f);
+        app.poll()
+    }
+    fn receive<A: Accelerometer, T: SampleTimer>(&mut self, app: &mut App<Link, A, T, HostBoard>) -> Vec<Message> {
+        let tx = std::mem::take(&mut app.serial_mut().tx);
+        let mut out = Vec::new();
+        self.dec
+            .feed(&tx, |r| out.push(r.expect("firmware frames are intact").msg));
+        out
+    }
+}
+
+fn samples(n: usize) -> Vec<Sample> {
+    // Gravity on a slowly turning platform, with a deterministic pseudo-noise.
+    let g = 9.800898;
+    let mut state = 12345u64;
+    (0..n)
+        .map(|k| {
+            let t = k as f64;
+            let a = 7.29e-5 * t * 0.6;
+            let mut noise = [0.0; 3];
+            for v in &mut noise {
+                state = state
+                    .wrapping_mul(6364136223846793005)
+                    .wrapping_add(1442695040888963407);
+                *v = ((state >> 11) as f64 / (1u64 << 53) as f64 - 0.5) * 1e-3;
+            }
+            Sample {
+                t_s: t,
+                specific_force: [
+                    g * 0.05 * a.sin() + noise[0],
+                    g * 0.05 * (1.0 - a.cos()) + noise[1],
+                    g + noise[2],
+                ],
+                temp_c: f64::NAN,
+            }
+        })
+        .collect()
+}
+
+fn replay_sample(k: u32, s: &Sample) -> Command {
+    Command::Replay(RawSample {
+        seq: k,
+        t_s: s.t_s,
+        specific_force: s.specific_force,
+        temp_c: s.temp_c,
+    })
+}
+
+#[test]
+fn replay_matches_the_core_single_pass_bit_for_bit_and_rejects_bad_samples() {
+    let mut app = App::new(Link::default(), NoSensor, NoTimer, HostBoard);
+    app.boot();
+    let mut host = Host::new();
+    let hello = host.receive(&mut app);
+    assert!(matches!(
+        hello[0],
+        Message::Hello(Hello {
+            board: Board::Host,
+            state_dim: 15,
+            ..
+        })
+    ));
+    let config = Config {
+        filter_period_s: 30.0,
+        status_every: 0,
+        ..Config::default()
+    };
+    host.send(&mut app, Command::Configure(config));
+    host.send(&mut app, Command::Start(Source::Replay));
+    let input = samples(1000);
+    for (k, s) in input.iter().enumerate() {
+        host.send(&mut app, replay_sample(k as u32, s));
+        if k == 500 {
+            // Bad samples in between: NaN, saturated, duplicate time, out of order.
+            let mut bad = *s;
+            bad.t_s += 0.5;
+            bad.specific_force[1] = f64::NAN;
+            host.send(&mut app, replay_sample(9000, &bad));
+            bad.specific_force[1] = 30.0;
+            host.send(&mut app, replay_sample(9001, &bad));
+            host.send(&mut app, replay_sample(9002, s));
+            bad.t_s -= 3.0;
+            bad.specific_force[1] = 0.0;
+            host.send(&mut app, replay_sample(9003, &bad));
+        }
+    }
+    host.send(&mut app, Command::Finish);
+    let got: Vec<Estimate> = host
+        .receive(&mut app)
+        .into_iter()
+        .filter_map(|m| if let Message::Estimate(e) = m { Some(e) } else { None })
+        .collect();
+
+    // The host's single pass on the same (good) samples.
+    let mut ekf = filter_for(&config).unwrap();
+    let mut avg = Averager::new(config.filter_period_s, config.raw_sigma_mps2);
+    let mut want = Vec::new();
+    let mut ms: Vec<_> = input.iter().filter_map(|s| avg.push(s)).collect();
+    ms.extend(avg.flush());
+    for m in ms {
+        let step = ekf.steps();
+        let r = ekf.step(&m).unwrap();
+        want.push(firmware_app::app::estimate_of(&ekf, step, &m, r.innovation, r.nis));
+    }
+    assert_eq!(got.len(), 34);
+    assert_eq!(got, want);
+    let c = app.counters();
+    assert_eq!(
+        (c.samples_ok, c.samples_nan, c.samples_saturated, c.samples_out_of_order),
+        (1000, 1, 1, 2)
+    );
+    assert_eq!(
+        (c.filter_steps, c.filter_errors, c.frames_rx_bad, c.frames_rx_missing),
+        (34, 0, 0, 0)
+    );
+    assert_eq!(app.status().running, false);
+}
+
+#[test]
+fn damaged_and_missing_frames_are_counted() {
+    let mut app = App::new(Link::default(), NoSensor, NoTimer, HostBoard);
+    let mut host = Host::new();
+    host.send(&mut app, Command::Start(Source::Replay));
+    let mut f = host.enc.frame(Message::Command(Command::Ping)).unwrap().to_vec();
+    f[3] ^= 0x40;
+    app.serial_mut().rx.extend(f);
+    let _lost = host.enc.frame(Message::Command(Command::Ping)).unwrap();
+    app.poll();
+    host.send(&mut app, Command::Ping);
+    let c = app.counters();
+    assert_eq!((c.frames_rx, c.frames_rx_bad, c.frames_rx_missing), (2, 1, 2));
+}
+
+#[test]
+fn commands_in_the_wrong_state_are_refused() {
+    let mut app = App::new(Link::default(), NoSensor, NoTimer, HostBoard);
+    let mut host = Host::new();
+    host.send(&mut app, replay_sample(0, &samples(1)[0]));
+    host.send(&mut app, Command::Start(Source::Sensor)); // no sensor on this board
+    let bad = Config {
+        latitude_deg: 95.0,
+        ..Config::default()
+    };
+    host.send(&mut app, Command::Configure(bad));
+    host.send(&mut app, Command::Start(Source::Replay));
+    host.send(&mut app, Command::Configure(Config::default())); // while running
+    let faults: Vec<FaultCode> = host
+        .receive(&mut app)
+        .into_iter()
+        .filter_map(|m| if let Message::Fault(f) = m { Some(f.code) } else { None })
+        .collect();
+    assert_eq!(
+        faults,
+        vec![
+            FaultCode::BadCommand,
+            FaultCode::BadCommand,
+            FaultCode::BadConfig,
+            FaultCode::BadCommand
+        ]
+    );
+    assert_eq!(app.counters().commands_refused, 4);
+    assert_eq!(host.send(&mut app, Command::Shutdown), Event::Shutdown);
+}
+
+struct FakeTimer {
+    next: u32,
+    running: bool,
+}
+impl SampleTimer for FakeTimer {
+    fn start(&mut self, _rate_hz: f64) {
+        self.running = true;
+        self.next = 0;
+    }
+    fn stop(&mut self) {
+        self.running = false;
+    }
+    fn poll(&mut self) -> Option<Tick> {
+        if !self.running {
+            return None;
+        }
+        let i = self.next;
+        // Tick 5 is missed (the loop was late); ticks go on at 6.
+        let missed = u32::from(i == 5);
+        self.next += 1 + missed;
+        Some(Tick {
+            index: i + missed,
+            missed,
+        })
+    }
+}
+
+struct FakeAccel {
+    reads: u32,
+}
+impl Accelerometer for FakeAccel {
+    type Error = ();
+    fn sample(&mut self, t_s: f64) -> Result<AccelSample, ()> {
+        self.reads += 1;
+        match self.reads {
+            3 => Err(()),
+            4 => Ok(AccelSample {
+                t_s,
+                specific_force: [0.0, 0.0, 9.8],
+                temp_c: 20.0,
+                saturated: true,
+            }),
+            _ => Ok(AccelSample {
+                t_s,
+                specific_force: [0.0, 0.0, 9.8],
+                temp_c: 20.0,
+                saturated: false,
+            }),
+        }
+    }
+}
+
+#[test]
+fn sensor_mode_samples_at_the_ticks_and_counts_read_errors() {
+    let mut app = App::new(
+        Link::default(),
+        FakeAccel { reads: 0 },
+        FakeTimer {
+            next: 0,
+            running: false,
+        },
+        HostBoard,
+    );
+    let mut host = Host::new();
+    host.send(
+        &mut app,
+        Command::Configure(Config {
+            filter_period_s: 4.0,
+            ..Config::default()
+        }),
+    );
+    host.send(&mut app, Command::Start(Source::Sensor));
+    for _ in 0..20 {
+        app.poll();
+    }
+    let msgs = host.receive(&mut app);
+    let raws: Vec<f64> = msgs
+        .iter()
+        .filter_map(|m| if let Message::Raw(r) = m { Some(r.t_s) } else { None })
+        .collect();
+    // 21 reads (the poll that started the run takes tick 0) at ticks 0,1,2,3,4,6,7,...:
+    // read 3 (t=2) failed, read 4 (t=3) saturated, tick 5 missed.
+    assert_eq!(raws[..4], [0.0, 1.0, 4.0, 6.0]);
+    let c = app.counters();
+    assert_eq!((c.samples_ok, c.read_errors, c.samples_saturated), (19, 2, 1));
+    assert!(msgs.iter().any(|m| matches!(m, Message::Estimate(_))));
+}
