@@ -281,34 +281,19 @@ impl<'m, const CAP: usize> Ekf<'m, CAP> {
         for i in 0..n {
             k[i] = s_inv * pht[i];
         }
-        // Joseph form P⁺ = (I−KH) P (I−KH)ᵀ + K R Kᵀ, in two passes over P:
-        // (1) P₁ = P − K (P Hᵀ)ᵀ;  (2) P⁺ = P₁ − (P₁ Hᵀ) Kᵀ + K R Kᵀ.
+        // Joseph form P⁺ = (I−KH) P (I−KH)ᵀ + K R Kᵀ, multiplied out:
+        //   P⁺ = P − K (HP) − (PHᵀ) Kᵀ + K S Kᵀ   (S = HPHᵀ + R),
+        // which is the same function of K (valid for any gain, not only the optimal one) and is
+        // symmetric term by term: we evaluate the upper triangle and mirror it.
+        let mut sk = [Vector3::zeros(); CAP];
+        for c in 0..n {
+            sk[c] = s * k[c];
+        }
         let data = self.p.as_mut_slice();
         for c in 0..n {
-            let phc = pht[c];
-            for (v, ki) in data[c * CAP..c * CAP + n].iter_mut().zip(&k[..n]) {
-                *v -= ki.dot(&phc);
-            }
-        }
-        let mut g = [Vector3::zeros(); CAP];
-        for &j in cols {
-            let hj = h[j];
-            for (acc, &p1) in g[..n].iter_mut().zip(&data[j * CAP..j * CAP + n]) {
-                *acc += hj * p1;
-            }
-        }
-        for i in 0..n {
-            g[i] = k[i].component_mul(&r) - g[i];
-        }
-        for c in 0..n {
-            let kc = k[c];
-            for (v, gi) in data[c * CAP..c * CAP + n].iter_mut().zip(&g[..n]) {
-                *v += gi.dot(&kc);
-            }
-        }
-        for c in 0..n {
-            for i in 0..c {
-                let v = 0.5 * (data[c * CAP + i] + data[i * CAP + c]);
+            let (kc, phc, skc) = (k[c], pht[c], sk[c]);
+            for i in 0..=c {
+                let v = data[c * CAP + i] - k[i].dot(&phc) - pht[i].dot(&kc) + k[i].dot(&skc);
                 data[c * CAP + i] = v;
                 data[i * CAP + c] = v;
             }

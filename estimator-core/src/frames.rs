@@ -57,39 +57,31 @@ pub struct Attitude {
     pub cos: Vector3<f64>,
 }
 
-fn rx(s: f64, c: f64) -> Matrix3<f64> {
-    Matrix3::new(1.0, 0.0, 0.0, 0.0, c, s, 0.0, -s, c)
-}
-fn drx(s: f64, c: f64) -> Matrix3<f64> {
-    Matrix3::new(0.0, 0.0, 0.0, 0.0, -s, c, 0.0, -c, -s)
-}
-fn ry(s: f64, c: f64) -> Matrix3<f64> {
-    Matrix3::new(c, 0.0, -s, 0.0, 1.0, 0.0, s, 0.0, c)
-}
-fn dry(s: f64, c: f64) -> Matrix3<f64> {
-    Matrix3::new(-s, 0.0, -c, 0.0, 0.0, 0.0, c, 0.0, -s)
-}
-fn rz(s: f64, c: f64) -> Matrix3<f64> {
-    Matrix3::new(c, s, 0.0, -s, c, 0.0, 0.0, 0.0, 1.0)
-}
-fn drz(s: f64, c: f64) -> Matrix3<f64> {
-    Matrix3::new(-s, c, 0.0, -c, -s, 0.0, 0.0, 0.0, 0.0)
-}
-
 impl Attitude {
     /// Attitude at Euler angles θ = (tx, ty, tz), rad.
     pub fn new(theta: &Vector3<f64>) -> Self {
         let (sx, cx) = libm::sincos(theta.x);
         let (sy, cy) = libm::sincos(theta.y);
         let (sz, cz) = libm::sincos(theta.z);
-        let (x, y, z) = (rx(sx, cx), ry(sy, cy), rz(sz, cz));
-        let zy = z * y;
-        Attitude {
-            c: zy * x,
-            dc: [zy * drx(sx, cx), z * dry(sy, cy) * x, drz(sz, cz) * y * x],
-            sin: Vector3::new(sx, sy, sz),
-            cos: Vector3::new(cx, cy, cz),
-        }
+        // C = Rz·Ry·Rx multiplied out (Rx = [[1,0,0],[0,c,s],[0,-s,c]], …), and its partials.
+        let (sxsy, cxsy) = (sx * sy, cx * sy);
+        let row0 = Vector3::new(cy * cz, cx * sz + sxsy * cz, sx * sz - cxsy * cz);
+        let row1 = Vector3::new(-cy * sz, cx * cz - sxsy * sz, sx * cz + cxsy * sz);
+        let row2 = Vector3::new(sy, -sx * cy, cx * cy);
+        let c = Matrix3::from_rows(&[row0.transpose(), row1.transpose(), row2.transpose()]);
+        let d_tx = Matrix3::new(
+            0.0, -sx * sz + cxsy * cz, cx * sz + sxsy * cz,
+            0.0, -sx * cz - cxsy * sz, cx * cz - sxsy * sz,
+            0.0, -cx * cy, -sx * cy,
+        );
+        let d_ty = Matrix3::new(
+            -sy * cz, sx * cy * cz, -cx * cy * cz,
+            sy * sz, -sx * cy * sz, cx * cy * sz,
+            cy, sxsy, -cxsy,
+        );
+        // ∂/∂tz turns row 0 into row 1 and row 1 into −row 0.
+        let d_tz = Matrix3::from_rows(&[row1.transpose(), -row0.transpose(), Vector3::zeros().transpose()]);
+        Attitude { c, dc: [d_tx, d_ty, d_tz], sin: Vector3::new(sx, sy, sz), cos: Vector3::new(cx, cy, cz) }
     }
 
     /// Specific force along the platform axes when the base is at rest, `A = C·[0,0,g]`, m/s².

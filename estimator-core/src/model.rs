@@ -18,7 +18,7 @@ pub const MAX_STATES: usize = 64;
 /// Largest number of effects in one model.
 pub const MAX_EFFECTS: usize = 8;
 /// Largest number of states with dynamics (3 angles + Gauss–Markov states).
-pub const MAX_DYNAMIC: usize = 9;
+pub const MAX_DYNAMIC: usize = 6;
 
 /// How the state and its transition matrix are carried over one filter period.
 #[derive(Clone, Copy, Debug, PartialEq)]

@@ -103,54 +103,61 @@ pub fn propagate<const CAP: usize>(
     }
     let theta0 = Vector3::new(x[0], x[1], x[2]);
     let mut jac = [Vector3::zeros(); CAP];
-    let mut k = [
-        Stage { xdot: [0.0; MAX_DYNAMIC], phidot: [[0.0; CAP]; MAX_DYNAMIC] },
-        Stage { xdot: [0.0; MAX_DYNAMIC], phidot: [[0.0; CAP]; MAX_DYNAMIC] },
-        Stage { xdot: [0.0; MAX_DYNAMIC], phidot: [[0.0; CAP]; MAX_DYNAMIC] },
-        Stage { xdot: [0.0; MAX_DYNAMIC], phidot: [[0.0; CAP]; MAX_DYNAMIC] },
-    ];
+    let mut k = Stage { xdot: [0.0; MAX_DYNAMIC], phidot: [[0.0; CAP]; MAX_DYNAMIC] };
     let temp_at = |t: f64| if dt_s > 0.0 { temp0 + (temp1 - temp0) * (t - t0_s) / dt_s } else { temp1 };
     match model.propagation() {
         Propagation::Euler => {
-            derivative(model, x, t0_s, temp0, &tr.rows, &mut jac, &mut k[0]);
+            derivative(model, x, t0_s, temp0, &tr.rows, &mut jac, &mut k);
             for r in 0..nd {
-                x[dynamic[r]] += k[0].xdot[r] * dt_s;
+                x[dynamic[r]] += k.xdot[r] * dt_s;
                 for c in 0..n {
-                    tr.rows[r][c] += k[0].phidot[r][c] * dt_s;
+                    tr.rows[r][c] += k.phidot[r][c] * dt_s;
                 }
             }
         }
         Propagation::Rk4 { max_step_s } => {
             let steps = if dt_s > max_step_s { libm::ceil(dt_s / max_step_s) as usize } else { 1 };
             let h = dt_s / steps as f64;
+            // Stage input (xs, phis), the current stage's slope k, and the weighted sum of slopes.
             let mut xs = [0.0; CAP];
             let mut phis = [[0.0; CAP]; MAX_DYNAMIC];
+            let mut sum = Stage { xdot: [0.0; MAX_DYNAMIC], phidot: [[0.0; CAP]; MAX_DYNAMIC] };
+            const C: [f64; 4] = [0.0, 0.5, 0.5, 1.0];
+            const W: [f64; 4] = [1.0, 2.0, 2.0, 1.0];
             for s in 0..steps {
                 let t = t0_s + s as f64 * h;
-                const C: [f64; 4] = [0.0, 0.5, 0.5, 1.0];
                 for stage in 0..4 {
                     xs[..n].copy_from_slice(&x[..n]);
                     phis[..nd].copy_from_slice(&tr.rows[..nd]);
                     if stage > 0 {
-                        let (prev, _) = k.split_at_mut(stage);
-                        let kp = &prev[stage - 1];
                         let a = C[stage] * h;
                         for r in 0..nd {
-                            xs[dynamic[r]] += a * kp.xdot[r];
-                            for (v, d) in phis[r][..n].iter_mut().zip(&kp.phidot[r][..n]) {
+                            xs[dynamic[r]] += a * k.xdot[r];
+                            for (v, d) in phis[r][..n].iter_mut().zip(&k.phidot[r][..n]) {
                                 *v += a * d;
                             }
                         }
                     }
                     let ts = t + C[stage] * h;
-                    derivative(model, &xs[..n], ts, temp_at(ts), &phis, &mut jac, &mut k[stage]);
+                    derivative(model, &xs[..n], ts, temp_at(ts), &phis, &mut jac, &mut k);
+                    let w = W[stage];
+                    for r in 0..nd {
+                        if stage == 0 {
+                            sum.xdot[r] = k.xdot[r];
+                            sum.phidot[r][..n].copy_from_slice(&k.phidot[r][..n]);
+                        } else {
+                            sum.xdot[r] += w * k.xdot[r];
+                            for (v, d) in sum.phidot[r][..n].iter_mut().zip(&k.phidot[r][..n]) {
+                                *v += w * d;
+                            }
+                        }
+                    }
                 }
                 let w = h / 6.0;
                 for r in 0..nd {
-                    x[dynamic[r]] += w * (k[0].xdot[r] + 2.0 * (k[1].xdot[r] + k[2].xdot[r]) + k[3].xdot[r]);
-                    for c in 0..n {
-                        tr.rows[r][c] +=
-                            w * (k[0].phidot[r][c] + 2.0 * (k[1].phidot[r][c] + k[2].phidot[r][c]) + k[3].phidot[r][c]);
+                    x[dynamic[r]] += w * sum.xdot[r];
+                    for (v, d) in tr.rows[r][..n].iter_mut().zip(&sum.phidot[r][..n]) {
+                        *v += w * d;
                     }
                 }
             }

@@ -151,3 +151,28 @@ fn zero_drift_platform_returns_after_one_sidereal_day() {
     let lat = 39.1f64.to_radians();
     assert!(max_ty.sin() <= lat.cos() + 1e-9 && max_ty > 0.5 * lat.cos().asin());
 }
+
+/// The multiplied-out C equals the product of the elementary rotations of model.md.
+#[test]
+fn attitude_is_rz_ry_rx() {
+    use estimator_core::frames::Attitude;
+    use nalgebra::Matrix3;
+    let rx = |a: f64| Matrix3::new(1.0, 0.0, 0.0, 0.0, a.cos(), a.sin(), 0.0, -a.sin(), a.cos());
+    let ry = |a: f64| Matrix3::new(a.cos(), 0.0, -a.sin(), 0.0, 1.0, 0.0, a.sin(), 0.0, a.cos());
+    let rz = |a: f64| Matrix3::new(a.cos(), a.sin(), 0.0, -a.sin(), a.cos(), 0.0, 0.0, 0.0, 1.0);
+    for theta in [Vector3::new(0.3, -0.7, 2.1), Vector3::new(-1.1, 0.45, -2.8)] {
+        let att = Attitude::new(&theta);
+        let c = rz(theta.z) * ry(theta.y) * rx(theta.x);
+        assert!((att.c - c).amax() < 1e-15, "C differs from Rz·Ry·Rx");
+        for j in 0..3 {
+            let h = 1e-6;
+            let mut tp = theta;
+            let mut tm = theta;
+            tp[j] += h;
+            tm[j] -= h;
+            let num = (Attitude::new(&tp).c - Attitude::new(&tm).c) / (2.0 * h);
+            // Central-difference truncation h²/6 ≈ 2e-13, rounding ε/h ≈ 2e-10.
+            assert!((att.dc[j] - num).amax() < 1e-9, "∂C/∂θ{j}");
+        }
+    }
+}
