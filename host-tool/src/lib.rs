@@ -1,7 +1,21 @@
 //! `driftid` library: everything the binary does, callable from tests.
+//!
+//! - [`recording`]: the CSV recording format (streaming reader with located errors, writer).
+//! - [`simulate`]: the truth simulator (independent DCM kinematics, injectable effects).
+//! - [`identify`]: the converged identification (EKF passes, iterated smoother, Cramér–Rao bound).
+//! - [`catalog`]: the physical effects the user can add by name.
+//! - [`cli`]: one module per `driftid` subcommand.
+pub mod catalog;
+pub mod format;
 pub mod identify;
 pub mod recording;
 pub mod simulate;
+pub mod stats;
 pub mod cli {
+    //! One module per subcommand: its arguments and its `run`.
+    pub mod bench;
+    pub mod common;
+    pub mod demo;
+    pub mod identify;
     pub mod simulate;
 }

@@ -1,0 +1,136 @@
+//! `driftid bench accuracy`: Monte Carlo over seeds (rayon) of the identification's accuracy
+//! against the Cramér–Rao bound and its consistency (NEES), at several run lengths.
+
+use estimator_core::{Measurement, Sample};
+use nalgebra::{DMatrix, DVector};
+use rayon::prelude::*;
+
+use super::common::build_model;
+use crate::catalog;
+use crate::identify::{cramer_rao_bound, identify, prepare, Config, Prepared};
+use crate::simulate::{simulate, Scenario};
+use crate::stats::chi2_quantile;
+
+/// Arguments of `driftid bench`.
+#[derive(clap::Args, Debug)]
+pub struct BenchArgs {
+    /// What to benchmark (`accuracy`; speed benchmarks are `cargo bench`).
+    #[arg(value_parser = ["accuracy"])]
+    pub what: String,
+    /// Number of seeds.
+    #[arg(long, default_value_t = 24)]
+    pub seeds: u64,
+    /// Run lengths at which to evaluate, h.
+    #[arg(long, value_delimiter = ',', default_value = "12,24,30,48,60")]
+    pub hours: Vec<f64>,
+    /// Raw sample interval, s.
+    #[arg(long, default_value_t = 1.0)]
+    pub rate_s: f64,
+    /// Print one JSON object instead of tables.
+    #[arg(long)]
+    pub json: bool,
+}
+
+struct SeedResult {
+    /// Per checkpoint: (errors, covariance) of the converged estimate, and the single pass's errors.
+    at: Vec<(DVector<f64>, DMatrix<f64>, DVector<f64>)>,
+}
+
+fn truncated(prep: &Prepared, hours: f64) -> Prepared {
+    let measurements: Vec<Measurement> = prep.measurements.iter().filter(|m| m.t_s <= hours * 3600.0 + 1e-6).copied().collect();
+    Prepared { measurements, ..prep.clone() }
+}
+
+/// Runs the accuracy benchmark.
+pub fn run(args: &BenchArgs) -> anyhow::Result<()> {
+    let max_h = args.hours.iter().cloned().fold(0.0, f64::max);
+    let cfg = Config::default();
+    let effects = vec![catalog::paper()];
+    let t0 = std::time::Instant::now();
+    let results: Vec<anyhow::Result<SeedResult>> = (1..=args.seeds)
+        .into_par_iter()
+        .map(|seed| {
+            let mut sc = Scenario::paper();
+            sc.seed = seed;
+            sc.hours = max_h;
+            sc.rate_s = args.rate_s;
+            let sim = simulate(&sc);
+            let truth = DVector::from_row_slice(&sim.truth.coefficient_array());
+            let samples: Vec<Sample> = sim.samples.iter().map(|s| Sample { t_s: s.t_s, specific_force: s.specific_force_mps2, temp_c: f64::NAN }).collect();
+            let site = estimator_core::Site::new(sc.latitude_deg, sc.gravity_mps2);
+            let model = build_model(site, &effects, &cfg)?;
+            let prep = prepare(site, &samples, &cfg)?;
+            let mut at = vec![];
+            for &h in &args.hours {
+                let id = identify(&model, &truncated(&prep, h), &cfg)?;
+                let best = id.best();
+                at.push((DVector::from_row_slice(&best.value) - &truth, best.cov.clone(), DVector::from_row_slice(&id.single_pass.value) - &truth));
+            }
+            Ok(SeedResult { at })
+        })
+        .collect();
+    let results: Vec<SeedResult> = results.into_iter().collect::<anyhow::Result<_>>()?;
+    let elapsed = t0.elapsed().as_secs_f64();
+    // The bound at the truth, per checkpoint (noise-free trajectory; the same for every seed).
+    let sc = Scenario::paper();
+    let truth = sc.coefficients;
+    let site = estimator_core::Site::new(sc.latitude_deg, sc.gravity_mps2);
+    let model = build_model(site, &effects, &cfg)?;
+    let names: Vec<&str> = (3..15).map(|i| model.param(i).name).collect();
+    let n = args.seeds as f64;
+    let mut report = vec![];
+    for (c, &h) in args.hours.iter().enumerate() {
+        // Mean-time tags of 60-s windows of 1-s samples: the bound needs only the geometry.
+        let meas: Vec<Measurement> = (0..)
+            .map(|k| Measurement { t_s: 60.0 * k as f64 + 29.5, specific_force: [0.0; 3], temp_c: f64::NAN, count: 60, variance: [(1e-5 * site.gravity_mps2).powi(2); 3] })
+            .take_while(|m| m.t_s <= h * 3600.0)
+            .collect();
+        let bound = cramer_rao_bound(&model, &meas, &truth);
+        let mut rms = vec![0.0; 12];
+        let mut rms_single = vec![0.0; 12];
+        let mut worst = vec![0.0f64; 12];
+        let mut nees = 0.0;
+        for r in &results {
+            let (e, p, es) = &r.at[c];
+            for k in 0..12 {
+                rms[k] += e[k] * e[k] / n;
+                rms_single[k] += es[k] * es[k] / n;
+                worst[k] = worst[k].max((e[k] / truth[k]).abs() * 100.0);
+            }
+            nees += p.clone().cholesky().map(|ch| e.dot(&ch.solve(e))).unwrap_or(f64::NAN) / n;
+        }
+        let dof = 12.0 * n;
+        let band = (chi2_quantile(0.025, dof) / n, chi2_quantile(0.975, dof) / n);
+        let rms: Vec<f64> = rms.iter().map(|v| v.sqrt()).collect();
+        let rms_single: Vec<f64> = rms_single.iter().map(|v| v.sqrt()).collect();
+        let ratios: Vec<f64> = rms.iter().zip(&bound).map(|(r, b)| r / b).collect();
+        let rms_ratio = (ratios.iter().map(|r| r * r).sum::<f64>() / 12.0).sqrt();
+        let worst_all = worst.iter().cloned().fold(0.0, f64::max);
+        if !args.json {
+            println!("\n== {h} h ({} seeds) ==", args.seeds);
+            println!("{:<5} {:>11} {:>11} {:>7} {:>9} {:>12}", "coef", "RMS error", "CRB 1σ", "ratio", "worst %", "1-pass RMS");
+            for k in 0..12 {
+                println!("{:<5} {:>11.3e} {:>11.3e} {:>7.2} {:>9.3} {:>12.3e}", names[k], rms[k], bound[k], ratios[k], worst[k], rms_single[k]);
+            }
+            println!(
+                "RMS(ratio) {:.2}, max ratio {:.2}; worst coefficient error {:.3} %; mean NEES {:.2} (12 states; 95% band for the mean of {} seeds [{:.2}, {:.2}]) {}",
+                rms_ratio,
+                ratios.iter().cloned().fold(0.0, f64::max),
+                worst_all,
+                nees,
+                args.seeds,
+                band.0,
+                band.1,
+                if nees >= band.0 && nees <= band.1 { "inside" } else { "OUTSIDE" }
+            );
+        }
+        report.push(serde_json::json!({ "hours": h, "rms_error": rms, "bound": bound, "ratio": ratios, "rms_ratio": rms_ratio,
+            "worst_percent": worst_all, "nees_mean": nees, "nees_band95": [band.0, band.1], "single_pass_rms_error": rms_single }));
+    }
+    if args.json {
+        println!("{}", serde_json::to_string_pretty(&serde_json::json!({ "seeds": args.seeds, "coefficients": names, "checkpoints": report, "seconds": elapsed }))?);
+    } else {
+        println!("\n{} seeds in {:.1} s on {} threads", args.seeds, elapsed, rayon::current_num_threads());
+    }
+    Ok(())
+}

@@ -1,0 +1,99 @@
+//! Pieces every analysis subcommand shares: loading a recording and building the model.
+
+use std::path::Path;
+
+use anyhow::Context as _;
+use estimator_core::units::arw_deg2ph_to_rad2ps;
+use estimator_core::{Effect, Model, Propagation, Sample, Site};
+
+use crate::identify::Config;
+use crate::recording::read_recording;
+
+/// Options of the model and the filter, common to identify/diagnose/report.
+#[derive(clap::Args, Clone, Debug)]
+pub struct ModelArgs {
+    /// Latitude, deg (overrides the recording's `latitude_deg`).
+    #[arg(long)]
+    pub latitude_deg: Option<f64>,
+    /// Filter period, s (raw samples are averaged over it).
+    #[arg(long, default_value_t = 60.0)]
+    pub period_s: f64,
+    /// Gyro angle-random-walk variance density, deg²/h.
+    #[arg(long, default_value_t = 1e-8)]
+    pub arw: f64,
+    /// Raw-sample accelerometer noise 1σ, m/s² (one value or x,y,z); default: estimated from the data.
+    #[arg(long, value_delimiter = ',')]
+    pub raw_sigma: Option<Vec<f64>>,
+    /// Use the paper's Euler step (X + f·dt) instead of RK4 (to reproduce the paper; inaccurate).
+    #[arg(long)]
+    pub euler: bool,
+    /// Stop after the paper's single EKF pass (no re-linearisation, no smoother).
+    #[arg(long)]
+    pub single_pass: bool,
+    /// Effects added to the paper's model, comma-separated (e.g. `acc-bias,drift-markov`).
+    #[arg(long = "with", value_delimiter = ',')]
+    pub with: Vec<String>,
+}
+
+impl ModelArgs {
+    /// The identification settings these options give.
+    pub fn config(&self) -> anyhow::Result<Config> {
+        let raw_sigma_mps2 = match self.raw_sigma.as_deref() {
+            None => None,
+            Some([s]) => Some([*s; 3]),
+            Some([x, y, z]) => Some([*x, *y, *z]),
+            Some(v) => anyhow::bail!("--raw-sigma takes 1 or 3 values, got {}", v.len()),
+        };
+        if !(self.period_s > 0.0 && self.period_s.is_finite()) {
+            anyhow::bail!("--period-s must be a positive number of seconds, got {}", self.period_s);
+        }
+        Ok(Config {
+            period_s: self.period_s,
+            arw_deg2_per_h: self.arw,
+            propagation: if self.euler { Propagation::Euler } else { Propagation::default() },
+            raw_sigma_mps2,
+            smoother_iterations: if self.single_pass { 0 } else { 3 },
+            ..Config::default()
+        })
+    }
+}
+
+/// A recording loaded for analysis.
+pub struct Loaded {
+    /// Site (latitude from the file or the command line; gravity from the file or normal gravity).
+    pub site: Site,
+    /// Samples in the core's form.
+    pub samples: Vec<Sample>,
+    /// Free-text description from the file, if any.
+    pub description: Option<String>,
+}
+
+/// Reads a recording; a bad file is an error naming file and line.
+pub fn load(path: &Path, latitude_override: Option<f64>) -> anyhow::Result<Loaded> {
+    let rec = read_recording(path)?;
+    let latitude_deg = latitude_override.or(rec.meta.latitude_deg).with_context(|| {
+        format!("{}: no `# latitude_deg:` line in the file; give --latitude-deg", path.display())
+    })?;
+    if !(-90.0..=90.0).contains(&latitude_deg) {
+        anyhow::bail!("{}: latitude {latitude_deg} deg is not in [-90, 90]", path.display());
+    }
+    if latitude_deg.abs() < 0.5 {
+        anyhow::bail!(
+            "{}: latitude {latitude_deg} deg is within 0.5 deg of the equator, where the Euler-angle kinematics \
+             (Rz·Ry·Rx) become singular as the platform turns through ty = ±90 deg",
+            path.display()
+        );
+    }
+    let site = Site::new(latitude_deg, rec.meta.gravity_mps2);
+    let samples = rec
+        .samples
+        .iter()
+        .map(|s| Sample { t_s: s.t_s, specific_force: s.specific_force_mps2, temp_c: s.temp_c.unwrap_or(f64::NAN) })
+        .collect();
+    Ok(Loaded { site, samples, description: rec.meta.description.clone() })
+}
+
+/// The model with the paper's drift and the chosen effects.
+pub fn build_model<'m>(site: Site, effects: &'m [&'m dyn Effect], cfg: &Config) -> anyhow::Result<Model<'m>> {
+    Model::new(site, effects, arw_deg2ph_to_rad2ps(cfg.arw_deg2_per_h), cfg.propagation).map_err(|e| anyhow::anyhow!("{e}"))
+}
