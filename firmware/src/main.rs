@@ -1,2 +1,73 @@
+//! Navigation-computer firmware: a thin board layer under [`firmware_app::App`].
+//!
+//! Boards (one per build, chosen by feature):
+//! - default: the STM32H743 navigation computer (`board/stm32h743.rs`): USART3 link, ADXL355 on
+//!   SPI1, SysTick sample timer, DWT cycle counter; memory map `memory.x` at the repo root.
+//! - `board-qemu`: QEMU `mps2-an500` (`board/qemu.rs`): CMSDK UART0 link, no sensor (samples come
+//!   by replay), SysTick tick counter, semihosting exit codes; memory map `memory-qemu.x`.
+//!
+//! Both paint the stack at boot and report its high-water mark and the static RAM in every
+//! status frame. A panic or HardFault is reported (fault frame / semihosting / defmt) and, under
+//! QEMU, ends the run with a failure exit code.
 #![no_std]
 #![no_main]
+
+#[cfg(feature = "defmt")]
+use defmt_rtt as _;
+
+#[cfg_attr(feature = "board-qemu", path = "board/qemu.rs")]
+#[cfg_attr(not(feature = "board-qemu"), path = "board/stm32h743.rs")]
+mod board;
+mod memory;
+
+use cortex_m_rt::{entry, exception, ExceptionFrame};
+use firmware_app::app::{App, Event};
+
+macro_rules! log {
+    ($($t:tt)*) => {
+        #[cfg(feature = "defmt")]
+        defmt::info!($($t)*);
+    };
+}
+
+#[entry]
+fn main() -> ! {
+    memory::paint_stack();
+    log!("driftid firmware boot");
+    #[cfg(feature = "selftest")]
+    #[allow(unreachable_code)]
+    board::selftest();
+    #[allow(unreachable_code)]
+    let parts = board::init();
+    let app =
+        cortex_m::singleton!(: board::BoardApp = App::new(parts.serial, parts.accel, parts.timer, parts.platform))
+            .expect("main runs once");
+    app.boot();
+    if let Some(fault) = parts.boot_fault {
+        app.send(protocol::Message::Fault(fault));
+    }
+    loop {
+        if app.poll() == Event::Shutdown {
+            log!("shutdown requested");
+            board::shutdown();
+        }
+    }
+}
+
+#[panic_handler]
+fn panic(info: &core::panic::PanicInfo) -> ! {
+    cortex_m::interrupt::disable();
+    #[cfg(feature = "defmt")]
+    defmt::error!("panic: {}", defmt::Display2Format(info));
+    board::fatal(protocol::FaultCode::Panic, format_args!("{info}"))
+}
+
+#[exception]
+unsafe fn HardFault(ef: &ExceptionFrame) -> ! {
+    #[cfg(feature = "defmt")]
+    defmt::error!("HardFault at pc {=u32:#x}", ef.pc());
+    board::fatal(
+        protocol::FaultCode::HardFault,
+        format_args!("HardFault pc={:#010x} lr={:#010x}", ef.pc(), ef.lr()),
+    )
+}
