@@ -5,17 +5,19 @@
 //! below 1e-7 relative to the column's scale, so a 1e-6 relative tolerance catches any wrong term
 //! (a missing or wrong-sign term changes a column by O(1) relative).
 
-use estimator_core::effects::{AccBias, DriftMarkov, Effect, PaperDrift};
+use estimator_core::effects::{AccBias, AccMisalign, AccScale, DriftMarkov, DriftTrend, Effect, G2Drift, PaperDrift, TempDrift};
 use estimator_core::model::{Model, Propagation};
 use estimator_core::propagate::{propagate, Transition};
 use estimator_core::units::arw_deg2ph_to_rad2ps;
 use estimator_core::Site;
 use nalgebra::Vector3;
 
-const CAP: usize = 32;
+const CAP: usize = 64;
 
 static MARKOV: DriftMarkov = DriftMarkov { sigma_degph: 0.01, tau_h: 2.0 };
-static EFFECTS: [&dyn Effect; 3] = [&PaperDrift, &AccBias, &MARKOV];
+/// Every catalog effect at once, so each effect's partials are checked.
+static EFFECTS: [&dyn Effect; 8] =
+    [&PaperDrift, &AccBias, &MARKOV, &G2Drift, &AccScale, &AccMisalign, &DriftTrend, &TempDrift];
 
 fn model(propagation: Propagation) -> Model<'static> {
     Model::new(Site::new(39.1, None), &EFFECTS, arw_deg2ph_to_rad2ps(1e-8), propagation).unwrap()

@@ -1,14 +1,19 @@
 //! The catalog of physical effects the host can add to the model by name (`--with a,b`).
 
-use estimator_core::effects::{AccBias, DriftMarkov, Effect, PaperDrift};
+use estimator_core::effects::{AccBias, AccMisalign, AccScale, DriftMarkov, DriftTrend, Effect, G2Drift, PaperDrift, TempDrift};
 
 static PAPER: PaperDrift = PaperDrift;
 static ACC_BIAS: AccBias = AccBias;
+static ACC_SCALE: AccScale = AccScale;
+static ACC_MISALIGN: AccMisalign = AccMisalign;
+static G2: G2Drift = G2Drift;
+static DRIFT_TREND: DriftTrend = DriftTrend;
+static TEMP_DRIFT: TempDrift = TempDrift;
 static DRIFT_MARKOV: DriftMarkov = DriftMarkov { sigma_degph: 0.01, tau_h: 5.0 };
 
-/// Every catalog effect beyond the paper's drift model, in the order they are tried.
+/// Every catalog effect beyond the paper's drift model, in the order they are listed.
 pub fn candidates() -> Vec<&'static dyn Effect> {
-    vec![&ACC_BIAS, &DRIFT_MARKOV]
+    vec![&G2, &ACC_BIAS, &ACC_SCALE, &ACC_MISALIGN, &DRIFT_TREND, &DRIFT_MARKOV, &TEMP_DRIFT]
 }
 
 /// The paper's drift model.

@@ -15,12 +15,22 @@
 use nalgebra::{Matrix3, Vector3};
 
 mod acc_bias;
+pub mod acc_misalign;
+mod acc_scale;
 mod drift_markov;
+mod drift_trend;
+mod g2;
 mod paper;
+mod temp_drift;
 
 pub use acc_bias::AccBias;
+pub use acc_misalign::AccMisalign;
+pub use acc_scale::AccScale;
 pub use drift_markov::DriftMarkov;
+pub use drift_trend::DriftTrend;
+pub use g2::G2Drift;
 pub use paper::PaperDrift;
+pub use temp_drift::TempDrift;
 
 /// What an effect sees at one instant.
 #[derive(Clone, Copy, Debug)]
