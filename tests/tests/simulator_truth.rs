@@ -1,6 +1,8 @@
 //! The truth simulator against closed forms and model.md's kinematics (formulas written out
 //! here, independently of both the simulator and the estimator core).
 
+#![allow(clippy::needless_range_loop, clippy::type_complexity)]
+
 use std::f64::consts::PI;
 
 use host_tool::simulate::{

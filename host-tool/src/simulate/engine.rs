@@ -5,6 +5,8 @@
 //!   exact rotation exp(−[(w_d(t+h/2)·h + δ)×]) with w_d at the midpoint taken from a predicted
 //!   midpoint attitude, and δ the gyro's random angle increment, N(0, q h) per axis.
 
+#![allow(clippy::needless_range_loop)]
+
 use nalgebra::{Matrix3, Vector3};
 use rand::SeedableRng;
 use rand_chacha::ChaCha8Rng;
@@ -270,7 +272,7 @@ impl Simulator {
         }
         self.c_ip = dcm::passive(&phi) * self.c_ip;
         self.steps += 1;
-        if self.steps % 1024 == 0 {
+        if self.steps.is_multiple_of(1024) {
             self.c_ip = dcm::reorthonormalize(&self.c_ip);
         }
         self.t = t1;

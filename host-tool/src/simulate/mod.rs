@@ -11,6 +11,8 @@
 //! `arw_deg2_per_h`. Accelerometer sample: z = A + accelerometer effects + N(0, σ²),
 //! σ = `accel_sigma_mps2`·sqrt(60 / rate_s) (`accel_sigma_mps2` is the std of a 60-s mean).
 
+#![allow(clippy::needless_range_loop)]
+
 pub mod dcm;
 mod effects;
 mod engine;
