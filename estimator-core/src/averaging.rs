@@ -32,6 +32,9 @@ pub struct Measurement {
     pub count: u32,
     /// Variance of the mean per axis, (m/s²)².
     pub variance: [f64; 3],
+    /// Spread of the sample times about `t_s`, s² (0 for a single sample). The mean of a
+    /// curving signal differs from its value at the mean time by ½·A''·this; the model adds it.
+    pub time_var_s2: f64,
 }
 
 /// Accumulates samples into filter-period means.
@@ -44,6 +47,7 @@ pub struct Averager {
     t0: f64,
     a0: [f64; 3],
     sum_dt: f64,
+    sum_dt2: f64,
     sum_da: [f64; 3],
     sum_temp: f64,
     temp_count: u32,
@@ -60,6 +64,7 @@ impl Averager {
             t0: 0.0,
             a0: [0.0; 3],
             sum_dt: 0.0,
+            sum_dt2: 0.0,
             sum_da: [0.0; 3],
             sum_temp: 0.0,
             temp_count: 0,
@@ -83,6 +88,7 @@ impl Averager {
         }
         self.count += 1;
         self.sum_dt += s.t_s - self.t0;
+        self.sum_dt2 += (s.t_s - self.t0) * (s.t_s - self.t0);
         for i in 0..3 {
             self.sum_da[i] += s.specific_force[i] - self.a0[i];
         }
@@ -106,9 +112,11 @@ impl Averager {
             temp_c: if self.temp_count > 0 { self.sum_temp / f64::from(self.temp_count) } else { f64::NAN },
             count: self.count,
             variance: self.raw_variance.map(|v| v / n),
+            time_var_s2: (self.sum_dt2 / n - (self.sum_dt / n) * (self.sum_dt / n)).max(0.0),
         };
         self.count = 0;
         self.sum_dt = 0.0;
+        self.sum_dt2 = 0.0;
         self.sum_da = [0.0; 3];
         self.sum_temp = 0.0;
         self.temp_count = 0;

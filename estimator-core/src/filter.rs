@@ -245,7 +245,7 @@ impl<'m, const CAP: usize> Ekf<'m, CAP> {
         let step = self.steps;
         let n = self.model.dim();
         let mut h = [Vector3::zeros(); CAP];
-        let predicted = self.model.measurement(&self.x[..n], m.t_s, temp_dev, &mut h);
+        let predicted = self.model.measurement(&self.x[..n], m.t_s, temp_dev, m.time_var_s2, &mut h);
         let nu = Vector3::from(m.specific_force) - predicted;
         let mut cols = [0usize; CAP];
         let mut nm = 0;

@@ -78,7 +78,7 @@ fn measurement_jacobian_matches_finite_differences() {
     for k in 0..3 {
         let x = test_state(&m, k);
         let mut jac = [Vector3::zeros(); CAP];
-        m.measurement(&x, 0.0, 0.0, &mut jac);
+        m.measurement(&x, 0.0, 0.0, 300.0, &mut jac);
         let mut scratch = [Vector3::zeros(); CAP];
         let numeric: Vec<_> = (0..m.dim())
             .map(|j| {
@@ -86,7 +86,7 @@ fn measurement_jacobian_matches_finite_differences() {
                 let (mut xp, mut xm) = (x.clone(), x.clone());
                 xp[j] += h;
                 xm[j] -= h;
-                (m.measurement(&xp, 0.0, 0.0, &mut scratch) - m.measurement(&xm, 0.0, 0.0, &mut scratch)) / (2.0 * h)
+                (m.measurement(&xp, 0.0, 0.0, 300.0, &mut scratch) - m.measurement(&xm, 0.0, 0.0, 300.0, &mut scratch)) / (2.0 * h)
             })
             .collect();
         assert_columns_close("H", &jac[..m.dim()], &numeric);

@@ -6,8 +6,10 @@
 //! - [`catalog`]: the physical effects the user can add by name.
 //! - [`cli`]: one module per `driftid` subcommand.
 pub mod catalog;
+pub mod diagnose;
 pub mod format;
 pub mod identify;
+pub mod link;
 pub mod recording;
 pub mod simulate;
 pub mod stats;
@@ -16,6 +18,9 @@ pub mod cli {
     pub mod bench;
     pub mod common;
     pub mod demo;
+    pub mod diagnose;
     pub mod identify;
+    pub mod record;
+    pub mod replay;
     pub mod simulate;
 }

@@ -19,6 +19,8 @@ enum Command {
     Simulate(cli::simulate::SimulateArgs),
     /// Identify the drift coefficients of a recording, with 1σ and the Cramér–Rao bound.
     Identify(cli::identify::IdentifyArgs),
+    /// Compare the model with the measurements, rank the missing effects, climb the model ladder.
+    Diagnose(cli::diagnose::DiagnoseArgs),
     /// Accuracy benchmark: Monte Carlo over seeds against the Cramér–Rao bound.
     Bench(cli::bench::BenchArgs),
 }
@@ -30,6 +32,7 @@ fn main() {
         Command::Simulate(a) => cli::simulate::run(a),
         Command::Identify(a) => cli::identify::run(a),
         Command::Bench(a) => cli::bench::run(a),
+        Command::Diagnose(a) => cli::diagnose::run(a),
     };
     if let Err(e) = result {
         eprintln!("driftid: error: {e:#}");

@@ -82,7 +82,7 @@ pub fn run(args: &BenchArgs) -> anyhow::Result<()> {
     for (c, &h) in args.hours.iter().enumerate() {
         // Mean-time tags of 60-s windows of 1-s samples: the bound needs only the geometry.
         let meas: Vec<Measurement> = (0..)
-            .map(|k| Measurement { t_s: 60.0 * k as f64 + 29.5, specific_force: [0.0; 3], temp_c: f64::NAN, count: 60, variance: [(1e-5 * site.gravity_mps2).powi(2); 3] })
+            .map(|k| Measurement { t_s: 60.0 * k as f64 + 29.5, specific_force: [0.0; 3], temp_c: f64::NAN, count: 60, variance: [(1e-5 * site.gravity_mps2).powi(2); 3], time_var_s2: (60.0f64 * 60.0 - 1.0) / 12.0 })
             .take_while(|m| m.t_s <= h * 3600.0)
             .collect();
         let bound = cramer_rao_bound(&model, &meas, &truth);

@@ -177,7 +177,8 @@ pub fn ekf_pass(model: &Model<'_>, meas: &[Measurement], x0: &[f64], sigma0: &[f
     Ok((Estimate { value, cov }, residuals, states))
 }
 
-fn wide_prior(model: &Model<'_>, x0: &[f64]) -> (DVector<f64>, DMatrix<f64>) {
+/// The wide prior of every identification: zero angles (1σ 1e-6 rad) and each effect's prior.
+pub fn wide_prior(model: &Model<'_>, x0: &[f64]) -> (DVector<f64>, DMatrix<f64>) {
     let n = model.dim();
     let mut p0 = DMatrix::zeros(n, n);
     for i in 0..n {
@@ -269,7 +270,7 @@ pub fn smoothed_residuals(model: &Model<'_>, meas: &[Measurement], states: &[DVe
         .zip(&states[1..])
         .map(|(m, x)| {
             let dev = if m.temp_c.is_finite() { m.temp_c - reference } else { 0.0 };
-            let h = model.measurement(x.as_slice(), m.t_s, dev, &mut scratch);
+            let h = model.measurement(x.as_slice(), m.t_s, dev, m.time_var_s2, &mut scratch);
             [0, 1, 2].map(|i| m.specific_force[i] - h[i])
         })
         .collect()

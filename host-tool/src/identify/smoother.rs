@@ -25,16 +25,40 @@ pub struct Smoothed {
     pub innovations: Vec<Residual>,
 }
 
-/// Node bookkeeping of the forward pass.
-struct Node {
-    m_pred: DVector<f64>,
-    p_pred: DMatrix<f64>,
-    m: DVector<f64>,
-    p: DMatrix<f64>,
-    phi: DMatrix<f64>,
+/// One step of the forward pass, as an observer sees it (the score tests replay through this).
+pub struct StepView<'a> {
+    /// Update index.
+    pub j: usize,
+    /// Previous node's time, s, and this measurement's time.
+    pub t_prev_s: f64,
+    /// This measurement's time, s.
+    pub t_s: f64,
+    /// Temperature deviation at the previous node and at this one, °C.
+    pub temp_prev: f64,
+    /// Temperature deviation at this measurement, °C.
+    pub temp: f64,
+    /// Spread of the averaged sample times, s².
+    pub time_var_s2: f64,
+    /// Nominal state at the previous node and at this one.
+    pub nominal_prev: &'a DVector<f64>,
+    /// Nominal state at this measurement.
+    pub nominal: &'a DVector<f64>,
+    /// Transition matrix of the interval (n×n).
+    pub phi: &'a DMatrix<f64>,
+    /// Measurement Jacobian (3×n).
+    pub h: &'a DMatrix<f64>,
+    /// Kalman gain (n×3).
+    pub k: &'a DMatrix<f64>,
+    /// Innovation and its covariance's Cholesky factor.
+    pub nu: Vector3<f64>,
+    /// Lower Cholesky factor of S.
+    pub chol_l: Matrix3<f64>,
+    /// S⁻¹.
+    pub s_inv: Matrix3<f64>,
 }
 
-fn temp_devs(meas: &[Measurement]) -> Vec<f64> {
+/// Temperature deviations (°C from the first finite temperature) of each measurement; 0 without.
+pub fn temp_devs(meas: &[Measurement]) -> Vec<f64> {
     let reference = meas.iter().map(|m| m.temp_c).find(|t| t.is_finite());
     let mut last = 0.0;
     meas.iter()
@@ -47,6 +71,15 @@ fn temp_devs(meas: &[Measurement]) -> Vec<f64> {
         .collect()
 }
 
+/// Node bookkeeping of the forward pass.
+struct Node {
+    m_pred: DVector<f64>,
+    p_pred: DMatrix<f64>,
+    m: DVector<f64>,
+    p: DMatrix<f64>,
+    phi: DMatrix<f64>,
+}
+
 /// Runs the forward filter linearised about `nominal` (node 0 at t = 0, then one per measurement),
 /// from prior `x0`, `p0`, and the RTS smoother back. With `smooth = false` only the forward pass
 /// (filter covariance at the end = the smoothed covariance of the constant parameters).
@@ -57,6 +90,19 @@ pub fn linearised_pass(
     x0: &DVector<f64>,
     p0: &DMatrix<f64>,
     smooth: bool,
+) -> Smoothed {
+    linearised_pass_observed(model, meas, nominal, x0, p0, smooth, |_| {})
+}
+
+/// [`linearised_pass`] calling `observer` at every forward step.
+pub fn linearised_pass_observed(
+    model: &Model<'_>,
+    meas: &[Measurement],
+    nominal: &[DVector<f64>],
+    x0: &DVector<f64>,
+    p0: &DMatrix<f64>,
+    smooth: bool,
+    mut observer: impl FnMut(&StepView<'_>),
 ) -> Smoothed {
     let n = model.dim();
     assert!(n <= MAX_STATES && nominal.len() == meas.len() + 1);
@@ -87,7 +133,7 @@ pub fn linearised_pass(
         let m_pred = DVector::from_vec(f) + &phi * (&prev.m - xbar_prev);
         let p_pred = &phi * &prev.p * phi.transpose() + q;
         let xbar = &nominal[j + 1];
-        let predicted_at_nominal = model.measurement(xbar.as_slice(), z.t_s, temps[j], &mut hcols);
+        let predicted_at_nominal = model.measurement(xbar.as_slice(), z.t_s, temps[j], z.time_var_s2, &mut hcols);
         let mut h = DMatrix::zeros(3, n);
         for c in 0..n {
             h.set_column(c, &hcols[c]);
@@ -107,6 +153,22 @@ pub fn linearised_pass(
         let r = DMatrix::from_diagonal(&DVector::from_row_slice(&z.variance));
         let mut p = &ikh * &p_pred * ikh.transpose() + &k * r * k.transpose();
         p = (&p + p.transpose()) * 0.5;
+        observer(&StepView {
+            j,
+            t_prev_s: t_prev,
+            t_s: z.t_s,
+            temp_prev,
+            temp: temps[j],
+            time_var_s2: z.time_var_s2,
+            nominal_prev: xbar_prev,
+            nominal: xbar,
+            phi: &phi,
+            h: &h,
+            k: &k,
+            nu,
+            chol_l: chol.l(),
+            s_inv,
+        });
         innovations.push(Residual {
             step: j as u32,
             t_s: z.t_s,

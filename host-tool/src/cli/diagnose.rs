@@ -1,0 +1,142 @@
+//! `driftid diagnose`: compare the model with the measurements, rank the missing effects, and
+//! climb the model ladder.
+
+use std::path::PathBuf;
+
+use serde_json::json;
+
+use super::common::{load, ModelArgs};
+use crate::catalog;
+use crate::diagnose::{ladder, DiagnoseConfig, Diagnosis, Rung};
+use crate::format::sci;
+use crate::identify::prepare;
+
+/// Arguments of `driftid diagnose`.
+#[derive(clap::Args, Debug)]
+pub struct DiagnoseArgs {
+    /// Recording (CSV).
+    pub recording: PathBuf,
+    /// Print one JSON object instead of the text summary.
+    #[arg(long)]
+    pub json: bool,
+    /// Only diagnose the given model; do not climb the ladder.
+    #[arg(long)]
+    pub no_ladder: bool,
+    #[command(flatten)]
+    pub model: ModelArgs,
+}
+
+/// Prints one diagnosis as text.
+pub fn print_diagnosis(d: &Diagnosis) {
+    let model = if d.model.is_empty() { "paper".to_string() } else { format!("paper + {}", d.model.join(" + ")) };
+    println!("model: {model}");
+    println!(
+        "  residual RMS [{}, {}, {}] m/s^2 = [{:.3}, {:.3}, {:.3}] × noise floor [{}, {}, {}] m/s^2",
+        sci(d.residual_rms_mps2[0]),
+        sci(d.residual_rms_mps2[1]),
+        sci(d.residual_rms_mps2[2]),
+        d.residual_rms_over_floor[0],
+        d.residual_rms_over_floor[1],
+        d.residual_rms_over_floor[2],
+        sci(d.floor_mps2[0]),
+        sci(d.floor_mps2[1]),
+        sci(d.floor_mps2[2])
+    );
+    println!(
+        "  mean NIS/3 {:.3} (95 % band {:.3}–{:.3}); Ljung–Box Q {:.1} on {} dof, p = {:.2e}",
+        d.nis_mean, d.nis_band95[0], d.nis_band95[1], d.whiteness.ljung_box_q, d.whiteness.dof, d.whiteness.p_value
+    );
+    if !d.failures.is_empty() {
+        let w: Vec<String> = d.failures.iter().take(8).map(|f| format!("{:.1}–{:.1} h (NIS/3 {:.2}, axis {})", f.start_h, f.end_h, f.nis_mean, f.worst_axis)).collect();
+        println!("  where it fails: {}{}", w.join("; "), if d.failures.len() > 8 { format!(" … ({} windows)", d.failures.len()) } else { String::new() });
+    }
+    let strong: Vec<String> = d
+        .correlations
+        .iter()
+        .filter(|c| c.corr.iter().any(|r| r.abs() > c.bound99))
+        .map(|c| format!("{} [{:+.2}, {:+.2}, {:+.2}]", c.regressor, c.corr[0], c.corr[1], c.corr[2]))
+        .collect();
+    if !strong.is_empty() {
+        println!("  residual correlates with: {}", strong.join(", "));
+    }
+    println!("  {:<13} {:>10} {:>4} {:>9} {:>9} {:>22}  largest parameter (estimate ± 1σ; detectable from)", "candidate", "statistic", "dof", "p", "p (Holm)", "expected RMS/floor");
+    for c in &d.ranking {
+        if let Some(why) = &c.untestable {
+            println!("  {:<13} not tested: {why}", c.effect);
+            continue;
+        }
+        let big = c.params.iter().max_by(|a, b| (a.value / a.sigma).abs().total_cmp(&(b.value / b.sigma).abs()));
+        let big = big.map(|p| format!("{} = {} ± {} {} (≥ {})", p.name, sci(p.value), sci(p.sigma), p.unit, sci(p.min_detectable))).unwrap_or_default();
+        println!(
+            "  {:<13} {:>10.1} {:>4} {:>9.2e} {:>9.2e}   [{:.2}, {:.2}, {:.2}]  {big}",
+            c.effect, c.statistic, c.dof, c.p_value, c.p_adjusted, c.expected_rms_over_floor[0], c.expected_rms_over_floor[1], c.expected_rms_over_floor[2]
+        );
+    }
+    for cf in &d.confounding {
+        println!("  confounded: {} vs {} (canonical correlation {:.3}, statistic gap {:.1}); separate by {}", cf.a, cf.b, cf.canonical_correlation, cf.statistic_gap, cf.separate_by);
+    }
+    println!("  verdict: {}", d.verdict);
+}
+
+/// Prints the ladder.
+pub fn print_ladder(rungs: &[Rung]) {
+    println!("\nmodel ladder (watch the error fall):");
+    println!("  {:<40} {:>22} {:>9} {:>10}  added next", "model", "RMS/floor [x, y, z]", "NIS/3", "LB p");
+    for r in rungs {
+        let m = if r.model.is_empty() { "paper".into() } else { format!("paper + {}", r.model.join(" + ")) };
+        let next = r.next.as_ref().map(|(e, p)| format!("{e} (p = {p:.1e})")).unwrap_or_else(|| "—".into());
+        println!(
+            "  {:<40} [{:>5.3}, {:>5.3}, {:>5.3}] {:>9.3} {:>10.2e}  {next}",
+            m, r.residual_rms_over_floor[0], r.residual_rms_over_floor[1], r.residual_rms_over_floor[2], r.nis_mean, r.whiteness_p
+        );
+    }
+    if rungs.len() > 1 {
+        let (a, b) = (&rungs[0], &rungs[rungs.len() - 1]);
+        println!("  drift coefficients, first → last model (1σ of the last):");
+        for ((name, v0, _), (_, v1, s1)) in a.coefficients.iter().zip(&b.coefficients) {
+            println!("    {name:<4} {v0:>12.6} → {v1:>12.6} ± {}  (moved {:+.1} σ)", sci(*s1), (v1 - v0) / s1);
+        }
+    }
+}
+
+/// Runs `driftid diagnose`.
+pub fn run(args: &DiagnoseArgs) -> anyhow::Result<()> {
+    let cfg = DiagnoseConfig { identify: args.model.config()?, max_rungs: if args.no_ladder { 1 } else { 4 }, ..Default::default() };
+    anyhow::ensure!(cfg.identify.smoother_iterations > 0, "diagnose needs the converged identification; drop --single-pass");
+    let loaded = load(&args.recording, args.model.latitude_deg)?;
+    let effects = catalog::model_effects(&args.model.with)?;
+    let prep = prepare(loaded.site, &loaded.samples, &cfg.identify)?;
+    let (diagnoses, rungs, _, _) = ladder(&prep, &effects, &cfg)?;
+    let d = &diagnoses[0];
+    if args.json {
+        let out = json!({
+            "recording": args.recording.display().to_string(),
+            "model": d.model,
+            "residual_rms_over_floor": d.residual_rms_over_floor,
+            "residual_rms_mps2": d.residual_rms_mps2,
+            "floor_mps2": d.floor_mps2,
+            "nis_mean": d.nis_mean,
+            "nis_band95": d.nis_band95,
+            "whiteness_p": d.whiteness.p_value,
+            "ljung_box": { "q": d.whiteness.ljung_box_q, "dof": d.whiteness.dof },
+            "ranking": d.ranking,
+            "confounding": d.confounding,
+            "failures": d.failures,
+            "verdict": d.verdict,
+            "ladder": rungs,
+            "final_verdict": diagnoses.last().map(|d| d.verdict.clone()),
+        });
+        println!("{}", serde_json::to_string_pretty(&out)?);
+    } else {
+        println!("{}: {} updates of {} s", args.recording.display(), prep.measurements.len(), cfg.identify.period_s);
+        print_diagnosis(d);
+        if diagnoses.len() > 1 {
+            for d in &diagnoses[1..] {
+                println!();
+                print_diagnosis(d);
+            }
+        }
+        print_ladder(&rungs);
+    }
+    Ok(())
+}

@@ -1,0 +1,77 @@
+//! `driftid record`: record the navigation computer's telemetry to a recording CSV.
+
+use std::path::PathBuf;
+use std::time::Duration;
+
+use protocol::Message;
+
+use crate::link::{self, port, record};
+use crate::simulate::COEFFICIENT_NAMES;
+
+/// Record the firmware's stream: samples to a recording CSV, raw frames to an append-only log.
+#[derive(Clone, Debug, clap::Args)]
+pub struct RecordArgs {
+    /// Serial port of the navigation computer.
+    #[arg(long)]
+    pub port: String,
+    /// Baud rate.
+    #[arg(long, default_value_t = port::DEFAULT_BAUD)]
+    pub baud: u32,
+    /// The recording to write (CSV interchange format).
+    #[arg(long)]
+    pub out: PathBuf,
+    /// Also append every received byte to this raw frame log (flushed per read).
+    #[arg(long)]
+    pub raw: Option<PathBuf>,
+    /// Latitude for the recording's metadata when the firmware does not announce one, degrees.
+    #[arg(long, allow_hyphen_values = true)]
+    pub latitude_deg: Option<f64>,
+    /// Stop after this many seconds (default: until interrupted).
+    #[arg(long)]
+    pub duration_s: Option<f64>,
+    /// Exit when the port disappears instead of waiting for it to come back.
+    #[arg(long)]
+    pub no_reconnect: bool,
+}
+
+/// Runs `driftid record`.
+pub fn run(a: &RecordArgs) -> anyhow::Result<()> {
+    let opts = record::RecordOptions {
+        port: a.port.clone(),
+        baud: a.baud,
+        out: a.out.clone(),
+        raw: a.raw.clone(),
+        latitude_deg: a.latitude_deg,
+        duration: a.duration_s.map(Duration::from_secs_f64),
+        reconnect: !a.no_reconnect,
+    };
+    let mut samples = 0u64;
+    let sum = record::record(&opts, |m| match m {
+        Message::Raw(_) => {
+            samples += 1;
+            if samples % 600 == 0 {
+                eprintln!("{samples} samples received");
+            }
+        }
+        Message::Estimate(_) | Message::Status(_) | Message::Fault(_) | Message::Hello(_) => {
+            eprintln!("{}", link::describe(m))
+        }
+        Message::Command(_) => {}
+    })?;
+    eprintln!(
+        "driftid record: {} samples to {} ({} duplicates skipped, {} sample gaps), {} estimates, {} connection(s); link: {}",
+        sum.samples,
+        a.out.display(),
+        sum.duplicates,
+        sum.sample_gaps,
+        sum.estimates,
+        sum.connections,
+        sum.rx
+    );
+    if let Some(e) = sum.last_estimate {
+        for (i, n) in COEFFICIENT_NAMES.iter().enumerate() {
+            eprintln!("  {n:>4} = {:+.5} ± {:.5}", e.state[3 + i], e.sigma[3 + i]);
+        }
+    }
+    Ok(())
+}

@@ -1,0 +1,167 @@
+//! `driftid replay`: stream a recording into the firmware (hardware-in-the-loop replay) and
+//! record what comes back.
+
+use std::fs::File;
+use std::io::{BufWriter, Write};
+use std::path::PathBuf;
+use std::time::Duration;
+
+use anyhow::Context as _;
+use protocol::{Config, Estimate};
+
+use crate::link::{self, port, replay};
+use crate::recording;
+use crate::simulate::COEFFICIENT_NAMES;
+
+/// Replay a recording into the firmware over a serial port; write the estimates it returns.
+#[derive(Clone, Debug, clap::Args)]
+pub struct ReplayArgs {
+    /// The recording (CSV interchange format).
+    pub recording: PathBuf,
+    /// Serial port of the navigation computer (or QEMU's pty).
+    #[arg(long)]
+    pub port: String,
+    /// Baud rate.
+    #[arg(long, default_value_t = port::DEFAULT_BAUD)]
+    pub baud: u32,
+    /// Filter period, s.
+    #[arg(long, default_value_t = 60.0)]
+    pub period_s: f64,
+    /// 1σ noise of one raw sample, m/s² (default: 1e-5 g per 60-s mean at the recording's rate).
+    #[arg(long)]
+    pub raw_sigma: Option<f64>,
+    /// Gyro angle random walk, deg²/h.
+    #[arg(long, default_value_t = 1e-8)]
+    pub arw: f64,
+    /// Where to write the firmware's estimates (CSV); default: RECORDING.firmware.csv.
+    #[arg(long)]
+    pub out: Option<PathBuf>,
+    /// Append every byte received to this raw frame log.
+    #[arg(long)]
+    pub raw: Option<PathBuf>,
+    /// Send Shutdown at the end (QEMU exits; a real board resets).
+    #[arg(long)]
+    pub shutdown: bool,
+    /// Give up after this many seconds.
+    #[arg(long, default_value_t = 3600.0)]
+    pub timeout_s: f64,
+    /// Print every estimate.
+    #[arg(long)]
+    pub verbose: bool,
+}
+
+/// Estimates CSV header: step, time, samples, NIS, innovation, 15 states, 15 sigmas.
+pub fn estimates_header() -> String {
+    let names: Vec<String> = ["tx_rad", "ty_rad", "tz_rad"]
+        .iter()
+        .map(|s| s.to_string())
+        .chain(COEFFICIENT_NAMES.iter().map(|s| s.to_string()))
+        .collect();
+    let mut h = String::from("step,t_s,samples,nis,innov_x_mps2,innov_y_mps2,innov_z_mps2");
+    for n in &names {
+        h.push(',');
+        h.push_str(n);
+    }
+    for n in &names {
+        h.push_str(",sigma_");
+        h.push_str(n);
+    }
+    h
+}
+
+/// One estimates CSV row (shortest round-trip float formatting: exact).
+pub fn estimate_row(e: &Estimate) -> String {
+    let mut r = format!(
+        "{},{:?},{},{:?},{:?},{:?},{:?}",
+        e.step, e.t_s, e.samples, e.nis, e.innovation[0], e.innovation[1], e.innovation[2]
+    );
+    for v in e.state.iter().chain(e.sigma.iter()) {
+        r.push_str(&format!(",{v:?}"));
+    }
+    r
+}
+
+/// Runs `driftid replay`.
+pub fn run(a: &ReplayArgs) -> anyhow::Result<()> {
+    let rec = recording::read_recording(&a.recording)?;
+    let rate_s = if rec.samples.len() > 1 {
+        (rec.samples[rec.samples.len() - 1].t_s - rec.samples[0].t_s) / (rec.samples.len() - 1) as f64
+    } else {
+        1.0
+    };
+    let g = rec.meta.gravity_mps2.unwrap_or(9.80665);
+    let sigma = a.raw_sigma.unwrap_or(1e-5 * g * (60.0 / rate_s).sqrt());
+    let base = Config {
+        filter_period_s: a.period_s,
+        raw_sigma_mps2: [sigma; 3],
+        arw_deg2_per_h: a.arw,
+        status_every: 0,
+        ..Config::default()
+    };
+    let config = replay::config_for(&rec.meta, base)?;
+    let samples = replay::link_samples(&rec.samples);
+    let port = port::open(&a.port, a.baud)?;
+    let writer = port.try_clone_native().context("cloning the serial port")?;
+    let out_path = a.out.clone().unwrap_or_else(|| a.recording.with_extension("firmware.csv"));
+    let mut raw = match &a.raw {
+        Some(p) => Some(
+            std::fs::OpenOptions::new()
+                .create(true)
+                .append(true)
+                .open(p)
+                .with_context(|| format!("opening {}", p.display()))?,
+        ),
+        None => None,
+    };
+    let opts = replay::ReplayOptions {
+        config,
+        shutdown: a.shutdown,
+        timeout: Duration::from_secs_f64(a.timeout_s),
+    };
+    eprintln!("driftid replay: {} samples from {} into {}", samples.len(), a.recording.display(), a.port);
+    let verbose = a.verbose;
+    let total_steps = (rec.samples.last().map_or(0.0, |s| s.t_s) / a.period_s).ceil() as u64;
+    let outcome = replay::replay(
+        port,
+        writer,
+        &samples,
+        &opts,
+        || true,
+        |bytes| {
+            if let Some(r) = raw.as_mut() {
+                r.write_all(bytes)?;
+                r.flush()?;
+            }
+            Ok(())
+        },
+        |m| match m {
+            protocol::Message::Estimate(e) if verbose || e.step % 60 == 0 => {
+                eprintln!("[{}/{}] {}", e.step + 1, total_steps, link::describe(m))
+            }
+            protocol::Message::Fault(_) | protocol::Message::Hello(_) => eprintln!("{}", link::describe(m)),
+            _ => {}
+        },
+    )?;
+    let mut w = BufWriter::new(File::create(&out_path).with_context(|| format!("creating {}", out_path.display()))?);
+    writeln!(w, "{}", estimates_header())?;
+    for e in &outcome.estimates {
+        writeln!(w, "{}", estimate_row(e))?;
+    }
+    w.flush()?;
+    if let Some(s) = outcome.final_status() {
+        eprintln!("{}", link::describe(&protocol::Message::Status(*s)));
+    }
+    eprintln!(
+        "driftid replay: {} estimates written to {} in {:.1} s; link from the firmware: {}",
+        outcome.estimates.len(),
+        out_path.display(),
+        outcome.elapsed_s,
+        outcome.rx
+    );
+    if let Some(e) = outcome.estimates.last() {
+        for (i, n) in COEFFICIENT_NAMES.iter().enumerate() {
+            eprintln!("  {n:>4} = {:+.5} ± {:.5}", e.state[3 + i], e.sigma[3 + i]);
+        }
+    }
+    Ok(())
+}

@@ -1,0 +1,201 @@
+//! Score (Lagrange-multiplier) tests of candidate effects from one replay of the current model.
+//!
+//! Under the current model H0 the filter's innovations ν_j are white with covariance S_j. If an
+//! effect with parameters β (zero under H0) is present, the same filter's innovations become
+//! `ν_j + D_j β`, where the *signature* D_j follows from a recursion through the H0 filter
+//! (Basseville & Nikiforov; Friedland's bias signatures):
+//!
+//! ```text
+//! Ψ⁻_j = Φ_j Ψ_{j−1} + Γ_j T_{j−1}      Γ_j = ∂x_j/∂β over the interval (true dynamics)
+//! T_j  = A_j T_{j−1}                     β's own dynamics (identity for constants)
+//! D_j  = H_j Ψ⁻_j + H_β,j T_j            Ψ_j = Ψ⁻_j − K_j D_j
+//! ```
+//! Whitening with S_j = L_j L_jᵀ, the score is `s = Σ D̃_jᵀ ν̃_j` and the information
+//! `I = Σ D̃_jᵀ D̃_j`; the statistic `sᵀ I⁺ s` is χ² with rank(I) degrees of freedom under H0.
+//! `I⁺ s` is the one-step estimate of β and `I⁺` its covariance. Γ, A and H_β come from the
+//! core's own propagation and measurement Jacobians of the model extended by the candidate,
+//! evaluated on the nominal (smoothed) trajectory with β = 0: no model code is duplicated here.
+
+use estimator_core::effects::Effect;
+use estimator_core::model::{Model, MAX_STATES};
+use estimator_core::propagate::{propagate, Transition};
+use estimator_core::Measurement;
+use nalgebra::{DMatrix, DVector, SymmetricEigen, Vector3};
+
+use crate::identify::smoother::{linearised_pass_observed, Smoothed, StepView};
+
+/// The signature of one candidate and its test.
+pub struct Signature {
+    /// Parameters tested.
+    pub q: usize,
+    /// Score Σ D̃ᵀ ν̃.
+    pub score: DVector<f64>,
+    /// Information Σ D̃ᵀ D̃.
+    pub info: DMatrix<f64>,
+    /// Whitened signature, 3 rows per update (3N × q).
+    pub whitened: DMatrix<f64>,
+}
+
+/// Result of a score test.
+pub struct ScoreTest {
+    /// Statistic sᵀ I⁺ s.
+    pub statistic: f64,
+    /// Rank of I (identifiable directions).
+    pub dof: usize,
+    /// One-step estimate I⁺ s.
+    pub estimate: DVector<f64>,
+    /// Its covariance I⁺.
+    pub cov: DMatrix<f64>,
+}
+
+impl Signature {
+    /// Pseudo-inverse test: I is scaled to unit diagonal, directions with eigenvalue below 1e-9
+    /// of the largest are unidentifiable on this run and dropped from the test.
+    pub fn test(&self) -> ScoreTest {
+        let q = self.q;
+        let scale: Vec<f64> = (0..q).map(|k| self.info[(k, k)].sqrt()).collect();
+        let inv_scale: Vec<f64> = scale.iter().map(|&s| if s > 0.0 { 1.0 / s } else { 0.0 }).collect();
+        let is = DMatrix::from_fn(q, q, |a, b| self.info[(a, b)] * inv_scale[a] * inv_scale[b]);
+        let ss = DVector::from_fn(q, |a, _| self.score[a] * inv_scale[a]);
+        let eig = SymmetricEigen::new(is);
+        let lmax = eig.eigenvalues.iter().cloned().fold(0.0, f64::max);
+        let mut pinv = DMatrix::zeros(q, q);
+        let mut dof = 0;
+        for (k, &l) in eig.eigenvalues.iter().enumerate() {
+            if lmax > 0.0 && l > 1e-9 * lmax {
+                let u = eig.eigenvectors.column(k);
+                pinv += u * u.transpose() / l;
+                dof += 1;
+            }
+        }
+        let cov = DMatrix::from_fn(q, q, |a, b| pinv[(a, b)] * inv_scale[a] * inv_scale[b]);
+        let estimate = &cov * &self.score;
+        let statistic = ss.dot(&(&pinv * &ss));
+        ScoreTest { statistic, dof, estimate, cov }
+    }
+}
+
+struct Tracker<'m> {
+    model: Model<'m>,
+    q: usize,
+    psi: DMatrix<f64>,
+    t: DMatrix<f64>,
+    score: DVector<f64>,
+    info: DMatrix<f64>,
+    rows: Vec<f64>,
+}
+
+/// Replays the current model's final forward pass once and carries every candidate's signature.
+/// `extended[c]` is the current model's effects followed by candidate c's (its state layout
+/// extends the current one). Returns the pass and, per candidate, its signature (`None` when
+/// the extended model does not fit in the state capacity).
+pub fn signatures(
+    model: &Model<'_>,
+    extended: &[Option<Model<'_>>],
+    meas: &[Measurement],
+    nominal: &[DVector<f64>],
+    x0: &DVector<f64>,
+    p0: &DMatrix<f64>,
+) -> (Smoothed, Vec<Option<Signature>>, Vec<f64>) {
+    let n = model.dim();
+    let mut trackers: Vec<Option<Tracker<'_>>> = extended
+        .iter()
+        .map(|m| {
+            m.map(|m| {
+                let q = m.dim() - n;
+                Tracker {
+                    model: m,
+                    q,
+                    psi: DMatrix::zeros(n, q),
+                    t: DMatrix::identity(q, q),
+                    score: DVector::zeros(q),
+                    info: DMatrix::zeros(q, q),
+                    rows: Vec::with_capacity(3 * q * meas.len()),
+                }
+            })
+        })
+        .collect();
+    let mut nu_whitened = Vec::with_capacity(3 * meas.len());
+    let mut tr = Transition::<MAX_STATES>::default();
+    let mut cols = [Vector3::zeros(); MAX_STATES];
+    let pass = linearised_pass_observed(model, meas, nominal, x0, p0, false, |v: &StepView<'_>| {
+        let l = v.chol_l;
+        let nu_w = l.solve_lower_triangular(&v.nu).unwrap_or(v.nu);
+        nu_whitened.extend_from_slice(nu_w.as_slice());
+        for tk in trackers.iter_mut().flatten() {
+            let q = tk.q;
+            let mut x = v.nominal_prev.as_slice().to_vec();
+            x.resize(n + q, 0.0);
+            propagate(&tk.model, &mut x, v.t_prev_s, v.t_s - v.t_prev_s, v.temp_prev, v.temp, &mut tr);
+            let mut gamma = DMatrix::zeros(n, q);
+            let mut a = DMatrix::identity(q, q);
+            for (r, &d) in tk.model.dynamic_states().iter().enumerate() {
+                for b in 0..q {
+                    if d < n {
+                        gamma[(d, b)] = tr.rows[r][n + b];
+                    } else {
+                        a[(d - n, b)] = tr.rows[r][n + b];
+                    }
+                }
+            }
+            let mut xj = v.nominal.as_slice().to_vec();
+            xj.resize(n + q, 0.0);
+            tk.model.measurement(&xj, v.t_s, v.temp, v.time_var_s2, &mut cols);
+            let h_beta = DMatrix::from_fn(3, q, |i, b| cols[n + b][i]);
+            let psi_pred = v.phi * &tk.psi + &gamma * &tk.t;
+            tk.t = &a * &tk.t;
+            let d = v.h * &psi_pred + h_beta * &tk.t;
+            tk.psi = psi_pred - v.k * &d;
+            // Whiten: D̃ = L⁻¹ D column by column (L is 3×3 lower triangular).
+            let mut dw = DMatrix::zeros(3, q);
+            for b in 0..q {
+                let c = Vector3::new(d[(0, b)], d[(1, b)], d[(2, b)]);
+                let w = l.solve_lower_triangular(&c).unwrap_or(c);
+                dw.set_column(b, &w);
+            }
+            tk.score += dw.transpose() * DVector::from_row_slice(nu_w.as_slice());
+            tk.info += dw.transpose() * &dw;
+            for i in 0..3 {
+                tk.rows.extend(dw.row(i).iter());
+            }
+        }
+    });
+    let sigs = trackers
+        .into_iter()
+        .map(|tk| {
+            tk.map(|tk| {
+                let n_rows = tk.rows.len() / tk.q.max(1);
+                Signature { q: tk.q, score: tk.score, info: tk.info, whitened: DMatrix::from_row_slice(n_rows, tk.q, &tk.rows) }
+            })
+        })
+        .collect();
+    (pass, sigs, nu_whitened)
+}
+
+/// Orthonormal basis of the column space of `w` (directions with singular value above 1e-6 of
+/// the largest).
+fn basis(w: &DMatrix<f64>) -> DMatrix<f64> {
+    let svd = w.clone().svd(true, false);
+    let u = svd.u.unwrap();
+    let smax = svd.singular_values.iter().cloned().fold(0.0, f64::max);
+    let keep: Vec<usize> = (0..svd.singular_values.len()).filter(|&k| svd.singular_values[k] > 1e-6 * smax).collect();
+    DMatrix::from_fn(u.nrows(), keep.len(), |i, j| u[(i, keep[j])])
+}
+
+/// Largest canonical correlation between two whitened signatures: how alike their footprints
+/// in the innovations are (1 = indistinguishable on this run).
+pub fn canonical_correlation(a: &Signature, b: &Signature) -> f64 {
+    let (qa, qb) = (basis(&a.whitened), basis(&b.whitened));
+    if qa.ncols() == 0 || qb.ncols() == 0 {
+        return 0.0;
+    }
+    let m = qa.transpose() * qb;
+    m.singular_values().iter().cloned().fold(0.0, f64::max).min(1.0)
+}
+
+/// Adds `effect` to a copy of the current effect list (helper for building `extended`).
+pub fn extend<'a>(current: &[&'a dyn Effect], effect: &'a dyn Effect) -> Vec<&'a dyn Effect> {
+    let mut v = current.to_vec();
+    v.push(effect);
+    v
+}

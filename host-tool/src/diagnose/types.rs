@@ -1,0 +1,166 @@
+//! What a diagnosis produces: the comparison of model and measurements, the ranked candidates and
+//! the model ladder. Plain data (serde) so the report, the JSON output and the tests share it.
+
+use serde::Serialize;
+
+/// Time series of one model against the measurements, one entry per filter update.
+#[derive(Clone, Debug, Default, Serialize)]
+pub struct Series {
+    /// Time, h.
+    pub t_h: Vec<f64>,
+    /// Measured specific force (window means), m/s², per axis.
+    pub measured: Vec<[f64; 3]>,
+    /// Model prediction along the converged (smoothed) trajectory, m/s².
+    pub predicted: Vec<[f64; 3]>,
+    /// Measured − predicted along the smoothed trajectory, m/s².
+    pub residual: Vec<[f64; 3]>,
+    /// Filter innovations of the final forward pass, m/s².
+    pub innovation: Vec<[f64; 3]>,
+    /// 1σ of each innovation (sqrt of the diagonal of S), m/s².
+    pub innovation_sigma: Vec<[f64; 3]>,
+    /// Whitened innovations (unit variance when the model holds).
+    pub whitened: Vec<[f64; 3]>,
+    /// NIS of each update (χ²(3) when the model holds).
+    pub nis: Vec<f64>,
+}
+
+/// Autocorrelation and Ljung–Box test of the whitened innovations.
+#[derive(Clone, Debug, Default, Serialize)]
+pub struct Whiteness {
+    /// Autocorrelation at lags 1..=m, per axis.
+    pub acf: Vec<[f64; 3]>,
+    /// 95 % bound for a white sequence, ±1.96/√N.
+    pub acf_bound95: f64,
+    /// Ljung–Box statistic summed over the three axes.
+    pub ljung_box_q: f64,
+    /// Its degrees of freedom.
+    pub dof: f64,
+    /// p-value (small: not white).
+    pub p_value: f64,
+}
+
+/// A time interval where the model leaves its band.
+#[derive(Clone, Debug, Serialize)]
+pub struct FailureWindow {
+    /// Start and end, h.
+    pub start_h: f64,
+    /// End, h.
+    pub end_h: f64,
+    /// Mean NIS/3 over the interval (1 when the model holds).
+    pub nis_mean: f64,
+    /// Axis with the largest mean squared whitened innovation there (`x`, `y`, `z`).
+    pub worst_axis: char,
+}
+
+/// Correlation of the residuals with a candidate regressor.
+#[derive(Clone, Debug, Serialize)]
+pub struct RegressorCorrelation {
+    /// Regressor name: `A_x`, `A_x*A_y`, `t`, `temp`, …
+    pub regressor: String,
+    /// Correlation coefficient with the residual of each axis.
+    pub corr: [f64; 3],
+    /// 99 % bound for no correlation (±2.58/√N).
+    pub bound99: f64,
+}
+
+/// One estimated parameter of a candidate effect.
+#[derive(Clone, Debug, Serialize)]
+pub struct ParamEstimate {
+    /// Parameter name.
+    pub name: String,
+    /// Unit.
+    pub unit: String,
+    /// Estimated size (one Gauss–Newton step from the current model).
+    pub value: f64,
+    /// Its 1σ.
+    pub sigma: f64,
+    /// Smallest size this run would detect with 90 % power at the 1 % level, same unit.
+    pub min_detectable: f64,
+}
+
+/// A catalog effect scored against the current model's innovations.
+#[derive(Clone, Debug, Serialize)]
+pub struct Candidate {
+    /// Catalog name.
+    pub effect: String,
+    /// Physical explanation.
+    pub about: String,
+    /// Score (Lagrange-multiplier) statistic.
+    pub statistic: f64,
+    /// Degrees of freedom (identifiable parameters tested).
+    pub dof: f64,
+    /// p-value of the statistic under χ²(dof).
+    pub p_value: f64,
+    /// p-value adjusted for the number of candidates tested (Holm).
+    pub p_adjusted: f64,
+    /// Estimated parameters with 1σ and the detection limit.
+    pub params: Vec<ParamEstimate>,
+    /// Expected residual RMS over the floor after adding this effect, per axis.
+    pub expected_rms_over_floor: [f64; 3],
+    /// Why it could not be tested (e.g. no temperature column); `None` when tested.
+    pub untestable: Option<String>,
+}
+
+/// Two candidates whose innovation signatures are nearly the same on this run.
+#[derive(Clone, Debug, Serialize)]
+pub struct Confounding {
+    /// First effect (the higher ranked).
+    pub a: String,
+    /// Second effect.
+    pub b: String,
+    /// Largest canonical correlation of their whitened innovation signatures.
+    pub canonical_correlation: f64,
+    /// Difference of their score statistics (a − b).
+    pub statistic_gap: f64,
+    /// What experiment would separate them.
+    pub separate_by: String,
+}
+
+/// The comparison of one model with the measurements, and what is missing.
+#[derive(Clone, Debug, Serialize)]
+pub struct Diagnosis {
+    /// Effects in the model (beyond the paper's drift).
+    pub model: Vec<String>,
+    /// Noise floor of one filter-period mean, m/s², per axis (from raw-sample differences).
+    pub floor_mps2: [f64; 3],
+    /// RMS of the residual along the converged trajectory, m/s².
+    pub residual_rms_mps2: [f64; 3],
+    /// RMS over floor, per axis (≈ 1 when the model holds).
+    pub residual_rms_over_floor: [f64; 3],
+    /// Mean NIS/3 (1 when consistent).
+    pub nis_mean: f64,
+    /// 95 % band of the mean NIS/3 for this many updates.
+    pub nis_band95: [f64; 2],
+    /// Whiteness of the whitened innovations.
+    pub whiteness: Whiteness,
+    /// Where the model fails.
+    pub failures: Vec<FailureWindow>,
+    /// Residual correlation with candidate regressors.
+    pub correlations: Vec<RegressorCorrelation>,
+    /// Candidates, most significant first (untestable ones last).
+    pub ranking: Vec<Candidate>,
+    /// Confounded pairs among the leading candidates.
+    pub confounding: Vec<Confounding>,
+    /// One-paragraph verdict in plain words.
+    pub verdict: String,
+    /// The time series (for plots).
+    #[serde(skip)]
+    pub series: Series,
+}
+
+/// One model of the ladder and how it fits.
+#[derive(Clone, Debug, Serialize)]
+pub struct Rung {
+    /// Effects in the model (beyond the paper's drift).
+    pub model: Vec<String>,
+    /// Residual RMS over floor per axis.
+    pub residual_rms_over_floor: [f64; 3],
+    /// Mean NIS/3.
+    pub nis_mean: f64,
+    /// Ljung–Box p-value.
+    pub whiteness_p: f64,
+    /// The 12 drift coefficients (name, value, 1σ) in this model.
+    pub coefficients: Vec<(String, f64, f64)>,
+    /// The effect added at the next rung, with its p-value, if any.
+    pub next: Option<(String, f64)>,
+}

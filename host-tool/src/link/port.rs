@@ -1,0 +1,58 @@
+//! Serial ports and pseudo-terminals.
+
+use std::io;
+use std::time::Duration;
+
+use anyhow::Context as _;
+use serialport::{SerialPort, TTYPort};
+
+/// Default baud rate of the navigation computer's link (ignored by ptys).
+pub const DEFAULT_BAUD: u32 = 115_200;
+
+/// Read timeout used by the link loops: short, so they can watch deadlines and child processes.
+pub const POLL: Duration = Duration::from_millis(100);
+
+/// Opens a serial port (a tty device or a pty's slave side) in raw mode.
+pub fn open(path: &str, baud: u32) -> anyhow::Result<TTYPort> {
+    serialport::new(path, baud)
+        .timeout(POLL)
+        .open_native()
+        .with_context(|| format!("opening serial port {path}"))
+}
+
+/// A pseudo-terminal pair for talking to QEMU: the host keeps the master; QEMU opens the slave by
+/// its path (`-serial /dev/pts/N`). The slave handle is returned too: keep it open until QEMU has
+/// opened the slave, or reads on the master fail (EIO) while no one holds it.
+pub struct Pty {
+    /// The host's end.
+    pub master: TTYPort,
+    /// The other end (kept open by the host while it lives).
+    pub slave: TTYPort,
+    /// Path of the slave device, for QEMU.
+    pub slave_path: String,
+}
+
+/// Creates a pty pair in raw mode.
+pub fn pty_pair() -> anyhow::Result<Pty> {
+    let (mut master, slave) = TTYPort::pair().context("creating a pseudo-terminal pair")?;
+    master.set_timeout(POLL)?;
+    let slave_path = slave.name().context("the pty slave has no name")?;
+    Ok(Pty { master, slave, slave_path })
+}
+
+/// Whether an I/O error means "no data yet" rather than a broken link.
+pub fn is_timeout(e: &io::Error) -> bool {
+    matches!(e.kind(), io::ErrorKind::TimedOut | io::ErrorKind::WouldBlock | io::ErrorKind::Interrupted)
+}
+
+/// Whether an I/O error means the other end went away (port unplugged, QEMU exited).
+pub fn is_gone(e: &io::Error) -> bool {
+    matches!(
+        e.kind(),
+        io::ErrorKind::BrokenPipe
+            | io::ErrorKind::NotConnected
+            | io::ErrorKind::UnexpectedEof
+            | io::ErrorKind::NotFound
+            | io::ErrorKind::ConnectionReset
+    ) || e.raw_os_error() == Some(5) // EIO: pty with no other end / device removed
+}
