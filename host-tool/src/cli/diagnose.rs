@@ -73,7 +73,11 @@ pub fn print_diagnosis(d: &Diagnosis) {
         );
     }
     for cf in &d.confounding {
-        println!("  confounded: {} vs {} (canonical correlation {:.3}, statistic gap {:.1}); separate by {}", cf.a, cf.b, cf.canonical_correlation, cf.statistic_gap, cf.separate_by);
+        if cf.separated {
+            println!("  similar signatures: {} vs {} (canonical correlation {:.3}) — but the data prefer {} (statistic gap {:.1})", cf.a, cf.b, cf.canonical_correlation, cf.a, cf.statistic_gap);
+        } else {
+            println!("  NOT SEPARATED: {} vs {} (canonical correlation {:.3}, statistic gap only {:.1}); what would separate them: {}", cf.a, cf.b, cf.canonical_correlation, cf.statistic_gap, cf.separate_by);
+        }
     }
     println!("  verdict: {}", d.verdict);
 }

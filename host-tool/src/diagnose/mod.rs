@@ -29,6 +29,10 @@ use crate::identify::smoother::temp_devs;
 use crate::identify::{identify, smoothed_residuals, wide_prior, Config, Identification, Prepared};
 use crate::stats::{chi2_quantile, chi2_sf, normal_quantile};
 
+/// Statistic gap below which two similar candidates are "not clearly separated": a likelihood
+/// ratio below e^5 ≈ 150 : 1.
+pub const SEPARATION_GAP: f64 = 10.0;
+
 /// Settings of a diagnosis.
 #[derive(Clone, Debug)]
 pub struct DiagnoseConfig {
@@ -249,6 +253,7 @@ pub fn diagnose(prep: &Prepared, effects: &[&'static dyn Effect], cfg: &Diagnose
                     b: ranking[b].0.effect.clone(),
                     canonical_correlation: cc,
                     statistic_gap: ranking[a].0.statistic - ranking[b].0.statistic,
+                    separated: (ranking[a].0.statistic - ranking[b].0.statistic).abs() >= SEPARATION_GAP,
                     separate_by: separate_by(&ranking[a].0.effect, &ranking[b].0.effect),
                 });
             }
@@ -304,7 +309,7 @@ fn verdict(d: &Diagnosis, alpha: f64) -> String {
                 after.join(", "),
                 c.about
             );
-            for cf in d.confounding.iter().filter(|cf| cf.a == c.effect || cf.b == c.effect) {
+            for cf in d.confounding.iter().filter(|cf| !cf.separated && (cf.a == c.effect || cf.b == c.effect)) {
                 let rival = if cf.a == c.effect { &cf.b } else { &cf.a };
                 s += &format!(
                     " Caution: `{rival}` leaves almost the same signature on this run (canonical correlation {:.3}, statistic gap {:.1}); the data barely separate them. What would: {}.",

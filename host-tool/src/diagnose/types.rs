@@ -110,8 +110,11 @@ pub struct Confounding {
     pub b: String,
     /// Largest canonical correlation of their whitened innovation signatures.
     pub canonical_correlation: f64,
-    /// Difference of their score statistics (a − b).
+    /// Difference of their score statistics (a − b): approximately twice the log-likelihood
+    /// ratio of the two alternative models.
     pub statistic_gap: f64,
+    /// Whether the data still prefer one clearly (gap ≥ [`crate::diagnose::SEPARATION_GAP`]).
+    pub separated: bool,
     /// What experiment would separate them.
     pub separate_by: String,
 }
