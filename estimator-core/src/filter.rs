@@ -36,6 +36,9 @@ pub enum FilterError {
     SingularInnovation { step: u32 },
     /// The covariance lost symmetry/positivity or the state became non-finite at `index`.
     Unhealthy { step: u32, index: usize },
+    /// `count` consecutive measurements failed the innovation gate: the filter no longer tracks
+    /// the data (a sensor fault or a model break) and refuses to coast on.
+    RejectionRun { step: u32, count: u32 },
 }
 
 impl core::fmt::Display for FilterError {
@@ -58,14 +61,35 @@ impl core::fmt::Display for FilterError {
             FilterError::Unhealthy { step, index } => {
                 write!(f, "step {step}: covariance or state unhealthy at state {index}")
             }
+            FilterError::RejectionRun { step, count } => {
+                write!(f, "step {step}: {count} consecutive measurements failed the innovation gate")
+            }
         }
     }
+}
+
+/// Innovation gate: refuse an update whose NIS exceeds `nis_max`, and fault after
+/// `max_run` refusals in a row. Rejections are counted and returned, never silent.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct Gate {
+    /// NIS threshold (χ²(3) quantile; e.g. 27.9 is the 1e-5 upper tail).
+    pub nis_max: f64,
+    /// Consecutive rejections that raise [`FilterError::RejectionRun`].
+    pub max_run: u32,
+}
+
+impl Gate {
+    /// χ²(3) upper 1e-5 quantile with a fault after 10 consecutive rejections.
+    pub const DEFAULT: Gate = Gate { nis_max: 27.88, max_run: 10 };
 }
 
 /// The EKF: state, covariance and time, over a [`Model`].
 #[derive(Clone)]
 pub struct Ekf<'m, const CAP: usize> {
     model: Model<'m>,
+    gate: Option<Gate>,
+    rejected_total: u32,
+    rejected_run: u32,
     x: [f64; CAP],
     p: SMatrix<f64, CAP, CAP>,
     t_s: f64,
@@ -92,7 +116,7 @@ impl<'m, const CAP: usize> Ekf<'m, CAP> {
         for (i, s) in sigma0.iter().enumerate() {
             p[(i, i)] = s * s;
         }
-        Ok(Ekf { model, x, p, t_s: 0.0, temp_ref_c: f64::NAN, temp_dev_c: 0.0, steps: 0 })
+        Ok(Ekf { model, gate: None, rejected_total: 0, rejected_run: 0, x, p, t_s: 0.0, temp_ref_c: f64::NAN, temp_dev_c: 0.0, steps: 0 })
     }
 
     /// A filter started as the paper starts it: zero angles and coefficients, each effect's prior 1σ.
@@ -124,6 +148,16 @@ impl<'m, const CAP: usize> Ekf<'m, CAP> {
         self.steps = steps;
         self.temp_ref_c = temp_ref_c;
         Ok(())
+    }
+
+    /// Turns innovation gating on (`Some`) or off (`None`, the default: identification from
+    /// X(0) = 0 starts far from the truth and must not gate its first updates).
+    pub fn set_gate(&mut self, gate: Option<Gate>) {
+        self.gate = gate;
+    }
+    /// Measurements refused by the gate so far.
+    pub fn rejected(&self) -> u32 {
+        self.rejected_total
     }
 
     /// The model.
@@ -214,7 +248,9 @@ impl<'m, const CAP: usize> Ekf<'m, CAP> {
     }
 
     /// Predicts to the measurement's time and updates with it (paper eqs. 11–20, Joseph form).
-    /// Returns the residual record of the update. On error the filter is left unchanged.
+    /// Returns the residual record of the update (`rejected` when the gate refused it). On error
+    /// the filter is left unchanged, except [`FilterError::RejectionRun`], which keeps the
+    /// prediction to that time.
     pub fn step(&mut self, m: &Measurement) -> Result<Residual, FilterError> {
         let step = self.steps;
         let ok_time = m.t_s > self.t_s || (self.steps == 0 && m.t_s >= self.t_s);
@@ -231,6 +267,17 @@ impl<'m, const CAP: usize> Ekf<'m, CAP> {
         match self.update(m, temp_dev) {
             Ok(r) => {
                 self.steps += 1;
+                if r.rejected {
+                    self.rejected_total += 1;
+                    self.rejected_run += 1;
+                    if let Some(g) = self.gate {
+                        if self.rejected_run >= g.max_run {
+                            return Err(FilterError::RejectionRun { step, count: self.rejected_run });
+                        }
+                    }
+                } else {
+                    self.rejected_run = 0;
+                }
                 Ok(r)
             }
             Err(e) => {
@@ -277,6 +324,23 @@ impl<'m, const CAP: usize> Ekf<'m, CAP> {
         let s_inv = chol.inverse();
         let whitened = chol.l().solve_lower_triangular(&nu).ok_or(FilterError::SingularInnovation { step })?;
         let nis = nu.dot(&(s_inv * nu));
+        let residual = Residual {
+            step,
+            t_s: m.t_s,
+            measured: m.specific_force,
+            predicted: predicted.into(),
+            innovation: nu.into(),
+            s: s.transpose().into(),
+            whitened: whitened.into(),
+            nis,
+            rejected: false,
+        };
+        if let Some(g) = self.gate {
+            if !(nis <= g.nis_max) {
+                // Keep the prediction (time and covariance move on), skip the correction.
+                return Ok(Residual { rejected: true, ..residual });
+            }
+        }
         let mut k = [Vector3::zeros(); CAP];
         for i in 0..n {
             k[i] = s_inv * pht[i];
@@ -307,16 +371,7 @@ impl<'m, const CAP: usize> Ekf<'m, CAP> {
                 return Err(FilterError::Unhealthy { step, index: i });
             }
         }
-        Ok(Residual {
-            step,
-            t_s: m.t_s,
-            measured: m.specific_force,
-            predicted: predicted.into(),
-            innovation: nu.into(),
-            s: s.transpose().into(),
-            whitened: whitened.into(),
-            nis,
-        })
+        Ok(residual)
     }
 }
 

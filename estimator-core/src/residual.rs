@@ -21,4 +21,6 @@ pub struct Residual {
     pub whitened: [f64; 3],
     /// Normalised innovation squared νᵀ S⁻¹ ν: χ²(3) when the model holds.
     pub nis: f64,
+    /// The update was refused by the innovation gate (NIS above it): state not corrected.
+    pub rejected: bool,
 }

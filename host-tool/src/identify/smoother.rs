@@ -178,6 +178,7 @@ pub fn linearised_pass_observed(
             s: s.transpose().into(),
             whitened: whitened.into(),
             nis: nu.dot(&(s_inv * nu)),
+            rejected: false,
         });
         nodes.push(Node { m_pred, p_pred, m, p, phi });
         t_prev = z.t_s;
