@@ -3,6 +3,7 @@
 
 use estimator_core::{Measurement, Sample};
 use nalgebra::{DMatrix, DVector};
+use indicatif::ParallelProgressIterator;
 use rayon::prelude::*;
 
 use super::common::build_model;
@@ -57,8 +58,10 @@ fn calibration(args: &BenchArgs) -> anyhow::Result<()> {
     let hours = args.hours.iter().cloned().fold(0.0, f64::max);
     let t0 = std::time::Instant::now();
     let cfg = DiagnoseConfig::default();
+    let pb = crate::progress::bar(args.seeds, "clean seeds");
     let per_seed: Vec<anyhow::Result<Vec<(String, f64, f64, f64)>>> = (1..=args.seeds)
         .into_par_iter()
+        .progress_with(pb.clone())
         .map(|seed| {
             let mut sc = Scenario::paper();
             sc.seed = 1000 + seed;
@@ -126,8 +129,10 @@ fn accuracy(args: &BenchArgs) -> anyhow::Result<()> {
     let cfg = Config::default();
     let effects = vec![catalog::paper()];
     let t0 = std::time::Instant::now();
+    let pb = crate::progress::bar(args.seeds, "seeds");
     let results: Vec<anyhow::Result<SeedResult>> = (1..=args.seeds)
         .into_par_iter()
+        .progress_with(pb.clone())
         .map(|seed| {
             let mut sc = Scenario::paper();
             sc.seed = seed;

@@ -70,7 +70,10 @@ pub struct Loaded {
 
 /// Reads a recording; a bad file is an error naming file and line.
 pub fn load(path: &Path, latitude_override: Option<f64>) -> anyhow::Result<Loaded> {
-    let rec = read_recording(path)?;
+    let spin = crate::progress::spinner(&format!("reading {}", path.display()));
+    let rec = read_recording(path);
+    spin.finish_and_clear();
+    let rec = rec?;
     let latitude_deg = latitude_override.or(rec.meta.latitude_deg).with_context(|| {
         format!("{}: no `# latitude_deg:` line in the file; give --latitude-deg", path.display())
     })?;

@@ -110,7 +110,9 @@ pub fn run(args: &DiagnoseArgs) -> anyhow::Result<()> {
     let loaded = load(&args.recording, args.model.latitude_deg)?;
     let effects = catalog::model_effects(&args.model.with)?;
     let prep = prepare(loaded.site, &loaded.samples, &cfg.identify)?;
+    let spin = crate::progress::spinner("identifying, diagnosing and climbing the model ladder");
     let (diagnoses, rungs, _, _) = ladder(&prep, &effects, &cfg)?;
+    spin.finish_and_clear();
     let d = &diagnoses[0];
     if args.json {
         let out = json!({

@@ -144,7 +144,9 @@ pub fn run(args: &IdentifyArgs) -> anyhow::Result<()> {
     let effects = catalog::model_effects(&args.model.with)?;
     let model = build_model(loaded.site, &effects, &cfg)?;
     let prep = prepare(loaded.site, &loaded.samples, &cfg)?;
+    let spin = crate::progress::spinner("identifying (2 EKF passes + iterated smoother)");
     let id = identify(&model, &prep, &cfg)?;
+    spin.finish_and_clear();
     let truth = match &args.truth {
         Some(p) => Some(read_truth(p)?.coefficient_array().to_vec()),
         None => None,
