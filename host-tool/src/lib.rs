@@ -9,6 +9,7 @@ pub mod catalog;
 pub mod diagnose;
 pub mod format;
 pub mod identify;
+pub mod progress;
 pub mod link;
 pub mod recording;
 pub mod simulate;
