@@ -74,6 +74,9 @@ pub fn load(path: &Path, latitude_override: Option<f64>) -> anyhow::Result<Loade
     let rec = read_recording(path);
     spin.finish_and_clear();
     let rec = rec?;
+    for r in &rec.repairs {
+        eprintln!("driftid: warning: {r}");
+    }
     let latitude_deg = latitude_override.or(rec.meta.latitude_deg).with_context(|| {
         format!("{}: no `# latitude_deg:` line in the file; give --latitude-deg", path.display())
     })?;

@@ -68,6 +68,9 @@ pub struct Recording {
     pub lines: Vec<u32>,
     /// Whether the file has a `temp_c` column.
     pub has_temp: bool,
+    /// Repairs made while reading, each a message naming file and line (the only one: a
+    /// truncated last line — a recorder killed mid-write — is dropped, not the whole recording).
+    pub repairs: Vec<String>,
 }
 
 /// Reads a whole recording. Fails if it holds no samples.
@@ -98,10 +101,19 @@ fn collect<R: std::io::BufRead>(
     let has_temp = reader.has_temp();
     let mut samples = Vec::new();
     let mut lines = Vec::new();
+    let mut repairs = Vec::new();
     for item in &mut reader {
-        let (line, s) = item?;
-        lines.push(line);
-        samples.push(s);
+        match item {
+            Ok((line, s)) => {
+                lines.push(line);
+                samples.push(s);
+            }
+            // Only ever the last line (no newline follows it): keep everything before it.
+            Err(e @ RecordingError::Truncated { .. }) if !samples.is_empty() => {
+                repairs.push(format!("{e}; ignored that line, kept the {} samples before it", samples.len()));
+            }
+            Err(e) => return Err(e),
+        }
     }
     if samples.is_empty() {
         return Err(RecordingError::NoSamples {
@@ -115,6 +127,7 @@ fn collect<R: std::io::BufRead>(
         samples,
         lines,
         has_temp,
+        repairs,
     })
 }
 
