@@ -150,6 +150,28 @@ impl<'m, const CAP: usize> Ekf<'m, CAP> {
         Ok(())
     }
 
+    /// (time s, updates, temperature reference °C, temperature deviation °C, rejections).
+    pub(crate) fn bookkeeping(&self) -> (f64, u32, f64, f64, u32) {
+        (self.t_s, self.steps, self.temp_ref_c, self.temp_dev_c, self.rejected_total)
+    }
+
+    #[allow(clippy::too_many_arguments)]
+    pub(crate) fn set_all(&mut self, x: &[f64], p: &[[f64; CAP]; CAP], t_s: f64, steps: u32, temp_ref: f64, temp_dev: f64, rejected: u32) {
+        let n = x.len();
+        self.x[..n].copy_from_slice(x);
+        for i in 0..n {
+            for j in 0..n {
+                self.p[(i, j)] = p[i][j];
+            }
+        }
+        self.t_s = t_s;
+        self.steps = steps;
+        self.temp_ref_c = temp_ref;
+        self.temp_dev_c = temp_dev;
+        self.rejected_total = rejected;
+        self.rejected_run = 0;
+    }
+
     /// Turns innovation gating on (`Some`) or off (`None`, the default: identification from
     /// X(0) = 0 starts far from the truth and must not gate its first updates).
     pub fn set_gate(&mut self, gate: Option<Gate>) {

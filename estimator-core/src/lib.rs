@@ -26,6 +26,7 @@
 //! - [`propagate`]: RK4 (default) or the paper's Euler step for the state and Φ.
 //! - [`filter`]: the EKF with Joseph-form update, returning a [`residual::Residual`] per update.
 //! - [`averaging`]: raw samples → filter-period means tagged at the mean sample time.
+//! - [`checkpoint`]: the filter's complete state as a versioned, CRC-checked image (resets).
 #![no_std]
 #![warn(missing_docs)]
 
@@ -35,6 +36,7 @@ extern crate alloc;
 extern crate std;
 
 pub mod averaging;
+pub mod checkpoint;
 pub mod effects;
 pub mod filter;
 pub mod frames;
