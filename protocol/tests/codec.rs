@@ -174,6 +174,17 @@ fn apply(f: &mut Vec<u8>, d: &Damage) {
     }
 }
 
+/// `f` with every run of delimiters shortened to one delimiter.
+fn collapse_delimiters(f: &[u8]) -> Vec<u8> {
+    let mut out: Vec<u8> = Vec::with_capacity(f.len());
+    for &b in f {
+        if !(b == 0 && out.last() == Some(&0)) {
+            out.push(b);
+        }
+    }
+    out
+}
+
 proptest! {
     #![proptest_config(ProptestConfig { cases: 512, ..ProptestConfig::default() })]
 
@@ -216,7 +227,9 @@ proptest! {
                     let before = f.clone();
                     apply(&mut f, d);
                     if f.is_empty() { vanished += 1; }
-                    else if f == before { expected.push(p); } else { damaged += 1; }
+                    // A delimiter inserted next to a delimiter only adds an empty frame,
+                    // which the decoder skips: the frame itself is intact.
+                    else if collapse_delimiters(&f) == before { expected.push(p); } else { damaged += 1; }
                 }
                 None => expected.push(p),
             }
