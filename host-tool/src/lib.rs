@@ -4,6 +4,9 @@
 //! - [`simulate`]: the truth simulator (independent DCM kinematics, injectable effects).
 //! - [`identify`]: the converged identification (EKF passes, iterated smoother, Cramér–Rao bound).
 //! - [`catalog`]: the physical effects the user can add by name.
+//! - [`diagnose`]: model vs measurements, score tests of the missing effects, the model ladder.
+//! - [`report`]: the self-contained HTML report and its plots.
+//! - [`link`]: the host end of the telemetry link (record, HIL replay).
 //! - [`cli`]: one module per `driftid` subcommand.
 pub mod catalog;
 pub mod diagnose;
@@ -12,6 +15,7 @@ pub mod identify;
 pub mod progress;
 pub mod link;
 pub mod recording;
+pub mod report;
 pub mod simulate;
 pub mod stats;
 pub mod cli {
@@ -23,5 +27,6 @@ pub mod cli {
     pub mod identify;
     pub mod record;
     pub mod replay;
+    pub mod report;
     pub mod simulate;
 }

@@ -1,5 +1,5 @@
 //! `driftid`: identify the drift coefficients of a space-stable INS's gyros from its own
-//! accelerometers — simulate, record, replay, identify, diagnose.
+//! accelerometers — simulate, record, replay, identify, diagnose, report.
 
 use clap::{Parser, Subcommand};
 use host_tool::cli;
@@ -21,7 +21,13 @@ enum Command {
     Identify(cli::identify::IdentifyArgs),
     /// Compare the model with the measurements, rank the missing effects, climb the model ladder.
     Diagnose(cli::diagnose::DiagnoseArgs),
-    /// Accuracy benchmark: Monte Carlo over seeds against the Cramér–Rao bound.
+    /// The whole story as one self-contained HTML page: model vs data, where it fails, the ranking, the ladder.
+    Report(cli::report::ReportArgs),
+    /// Record the navigation computer's telemetry (serial port) to a recording CSV and a raw frame log.
+    Record(cli::record::RecordArgs),
+    /// Stream a recording into the firmware over the link (hardware-in-the-loop) and record what comes back.
+    Replay(cli::replay::ReplayArgs),
+    /// Benchmarks: accuracy against the Cramér–Rao bound, false-alarm calibration, detection sensitivity.
     Bench(cli::bench::BenchArgs),
 }
 
@@ -33,6 +39,9 @@ fn main() {
         Command::Identify(a) => cli::identify::run(a),
         Command::Bench(a) => cli::bench::run(a),
         Command::Diagnose(a) => cli::diagnose::run(a),
+        Command::Report(a) => cli::report::run(a),
+        Command::Record(a) => cli::record::run(a),
+        Command::Replay(a) => cli::replay::run(a),
     };
     if let Err(e) = result {
         eprintln!("driftid: error: {e:#}");

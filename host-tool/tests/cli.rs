@@ -78,3 +78,51 @@ fn demo_runs_without_arguments() {
     let s = String::from_utf8_lossy(&out.stdout);
     assert!(s.contains("paper T2") && s.contains("DZz") && s.contains("converged"));
 }
+
+/// `driftid report` on a run with a hidden accelerometer bias: one self-contained HTML page that
+/// tells the story (the paper model fails, acc-bias is named, the ladder adds it and the residual
+/// falls to the floor), plus the PNG of every plot.
+#[test]
+fn report_is_one_self_contained_page_that_tells_the_story() {
+    let dir = temp_dir("report");
+    let csv = dir.join("run.csv");
+    let out = driftid()
+        .args(["simulate", "--hours", "48", "--rate-s", "10", "--seed", "5", "--effect", "acc-bias=2e-4,-1e-4,0", "--out"])
+        .arg(&csv)
+        .output()
+        .unwrap();
+    assert!(out.status.success(), "simulate failed: {}", String::from_utf8_lossy(&out.stderr));
+    let html = dir.join("report.html");
+    let png = dir.join("png");
+    let out = driftid().arg("report").arg(&csv).arg("--truth").arg(dir.join("run.truth.json")).arg("-o").arg(&html).arg("--png").arg(&png).output().unwrap();
+    assert!(out.status.success(), "report failed: {}", String::from_utf8_lossy(&out.stderr));
+    let page = std::fs::read_to_string(&html).unwrap();
+    // Self-contained: the only URL is the SVG namespace; no script, stylesheet or image fetched.
+    let urls: Vec<&str> = page.match_indices("http").map(|(i, _)| &page[i..(i + 30).min(page.len())]).collect();
+    assert!(urls.iter().all(|u| u.starts_with("http://www.w3.org/2000/svg")), "external references: {urls:?}");
+    for banned in ["<script", "<link", "<img", "@import", "url("] {
+        assert!(!page.contains(banned), "the page must not load anything ({banned})");
+    }
+    // Every plot inline (11 figures when the ladder has a second rung), every section present.
+    assert_eq!(page.matches("<svg").count(), 11, "inline SVG plots");
+    for section in ["1. The model against the measurements", "2. Where it fails", "3. Which physical effect is missing", "4. Add it and watch the error fall", "5. Identified coefficients"] {
+        assert!(page.contains(section), "missing section {section}");
+    }
+    // The story: the starting model is paper, the ladder's next rung adds acc-bias.
+    assert!(page.contains("<b>acc-bias</b>"), "acc-bias ranked in the table");
+    assert!(page.contains("Final model (paper + acc-bias)"), "the ladder climbs to paper + acc-bias");
+    for name in ["DX0", "DZz", "BAx", "BAz"] {
+        assert!(page.contains(&format!(">{name}<")), "coefficient {name} in the final table");
+    }
+    // Text, not markup, where a p-value is tiny: "< 1e-300" must be escaped.
+    assert!(!page.contains("< 1e-300"));
+    // PNGs: one valid file per figure.
+    let mut files: Vec<_> = std::fs::read_dir(&png).unwrap().map(|e| e.unwrap().path()).collect();
+    files.sort();
+    assert_eq!(files.len(), 11);
+    for f in &files {
+        let bytes = std::fs::read(f).unwrap();
+        assert!(bytes.starts_with(b"\x89PNG\r\n\x1a\n") && bytes.len() > 10_000, "{} is not a drawn PNG", f.display());
+    }
+    let _ = std::fs::remove_dir_all(&dir);
+}

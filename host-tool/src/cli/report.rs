@@ -1,0 +1,81 @@
+//! `driftid report`: the whole story of a recording as one self-contained HTML page (and PNGs).
+
+use std::path::PathBuf;
+
+use super::common::{load, ModelArgs};
+use super::identify::rows;
+use crate::catalog;
+use crate::diagnose::{ladder, DiagnoseConfig};
+use crate::identify::prepare;
+use crate::report::{render_html, write_pngs, CoefRow, ReportInput};
+use crate::simulate::read_truth;
+
+/// Arguments of `driftid report`.
+#[derive(clap::Args, Debug)]
+pub struct ReportArgs {
+    /// Recording (CSV).
+    pub recording: PathBuf,
+    /// Output HTML file.
+    #[arg(short = 'o', long, default_value = "report.html")]
+    pub out: PathBuf,
+    /// Also write each plot as a PNG into this folder.
+    #[arg(long)]
+    pub png: Option<PathBuf>,
+    /// Truth file of a simulated run: adds truth and error columns.
+    #[arg(long)]
+    pub truth: Option<PathBuf>,
+    #[command(flatten)]
+    pub model: ModelArgs,
+}
+
+/// Runs `driftid report`.
+pub fn run(args: &ReportArgs) -> anyhow::Result<()> {
+    let cfg = DiagnoseConfig { identify: args.model.config()?, ..Default::default() };
+    anyhow::ensure!(cfg.identify.smoother_iterations > 0, "report needs the converged identification; drop --single-pass");
+    let loaded = load(&args.recording, args.model.latitude_deg)?;
+    let effects = catalog::model_effects(&args.model.with)?;
+    let prep = prepare(loaded.site, &loaded.samples, &cfg.identify)?;
+    let spin = crate::progress::spinner("identifying, diagnosing and climbing the model ladder");
+    let (diagnoses, rungs, id, final_effects) = ladder(&prep, &effects, &cfg)?;
+    spin.finish_and_clear();
+    let model = super::common::build_model(prep.site, &final_effects, &cfg.identify)?;
+    let truth = match &args.truth {
+        Some(p) => Some(read_truth(p)?.coefficient_array().to_vec()),
+        None => None,
+    };
+    let truth = truth.map(|mut t| {
+        t.resize(id.params.len(), f64::NAN);
+        t
+    });
+    let table = rows(&id, &model, &prep, None);
+    let coefficients = table
+        .iter()
+        .enumerate()
+        .map(|(k, r)| CoefRow {
+            name: r.name.to_string(),
+            unit: r.unit.to_string(),
+            value: r.value,
+            sigma: r.sigma,
+            bound: r.bound,
+            truth: truth.as_ref().and_then(|t| t.get(k).copied()).filter(|v| v.is_finite()),
+        })
+        .collect();
+    let name = args.recording.file_name().map(|s| s.to_string_lossy().to_string()).unwrap_or_default();
+    let input = ReportInput {
+        title: format!("Gyro drift identification — {name}"),
+        recording: name,
+        description: loaded.description,
+        diagnoses,
+        ladder: rungs,
+        coefficients,
+    };
+    let html = render_html(&input)?;
+    std::fs::write(&args.out, html).map_err(|e| anyhow::anyhow!("{}: {e}", args.out.display()))?;
+    println!("wrote {}", args.out.display());
+    if let Some(dir) = &args.png {
+        std::fs::create_dir_all(dir).map_err(|e| anyhow::anyhow!("{}: {e}", dir.display()))?;
+        let files = write_pngs(&input, dir)?;
+        println!("wrote {} PNG plots to {}", files.len(), dir.display());
+    }
+    Ok(())
+}
