@@ -101,7 +101,7 @@ pub fn run(a: &ReplayArgs) -> anyhow::Result<()> {
     let config = replay::config_for(&rec.meta, base)?;
     let samples = replay::link_samples(&rec.samples);
     let port = port::open(&a.port, a.baud)?;
-    let writer = port.try_clone_native().context("cloning the serial port")?;
+    let writer = port::writer_of(&port)?;
     let out_path = a.out.clone().unwrap_or_else(|| a.recording.with_extension("firmware.csv"));
     let mut raw = match &a.raw {
         Some(p) => Some(

@@ -12,6 +12,18 @@ pub const DEFAULT_BAUD: u32 = 115_200;
 /// Read timeout used by the link loops: short, so they can watch deadlines and child processes.
 pub const POLL: Duration = Duration::from_millis(100);
 
+/// Write timeout of the link's sending side: long, because the receiver legitimately stops
+/// reading for a while (an EKF update, QEMU busy) and a write that times out half-way through a
+/// frame would lose the rest of the stream. Only a receiver gone for this long is an error.
+pub const WRITE_TIMEOUT: Duration = Duration::from_secs(60);
+
+/// A second handle on `port` for the sending side, with [`WRITE_TIMEOUT`] (reads keep [`POLL`]).
+pub fn writer_of(port: &TTYPort) -> anyhow::Result<TTYPort> {
+    let mut w = port.try_clone_native().context("cloning the serial port for writing")?;
+    w.set_timeout(WRITE_TIMEOUT)?;
+    Ok(w)
+}
+
 /// Opens a serial port (a tty device or a pty's slave side) in raw mode.
 pub fn open(path: &str, baud: u32) -> anyhow::Result<TTYPort> {
     serialport::new(path, baud)
