@@ -31,3 +31,18 @@ grep -q "instructions per update" /tmp/driftid-selftest.log || { echo "qemu.sh: 
 echo "== firmware: QEMU mps2-an500 link build (the image the qemu end-to-end tests boot) =="
 cargo build -p firmware --release --target $T --features board-qemu
 report "QEMU mps2-an500"
+
+echo "== firmware: a panic and a HardFault under QEMU end the run with a failure code (no hang) =="
+for crash in panic hardfault; do
+  cargo build -q -p firmware --release --target $T --features board-qemu,crash-$crash --target-dir target/crash-$crash
+  set +e
+  timeout 60 qemu-system-arm -M mps2-an500 -display none -monitor none -serial null -semihosting-config enable=on,target=native \
+    -kernel target/crash-$crash/$T/release/firmware > /tmp/driftid-crash-$crash.log 2>&1
+  rc=$?
+  set -e
+  cat /tmp/driftid-crash-$crash.log
+  [ "$rc" -ne 124 ] || { echo "qemu.sh: crash-$crash: QEMU hung (timeout)" >&2; exit 1; }
+  [ "$rc" -ne 0 ] || { echo "qemu.sh: crash-$crash: QEMU exited with success after a crash" >&2; exit 1; }
+  grep -qi "firmware fatal" /tmp/driftid-crash-$crash.log || { echo "qemu.sh: crash-$crash: no fault report" >&2; exit 1; }
+  echo "crash-$crash: QEMU exit code $rc (failure, as required)"
+done

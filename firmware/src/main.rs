@@ -39,6 +39,7 @@ fn main() -> ! {
     board::selftest();
     #[allow(unreachable_code)]
     let parts = board::init();
+    crash_test();
     let app =
         cortex_m::singleton!(: board::BoardApp = App::new(parts.serial, parts.accel, parts.timer, parts.platform))
             .expect("main runs once");
@@ -51,6 +52,20 @@ fn main() -> ! {
             log!("shutdown requested");
             board::shutdown();
         }
+    }
+}
+
+/// Crash tests (`--features crash-panic` / `crash-hardfault`, for `.ci/qemu.sh`): prove that a
+/// panic or a HardFault ends a QEMU run with a failure code instead of hanging CI.
+#[inline(always)]
+fn crash_test() {
+    #[cfg(feature = "crash-panic")]
+    panic!("crash test: deliberate panic");
+    #[cfg(feature = "crash-hardfault")]
+    // SAFETY: deliberately not safe: an undefined instruction raises a fault (escalated to
+    // HardFault, the only fault handler enabled).
+    unsafe {
+        core::arch::asm!("udf #0");
     }
 }
 
