@@ -120,6 +120,11 @@ pub fn run(a: &ReplayArgs) -> anyhow::Result<()> {
     };
     eprintln!("driftid replay: {} samples from {} into {}", samples.len(), a.recording.display(), a.port);
     let verbose = a.verbose;
+    // Estimates are written as they arrive (flushed each), so a replay that dies keeps them.
+    let mut w = BufWriter::new(File::create(&out_path).with_context(|| format!("creating {}", out_path.display()))?);
+    writeln!(w, "{}", estimates_header())?;
+    w.flush()?;
+    let mut write_err: Option<std::io::Error> = None;
     let total_steps = (rec.samples.last().map_or(0.0, |s| s.t_s) / a.period_s).ceil() as u64;
     let outcome = replay::replay(
         port,
@@ -135,19 +140,24 @@ pub fn run(a: &ReplayArgs) -> anyhow::Result<()> {
             Ok(())
         },
         |m| match m {
-            protocol::Message::Estimate(e) if verbose || e.step % 60 == 0 => {
-                eprintln!("[{}/{}] {}", e.step + 1, total_steps, link::describe(m))
+            protocol::Message::Estimate(e) => {
+                if write_err.is_none() {
+                    if let Err(err) = writeln!(w, "{}", estimate_row(e)).and_then(|_| w.flush()) {
+                        write_err = Some(err);
+                    }
+                }
+                if verbose || e.step % 60 == 0 {
+                    eprintln!("[{}/{}] {}", e.step + 1, total_steps, link::describe(m))
+                }
             }
             protocol::Message::Fault(_) | protocol::Message::Hello(_) => eprintln!("{}", link::describe(m)),
             _ => {}
         },
-    )?;
-    let mut w = BufWriter::new(File::create(&out_path).with_context(|| format!("creating {}", out_path.display()))?);
-    writeln!(w, "{}", estimates_header())?;
-    for e in &outcome.estimates {
-        writeln!(w, "{}", estimate_row(e))?;
+    );
+    if let Some(err) = write_err {
+        return Err(err).with_context(|| format!("writing {}", out_path.display()));
     }
-    w.flush()?;
+    let outcome = outcome?;
     if let Some(s) = outcome.final_status() {
         eprintln!("{}", link::describe(&protocol::Message::Status(*s)));
     }
