@@ -253,6 +253,8 @@ proptest! {
             _ => 0,
         };
         prop_assert_eq!(seq.missing, inner_damaged);
+        // Gaps never exceed what was really lost (damaged or vanished).
+        prop_assert!(seq.missing <= damaged + vanished);
         let bad = dec.stats().bad();
         prop_assert!(bad >= damaged && bad <= 2 * damaged, "bad {} damaged {}", bad, damaged);
         prop_assert_eq!(dec.stats().ok, expected.len() as u64);
