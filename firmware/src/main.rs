@@ -41,7 +41,7 @@ fn main() -> ! {
     let parts = board::init();
     crash_test();
     let app =
-        cortex_m::singleton!(: board::BoardApp = App::new(parts.serial, parts.accel, parts.timer, parts.platform))
+        cortex_m::singleton!(: board::BoardApp = App::with_storage(parts.serial, parts.accel, parts.timer, parts.platform, parts.storage))
             .expect("main runs once");
     app.boot();
     if let Some(fault) = parts.boot_fault {

@@ -33,7 +33,7 @@ pub use seq::{SeqEvent, SeqTracker};
 
 /// Version of the wire protocol, the first byte of every packet. Bump it on any change of
 /// [`Message`] or of the framing; a decoder refuses packets of another version (counted).
-pub const PROTOCOL_VERSION: u8 = 1;
+pub const PROTOCOL_VERSION: u8 = 2;
 
 /// Number of filter states carried in an [`Estimate`] (the paper's model: 3 angles + 12 coefficients).
 pub const STATE_DIM: usize = 15;

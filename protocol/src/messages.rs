@@ -141,6 +141,9 @@ pub struct Config {
     pub echo_raw: bool,
     /// Send a [`Status`] every this many filter updates (0: only on request).
     pub status_every: u32,
+    /// Checkpoint the filter to non-volatile storage every this many filter updates (0: never).
+    /// After a reset the firmware resumes from the newest valid checkpoint.
+    pub checkpoint_every: u32,
 }
 
 impl Default for Config {
@@ -158,6 +161,7 @@ impl Default for Config {
             saturation_mps2: 2.0 * 9.806_65,
             echo_raw: true,
             status_every: 60,
+            checkpoint_every: 10,
         }
     }
 }
@@ -208,6 +212,27 @@ pub struct Counters {
     pub commands_refused: u32,
     /// Frames sent.
     pub frames_tx: u32,
+    /// Checkpoints written to non-volatile storage.
+    pub checkpoints_written: u32,
+    /// Checkpoint writes that failed (storage error).
+    pub checkpoint_errors: u32,
+    /// Samples (and a `Finish`) discarded after a resume while waiting for the sample the
+    /// checkpoint ends at ([`Resume::next_seq`]): frames the host sent before it saw the reset.
+    pub samples_resync: u32,
+}
+
+/// A run resumed from a checkpoint after a reset.
+#[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
+pub struct Resume {
+    /// Filter updates already done in the checkpoint (the next estimate has this step number).
+    pub step: u32,
+    /// Filter time in the checkpoint, s.
+    pub t_s: f64,
+    /// Sequence number of the first sample the checkpoint does not contain: the host resends
+    /// from here (replay), or the sensor counts on from here.
+    pub next_seq: u32,
+    /// Checkpoint generation (increases with every checkpoint written).
+    pub generation: u32,
 }
 
 /// Firmware state and resources.
@@ -231,6 +256,10 @@ pub struct Status {
     pub last_step_ticks: u32,
     /// Frequency of those ticks, Hz (0 if not measured).
     pub tick_hz: u32,
+    /// This status is the one sent at boot (a reset happened if the host saw a run before).
+    pub boot: bool,
+    /// The checkpoint the run was resumed from at boot, if any.
+    pub resumed: Option<Resume>,
 }
 
 /// Kinds of fault.
@@ -252,6 +281,11 @@ pub enum FaultCode {
     BadConfig,
     /// A command came in a state where it cannot be done.
     BadCommand,
+    /// A checkpoint was found but refused (other format version or model configuration,
+    /// damaged); the firmware starts without it. Detail: why.
+    CheckpointRefused,
+    /// Non-volatile storage failed (detail: the operation).
+    Storage,
 }
 
 /// A fault report.

@@ -40,12 +40,13 @@ fn config() -> impl Strategy<Value = Config> {
             arw_deg2_per_h: arw,
             echo_raw: echo,
             status_every: every,
+            checkpoint_every: every.rotate_left(7),
             ..Config::default()
         })
 }
 
 fn counters() -> impl Strategy<Value = Counters> {
-    proptest::collection::vec(any::<u32>(), 12).prop_map(|v| Counters {
+    proptest::collection::vec(any::<u32>(), 15).prop_map(|v| Counters {
         samples_ok: v[0],
         samples_nan: v[1],
         samples_saturated: v[2],
@@ -58,6 +59,9 @@ fn counters() -> impl Strategy<Value = Counters> {
         frames_rx_missing: v[9],
         commands_refused: v[10],
         frames_tx: v[11],
+        checkpoints_written: v[12],
+        checkpoint_errors: v[13],
+        samples_resync: v[14],
     })
 }
 
@@ -82,7 +86,13 @@ fn message() -> impl Strategy<Value = Message> {
                 nis,
             })
         });
-    let status = (f64_any(), any::<bool>(), counters(), any::<[u32; 5]>()).prop_map(|(t_s, running, counters, r)| {
+    let resume = proptest::option::of((any::<[u32; 3]>(), f64_any()).prop_map(|(r, t_s)| Resume {
+        step: r[0],
+        t_s,
+        next_seq: r[1],
+        generation: r[2],
+    }));
+    let status = (f64_any(), any::<bool>(), counters(), any::<[u32; 5]>(), resume).prop_map(|(t_s, running, counters, r, resumed)| {
         Message::Status(Status {
             t_s,
             running,
@@ -93,6 +103,8 @@ fn message() -> impl Strategy<Value = Message> {
             static_ram_bytes: r[2],
             last_step_ticks: r[3],
             tick_hz: r[4],
+            boot: r[0] % 2 == 0,
+            resumed,
         })
     });
     let command = prop_oneof![

@@ -8,13 +8,15 @@
 //! real-time EKF, and each update is sent as an [`Estimate`]. No heap; every buffer is fixed.
 
 use embedded_io::{Read, ReadReady, Write};
+use embedded_storage::nor_flash::NorFlash;
 use estimator_core::{units, Averager, Ekf, Measurement, Model, Propagation, Sample, Site, PAPER_EFFECTS};
 use protocol::{
     Board, Command, Config, Counters, Decoder, EffectSet, Encoder, Estimate, Fault, FaultCode, Hello, Message, Packet,
-    RawSample, SeqEvent, SeqTracker, Source, Status, STATE_DIM,
+    RawSample, Resume, SeqEvent, SeqTracker, Source, Status, STATE_DIM,
 };
 
 use crate::accel::Accelerometer;
+use crate::checkpoints::{CheckpointStore, NoStorage, StoreError, MAX_PAYLOAD};
 
 /// Firmware version sent in [`Hello`].
 pub const FIRMWARE_VERSION: [u16; 3] = [0, 1, 0];
@@ -90,10 +92,29 @@ struct Run {
     ekf: Filter,
     last_t_s: Option<f64>,
     sample_seq: u32,
+    /// After a resume (replay): discard samples until the one with this sequence number.
+    resync: Option<u32>,
+    /// Sensor mode after a resume: added to the timer's sample times, s.
+    time_offset_s: f64,
 }
 
-/// The application.
-pub struct App<S, A, T, P> {
+/// Where a run can be resumed from: the sample that opened the current averaging window.
+#[derive(Clone, Copy)]
+struct ResumePoint {
+    /// Sequence number of that sample.
+    next_seq: u32,
+    /// Time of the last sample before it (the resumed run accepts only later samples).
+    last_t_s: Option<f64>,
+}
+
+/// Version of the application's resume block inside a checkpoint payload.
+const RESUME_BLOCK: u16 = 1;
+/// Source byte of a payload that says "no run in progress" (written at start and end of runs, so
+/// a reset never resumes a finished or abandoned run).
+const NO_RUN: u8 = 0xFF;
+
+/// The application. `N` is the non-volatile storage for checkpoints ([`NoStorage`]: none).
+pub struct App<S, A, T, P, N = NoStorage> {
     serial: S,
     accel: A,
     timer: T,
@@ -107,6 +128,9 @@ pub struct App<S, A, T, P> {
     rx_seq: SeqTracker,
     last_step_ticks: u32,
     last_t_s: f64,
+    store: Option<CheckpointStore<N>>,
+    resumed: Option<Resume>,
+    boot_status: bool,
 }
 
 /// Checks a configuration; `Err` says why it is refused.
@@ -163,15 +187,32 @@ pub fn estimate_of(ekf: &Filter, step: u32, m: &Measurement, innovation: [f64; 3
     }
 }
 
-impl<S, A, T, P> App<S, A, T, P>
+impl<S, A, T, P> App<S, A, T, P, NoStorage>
 where
     S: Read + ReadReady + Write,
     A: Accelerometer,
     T: SampleTimer,
     P: Platform,
 {
-    /// The application over a board's peripherals, with the default configuration.
+    /// The application over a board's peripherals, with the default configuration and no
+    /// checkpoint storage.
     pub fn new(serial: S, accel: A, timer: T, platform: P) -> Self {
+        Self::with_storage(serial, accel, timer, platform, NoStorage)
+    }
+}
+
+impl<S, A, T, P, N> App<S, A, T, P, N>
+where
+    S: Read + ReadReady + Write,
+    A: Accelerometer,
+    T: SampleTimer,
+    P: Platform,
+    N: NorFlash,
+{
+    /// The application with checkpoint storage on `flash` (two slots; see
+    /// [`crate::checkpoints`]). Flash too small for two slots means no checkpoints (reported by
+    /// [`App::boot`] as a storage fault).
+    pub fn with_storage(serial: S, accel: A, timer: T, platform: P, flash: N) -> Self {
         App {
             serial,
             accel,
@@ -186,13 +227,140 @@ where
             rx_seq: SeqTracker::new(),
             last_step_ticks: 0,
             last_t_s: 0.0,
+            store: CheckpointStore::new(flash).ok(),
+            resumed: None,
+            boot_status: false,
         }
     }
 
-    /// Announces the firmware (call once after boot).
+    /// Call once after boot: resumes the run of the newest valid checkpoint, if any, and
+    /// announces the firmware (`Hello`, then a `Status` with `boot` set and what was resumed).
+    /// A checkpoint that cannot be used (other format or model configuration, damaged contents)
+    /// is refused with a [`FaultCode::CheckpointRefused`] fault and the firmware starts idle.
     pub fn boot(&mut self) {
+        let mut refused: Option<(FaultCode, heapless_msg::Msg)> = None;
+        if let Some(store) = self.store.as_mut() {
+            let mut buf = [0u8; MAX_PAYLOAD];
+            match store.load(&mut buf) {
+                Ok(Some(found)) => {
+                    if let Err(why) = self.restore(&buf[..found.len], found.generation) {
+                        refused = Some((FaultCode::CheckpointRefused, why));
+                    }
+                }
+                Ok(None) => {}
+                Err(e @ StoreError::Format { .. }) => refused = Some((FaultCode::CheckpointRefused, heapless_msg::of(format_args!("{e}")))),
+                Err(e) => refused = Some((FaultCode::Storage, heapless_msg::of(format_args!("loading checkpoint: {e}")))),
+            }
+        }
         self.send_hello();
+        self.boot_status = true;
         self.send_status();
+        self.boot_status = false;
+        if let Some((code, why)) = refused {
+            let step = self.counters.filter_steps;
+            self.send(Message::Fault(Fault::new(code, step, format_args!("{}", why.as_str()))));
+        }
+    }
+
+    /// The checkpoint the current run was resumed from at boot.
+    pub fn resumed(&self) -> Option<Resume> {
+        self.resumed
+    }
+
+    /// Restores a run from a checkpoint payload (resume block + the core's filter image).
+    fn restore(&mut self, payload: &[u8], generation: u32) -> Result<(), heapless_msg::Msg> {
+        let bad = |what: &str| heapless_msg::of(format_args!("checkpoint: {what}"));
+        if payload.len() < 20 {
+            return Err(bad("resume block truncated"));
+        }
+        let version = u16::from_le_bytes([payload[0], payload[1]]);
+        if version != RESUME_BLOCK {
+            return Err(heapless_msg::of(format_args!("checkpoint resume block v{version}, firmware reads v{RESUME_BLOCK}")));
+        }
+        let source = match payload[2] {
+            NO_RUN => return Ok(()),
+            0 => Source::Sensor,
+            1 => Source::Replay,
+            _ => return Err(bad("unknown source")),
+        };
+        let next_seq = u32::from_le_bytes([payload[4], payload[5], payload[6], payload[7]]);
+        let mut t = [0u8; 8];
+        t.copy_from_slice(&payload[8..16]);
+        let last = f64::from_le_bytes(t);
+        let last_t_s = if last.is_nan() { None } else { Some(last) };
+        let cfg_len = u16::from_le_bytes([payload[16], payload[17]]) as usize;
+        let cfg_end = 20 + cfg_len;
+        let cfg_bytes = payload.get(20..cfg_end).ok_or_else(|| bad("configuration truncated"))?;
+        let config: Config = postcard::from_bytes(cfg_bytes).map_err(|_| bad("configuration unreadable"))?;
+        validate(&config).map_err(|why| heapless_msg::of(format_args!("checkpoint configuration refused: {why}")))?;
+        let mut ekf = filter_for(&config).map_err(|why| heapless_msg::of(format_args!("checkpoint: {why}")))?;
+        ekf.resume(&payload[cfg_end..]).map_err(|e| heapless_msg::of(format_args!("{e}")))?;
+        let step = ekf.steps();
+        let t_s = ekf.time_s();
+        self.config = config;
+        self.last_source = source;
+        let time_offset_s = match (source, last_t_s) {
+            // The sensor's clock restarts at 0 after a reset; without a real-time clock the
+            // outage is unknown, so time continues from the last sample (documented limitation).
+            (Source::Sensor, Some(t)) => t + 1.0 / config.sample_rate_hz,
+            _ => 0.0,
+        };
+        self.run = Some(Run {
+            source,
+            averager: Averager::new(config.filter_period_s, config.raw_sigma_mps2),
+            ekf,
+            last_t_s,
+            sample_seq: next_seq,
+            resync: (source == Source::Replay).then_some(next_seq),
+            time_offset_s,
+        });
+        if source == Source::Sensor {
+            self.timer.start(config.sample_rate_hz);
+        }
+        self.resumed = Some(Resume { step, t_s, next_seq, generation });
+        self.last_t_s = t_s;
+        Ok(())
+    }
+
+    /// Writes a checkpoint of the running filter (or, with `point = None`, the "no run" marker).
+    fn save_checkpoint(&mut self, point: Option<ResumePoint>) {
+        let Some(store) = self.store.as_mut() else { return };
+        let mut buf = [0u8; MAX_PAYLOAD];
+        buf[0..2].copy_from_slice(&RESUME_BLOCK.to_le_bytes());
+        let len = match (point, self.run.as_ref()) {
+            (Some(p), Some(run)) => {
+                buf[2] = match run.source {
+                    Source::Sensor => 0,
+                    Source::Replay => 1,
+                };
+                buf[4..8].copy_from_slice(&p.next_seq.to_le_bytes());
+                buf[8..16].copy_from_slice(&p.last_t_s.unwrap_or(f64::NAN).to_le_bytes());
+                let Ok(cfg) = postcard::to_slice(&self.config, &mut buf[20..]).map(|c| c.len()) else {
+                    self.counters.checkpoint_errors = self.counters.checkpoint_errors.wrapping_add(1);
+                    return;
+                };
+                buf[16..18].copy_from_slice(&(cfg as u16).to_le_bytes());
+                match run.ekf.checkpoint(&mut buf[20 + cfg..]) {
+                    Ok(n) => 20 + cfg + n,
+                    Err(_) => {
+                        self.counters.checkpoint_errors = self.counters.checkpoint_errors.wrapping_add(1);
+                        return;
+                    }
+                }
+            }
+            _ => {
+                buf[2] = NO_RUN;
+                20
+            }
+        };
+        match store.save(&buf[..len]) {
+            Ok(_) => self.counters.checkpoints_written = self.counters.checkpoints_written.wrapping_add(1),
+            Err(e) => {
+                self.counters.checkpoint_errors = self.counters.checkpoint_errors.wrapping_add(1);
+                let step = self.counters.filter_steps;
+                self.send(Message::Fault(Fault::new(FaultCode::Storage, step, format_args!("saving checkpoint: {e}"))));
+            }
+        }
     }
 
     /// Counters so far.
@@ -251,7 +419,8 @@ where
         if sensor_run {
             if let Some(tick) = self.timer.poll() {
                 self.counters.read_errors = self.counters.read_errors.wrapping_add(tick.missed);
-                let t_s = f64::from(tick.index) / self.config.sample_rate_hz;
+                let offset = self.run.as_ref().map_or(0.0, |r| r.time_offset_s);
+                let t_s = offset + f64::from(tick.index) / self.config.sample_rate_hz;
                 match self.accel.sample(t_s) {
                     Ok(s) => {
                         let sample = Sample {
@@ -299,12 +468,17 @@ where
                     Err(why) => return self.refuse(FaultCode::BadConfig, why),
                 };
                 let averager = Averager::new(self.config.filter_period_s, self.config.raw_sigma_mps2);
+                // A fresh run: no older checkpoint may be resumed from now on.
+                self.save_checkpoint(None);
+                self.resumed = None;
                 self.run = Some(Run {
                     source,
                     averager,
                     ekf,
                     last_t_s: None,
                     sample_seq: 0,
+                    resync: None,
+                    time_offset_s: 0.0,
                 });
                 self.last_source = source;
                 if source == Source::Sensor {
@@ -312,22 +486,33 @@ where
                 }
                 self.send_status();
             }
-            Command::Replay(s) => match &self.run {
-                Some(Run {
-                    source: Source::Replay, ..
-                }) => {
+            Command::Replay(s) => match self.run.as_mut() {
+                Some(run) if run.source == Source::Replay => {
+                    if let Some(want) = run.resync {
+                        if s.seq != want {
+                            // Sent before the host saw the reset: the host resends from `want`.
+                            self.counters.samples_resync = self.counters.samples_resync.wrapping_add(1);
+                            return Event::Continue;
+                        }
+                        run.resync = None;
+                    }
                     let sample = Sample {
                         t_s: s.t_s,
                         specific_force: s.specific_force,
                         temp_c: s.temp_c,
                     };
-                    self.accept(&sample, false);
+                    self.accept_numbered(&sample, false, Some(s.seq));
                 }
                 _ => return self.refuse(FaultCode::BadCommand, "replay sample while not replaying"),
             },
             Command::Finish => {
+                if self.run.as_ref().is_some_and(|r| r.resync.is_some()) {
+                    // A Finish sent before the reset: the resent samples come first.
+                    self.counters.samples_resync = self.counters.samples_resync.wrapping_add(1);
+                    return Event::Continue;
+                }
                 if let Some(m) = self.run.as_mut().and_then(|r| r.averager.flush()) {
-                    self.step(&m);
+                    self.step(&m, None);
                 }
                 self.end_run();
             }
@@ -347,6 +532,8 @@ where
     fn end_run(&mut self) {
         if self.run.take().is_some() {
             self.timer.stop();
+            // The run is over: a reset must not resume it.
+            self.save_checkpoint(None);
         }
         self.send_status();
     }
@@ -361,6 +548,12 @@ where
     /// Validates one sample, averages it and steps the filter when a window is complete.
     /// Returns whether the sample was accepted.
     pub fn accept(&mut self, s: &Sample, saturated: bool) -> bool {
+        self.accept_numbered(s, saturated, None)
+    }
+
+    /// [`App::accept`] with the sample's sequence number from its source (replay: the host's);
+    /// `None`: the firmware's own count.
+    fn accept_numbered(&mut self, s: &Sample, saturated: bool, source_seq: Option<u32>) -> bool {
         let Some(run) = self.run.as_mut() else { return false };
         let c = &mut self.counters;
         if !(s.t_s.is_finite() && s.specific_force.iter().all(|v| v.is_finite())) {
@@ -375,9 +568,10 @@ where
             c.samples_out_of_order = c.samples_out_of_order.wrapping_add(1);
             return false;
         }
+        let before = run.last_t_s;
         run.last_t_s = Some(s.t_s);
         c.samples_ok = c.samples_ok.wrapping_add(1);
-        let seq = run.sample_seq;
+        let seq = source_seq.unwrap_or(run.sample_seq);
         run.sample_seq = seq.wrapping_add(1);
         let done = run.averager.push(s);
         if run.source == Source::Sensor && self.config.echo_raw {
@@ -390,12 +584,14 @@ where
             self.send(Message::Raw(raw));
         }
         if let Some(m) = done {
-            self.step(&m);
+            // This sample opened the next window: a checkpoint after this update resumes here.
+            let point = ResumePoint { next_seq: seq, last_t_s: before };
+            self.step(&m, Some(point));
         }
         true
     }
 
-    fn step(&mut self, m: &Measurement) {
+    fn step(&mut self, m: &Measurement, point: Option<ResumePoint>) {
         let Some(run) = self.run.as_mut() else { return };
         let step = run.ekf.steps();
         let t0 = self.platform.ticks();
@@ -410,6 +606,11 @@ where
                 let every = self.config.status_every;
                 if every > 0 && self.counters.filter_steps % every == 0 {
                     self.send_status();
+                }
+                let every = self.config.checkpoint_every;
+                let done = run_steps(&self.run);
+                if let (true, Some(p)) = (every > 0 && done % every == 0, point) {
+                    self.save_checkpoint(Some(p));
                 }
             }
             Err(e) => {
@@ -432,6 +633,8 @@ where
             static_ram_bytes: self.platform.static_ram(),
             last_step_ticks: self.last_step_ticks,
             tick_hz: self.platform.tick_hz(),
+            boot: self.boot_status,
+            resumed: self.resumed,
         }
     }
 
@@ -460,4 +663,20 @@ where
             self.counters.frames_tx = self.counters.frames_tx.wrapping_add(1);
         }
     }
+}
+
+/// Short fault texts without a heap.
+mod heapless_msg {
+    /// A fault detail (truncated to the protocol's 80 bytes).
+    pub type Msg = heapless::String<80>;
+    /// Formats into a [`Msg`], truncating what does not fit.
+    pub fn of(args: core::fmt::Arguments<'_>) -> Msg {
+        let mut s = Msg::new();
+        let _ = core::fmt::write(&mut s, args);
+        s
+    }
+}
+
+fn run_steps(run: &Option<Run>) -> u32 {
+    run.as_ref().map_or(0, |r| r.ekf.steps())
 }

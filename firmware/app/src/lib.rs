@@ -6,13 +6,16 @@
 //! - [`accel`]: the [`accel::Accelerometer`] trait (specific force in m/s² with a sample time).
 //! - [`adxl355`]: the ADXL355 driver over `embedded_hal::spi::SpiDevice`.
 //! - [`app`]: the loop: commands and replayed samples from the link, sampling at a fixed rate,
-//!   rejection and counting of invalid samples, averaging, the real-time EKF, telemetry.
+//!   rejection and counting of invalid samples, averaging, the real-time EKF, telemetry,
+//!   checkpoints and resume after a reset.
+//! - [`checkpoints`]: double-buffered checkpoint storage over NOR flash.
 #![no_std]
 #![warn(missing_docs)]
 
 pub mod accel;
 pub mod adxl355;
 pub mod app;
+pub mod checkpoints;
 
 pub use accel::{AccelSample, Accelerometer, NoSensor};
 pub use app::{App, Event, NoTimer, Platform, SampleTimer, Tick};

@@ -4,6 +4,11 @@
 //! counter for timing filter updates; with `-icount shift=0` one instruction is one virtual
 //! nanosecond, so ticks convert exactly to instructions. Semihosting ends the run with an exit
 //! code (`-semihosting-config enable=on,target=native`).
+//!
+//! Checkpoint storage: 8 KiB of the ZBT SSRAM at 0x2010_0000, outside the linked RAM (which
+//! ends at 0x2008_0000), used as a NOR flash of two 4-KiB sectors. QEMU keeps RAM contents across
+//! a `system_reset` (only the ELF's load segments are reloaded, and the firmware initialises only
+//! its own .data/.bss), so it plays the part of the real board's flash in the reset tests.
 
 use core::ptr::{read_volatile, write_volatile};
 use core::sync::atomic::{AtomicU32, Ordering};
@@ -13,6 +18,7 @@ use cortex_m::peripheral::SYST;
 use cortex_m_rt::exception;
 use cortex_m_semihosting::{debug, hprintln};
 use firmware_app::app::{App, NoTimer, Platform};
+use firmware_app::checkpoints::RamFlash;
 use firmware_app::NoSensor;
 use protocol::{Board, Fault, FaultCode};
 
@@ -138,8 +144,13 @@ impl Platform for Qemu {
     }
 }
 
+/// Checkpoint storage: RAM that survives a QEMU reset, as NOR flash with 4-KiB sectors.
+pub type Storage = RamFlash<'static, 4096>;
+const STORAGE_BASE: usize = 0x2010_0000;
+const STORAGE_LEN: usize = 2 * 4096;
+
 /// The application on this board.
-pub type BoardApp = App<Uart, NoSensor, NoTimer, Qemu>;
+pub type BoardApp = App<Uart, NoSensor, NoTimer, Qemu, Storage>;
 
 /// The board's parts for the application.
 pub struct Parts {
@@ -147,6 +158,7 @@ pub struct Parts {
     pub accel: NoSensor,
     pub timer: NoTimer,
     pub platform: Qemu,
+    pub storage: Storage,
     pub boot_fault: Option<Fault>,
 }
 
@@ -161,6 +173,9 @@ pub fn init() -> Parts {
         accel: NoSensor,
         timer: NoTimer,
         platform: Qemu,
+        // SAFETY: the region is RAM on mps2-an500, outside every linker section, and only this
+        // slice refers to it (init runs once).
+        storage: RamFlash::new(unsafe { core::slice::from_raw_parts_mut(STORAGE_BASE as *mut u8, STORAGE_LEN) }),
         boot_fault: None,
     }
 }

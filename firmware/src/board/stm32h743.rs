@@ -9,6 +9,10 @@
 //! - Shutdown: system reset. Fatal errors: a fault frame on the link, then halt (a watchdog,
 //!   when fitted, resets; issue 5 resumes from the checkpoint).
 //!
+//! - Checkpoints: the last two 128-KiB sectors of flash bank 2 (sectors 6 and 7, 0x081C_0000 to
+//!   0x081F_FFFF), kept out of the program's FLASH region by `memory.x`; programmed through the
+//!   bank-2 registers in 256-bit flash words ([`Flash`]).
+//!
 //! Not yet run on hardware: built and size-checked in CI only (see the README).
 
 use core::ptr::{read_volatile, write_volatile};
@@ -18,6 +22,7 @@ use cortex_m::peripheral::syst::SystClkSource;
 use cortex_m_rt::exception;
 use embedded_hal::spi::{ErrorType, Operation, SpiDevice};
 use firmware_app::adxl355::{self, Adxl355};
+use embedded_storage::nor_flash::{ErrorType as FlashErrorType, NorFlash, NorFlashError, NorFlashErrorKind, ReadNorFlash};
 use firmware_app::app::{App, Platform, SampleTimer, Tick};
 use firmware_app::{AccelSample, Accelerometer};
 use protocol::{Board, Fault, FaultCode};
@@ -307,7 +312,7 @@ impl Platform for Stm32h743 {
 }
 
 /// The application on this board.
-pub type BoardApp = App<Usart3, Sensor, MsTimer, Stm32h743>;
+pub type BoardApp = App<Usart3, Sensor, MsTimer, Stm32h743, Flash>;
 
 /// The board's parts for the application.
 pub struct Parts {
@@ -315,6 +320,7 @@ pub struct Parts {
     pub accel: Sensor,
     pub timer: MsTimer,
     pub platform: Stm32h743,
+    pub storage: Flash,
     pub boot_fault: Option<Fault>,
 }
 
@@ -352,6 +358,7 @@ pub fn init() -> Parts {
         accel,
         timer,
         platform: Stm32h743,
+        storage: Flash::take(),
         boot_fault,
     }
 }
@@ -375,5 +382,172 @@ pub fn fatal(code: FaultCode, detail: core::fmt::Arguments<'_>) -> ! {
     }
     loop {
         cortex_m::asm::wfi();
+    }
+}
+
+// ---------------------------------------------------------------------------------------------
+// Checkpoint flash: bank 2, sectors 6 and 7 (RM0433 §4: embedded flash memory).
+
+const FLASH_REGS: usize = 0x5200_2000;
+const FLASH_KEYR2: usize = FLASH_REGS + 0x104;
+const FLASH_CR2: usize = FLASH_REGS + 0x10C;
+const FLASH_SR2: usize = FLASH_REGS + 0x110;
+const FLASH_CCR2: usize = FLASH_REGS + 0x114;
+const FLASH_KEY1: u32 = 0x4567_0123;
+const FLASH_KEY2: u32 = 0xCDEF_89AB;
+const CR_LOCK: u32 = 1 << 0;
+const CR_PG: u32 = 1 << 1;
+const CR_SER: u32 = 1 << 2;
+const CR_PSIZE_X64: u32 = 0b11 << 4;
+const CR_START: u32 = 1 << 7;
+const SR_BSY: u32 = 1 << 0;
+const SR_WBNE: u32 = 1 << 1;
+const SR_QW: u32 = 1 << 2;
+/// WRPERR, PGSERR, STRBERR, INCERR, OPERR, RDPERR, RDSERR, SNECCERR, DBECCERR.
+const SR_ERRORS: u32 = (1 << 17) | (1 << 18) | (1 << 19) | (1 << 21) | (1 << 22) | (1 << 23) | (1 << 24) | (1 << 25) | (1 << 26);
+/// Base address of the checkpoint region (bank 2, sector 6).
+const CKPT_BASE: usize = 0x081C_0000;
+const CKPT_SECTOR0: u32 = 6;
+const SECTOR_SIZE: usize = 128 * 1024;
+
+/// The checkpoint region of the internal flash as a NOR flash (offsets from 0x081C_0000).
+pub struct Flash {
+    _private: (),
+}
+
+/// Flash errors: the SR2 error bits of the failed operation, or an access outside the region.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum FlashError {
+    /// Outside the checkpoint region or not aligned to the flash word / sector.
+    OutOfBounds,
+    /// The controller reported these SR2 error flags.
+    Controller(u32),
+}
+
+impl NorFlashError for FlashError {
+    fn kind(&self) -> NorFlashErrorKind {
+        match self {
+            FlashError::OutOfBounds => NorFlashErrorKind::OutOfBounds,
+            FlashError::Controller(_) => NorFlashErrorKind::Other,
+        }
+    }
+}
+
+impl Flash {
+    /// The checkpoint region (init runs once).
+    fn take() -> Self {
+        Flash { _private: () }
+    }
+
+    fn wait_idle() -> Result<(), FlashError> {
+        // SAFETY: FLASH_SR2 is a read-only status register of this MCU.
+        while unsafe { read_volatile(FLASH_SR2 as *const u32) } & (SR_BSY | SR_QW | SR_WBNE) != 0 {}
+        let sr = unsafe { read_volatile(FLASH_SR2 as *const u32) };
+        let errors = sr & SR_ERRORS;
+        if errors != 0 {
+            // SAFETY: writing ones to CCR2 clears those flags.
+            unsafe { write_volatile(FLASH_CCR2 as *mut u32, errors) };
+            return Err(FlashError::Controller(errors));
+        }
+        Ok(())
+    }
+
+    /// Unlocks CR2 (no-op when unlocked).
+    fn unlock() {
+        // SAFETY: the documented key sequence on FLASH_KEYR2.
+        unsafe {
+            if read_volatile(FLASH_CR2 as *const u32) & CR_LOCK != 0 {
+                write_volatile(FLASH_KEYR2 as *mut u32, FLASH_KEY1);
+                write_volatile(FLASH_KEYR2 as *mut u32, FLASH_KEY2);
+            }
+        }
+    }
+
+    fn lock() {
+        // SAFETY: setting LOCK re-locks the bank-2 control register.
+        unsafe { write_volatile(FLASH_CR2 as *mut u32, read_volatile(FLASH_CR2 as *const u32) | CR_LOCK) };
+    }
+}
+
+impl FlashErrorType for Flash {
+    type Error = FlashError;
+}
+
+impl ReadNorFlash for Flash {
+    const READ_SIZE: usize = 1;
+    fn read(&mut self, offset: u32, bytes: &mut [u8]) -> Result<(), FlashError> {
+        let o = offset as usize;
+        if o + bytes.len() > 2 * SECTOR_SIZE {
+            return Err(FlashError::OutOfBounds);
+        }
+        for (i, b) in bytes.iter_mut().enumerate() {
+            // SAFETY: inside the memory-mapped checkpoint region.
+            *b = unsafe { read_volatile((CKPT_BASE + o + i) as *const u8) };
+        }
+        Ok(())
+    }
+    fn capacity(&self) -> usize {
+        2 * SECTOR_SIZE
+    }
+}
+
+impl NorFlash for Flash {
+    const WRITE_SIZE: usize = 32;
+    const ERASE_SIZE: usize = SECTOR_SIZE;
+
+    fn erase(&mut self, from: u32, to: u32) -> Result<(), FlashError> {
+        let (a, b) = (from as usize, to as usize);
+        if a % SECTOR_SIZE != 0 || b % SECTOR_SIZE != 0 || a > b || b > 2 * SECTOR_SIZE {
+            return Err(FlashError::OutOfBounds);
+        }
+        Self::wait_idle()?;
+        Self::unlock();
+        let mut r = Ok(());
+        for sector in (a / SECTOR_SIZE)..(b / SECTOR_SIZE) {
+            let snb = CKPT_SECTOR0 + sector as u32;
+            // SAFETY: sector erase of a checkpoint sector (never program code: memory.x).
+            unsafe {
+                write_volatile(FLASH_CR2 as *mut u32, CR_SER | CR_PSIZE_X64 | (snb << 8));
+                write_volatile(FLASH_CR2 as *mut u32, CR_SER | CR_PSIZE_X64 | (snb << 8) | CR_START);
+            }
+            r = Self::wait_idle();
+            if r.is_err() {
+                break;
+            }
+        }
+        // SAFETY: clears SER/SNB.
+        unsafe { write_volatile(FLASH_CR2 as *mut u32, 0) };
+        Self::lock();
+        r
+    }
+
+    fn write(&mut self, offset: u32, bytes: &[u8]) -> Result<(), FlashError> {
+        let o = offset as usize;
+        if o % 32 != 0 || bytes.len() % 32 != 0 || o + bytes.len() > 2 * SECTOR_SIZE {
+            return Err(FlashError::OutOfBounds);
+        }
+        Self::wait_idle()?;
+        Self::unlock();
+        // SAFETY: PG with 64-bit parallelism for the bank-2 checkpoint region.
+        unsafe { write_volatile(FLASH_CR2 as *mut u32, CR_PG | CR_PSIZE_X64) };
+        let mut r = Ok(());
+        for (k, word) in bytes.chunks_exact(32).enumerate() {
+            let addr = CKPT_BASE + o + 32 * k;
+            for (j, w) in word.chunks_exact(4).enumerate() {
+                let v = u32::from_le_bytes([w[0], w[1], w[2], w[3]]);
+                // SAFETY: one 256-bit flash word written as eight aligned 32-bit writes; the
+                // controller programs it when the write buffer is full.
+                unsafe { write_volatile((addr + 4 * j) as *mut u32, v) };
+            }
+            cortex_m::asm::dsb();
+            r = Self::wait_idle();
+            if r.is_err() {
+                break;
+            }
+        }
+        // SAFETY: ends programming.
+        unsafe { write_volatile(FLASH_CR2 as *mut u32, 0) };
+        Self::lock();
+        r
     }
 }
