@@ -5,9 +5,15 @@
 //! (one `write_all` per frame); the calling thread reads concurrently (the firmware blocks on
 //! output while the host does not read, so reading and writing must overlap). The run ends at the
 //! first `Status` saying "not running" after `Finish` went out; then, if asked, `Shutdown`.
+//!
+//! Resets: when the firmware reboots during the run (a boot `Status`), the replay goes on from
+//! where the firmware can: from the checkpoint's sample (`Status::resumed.next_seq`), or from the
+//! start (`Configure`, `Start`) when it had no checkpoint. Estimates the resumed firmware will
+//! send again (step ≥ the checkpoint's) are dropped from the outcome, so it holds each update
+//! once, as the uninterrupted run would.
 
 use std::io::{Read, Write};
-use std::sync::atomic::{AtomicBool, Ordering};
+use std::sync::atomic::{AtomicBool, AtomicU64, Ordering};
 use std::sync::mpsc;
 use std::time::{Duration, Instant};
 
@@ -52,6 +58,8 @@ pub struct ReplayOutcome {
     pub rx: LinkStats,
     /// Wall time of the run, s.
     pub elapsed_s: f64,
+    /// Firmware resets seen during the run, with what each resumed from (`None`: restarted).
+    pub resets: Vec<Option<protocol::Resume>>,
 }
 
 impl ReplayOutcome {
@@ -96,7 +104,8 @@ pub fn replay<R: Read, W: Write + Send>(
     let start = Instant::now();
     let deadline = start + opts.timeout;
     let finish_sent = AtomicBool::new(false);
-    let (done_tx, done_rx) = mpsc::channel::<bool>();
+    let (ctl_tx, ctl_rx) = mpsc::channel::<Ctl>();
+    let sent_frames = AtomicU64::new(0);
     let mut out = ReplayOutcome::default();
     let mut rx = Receiver::new();
     let config = opts.config;
@@ -104,32 +113,62 @@ pub fn replay<R: Read, W: Write + Send>(
 
     let (result, sent) = std::thread::scope(|scope| {
         let finish_flag = &finish_sent;
+        let sent_count = &sent_frames;
         let writer_thread = scope.spawn(move || -> anyhow::Result<u64> {
             let mut w = writer;
             let mut enc = Encoder::new();
             let mut send = |w: &mut W, cmd: Command| -> anyhow::Result<()> {
                 let f = enc.frame(Message::Command(cmd)).map_err(|e| anyhow::anyhow!("{e}"))?;
+                sent_count.fetch_add(1, Ordering::SeqCst);
                 w.write_all(f).context("writing to the link")
             };
             send(&mut w, Command::Configure(config))?;
             send(&mut w, Command::Start(Source::Replay))?;
-            for s in samples {
-                send(&mut w, Command::Replay(*s))?;
+            let mut i = 0usize;
+            loop {
+                // Control from the reader: a reset to follow, or the end.
+                let ctl = if i <= samples.len() {
+                    ctl_rx.try_recv().ok()
+                } else {
+                    Some(ctl_rx.recv().unwrap_or(Ctl::Done(false)))
+                };
+                match ctl {
+                    Some(Ctl::Done(ok)) => {
+                        if ok && shutdown {
+                            send(&mut w, Command::Shutdown)?;
+                            w.flush().context("flushing the link")?;
+                        }
+                        break;
+                    }
+                    Some(Ctl::ResendFrom(seq)) => {
+                        finish_flag.store(false, Ordering::SeqCst);
+                        i = samples.iter().position(|s| s.seq == seq).unwrap_or(samples.len());
+                        continue;
+                    }
+                    Some(Ctl::Restart) => {
+                        finish_flag.store(false, Ordering::SeqCst);
+                        send(&mut w, Command::Configure(config))?;
+                        send(&mut w, Command::Start(Source::Replay))?;
+                        i = 0;
+                        continue;
+                    }
+                    None => {}
+                }
+                if i < samples.len() {
+                    send(&mut w, Command::Replay(samples[i]))?;
+                } else {
+                    send(&mut w, Command::Finish)?;
+                    w.flush().context("flushing the link")?;
+                    finish_flag.store(true, Ordering::SeqCst);
+                }
+                i += 1;
             }
-            send(&mut w, Command::Finish)?;
-            w.flush().context("flushing the link")?;
-            finish_flag.store(true, Ordering::SeqCst);
-            // Wait for the reader to see the end of the run (or give up).
-            let ok = done_rx.recv().unwrap_or(false);
-            if ok && shutdown {
-                send(&mut w, Command::Shutdown)?;
-                w.flush().context("flushing the link")?;
-            }
-            Ok(samples.len() as u64 + 3 + u64::from(ok && shutdown))
+            Ok(sent_count.load(Ordering::SeqCst))
         });
 
         let result = (|| -> anyhow::Result<()> {
             let mut buf = [0u8; 4096];
+            let mut started = false;
             loop {
                 if Instant::now() > deadline {
                     bail!("replay timed out after {:?} ({} estimates received)", opts.timeout, out.estimates.len());
@@ -159,9 +198,25 @@ pub fn replay<R: Read, W: Write + Send>(
                         Message::Hello(h) => out.hello = Some(h),
                         Message::Estimate(e) => out.estimates.push(e),
                         Message::Fault(f) => out.faults.push(f),
+                        Message::Status(s) if s.boot && started => {
+                            // The firmware rebooted mid-run: go on from its checkpoint, or restart.
+                            out.resets.push(s.resumed);
+                            match s.resumed {
+                                Some(r) => {
+                                    out.estimates.retain(|e| e.step < r.step);
+                                    let _ = ctl_tx.send(Ctl::ResendFrom(r.next_seq));
+                                }
+                                None => {
+                                    out.estimates.clear();
+                                    let _ = ctl_tx.send(Ctl::Restart);
+                                }
+                            }
+                            out.statuses.push(s);
+                        }
                         Message::Status(s) => {
+                            started |= s.running;
                             let after_finish = finish_sent.load(Ordering::SeqCst);
-                            if after_finish && !s.running && s.counters.frames_rx > 0 {
+                            if after_finish && !s.running && !s.boot && s.counters.frames_rx > 0 {
                                 end = true;
                             }
                             out.statuses.push(s);
@@ -174,7 +229,7 @@ pub fn replay<R: Read, W: Write + Send>(
                 }
             }
         })();
-        let _ = done_tx.send(result.is_ok());
+        let _ = ctl_tx.send(Ctl::Done(result.is_ok()));
         let sent = writer_thread.join().map_err(|_| anyhow::anyhow!("the writer thread panicked"));
         (result, sent)
     });
@@ -183,4 +238,14 @@ pub fn replay<R: Read, W: Write + Send>(
     out.rx = rx.stats();
     out.elapsed_s = start.elapsed().as_secs_f64();
     Ok(out)
+}
+
+/// Reader → writer control.
+enum Ctl {
+    /// The firmware resumed from a checkpoint: send samples again from the one with this `seq`.
+    ResendFrom(u32),
+    /// The firmware rebooted without a checkpoint: configure, start and send everything again.
+    Restart,
+    /// The run ended (`true`) or failed; send `Shutdown` if asked, and stop.
+    Done(bool),
 }
