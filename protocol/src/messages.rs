@@ -196,8 +196,12 @@ pub struct Counters {
     pub samples_saturated: u32,
     /// Sensor read errors (SPI, data not ready).
     pub read_errors: u32,
-    /// Samples not after the previous one in time (duplicate or out of order).
+    /// Samples before the previous one in time (out of order).
     pub samples_out_of_order: u32,
+    /// Samples with the same time as the previous one (duplicates).
+    pub samples_duplicate: u32,
+    /// Sensor samples rejected because an axis repeated the same reading (stuck sensor).
+    pub samples_stuck: u32,
     /// Filter updates done.
     pub filter_steps: u32,
     /// Filter updates refused by the estimator.

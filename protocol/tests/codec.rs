@@ -46,7 +46,7 @@ fn config() -> impl Strategy<Value = Config> {
 }
 
 fn counters() -> impl Strategy<Value = Counters> {
-    proptest::collection::vec(any::<u32>(), 15).prop_map(|v| Counters {
+    proptest::collection::vec(any::<u32>(), 17).prop_map(|v| Counters {
         samples_ok: v[0],
         samples_nan: v[1],
         samples_saturated: v[2],
@@ -62,6 +62,8 @@ fn counters() -> impl Strategy<Value = Counters> {
         checkpoints_written: v[12],
         checkpoint_errors: v[13],
         samples_resync: v[14],
+        samples_duplicate: v[15],
+        samples_stuck: v[16],
     })
 }
 

@@ -96,7 +96,13 @@ struct Run {
     resync: Option<u32>,
     /// Sensor mode after a resume: added to the timer's sample times, s.
     time_offset_s: f64,
+    /// Stuck-value detection: the previous reading and how many times it repeated, per axis.
+    prev_raw: [f64; 3],
+    same: [u32; 3],
 }
+
+/// Identical consecutive readings on one axis from which the sensor counts as stuck.
+pub const STUCK_RUN: u32 = 8;
 
 /// Where a run can be resumed from: the sample that opened the current averaging window.
 #[derive(Clone, Copy)]
@@ -313,6 +319,8 @@ where
             sample_seq: next_seq,
             resync: (source == Source::Replay).then_some(next_seq),
             time_offset_s,
+            prev_raw: [f64::NAN; 3],
+            same: [0; 3],
         });
         if source == Source::Sensor {
             self.timer.start(config.sample_rate_hz);
@@ -479,6 +487,8 @@ where
                     sample_seq: 0,
                     resync: None,
                     time_offset_s: 0.0,
+                    prev_raw: [f64::NAN; 3],
+                    same: [0; 3],
                 });
                 self.last_source = source;
                 if source == Source::Sensor {
@@ -564,9 +574,28 @@ where
             c.samples_saturated = c.samples_saturated.wrapping_add(1);
             return false;
         }
-        if run.last_t_s.is_some_and(|t| s.t_s <= t) || s.t_s < 0.0 {
+        if run.last_t_s == Some(s.t_s) {
+            c.samples_duplicate = c.samples_duplicate.wrapping_add(1);
+            return false;
+        }
+        if run.last_t_s.is_some_and(|t| s.t_s < t) || s.t_s < 0.0 {
             c.samples_out_of_order = c.samples_out_of_order.wrapping_add(1);
             return false;
+        }
+        if run.source == Source::Sensor {
+            // A live sensor's noise (tens of LSB per sample) never repeats a reading exactly
+            // STUCK_RUN times on an axis: such a run means a stuck converter or a dead bus.
+            let mut stuck = false;
+            for i in 0..3 {
+                let v = s.specific_force[i];
+                run.same[i] = if v.to_bits() == run.prev_raw[i].to_bits() { run.same[i].saturating_add(1) } else { 0 };
+                run.prev_raw[i] = v;
+                stuck |= run.same[i] + 1 >= STUCK_RUN;
+            }
+            if stuck {
+                c.samples_stuck = c.samples_stuck.wrapping_add(1);
+                return false;
+            }
         }
         let before = run.last_t_s;
         run.last_t_s = Some(s.t_s);

@@ -171,8 +171,8 @@ fn replay_matches_the_core_single_pass_bit_for_bit_and_rejects_bad_samples() {
     assert_eq!(got, want);
     let c = app.counters();
     assert_eq!(
-        (c.samples_ok, c.samples_nan, c.samples_saturated, c.samples_out_of_order),
-        (1000, 1, 1, 2)
+        (c.samples_ok, c.samples_nan, c.samples_saturated, c.samples_duplicate, c.samples_out_of_order),
+        (1000, 1, 1, 1, 1)
     );
     assert_eq!(
         (c.filter_steps, c.filter_errors, c.frames_rx_bad, c.frames_rx_missing),
@@ -256,22 +256,26 @@ impl SampleTimer for FakeTimer {
 
 struct FakeAccel {
     reads: u32,
+    /// From this read on, the x axis repeats the same value (a stuck converter).
+    stuck_from: u32,
 }
 impl Accelerometer for FakeAccel {
     type Error = ();
     fn sample(&mut self, t_s: f64) -> Result<AccelSample, ()> {
         self.reads += 1;
+        // A live sensor's readings differ from sample to sample (noise).
+        let x = if self.reads >= self.stuck_from { 0.5 } else { 1e-6 * f64::from(self.reads) };
         match self.reads {
             3 => Err(()),
             4 => Ok(AccelSample {
                 t_s,
-                specific_force: [0.0, 0.0, 9.8],
+                specific_force: [x, -x, 9.8 + x],
                 temp_c: 20.0,
                 saturated: true,
             }),
             _ => Ok(AccelSample {
                 t_s,
-                specific_force: [0.0, 0.0, 9.8],
+                specific_force: [x, -x, 9.8 + x],
                 temp_c: 20.0,
                 saturated: false,
             }),
@@ -283,7 +287,7 @@ impl Accelerometer for FakeAccel {
 fn sensor_mode_samples_at_the_ticks_and_counts_read_errors() {
     let mut app = App::new(
         Link::default(),
-        FakeAccel { reads: 0 },
+        FakeAccel { reads: 0, stuck_from: u32::MAX },
         FakeTimer {
             next: 0,
             running: false,
@@ -313,4 +317,26 @@ fn sensor_mode_samples_at_the_ticks_and_counts_read_errors() {
     let c = app.counters();
     assert_eq!((c.samples_ok, c.read_errors, c.samples_saturated), (19, 2, 1));
     assert!(msgs.iter().any(|m| matches!(m, Message::Estimate(_))));
+}
+
+/// A stuck axis (the same reading STUCK_RUN times in a row) is rejected and counted, from the
+/// STUCK_RUN-th identical reading on, until the readings move again.
+#[test]
+fn a_stuck_sensor_is_rejected_and_counted() {
+    let mut app = App::new(Link::default(), FakeAccel { reads: 0, stuck_from: 11 }, FakeTimer { next: 0, running: false }, HostBoard);
+    let mut host = Host::new();
+    host.send(&mut app, Command::Configure(Config { filter_period_s: 4.0, ..Config::default() }));
+    host.send(&mut app, Command::Start(Source::Sensor));
+    for _ in 0..30 {
+        app.poll();
+    }
+    let c = *app.counters();
+    // Reads 11.. are stuck: 11..=17 still pass (fewer than 8 equal in a row), 18..=31 rejected
+    // (31 reads: the start poll + 30). Reads 3 (error) and 4 (saturated) as in the test above.
+    assert_eq!(c.samples_stuck, 14);
+    // 31 reads: 1 failed, 1 saturated, 14 stuck, the rest good (read_errors also counts the
+    // missed tick 5, which is not a read).
+    assert_eq!(c.samples_ok, 31 - 1 - 1 - 14);
+    assert_eq!(c.read_errors, 2);
+    let _ = host.receive(&mut app);
 }

@@ -112,16 +112,26 @@ pub fn describe(msg: &Message) -> String {
         Message::Status(s) => {
             let c = &s.counters;
             format!(
-                "status t={} s running={} samples ok {} nan {} sat {} read-err {} order {}; steps {} (errors {}); rx {} bad {} missing {}; refused {}; stack {}/{} B, static {} B",
+                "status{} t={} s running={}{} samples ok {} nan {} sat {} stuck {} read-err {} dup {} order {} resync {}; steps {} (errors {}); checkpoints {} (errors {}); rx {} bad {} missing {}; refused {}; stack {}/{} B, static {} B",
+                if s.boot { " (boot)" } else { "" },
                 s.t_s,
                 s.running,
+                match s.resumed {
+                    Some(r) => format!(" resumed at update {} (sample {}, checkpoint {})", r.step, r.next_seq, r.generation),
+                    None => String::new(),
+                },
                 c.samples_ok,
                 c.samples_nan,
                 c.samples_saturated,
+                c.samples_stuck,
                 c.read_errors,
+                c.samples_duplicate,
                 c.samples_out_of_order,
+                c.samples_resync,
                 c.filter_steps,
                 c.filter_errors,
+                c.checkpoints_written,
+                c.checkpoint_errors,
                 c.frames_rx,
                 c.frames_rx_bad,
                 c.frames_rx_missing,
