@@ -59,9 +59,10 @@ pub fn run(a: &RecordArgs) -> anyhow::Result<()> {
         Message::Command(_) => {}
     })?;
     eprintln!(
-        "driftid record: {} samples to {} ({} duplicates skipped, {} sample gaps), {} estimates, {} connection(s); link: {}",
+        "driftid record: {} samples to {}{} ({} duplicates skipped, {} sample gaps), {} estimates, {} connection(s); link: {}",
         sum.samples,
         a.out.display(),
+        if sum.resumed_samples > 0 { format!(" after the {} already there", sum.resumed_samples) } else { String::new() },
         sum.duplicates,
         sum.sample_gaps,
         sum.estimates,

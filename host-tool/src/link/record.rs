@@ -2,10 +2,17 @@
 //! `identify`/`diagnose` take it directly), every received byte to an append-only raw log
 //! (flushed per read: a killed recorder loses nothing already received), estimates and status
 //! shown as they come. When the port disappears, the recorder waits for it and reconnects.
+//!
+//! Restarting `driftid record` on the same `--out` resumes the recording: the existing file is
+//! checked, a partial last line (a recorder killed mid-write) is cut off and reported, and only
+//! samples later than its last one are appended. Sample identity is the time `t_s` (the CSV has
+//! no sequence column; times strictly increase), so samples the firmware sends again after a
+//! reconnect or a reset are skipped, never duplicated. A file recorded at another latitude than
+//! the firmware reports is refused, not mixed.
 
 use std::fs::{File, OpenOptions};
 use std::io::{BufWriter, Read, Write};
-use std::path::PathBuf;
+use std::path::{Path, PathBuf};
 use std::time::{Duration, Instant};
 
 use anyhow::Context as _;
@@ -14,6 +21,9 @@ use protocol::{Command, Encoder, Estimate, Hello, Message};
 use super::port::{self, is_gone, is_timeout};
 use super::{LinkStats, Receiver};
 use crate::recording::{Metadata, RawSample, RecordingWriter};
+
+/// Opens the link for one connection; `Ok(None)`: no more connections (tests).
+pub type Opener<'a, P> = dyn FnMut() -> anyhow::Result<Option<P>> + 'a;
 
 /// How to record.
 #[derive(Clone, Debug)]
@@ -49,10 +59,14 @@ pub struct RecordSummary {
     pub last_estimate: Option<Estimate>,
     /// The firmware's identification.
     pub hello: Option<Hello>,
-    /// Link loss accounting, summed over connections.
+    /// Link loss accounting over all connections.
     pub rx: LinkStats,
     /// Times the port was (re)opened.
     pub connections: u64,
+    /// Samples already in the file when the recorder started (resumed recording).
+    pub resumed_samples: u64,
+    /// Repairs made to the existing file before appending (a partial last line).
+    pub repairs: Vec<String>,
 }
 
 struct Sink {
@@ -60,10 +74,66 @@ struct Sink {
     raw: Option<File>,
     last_t: Option<f64>,
     last_seq: Option<u32>,
+    /// Metadata of the file being appended to (checked against the firmware's Hello).
+    file_meta: Option<Metadata>,
+}
+
+/// Opens `path` to go on recording into it, if it exists and is not empty.
+fn resume(path: &Path, sink: &mut Sink, sum: &mut RecordSummary) -> anyhow::Result<()> {
+    match std::fs::metadata(path) {
+        Ok(m) if m.len() > 0 => {}
+        _ => return Ok(()),
+    }
+    let a = RecordingWriter::append(path)
+        .with_context(|| format!("{} exists but cannot be appended to; record to another file", path.display()))?;
+    if let Some(r) = &a.repair {
+        eprintln!("driftid record: {r}");
+        sum.repairs.push(r.clone());
+    }
+    eprintln!(
+        "driftid record: resuming {}: {} samples already recorded{}",
+        path.display(),
+        a.samples,
+        a.last_t_s.map(|t| format!(", the last at t = {t} s; later samples are appended")).unwrap_or_default()
+    );
+    sum.resumed_samples = a.samples;
+    sink.last_t = a.last_t_s;
+    sink.file_meta = Some(a.meta);
+    sink.csv = Some(a.writer);
+    Ok(())
 }
 
 /// Records until the duration ends or the port is gone (and `reconnect` is off).
-pub fn record(opts: &RecordOptions, mut on_msg: impl FnMut(&Message)) -> anyhow::Result<RecordSummary> {
+pub fn record(opts: &RecordOptions, on_msg: impl FnMut(&Message)) -> anyhow::Result<RecordSummary> {
+    let mut first = true;
+    let t0 = Instant::now();
+    let mut open = || -> anyhow::Result<Option<serialport::TTYPort>> {
+        loop {
+            match port::open(&opts.port, opts.baud) {
+                Ok(p) => {
+                    first = false;
+                    return Ok(Some(p));
+                }
+                // Waiting for the port to come back.
+                Err(_) if opts.reconnect && !first => {
+                    if opts.duration.is_some_and(|d| t0.elapsed() >= d) {
+                        return Ok(None);
+                    }
+                    std::thread::sleep(Duration::from_millis(500));
+                }
+                Err(e) => return Err(e),
+            }
+        }
+    };
+    record_with(opts, &mut open, on_msg)
+}
+
+/// [`record`] over any link: `open` gives each connection (a serial port, or a test double).
+pub fn record_with<P: Read + Write>(
+    opts: &RecordOptions,
+    open: &mut Opener<'_, P>,
+    mut on_msg: impl FnMut(&Message),
+) -> anyhow::Result<RecordSummary> {
     let start = Instant::now();
     let expired = || opts.duration.is_some_and(|d| start.elapsed() >= d);
     let raw = match &opts.raw {
@@ -72,25 +142,20 @@ pub fn record(opts: &RecordOptions, mut on_msg: impl FnMut(&Message)) -> anyhow:
         ),
         None => None,
     };
-    let mut sink = Sink { csv: None, raw, last_t: None, last_seq: None };
+    let mut sink = Sink { csv: None, raw, last_t: None, last_seq: None, file_meta: None };
     let mut sum = RecordSummary::default();
+    resume(&opts.out, &mut sink, &mut sum)?;
+    // One receiver across connections: a frame cut off by a disconnect is ended by the next
+    // connection's first delimiter and counted as damaged, not forgotten.
+    let mut rx = Receiver::new();
     while !expired() {
-        let mut port = match port::open(&opts.port, opts.baud) {
-            Ok(p) => p,
-            Err(e) if opts.reconnect && sum.connections > 0 => {
-                let _ = e;
-                std::thread::sleep(Duration::from_millis(500));
-                continue;
-            }
-            Err(e) => return Err(e),
-        };
+        let Some(mut port) = open()? else { break };
         sum.connections += 1;
         // Ask for Hello + Status (metadata for the CSV, and a sign of life).
         let mut enc = Encoder::new();
         if let Ok(f) = enc.frame(Message::Command(Command::Ping)) {
             let _ = port.write_all(f);
         }
-        let mut rx = Receiver::new();
         let mut buf = [0u8; 4096];
         let gone = loop {
             if expired() {
@@ -115,16 +180,7 @@ pub fn record(opts: &RecordOptions, mut on_msg: impl FnMut(&Message)) -> anyhow:
                 w.flush().context("flushing the recording")?;
             }
         };
-        let s = rx.stats();
-        sum.rx.decoder.ok += s.decoder.ok;
-        sum.rx.decoder.crc += s.decoder.crc;
-        sum.rx.decoder.cobs += s.decoder.cobs;
-        sum.rx.decoder.overflow += s.decoder.overflow;
-        sum.rx.decoder.version += s.decoder.version;
-        sum.rx.decoder.malformed += s.decoder.malformed;
-        sum.rx.decoder.bytes += s.decoder.bytes;
-        sum.rx.missing += s.missing;
-        sum.rx.restarts += s.restarts;
+        sum.rx = rx.stats();
         if !gone || !opts.reconnect {
             break;
         }
@@ -138,7 +194,18 @@ pub fn record(opts: &RecordOptions, mut on_msg: impl FnMut(&Message)) -> anyhow:
 
 fn handle(opts: &RecordOptions, sink: &mut Sink, sum: &mut RecordSummary, msg: Message) -> anyhow::Result<()> {
     match msg {
-        Message::Hello(h) => sum.hello = Some(h),
+        Message::Hello(h) => {
+            if let Some(lat) = sink.file_meta.as_ref().and_then(|m| m.latitude_deg) {
+                if (lat - h.config.latitude_deg).abs() > 1e-9 {
+                    anyhow::bail!(
+                        "{}: recorded at latitude {lat} deg, but the firmware reports {} deg: refusing to mix two runs in one recording; record to another file",
+                        opts.out.display(),
+                        h.config.latitude_deg
+                    );
+                }
+            }
+            sum.hello = Some(h)
+        }
         Message::Estimate(e) => {
             sum.estimates += 1;
             sum.last_estimate = Some(e);

@@ -29,7 +29,7 @@ pub use reader::{
     RecordingReader, GRAVITY_RANGE_MPS2, MAX_ABS_SPECIFIC_FORCE_MPS2, REQUIRED_COLUMNS,
     TEMP_COLUMN, TEMP_RANGE_C,
 };
-pub use writer::{write_recording, RecordingWriter};
+pub use writer::{write_recording, Appending, RecordingWriter};
 
 /// The `# key: value` lines before the header.
 #[derive(Clone, Debug, Default, PartialEq, serde::Serialize, serde::Deserialize)]

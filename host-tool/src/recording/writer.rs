@@ -29,6 +29,62 @@ impl RecordingWriter<BufWriter<File>> {
     }
 }
 
+/// An existing recording opened for appending (see [`RecordingWriter::append`]).
+pub struct Appending {
+    /// The writer, positioned at the end of the file.
+    pub writer: RecordingWriter<BufWriter<File>>,
+    /// The file's metadata.
+    pub meta: Metadata,
+    /// Samples already in the file.
+    pub samples: u64,
+    /// Time of the last sample in the file, s (`None`: header only).
+    pub last_t_s: Option<f64>,
+    /// What was repaired (a partial last line cut off), naming the file and line.
+    pub repair: Option<String>,
+}
+
+impl RecordingWriter<BufWriter<File>> {
+    /// Opens an existing recording to append to it (a recorder restarted on the same file): the
+    /// file is read and checked first; a partial last line (a recorder killed mid-write) is cut
+    /// off the file and reported; new rows then go after the last complete one, and must come
+    /// after its time. A file that breaks the format is an error naming file and line: nothing
+    /// is appended to it.
+    pub fn append(path: &Path) -> Result<Appending, super::RecordingError> {
+        use super::RecordingError;
+        let name = path.display().to_string();
+        let open_err = |source| RecordingError::Open { file: name.clone(), source };
+        let bytes = std::fs::read(path).map_err(open_err)?;
+        let complete = match bytes.iter().rposition(|&b| b == b'\n') {
+            Some(i) => i + 1,
+            None => 0,
+        };
+        let mut repair = None;
+        if complete < bytes.len() {
+            let line = bytes[..complete].iter().filter(|&&b| b == b'\n').count() + 1;
+            repair = Some(format!(
+                "{name}:{line}: partial last line ({} bytes, no newline: the recorder was stopped mid-write) cut off before appending",
+                bytes.len() - complete
+            ));
+            let f = std::fs::OpenOptions::new().write(true).open(path).map_err(open_err)?;
+            f.set_len(complete as u64).map_err(open_err)?;
+            f.sync_all().map_err(open_err)?;
+        }
+        let mut reader = super::RecordingReader::new(io::Cursor::new(&bytes[..complete]), name.clone())?;
+        let meta = reader.metadata().clone();
+        let has_temp = reader.has_temp();
+        let mut samples = 0u64;
+        let mut last_t_s = None;
+        for item in &mut reader {
+            let (_, s) = item?;
+            samples += 1;
+            last_t_s = Some(s.t_s);
+        }
+        let f = std::fs::OpenOptions::new().append(true).open(path).map_err(open_err)?;
+        let writer = RecordingWriter { w: BufWriter::with_capacity(1 << 16, f), has_temp, prev_t: last_t_s, rows: 0 };
+        Ok(Appending { writer, meta, samples, last_t_s, repair })
+    }
+}
+
 fn invalid(msg: String) -> io::Error {
     io::Error::new(io::ErrorKind::InvalidInput, msg)
 }

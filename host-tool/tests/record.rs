@@ -1,0 +1,156 @@
+//! The recorder: nothing recorded is lost or duplicated across disconnects, restarts of
+//! `driftid record` and a recorder killed mid-write; damaged frames cost only themselves and are
+//! counted; the raw log holds every byte received; a recording of another run is not mixed in.
+
+use std::io::{self, Read, Write};
+use std::path::PathBuf;
+
+use host_tool::link::record::{record_with, RecordOptions};
+use host_tool::recording::read_recording;
+use protocol::{Config, Encoder, Hello, Message, RawSample};
+
+fn temp_dir(name: &str) -> PathBuf {
+    let d = std::env::temp_dir().join(format!("driftid-record-{}-{name}", std::process::id()));
+    let _ = std::fs::remove_dir_all(&d);
+    std::fs::create_dir_all(&d).unwrap();
+    d
+}
+
+/// One connection of a scripted firmware: its bytes in reads of 37, then "port gone".
+struct Conn {
+    bytes: Vec<u8>,
+    at: usize,
+}
+impl Read for Conn {
+    fn read(&mut self, buf: &mut [u8]) -> io::Result<usize> {
+        if self.at >= self.bytes.len() {
+            return Err(io::Error::from(io::ErrorKind::BrokenPipe));
+        }
+        let n = buf.len().min(37).min(self.bytes.len() - self.at);
+        buf[..n].copy_from_slice(&self.bytes[self.at..self.at + n]);
+        self.at += n;
+        Ok(n)
+    }
+}
+impl Write for Conn {
+    fn write(&mut self, b: &[u8]) -> io::Result<usize> {
+        Ok(b.len()) // the recorder's Ping
+    }
+    fn flush(&mut self) -> io::Result<()> {
+        Ok(())
+    }
+}
+
+fn sample(k: u32) -> RawSample {
+    let t = f64::from(k);
+    RawSample { seq: k, t_s: t, specific_force: [1e-3 * (t * 0.01).sin(), -2e-3 * t / 1000.0, 9.8 + 1e-6 * t], temp_c: f64::NAN }
+}
+
+fn hello(lat: f64) -> Message {
+    Message::Hello(Hello { board: protocol::Board::Host, firmware: [0, 1, 0], state_dim: 15, config: Config { latitude_deg: lat, ..Config::default() } })
+}
+
+/// Frames of Hello + samples `ks`; `damage(k, frame)` may alter a sample's frame.
+fn stream(enc: &mut Encoder, lat: f64, ks: impl Iterator<Item = u32>, damage: impl Fn(u32, &mut Vec<u8>)) -> Vec<u8> {
+    let mut out = enc.frame(hello(lat)).unwrap().to_vec();
+    for k in ks {
+        let mut f = enc.frame(Message::Raw(sample(k))).unwrap().to_vec();
+        damage(k, &mut f);
+        out.extend(f);
+    }
+    out
+}
+
+fn options(dir: &std::path::Path) -> RecordOptions {
+    RecordOptions {
+        port: "scripted".into(),
+        baud: 0,
+        out: dir.join("run.csv"),
+        raw: Some(dir.join("run.bin")),
+        latitude_deg: None,
+        duration: None,
+        reconnect: true,
+    }
+}
+
+fn run(opts: &RecordOptions, conns: Vec<Vec<u8>>) -> anyhow::Result<host_tool::link::record::RecordSummary> {
+    let mut conns = conns.into_iter();
+    let mut open = move || -> anyhow::Result<Option<Conn>> { Ok(conns.next().map(|bytes| Conn { bytes, at: 0 })) };
+    record_with(opts, &mut open, |_| {})
+}
+
+#[test]
+fn disconnects_restarts_and_a_killed_recorder_lose_and_duplicate_nothing() {
+    let dir = temp_dir("resume");
+    let opts = options(&dir);
+    let mut enc = Encoder::new();
+    // Recorder 1, connection 1: samples 0..=120, the link drops in the middle of sample 120's frame.
+    let mut c1 = stream(&mut enc, 39.1, 0..=120, |_, _| {});
+    c1.truncate(c1.len() - 20);
+    // Connection 2 (the port came back; the firmware resends from 100): 100..=180, sample 150's
+    // frame damaged by a bit flip.
+    let c2 = stream(&mut enc, 39.1, 100..=180, |k, f| {
+        if k == 150 {
+            f[10] ^= 0x04;
+        }
+    });
+    let sum = run(&opts, vec![c1.clone(), c2.clone()]).unwrap();
+    // 0..=119 from connection 1, then 120..=180 except the damaged 150; 100..=119 were resent.
+    assert_eq!(sum.connections, 2);
+    assert_eq!(sum.samples, 120 + 61 - 1);
+    assert_eq!(sum.duplicates, 20);
+    // Frames lost: the one cut by the disconnect (ended by the next connection's delimiter) and
+    // the damaged one — each counted, nothing else.
+    assert_eq!(sum.rx.decoder.bad(), 2, "{}", sum.rx);
+
+    // The recorder is killed in the middle of writing a row.
+    let csv = dir.join("run.csv");
+    let mut f = std::fs::OpenOptions::new().append(true).open(&csv).unwrap();
+    f.write_all(b"181.0,0.00018,-3.6e-").unwrap();
+    drop(f);
+
+    // Recorder 2 on the same files: the firmware streams 170..=250.
+    let c3 = stream(&mut enc, 39.1, 170..=250, |_, _| {});
+    let sum2 = run(&opts, vec![c3.clone()]).unwrap();
+    assert_eq!(sum2.resumed_samples, 180);
+    assert_eq!(sum2.repairs.len(), 1, "the partial row is cut off and reported");
+    assert!(sum2.repairs[0].contains("run.csv:") && sum2.repairs[0].contains("partial last line"), "{}", sum2.repairs[0]);
+    assert_eq!((sum2.samples, sum2.duplicates), (70, 11), "181..=250 appended, 170..=180 skipped");
+
+    // The recording: every sample 0..=250 exactly once, in order, bit-exact, except the damaged 150.
+    let rec = read_recording(&csv).unwrap();
+    assert!(rec.repairs.is_empty());
+    let want: Vec<u32> = (0..=250).filter(|&k| k != 150).collect();
+    assert_eq!(rec.samples.len(), want.len());
+    for (s, &k) in rec.samples.iter().zip(&want) {
+        let w = sample(k);
+        assert_eq!((s.t_s, s.specific_force_mps2), (w.t_s, w.specific_force), "sample {k}");
+    }
+    assert_eq!(rec.meta.latitude_deg, Some(39.1));
+    // The raw log: every byte received, in order, over both recorders.
+    let raw = std::fs::read(dir.join("run.bin")).unwrap();
+    assert_eq!(raw, [c1, c2, c3].concat());
+    let _ = std::fs::remove_dir_all(&dir);
+}
+
+#[test]
+fn a_recording_of_another_run_is_not_mixed_and_a_broken_one_not_appended_to() {
+    let dir = temp_dir("mismatch");
+    let opts = options(&dir);
+    let mut enc = Encoder::new();
+    run(&opts, vec![stream(&mut enc, 39.1, 0..=10, |_, _| {})]).unwrap();
+    let before = std::fs::read(&opts.out).unwrap();
+    // Another firmware configuration (latitude) on the same --out: refused.
+    let e = run(&opts, vec![stream(&mut enc, 45.0, 11..=20, |_, _| {})]).unwrap_err();
+    let msg = format!("{e:#}");
+    assert!(msg.contains("run.csv") && msg.contains("latitude"), "{msg}");
+    assert_eq!(std::fs::read(&opts.out).unwrap(), before, "nothing appended");
+    // A file that breaks the format (bad number on line 5): refused with file and line.
+    let text = String::from_utf8(before).unwrap().replacen("\n3.0,", "\nx3.0,", 1);
+    std::fs::write(&opts.out, &text).unwrap();
+    let e = run(&opts, vec![stream(&mut enc, 39.1, 11..=20, |_, _| {})]).unwrap_err();
+    let msg = format!("{e:#}");
+    assert!(msg.contains("run.csv:") && msg.contains("cannot be appended"), "{msg}");
+    assert_eq!(std::fs::read_to_string(&opts.out).unwrap(), text, "the broken file is left as it was");
+    let _ = std::fs::remove_dir_all(&dir);
+}
