@@ -144,6 +144,10 @@ pub struct Config {
     /// Checkpoint the filter to non-volatile storage every this many filter updates (0: never).
     /// After a reset the firmware resumes from the newest valid checkpoint.
     pub checkpoint_every: u32,
+    /// χ² innovation gate: updates with NIS above this are rejected (counted, reported), and 10
+    /// rejections in a row raise a fault instead of starving the filter. 0: no gate (default: the
+    /// real-time single pass starts far from the truth, with NIS ≫ 1 for its first day).
+    pub gate_nis: f64,
 }
 
 impl Default for Config {
@@ -162,6 +166,7 @@ impl Default for Config {
             echo_raw: true,
             status_every: 60,
             checkpoint_every: 10,
+            gate_nis: 0.0,
         }
     }
 }
@@ -206,6 +211,8 @@ pub struct Counters {
     pub filter_steps: u32,
     /// Filter updates refused by the estimator.
     pub filter_errors: u32,
+    /// Measurements rejected by the innovation gate (the filter predicted across them).
+    pub updates_rejected: u32,
     /// Frames received and decoded.
     pub frames_rx: u32,
     /// Received frames lost (COBS/CRC/version/overflow/malformed).

@@ -41,12 +41,13 @@ fn config() -> impl Strategy<Value = Config> {
             echo_raw: echo,
             status_every: every,
             checkpoint_every: every.rotate_left(7),
+            gate_nis: f64::from(every % 100),
             ..Config::default()
         })
 }
 
 fn counters() -> impl Strategy<Value = Counters> {
-    proptest::collection::vec(any::<u32>(), 17).prop_map(|v| Counters {
+    proptest::collection::vec(any::<u32>(), 18).prop_map(|v| Counters {
         samples_ok: v[0],
         samples_nan: v[1],
         samples_saturated: v[2],
@@ -64,6 +65,7 @@ fn counters() -> impl Strategy<Value = Counters> {
         samples_resync: v[14],
         samples_duplicate: v[15],
         samples_stuck: v[16],
+        updates_rejected: v[17],
     })
 }
 

@@ -101,6 +101,9 @@ struct Run {
     same: [u32; 3],
 }
 
+/// Consecutive gate rejections that raise a fault (`Config::gate_nis`).
+pub const GATE_MAX_RUN: u32 = 10;
+
 /// Identical consecutive readings on one axis from which the sensor counts as stuck.
 pub const STUCK_RUN: u32 = 8;
 
@@ -159,6 +162,9 @@ pub fn validate(c: &Config) -> Result<(), &'static str> {
     if !c.raw_sigma_mps2.iter().all(|&s| pos(s)) {
         return Err("raw noise sigma must be finite and > 0");
     }
+    if !(c.gate_nis.is_finite() && c.gate_nis >= 0.0) {
+        return Err("gate NIS must be finite and >= 0 (0: no gate)");
+    }
     if !(c.arw_deg2_per_h.is_finite() && c.arw_deg2_per_h >= 0.0) {
         return Err("ARW must be finite and >= 0");
     }
@@ -175,7 +181,11 @@ pub fn filter_for(c: &Config) -> Result<Filter, &'static str> {
     let site = Site::new(c.latitude_deg, c.gravity_mps2);
     let arw = units::arw_deg2ph_to_rad2ps(c.arw_deg2_per_h);
     let model = Model::new(site, &PAPER_EFFECTS, arw, Propagation::default()).map_err(|_| "model refused")?;
-    Ekf::with_default_prior(model).map_err(|_| "filter refused")
+    let mut ekf = Ekf::with_default_prior(model).map_err(|_| "filter refused")?;
+    if c.gate_nis > 0.0 {
+        ekf.set_gate(Some(estimator_core::filter::Gate { nis_max: c.gate_nis, max_run: GATE_MAX_RUN }));
+    }
+    Ok(ekf)
 }
 
 /// The estimate message of one filter update.
@@ -628,6 +638,9 @@ where
         self.last_step_ticks = self.platform.ticks().wrapping_sub(t0);
         match r {
             Ok(res) => {
+                if res.rejected {
+                    self.counters.updates_rejected = self.counters.updates_rejected.wrapping_add(1);
+                }
                 let e = estimate_of(&run.ekf, step, m, res.innovation, res.nis);
                 self.last_t_s = run.ekf.time_s();
                 self.counters.filter_steps = self.counters.filter_steps.wrapping_add(1);

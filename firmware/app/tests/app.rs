@@ -340,3 +340,38 @@ fn a_stuck_sensor_is_rejected_and_counted() {
     assert_eq!(c.read_errors, 2);
     let _ = host.receive(&mut app);
 }
+
+/// With the χ² gate on, a window of bad samples (a 0.05 m/s² shock on every axis, ~100σ of a
+/// 30-s mean) is rejected and counted — its estimate still goes out, flagged by its NIS — and a
+/// long run of them raises a filter fault instead of starving the filter.
+#[test]
+fn the_innovation_gate_rejects_counts_and_faults_on_a_run() {
+    let mut app = App::new(Link::default(), NoSensor, NoTimer, HostBoard);
+    let mut host = Host::new();
+    let config = Config { filter_period_s: 30.0, status_every: 0, gate_nis: 27.88, ..Config::default() };
+    host.send(&mut app, Command::Configure(config));
+    host.send(&mut app, Command::Start(Source::Replay));
+    let input = samples(30 * 60);
+    let shocked = |k: usize| (600..630).contains(&k) || k >= 900;
+    for (k, s) in input.iter().enumerate() {
+        let mut s = *s;
+        if shocked(k) {
+            for a in &mut s.specific_force {
+                *a += 0.05;
+            }
+        }
+        host.send(&mut app, replay_sample(k as u32, &s));
+    }
+    let msgs = host.receive(&mut app);
+    let c = *app.counters();
+    // Window 20 (samples 600..630) rejected once; from sample 900 on every window is bad: the
+    // 10th rejection in a row (windows 30..=39) is refused as a fault, and so is each after it.
+    assert!(c.updates_rejected >= 1 + 9, "{c:?}");
+    let faults: Vec<_> = msgs.iter().filter_map(|m| if let Message::Fault(f) = m { Some(f.clone()) } else { None }).collect();
+    assert!(!faults.is_empty() && faults.iter().all(|f| f.code == FaultCode::Filter), "{faults:?}");
+    assert!(faults[0].detail.contains("step 39") && faults[0].detail.contains("innovation gate"), "{}", faults[0].detail);
+    // Before the shocks nothing was rejected: the gate does not bite on good data.
+    let nis: Vec<f64> = msgs.iter().filter_map(|m| if let Message::Estimate(e) = m { Some(e.nis) } else { None }).collect();
+    assert!(nis[..19].iter().all(|&v| v < 27.88), "{:?}", &nis[..19]);
+    assert!(nis[20] > 27.88);
+}

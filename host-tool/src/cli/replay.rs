@@ -33,6 +33,10 @@ pub struct ReplayArgs {
     /// Gyro angle random walk, deg²/h.
     #[arg(long, default_value_t = 1e-8)]
     pub arw: f64,
+    /// χ² innovation gate of the firmware's filter (NIS threshold; 0: off). Rejections are
+    /// counted in the status; 10 in a row raise a fault.
+    #[arg(long, default_value_t = 0.0)]
+    pub gate_nis: f64,
     /// Where to write the firmware's estimates (CSV); default: RECORDING.firmware.csv.
     #[arg(long)]
     pub out: Option<PathBuf>,
@@ -95,6 +99,7 @@ pub fn run(a: &ReplayArgs) -> anyhow::Result<()> {
         filter_period_s: a.period_s,
         raw_sigma_mps2: [sigma; 3],
         arw_deg2_per_h: a.arw,
+        gate_nis: a.gate_nis,
         status_every: 0,
         ..Config::default()
     };

@@ -112,7 +112,7 @@ pub fn describe(msg: &Message) -> String {
         Message::Status(s) => {
             let c = &s.counters;
             format!(
-                "status{} t={} s running={}{} samples ok {} nan {} sat {} stuck {} read-err {} dup {} order {} resync {}; steps {} (errors {}); checkpoints {} (errors {}); rx {} bad {} missing {}; refused {}; stack {}/{} B, static {} B",
+                "status{} t={} s running={}{} samples ok {} nan {} sat {} stuck {} read-err {} dup {} order {} resync {}; steps {} (errors {}, gated {}); checkpoints {} (errors {}); rx {} bad {} missing {}; refused {}; stack {}/{} B, static {} B",
                 if s.boot { " (boot)" } else { "" },
                 s.t_s,
                 s.running,
@@ -130,6 +130,7 @@ pub fn describe(msg: &Message) -> String {
                 c.samples_resync,
                 c.filter_steps,
                 c.filter_errors,
+                c.updates_rejected,
                 c.checkpoints_written,
                 c.checkpoint_errors,
                 c.frames_rx,
