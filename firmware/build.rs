@@ -10,7 +10,8 @@ fn main() {
     let manifest = PathBuf::from(env::var_os("CARGO_MANIFEST_DIR").expect("CARGO_MANIFEST_DIR"));
     // Also put memory.x on the search path, for builds whose linker runs elsewhere.
     let real = manifest.join("../memory.x");
-    fs::copy(&real, out.join("memory.x")).unwrap_or_else(|e| panic!("copying {}: {e}", real.display()));
+    fs::copy(&real, out.join("memory.x"))
+        .unwrap_or_else(|e| panic!("copying {}: {e}", real.display()));
     println!("cargo:rustc-link-search={}", out.display());
     println!("cargo:rerun-if-changed={}", real.display());
     println!("cargo:rerun-if-changed=memory-qemu.x");
@@ -19,11 +20,23 @@ fn main() {
         // `name = value;` lines, passed as --defsym: symbols assigned in a linker script are not
         // yet DEFINED() when the linker evaluates MEMORY, command-line symbols are.
         let qemu = manifest.join("memory-qemu.x");
-        let text = fs::read_to_string(&qemu).unwrap_or_else(|e| panic!("reading {}: {e}", qemu.display()));
+        let text =
+            fs::read_to_string(&qemu).unwrap_or_else(|e| panic!("reading {}: {e}", qemu.display()));
         let mut n = 0;
-        for line in text.lines().map(str::trim).filter(|l| l.starts_with("_board_")) {
-            let (name, value) = line.trim_end_matches(';').split_once('=').expect("name = value;");
-            println!("cargo:rustc-link-arg-bins=--defsym={}={}", name.trim(), value.trim());
+        for line in text
+            .lines()
+            .map(str::trim)
+            .filter(|l| l.starts_with("_board_"))
+        {
+            let (name, value) = line
+                .trim_end_matches(';')
+                .split_once('=')
+                .expect("name = value;");
+            println!(
+                "cargo:rustc-link-arg-bins=--defsym={}={}",
+                name.trim(),
+                value.trim()
+            );
             n += 1;
         }
         assert_eq!(n, 4, "memory-qemu.x must define the four _board_* symbols");

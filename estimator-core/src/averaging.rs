@@ -109,7 +109,11 @@ impl Averager {
         let m = Measurement {
             t_s: self.t0 + self.sum_dt / n,
             specific_force: mean.into(),
-            temp_c: if self.temp_count > 0 { self.sum_temp / f64::from(self.temp_count) } else { f64::NAN },
+            temp_c: if self.temp_count > 0 {
+                self.sum_temp / f64::from(self.temp_count)
+            } else {
+                f64::NAN
+            },
             count: self.count,
             variance: self.raw_variance.map(|v| v / n),
             time_var_s2: (self.sum_dt2 / n - (self.sum_dt / n) * (self.sum_dt / n)).max(0.0),

@@ -67,7 +67,11 @@ pub fn crc32(bytes: &[u8]) -> u32 {
     for &b in bytes {
         crc ^= u32::from(b);
         for _ in 0..8 {
-            crc = if crc & 1 != 0 { (crc >> 1) ^ 0xEDB8_8320 } else { crc >> 1 };
+            crc = if crc & 1 != 0 {
+                (crc >> 1) ^ 0xEDB8_8320
+            } else {
+                crc >> 1
+            };
         }
     }
     !crc
@@ -177,7 +181,10 @@ impl<const CAP: usize> Ekf<'_, CAP> {
         }
         let version = u16::from_le_bytes(r.take());
         if version != VERSION {
-            return Err(CheckpointError::Version { found: version, expected: VERSION });
+            return Err(CheckpointError::Version {
+                found: version,
+                expected: VERSION,
+            });
         }
         let stored_n = u16::from_le_bytes(r.take()) as usize;
         let found = r.u32();
@@ -189,7 +196,12 @@ impl<const CAP: usize> Ekf<'_, CAP> {
         if image.len() < len {
             return Err(CheckpointError::Truncated);
         }
-        let crc = u32::from_le_bytes([image[len - 4], image[len - 3], image[len - 2], image[len - 1]]);
+        let crc = u32::from_le_bytes([
+            image[len - 4],
+            image[len - 3],
+            image[len - 2],
+            image[len - 1],
+        ]);
         if crc32(&image[..len - 4]) != crc {
             return Err(CheckpointError::Crc);
         }
@@ -210,7 +222,10 @@ impl<const CAP: usize> Ekf<'_, CAP> {
                 p[j][i] = v;
             }
         }
-        let finite = x[..n].iter().all(|v| v.is_finite()) && p[..n].iter().all(|row| row[..n].iter().all(|v| v.is_finite()));
+        let finite = x[..n].iter().all(|v| v.is_finite())
+            && p[..n]
+                .iter()
+                .all(|row| row[..n].iter().all(|v| v.is_finite()));
         if !(finite && t_s.is_finite()) {
             return Err(CheckpointError::Invalid);
         }

@@ -29,7 +29,11 @@ pub enum FilterError {
     /// Initial state or 1σ has the wrong length.
     Dimension { expected: usize, got: usize },
     /// A measurement's time is not after the filter's time.
-    TimeNotIncreasing { step: u32, t_s: f64, filter_t_s: f64 },
+    TimeNotIncreasing {
+        step: u32,
+        t_s: f64,
+        filter_t_s: f64,
+    },
     /// A measurement or its variance is NaN/∞ or the variance is not positive.
     BadMeasurement { step: u32 },
     /// The innovation covariance is not positive definite.
@@ -80,7 +84,10 @@ pub struct Gate {
 
 impl Gate {
     /// χ²(3) upper 1e-5 quantile with a fault after 10 consecutive rejections.
-    pub const DEFAULT: Gate = Gate { nis_max: 27.88, max_run: 10 };
+    pub const DEFAULT: Gate = Gate {
+        nis_max: 27.88,
+        max_run: 10,
+    };
 }
 
 /// The EKF: state, covariance and time, over a [`Model`].
@@ -103,11 +110,17 @@ impl<'m, const CAP: usize> Ekf<'m, CAP> {
     pub fn new(model: Model<'m>, x0: &[f64], sigma0: &[f64]) -> Result<Self, FilterError> {
         let n = model.dim();
         if n > CAP {
-            return Err(FilterError::Capacity { needed: n, capacity: CAP });
+            return Err(FilterError::Capacity {
+                needed: n,
+                capacity: CAP,
+            });
         }
         for len in [x0.len(), sigma0.len()] {
             if len != n {
-                return Err(FilterError::Dimension { expected: n, got: len });
+                return Err(FilterError::Dimension {
+                    expected: n,
+                    got: len,
+                });
             }
         }
         let mut x = [0.0; CAP];
@@ -116,14 +129,28 @@ impl<'m, const CAP: usize> Ekf<'m, CAP> {
         for (i, s) in sigma0.iter().enumerate() {
             p[(i, i)] = s * s;
         }
-        Ok(Ekf { model, gate: None, rejected_total: 0, rejected_run: 0, x, p, t_s: 0.0, temp_ref_c: f64::NAN, temp_dev_c: 0.0, steps: 0 })
+        Ok(Ekf {
+            model,
+            gate: None,
+            rejected_total: 0,
+            rejected_run: 0,
+            x,
+            p,
+            t_s: 0.0,
+            temp_ref_c: f64::NAN,
+            temp_dev_c: 0.0,
+            steps: 0,
+        })
     }
 
     /// A filter started as the paper starts it: zero angles and coefficients, each effect's prior 1σ.
     pub fn with_default_prior(model: Model<'m>) -> Result<Self, FilterError> {
         let n = model.dim();
         if n > CAP {
-            return Err(FilterError::Capacity { needed: n, capacity: CAP });
+            return Err(FilterError::Capacity {
+                needed: n,
+                capacity: CAP,
+            });
         }
         let mut sigma = [ANGLE_PRIOR_SIGMA_RAD; CAP];
         for (i, s) in sigma.iter_mut().enumerate().take(n).skip(ANGLES) {
@@ -133,10 +160,20 @@ impl<'m, const CAP: usize> Ekf<'m, CAP> {
     }
 
     /// Restores a full filter state (checkpoint resume). `p` is row-major n×n.
-    pub fn restore(&mut self, x: &[f64], p: &[f64], t_s: f64, steps: u32, temp_ref_c: f64) -> Result<(), FilterError> {
+    pub fn restore(
+        &mut self,
+        x: &[f64],
+        p: &[f64],
+        t_s: f64,
+        steps: u32,
+        temp_ref_c: f64,
+    ) -> Result<(), FilterError> {
         let n = self.model.dim();
         if x.len() != n || p.len() != n * n {
-            return Err(FilterError::Dimension { expected: n, got: x.len() });
+            return Err(FilterError::Dimension {
+                expected: n,
+                got: x.len(),
+            });
         }
         self.x[..n].copy_from_slice(x);
         for i in 0..n {
@@ -152,11 +189,26 @@ impl<'m, const CAP: usize> Ekf<'m, CAP> {
 
     /// (time s, updates, temperature reference °C, temperature deviation °C, rejections).
     pub(crate) fn bookkeeping(&self) -> (f64, u32, f64, f64, u32) {
-        (self.t_s, self.steps, self.temp_ref_c, self.temp_dev_c, self.rejected_total)
+        (
+            self.t_s,
+            self.steps,
+            self.temp_ref_c,
+            self.temp_dev_c,
+            self.rejected_total,
+        )
     }
 
     #[allow(clippy::too_many_arguments)]
-    pub(crate) fn set_all(&mut self, x: &[f64], p: &[[f64; CAP]; CAP], t_s: f64, steps: u32, temp_ref: f64, temp_dev: f64, rejected: u32) {
+    pub(crate) fn set_all(
+        &mut self,
+        x: &[f64],
+        p: &[[f64; CAP]; CAP],
+        t_s: f64,
+        steps: u32,
+        temp_ref: f64,
+        temp_dev: f64,
+        rejected: u32,
+    ) {
         let n = x.len();
         self.x[..n].copy_from_slice(x);
         for i in 0..n {
@@ -234,7 +286,15 @@ impl<'m, const CAP: usize> Ekf<'m, CAP> {
         }
         let n = self.model.dim();
         let mut tr = Transition::<CAP>::default();
-        propagate(&self.model, &mut self.x[..n], self.t_s, dt, self.temp_dev_c, temp_dev_c, &mut tr);
+        propagate(
+            &self.model,
+            &mut self.x[..n],
+            self.t_s,
+            dt,
+            self.temp_dev_c,
+            temp_dev_c,
+            &mut tr,
+        );
         let dynamic = self.model.dynamic_states();
         let nd = dynamic.len();
         let mut is_dyn = [false; CAP];
@@ -277,9 +337,15 @@ impl<'m, const CAP: usize> Ekf<'m, CAP> {
         let step = self.steps;
         let ok_time = m.t_s > self.t_s || (self.steps == 0 && m.t_s >= self.t_s);
         if !ok_time || !m.t_s.is_finite() {
-            return Err(FilterError::TimeNotIncreasing { step, t_s: m.t_s, filter_t_s: self.t_s });
+            return Err(FilterError::TimeNotIncreasing {
+                step,
+                t_s: m.t_s,
+                filter_t_s: self.t_s,
+            });
         }
-        if m.specific_force.iter().any(|v| !v.is_finite()) || m.variance.iter().any(|v| !(v.is_finite() && *v > 0.0)) {
+        if m.specific_force.iter().any(|v| !v.is_finite())
+            || m.variance.iter().any(|v| !(v.is_finite() && *v > 0.0))
+        {
             return Err(FilterError::BadMeasurement { step });
         }
         let saved = self.clone();
@@ -294,7 +360,10 @@ impl<'m, const CAP: usize> Ekf<'m, CAP> {
                     self.rejected_run += 1;
                     if let Some(g) = self.gate {
                         if self.rejected_run >= g.max_run {
-                            return Err(FilterError::RejectionRun { step, count: self.rejected_run });
+                            return Err(FilterError::RejectionRun {
+                                step,
+                                count: self.rejected_run,
+                            });
                         }
                     }
                 } else {
@@ -314,7 +383,9 @@ impl<'m, const CAP: usize> Ekf<'m, CAP> {
         let step = self.steps;
         let n = self.model.dim();
         let mut h = [Vector3::zeros(); CAP];
-        let predicted = self.model.measurement(&self.x[..n], m.t_s, temp_dev, m.time_var_s2, &mut h);
+        let predicted =
+            self.model
+                .measurement(&self.x[..n], m.t_s, temp_dev, m.time_var_s2, &mut h);
         let nu = Vector3::from(m.specific_force) - predicted;
         let mut cols = [0usize; CAP];
         let mut nm = 0;
@@ -342,9 +413,14 @@ impl<'m, const CAP: usize> Ekf<'m, CAP> {
             s += h[j] * pht[j].transpose();
         }
         s = (s + s.transpose()) * 0.5;
-        let chol = s.cholesky().ok_or(FilterError::SingularInnovation { step })?;
+        let chol = s
+            .cholesky()
+            .ok_or(FilterError::SingularInnovation { step })?;
         let s_inv = chol.inverse();
-        let whitened = chol.l().solve_lower_triangular(&nu).ok_or(FilterError::SingularInnovation { step })?;
+        let whitened = chol
+            .l()
+            .solve_lower_triangular(&nu)
+            .ok_or(FilterError::SingularInnovation { step })?;
         let nis = nu.dot(&(s_inv * nu));
         let residual = Residual {
             step,
@@ -360,7 +436,10 @@ impl<'m, const CAP: usize> Ekf<'m, CAP> {
         if let Some(g) = self.gate {
             if !(nis <= g.nis_max) {
                 // Keep the prediction (time and covariance move on), skip the correction.
-                return Ok(Residual { rejected: true, ..residual });
+                return Ok(Residual {
+                    rejected: true,
+                    ..residual
+                });
             }
         }
         let mut k = [Vector3::zeros(); CAP];

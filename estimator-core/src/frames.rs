@@ -22,7 +22,10 @@ impl Site {
     /// A site at `latitude_deg`, with `gravity_mps2` or, if `None`, WGS-84 normal gravity there.
     pub fn new(latitude_deg: f64, gravity_mps2: Option<f64>) -> Self {
         let latitude_rad = latitude_deg * crate::units::RAD_PER_DEG;
-        Site { latitude_rad, gravity_mps2: gravity_mps2.unwrap_or_else(|| normal_gravity(latitude_rad)) }
+        Site {
+            latitude_rad,
+            gravity_mps2: gravity_mps2.unwrap_or_else(|| normal_gravity(latitude_rad)),
+        }
     }
 
     /// Earth rate in frame 0 (ENU), rad/s: `[0, Ω cos L, Ω sin L]`.
@@ -41,7 +44,8 @@ impl Site {
 pub fn normal_gravity(latitude_rad: f64) -> f64 {
     let s = libm::sin(latitude_rad);
     let s2 = s * s;
-    9.780_325_335_9 * (1.0 + 0.001_931_852_652_41 * s2) / libm::sqrt(1.0 - 0.006_694_379_990_13 * s2)
+    9.780_325_335_9 * (1.0 + 0.001_931_852_652_41 * s2)
+        / libm::sqrt(1.0 - 0.006_694_379_990_13 * s2)
 }
 
 /// The platform attitude C_0^p at θ with its partial derivatives ∂C/∂θ_j.
@@ -70,18 +74,39 @@ impl Attitude {
         let row2 = Vector3::new(sy, -sx * cy, cx * cy);
         let c = Matrix3::from_rows(&[row0.transpose(), row1.transpose(), row2.transpose()]);
         let d_tx = Matrix3::new(
-            0.0, -sx * sz + cxsy * cz, cx * sz + sxsy * cz,
-            0.0, -sx * cz - cxsy * sz, cx * cz - sxsy * sz,
-            0.0, -cx * cy, -sx * cy,
+            0.0,
+            -sx * sz + cxsy * cz,
+            cx * sz + sxsy * cz,
+            0.0,
+            -sx * cz - cxsy * sz,
+            cx * cz - sxsy * sz,
+            0.0,
+            -cx * cy,
+            -sx * cy,
         );
         let d_ty = Matrix3::new(
-            -sy * cz, sx * cy * cz, -cx * cy * cz,
-            sy * sz, -sx * cy * sz, cx * cy * sz,
-            cy, sxsy, -cxsy,
+            -sy * cz,
+            sx * cy * cz,
+            -cx * cy * cz,
+            sy * sz,
+            -sx * cy * sz,
+            cx * cy * sz,
+            cy,
+            sxsy,
+            -cxsy,
         );
         // ∂/∂tz turns row 0 into row 1 and row 1 into −row 0.
-        let d_tz = Matrix3::from_rows(&[row1.transpose(), -row0.transpose(), Vector3::zeros().transpose()]);
-        Attitude { c, dc: [d_tx, d_ty, d_tz], sin: Vector3::new(sx, sy, sz), cos: Vector3::new(cx, cy, cz) }
+        let d_tz = Matrix3::from_rows(&[
+            row1.transpose(),
+            -row0.transpose(),
+            Vector3::zeros().transpose(),
+        ]);
+        Attitude {
+            c,
+            dc: [d_tx, d_ty, d_tz],
+            sin: Vector3::new(sx, sy, sz),
+            cos: Vector3::new(cx, cy, cz),
+        }
     }
 
     /// Specific force along the platform axes when the base is at rest, `A = C·[0,0,g]`, m/s².

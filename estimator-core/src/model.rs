@@ -56,7 +56,10 @@ impl core::fmt::Display for ModelError {
         match self {
             ModelError::TooManyEffects => write!(f, "more than {MAX_EFFECTS} effects in one model"),
             ModelError::TooManyStates { needed, capacity } => {
-                write!(f, "the model needs {needed} states but the filter holds {capacity}")
+                write!(
+                    f,
+                    "the model needs {needed} states but the filter holds {capacity}"
+                )
             }
             ModelError::TooManyDynamicStates => {
                 write!(f, "more than {} Gauss-Markov states", MAX_DYNAMIC - ANGLES)
@@ -97,7 +100,10 @@ impl<'m> Model<'m> {
         }
         let mut offsets = [0; MAX_EFFECTS + 1];
         let mut dynamic = [0; MAX_DYNAMIC];
-        let mut markov = [Markov { tau_s: f64::INFINITY, q: 0.0 }; MAX_DYNAMIC];
+        let mut markov = [Markov {
+            tau_s: f64::INFINITY,
+            q: 0.0,
+        }; MAX_DYNAMIC];
         dynamic[..ANGLES].copy_from_slice(&[0, 1, 2]);
         let mut n_dynamic = ANGLES;
         let mut measured: u64 = 0b111;
@@ -106,7 +112,10 @@ impl<'m> Model<'m> {
             offsets[e] = n;
             let dim = effect.params().len();
             if n + dim > MAX_STATES {
-                return Err(ModelError::TooManyStates { needed: n + dim, capacity: MAX_STATES });
+                return Err(ModelError::TooManyStates {
+                    needed: n + dim,
+                    capacity: MAX_STATES,
+                });
             }
             for k in 0..dim {
                 if let Some(m) = effect.markov(k) {
@@ -124,7 +133,17 @@ impl<'m> Model<'m> {
             n += dim;
         }
         offsets[effects.len()] = n;
-        Ok(Model { site, effects, offsets, dynamic, n_dynamic, markov, measured, arw_rad2ps, propagation })
+        Ok(Model {
+            site,
+            effects,
+            offsets,
+            dynamic,
+            n_dynamic,
+            markov,
+            measured,
+            arw_rad2ps,
+            propagation,
+        })
     }
 
     /// Number of states.
@@ -165,7 +184,9 @@ impl<'m> Model<'m> {
     }
     /// The effect owning state `i ≥ 3` and the parameter's index within it.
     pub fn owner(&self, i: usize) -> Option<(usize, usize)> {
-        (0..self.effects.len()).find(|&e| i >= self.offsets[e] && i < self.offsets[e + 1]).map(|e| (e, i - self.offsets[e]))
+        (0..self.effects.len())
+            .find(|&e| i >= self.offsets[e] && i < self.offsets[e + 1])
+            .map(|e| (e, i - self.offsets[e]))
     }
     /// Name, unit and prior of state `i` (angles are reported as `tx`, `ty`, `tz` in rad).
     pub fn param(&self, i: usize) -> Param {
@@ -176,7 +197,11 @@ impl<'m> Model<'m> {
                 p.prior_sigma = self.effects[e].prior_sigma(k);
                 p
             }
-            None => Param { name: ANG[i.min(2)], unit: "rad", prior_sigma: 0.0 },
+            None => Param {
+                name: ANG[i.min(2)],
+                unit: "rad",
+                prior_sigma: 0.0,
+            },
         }
     }
     /// Index of the state named `name`, if any.
@@ -185,11 +210,21 @@ impl<'m> Model<'m> {
     }
 
     fn context(&self, att: &Attitude, t_s: f64, temp_dev_c: f64) -> Context {
-        Context { t_s, specific_force: att.specific_force(self.site.gravity_mps2), temp_dev_c }
+        Context {
+            t_s,
+            specific_force: att.specific_force(self.site.gravity_mps2),
+            temp_dev_c,
+        }
     }
 
     /// Total gyro drift rate at state `x`, deg/h along the platform axes (for reports).
-    pub fn drift_rate(&self, x: &[f64], t_s: f64, temp_dev_c: f64, scratch: &mut [Vector3<f64>]) -> Vector3<f64> {
+    pub fn drift_rate(
+        &self,
+        x: &[f64],
+        t_s: f64,
+        temp_dev_c: f64,
+        scratch: &mut [Vector3<f64>],
+    ) -> Vector3<f64> {
         let att = Attitude::new(&Vector3::new(x[0], x[1], x[2]));
         let ctx = self.context(&att, t_s, temp_dev_c);
         let (drift, _) = self.effect_terms(x, &ctx, scratch, true);
@@ -211,7 +246,11 @@ impl<'m> Model<'m> {
         let mut d_force = Matrix3::zeros();
         for (e, effect) in self.effects.iter().enumerate() {
             let (a, b) = (self.offsets[e], self.offsets[e + 1]);
-            let out = Partials { value: &mut value, d_params: &mut d_dx[a..b], d_force: &mut d_force };
+            let out = Partials {
+                value: &mut value,
+                d_params: &mut d_dx[a..b],
+                d_force: &mut d_force,
+            };
             if drift && effect.touches_drift() {
                 effect.drift(&x[a..b], ctx, out);
             } else if !drift && effect.touches_accel() {
@@ -223,7 +262,13 @@ impl<'m> Model<'m> {
 
     /// Platform angle rate θ̇ (rad/s) at state `x`, and its Jacobian: `d_dx[j] = ∂θ̇/∂x_j`
     /// (`d_dx.len() ≥ dim()`). This is rows 0..3 of f and F.
-    pub fn angle_rate(&self, x: &[f64], t_s: f64, temp_dev_c: f64, d_dx: &mut [Vector3<f64>]) -> Vector3<f64> {
+    pub fn angle_rate(
+        &self,
+        x: &[f64],
+        t_s: f64,
+        temp_dev_c: f64,
+        d_dx: &mut [Vector3<f64>],
+    ) -> Vector3<f64> {
         let n = self.dim();
         let att = Attitude::new(&Vector3::new(x[0], x[1], x[2]));
         let ctx = self.context(&att, t_s, temp_dev_c);

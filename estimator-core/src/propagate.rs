@@ -7,8 +7,8 @@
 
 use nalgebra::{Matrix3, Vector3};
 
-use crate::kinematics::rate_to_euler;
 use crate::frames::Attitude;
+use crate::kinematics::rate_to_euler;
 use crate::model::{Model, Propagation, ANGLES, MAX_DYNAMIC};
 
 /// Φ and the discrete process noise Q of one period, restricted to the dynamic states.
@@ -22,7 +22,10 @@ pub struct Transition<const CAP: usize> {
 
 impl<const CAP: usize> Default for Transition<CAP> {
     fn default() -> Self {
-        Transition { rows: [[0.0; CAP]; MAX_DYNAMIC], q: [[0.0; MAX_DYNAMIC]; MAX_DYNAMIC] }
+        Transition {
+            rows: [[0.0; CAP]; MAX_DYNAMIC],
+            q: [[0.0; MAX_DYNAMIC]; MAX_DYNAMIC],
+        }
     }
 }
 
@@ -103,8 +106,17 @@ pub fn propagate<const CAP: usize>(
     }
     let theta0 = Vector3::new(x[0], x[1], x[2]);
     let mut jac = [Vector3::zeros(); CAP];
-    let mut k = Stage { xdot: [0.0; MAX_DYNAMIC], phidot: [[0.0; CAP]; MAX_DYNAMIC] };
-    let temp_at = |t: f64| if dt_s > 0.0 { temp0 + (temp1 - temp0) * (t - t0_s) / dt_s } else { temp1 };
+    let mut k = Stage {
+        xdot: [0.0; MAX_DYNAMIC],
+        phidot: [[0.0; CAP]; MAX_DYNAMIC],
+    };
+    let temp_at = |t: f64| {
+        if dt_s > 0.0 {
+            temp0 + (temp1 - temp0) * (t - t0_s) / dt_s
+        } else {
+            temp1
+        }
+    };
     match model.propagation() {
         Propagation::Euler => {
             derivative(model, x, t0_s, temp0, &tr.rows, &mut jac, &mut k);
@@ -116,12 +128,19 @@ pub fn propagate<const CAP: usize>(
             }
         }
         Propagation::Rk4 { max_step_s } => {
-            let steps = if dt_s > max_step_s { libm::ceil(dt_s / max_step_s) as usize } else { 1 };
+            let steps = if dt_s > max_step_s {
+                libm::ceil(dt_s / max_step_s) as usize
+            } else {
+                1
+            };
             let h = dt_s / steps as f64;
             // Stage input (xs, phis), the current stage's slope k, and the weighted sum of slopes.
             let mut xs = [0.0; CAP];
             let mut phis = [[0.0; CAP]; MAX_DYNAMIC];
-            let mut sum = Stage { xdot: [0.0; MAX_DYNAMIC], phidot: [[0.0; CAP]; MAX_DYNAMIC] };
+            let mut sum = Stage {
+                xdot: [0.0; MAX_DYNAMIC],
+                phidot: [[0.0; CAP]; MAX_DYNAMIC],
+            };
             const C: [f64; 4] = [0.0, 0.5, 0.5, 1.0];
             const W: [f64; 4] = [1.0, 2.0, 2.0, 1.0];
             for s in 0..steps {

@@ -5,7 +5,9 @@
 //! below 1e-7 relative to the column's scale, so a 1e-6 relative tolerance catches any wrong term
 //! (a missing or wrong-sign term changes a column by O(1) relative).
 
-use estimator_core::effects::{AccBias, AccMisalign, AccScale, DriftMarkov, DriftTrend, Effect, G2Drift, PaperDrift, TempDrift};
+use estimator_core::effects::{
+    AccBias, AccMisalign, AccScale, DriftMarkov, DriftTrend, Effect, G2Drift, PaperDrift, TempDrift,
+};
 use estimator_core::model::{Model, Propagation};
 use estimator_core::propagate::{propagate, Transition};
 use estimator_core::units::arw_deg2ph_to_rad2ps;
@@ -14,13 +16,30 @@ use nalgebra::Vector3;
 
 const CAP: usize = 64;
 
-static MARKOV: DriftMarkov = DriftMarkov { sigma_degph: 0.01, tau_h: 2.0 };
+static MARKOV: DriftMarkov = DriftMarkov {
+    sigma_degph: 0.01,
+    tau_h: 2.0,
+};
 /// Every catalog effect at once, so each effect's partials are checked.
-static EFFECTS: [&dyn Effect; 8] =
-    [&PaperDrift, &AccBias, &MARKOV, &G2Drift, &AccScale, &AccMisalign, &DriftTrend, &TempDrift];
+static EFFECTS: [&dyn Effect; 8] = [
+    &PaperDrift,
+    &AccBias,
+    &MARKOV,
+    &G2Drift,
+    &AccScale,
+    &AccMisalign,
+    &DriftTrend,
+    &TempDrift,
+];
 
 fn model(propagation: Propagation) -> Model<'static> {
-    Model::new(Site::new(39.1, None), &EFFECTS, arw_deg2ph_to_rad2ps(1e-8), propagation).unwrap()
+    Model::new(
+        Site::new(39.1, None),
+        &EFFECTS,
+        arw_deg2ph_to_rad2ps(1e-8),
+        propagation,
+    )
+    .unwrap()
 }
 
 /// A state far from zero: large angles and coefficients (a few times the paper's values), so
@@ -47,7 +66,10 @@ fn assert_columns_close(name: &str, analytic: &[Vector3<f64>], numeric: &[Vector
     let scale = numeric.iter().map(|c| c.amax()).fold(0.0, f64::max);
     for (j, (a, n)) in analytic.iter().zip(numeric).enumerate() {
         let err = (a - n).amax();
-        assert!(err <= 1e-6 * scale.max(n.amax()), "{name} column {j}: analytic {a:?} vs numeric {n:?}");
+        assert!(
+            err <= 1e-6 * scale.max(n.amax()),
+            "{name} column {j}: analytic {a:?} vs numeric {n:?}"
+        );
     }
 }
 
@@ -65,7 +87,9 @@ fn angle_rate_jacobian_matches_finite_differences() {
                 let (mut xp, mut xm) = (x.clone(), x.clone());
                 xp[j] += h;
                 xm[j] -= h;
-                (m.angle_rate(&xp, 3600.0, 0.4, &mut scratch) - m.angle_rate(&xm, 3600.0, 0.4, &mut scratch)) / (2.0 * h)
+                (m.angle_rate(&xp, 3600.0, 0.4, &mut scratch)
+                    - m.angle_rate(&xm, 3600.0, 0.4, &mut scratch))
+                    / (2.0 * h)
             })
             .collect();
         assert_columns_close("F", &jac[..m.dim()], &numeric);
@@ -86,13 +110,19 @@ fn measurement_jacobian_matches_finite_differences() {
                 let (mut xp, mut xm) = (x.clone(), x.clone());
                 xp[j] += h;
                 xm[j] -= h;
-                (m.measurement(&xp, 0.0, 0.0, 300.0, &mut scratch) - m.measurement(&xm, 0.0, 0.0, 300.0, &mut scratch)) / (2.0 * h)
+                (m.measurement(&xp, 0.0, 0.0, 300.0, &mut scratch)
+                    - m.measurement(&xm, 0.0, 0.0, 300.0, &mut scratch))
+                    / (2.0 * h)
             })
             .collect();
         assert_columns_close("H", &jac[..m.dim()], &numeric);
         for j in 0..m.dim() {
             if !m.is_measured(j) {
-                assert_eq!(jac[j], Vector3::zeros(), "H column {j} must be structurally zero");
+                assert_eq!(
+                    jac[j],
+                    Vector3::zeros(),
+                    "H column {j} must be structurally zero"
+                );
             }
         }
     }
@@ -101,7 +131,11 @@ fn measurement_jacobian_matches_finite_differences() {
 /// Φ over one 60-s period (RK4 and Euler) against differences of the propagated state.
 #[test]
 fn transition_matrix_matches_finite_differences() {
-    for prop in [Propagation::default(), Propagation::Euler, Propagation::Rk4 { max_step_s: 20.0 }] {
+    for prop in [
+        Propagation::default(),
+        Propagation::Euler,
+        Propagation::Rk4 { max_step_s: 20.0 },
+    ] {
         let m = model(prop);
         let n = m.dim();
         let x = test_state(&m, 0);
@@ -123,7 +157,10 @@ fn transition_matrix_matches_finite_differences() {
                 // ε·|x_i| each, so the difference quotient carries ~2ε·|x_i|/h absolute.
                 let rounding = 4.0 * f64::EPSILON * x1[i].abs().max(1.0) / h;
                 let tol = 1e-7 * numeric.abs() + rounding;
-                assert!((numeric - analytic).abs() <= tol, "{prop:?} Φ[{i}][{j}]: analytic {analytic} vs numeric {numeric}");
+                assert!(
+                    (numeric - analytic).abs() <= tol,
+                    "{prop:?} Φ[{i}][{j}]: analytic {analytic} vs numeric {numeric}"
+                );
             }
         }
     }
@@ -144,10 +181,16 @@ fn zero_drift_platform_returns_after_one_sidereal_day() {
         propagate(&m, &mut x, k as f64 * dt, dt, 0.0, 0.0, &mut tr);
         max_ty = max_ty.max(x[1].abs());
     }
-    let wrap = |a: f64| (a + core::f64::consts::PI).rem_euclid(2.0 * core::f64::consts::PI) - core::f64::consts::PI;
+    let wrap = |a: f64| {
+        (a + core::f64::consts::PI).rem_euclid(2.0 * core::f64::consts::PI) - core::f64::consts::PI
+    };
     // RK4 global error over 1436 steps of 60 s at Earth rate: ~(ωh)^4·ωT ≈ 1e-9 rad.
     for i in 0..3 {
-        assert!(wrap(x[i]).abs() < 1e-8, "θ[{i}] = {} after a sidereal day", x[i]);
+        assert!(
+            wrap(x[i]).abs() < 1e-8,
+            "θ[{i}] = {} after a sidereal day",
+            x[i]
+        );
     }
     // |sin ty| ≤ cos L on the cone about the polar axis.
     let lat = 39.1f64.to_radians();

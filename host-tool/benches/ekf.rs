@@ -19,7 +19,13 @@ fn measurements(site: Site) -> Vec<Measurement> {
     let mut out: Vec<Measurement> = sim
         .samples
         .iter()
-        .filter_map(|s| avg.push(&estimator_core::Sample { t_s: s.t_s, specific_force: s.specific_force_mps2, temp_c: f64::NAN }))
+        .filter_map(|s| {
+            avg.push(&estimator_core::Sample {
+                t_s: s.t_s,
+                specific_force: s.specific_force_mps2,
+                temp_c: f64::NAN,
+            })
+        })
         .collect();
     out.extend(avg.flush());
     out
@@ -28,7 +34,10 @@ fn measurements(site: Site) -> Vec<Measurement> {
 fn ekf_step(c: &mut Criterion) {
     let site = Site::new(39.1, None);
     let meas = measurements(site);
-    for (name, prop) in [("ekf_step_rk4_60s", Propagation::default()), ("ekf_step_euler_60s", Propagation::Euler)] {
+    for (name, prop) in [
+        ("ekf_step_rk4_60s", Propagation::default()),
+        ("ekf_step_euler_60s", Propagation::Euler),
+    ] {
         let model = Model::new(site, &PAPER_EFFECTS, arw_deg2ph_to_rad2ps(1e-8), prop).unwrap();
         // Warm the filter up for 30 h so the step runs on a realistic state and covariance.
         let mut warm = Ekf::<15>::with_default_prior(model).unwrap();
@@ -63,7 +72,13 @@ fn identify_60h_csv(c: &mut Criterion) {
         b.iter(|| {
             let loaded = host_tool::cli::common::load(&path, None).unwrap();
             let cfg = Config::default();
-            let model = Model::new(loaded.site, &PAPER_EFFECTS, arw_deg2ph_to_rad2ps(1e-8), Propagation::default()).unwrap();
+            let model = Model::new(
+                loaded.site,
+                &PAPER_EFFECTS,
+                arw_deg2ph_to_rad2ps(1e-8),
+                Propagation::default(),
+            )
+            .unwrap();
             let prep = prepare(loaded.site, &loaded.samples, &cfg).unwrap();
             identify(&model, &prep, &cfg).unwrap()
         })

@@ -18,9 +18,21 @@ use nalgebra::Vector3;
 struct AccQuadratic;
 
 const PARAMS: [Param; 3] = [
-    Param { name: "QAx", unit: "1e-6/(m/s^2)", prior_sigma: 100.0 },
-    Param { name: "QAy", unit: "1e-6/(m/s^2)", prior_sigma: 100.0 },
-    Param { name: "QAz", unit: "1e-6/(m/s^2)", prior_sigma: 100.0 },
+    Param {
+        name: "QAx",
+        unit: "1e-6/(m/s^2)",
+        prior_sigma: 100.0,
+    },
+    Param {
+        name: "QAy",
+        unit: "1e-6/(m/s^2)",
+        prior_sigma: 100.0,
+    },
+    Param {
+        name: "QAz",
+        unit: "1e-6/(m/s^2)",
+        prior_sigma: 100.0,
+    },
 ];
 
 impl Effect for AccQuadratic {
@@ -64,20 +76,31 @@ fn main() -> anyhow::Result<()> {
         .map(|s| {
             let a = s.specific_force_mps2;
             let z = [0, 1, 2].map(|i| a[i] + k_true[i] * 1e-6 * a[i] * a[i]);
-            Sample { t_s: s.t_s, specific_force: z, temp_c: f64::NAN }
+            Sample {
+                t_s: s.t_s,
+                specific_force: z,
+                temp_c: f64::NAN,
+            }
         })
         .collect();
     let site = estimator_core::Site::new(sc.latitude_deg, sc.gravity_mps2);
     let cfg = Config::default();
     let prep = prepare(site, &samples, &cfg)?;
-    for effects in [vec![catalog::paper()], vec![catalog::paper(), &ACC_QUADRATIC as &dyn Effect]] {
+    for effects in [
+        vec![catalog::paper()],
+        vec![catalog::paper(), &ACC_QUADRATIC as &dyn Effect],
+    ] {
         let model = build_model(site, &effects, &cfg)?;
         let id = identify(&model, &prep, &cfg)?;
         let rms = id.residual_rms_mps2();
         let floor = prep.measurements[0].variance.map(f64::sqrt);
         println!(
             "model {:<28} residual RMS / floor = [{:.3}, {:.3}, {:.3}], mean NIS/3 = {:.3}",
-            effects.iter().map(|e| e.name()).collect::<Vec<_>>().join(" + "),
+            effects
+                .iter()
+                .map(|e| e.name())
+                .collect::<Vec<_>>()
+                .join(" + "),
             rms[0] / floor[0],
             rms[1] / floor[1],
             rms[2] / floor[2],
@@ -85,7 +108,14 @@ fn main() -> anyhow::Result<()> {
         );
         let best = id.best();
         for (k, p) in id.params.iter().enumerate().skip(12) {
-            println!("    {} = {:.3} ± {:.3} {} (injected {})", p.name, best.value[k], best.sigma(k), p.unit, k_true[k - 12]);
+            println!(
+                "    {} = {:.3} ± {:.3} {} (injected {})",
+                p.name,
+                best.value[k],
+                best.sigma(k),
+                p.unit,
+                k_true[k - 12]
+            );
         }
     }
     Ok(())

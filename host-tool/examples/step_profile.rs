@@ -15,11 +15,24 @@ fn main() {
     let meas: Vec<_> = sim
         .samples
         .iter()
-        .filter_map(|s| avg.push(&Sample { t_s: s.t_s, specific_force: s.specific_force_mps2, temp_c: f64::NAN }))
+        .filter_map(|s| {
+            avg.push(&Sample {
+                t_s: s.t_s,
+                specific_force: s.specific_force_mps2,
+                temp_c: f64::NAN,
+            })
+        })
         .collect();
-    let prop = if euler { Propagation::Euler } else { Propagation::default() };
+    let prop = if euler {
+        Propagation::Euler
+    } else {
+        Propagation::default()
+    };
     let model = Model::new(site, &PAPER_EFFECTS, arw_deg2ph_to_rad2ps(1e-8), prop).unwrap();
-    let steps: usize = std::env::var("STEPS").ok().and_then(|s| s.parse().ok()).unwrap_or(100_000);
+    let steps: usize = std::env::var("STEPS")
+        .ok()
+        .and_then(|s| s.parse().ok())
+        .unwrap_or(100_000);
     let t = std::time::Instant::now();
     let mut done = 0;
     let mut last = 0.0;
@@ -34,5 +47,9 @@ fn main() {
         }
     }
     let dt = t.elapsed().as_secs_f64();
-    println!("{done} steps ({}) in {dt:.3} s: {:.3} µs/step (last NIS {last:.3})", if euler { "Euler" } else { "RK4" }, dt / done as f64 * 1e6);
+    println!(
+        "{done} steps ({}) in {dt:.3} s: {:.3} µs/step (last NIS {last:.3})",
+        if euler { "Euler" } else { "RK4" },
+        dt / done as f64 * 1e6
+    );
 }

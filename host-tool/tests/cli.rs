@@ -18,21 +18,58 @@ fn simulate_then_identify_json_has_the_documented_fields() {
     let dir = temp_dir("json");
     let csv = dir.join("run.csv");
     let out = driftid()
-        .args(["simulate", "--scenario", "paper", "--hours", "36", "--rate-s", "10", "--seed", "3", "--out"])
+        .args([
+            "simulate",
+            "--scenario",
+            "paper",
+            "--hours",
+            "36",
+            "--rate-s",
+            "10",
+            "--seed",
+            "3",
+            "--out",
+        ])
         .arg(&csv)
         .output()
         .unwrap();
-    assert!(out.status.success(), "simulate failed: {}", String::from_utf8_lossy(&out.stderr));
-    let out = driftid().arg("identify").arg(&csv).arg("--truth").arg(dir.join("run.truth.json")).arg("--json").output().unwrap();
-    assert!(out.status.success(), "identify failed: {}", String::from_utf8_lossy(&out.stderr));
-    let v: serde_json::Value = serde_json::from_slice(&out.stdout).expect("one JSON object on stdout");
-    let truth = [0.5, -0.1, -0.05, -0.05, -0.5, 0.05, 0.1, 0.05, 0.5, -0.05, 0.05, -0.1];
-    for (k, name) in ["DX0", "DXx", "DXy", "DXz", "DY0", "DYx", "DYy", "DYz", "DZ0", "DZx", "DZy", "DZz"].iter().enumerate() {
+    assert!(
+        out.status.success(),
+        "simulate failed: {}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    let out = driftid()
+        .arg("identify")
+        .arg(&csv)
+        .arg("--truth")
+        .arg(dir.join("run.truth.json"))
+        .arg("--json")
+        .output()
+        .unwrap();
+    assert!(
+        out.status.success(),
+        "identify failed: {}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    let v: serde_json::Value =
+        serde_json::from_slice(&out.stdout).expect("one JSON object on stdout");
+    let truth = [
+        0.5, -0.1, -0.05, -0.05, -0.5, 0.05, 0.1, 0.05, 0.5, -0.05, 0.05, -0.1,
+    ];
+    for (k, name) in [
+        "DX0", "DXx", "DXy", "DXz", "DY0", "DYx", "DYy", "DYz", "DZ0", "DZx", "DZy", "DZz",
+    ]
+    .iter()
+    .enumerate()
+    {
         let c = &v["coefficients"][name];
         let (value, sigma) = (c["value"].as_f64().unwrap(), c["sigma"].as_f64().unwrap());
         // 36 h is past one sidereal day: the converged estimate is consistent, so 4σ (a
         // two-sided 6e-5 chance per coefficient) only fails on a real regression.
-        assert!(sigma > 0.0 && (value - truth[k]).abs() < 4.0 * sigma, "{name}: {value} ± {sigma}");
+        assert!(
+            sigma > 0.0 && (value - truth[k]).abs() < 4.0 * sigma,
+            "{name}: {value} ± {sigma}"
+        );
     }
     assert!((v["final_time_h"].as_f64().unwrap() - 36.0).abs() < 0.02);
     let rms = v["residual_rms_mps2"].as_array().unwrap();
@@ -51,10 +88,26 @@ fn simulate_then_identify_json_has_the_documented_fields() {
 fn a_broken_recording_is_a_located_error_not_a_panic() {
     let dir = temp_dir("broken");
     let cases: [(&str, &str, &[&str]); 5] = [
-        ("missing.csv", "# latitude_deg: 39.1\nt_s,ax_mps2,ay_mps2\n0,0,0\n", &["missing.csv", "az_mps2"]),
-        ("badnum.csv", "# latitude_deg: 39.1\nt_s,ax_mps2,ay_mps2,az_mps2\n0,0,0,9.8\n1,0,abc,9.8\n", &["badnum.csv:4", "ay_mps2"]),
-        ("time.csv", "# latitude_deg: 39.1\nt_s,ax_mps2,ay_mps2,az_mps2\n0,0,0,9.8\n1,0,0,9.8\n1,0,0,9.8\n", &["time.csv:5"]),
-        ("nan.csv", "# latitude_deg: 39.1\nt_s,ax_mps2,ay_mps2,az_mps2\n0,0,0,9.8\n1,NaN,0,9.8\n", &["nan.csv:4", "ax_mps2"]),
+        (
+            "missing.csv",
+            "# latitude_deg: 39.1\nt_s,ax_mps2,ay_mps2\n0,0,0\n",
+            &["missing.csv", "az_mps2"],
+        ),
+        (
+            "badnum.csv",
+            "# latitude_deg: 39.1\nt_s,ax_mps2,ay_mps2,az_mps2\n0,0,0,9.8\n1,0,abc,9.8\n",
+            &["badnum.csv:4", "ay_mps2"],
+        ),
+        (
+            "time.csv",
+            "# latitude_deg: 39.1\nt_s,ax_mps2,ay_mps2,az_mps2\n0,0,0,9.8\n1,0,0,9.8\n1,0,0,9.8\n",
+            &["time.csv:5"],
+        ),
+        (
+            "nan.csv",
+            "# latitude_deg: 39.1\nt_s,ax_mps2,ay_mps2,az_mps2\n0,0,0,9.8\n1,NaN,0,9.8\n",
+            &["nan.csv:4", "ax_mps2"],
+        ),
         ("empty.csv", "", &["empty.csv"]),
     ];
     for (name, text, needles) in cases {
@@ -62,10 +115,17 @@ fn a_broken_recording_is_a_located_error_not_a_panic() {
         std::fs::write(&path, text).unwrap();
         let out = driftid().arg("identify").arg(&path).output().unwrap();
         let stderr = String::from_utf8_lossy(&out.stderr);
-        assert_eq!(out.status.code(), Some(1), "{name}: exit code; stderr: {stderr}");
+        assert_eq!(
+            out.status.code(),
+            Some(1),
+            "{name}: exit code; stderr: {stderr}"
+        );
         assert!(!stderr.contains("panicked"), "{name}: panic: {stderr}");
         for n in needles {
-            assert!(stderr.contains(n), "{name}: error should mention `{n}`: {stderr}");
+            assert!(
+                stderr.contains(n),
+                "{name}: error should mention `{n}`: {stderr}"
+            );
         }
     }
     let _ = std::fs::remove_dir_all(&dir);
@@ -74,7 +134,11 @@ fn a_broken_recording_is_a_located_error_not_a_panic() {
 #[test]
 fn demo_runs_without_arguments() {
     let out = driftid().arg("demo").output().unwrap();
-    assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
+    assert!(
+        out.status.success(),
+        "{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
     let s = String::from_utf8_lossy(&out.stdout);
     assert!(s.contains("paper T2") && s.contains("DZz") && s.contains("converged"));
 }
@@ -87,42 +151,103 @@ fn report_is_one_self_contained_page_that_tells_the_story() {
     let dir = temp_dir("report");
     let csv = dir.join("run.csv");
     let out = driftid()
-        .args(["simulate", "--hours", "48", "--rate-s", "10", "--seed", "5", "--effect", "acc-bias=2e-4,-1e-4,0", "--out"])
+        .args([
+            "simulate",
+            "--hours",
+            "48",
+            "--rate-s",
+            "10",
+            "--seed",
+            "5",
+            "--effect",
+            "acc-bias=2e-4,-1e-4,0",
+            "--out",
+        ])
         .arg(&csv)
         .output()
         .unwrap();
-    assert!(out.status.success(), "simulate failed: {}", String::from_utf8_lossy(&out.stderr));
+    assert!(
+        out.status.success(),
+        "simulate failed: {}",
+        String::from_utf8_lossy(&out.stderr)
+    );
     let html = dir.join("report.html");
     let png = dir.join("png");
-    let out = driftid().arg("report").arg(&csv).arg("--truth").arg(dir.join("run.truth.json")).arg("-o").arg(&html).arg("--png").arg(&png).output().unwrap();
-    assert!(out.status.success(), "report failed: {}", String::from_utf8_lossy(&out.stderr));
+    let out = driftid()
+        .arg("report")
+        .arg(&csv)
+        .arg("--truth")
+        .arg(dir.join("run.truth.json"))
+        .arg("-o")
+        .arg(&html)
+        .arg("--png")
+        .arg(&png)
+        .output()
+        .unwrap();
+    assert!(
+        out.status.success(),
+        "report failed: {}",
+        String::from_utf8_lossy(&out.stderr)
+    );
     let page = std::fs::read_to_string(&html).unwrap();
     // Self-contained: the only URL is the SVG namespace; no script, stylesheet or image fetched.
-    let urls: Vec<&str> = page.match_indices("http").map(|(i, _)| &page[i..(i + 30).min(page.len())]).collect();
-    assert!(urls.iter().all(|u| u.starts_with("http://www.w3.org/2000/svg")), "external references: {urls:?}");
+    let urls: Vec<&str> = page
+        .match_indices("http")
+        .map(|(i, _)| &page[i..(i + 30).min(page.len())])
+        .collect();
+    assert!(
+        urls.iter()
+            .all(|u| u.starts_with("http://www.w3.org/2000/svg")),
+        "external references: {urls:?}"
+    );
     for banned in ["<script", "<link", "<img", "@import", "url("] {
-        assert!(!page.contains(banned), "the page must not load anything ({banned})");
+        assert!(
+            !page.contains(banned),
+            "the page must not load anything ({banned})"
+        );
     }
     // Every plot inline (11 figures when the ladder has a second rung), every section present.
     assert_eq!(page.matches("<svg").count(), 11, "inline SVG plots");
-    for section in ["1. The model against the measurements", "2. Where it fails", "3. Which physical effect is missing", "4. Add it and watch the error fall", "5. Identified coefficients"] {
+    for section in [
+        "1. The model against the measurements",
+        "2. Where it fails",
+        "3. Which physical effect is missing",
+        "4. Add it and watch the error fall",
+        "5. Identified coefficients",
+    ] {
         assert!(page.contains(section), "missing section {section}");
     }
     // The story: the starting model is paper, the ladder's next rung adds acc-bias.
-    assert!(page.contains("<b>acc-bias</b>"), "acc-bias ranked in the table");
-    assert!(page.contains("Final model (paper + acc-bias)"), "the ladder climbs to paper + acc-bias");
+    assert!(
+        page.contains("<b>acc-bias</b>"),
+        "acc-bias ranked in the table"
+    );
+    assert!(
+        page.contains("Final model (paper + acc-bias)"),
+        "the ladder climbs to paper + acc-bias"
+    );
     for name in ["DX0", "DZz", "BAx", "BAz"] {
-        assert!(page.contains(&format!(">{name}<")), "coefficient {name} in the final table");
+        assert!(
+            page.contains(&format!(">{name}<")),
+            "coefficient {name} in the final table"
+        );
     }
     // Text, not markup, where a p-value is tiny: "< 1e-300" must be escaped.
     assert!(!page.contains("< 1e-300"));
     // PNGs: one valid file per figure.
-    let mut files: Vec<_> = std::fs::read_dir(&png).unwrap().map(|e| e.unwrap().path()).collect();
+    let mut files: Vec<_> = std::fs::read_dir(&png)
+        .unwrap()
+        .map(|e| e.unwrap().path())
+        .collect();
     files.sort();
     assert_eq!(files.len(), 11);
     for f in &files {
         let bytes = std::fs::read(f).unwrap();
-        assert!(bytes.starts_with(b"\x89PNG\r\n\x1a\n") && bytes.len() > 10_000, "{} is not a drawn PNG", f.display());
+        assert!(
+            bytes.starts_with(b"\x89PNG\r\n\x1a\n") && bytes.len() > 10_000,
+            "{} is not a drawn PNG",
+            f.display()
+        );
     }
     let _ = std::fs::remove_dir_all(&dir);
 }

@@ -10,10 +10,20 @@ use proptest::prelude::*;
 const NAME: &str = "fuzz.csv";
 
 fn valid() -> Vec<String> {
-    let mut lines = vec!["# latitude_deg: 39.1".to_string(), "# description: fuzz base".into(), "t_s,ax_mps2,ay_mps2,az_mps2,temp_c".into()];
+    let mut lines = vec![
+        "# latitude_deg: 39.1".to_string(),
+        "# description: fuzz base".into(),
+        "t_s,ax_mps2,ay_mps2,az_mps2,temp_c".into(),
+    ];
     for k in 0..40 {
         let t = k as f64;
-        lines.push(format!("{t:?},{:?},{:?},{:?},{:?}", 1e-3 * t.sin(), -2e-3 * t.cos(), 9.8 + 1e-6 * t, 20.0 + 0.01 * t));
+        lines.push(format!(
+            "{t:?},{:?},{:?},{:?},{:?}",
+            1e-3 * t.sin(),
+            -2e-3 * t.cos(),
+            9.8 + 1e-6 * t,
+            20.0 + 0.01 * t
+        ));
     }
     lines
 }
@@ -39,7 +49,8 @@ fn edit() -> impl Strategy<Value = Edit> {
         (any::<usize>(), any::<usize>(), 0u8..8).prop_map(|(a, b, c)| Edit::ReplaceField(a, b, c)),
         any::<usize>().prop_map(Edit::AddField),
         any::<usize>().prop_map(Edit::RemoveField),
-        (any::<usize>(), proptest::collection::vec(any::<u8>(), 1..6)).prop_map(|(a, b)| Edit::InsertBytes(a, b)),
+        (any::<usize>(), proptest::collection::vec(any::<u8>(), 1..6))
+            .prop_map(|(a, b)| Edit::InsertBytes(a, b)),
         any::<usize>().prop_map(Edit::Truncate),
         Just(Edit::Crlf),
     ]
@@ -97,7 +108,10 @@ fn apply(edits: &[Edit]) -> Vec<u8> {
         }
     }
     let nl = if crlf { "\r\n" } else { "\n" };
-    let mut bytes: Vec<u8> = lines.iter().flat_map(|l| format!("{l}{nl}").into_bytes()).collect();
+    let mut bytes: Vec<u8> = lines
+        .iter()
+        .flat_map(|l| format!("{l}{nl}").into_bytes())
+        .collect();
     for (a, b) in byte_edits {
         let at = a % (bytes.len() + 1);
         bytes.splice(at..at, b);

@@ -43,15 +43,33 @@ impl Write for Conn {
 
 fn sample(k: u32) -> RawSample {
     let t = f64::from(k);
-    RawSample { seq: k, t_s: t, specific_force: [1e-3 * (t * 0.01).sin(), -2e-3 * t / 1000.0, 9.8 + 1e-6 * t], temp_c: f64::NAN }
+    RawSample {
+        seq: k,
+        t_s: t,
+        specific_force: [1e-3 * (t * 0.01).sin(), -2e-3 * t / 1000.0, 9.8 + 1e-6 * t],
+        temp_c: f64::NAN,
+    }
 }
 
 fn hello(lat: f64) -> Message {
-    Message::Hello(Hello { board: protocol::Board::Host, firmware: [0, 1, 0], state_dim: 15, config: Config { latitude_deg: lat, ..Config::default() } })
+    Message::Hello(Hello {
+        board: protocol::Board::Host,
+        firmware: [0, 1, 0],
+        state_dim: 15,
+        config: Config {
+            latitude_deg: lat,
+            ..Config::default()
+        },
+    })
 }
 
 /// Frames of Hello + samples `ks`; `damage(k, frame)` may alter a sample's frame.
-fn stream(enc: &mut Encoder, lat: f64, ks: impl Iterator<Item = u32>, damage: impl Fn(u32, &mut Vec<u8>)) -> Vec<u8> {
+fn stream(
+    enc: &mut Encoder,
+    lat: f64,
+    ks: impl Iterator<Item = u32>,
+    damage: impl Fn(u32, &mut Vec<u8>),
+) -> Vec<u8> {
     let mut out = enc.frame(hello(lat)).unwrap().to_vec();
     for k in ks {
         let mut f = enc.frame(Message::Raw(sample(k))).unwrap().to_vec();
@@ -73,9 +91,14 @@ fn options(dir: &std::path::Path) -> RecordOptions {
     }
 }
 
-fn run(opts: &RecordOptions, conns: Vec<Vec<u8>>) -> anyhow::Result<host_tool::link::record::RecordSummary> {
+fn run(
+    opts: &RecordOptions,
+    conns: Vec<Vec<u8>>,
+) -> anyhow::Result<host_tool::link::record::RecordSummary> {
     let mut conns = conns.into_iter();
-    let mut open = move || -> anyhow::Result<Option<Conn>> { Ok(conns.next().map(|bytes| Conn { bytes, at: 0 })) };
+    let mut open = move || -> anyhow::Result<Option<Conn>> {
+        Ok(conns.next().map(|bytes| Conn { bytes, at: 0 }))
+    };
     record_with(opts, &mut open, |_| {})
 }
 
@@ -113,9 +136,21 @@ fn disconnects_restarts_and_a_killed_recorder_lose_and_duplicate_nothing() {
     let c3 = stream(&mut enc, 39.1, 170..=250, |_, _| {});
     let sum2 = run(&opts, vec![c3.clone()]).unwrap();
     assert_eq!(sum2.resumed_samples, 180);
-    assert_eq!(sum2.repairs.len(), 1, "the partial row is cut off and reported");
-    assert!(sum2.repairs[0].contains("run.csv:") && sum2.repairs[0].contains("partial last line"), "{}", sum2.repairs[0]);
-    assert_eq!((sum2.samples, sum2.duplicates), (70, 11), "181..=250 appended, 170..=180 skipped");
+    assert_eq!(
+        sum2.repairs.len(),
+        1,
+        "the partial row is cut off and reported"
+    );
+    assert!(
+        sum2.repairs[0].contains("run.csv:") && sum2.repairs[0].contains("partial last line"),
+        "{}",
+        sum2.repairs[0]
+    );
+    assert_eq!(
+        (sum2.samples, sum2.duplicates),
+        (70, 11),
+        "181..=250 appended, 170..=180 skipped"
+    );
 
     // The recording: every sample 0..=250 exactly once, in order, bit-exact, except the damaged 150.
     let rec = read_recording(&csv).unwrap();
@@ -124,7 +159,11 @@ fn disconnects_restarts_and_a_killed_recorder_lose_and_duplicate_nothing() {
     assert_eq!(rec.samples.len(), want.len());
     for (s, &k) in rec.samples.iter().zip(&want) {
         let w = sample(k);
-        assert_eq!((s.t_s, s.specific_force_mps2), (w.t_s, w.specific_force), "sample {k}");
+        assert_eq!(
+            (s.t_s, s.specific_force_mps2),
+            (w.t_s, w.specific_force),
+            "sample {k}"
+        );
     }
     assert_eq!(rec.meta.latitude_deg, Some(39.1));
     // The raw log: every byte received, in order, over both recorders.
@@ -144,13 +183,26 @@ fn a_recording_of_another_run_is_not_mixed_and_a_broken_one_not_appended_to() {
     let e = run(&opts, vec![stream(&mut enc, 45.0, 11..=20, |_, _| {})]).unwrap_err();
     let msg = format!("{e:#}");
     assert!(msg.contains("run.csv") && msg.contains("latitude"), "{msg}");
-    assert_eq!(std::fs::read(&opts.out).unwrap(), before, "nothing appended");
+    assert_eq!(
+        std::fs::read(&opts.out).unwrap(),
+        before,
+        "nothing appended"
+    );
     // A file that breaks the format (bad number on line 5): refused with file and line.
-    let text = String::from_utf8(before).unwrap().replacen("\n3.0,", "\nx3.0,", 1);
+    let text = String::from_utf8(before)
+        .unwrap()
+        .replacen("\n3.0,", "\nx3.0,", 1);
     std::fs::write(&opts.out, &text).unwrap();
     let e = run(&opts, vec![stream(&mut enc, 39.1, 11..=20, |_, _| {})]).unwrap_err();
     let msg = format!("{e:#}");
-    assert!(msg.contains("run.csv:") && msg.contains("cannot be appended"), "{msg}");
-    assert_eq!(std::fs::read_to_string(&opts.out).unwrap(), text, "the broken file is left as it was");
+    assert!(
+        msg.contains("run.csv:") && msg.contains("cannot be appended"),
+        "{msg}"
+    );
+    assert_eq!(
+        std::fs::read_to_string(&opts.out).unwrap(),
+        text,
+        "the broken file is left as it was"
+    );
     let _ = std::fs::remove_dir_all(&dir);
 }

@@ -97,7 +97,9 @@ impl core::fmt::Display for DecodeError {
             DecodeError::Cobs => write!(f, "frame truncated or COBS-corrupted"),
             DecodeError::TooShort => write!(f, "frame shorter than its CRC"),
             DecodeError::Crc => write!(f, "CRC mismatch"),
-            DecodeError::Version(v) => write!(f, "protocol version {v}, expected {PROTOCOL_VERSION}"),
+            DecodeError::Version(v) => {
+                write!(f, "protocol version {v}, expected {PROTOCOL_VERSION}")
+            }
             DecodeError::Malformed => write!(f, "malformed message"),
         }
     }

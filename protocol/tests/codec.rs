@@ -14,12 +14,14 @@ fn arr<const N: usize>() -> impl Strategy<Value = [f64; N]> {
 }
 
 fn raw() -> impl Strategy<Value = RawSample> {
-    (any::<u32>(), f64_any(), arr::<3>(), f64_any()).prop_map(|(seq, t_s, specific_force, temp_c)| RawSample {
-        seq,
-        t_s,
-        specific_force,
-        temp_c,
-    })
+    (any::<u32>(), f64_any(), arr::<3>(), f64_any()).prop_map(
+        |(seq, t_s, specific_force, temp_c)| RawSample {
+            seq,
+            t_s,
+            specific_force,
+            temp_c,
+        },
+    )
 }
 
 fn config() -> impl Strategy<Value = Config> {
@@ -96,21 +98,32 @@ fn message() -> impl Strategy<Value = Message> {
         next_seq: r[1],
         generation: r[2],
     }));
-    let status = (f64_any(), any::<bool>(), counters(), any::<[u32; 5]>(), resume).prop_map(|(t_s, running, counters, r, resumed)| {
-        Message::Status(Status {
-            t_s,
-            running,
-            source: if running { Source::Sensor } else { Source::Replay },
-            counters,
-            stack_used_bytes: r[0],
-            stack_size_bytes: r[1],
-            static_ram_bytes: r[2],
-            last_step_ticks: r[3],
-            tick_hz: r[4],
-            boot: r[0] % 2 == 0,
-            resumed,
-        })
-    });
+    let status = (
+        f64_any(),
+        any::<bool>(),
+        counters(),
+        any::<[u32; 5]>(),
+        resume,
+    )
+        .prop_map(|(t_s, running, counters, r, resumed)| {
+            Message::Status(Status {
+                t_s,
+                running,
+                source: if running {
+                    Source::Sensor
+                } else {
+                    Source::Replay
+                },
+                counters,
+                stack_used_bytes: r[0],
+                stack_size_bytes: r[1],
+                static_ram_bytes: r[2],
+                last_step_ticks: r[3],
+                tick_hz: r[4],
+                boot: r[0] % 2 == 0,
+                resumed,
+            })
+        });
     let command = prop_oneof![
         config().prop_map(Command::Configure),
         Just(Command::Start(Source::Replay)),
@@ -326,7 +339,11 @@ fn largest_message_fits() {
     };
     let f = frame_of(&Packet::new(u32::MAX, Message::Estimate(e)));
     assert!(f.len() <= MAX_FRAME, "{}", f.len());
-    let fault = Fault::new(FaultCode::Panic, u32::MAX, format_args!("{}", "é".repeat(100)));
+    let fault = Fault::new(
+        FaultCode::Panic,
+        u32::MAX,
+        format_args!("{}", "é".repeat(100)),
+    );
     assert_eq!(fault.detail.len(), 80);
     let f = frame_of(&Packet::new(u32::MAX, Message::Fault(fault)));
     assert!(f.len() <= MAX_FRAME);

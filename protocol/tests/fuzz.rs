@@ -10,7 +10,12 @@ use protocol::*;
 
 fn sample(k: u32) -> Message {
     let t = f64::from(k);
-    Message::Raw(RawSample { seq: k, t_s: t, specific_force: [t.sin(), t.cos(), 9.8], temp_c: 20.0 + t * 1e-3 })
+    Message::Raw(RawSample {
+        seq: k,
+        t_s: t,
+        specific_force: [t.sin(), t.cos(), 9.8],
+        temp_c: 20.0 + t * 1e-3,
+    })
 }
 
 fn estimate(k: u32) -> Message {

@@ -30,21 +30,50 @@ fn check(effect: &str, spec: &str, seed: u64) {
     let samples: Vec<Sample> = sim
         .samples
         .iter()
-        .map(|s| Sample { t_s: s.t_s, specific_force: s.specific_force_mps2, temp_c: s.temp_c.unwrap_or(f64::NAN) })
+        .map(|s| Sample {
+            t_s: s.t_s,
+            specific_force: s.specific_force_mps2,
+            temp_c: s.temp_c.unwrap_or(f64::NAN),
+        })
         .collect();
     let site = estimator_core::Site::new(sc.latitude_deg, sc.gravity_mps2);
-    let cfg = DiagnoseConfig { max_rungs: 2, ..Default::default() };
+    let cfg = DiagnoseConfig {
+        max_rungs: 2,
+        ..Default::default()
+    };
     let prep = prepare(site, &samples, &Config::default()).unwrap();
     let (diagnoses, rungs, id, _) = ladder(&prep, &[catalog::paper()], &cfg).unwrap();
     let first = &diagnoses[0];
-    assert!(first.residual_rms_over_floor.iter().any(|r| *r > 1.3), "{effect}: not clearly above the floor: {:?}", first.residual_rms_over_floor);
+    assert!(
+        first.residual_rms_over_floor.iter().any(|r| *r > 1.3),
+        "{effect}: not clearly above the floor: {:?}",
+        first.residual_rms_over_floor
+    );
     let lead = &first.ranking[0];
-    assert_eq!(lead.effect, effect, "{effect}: ranked {:?}", first.ranking.iter().map(|c| (&c.effect, c.statistic)).collect::<Vec<_>>());
+    assert_eq!(
+        lead.effect,
+        effect,
+        "{effect}: ranked {:?}",
+        first
+            .ranking
+            .iter()
+            .map(|c| (&c.effect, c.statistic))
+            .collect::<Vec<_>>()
+    );
     assert!(lead.p_adjusted < 0.01);
-    assert_eq!(rungs.len(), 2, "{effect}: the ladder should add exactly the hidden effect, then stop: {:?}", rungs.iter().map(|r| &r.model).collect::<Vec<_>>());
+    assert_eq!(
+        rungs.len(),
+        2,
+        "{effect}: the ladder should add exactly the hidden effect, then stop: {:?}",
+        rungs.iter().map(|r| &r.model).collect::<Vec<_>>()
+    );
     let last = diagnoses.last().unwrap();
     for r in last.residual_rms_over_floor {
-        assert!((r - 1.0).abs() < 0.05, "{effect}: residual RMS/floor after adding it: {:?}", last.residual_rms_over_floor);
+        assert!(
+            (r - 1.0).abs() < 0.05,
+            "{effect}: residual RMS/floor after adding it: {:?}",
+            last.residual_rms_over_floor
+        );
     }
     assert!(
         last.nis_mean > last.nis_band95[0] * 0.98 && last.nis_mean < last.nis_band95[1] * 1.02,
@@ -53,7 +82,10 @@ fn check(effect: &str, spec: &str, seed: u64) {
         last.nis_band95
     );
     let mut truth = sim.truth.coefficient_array();
-    if let InjectedEffect::G2 { d_deg_h_per_mps2_sq: d } = &sc.effects[0] {
+    if let InjectedEffect::G2 {
+        d_deg_h_per_mps2_sq: d,
+    } = &sc.effects[0]
+    {
         let g2 = sc.gravity().powi(2);
         for i in 0..3 {
             truth[4 * i] += g2 * d[i][5];
@@ -62,13 +94,23 @@ fn check(effect: &str, spec: &str, seed: u64) {
     let best = id.best();
     for k in 0..12 {
         let z = (best.value[k] - truth[k]) / best.sigma(k);
-        assert!(z.abs() < 3.0, "{effect}: {} = {} vs truth {} ({z:.2} σ)", id.params[k].name, best.value[k], truth[k]);
+        assert!(
+            z.abs() < 3.0,
+            "{effect}: {} = {} vs truth {} ({z:.2} σ)",
+            id.params[k].name,
+            best.value[k],
+            truth[k]
+        );
     }
 }
 
 #[test]
 fn hidden_g2_drift() {
-    check("g2", "0.0005,0.0002,0,-0.0003,0,0,0,0.0004,0,0,0.0002,0,0,0,0.0003,0,0,-0.0002", 21);
+    check(
+        "g2",
+        "0.0005,0.0002,0,-0.0003,0,0,0,0.0004,0,0,0.0002,0,0,0,0.0003,0,0,-0.0002",
+        21,
+    );
 }
 #[test]
 fn hidden_accelerometer_bias() {
@@ -106,15 +148,25 @@ fn clean_data_raises_no_alarm() {
     let samples: Vec<Sample> = sim
         .samples
         .iter()
-        .map(|s| Sample { t_s: s.t_s, specific_force: s.specific_force_mps2, temp_c: s.temp_c.unwrap_or(f64::NAN) })
+        .map(|s| Sample {
+            t_s: s.t_s,
+            specific_force: s.specific_force_mps2,
+            temp_c: s.temp_c.unwrap_or(f64::NAN),
+        })
         .collect();
     let site = estimator_core::Site::new(sc.latitude_deg, sc.gravity_mps2);
     let prep = prepare(site, &samples, &Config::default()).unwrap();
-    let (diagnoses, rungs, _, _) = ladder(&prep, &[catalog::paper()], &DiagnoseConfig::default()).unwrap();
+    let (diagnoses, rungs, _, _) =
+        ladder(&prep, &[catalog::paper()], &DiagnoseConfig::default()).unwrap();
     assert_eq!(rungs.len(), 1, "a clean run must not climb the ladder");
     let d = &diagnoses[0];
     for c in d.ranking.iter().filter(|c| c.untestable.is_none()) {
-        assert!(c.p_adjusted >= 0.01, "false alarm: {} p = {}", c.effect, c.p_adjusted);
+        assert!(
+            c.p_adjusted >= 0.01,
+            "false alarm: {} p = {}",
+            c.effect,
+            c.p_adjusted
+        );
     }
     assert!(host_tool::diagnose::is_consistent(d, 0.01), "{}", d.verdict);
     assert!(d.verdict.contains("explains the measurements"));

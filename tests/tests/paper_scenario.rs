@@ -19,14 +19,31 @@ fn run(seed: u64) -> (host_tool::identify::Identification, [f64; 12]) {
     let samples: Vec<Sample> = sim
         .samples
         .iter()
-        .map(|s| Sample { t_s: s.t_s, specific_force: s.specific_force_mps2, temp_c: f64::NAN })
+        .map(|s| Sample {
+            t_s: s.t_s,
+            specific_force: s.specific_force_mps2,
+            temp_c: f64::NAN,
+        })
         .collect();
     let site = Site::new(sc.latitude_deg, sc.gravity_mps2);
-    let model = Model::new(site, &PAPER_EFFECTS, arw_deg2ph_to_rad2ps(1e-8), Propagation::default()).unwrap();
+    let model = Model::new(
+        site,
+        &PAPER_EFFECTS,
+        arw_deg2ph_to_rad2ps(1e-8),
+        Propagation::default(),
+    )
+    .unwrap();
     let cfg = Config::default();
     let prep = prepare(site, &samples, &cfg).unwrap();
-    assert_eq!(prep.measurements.len(), 3601, "60 h of 60-s windows from t = 0 to 216000 s inclusive");
-    (identify(&model, &prep, &cfg).unwrap(), sim.truth.coefficient_array())
+    assert_eq!(
+        prep.measurements.len(),
+        3601,
+        "60 h of 60-s windows from t = 0 to 216000 s inclusive"
+    );
+    (
+        identify(&model, &prep, &cfg).unwrap(),
+        sim.truth.coefficient_array(),
+    )
 }
 
 #[test]
@@ -37,8 +54,16 @@ fn paper_scenario_converges_within_3_sigma_and_the_papers_errors() {
     for k in 0..12 {
         let (v, s, t) = (best.value[k], best.sigma(k), truth[k]);
         let name = id.params[k].name;
-        assert!((v - t).abs() <= 3.0 * s, "{name}: {v} vs truth {t}: {:.2} σ (σ = {s:e})", (v - t) / s);
-        assert!(((v - t) / t).abs() <= 0.03, "{name}: relative error {:.3} % > 3 %", 100.0 * (v - t) / t);
+        assert!(
+            (v - t).abs() <= 3.0 * s,
+            "{name}: {v} vs truth {t}: {:.2} σ (σ = {s:e})",
+            (v - t) / s
+        );
+        assert!(
+            ((v - t) / t).abs() <= 0.03,
+            "{name}: relative error {:.3} % > 3 %",
+            100.0 * (v - t) / t
+        );
     }
     // Consistency of the final innovations: mean NIS/3 of 3601 updates has a 1σ spread of
     // sqrt(2/(3·3601)) ≈ 0.014; ±0.1 is ~7σ, so only an inconsistent filter fails.
@@ -53,12 +78,17 @@ fn paper_scenario_converges_within_3_sigma_and_the_papers_errors() {
 fn paper_single_pass_is_overconfident_where_the_refinement_is_not() {
     let (id, truth) = run(1);
     let worst_z = |value: &[f64], k_sigma: &dyn Fn(usize) -> f64| {
-        (0..12).map(|k| ((value[k] - truth[k]) / k_sigma(k)).abs()).fold(0.0, f64::max)
+        (0..12)
+            .map(|k| ((value[k] - truth[k]) / k_sigma(k)).abs())
+            .fold(0.0, f64::max)
     };
     let single = &id.single_pass;
     let refined = id.refined.as_ref().unwrap();
     let z_single = worst_z(&single.value, &|k| single.sigma(k));
     let z_refined = worst_z(&refined.value, &|k| refined.sigma(k));
-    assert!(z_single > 10.0, "single pass worst error/σ {z_single}: expected overconfident");
+    assert!(
+        z_single > 10.0,
+        "single pass worst error/σ {z_single}: expected overconfident"
+    );
     assert!(z_refined < 4.0, "refined worst error/σ {z_refined}");
 }

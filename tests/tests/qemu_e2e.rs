@@ -25,7 +25,10 @@ use host_tool::simulate::{simulate, Scenario};
 use protocol::{Config, Estimate, RawSample};
 
 fn workspace() -> PathBuf {
-    Path::new(env!("CARGO_MANIFEST_DIR")).parent().unwrap().to_path_buf()
+    Path::new(env!("CARGO_MANIFEST_DIR"))
+        .parent()
+        .unwrap()
+        .to_path_buf()
 }
 
 /// Builds the QEMU firmware once per test binary (own target dir: the outer `cargo test` holds
@@ -73,7 +76,12 @@ impl Qemu {
     fn boot(serial: &str) -> Qemu {
         let child = Command::new("qemu-system-arm")
             .args(["-M", "mps2-an500", "-display", "none", "-monitor", "none"])
-            .args(["-semihosting-config", "enable=on,target=native", "-icount", "shift=0"])
+            .args([
+                "-semihosting-config",
+                "enable=on,target=native",
+                "-icount",
+                "shift=0",
+            ])
             .args(["-serial", serial, "-kernel"])
             .arg(firmware())
             .stdin(Stdio::null())
@@ -97,8 +105,14 @@ impl Qemu {
         if self.alive() {
             let _ = self.child.kill();
         }
-        let out = std::mem::replace(&mut self.child, Command::new("true").spawn().unwrap()).wait_with_output().unwrap();
-        let text = format!("{}{}", String::from_utf8_lossy(&out.stdout), String::from_utf8_lossy(&out.stderr));
+        let out = std::mem::replace(&mut self.child, Command::new("true").spawn().unwrap())
+            .wait_with_output()
+            .unwrap();
+        let text = format!(
+            "{}{}",
+            String::from_utf8_lossy(&out.stdout),
+            String::from_utf8_lossy(&out.stderr)
+        );
         (out.status.code(), text)
     }
 }
@@ -115,7 +129,10 @@ fn input() -> (Config, Vec<RawSample>) {
     static INPUT: OnceLock<(Config, Vec<RawSample>)> = OnceLock::new();
     INPUT
         .get_or_init(|| {
-            let sc = Scenario { hours: 4.0, ..Scenario::paper() };
+            let sc = Scenario {
+                hours: 4.0,
+                ..Scenario::paper()
+            };
             let sim = simulate(&sc);
             let base = Config {
                 filter_period_s: 60.0,
@@ -124,7 +141,10 @@ fn input() -> (Config, Vec<RawSample>) {
                 status_every: 0,
                 ..Config::default()
             };
-            (replay::config_for(&sim.meta, base).unwrap(), replay::link_samples(&sim.samples))
+            (
+                replay::config_for(&sim.meta, base).unwrap(),
+                replay::link_samples(&sim.samples),
+            )
         })
         .clone()
 }
@@ -135,7 +155,13 @@ fn host_single_pass(config: &Config, samples: &[RawSample]) -> Vec<Estimate> {
     let mut avg = Averager::new(config.filter_period_s, config.raw_sigma_mps2);
     let mut ms: Vec<_> = samples
         .iter()
-        .filter_map(|s| avg.push(&Sample { t_s: s.t_s, specific_force: s.specific_force, temp_c: s.temp_c }))
+        .filter_map(|s| {
+            avg.push(&Sample {
+                t_s: s.t_s,
+                specific_force: s.specific_force,
+                temp_c: s.temp_c,
+            })
+        })
         .collect();
     ms.extend(avg.flush());
     ms.iter()
@@ -159,7 +185,11 @@ fn run_qemu<R: Read, W: Write + Send>(
     // The sending side waits while QEMU is busy (a short write timeout would cut the stream).
     let writer = host_tool::link::port::writer_of(&pty.master).unwrap();
     let t = Instant::now();
-    let opts = ReplayOptions { config, shutdown: true, timeout: Duration::from_secs(300) };
+    let opts = ReplayOptions {
+        config,
+        shutdown: true,
+        timeout: Duration::from_secs(300),
+    };
     let reader: Box<dyn Read + Send> = Box::new(pty.master);
     let outcome = replay::replay(
         wrap_r(reader),
@@ -173,7 +203,11 @@ fn run_qemu<R: Read, W: Write + Send>(
     let (code, text) = qemu.wait(Duration::from_secs(30));
     drop(pty.slave);
     let outcome = outcome.unwrap_or_else(|e| panic!("replay failed: {e:#}\nQEMU output:\n{text}"));
-    assert_eq!(code, Some(0), "QEMU must exit with the firmware's success code after Shutdown; output:\n{text}");
+    assert_eq!(
+        code,
+        Some(0),
+        "QEMU must exit with the firmware's success code after Shutdown; output:\n{text}"
+    );
     (outcome, t.elapsed().as_secs_f64())
 }
 
@@ -183,7 +217,11 @@ fn qemu_replay_matches_host_single_pass() {
     let want = host_single_pass(&config, &samples);
     let (got, secs) = run_qemu(&samples, config, |r| r, |w| w);
     assert!(got.faults.is_empty(), "firmware faults: {:?}", got.faults);
-    assert_eq!(got.estimates.len(), want.len(), "one estimate per filter period");
+    assert_eq!(
+        got.estimates.len(),
+        want.len(),
+        "one estimate per filter period"
+    );
     assert_eq!(want.len(), 241);
 
     // Tolerance. Both ends run the same source (estimator-core) on IEEE-754 binary64 with
@@ -200,7 +238,12 @@ fn qemu_replay_matches_host_single_pass() {
     let mut bit_identical = true;
     for (g, w) in got.estimates.iter().zip(&want) {
         assert_eq!((g.step, g.samples), (w.step, w.samples));
-        assert_eq!(g.t_s.to_bits(), w.t_s.to_bits(), "time tag of step {}", w.step);
+        assert_eq!(
+            g.t_s.to_bits(),
+            w.t_s.to_bits(),
+            "time tag of step {}",
+            w.step
+        );
         for i in 0..15 {
             max_state = max_state.max((g.state[i] - w.state[i]).abs() / w.sigma[i]);
             max_sigma = max_sigma.max((g.sigma[i] - w.sigma[i]).abs() / w.sigma[i]);
@@ -216,12 +259,31 @@ fn qemu_replay_matches_host_single_pass() {
         max_sigma,
         bit_identical
     );
-    assert!(max_state <= 1e-12 && max_sigma <= 1e-12, "firmware and host differ: {max_state:e} {max_sigma:e}");
+    assert!(
+        max_state <= 1e-12 && max_sigma <= 1e-12,
+        "firmware and host differ: {max_state:e} {max_sigma:e}"
+    );
 
     let st = got.final_status().expect("final status");
     let c = &st.counters;
-    assert_eq!((c.samples_ok as usize, c.samples_nan, c.samples_saturated, c.samples_out_of_order), (samples.len(), 0, 0, 0));
-    assert_eq!((c.filter_steps as usize, c.filter_errors, c.frames_rx_bad, c.frames_rx_missing), (want.len(), 0, 0, 0));
+    assert_eq!(
+        (
+            c.samples_ok as usize,
+            c.samples_nan,
+            c.samples_saturated,
+            c.samples_out_of_order
+        ),
+        (samples.len(), 0, 0, 0)
+    );
+    assert_eq!(
+        (
+            c.filter_steps as usize,
+            c.filter_errors,
+            c.frames_rx_bad,
+            c.frames_rx_missing
+        ),
+        (want.len(), 0, 0, 0)
+    );
     assert_eq!(got.rx.lost(), 0);
     // Figures: stack high-water, static RAM, instructions per update (icount: 1 instr = 1 ns).
     let instr = f64::from(st.last_step_ticks) * 1e9 / f64::from(st.tick_hz);
@@ -229,8 +291,15 @@ fn qemu_replay_matches_host_single_pass() {
         "firmware: stack high-water {} of {} bytes, static RAM {} bytes, last EKF update {} ticks = {:.0} instructions",
         st.stack_used_bytes, st.stack_size_bytes, st.static_ram_bytes, st.last_step_ticks, instr
     );
-    assert!(st.stack_used_bytes > 0 && st.stack_used_bytes < 64 * 1024, "stack {}", st.stack_used_bytes);
-    assert!(instr > 1e3 && instr < 1e7, "instructions per update {instr}");
+    assert!(
+        st.stack_used_bytes > 0 && st.stack_used_bytes < 64 * 1024,
+        "stack {}",
+        st.stack_used_bytes
+    );
+    assert!(
+        instr > 1e3 && instr < 1e7,
+        "instructions per update {instr}"
+    );
 }
 
 /// Damages chosen frames written to the firmware (one `write_all` per frame).
@@ -306,27 +375,52 @@ fn qemu_link_corruption_costs_only_damaged_frames() {
     // Host → firmware: frames 0 and 1 are Configure and Start; sample k is frame k + 2.
     // Damage 30 sample frames spread over the run, cycling flip / drop / truncate.
     let damaged: Vec<usize> = (0..30).map(|j| 50 + j * 347).collect();
-    let plan: Vec<(usize, u8)> = damaged.iter().enumerate().map(|(j, &k)| (k + 2, (j % 3) as u8)).collect();
+    let plan: Vec<(usize, u8)> = damaged
+        .iter()
+        .enumerate()
+        .map(|(j, &k)| (k + 2, (j % 3) as u8))
+        .collect();
     // Firmware → host: frames 0..3 are Hello, Status (boot), Hello (Configure), Status (Start);
     // then one Estimate per filter period. Damage 9 estimate frames.
     let rx_plan: Vec<usize> = (0..9).map(|j| 10 + j * 17).collect();
     let (got, _) = run_qemu(
         samples,
         config,
-        |r| DamageReader { inner: r, frame: 0, pos_in_frame: 0, plan: rx_plan.clone() },
-        |w| DamageWriter { inner: w, frame: 0, plan: plan.clone() },
+        |r| DamageReader {
+            inner: r,
+            frame: 0,
+            pos_in_frame: 0,
+            plan: rx_plan.clone(),
+        },
+        |w| DamageWriter {
+            inner: w,
+            frame: 0,
+            plan: plan.clone(),
+        },
     );
 
     // Firmware side: exactly the damaged frames lost and counted, every other sample used.
     let st = got.final_status().expect("final status");
     let c = &st.counters;
-    assert_eq!(c.frames_rx_bad as usize, damaged.len(), "damaged frames counted by the firmware");
-    assert_eq!(c.frames_rx_missing as usize, damaged.len(), "sequence gaps seen by the firmware");
+    assert_eq!(
+        c.frames_rx_bad as usize,
+        damaged.len(),
+        "damaged frames counted by the firmware"
+    );
+    assert_eq!(
+        c.frames_rx_missing as usize,
+        damaged.len(),
+        "sequence gaps seen by the firmware"
+    );
     assert_eq!(c.samples_ok as usize, samples.len() - damaged.len());
     assert_eq!(c.frames_rx as usize, samples.len() - damaged.len() + 3);
     // ... and the estimates are the host's single pass on the samples that were not damaged.
-    let kept: Vec<RawSample> =
-        samples.iter().enumerate().filter(|(k, _)| !damaged.contains(k)).map(|(_, s)| *s).collect();
+    let kept: Vec<RawSample> = samples
+        .iter()
+        .enumerate()
+        .filter(|(k, _)| !damaged.contains(k))
+        .map(|(_, s)| *s)
+        .collect();
     let want = host_single_pass(&config, &kept);
 
     // Host side: exactly the damaged estimate frames lost, counted by the decoder and by sequence.
@@ -334,7 +428,10 @@ fn qemu_link_corruption_costs_only_damaged_frames() {
     assert_eq!(got.rx.missing as usize, rx_plan.len(), "{}", got.rx);
     assert_eq!(got.estimates.len(), want.len() - rx_plan.len());
     let lost_steps: Vec<u32> = rx_plan.iter().map(|&f| (f - 4) as u32).collect();
-    let expected: Vec<&Estimate> = want.iter().filter(|e| !lost_steps.contains(&e.step)).collect();
+    let expected: Vec<&Estimate> = want
+        .iter()
+        .filter(|e| !lost_steps.contains(&e.step))
+        .collect();
     for (g, w) in got.estimates.iter().zip(expected) {
         assert_eq!(g, w, "estimate of step {}", w.step);
     }

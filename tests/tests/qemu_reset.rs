@@ -20,7 +20,10 @@ use host_tool::simulate::{simulate, Scenario};
 use protocol::{Config, Estimate, FaultCode, Message, RawSample};
 
 fn workspace() -> PathBuf {
-    Path::new(env!("CARGO_MANIFEST_DIR")).parent().unwrap().to_path_buf()
+    Path::new(env!("CARGO_MANIFEST_DIR"))
+        .parent()
+        .unwrap()
+        .to_path_buf()
 }
 
 /// Builds the QEMU firmware (own target dir, as in qemu_e2e.rs).
@@ -34,14 +37,28 @@ fn firmware() -> PathBuf {
     let cargo = std::env::var("CARGO").unwrap_or_else(|_| "cargo".into());
     let out = Command::new(cargo)
         .current_dir(&root)
-        .args(["build", "-p", "firmware", "--release", "--target", "thumbv7em-none-eabihf", "--features", "board-qemu", "--target-dir"])
+        .args([
+            "build",
+            "-p",
+            "firmware",
+            "--release",
+            "--target",
+            "thumbv7em-none-eabihf",
+            "--features",
+            "board-qemu",
+            "--target-dir",
+        ])
         .arg(&target_dir)
         .env_remove("RUSTFLAGS")
         .env_remove("CARGO_ENCODED_RUSTFLAGS")
         .env_remove("CARGO_BUILD_TARGET")
         .output()
         .expect("running cargo");
-    assert!(out.status.success(), "building the QEMU firmware failed:\n{}", String::from_utf8_lossy(&out.stderr));
+    assert!(
+        out.status.success(),
+        "building the QEMU firmware failed:\n{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
     target_dir.join("thumbv7em-none-eabihf/release/firmware")
 }
 
@@ -58,7 +75,13 @@ fn host_single_pass(config: &Config, samples: &[RawSample]) -> Vec<Estimate> {
     let mut avg = Averager::new(config.filter_period_s, config.raw_sigma_mps2);
     let mut ms: Vec<_> = samples
         .iter()
-        .filter_map(|s| avg.push(&Sample { t_s: s.t_s, specific_force: s.specific_force, temp_c: s.temp_c }))
+        .filter_map(|s| {
+            avg.push(&Sample {
+                t_s: s.t_s,
+                specific_force: s.specific_force,
+                temp_c: s.temp_c,
+            })
+        })
         .collect();
     ms.extend(avg.flush());
     ms.iter()
@@ -75,7 +98,9 @@ fn host_single_pass(config: &Config, samples: &[RawSample]) -> Vec<Estimate> {
 fn reset_points(seed: u64, n: usize, updates: u32) -> Vec<u32> {
     let mut s = seed;
     let mut next = || {
-        s = s.wrapping_mul(6364136223846793005).wrapping_add(1442695040888963407);
+        s = s
+            .wrapping_mul(6364136223846793005)
+            .wrapping_add(1442695040888963407);
         (s >> 33) as u32
     };
     let mut v = vec![3 + next() % 4];
@@ -89,7 +114,10 @@ fn reset_points(seed: u64, n: usize, updates: u32) -> Vec<u32> {
 #[test]
 fn qemu_resets_at_random_points_end_with_the_uninterrupted_estimates() {
     let elf = firmware();
-    let sc = Scenario { hours: 4.0, ..Scenario::paper() };
+    let sc = Scenario {
+        hours: 4.0,
+        ..Scenario::paper()
+    };
     let sim = simulate(&sc);
     let base = Config {
         filter_period_s: 60.0,
@@ -106,11 +134,17 @@ fn qemu_resets_at_random_points_end_with_the_uninterrupted_estimates() {
     let resets = reset_points(20261123, 4, want.len() as u32);
 
     let pty = pty_pair().unwrap();
-    let sock = std::env::temp_dir().join(format!("driftid-qemu-monitor-{}.sock", std::process::id()));
+    let sock =
+        std::env::temp_dir().join(format!("driftid-qemu-monitor-{}.sock", std::process::id()));
     let _ = std::fs::remove_file(&sock);
     let child = Command::new("qemu-system-arm")
         .args(["-M", "mps2-an500", "-display", "none"])
-        .args(["-semihosting-config", "enable=on,target=native", "-icount", "shift=0"])
+        .args([
+            "-semihosting-config",
+            "enable=on,target=native",
+            "-icount",
+            "shift=0",
+        ])
         .arg("-monitor")
         .arg(format!("unix:{},server=on,wait=off", sock.display()))
         .args(["-serial", &pty.slave_path, "-kernel"])
@@ -125,12 +159,18 @@ fn qemu_resets_at_random_points_end_with_the_uninterrupted_estimates() {
     let mut monitor = loop {
         match UnixStream::connect(&sock) {
             Ok(s) => break s,
-            Err(_) if t0.elapsed() < Duration::from_secs(20) => std::thread::sleep(Duration::from_millis(50)),
+            Err(_) if t0.elapsed() < Duration::from_secs(20) => {
+                std::thread::sleep(Duration::from_millis(50))
+            }
             Err(e) => panic!("QEMU monitor socket {}: {e}", sock.display()),
         }
     };
     let writer = writer_of(&pty.master).unwrap();
-    let opts = ReplayOptions { config, shutdown: true, timeout: Duration::from_secs(600) };
+    let opts = ReplayOptions {
+        config,
+        shutdown: true,
+        timeout: Duration::from_secs(600),
+    };
     let mut pending = resets.clone();
     let mut fired = Vec::new();
     let outcome = replay::replay(
@@ -156,7 +196,12 @@ fn qemu_resets_at_random_points_end_with_the_uninterrupted_estimates() {
     let _ = std::fs::remove_file(&sock);
 
     assert_eq!(fired, resets, "every planned reset happened");
-    assert_eq!(outcome.resets.len(), resets.len(), "the host saw every reset: {:?}", outcome.resets);
+    assert_eq!(
+        outcome.resets.len(),
+        resets.len(),
+        "the host saw every reset: {:?}",
+        outcome.resets
+    );
     // The first reset (before update 10) finds only the "run started" marker: a restart.
     assert!(outcome.resets[0].is_none(), "{:?}", outcome.resets[0]);
     for (r, &at) in outcome.resets[1..].iter().zip(&resets[1..]) {
@@ -164,17 +209,32 @@ fn qemu_resets_at_random_points_end_with_the_uninterrupted_estimates() {
         // Checkpoints follow every 10th update; the newest is at most 10 updates behind the
         // reset. The host triggers the reset when it *receives* update `at`; the firmware may be
         // a few updates further by then (link latency), hence the window above `at` too.
-        assert!(r.step % 10 == 0 && r.step + 10 > at && r.step <= at + 10, "reset after update {at}: resumed at {}", r.step);
+        assert!(
+            r.step % 10 == 0 && r.step + 10 > at && r.step <= at + 10,
+            "reset after update {at}: resumed at {}",
+            r.step
+        );
     }
     // Bit-identical to the uninterrupted run: the checkpoint holds the exact f64 state at a
     // window boundary and the same samples are resent, so no tolerance is needed; any lost or
     // duplicated sample would change the estimates.
-    assert_eq!(outcome.estimates.len(), want.len(), "one estimate per update, none lost or repeated");
+    assert_eq!(
+        outcome.estimates.len(),
+        want.len(),
+        "one estimate per update, none lost or repeated"
+    );
     for (g, w) in outcome.estimates.iter().zip(&want) {
         assert_eq!(g, w, "estimate of update {}", w.step);
     }
     // Faults: only the refusals of stale samples that reached the restarted (idle) firmware.
-    assert!(outcome.faults.iter().all(|f| f.code == FaultCode::BadCommand), "{:?}", outcome.faults.first());
+    assert!(
+        outcome
+            .faults
+            .iter()
+            .all(|f| f.code == FaultCode::BadCommand),
+        "{:?}",
+        outcome.faults.first()
+    );
     let st = outcome.final_status().unwrap();
     eprintln!(
         "QEMU resets: {} resets after updates {:?}, resumed {:?}; {} samples, {} estimates identical to the uninterrupted run; \

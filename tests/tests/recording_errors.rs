@@ -142,7 +142,13 @@ fn truncated_last_line_is_dropped_and_reported() {
     let r = host_tool::recording::read_recording(&path).unwrap();
     let _ = std::fs::remove_file(&path);
     assert_eq!(r.samples.len(), 3, "the complete lines are kept");
-    assert!(r.repairs.iter().any(|m| m.contains(":7: truncated last line: 2 of 4 fields and no final newline")), "{:?}", r.repairs);
+    assert!(
+        r.repairs
+            .iter()
+            .any(|m| m.contains(":7: truncated last line: 2 of 4 fields and no final newline")),
+        "{:?}",
+        r.repairs
+    );
 }
 
 #[test]

@@ -13,18 +13,35 @@ fn identification_propagates_across_gaps() {
     sc.rate_s = 10.0;
     let sim = simulate(&sc);
     // Two gaps: 2 h at 20–22 h and 25 min at 40 h.
-    let gap = |t: f64| (20.0 * 3600.0..22.0 * 3600.0).contains(&t) || (40.0 * 3600.0..40.0 * 3600.0 + 1500.0).contains(&t);
+    let gap = |t: f64| {
+        (20.0 * 3600.0..22.0 * 3600.0).contains(&t)
+            || (40.0 * 3600.0..40.0 * 3600.0 + 1500.0).contains(&t)
+    };
     let samples: Vec<Sample> = sim
         .samples
         .iter()
         .filter(|s| !gap(s.t_s))
-        .map(|s| Sample { t_s: s.t_s, specific_force: s.specific_force_mps2, temp_c: f64::NAN })
+        .map(|s| Sample {
+            t_s: s.t_s,
+            specific_force: s.specific_force_mps2,
+            temp_c: f64::NAN,
+        })
         .collect();
     let site = Site::new(sc.latitude_deg, sc.gravity_mps2);
-    let model = Model::new(site, &PAPER_EFFECTS, arw_deg2ph_to_rad2ps(1e-8), Propagation::default()).unwrap();
+    let model = Model::new(
+        site,
+        &PAPER_EFFECTS,
+        arw_deg2ph_to_rad2ps(1e-8),
+        Propagation::default(),
+    )
+    .unwrap();
     let cfg = Config::default();
     let prep = prepare(site, &samples, &cfg).unwrap();
-    assert_eq!(prep.measurements.len(), 3601 - 120 - 25, "windows inside the gaps hold no sample and produce no update");
+    assert_eq!(
+        prep.measurements.len(),
+        3601 - 120 - 25,
+        "windows inside the gaps hold no sample and produce no update"
+    );
     let id = identify(&model, &prep, &cfg).unwrap();
     let best = id.best();
     let truth = sim.truth.coefficient_array();

@@ -9,9 +9,21 @@ use super::{Context, Effect, Param, Partials};
 pub struct AccBias;
 
 const PARAMS: [Param; 3] = [
-    Param { name: "BAx", unit: "m/s^2", prior_sigma: 1e-3 },
-    Param { name: "BAy", unit: "m/s^2", prior_sigma: 1e-3 },
-    Param { name: "BAz", unit: "m/s^2", prior_sigma: 1e-3 },
+    Param {
+        name: "BAx",
+        unit: "m/s^2",
+        prior_sigma: 1e-3,
+    },
+    Param {
+        name: "BAy",
+        unit: "m/s^2",
+        prior_sigma: 1e-3,
+    },
+    Param {
+        name: "BAz",
+        unit: "m/s^2",
+        prior_sigma: 1e-3,
+    },
 ];
 
 impl Effect for AccBias {

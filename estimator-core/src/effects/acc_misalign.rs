@@ -10,12 +10,36 @@ pub struct AccMisalign;
 
 const M: f64 = 1e-3; // rad (~200 arcsec)
 const PARAMS: [Param; 6] = [
-    Param { name: "Mxy", unit: "rad", prior_sigma: M },
-    Param { name: "Mxz", unit: "rad", prior_sigma: M },
-    Param { name: "Myx", unit: "rad", prior_sigma: M },
-    Param { name: "Myz", unit: "rad", prior_sigma: M },
-    Param { name: "Mzx", unit: "rad", prior_sigma: M },
-    Param { name: "Mzy", unit: "rad", prior_sigma: M },
+    Param {
+        name: "Mxy",
+        unit: "rad",
+        prior_sigma: M,
+    },
+    Param {
+        name: "Mxz",
+        unit: "rad",
+        prior_sigma: M,
+    },
+    Param {
+        name: "Myx",
+        unit: "rad",
+        prior_sigma: M,
+    },
+    Param {
+        name: "Myz",
+        unit: "rad",
+        prior_sigma: M,
+    },
+    Param {
+        name: "Mzx",
+        unit: "rad",
+        prior_sigma: M,
+    },
+    Param {
+        name: "Mzy",
+        unit: "rad",
+        prior_sigma: M,
+    },
 ];
 /// (sensing accelerometer i, axis j) of each parameter.
 pub const PAIRS: [(usize, usize); 6] = [(0, 1), (0, 2), (1, 0), (1, 2), (2, 0), (2, 1)];

@@ -10,9 +10,21 @@ pub struct AccScale;
 
 const PPM: f64 = 1e-6;
 const PARAMS: [Param; 3] = [
-    Param { name: "SAx", unit: "ppm", prior_sigma: 300.0 },
-    Param { name: "SAy", unit: "ppm", prior_sigma: 300.0 },
-    Param { name: "SAz", unit: "ppm", prior_sigma: 300.0 },
+    Param {
+        name: "SAx",
+        unit: "ppm",
+        prior_sigma: 300.0,
+    },
+    Param {
+        name: "SAy",
+        unit: "ppm",
+        prior_sigma: 300.0,
+    },
+    Param {
+        name: "SAz",
+        unit: "ppm",
+        prior_sigma: 300.0,
+    },
 ];
 
 impl Effect for AccScale {

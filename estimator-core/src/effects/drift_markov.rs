@@ -16,14 +16,29 @@ pub struct DriftMarkov {
 
 impl Default for DriftMarkov {
     fn default() -> Self {
-        DriftMarkov { sigma_degph: 0.01, tau_h: 5.0 }
+        DriftMarkov {
+            sigma_degph: 0.01,
+            tau_h: 5.0,
+        }
     }
 }
 
 const PARAMS: [Param; 3] = [
-    Param { name: "MX", unit: "deg/h", prior_sigma: 0.01 },
-    Param { name: "MY", unit: "deg/h", prior_sigma: 0.01 },
-    Param { name: "MZ", unit: "deg/h", prior_sigma: 0.01 },
+    Param {
+        name: "MX",
+        unit: "deg/h",
+        prior_sigma: 0.01,
+    },
+    Param {
+        name: "MY",
+        unit: "deg/h",
+        prior_sigma: 0.01,
+    },
+    Param {
+        name: "MZ",
+        unit: "deg/h",
+        prior_sigma: 0.01,
+    },
 ];
 
 impl Effect for DriftMarkov {
@@ -56,6 +71,9 @@ impl Effect for DriftMarkov {
     }
     fn markov(&self, _k: usize) -> Option<Markov> {
         let tau_s = self.tau_h * S_PER_H;
-        Some(Markov { tau_s, q: 2.0 * self.sigma_degph * self.sigma_degph / tau_s })
+        Some(Markov {
+            tau_s,
+            q: 2.0 * self.sigma_degph * self.sigma_degph / tau_s,
+        })
     }
 }

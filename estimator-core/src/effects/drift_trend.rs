@@ -10,9 +10,21 @@ use crate::units::S_PER_H;
 pub struct DriftTrend;
 
 const PARAMS: [Param; 3] = [
-    Param { name: "TX", unit: "deg/h/h", prior_sigma: 0.01 },
-    Param { name: "TY", unit: "deg/h/h", prior_sigma: 0.01 },
-    Param { name: "TZ", unit: "deg/h/h", prior_sigma: 0.01 },
+    Param {
+        name: "TX",
+        unit: "deg/h/h",
+        prior_sigma: 0.01,
+    },
+    Param {
+        name: "TY",
+        unit: "deg/h/h",
+        prior_sigma: 0.01,
+    },
+    Param {
+        name: "TZ",
+        unit: "deg/h/h",
+        prior_sigma: 0.01,
+    },
 ];
 
 impl Effect for DriftTrend {

@@ -22,8 +22,8 @@ macro_rules! g2_params {
     ($($n:literal),*) => { [$(Param { name: $n, unit: "deg/h/(m/s^2)^2", prior_sigma: S }),*] };
 }
 const PARAMS: [Param; 15] = g2_params!(
-    "GXxx-zz", "GXyy-zz", "GXxy", "GXxz", "GXyz", "GYxx-zz", "GYyy-zz", "GYxy", "GYxz", "GYyz", "GZxx-zz", "GZyy-zz", "GZxy",
-    "GZxz", "GZyz"
+    "GXxx-zz", "GXyy-zz", "GXxy", "GXxz", "GXyz", "GYxx-zz", "GYyy-zz", "GYxy", "GYxz", "GYyz",
+    "GZxx-zz", "GZyy-zz", "GZxy", "GZxz", "GZyz"
 );
 
 impl Effect for G2Drift {

@@ -13,18 +13,66 @@ const D0: f64 = 1.0; // deg/h prior 1σ: twice the paper's largest constant drif
 const DJ: f64 = 0.2; // deg/h/(m/s²) prior 1σ: twice the paper's largest g-sensitive term
 
 const PARAMS: [Param; 12] = [
-    Param { name: "DX0", unit: "deg/h", prior_sigma: D0 },
-    Param { name: "DXx", unit: "deg/h/(m/s^2)", prior_sigma: DJ },
-    Param { name: "DXy", unit: "deg/h/(m/s^2)", prior_sigma: DJ },
-    Param { name: "DXz", unit: "deg/h/(m/s^2)", prior_sigma: DJ },
-    Param { name: "DY0", unit: "deg/h", prior_sigma: D0 },
-    Param { name: "DYx", unit: "deg/h/(m/s^2)", prior_sigma: DJ },
-    Param { name: "DYy", unit: "deg/h/(m/s^2)", prior_sigma: DJ },
-    Param { name: "DYz", unit: "deg/h/(m/s^2)", prior_sigma: DJ },
-    Param { name: "DZ0", unit: "deg/h", prior_sigma: D0 },
-    Param { name: "DZx", unit: "deg/h/(m/s^2)", prior_sigma: DJ },
-    Param { name: "DZy", unit: "deg/h/(m/s^2)", prior_sigma: DJ },
-    Param { name: "DZz", unit: "deg/h/(m/s^2)", prior_sigma: DJ },
+    Param {
+        name: "DX0",
+        unit: "deg/h",
+        prior_sigma: D0,
+    },
+    Param {
+        name: "DXx",
+        unit: "deg/h/(m/s^2)",
+        prior_sigma: DJ,
+    },
+    Param {
+        name: "DXy",
+        unit: "deg/h/(m/s^2)",
+        prior_sigma: DJ,
+    },
+    Param {
+        name: "DXz",
+        unit: "deg/h/(m/s^2)",
+        prior_sigma: DJ,
+    },
+    Param {
+        name: "DY0",
+        unit: "deg/h",
+        prior_sigma: D0,
+    },
+    Param {
+        name: "DYx",
+        unit: "deg/h/(m/s^2)",
+        prior_sigma: DJ,
+    },
+    Param {
+        name: "DYy",
+        unit: "deg/h/(m/s^2)",
+        prior_sigma: DJ,
+    },
+    Param {
+        name: "DYz",
+        unit: "deg/h/(m/s^2)",
+        prior_sigma: DJ,
+    },
+    Param {
+        name: "DZ0",
+        unit: "deg/h",
+        prior_sigma: D0,
+    },
+    Param {
+        name: "DZx",
+        unit: "deg/h/(m/s^2)",
+        prior_sigma: DJ,
+    },
+    Param {
+        name: "DZy",
+        unit: "deg/h/(m/s^2)",
+        prior_sigma: DJ,
+    },
+    Param {
+        name: "DZz",
+        unit: "deg/h/(m/s^2)",
+        prior_sigma: DJ,
+    },
 ];
 
 impl Effect for PaperDrift {

@@ -9,9 +9,21 @@ use super::{Context, Effect, Param, Partials};
 pub struct TempDrift;
 
 const PARAMS: [Param; 3] = [
-    Param { name: "KX", unit: "deg/h/degC", prior_sigma: 0.1 },
-    Param { name: "KY", unit: "deg/h/degC", prior_sigma: 0.1 },
-    Param { name: "KZ", unit: "deg/h/degC", prior_sigma: 0.1 },
+    Param {
+        name: "KX",
+        unit: "deg/h/degC",
+        prior_sigma: 0.1,
+    },
+    Param {
+        name: "KY",
+        unit: "deg/h/degC",
+        prior_sigma: 0.1,
+    },
+    Param {
+        name: "KZ",
+        unit: "deg/h/degC",
+        prior_sigma: 0.1,
+    },
 ];
 
 impl Effect for TempDrift {

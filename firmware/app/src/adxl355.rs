@@ -185,7 +185,11 @@ impl<SPI: SpiDevice> Adxl355<SPI> {
     }
 
     /// ID check, reset, optional self-test, range, data rate, measurement mode.
-    pub fn init(&mut self, cfg: &Config, delay: &mut impl DelayNs) -> Result<(), Error<SPI::Error>> {
+    pub fn init(
+        &mut self,
+        cfg: &Config,
+        delay: &mut impl DelayNs,
+    ) -> Result<(), Error<SPI::Error>> {
         self.check_id()?;
         self.write_reg(reg::RESET, RESET_CODE)?;
         delay.delay_ms(10);

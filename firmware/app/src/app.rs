@@ -9,10 +9,12 @@
 
 use embedded_io::{Read, ReadReady, Write};
 use embedded_storage::nor_flash::NorFlash;
-use estimator_core::{units, Averager, Ekf, Measurement, Model, Propagation, Sample, Site, PAPER_EFFECTS};
+use estimator_core::{
+    units, Averager, Ekf, Measurement, Model, Propagation, Sample, Site, PAPER_EFFECTS,
+};
 use protocol::{
-    Board, Command, Config, Counters, Decoder, EffectSet, Encoder, Estimate, Fault, FaultCode, Hello, Message, Packet,
-    RawSample, Resume, SeqEvent, SeqTracker, Source, Status, STATE_DIM,
+    Board, Command, Config, Counters, Decoder, EffectSet, Encoder, Estimate, Fault, FaultCode,
+    Hello, Message, Packet, RawSample, Resume, SeqEvent, SeqTracker, Source, Status, STATE_DIM,
 };
 
 use crate::accel::Accelerometer;
@@ -180,16 +182,26 @@ pub fn validate(c: &Config) -> Result<(), &'static str> {
 pub fn filter_for(c: &Config) -> Result<Filter, &'static str> {
     let site = Site::new(c.latitude_deg, c.gravity_mps2);
     let arw = units::arw_deg2ph_to_rad2ps(c.arw_deg2_per_h);
-    let model = Model::new(site, &PAPER_EFFECTS, arw, Propagation::default()).map_err(|_| "model refused")?;
+    let model = Model::new(site, &PAPER_EFFECTS, arw, Propagation::default())
+        .map_err(|_| "model refused")?;
     let mut ekf = Ekf::with_default_prior(model).map_err(|_| "filter refused")?;
     if c.gate_nis > 0.0 {
-        ekf.set_gate(Some(estimator_core::filter::Gate { nis_max: c.gate_nis, max_run: GATE_MAX_RUN }));
+        ekf.set_gate(Some(estimator_core::filter::Gate {
+            nis_max: c.gate_nis,
+            max_run: GATE_MAX_RUN,
+        }));
     }
     Ok(ekf)
 }
 
 /// The estimate message of one filter update.
-pub fn estimate_of(ekf: &Filter, step: u32, m: &Measurement, innovation: [f64; 3], nis: f64) -> Estimate {
+pub fn estimate_of(
+    ekf: &Filter,
+    step: u32,
+    m: &Measurement,
+    innovation: [f64; 3],
+    nis: f64,
+) -> Estimate {
     let mut state = [0.0; STATE_DIM];
     state.copy_from_slice(ekf.state());
     Estimate {
@@ -264,8 +276,18 @@ where
                     }
                 }
                 Ok(None) => {}
-                Err(e @ StoreError::Format { .. }) => refused = Some((FaultCode::CheckpointRefused, heapless_msg::of(format_args!("{e}")))),
-                Err(e) => refused = Some((FaultCode::Storage, heapless_msg::of(format_args!("loading checkpoint: {e}")))),
+                Err(e @ StoreError::Format { .. }) => {
+                    refused = Some((
+                        FaultCode::CheckpointRefused,
+                        heapless_msg::of(format_args!("{e}")),
+                    ))
+                }
+                Err(e) => {
+                    refused = Some((
+                        FaultCode::Storage,
+                        heapless_msg::of(format_args!("loading checkpoint: {e}")),
+                    ))
+                }
             }
         }
         self.send_hello();
@@ -274,7 +296,11 @@ where
         self.boot_status = false;
         if let Some((code, why)) = refused {
             let step = self.counters.filter_steps;
-            self.send(Message::Fault(Fault::new(code, step, format_args!("{}", why.as_str()))));
+            self.send(Message::Fault(Fault::new(
+                code,
+                step,
+                format_args!("{}", why.as_str()),
+            )));
         }
     }
 
@@ -291,7 +317,9 @@ where
         }
         let version = u16::from_le_bytes([payload[0], payload[1]]);
         if version != RESUME_BLOCK {
-            return Err(heapless_msg::of(format_args!("checkpoint resume block v{version}, firmware reads v{RESUME_BLOCK}")));
+            return Err(heapless_msg::of(format_args!(
+                "checkpoint resume block v{version}, firmware reads v{RESUME_BLOCK}"
+            )));
         }
         let source = match payload[2] {
             NO_RUN => return Ok(()),
@@ -306,11 +334,18 @@ where
         let last_t_s = if last.is_nan() { None } else { Some(last) };
         let cfg_len = u16::from_le_bytes([payload[16], payload[17]]) as usize;
         let cfg_end = 20 + cfg_len;
-        let cfg_bytes = payload.get(20..cfg_end).ok_or_else(|| bad("configuration truncated"))?;
-        let config: Config = postcard::from_bytes(cfg_bytes).map_err(|_| bad("configuration unreadable"))?;
-        validate(&config).map_err(|why| heapless_msg::of(format_args!("checkpoint configuration refused: {why}")))?;
-        let mut ekf = filter_for(&config).map_err(|why| heapless_msg::of(format_args!("checkpoint: {why}")))?;
-        ekf.resume(&payload[cfg_end..]).map_err(|e| heapless_msg::of(format_args!("{e}")))?;
+        let cfg_bytes = payload
+            .get(20..cfg_end)
+            .ok_or_else(|| bad("configuration truncated"))?;
+        let config: Config =
+            postcard::from_bytes(cfg_bytes).map_err(|_| bad("configuration unreadable"))?;
+        validate(&config).map_err(|why| {
+            heapless_msg::of(format_args!("checkpoint configuration refused: {why}"))
+        })?;
+        let mut ekf = filter_for(&config)
+            .map_err(|why| heapless_msg::of(format_args!("checkpoint: {why}")))?;
+        ekf.resume(&payload[cfg_end..])
+            .map_err(|e| heapless_msg::of(format_args!("{e}")))?;
         let step = ekf.steps();
         let t_s = ekf.time_s();
         self.config = config;
@@ -335,14 +370,21 @@ where
         if source == Source::Sensor {
             self.timer.start(config.sample_rate_hz);
         }
-        self.resumed = Some(Resume { step, t_s, next_seq, generation });
+        self.resumed = Some(Resume {
+            step,
+            t_s,
+            next_seq,
+            generation,
+        });
         self.last_t_s = t_s;
         Ok(())
     }
 
     /// Writes a checkpoint of the running filter (or, with `point = None`, the "no run" marker).
     fn save_checkpoint(&mut self, point: Option<ResumePoint>) {
-        let Some(store) = self.store.as_mut() else { return };
+        let Some(store) = self.store.as_mut() else {
+            return;
+        };
         let mut buf = [0u8; MAX_PAYLOAD];
         buf[0..2].copy_from_slice(&RESUME_BLOCK.to_le_bytes());
         let len = match (point, self.run.as_ref()) {
@@ -353,15 +395,18 @@ where
                 };
                 buf[4..8].copy_from_slice(&p.next_seq.to_le_bytes());
                 buf[8..16].copy_from_slice(&p.last_t_s.unwrap_or(f64::NAN).to_le_bytes());
-                let Ok(cfg) = postcard::to_slice(&self.config, &mut buf[20..]).map(|c| c.len()) else {
-                    self.counters.checkpoint_errors = self.counters.checkpoint_errors.wrapping_add(1);
+                let Ok(cfg) = postcard::to_slice(&self.config, &mut buf[20..]).map(|c| c.len())
+                else {
+                    self.counters.checkpoint_errors =
+                        self.counters.checkpoint_errors.wrapping_add(1);
                     return;
                 };
                 buf[16..18].copy_from_slice(&(cfg as u16).to_le_bytes());
                 match run.ekf.checkpoint(&mut buf[20 + cfg..]) {
                     Ok(n) => 20 + cfg + n,
                     Err(_) => {
-                        self.counters.checkpoint_errors = self.counters.checkpoint_errors.wrapping_add(1);
+                        self.counters.checkpoint_errors =
+                            self.counters.checkpoint_errors.wrapping_add(1);
                         return;
                     }
                 }
@@ -372,11 +417,18 @@ where
             }
         };
         match store.save(&buf[..len]) {
-            Ok(_) => self.counters.checkpoints_written = self.counters.checkpoints_written.wrapping_add(1),
+            Ok(_) => {
+                self.counters.checkpoints_written =
+                    self.counters.checkpoints_written.wrapping_add(1)
+            }
             Err(e) => {
                 self.counters.checkpoint_errors = self.counters.checkpoint_errors.wrapping_add(1);
                 let step = self.counters.filter_steps;
-                self.send(Message::Fault(Fault::new(FaultCode::Storage, step, format_args!("saving checkpoint: {e}"))));
+                self.send(Message::Fault(Fault::new(
+                    FaultCode::Storage,
+                    step,
+                    format_args!("saving checkpoint: {e}"),
+                )));
             }
         }
     }
@@ -423,7 +475,9 @@ where
                             return Event::Shutdown;
                         }
                     }
-                    Some(Err(_)) => self.counters.frames_rx_bad = self.counters.frames_rx_bad.wrapping_add(1),
+                    Some(Err(_)) => {
+                        self.counters.frames_rx_bad = self.counters.frames_rx_bad.wrapping_add(1)
+                    }
                 }
             }
         }
@@ -485,7 +539,8 @@ where
                     Ok(f) => f,
                     Err(why) => return self.refuse(FaultCode::BadConfig, why),
                 };
-                let averager = Averager::new(self.config.filter_period_s, self.config.raw_sigma_mps2);
+                let averager =
+                    Averager::new(self.config.filter_period_s, self.config.raw_sigma_mps2);
                 // A fresh run: no older checkpoint may be resumed from now on.
                 self.save_checkpoint(None);
                 self.resumed = None;
@@ -511,7 +566,8 @@ where
                     if let Some(want) = run.resync {
                         if s.seq != want {
                             // Sent before the host saw the reset: the host resends from `want`.
-                            self.counters.samples_resync = self.counters.samples_resync.wrapping_add(1);
+                            self.counters.samples_resync =
+                                self.counters.samples_resync.wrapping_add(1);
                             return Event::Continue;
                         }
                         run.resync = None;
@@ -523,7 +579,9 @@ where
                     };
                     self.accept_numbered(&sample, false, Some(s.seq));
                 }
-                _ => return self.refuse(FaultCode::BadCommand, "replay sample while not replaying"),
+                _ => {
+                    return self.refuse(FaultCode::BadCommand, "replay sample while not replaying")
+                }
             },
             Command::Finish => {
                 if self.run.as_ref().is_some_and(|r| r.resync.is_some()) {
@@ -561,7 +619,11 @@ where
     fn refuse(&mut self, code: FaultCode, why: &str) -> Event {
         self.counters.commands_refused = self.counters.commands_refused.wrapping_add(1);
         let step = self.counters.filter_steps;
-        self.send(Message::Fault(Fault::new(code, step, format_args!("{why}"))));
+        self.send(Message::Fault(Fault::new(
+            code,
+            step,
+            format_args!("{why}"),
+        )));
         Event::Continue
     }
 
@@ -574,13 +636,19 @@ where
     /// [`App::accept`] with the sample's sequence number from its source (replay: the host's);
     /// `None`: the firmware's own count.
     fn accept_numbered(&mut self, s: &Sample, saturated: bool, source_seq: Option<u32>) -> bool {
-        let Some(run) = self.run.as_mut() else { return false };
+        let Some(run) = self.run.as_mut() else {
+            return false;
+        };
         let c = &mut self.counters;
         if !(s.t_s.is_finite() && s.specific_force.iter().all(|v| v.is_finite())) {
             c.samples_nan = c.samples_nan.wrapping_add(1);
             return false;
         }
-        if saturated || s.specific_force.iter().any(|v| v.abs() >= self.config.saturation_mps2) {
+        if saturated
+            || s.specific_force
+                .iter()
+                .any(|v| v.abs() >= self.config.saturation_mps2)
+        {
             c.samples_saturated = c.samples_saturated.wrapping_add(1);
             return false;
         }
@@ -598,7 +666,11 @@ where
             let mut stuck = false;
             for i in 0..3 {
                 let v = s.specific_force[i];
-                run.same[i] = if v.to_bits() == run.prev_raw[i].to_bits() { run.same[i].saturating_add(1) } else { 0 };
+                run.same[i] = if v.to_bits() == run.prev_raw[i].to_bits() {
+                    run.same[i].saturating_add(1)
+                } else {
+                    0
+                };
                 run.prev_raw[i] = v;
                 stuck |= run.same[i] + 1 >= STUCK_RUN;
             }
@@ -624,7 +696,10 @@ where
         }
         if let Some(m) = done {
             // This sample opened the next window: a checkpoint after this update resumes here.
-            let point = ResumePoint { next_seq: seq, last_t_s: before };
+            let point = ResumePoint {
+                next_seq: seq,
+                last_t_s: before,
+            };
             self.step(&m, Some(point));
         }
         true
@@ -657,7 +732,11 @@ where
             }
             Err(e) => {
                 self.counters.filter_errors = self.counters.filter_errors.wrapping_add(1);
-                self.send(Message::Fault(Fault::new(FaultCode::Filter, step, format_args!("{e}"))));
+                self.send(Message::Fault(Fault::new(
+                    FaultCode::Filter,
+                    step,
+                    format_args!("{e}"),
+                )));
             }
         }
     }

@@ -43,7 +43,17 @@ fn id() -> Vec<T<u8>> {
 
 #[test]
 fn decode20_sign_extends() {
-    for v in [0, 1, -1, 256_000, -256_000, (1 << 19) - 1, -(1 << 19), 12345, -54321] {
+    for v in [
+        0,
+        1,
+        -1,
+        256_000,
+        -256_000,
+        (1 << 19) - 1,
+        -(1 << 19),
+        12345,
+        -54321,
+    ] {
         let [a, b, c] = encode20(v);
         assert_eq!(adxl355::decode20(a, b, c), v);
     }
@@ -68,7 +78,10 @@ fn init_with_self_test_then_samples_scale_to_mps2() {
     for _ in 0..4 {
         ex.extend(burst(rest, 1885));
     }
-    ex.extend(write(reg::SELF_TEST, adxl355::SELF_TEST_ST1 | adxl355::SELF_TEST_ST2));
+    ex.extend(write(
+        reg::SELF_TEST,
+        adxl355::SELF_TEST_ST1 | adxl355::SELF_TEST_ST2,
+    ));
     for _ in 0..4 {
         ex.extend(burst(st, 1885));
     }
@@ -119,7 +132,10 @@ fn dead_axis_fails_self_test() {
     for _ in 0..4 {
         ex.extend(burst(rest, 1885));
     }
-    ex.extend(write(reg::SELF_TEST, adxl355::SELF_TEST_ST1 | adxl355::SELF_TEST_ST2));
+    ex.extend(write(
+        reg::SELF_TEST,
+        adxl355::SELF_TEST_ST1 | adxl355::SELF_TEST_ST2,
+    ));
     for _ in 0..4 {
         ex.extend(burst(st, 1885));
     }
@@ -128,7 +144,10 @@ fn dead_axis_fails_self_test() {
     let mut spi = Mock::new(&ex);
     let mut dev = Adxl355::new(spi.clone());
     match dev.self_test(&mut NoopDelay::new()) {
-        Err(Error::SelfTest { axis: 0, response_g }) => assert_eq!(response_g, 0.0),
+        Err(Error::SelfTest {
+            axis: 0,
+            response_g,
+        }) => assert_eq!(response_g, 0.0),
         other => panic!("{other:?}"),
     }
     spi.done();

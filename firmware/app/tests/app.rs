@@ -60,16 +60,24 @@ impl Host {
             dec: Decoder::new(),
         }
     }
-    fn send<A: Accelerometer, T: SampleTimer>(&mut self, app: &mut App<Link, A, T, HostBoard>, cmd: Command) -> Event {
+    fn send<A: Accelerometer, T: SampleTimer>(
+        &mut self,
+        app: &mut App<Link, A, T, HostBoard>,
+        cmd: Command,
+    ) -> Event {
         let f = self.enc.frame(Message::Command(cmd)).unwrap().to_vec();
         app.serial_mut().rx.extend(f);
         app.poll()
     }
-    fn receive<A: Accelerometer, T: SampleTimer>(&mut self, app: &mut App<Link, A, T, HostBoard>) -> Vec<Message> {
+    fn receive<A: Accelerometer, T: SampleTimer>(
+        &mut self,
+        app: &mut App<Link, A, T, HostBoard>,
+    ) -> Vec<Message> {
         let tx = std::mem::take(&mut app.serial_mut().tx);
         let mut out = Vec::new();
-        self.dec
-            .feed(&tx, |r| out.push(r.expect("firmware frames are intact").msg));
+        self.dec.feed(&tx, |r| {
+            out.push(r.expect("firmware frames are intact").msg)
+        });
         out
     }
 }
@@ -153,7 +161,13 @@ fn replay_matches_the_core_single_pass_bit_for_bit_and_rejects_bad_samples() {
     let got: Vec<Estimate> = host
         .receive(&mut app)
         .into_iter()
-        .filter_map(|m| if let Message::Estimate(e) = m { Some(e) } else { None })
+        .filter_map(|m| {
+            if let Message::Estimate(e) = m {
+                Some(e)
+            } else {
+                None
+            }
+        })
         .collect();
 
     // The host's single pass on the same (good) samples.
@@ -165,17 +179,34 @@ fn replay_matches_the_core_single_pass_bit_for_bit_and_rejects_bad_samples() {
     for m in ms {
         let step = ekf.steps();
         let r = ekf.step(&m).unwrap();
-        want.push(firmware_app::app::estimate_of(&ekf, step, &m, r.innovation, r.nis));
+        want.push(firmware_app::app::estimate_of(
+            &ekf,
+            step,
+            &m,
+            r.innovation,
+            r.nis,
+        ));
     }
     assert_eq!(got.len(), 34);
     assert_eq!(got, want);
     let c = app.counters();
     assert_eq!(
-        (c.samples_ok, c.samples_nan, c.samples_saturated, c.samples_duplicate, c.samples_out_of_order),
+        (
+            c.samples_ok,
+            c.samples_nan,
+            c.samples_saturated,
+            c.samples_duplicate,
+            c.samples_out_of_order
+        ),
         (1000, 1, 1, 1, 1)
     );
     assert_eq!(
-        (c.filter_steps, c.filter_errors, c.frames_rx_bad, c.frames_rx_missing),
+        (
+            c.filter_steps,
+            c.filter_errors,
+            c.frames_rx_bad,
+            c.frames_rx_missing
+        ),
         (34, 0, 0, 0)
     );
     assert_eq!(app.status().running, false);
@@ -186,14 +217,21 @@ fn damaged_and_missing_frames_are_counted() {
     let mut app = App::new(Link::default(), NoSensor, NoTimer, HostBoard);
     let mut host = Host::new();
     host.send(&mut app, Command::Start(Source::Replay));
-    let mut f = host.enc.frame(Message::Command(Command::Ping)).unwrap().to_vec();
+    let mut f = host
+        .enc
+        .frame(Message::Command(Command::Ping))
+        .unwrap()
+        .to_vec();
     f[3] ^= 0x40;
     app.serial_mut().rx.extend(f);
     let _lost = host.enc.frame(Message::Command(Command::Ping)).unwrap();
     app.poll();
     host.send(&mut app, Command::Ping);
     let c = app.counters();
-    assert_eq!((c.frames_rx, c.frames_rx_bad, c.frames_rx_missing), (2, 1, 2));
+    assert_eq!(
+        (c.frames_rx, c.frames_rx_bad, c.frames_rx_missing),
+        (2, 1, 2)
+    );
 }
 
 #[test]
@@ -212,7 +250,13 @@ fn commands_in_the_wrong_state_are_refused() {
     let faults: Vec<FaultCode> = host
         .receive(&mut app)
         .into_iter()
-        .filter_map(|m| if let Message::Fault(f) = m { Some(f.code) } else { None })
+        .filter_map(|m| {
+            if let Message::Fault(f) = m {
+                Some(f.code)
+            } else {
+                None
+            }
+        })
         .collect();
     assert_eq!(
         faults,
@@ -264,7 +308,11 @@ impl Accelerometer for FakeAccel {
     fn sample(&mut self, t_s: f64) -> Result<AccelSample, ()> {
         self.reads += 1;
         // A live sensor's readings differ from sample to sample (noise).
-        let x = if self.reads >= self.stuck_from { 0.5 } else { 1e-6 * f64::from(self.reads) };
+        let x = if self.reads >= self.stuck_from {
+            0.5
+        } else {
+            1e-6 * f64::from(self.reads)
+        };
         match self.reads {
             3 => Err(()),
             4 => Ok(AccelSample {
@@ -287,7 +335,10 @@ impl Accelerometer for FakeAccel {
 fn sensor_mode_samples_at_the_ticks_and_counts_read_errors() {
     let mut app = App::new(
         Link::default(),
-        FakeAccel { reads: 0, stuck_from: u32::MAX },
+        FakeAccel {
+            reads: 0,
+            stuck_from: u32::MAX,
+        },
         FakeTimer {
             next: 0,
             running: false,
@@ -309,13 +360,22 @@ fn sensor_mode_samples_at_the_ticks_and_counts_read_errors() {
     let msgs = host.receive(&mut app);
     let raws: Vec<f64> = msgs
         .iter()
-        .filter_map(|m| if let Message::Raw(r) = m { Some(r.t_s) } else { None })
+        .filter_map(|m| {
+            if let Message::Raw(r) = m {
+                Some(r.t_s)
+            } else {
+                None
+            }
+        })
         .collect();
     // 21 reads (the poll that started the run takes tick 0) at ticks 0,1,2,3,4,6,7,...:
     // read 3 (t=2) failed, read 4 (t=3) saturated, tick 5 missed.
     assert_eq!(raws[..4], [0.0, 1.0, 4.0, 6.0]);
     let c = app.counters();
-    assert_eq!((c.samples_ok, c.read_errors, c.samples_saturated), (19, 2, 1));
+    assert_eq!(
+        (c.samples_ok, c.read_errors, c.samples_saturated),
+        (19, 2, 1)
+    );
     assert!(msgs.iter().any(|m| matches!(m, Message::Estimate(_))));
 }
 
@@ -323,9 +383,26 @@ fn sensor_mode_samples_at_the_ticks_and_counts_read_errors() {
 /// STUCK_RUN-th identical reading on, until the readings move again.
 #[test]
 fn a_stuck_sensor_is_rejected_and_counted() {
-    let mut app = App::new(Link::default(), FakeAccel { reads: 0, stuck_from: 11 }, FakeTimer { next: 0, running: false }, HostBoard);
+    let mut app = App::new(
+        Link::default(),
+        FakeAccel {
+            reads: 0,
+            stuck_from: 11,
+        },
+        FakeTimer {
+            next: 0,
+            running: false,
+        },
+        HostBoard,
+    );
     let mut host = Host::new();
-    host.send(&mut app, Command::Configure(Config { filter_period_s: 4.0, ..Config::default() }));
+    host.send(
+        &mut app,
+        Command::Configure(Config {
+            filter_period_s: 4.0,
+            ..Config::default()
+        }),
+    );
     host.send(&mut app, Command::Start(Source::Sensor));
     for _ in 0..30 {
         app.poll();
@@ -348,7 +425,12 @@ fn a_stuck_sensor_is_rejected_and_counted() {
 fn the_innovation_gate_rejects_counts_and_faults_on_a_run() {
     let mut app = App::new(Link::default(), NoSensor, NoTimer, HostBoard);
     let mut host = Host::new();
-    let config = Config { filter_period_s: 30.0, status_every: 0, gate_nis: 27.88, ..Config::default() };
+    let config = Config {
+        filter_period_s: 30.0,
+        status_every: 0,
+        gate_nis: 27.88,
+        ..Config::default()
+    };
     host.send(&mut app, Command::Configure(config));
     host.send(&mut app, Command::Start(Source::Replay));
     let input = samples(30 * 60);
@@ -367,11 +449,36 @@ fn the_innovation_gate_rejects_counts_and_faults_on_a_run() {
     // Window 20 (samples 600..630) rejected once; from sample 900 on every window is bad: the
     // 10th rejection in a row (windows 30..=39) is refused as a fault, and so is each after it.
     assert!(c.updates_rejected >= 1 + 9, "{c:?}");
-    let faults: Vec<_> = msgs.iter().filter_map(|m| if let Message::Fault(f) = m { Some(f.clone()) } else { None }).collect();
-    assert!(!faults.is_empty() && faults.iter().all(|f| f.code == FaultCode::Filter), "{faults:?}");
-    assert!(faults[0].detail.contains("step 39") && faults[0].detail.contains("innovation gate"), "{}", faults[0].detail);
+    let faults: Vec<_> = msgs
+        .iter()
+        .filter_map(|m| {
+            if let Message::Fault(f) = m {
+                Some(f.clone())
+            } else {
+                None
+            }
+        })
+        .collect();
+    assert!(
+        !faults.is_empty() && faults.iter().all(|f| f.code == FaultCode::Filter),
+        "{faults:?}"
+    );
+    assert!(
+        faults[0].detail.contains("step 39") && faults[0].detail.contains("innovation gate"),
+        "{}",
+        faults[0].detail
+    );
     // Before the shocks nothing was rejected: the gate does not bite on good data.
-    let nis: Vec<f64> = msgs.iter().filter_map(|m| if let Message::Estimate(e) = m { Some(e.nis) } else { None }).collect();
+    let nis: Vec<f64> = msgs
+        .iter()
+        .filter_map(|m| {
+            if let Message::Estimate(e) = m {
+                Some(e.nis)
+            } else {
+                None
+            }
+        })
+        .collect();
     assert!(nis[..19].iter().all(|&v| v < 27.88), "{:?}", &nis[..19]);
     assert!(nis[20] > 27.88);
 }

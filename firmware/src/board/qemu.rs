@@ -175,7 +175,9 @@ pub fn init() -> Parts {
         platform: Qemu,
         // SAFETY: the region is RAM on mps2-an500, outside every linker section, and only this
         // slice refers to it (init runs once).
-        storage: RamFlash::new(unsafe { core::slice::from_raw_parts_mut(STORAGE_BASE as *mut u8, STORAGE_LEN) }),
+        storage: RamFlash::new(unsafe {
+            core::slice::from_raw_parts_mut(STORAGE_BASE as *mut u8, STORAGE_LEN)
+        }),
         boot_fault: None,
     }
 }

@@ -21,8 +21,10 @@ use core::sync::atomic::{AtomicU32, Ordering};
 use cortex_m::peripheral::syst::SystClkSource;
 use cortex_m_rt::exception;
 use embedded_hal::spi::{ErrorType, Operation, SpiDevice};
+use embedded_storage::nor_flash::{
+    ErrorType as FlashErrorType, NorFlash, NorFlashError, NorFlashErrorKind, ReadNorFlash,
+};
 use firmware_app::adxl355::{self, Adxl355};
-use embedded_storage::nor_flash::{ErrorType as FlashErrorType, NorFlash, NorFlashError, NorFlashErrorKind, ReadNorFlash};
 use firmware_app::app::{App, Platform, SampleTimer, Tick};
 use firmware_app::{AccelSample, Accelerometer};
 use protocol::{Board, Fault, FaultCode};
@@ -86,7 +88,11 @@ fn alternate(port: usize, pins: &[u32], af: u32) {
     for &p in pins {
         modify(port + MODER, 0b11 << (2 * p), 0b10 << (2 * p));
         modify(port + OSPEEDR, 0b11 << (2 * p), 0b10 << (2 * p));
-        let (reg, sh) = if p < 8 { (AFRL, 4 * p) } else { (AFRH, 4 * (p - 8)) };
+        let (reg, sh) = if p < 8 {
+            (AFRL, 4 * p)
+        } else {
+            (AFRH, 4 * (p - 8))
+        };
         modify(port + reg, 0xF << sh, af << sh);
     }
 }
@@ -212,7 +218,9 @@ impl SpiDevice for Spi1 {
                     }
                 }
                 Operation::TransferInPlace(b) => b.iter_mut().for_each(|x| *x = Self::byte(*x)),
-                Operation::DelayNs(ns) => cortex_m::asm::delay(ns.saturating_mul(CORE_HZ / 1_000_000) / 1000 + 1),
+                Operation::DelayNs(ns) => {
+                    cortex_m::asm::delay(ns.saturating_mul(CORE_HZ / 1_000_000) / 1000 + 1)
+                }
             }
         }
         modify(SPI1 + S_CR1, 0, 1 << 10); // CSUSP
@@ -344,7 +352,10 @@ pub fn init() -> Parts {
                 adxl355::Error::SelfTest { .. } => FaultCode::SensorSelfTest,
                 _ => FaultCode::SensorRead,
             };
-            (Sensor(None), Some(Fault::new(code, 0, format_args!("ADXL355: {e:?}"))))
+            (
+                Sensor(None),
+                Some(Fault::new(code, 0, format_args!("ADXL355: {e:?}"))),
+            )
         }
     };
     let timer = MsTimer {
@@ -404,7 +415,15 @@ const SR_BSY: u32 = 1 << 0;
 const SR_WBNE: u32 = 1 << 1;
 const SR_QW: u32 = 1 << 2;
 /// WRPERR, PGSERR, STRBERR, INCERR, OPERR, RDPERR, RDSERR, SNECCERR, DBECCERR.
-const SR_ERRORS: u32 = (1 << 17) | (1 << 18) | (1 << 19) | (1 << 21) | (1 << 22) | (1 << 23) | (1 << 24) | (1 << 25) | (1 << 26);
+const SR_ERRORS: u32 = (1 << 17)
+    | (1 << 18)
+    | (1 << 19)
+    | (1 << 21)
+    | (1 << 22)
+    | (1 << 23)
+    | (1 << 24)
+    | (1 << 25)
+    | (1 << 26);
 /// Base address of the checkpoint region (bank 2, sector 6).
 const CKPT_BASE: usize = 0x081C_0000;
 const CKPT_SECTOR0: u32 = 6;
@@ -465,7 +484,12 @@ impl Flash {
 
     fn lock() {
         // SAFETY: setting LOCK re-locks the bank-2 control register.
-        unsafe { write_volatile(FLASH_CR2 as *mut u32, read_volatile(FLASH_CR2 as *const u32) | CR_LOCK) };
+        unsafe {
+            write_volatile(
+                FLASH_CR2 as *mut u32,
+                read_volatile(FLASH_CR2 as *const u32) | CR_LOCK,
+            )
+        };
     }
 }
 
@@ -508,7 +532,10 @@ impl NorFlash for Flash {
             // SAFETY: sector erase of a checkpoint sector (never program code: memory.x).
             unsafe {
                 write_volatile(FLASH_CR2 as *mut u32, CR_SER | CR_PSIZE_X64 | (snb << 8));
-                write_volatile(FLASH_CR2 as *mut u32, CR_SER | CR_PSIZE_X64 | (snb << 8) | CR_START);
+                write_volatile(
+                    FLASH_CR2 as *mut u32,
+                    CR_SER | CR_PSIZE_X64 | (snb << 8) | CR_START,
+                );
             }
             r = Self::wait_idle();
             if r.is_err() {

@@ -2,8 +2,8 @@
 //! against the Cramér–Rao bound and its consistency (NEES), at several run lengths.
 
 use estimator_core::{Measurement, Sample};
-use nalgebra::{DMatrix, DVector};
 use indicatif::ParallelProgressIterator;
+use nalgebra::{DMatrix, DVector};
 use rayon::prelude::*;
 
 use super::common::build_model;
@@ -41,8 +41,16 @@ struct SeedResult {
 }
 
 fn truncated(prep: &Prepared, hours: f64) -> Prepared {
-    let measurements: Vec<Measurement> = prep.measurements.iter().filter(|m| m.t_s <= hours * 3600.0 + 1e-6).copied().collect();
-    Prepared { measurements, ..prep.clone() }
+    let measurements: Vec<Measurement> = prep
+        .measurements
+        .iter()
+        .filter(|m| m.t_s <= hours * 3600.0 + 1e-6)
+        .copied()
+        .collect();
+    Prepared {
+        measurements,
+        ..prep.clone()
+    }
 }
 
 /// Runs the chosen benchmark.
@@ -75,7 +83,11 @@ fn calibration(args: &BenchArgs) -> anyhow::Result<()> {
             let samples: Vec<Sample> = sim
                 .samples
                 .iter()
-                .map(|s| Sample { t_s: s.t_s, specific_force: s.specific_force_mps2, temp_c: s.temp_c.unwrap_or(f64::NAN) })
+                .map(|s| Sample {
+                    t_s: s.t_s,
+                    specific_force: s.specific_force_mps2,
+                    temp_c: s.temp_c.unwrap_or(f64::NAN),
+                })
                 .collect();
             let site = estimator_core::Site::new(sc.latitude_deg, sc.gravity_mps2);
             let prep = prepare(site, &samples, &cfg.identify)?;
@@ -83,8 +95,23 @@ fn calibration(args: &BenchArgs) -> anyhow::Result<()> {
             Ok(d.ranking
                 .iter()
                 .filter(|c| c.untestable.is_none())
-                .map(|c| (c.effect.clone(), c.p_value, c.p_adjusted, c.params.iter().map(|p| p.min_detectable / p.sigma.max(1e-300)).fold(0.0, f64::max)))
-                .chain(std::iter::once(("(whiteness)".to_string(), d.whiteness.p_value, d.whiteness.p_value, 0.0)))
+                .map(|c| {
+                    (
+                        c.effect.clone(),
+                        c.p_value,
+                        c.p_adjusted,
+                        c.params
+                            .iter()
+                            .map(|p| p.min_detectable / p.sigma.max(1e-300))
+                            .fold(0.0, f64::max),
+                    )
+                })
+                .chain(std::iter::once((
+                    "(whiteness)".to_string(),
+                    d.whiteness.p_value,
+                    d.whiteness.p_value,
+                    0.0,
+                )))
                 .collect())
         })
         .collect();
@@ -94,7 +121,10 @@ fn calibration(args: &BenchArgs) -> anyhow::Result<()> {
     names.sort();
     let mut rows = vec![];
     for name in &names {
-        let ps: Vec<f64> = per_seed.iter().filter_map(|s| s.iter().find(|r| &r.0 == name).map(|r| r.1)).collect();
+        let ps: Vec<f64> = per_seed
+            .iter()
+            .filter_map(|s| s.iter().find(|r| &r.0 == name).map(|r| r.1))
+            .collect();
         let below = |a: f64| ps.iter().filter(|p| **p < a).count();
         let mean_p = ps.iter().sum::<f64>() / ps.len() as f64;
         rows.push(serde_json::json!({ "candidate": name, "seeds": ps.len(), "below_0_01": below(0.01), "below_0_05": below(0.05), "below_0_10": below(0.10), "mean_p": mean_p }));
@@ -113,9 +143,17 @@ fn calibration(args: &BenchArgs) -> anyhow::Result<()> {
             );
         }
     }
-    let family = per_seed.iter().filter(|s| s.iter().any(|r| r.0 != "(whiteness)" && r.2 < 0.01)).count();
+    let family = per_seed
+        .iter()
+        .filter(|s| s.iter().any(|r| r.0 != "(whiteness)" && r.2 < 0.01))
+        .count();
     if args.json {
-        println!("{}", serde_json::to_string_pretty(&serde_json::json!({ "seeds": args.seeds, "hours": hours, "candidates": rows, "family_wise_alarms": family }))?);
+        println!(
+            "{}",
+            serde_json::to_string_pretty(
+                &serde_json::json!({ "seeds": args.seeds, "hours": hours, "candidates": rows, "family_wise_alarms": family })
+            )?
+        );
     } else {
         println!(
             "family-wise: {family}/{} clean seeds with any candidate significant at 1 % after Holm's adjustment; {:.1} s",
@@ -132,7 +170,11 @@ fn diagnose_run(sc: &Scenario) -> anyhow::Result<crate::diagnose::Diagnosis> {
     let samples: Vec<Sample> = sim
         .samples
         .iter()
-        .map(|s| Sample { t_s: s.t_s, specific_force: s.specific_force_mps2, temp_c: s.temp_c.unwrap_or(f64::NAN) })
+        .map(|s| Sample {
+            t_s: s.t_s,
+            specific_force: s.specific_force_mps2,
+            temp_c: s.temp_c.unwrap_or(f64::NAN),
+        })
         .collect();
     let site = estimator_core::Site::new(sc.latitude_deg, sc.gravity_mps2);
     let cfg = DiagnoseConfig::default();
@@ -162,12 +204,20 @@ fn sensitivity(args: &BenchArgs) -> anyhow::Result<()> {
     ];
     let mut out = vec![];
     for (effect, param, pattern) in cases {
-        let Some(p) = clean.ranking.iter().find(|c| c.effect == effect).and_then(|c| c.params.iter().find(|p| p.name == param)) else {
+        let Some(p) = clean
+            .ranking
+            .iter()
+            .find(|c| c.effect == effect)
+            .and_then(|c| c.params.iter().find(|p| p.name == param))
+        else {
             continue;
         };
         let size = p.min_detectable;
         for factor in [1.0, 2.0] {
-            let spec = format!("{effect}={}", pattern.replace('X', &format!("{:e}", size * factor)));
+            let spec = format!(
+                "{effect}={}",
+                pattern.replace('X', &format!("{:e}", size * factor))
+            );
             let results: Vec<anyhow::Result<(bool, bool)>> = (1..=args.seeds)
                 .into_par_iter()
                 .map(|seed| {
@@ -176,7 +226,10 @@ fn sensitivity(args: &BenchArgs) -> anyhow::Result<()> {
                     sc.effects = vec![spec.parse().map_err(|e: String| anyhow::anyhow!(e))?];
                     let d = diagnose_run(&sc)?;
                     let c = d.ranking.iter().find(|c| c.effect == effect).unwrap();
-                    Ok((c.p_adjusted < 0.01, d.ranking[0].effect == effect && c.p_adjusted < 0.01))
+                    Ok((
+                        c.p_adjusted < 0.01,
+                        d.ranking[0].effect == effect && c.p_adjusted < 0.01,
+                    ))
                 })
                 .collect();
             let r: Vec<(bool, bool)> = results.into_iter().collect::<anyhow::Result<_>>()?;
@@ -218,7 +271,15 @@ fn accuracy(args: &BenchArgs) -> anyhow::Result<()> {
             sc.rate_s = args.rate_s;
             let sim = simulate(&sc);
             let truth = DVector::from_row_slice(&sim.truth.coefficient_array());
-            let samples: Vec<Sample> = sim.samples.iter().map(|s| Sample { t_s: s.t_s, specific_force: s.specific_force_mps2, temp_c: f64::NAN }).collect();
+            let samples: Vec<Sample> = sim
+                .samples
+                .iter()
+                .map(|s| Sample {
+                    t_s: s.t_s,
+                    specific_force: s.specific_force_mps2,
+                    temp_c: f64::NAN,
+                })
+                .collect();
             let site = estimator_core::Site::new(sc.latitude_deg, sc.gravity_mps2);
             let model = build_model(site, &effects, &cfg)?;
             let prep = prepare(site, &samples, &cfg)?;
@@ -226,7 +287,11 @@ fn accuracy(args: &BenchArgs) -> anyhow::Result<()> {
             for &h in &args.hours {
                 let id = identify(&model, &truncated(&prep, h), &cfg)?;
                 let best = id.best();
-                at.push((DVector::from_row_slice(&best.value) - &truth, best.cov.clone(), DVector::from_row_slice(&id.single_pass.value) - &truth));
+                at.push((
+                    DVector::from_row_slice(&best.value) - &truth,
+                    best.cov.clone(),
+                    DVector::from_row_slice(&id.single_pass.value) - &truth,
+                ));
             }
             Ok(SeedResult { at })
         })
@@ -244,7 +309,14 @@ fn accuracy(args: &BenchArgs) -> anyhow::Result<()> {
     for (c, &h) in args.hours.iter().enumerate() {
         // Mean-time tags of 60-s windows of 1-s samples: the bound needs only the geometry.
         let meas: Vec<Measurement> = (0..)
-            .map(|k| Measurement { t_s: 60.0 * k as f64 + 29.5, specific_force: [0.0; 3], temp_c: f64::NAN, count: 60, variance: [(1e-5 * site.gravity_mps2).powi(2); 3], time_var_s2: (60.0f64 * 60.0 - 1.0) / 12.0 })
+            .map(|k| Measurement {
+                t_s: 60.0 * k as f64 + 29.5,
+                specific_force: [0.0; 3],
+                temp_c: f64::NAN,
+                count: 60,
+                variance: [(1e-5 * site.gravity_mps2).powi(2); 3],
+                time_var_s2: (60.0f64 * 60.0 - 1.0) / 12.0,
+            })
             .take_while(|m| m.t_s <= h * 3600.0)
             .collect();
         let bound = cramer_rao_bound(&model, &meas, &truth);
@@ -259,7 +331,12 @@ fn accuracy(args: &BenchArgs) -> anyhow::Result<()> {
                 rms_single[k] += es[k] * es[k] / n;
                 worst[k] = worst[k].max((e[k] / truth[k]).abs() * 100.0);
             }
-            nees += p.clone().cholesky().map(|ch| e.dot(&ch.solve(e))).unwrap_or(f64::NAN) / n;
+            nees += p
+                .clone()
+                .cholesky()
+                .map(|ch| e.dot(&ch.solve(e)))
+                .unwrap_or(f64::NAN)
+                / n;
         }
         let dof = 12.0 * n;
         let band = (chi2_quantile(0.025, dof) / n, chi2_quantile(0.975, dof) / n);
@@ -270,9 +347,15 @@ fn accuracy(args: &BenchArgs) -> anyhow::Result<()> {
         let worst_all = worst.iter().cloned().fold(0.0, f64::max);
         if !args.json {
             println!("\n== {h} h ({} seeds) ==", args.seeds);
-            println!("{:<5} {:>11} {:>11} {:>7} {:>9} {:>12}", "coef", "RMS error", "CRB 1σ", "ratio", "worst %", "1-pass RMS");
+            println!(
+                "{:<5} {:>11} {:>11} {:>7} {:>9} {:>12}",
+                "coef", "RMS error", "CRB 1σ", "ratio", "worst %", "1-pass RMS"
+            );
             for k in 0..12 {
-                println!("{:<5} {:>11.3e} {:>11.3e} {:>7.2} {:>9.3} {:>12.3e}", names[k], rms[k], bound[k], ratios[k], worst[k], rms_single[k]);
+                println!(
+                    "{:<5} {:>11.3e} {:>11.3e} {:>7.2} {:>9.3} {:>12.3e}",
+                    names[k], rms[k], bound[k], ratios[k], worst[k], rms_single[k]
+                );
             }
             println!(
                 "RMS(ratio) {:.2}, max ratio {:.2}; worst coefficient error {:.3} %; mean NEES {:.2} (12 states; 95% band for the mean of {} seeds [{:.2}, {:.2}]) {}",
@@ -290,9 +373,19 @@ fn accuracy(args: &BenchArgs) -> anyhow::Result<()> {
             "worst_percent": worst_all, "nees_mean": nees, "nees_band95": [band.0, band.1], "single_pass_rms_error": rms_single }));
     }
     if args.json {
-        println!("{}", serde_json::to_string_pretty(&serde_json::json!({ "seeds": args.seeds, "coefficients": names, "checkpoints": report, "seconds": elapsed }))?);
+        println!(
+            "{}",
+            serde_json::to_string_pretty(
+                &serde_json::json!({ "seeds": args.seeds, "coefficients": names, "checkpoints": report, "seconds": elapsed })
+            )?
+        );
     } else {
-        println!("\n{} seeds in {:.1} s on {} threads", args.seeds, elapsed, rayon::current_num_threads());
+        println!(
+            "\n{} seeds in {:.1} s on {} threads",
+            args.seeds,
+            elapsed,
+            rayon::current_num_threads()
+        );
     }
     Ok(())
 }

@@ -45,12 +45,19 @@ impl ModelArgs {
             Some(v) => anyhow::bail!("--raw-sigma takes 1 or 3 values, got {}", v.len()),
         };
         if !(self.period_s > 0.0 && self.period_s.is_finite()) {
-            anyhow::bail!("--period-s must be a positive number of seconds, got {}", self.period_s);
+            anyhow::bail!(
+                "--period-s must be a positive number of seconds, got {}",
+                self.period_s
+            );
         }
         Ok(Config {
             period_s: self.period_s,
             arw_deg2_per_h: self.arw,
-            propagation: if self.euler { Propagation::Euler } else { Propagation::default() },
+            propagation: if self.euler {
+                Propagation::Euler
+            } else {
+                Propagation::default()
+            },
             raw_sigma_mps2,
             smoother_iterations: if self.single_pass { 0 } else { 3 },
             ..Config::default()
@@ -77,11 +84,19 @@ pub fn load(path: &Path, latitude_override: Option<f64>) -> anyhow::Result<Loade
     for r in &rec.repairs {
         eprintln!("driftid: warning: {r}");
     }
-    let latitude_deg = latitude_override.or(rec.meta.latitude_deg).with_context(|| {
-        format!("{}: no `# latitude_deg:` line in the file; give --latitude-deg", path.display())
-    })?;
+    let latitude_deg = latitude_override
+        .or(rec.meta.latitude_deg)
+        .with_context(|| {
+            format!(
+                "{}: no `# latitude_deg:` line in the file; give --latitude-deg",
+                path.display()
+            )
+        })?;
     if !(-90.0..=90.0).contains(&latitude_deg) {
-        anyhow::bail!("{}: latitude {latitude_deg} deg is not in [-90, 90]", path.display());
+        anyhow::bail!(
+            "{}: latitude {latitude_deg} deg is not in [-90, 90]",
+            path.display()
+        );
     }
     if latitude_deg.abs() < 0.5 {
         anyhow::bail!(
@@ -94,12 +109,30 @@ pub fn load(path: &Path, latitude_override: Option<f64>) -> anyhow::Result<Loade
     let samples = rec
         .samples
         .iter()
-        .map(|s| Sample { t_s: s.t_s, specific_force: s.specific_force_mps2, temp_c: s.temp_c.unwrap_or(f64::NAN) })
+        .map(|s| Sample {
+            t_s: s.t_s,
+            specific_force: s.specific_force_mps2,
+            temp_c: s.temp_c.unwrap_or(f64::NAN),
+        })
         .collect();
-    Ok(Loaded { site, samples, description: rec.meta.description.clone() })
+    Ok(Loaded {
+        site,
+        samples,
+        description: rec.meta.description.clone(),
+    })
 }
 
 /// The model with the paper's drift and the chosen effects.
-pub fn build_model<'m>(site: Site, effects: &'m [&'m dyn Effect], cfg: &Config) -> anyhow::Result<Model<'m>> {
-    Model::new(site, effects, arw_deg2ph_to_rad2ps(cfg.arw_deg2_per_h), cfg.propagation).map_err(|e| anyhow::anyhow!("{e}"))
+pub fn build_model<'m>(
+    site: Site,
+    effects: &'m [&'m dyn Effect],
+    cfg: &Config,
+) -> anyhow::Result<Model<'m>> {
+    Model::new(
+        site,
+        effects,
+        arw_deg2ph_to_rad2ps(cfg.arw_deg2_per_h),
+        cfg.propagation,
+    )
+    .map_err(|e| anyhow::anyhow!("{e}"))
 }

@@ -9,8 +9,10 @@ use crate::identify::{cramer_rao_bound, identify, prepare, Config};
 use crate::simulate::{simulate, Scenario};
 
 /// The paper's Table 2: its single-pass estimates at 60 h.
-pub const PAPER_TABLE2: [f64; 12] =
-    [0.49518, -0.10013, -0.05150, -0.04874, -0.49490, 0.05096, 0.10076, 0.04862, 0.49531, -0.05150, 0.04953, -0.10088];
+pub const PAPER_TABLE2: [f64; 12] = [
+    0.49518, -0.10013, -0.05150, -0.04874, -0.49490, 0.05096, 0.10076, 0.04862, 0.49531, -0.05150,
+    0.04953, -0.10088,
+];
 
 /// Arguments of `driftid demo` (none needed).
 #[derive(clap::Args, Debug)]
@@ -37,7 +39,11 @@ pub fn run(args: &DemoArgs) -> anyhow::Result<()> {
     let samples: Vec<Sample> = sim
         .samples
         .iter()
-        .map(|s| Sample { t_s: s.t_s, specific_force: s.specific_force_mps2, temp_c: s.temp_c.unwrap_or(f64::NAN) })
+        .map(|s| Sample {
+            t_s: s.t_s,
+            specific_force: s.specific_force_mps2,
+            temp_c: s.temp_c.unwrap_or(f64::NAN),
+        })
         .collect();
     let site = estimator_core::Site::new(sc.latitude_deg, sc.gravity_mps2);
     let cfg = Config::default();
@@ -49,10 +55,25 @@ pub fn run(args: &DemoArgs) -> anyhow::Result<()> {
     let elapsed = t0.elapsed();
     let bound = cramer_rao_bound(&model, &prep.measurements, &truth);
     let best = id.best();
-    println!("Identified from {} filter updates (60-s means) in {:.2} s.\n", prep.measurements.len(), elapsed.as_secs_f64());
+    println!(
+        "Identified from {} filter updates (60-s means) in {:.2} s.\n",
+        prep.measurements.len(),
+        elapsed.as_secs_f64()
+    );
     println!(
         "{:<5} {:<14} {:>8} | {:>9} {:>7} | {:>9} {:>7} | {:>10} {:>8} {:>8} {:>6} {:>8}",
-        "coef", "unit", "truth", "paper T2", "err %", "1 pass", "err %", "converged", "1σ", "err %", "err/σ", "CRB 1σ"
+        "coef",
+        "unit",
+        "truth",
+        "paper T2",
+        "err %",
+        "1 pass",
+        "err %",
+        "converged",
+        "1σ",
+        "err %",
+        "err/σ",
+        "CRB 1σ"
     );
     let pct = |v: f64, t: f64| 100.0 * (v - t) / t;
     let mut worst = [0.0f64; 3];
@@ -98,7 +119,11 @@ fn hidden_effect_story(seed: u64) -> anyhow::Result<()> {
     let mut sc = Scenario::paper();
     sc.seed = seed + 100;
     sc.rate_s = 10.0;
-    sc.effects.push("g2=0.0005,0.0002,0,-0.0003,0,0,0,0.0004,0,0,0.0002,0,0,0,0.0003,0,0,-0.0002".parse().map_err(|e: String| anyhow::anyhow!(e))?);
+    sc.effects.push(
+        "g2=0.0005,0.0002,0,-0.0003,0,0,0,0.0004,0,0,0.0002,0,0,0,0.0003,0,0,-0.0002"
+            .parse()
+            .map_err(|e: String| anyhow::anyhow!(e))?,
+    );
     println!(
         "\n=== Part 2: a hidden effect ===\nSimulating the same platform with a g²-sensitive (anisoelastic) gyro drift that the paper's model lacks \
          (hidden from the tool; the truth file would name it). The diagnosis compares the model with the measurements…\n"
@@ -107,7 +132,11 @@ fn hidden_effect_story(seed: u64) -> anyhow::Result<()> {
     let samples: Vec<Sample> = sim
         .samples
         .iter()
-        .map(|s| Sample { t_s: s.t_s, specific_force: s.specific_force_mps2, temp_c: s.temp_c.unwrap_or(f64::NAN) })
+        .map(|s| Sample {
+            t_s: s.t_s,
+            specific_force: s.specific_force_mps2,
+            temp_c: s.temp_c.unwrap_or(f64::NAN),
+        })
         .collect();
     let site = estimator_core::Site::new(sc.latitude_deg, sc.gravity_mps2);
     let cfg = DiagnoseConfig::default();

@@ -28,7 +28,11 @@ pub struct DiagnoseArgs {
 
 /// Prints one diagnosis as text.
 pub fn print_diagnosis(d: &Diagnosis) {
-    let model = if d.model.is_empty() { "paper".to_string() } else { format!("paper + {}", d.model.join(" + ")) };
+    let model = if d.model.is_empty() {
+        "paper".to_string()
+    } else {
+        format!("paper + {}", d.model.join(" + "))
+    };
     println!("model: {model}");
     println!(
         "  residual RMS [{}, {}, {}] m/s^2 = [{:.3}, {:.3}, {:.3}] × noise floor [{}, {}, {}] m/s^2",
@@ -44,17 +48,45 @@ pub fn print_diagnosis(d: &Diagnosis) {
     );
     println!(
         "  mean NIS/3 {:.3} (95 % band {:.3}–{:.3}); Ljung–Box Q {:.1} on {} dof, p = {:.2e}",
-        d.nis_mean, d.nis_band95[0], d.nis_band95[1], d.whiteness.ljung_box_q, d.whiteness.dof, d.whiteness.p_value
+        d.nis_mean,
+        d.nis_band95[0],
+        d.nis_band95[1],
+        d.whiteness.ljung_box_q,
+        d.whiteness.dof,
+        d.whiteness.p_value
     );
     if !d.failures.is_empty() {
-        let w: Vec<String> = d.failures.iter().take(8).map(|f| format!("{:.1}–{:.1} h (NIS/3 {:.2}, axis {})", f.start_h, f.end_h, f.nis_mean, f.worst_axis)).collect();
-        println!("  where it fails: {}{}", w.join("; "), if d.failures.len() > 8 { format!(" … ({} windows)", d.failures.len()) } else { String::new() });
+        let w: Vec<String> = d
+            .failures
+            .iter()
+            .take(8)
+            .map(|f| {
+                format!(
+                    "{:.1}–{:.1} h (NIS/3 {:.2}, axis {})",
+                    f.start_h, f.end_h, f.nis_mean, f.worst_axis
+                )
+            })
+            .collect();
+        println!(
+            "  where it fails: {}{}",
+            w.join("; "),
+            if d.failures.len() > 8 {
+                format!(" … ({} windows)", d.failures.len())
+            } else {
+                String::new()
+            }
+        );
     }
     let strong: Vec<String> = d
         .correlations
         .iter()
         .filter(|c| c.corr.iter().any(|r| r.abs() > c.bound99))
-        .map(|c| format!("{} [{:+.2}, {:+.2}, {:+.2}]", c.regressor, c.corr[0], c.corr[1], c.corr[2]))
+        .map(|c| {
+            format!(
+                "{} [{:+.2}, {:+.2}, {:+.2}]",
+                c.regressor, c.corr[0], c.corr[1], c.corr[2]
+            )
+        })
         .collect();
     if !strong.is_empty() {
         println!("  residual correlates with: {}", strong.join(", "));
@@ -65,11 +97,33 @@ pub fn print_diagnosis(d: &Diagnosis) {
             println!("  {:<13} not tested: {why}", c.effect);
             continue;
         }
-        let big = c.params.iter().max_by(|a, b| (a.value / a.sigma).abs().total_cmp(&(b.value / b.sigma).abs()));
-        let big = big.map(|p| format!("{} = {} ± {} {} (≥ {})", p.name, sci(p.value), sci(p.sigma), p.unit, sci(p.min_detectable))).unwrap_or_default();
+        let big = c.params.iter().max_by(|a, b| {
+            (a.value / a.sigma)
+                .abs()
+                .total_cmp(&(b.value / b.sigma).abs())
+        });
+        let big = big
+            .map(|p| {
+                format!(
+                    "{} = {} ± {} {} (≥ {})",
+                    p.name,
+                    sci(p.value),
+                    sci(p.sigma),
+                    p.unit,
+                    sci(p.min_detectable)
+                )
+            })
+            .unwrap_or_default();
         println!(
             "  {:<13} {:>10.1} {:>4} {:>9.2e} {:>9.2e}   [{:.2}, {:.2}, {:.2}]  {big}",
-            c.effect, c.statistic, c.dof, c.p_value, c.p_adjusted, c.expected_rms_over_floor[0], c.expected_rms_over_floor[1], c.expected_rms_over_floor[2]
+            c.effect,
+            c.statistic,
+            c.dof,
+            c.p_value,
+            c.p_adjusted,
+            c.expected_rms_over_floor[0],
+            c.expected_rms_over_floor[1],
+            c.expected_rms_over_floor[2]
         );
     }
     for cf in &d.confounding {
@@ -85,28 +139,55 @@ pub fn print_diagnosis(d: &Diagnosis) {
 /// Prints the ladder.
 pub fn print_ladder(rungs: &[Rung]) {
     println!("\nmodel ladder (watch the error fall):");
-    println!("  {:<40} {:>22} {:>9} {:>10}  added next", "model", "RMS/floor [x, y, z]", "NIS/3", "LB p");
+    println!(
+        "  {:<40} {:>22} {:>9} {:>10}  added next",
+        "model", "RMS/floor [x, y, z]", "NIS/3", "LB p"
+    );
     for r in rungs {
-        let m = if r.model.is_empty() { "paper".into() } else { format!("paper + {}", r.model.join(" + ")) };
-        let next = r.next.as_ref().map(|(e, p)| format!("{e} (p = {p:.1e})")).unwrap_or_else(|| "—".into());
+        let m = if r.model.is_empty() {
+            "paper".into()
+        } else {
+            format!("paper + {}", r.model.join(" + "))
+        };
+        let next = r
+            .next
+            .as_ref()
+            .map(|(e, p)| format!("{e} (p = {p:.1e})"))
+            .unwrap_or_else(|| "—".into());
         println!(
             "  {:<40} [{:>5.3}, {:>5.3}, {:>5.3}] {:>9.3} {:>10.2e}  {next}",
-            m, r.residual_rms_over_floor[0], r.residual_rms_over_floor[1], r.residual_rms_over_floor[2], r.nis_mean, r.whiteness_p
+            m,
+            r.residual_rms_over_floor[0],
+            r.residual_rms_over_floor[1],
+            r.residual_rms_over_floor[2],
+            r.nis_mean,
+            r.whiteness_p
         );
     }
     if rungs.len() > 1 {
         let (a, b) = (&rungs[0], &rungs[rungs.len() - 1]);
         println!("  drift coefficients, first → last model (1σ of the last):");
         for ((name, v0, _), (_, v1, s1)) in a.coefficients.iter().zip(&b.coefficients) {
-            println!("    {name:<4} {v0:>12.6} → {v1:>12.6} ± {}  (moved {:+.1} σ)", sci(*s1), (v1 - v0) / s1);
+            println!(
+                "    {name:<4} {v0:>12.6} → {v1:>12.6} ± {}  (moved {:+.1} σ)",
+                sci(*s1),
+                (v1 - v0) / s1
+            );
         }
     }
 }
 
 /// Runs `driftid diagnose`.
 pub fn run(args: &DiagnoseArgs) -> anyhow::Result<()> {
-    let cfg = DiagnoseConfig { identify: args.model.config()?, max_rungs: if args.no_ladder { 1 } else { 4 }, ..Default::default() };
-    anyhow::ensure!(cfg.identify.smoother_iterations > 0, "diagnose needs the converged identification; drop --single-pass");
+    let cfg = DiagnoseConfig {
+        identify: args.model.config()?,
+        max_rungs: if args.no_ladder { 1 } else { 4 },
+        ..Default::default()
+    };
+    anyhow::ensure!(
+        cfg.identify.smoother_iterations > 0,
+        "diagnose needs the converged identification; drop --single-pass"
+    );
     let loaded = load(&args.recording, args.model.latitude_deg)?;
     let effects = catalog::model_effects(&args.model.with)?;
     let prep = prepare(loaded.site, &loaded.samples, &cfg.identify)?;
@@ -134,7 +215,12 @@ pub fn run(args: &DiagnoseArgs) -> anyhow::Result<()> {
         });
         println!("{}", serde_json::to_string_pretty(&out)?);
     } else {
-        println!("{}: {} updates of {} s", args.recording.display(), prep.measurements.len(), cfg.identify.period_s);
+        println!(
+            "{}: {} updates of {} s",
+            args.recording.display(),
+            prep.measurements.len(),
+            cfg.identify.period_s
+        );
         print_diagnosis(d);
         if diagnoses.len() > 1 {
             for d in &diagnoses[1..] {

@@ -44,7 +44,12 @@ pub struct Row {
 }
 
 /// Builds the rows of an identification (bound at `truth` when given).
-pub fn rows(id: &Identification, model: &estimator_core::Model<'_>, prep: &Prepared, truth: Option<&[f64]>) -> Vec<Row> {
+pub fn rows(
+    id: &Identification,
+    model: &estimator_core::Model<'_>,
+    prep: &Prepared,
+    truth: Option<&[f64]>,
+) -> Vec<Row> {
     let best = id.best();
     let bound_at: Vec<f64> = match truth {
         Some(t) if t.len() == best.value.len() => t.to_vec(),
@@ -67,19 +72,40 @@ pub fn rows(id: &Identification, model: &estimator_core::Model<'_>, prep: &Prepa
 /// Prints the coefficient table.
 pub fn print_table(rows: &[Row], refined: bool) {
     let has_truth = rows.iter().any(|r| r.truth.is_some());
-    print!("{:<6} {:<16} {:>12} {:>10} {:>10}", "coef", "unit", "estimate", "1σ", "CRB 1σ");
+    print!(
+        "{:<6} {:<16} {:>12} {:>10} {:>10}",
+        "coef", "unit", "estimate", "1σ", "CRB 1σ"
+    );
     if has_truth {
-        print!(" {:>10} {:>10} {:>8} {:>7}", "truth", "error", "error %", "err/σ");
+        print!(
+            " {:>10} {:>10} {:>8} {:>7}",
+            "truth", "error", "error %", "err/σ"
+        );
     }
     println!("  {:>12} {:>9}", "single pass", "its 1σ");
     for r in rows {
-        print!("{:<6} {:<16} {:>12} {:>10} {:>10}", r.name, r.unit, with_sigma(r.value, r.sigma), sci(r.sigma), sci(r.bound));
+        print!(
+            "{:<6} {:<16} {:>12} {:>10} {:>10}",
+            r.name,
+            r.unit,
+            with_sigma(r.value, r.sigma),
+            sci(r.sigma),
+            sci(r.bound)
+        );
         if let Some(t) = r.truth {
             let e = r.value - t;
-            let pct = if t != 0.0 { format!("{:.3}", 100.0 * e / t) } else { "-".into() };
+            let pct = if t != 0.0 {
+                format!("{:.3}", 100.0 * e / t)
+            } else {
+                "-".into()
+            };
             print!(" {:>10} {:>10} {:>8} {:>7.2}", t, sci(e), pct, e / r.sigma);
         }
-        println!("  {:>12} {:>9}", with_sigma(r.single.0, r.single.1), sci(r.single.1));
+        println!(
+            "  {:>12} {:>9}",
+            with_sigma(r.single.0, r.single.1),
+            sci(r.single.1)
+        );
     }
     if !refined {
         println!("(single pass only: its 1σ is optimistic on the paper's scenario; drop --single-pass for the converged estimate)");
@@ -89,7 +115,11 @@ pub fn print_table(rows: &[Row], refined: bool) {
 /// Prints the run summary and weak-combination warnings.
 pub fn print_summary(id: &Identification, prep: &Prepared) {
     let rms = id.residual_rms_mps2();
-    let floor: Vec<f64> = prep.measurements.first().map(|m| m.variance.map(f64::sqrt).to_vec()).unwrap_or_default();
+    let floor: Vec<f64> = prep
+        .measurements
+        .first()
+        .map(|m| m.variance.map(f64::sqrt).to_vec())
+        .unwrap_or_default();
     println!(
         "run: {:.2} h, {} updates; noise floor per {}-sample mean {:?} m/s^2; residual RMS [{}, {}, {}] m/s^2; mean NIS/3 {:.3} (1 when consistent)",
         id.final_time_h,
@@ -155,11 +185,27 @@ pub fn run(args: &IdentifyArgs) -> anyhow::Result<()> {
         t.resize(id.params.len(), f64::NAN);
         t
     });
-    let rows = rows(&id, &model, &prep, truth.as_deref().filter(|t| t.iter().all(|v| v.is_finite())));
+    let rows = rows(
+        &id,
+        &model,
+        &prep,
+        truth.as_deref().filter(|t| t.iter().all(|v| v.is_finite())),
+    );
     if args.json {
-        println!("{}", serde_json::to_string_pretty(&to_json(&rows, &id, &prep))?);
+        println!(
+            "{}",
+            serde_json::to_string_pretty(&to_json(&rows, &id, &prep))?
+        );
     } else {
-        println!("{}: drift coefficients ({})", args.recording.display(), if id.refined.is_some() { "converged: 2 EKF passes + iterated RTS smoother" } else { "single EKF pass" });
+        println!(
+            "{}: drift coefficients ({})",
+            args.recording.display(),
+            if id.refined.is_some() {
+                "converged: 2 EKF passes + iterated RTS smoother"
+            } else {
+                "single EKF pass"
+            }
+        );
         print_table(&rows, id.refined.is_some());
         print_summary(&id, &prep);
     }

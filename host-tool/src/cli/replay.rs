@@ -89,7 +89,8 @@ pub fn estimate_row(e: &Estimate) -> String {
 pub fn run(a: &ReplayArgs) -> anyhow::Result<()> {
     let rec = recording::read_recording(&a.recording)?;
     let rate_s = if rec.samples.len() > 1 {
-        (rec.samples[rec.samples.len() - 1].t_s - rec.samples[0].t_s) / (rec.samples.len() - 1) as f64
+        (rec.samples[rec.samples.len() - 1].t_s - rec.samples[0].t_s)
+            / (rec.samples.len() - 1) as f64
     } else {
         1.0
     };
@@ -107,7 +108,10 @@ pub fn run(a: &ReplayArgs) -> anyhow::Result<()> {
     let samples = replay::link_samples(&rec.samples);
     let port = port::open(&a.port, a.baud)?;
     let writer = port::writer_of(&port)?;
-    let out_path = a.out.clone().unwrap_or_else(|| a.recording.with_extension("firmware.csv"));
+    let out_path = a
+        .out
+        .clone()
+        .unwrap_or_else(|| a.recording.with_extension("firmware.csv"));
     let mut raw = match &a.raw {
         Some(p) => Some(
             std::fs::OpenOptions::new()
@@ -123,10 +127,17 @@ pub fn run(a: &ReplayArgs) -> anyhow::Result<()> {
         shutdown: a.shutdown,
         timeout: Duration::from_secs_f64(a.timeout_s),
     };
-    eprintln!("driftid replay: {} samples from {} into {}", samples.len(), a.recording.display(), a.port);
+    eprintln!(
+        "driftid replay: {} samples from {} into {}",
+        samples.len(),
+        a.recording.display(),
+        a.port
+    );
     let verbose = a.verbose;
     // Estimates are written as they arrive (flushed each), so a replay that dies keeps them.
-    let mut w = BufWriter::new(File::create(&out_path).with_context(|| format!("creating {}", out_path.display()))?);
+    let mut w = BufWriter::new(
+        File::create(&out_path).with_context(|| format!("creating {}", out_path.display()))?,
+    );
     writeln!(w, "{}", estimates_header())?;
     w.flush()?;
     let mut write_err: Option<std::io::Error> = None;
@@ -155,7 +166,9 @@ pub fn run(a: &ReplayArgs) -> anyhow::Result<()> {
                     eprintln!("[{}/{}] {}", e.step + 1, total_steps, link::describe(m))
                 }
             }
-            protocol::Message::Fault(_) | protocol::Message::Hello(_) => eprintln!("{}", link::describe(m)),
+            protocol::Message::Fault(_) | protocol::Message::Hello(_) => {
+                eprintln!("{}", link::describe(m))
+            }
             _ => {}
         },
     );

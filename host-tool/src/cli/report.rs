@@ -30,8 +30,14 @@ pub struct ReportArgs {
 
 /// Runs `driftid report`.
 pub fn run(args: &ReportArgs) -> anyhow::Result<()> {
-    let cfg = DiagnoseConfig { identify: args.model.config()?, ..Default::default() };
-    anyhow::ensure!(cfg.identify.smoother_iterations > 0, "report needs the converged identification; drop --single-pass");
+    let cfg = DiagnoseConfig {
+        identify: args.model.config()?,
+        ..Default::default()
+    };
+    anyhow::ensure!(
+        cfg.identify.smoother_iterations > 0,
+        "report needs the converged identification; drop --single-pass"
+    );
     let loaded = load(&args.recording, args.model.latitude_deg)?;
     let effects = catalog::model_effects(&args.model.with)?;
     let prep = prepare(loaded.site, &loaded.samples, &cfg.identify)?;
@@ -57,10 +63,17 @@ pub fn run(args: &ReportArgs) -> anyhow::Result<()> {
             value: r.value,
             sigma: r.sigma,
             bound: r.bound,
-            truth: truth.as_ref().and_then(|t| t.get(k).copied()).filter(|v| v.is_finite()),
+            truth: truth
+                .as_ref()
+                .and_then(|t| t.get(k).copied())
+                .filter(|v| v.is_finite()),
         })
         .collect();
-    let name = args.recording.file_name().map(|s| s.to_string_lossy().to_string()).unwrap_or_default();
+    let name = args
+        .recording
+        .file_name()
+        .map(|s| s.to_string_lossy().to_string())
+        .unwrap_or_default();
     let input = ReportInput {
         title: format!("Gyro drift identification — {name}"),
         recording: name,

@@ -50,7 +50,13 @@ pub struct DiagnoseConfig {
 
 impl Default for DiagnoseConfig {
     fn default() -> Self {
-        DiagnoseConfig { identify: Config::default(), alpha: 0.01, lags: 20, max_rungs: 4, markov_block_h: 5.0 }
+        DiagnoseConfig {
+            identify: Config::default(),
+            alpha: 0.01,
+            lags: 20,
+            max_rungs: 4,
+            markov_block_h: 5.0,
+        }
     }
 }
 
@@ -81,16 +87,30 @@ struct CandidateSetup {
 }
 
 /// Diagnoses one model (the paper's drift plus `effects`) on prepared measurements.
-pub fn diagnose(prep: &Prepared, effects: &[&'static dyn Effect], cfg: &DiagnoseConfig) -> anyhow::Result<(Diagnosis, Identification)> {
+pub fn diagnose(
+    prep: &Prepared,
+    effects: &[&'static dyn Effect],
+    cfg: &DiagnoseConfig,
+) -> anyhow::Result<(Diagnosis, Identification)> {
     let model = build_model(prep.site, effects, &cfg.identify)?;
     let id = identify(&model, prep, &cfg.identify)?;
-    anyhow::ensure!(!id.trajectory.is_empty(), "diagnosis needs the converged identification (smoother iterations > 0)");
+    anyhow::ensure!(
+        !id.trajectory.is_empty(),
+        "diagnosis needs the converged identification (smoother iterations > 0)"
+    );
     let meas = &prep.measurements;
     let n = model.dim();
     let run_s = meas.last().map(|m| m.t_s).unwrap_or(0.0);
     let has_temp = {
-        let t: Vec<f64> = meas.iter().map(|m| m.temp_c).filter(|t| t.is_finite()).collect();
-        t.len() > 1 && t.iter().cloned().fold(f64::MIN, f64::max) - t.iter().cloned().fold(f64::MAX, f64::min) > 1e-6
+        let t: Vec<f64> = meas
+            .iter()
+            .map(|m| m.temp_c)
+            .filter(|t| t.is_finite())
+            .collect();
+        t.len() > 1
+            && t.iter().cloned().fold(f64::MIN, f64::max)
+                - t.iter().cloned().fold(f64::MAX, f64::min)
+                > 1e-6
     };
     // Candidates: every catalog effect not in the model.
     let mut setups: Vec<CandidateSetup> = vec![];
@@ -98,7 +118,13 @@ pub fn diagnose(prep: &Prepared, effects: &[&'static dyn Effect], cfg: &Diagnose
         if effects.iter().any(|e| e.name() == c.name()) {
             continue;
         }
-        let mut s = CandidateSetup { name: c.name(), about: c.about(), effect: None, catalog: Some(c), untestable: None };
+        let mut s = CandidateSetup {
+            name: c.name(),
+            about: c.about(),
+            effect: None,
+            catalog: Some(c),
+            untestable: None,
+        };
         if c.name() == "temp-drift" && !has_temp {
             s.untestable = Some("the recording has no varying temp_c column".into());
         } else if c.name() == "drift-markov" {
@@ -106,10 +132,16 @@ pub fn diagnose(prep: &Prepared, effects: &[&'static dyn Effect], cfg: &Diagnose
             if room == 0 {
                 s.untestable = Some("no room left in the state".into());
             } else {
-                s.effect = Some(Box::new(DriftWander::new(cfg.markov_block_h * S_PER_H, run_s.max(1.0), room)));
+                s.effect = Some(Box::new(DriftWander::new(
+                    cfg.markov_block_h * S_PER_H,
+                    run_s.max(1.0),
+                    room,
+                )));
             }
         } else if n + c.params().len() > MAX_STATES {
-            s.untestable = Some(format!("the extended model would exceed {MAX_STATES} states"));
+            s.untestable = Some(format!(
+                "the extended model would exceed {MAX_STATES} states"
+            ));
         }
         setups.push(s);
     }
@@ -128,8 +160,13 @@ pub fn diagnose(prep: &Prepared, effects: &[&'static dyn Effect], cfg: &Diagnose
             Some(v)
         })
         .collect();
-    let extended: Vec<Option<Model<'_>>> =
-        lists.iter().map(|l| l.as_ref().and_then(|l| build_model(prep.site, l, &cfg.identify).ok())).collect();
+    let extended: Vec<Option<Model<'_>>> = lists
+        .iter()
+        .map(|l| {
+            l.as_ref()
+                .and_then(|l| build_model(prep.site, l, &cfg.identify).ok())
+        })
+        .collect();
     let (x0, p0) = wide_prior(&model, &vec![0.0; n]);
     let (pass, sigs, nu_w) = signatures(&model, &extended, meas, &id.trajectory, &x0, &p0);
 
@@ -139,10 +176,18 @@ pub fn diagnose(prep: &Prepared, effects: &[&'static dyn Effect], cfg: &Diagnose
     let series = Series {
         t_h: meas.iter().map(|m| m.t_s / S_PER_H).collect(),
         measured: meas.iter().map(|m| m.specific_force).collect(),
-        predicted: meas.iter().zip(&residual).map(|(m, r)| per_axis(|i| m.specific_force[i] - r[i])).collect(),
+        predicted: meas
+            .iter()
+            .zip(&residual)
+            .map(|(m, r)| per_axis(|i| m.specific_force[i] - r[i]))
+            .collect(),
         residual: residual.clone(),
         innovation: pass.innovations.iter().map(|r| r.innovation).collect(),
-        innovation_sigma: pass.innovations.iter().map(|r| per_axis(|i| r.s[i][i].sqrt())).collect(),
+        innovation_sigma: pass
+            .innovations
+            .iter()
+            .map(|r| per_axis(|i| r.s[i][i].sqrt()))
+            .collect(),
         whitened: pass.innovations.iter().map(|r| r.whitened).collect(),
         nis: pass.innovations.iter().map(|r| r.nis).collect(),
     };
@@ -151,11 +196,15 @@ pub fn diagnose(prep: &Prepared, effects: &[&'static dyn Effect], cfg: &Diagnose
         v.sort_by(f64::total_cmp);
         v[v.len() / 2]
     });
-    let residual_rms_mps2 = per_axis(|i| (residual.iter().map(|r| r[i] * r[i]).sum::<f64>() / n_upd as f64).sqrt());
+    let residual_rms_mps2 =
+        per_axis(|i| (residual.iter().map(|r| r[i] * r[i]).sum::<f64>() / n_upd as f64).sqrt());
     let residual_rms_over_floor = per_axis(|i| residual_rms_mps2[i] / floor_mps2[i]);
     let nis_mean = series.nis.iter().sum::<f64>() / (3.0 * n_upd as f64);
     let dof_nis = 3.0 * n_upd as f64;
-    let nis_band95 = [chi2_quantile(0.025, dof_nis) / dof_nis, chi2_quantile(0.975, dof_nis) / dof_nis];
+    let nis_band95 = [
+        chi2_quantile(0.025, dof_nis) / dof_nis,
+        chi2_quantile(0.975, dof_nis) / dof_nis,
+    ];
     let whiteness = whiteness(&series.whitened, cfg.lags);
     let failures = failure_windows(&series);
     let correlations = correlations(&series, &temp_devs(meas));
@@ -176,13 +225,20 @@ pub fn diagnose(prep: &Prepared, effects: &[&'static dyn Effect], cfg: &Diagnose
                     p_adjusted: f64::NAN,
                     params: vec![],
                     expected_rms_over_floor: residual_rms_over_floor,
-                    untestable: s.untestable.clone().or(Some("extended model could not be built".into())),
+                    untestable: s
+                        .untestable
+                        .clone()
+                        .or(Some("extended model could not be built".into())),
                 },
                 None,
             ),
             Some(sig) => {
                 let t = sig.test();
-                let p_value = if t.dof > 0 { chi2_sf(t.statistic, t.dof as f64) } else { 1.0 };
+                let p_value = if t.dof > 0 {
+                    chi2_sf(t.statistic, t.dof as f64)
+                } else {
+                    1.0
+                };
                 let lambda = noncentrality_for_power(t.dof.max(1) as f64, cfg.alpha, 0.9);
                 let e: &dyn Effect = match &s.effect {
                     Some(b) => b.as_ref(),
@@ -197,7 +253,11 @@ pub fn diagnose(prep: &Prepared, effects: &[&'static dyn Effect], cfg: &Diagnose
                         unit: p.unit.into(),
                         value: t.estimate[k],
                         sigma: t.cov[(k, k)].max(0.0).sqrt(),
-                        min_detectable: if sig.info[(k, k)] > 0.0 { (lambda / sig.info[(k, k)]).sqrt() } else { f64::INFINITY },
+                        min_detectable: if sig.info[(k, k)] > 0.0 {
+                            (lambda / sig.info[(k, k)]).sqrt()
+                        } else {
+                            f64::INFINITY
+                        },
                     })
                     .collect();
                 // Expected residual after adding the effect: the whitened innovations minus its
@@ -229,38 +289,56 @@ pub fn diagnose(prep: &Prepared, effects: &[&'static dyn Effect], cfg: &Diagnose
             }
         })
         .collect();
-    ranking.sort_by(|a, b| match (a.0.untestable.is_some(), b.0.untestable.is_some()) {
-        (false, true) => std::cmp::Ordering::Less,
-        (true, false) => std::cmp::Ordering::Greater,
-        _ => a.0.p_value.total_cmp(&b.0.p_value).then(b.0.statistic.total_cmp(&a.0.statistic)),
-    });
+    ranking.sort_by(
+        |a, b| match (a.0.untestable.is_some(), b.0.untestable.is_some()) {
+            (false, true) => std::cmp::Ordering::Less,
+            (true, false) => std::cmp::Ordering::Greater,
+            _ => {
+                a.0.p_value
+                    .total_cmp(&b.0.p_value)
+                    .then(b.0.statistic.total_cmp(&a.0.statistic))
+            }
+        },
+    );
     // Holm's step-down adjustment over the tested candidates.
     let mut running: f64 = 0.0;
-    for (rank, (c, _)) in ranking.iter_mut().filter(|(c, _)| c.untestable.is_none()).enumerate() {
+    for (rank, (c, _)) in ranking
+        .iter_mut()
+        .filter(|(c, _)| c.untestable.is_none())
+        .enumerate()
+    {
         running = running.max(((tested - rank) as f64 * c.p_value).min(1.0));
         c.p_adjusted = running;
     }
     // Confounding among the leading candidates.
     let mut confounding = vec![];
-    let leaders: Vec<usize> = (0..ranking.len().min(4)).filter(|&k| ranking[k].1.is_some()).collect();
+    let leaders: Vec<usize> = (0..ranking.len().min(4))
+        .filter(|&k| ranking[k].1.is_some())
+        .collect();
     for (ai, &a) in leaders.iter().enumerate() {
         for &b in &leaders[ai + 1..] {
             let cc = canonical_correlation(ranking[a].1.unwrap(), ranking[b].1.unwrap());
-            let significant = ranking[a].0.p_adjusted < cfg.alpha || ranking[b].0.p_adjusted < cfg.alpha;
+            let significant =
+                ranking[a].0.p_adjusted < cfg.alpha || ranking[b].0.p_adjusted < cfg.alpha;
             if cc > 0.9 && significant {
                 confounding.push(Confounding {
                     a: ranking[a].0.effect.clone(),
                     b: ranking[b].0.effect.clone(),
                     canonical_correlation: cc,
                     statistic_gap: ranking[a].0.statistic - ranking[b].0.statistic,
-                    separated: (ranking[a].0.statistic - ranking[b].0.statistic).abs() >= SEPARATION_GAP,
+                    separated: (ranking[a].0.statistic - ranking[b].0.statistic).abs()
+                        >= SEPARATION_GAP,
                     separate_by: separate_by(&ranking[a].0.effect, &ranking[b].0.effect),
                 });
             }
         }
     }
     let ranking: Vec<Candidate> = ranking.into_iter().map(|(c, _)| c).collect();
-    let model_names: Vec<String> = effects.iter().filter(|e| e.name() != "paper").map(|e| e.name().to_string()).collect();
+    let model_names: Vec<String> = effects
+        .iter()
+        .filter(|e| e.name() != "paper")
+        .map(|e| e.name().to_string())
+        .collect();
     let mut d = Diagnosis {
         model: model_names,
         floor_mps2,
@@ -282,11 +360,17 @@ pub fn diagnose(prep: &Prepared, effects: &[&'static dyn Effect], cfg: &Diagnose
 
 /// Whether the model explains the data: residual at the floor (within 5 %), white, NIS in band.
 pub fn is_consistent(d: &Diagnosis, alpha: f64) -> bool {
-    d.residual_rms_over_floor.iter().all(|r| *r < 1.05) && d.whiteness.p_value >= alpha && d.nis_mean <= d.nis_band95[1] * 1.02
+    d.residual_rms_over_floor.iter().all(|r| *r < 1.05)
+        && d.whiteness.p_value >= alpha
+        && d.nis_mean <= d.nis_band95[1] * 1.02
 }
 
 fn verdict(d: &Diagnosis, alpha: f64) -> String {
-    let rms: Vec<String> = d.residual_rms_over_floor.iter().map(|r| format!("{r:.2}")).collect();
+    let rms: Vec<String> = d
+        .residual_rms_over_floor
+        .iter()
+        .map(|r| format!("{r:.2}"))
+        .collect();
     let state = format!(
         "Residual RMS / noise floor = [{}] (x, y, z), mean NIS/3 = {:.2} (95 % band {:.3}–{:.3}), Ljung–Box p = {:.2e}.",
         rms.join(", "),
@@ -295,7 +379,10 @@ fn verdict(d: &Diagnosis, alpha: f64) -> String {
         d.nis_band95[1],
         d.whiteness.p_value
     );
-    let lead = d.ranking.first().filter(|c| c.untestable.is_none() && c.p_adjusted < alpha);
+    let lead = d
+        .ranking
+        .first()
+        .filter(|c| c.untestable.is_none() && c.p_adjusted < alpha);
     match lead {
         Some(c) => {
             let after: Vec<String> = c.expected_rms_over_floor.iter().map(|r| format!("{r:.2}")).collect();
@@ -364,7 +451,9 @@ pub fn whiteness(w: &[[f64; 3]], lags: usize) -> Whiteness {
         let mean = w.iter().map(|x| x[a]).sum::<f64>() / n as f64;
         let var = w.iter().map(|x| (x[a] - mean).powi(2)).sum::<f64>();
         for k in 1..=lags {
-            let c: f64 = (k..n).map(|j| (w[j][a] - mean) * (w[j - k][a] - mean)).sum();
+            let c: f64 = (k..n)
+                .map(|j| (w[j][a] - mean) * (w[j - k][a] - mean))
+                .sum();
             let r = c / var.max(1e-300);
             acf[k - 1][a] = r;
             q += r * r / (n - k) as f64;
@@ -372,7 +461,13 @@ pub fn whiteness(w: &[[f64; 3]], lags: usize) -> Whiteness {
     }
     let q = n as f64 * (n as f64 + 2.0) * q;
     let dof = 3.0 * lags as f64;
-    Whiteness { acf, acf_bound95: 1.96 / (n as f64).sqrt(), ljung_box_q: q, dof, p_value: chi2_sf(q, dof) }
+    Whiteness {
+        acf,
+        acf_bound95: 1.96 / (n as f64).sqrt(),
+        ljung_box_q: q,
+        dof,
+        p_value: chi2_sf(q, dof),
+    }
 }
 
 /// One-hour blocks whose mean NIS/3 leaves its 99 % band, merged into intervals.
@@ -384,24 +479,40 @@ pub fn failure_windows(s: &Series) -> Vec<FailureWindow> {
     let dt_h = (s.t_h[n - 1] - s.t_h[0]) / (n - 1) as f64;
     let block = ((1.0 / dt_h.max(1e-9)).round() as usize).max(5);
     let dof = 3.0 * block as f64;
-    let (lo, hi) = (chi2_quantile(0.005, dof) / dof, chi2_quantile(0.995, dof) / dof);
+    let (lo, hi) = (
+        chi2_quantile(0.005, dof) / dof,
+        chi2_quantile(0.995, dof) / dof,
+    );
     let mut out: Vec<FailureWindow> = vec![];
     let mut start = 0;
     while start + block <= n {
         let end = start + block;
         let nis = s.nis[start..end].iter().sum::<f64>() / dof;
         if nis < lo || nis > hi {
-            let ms = per_axis(|a| s.whitened[start..end].iter().map(|w| w[a] * w[a]).sum::<f64>());
+            let ms = per_axis(|a| {
+                s.whitened[start..end]
+                    .iter()
+                    .map(|w| w[a] * w[a])
+                    .sum::<f64>()
+            });
             let worst = (0..3).max_by(|&a, &b| ms[a].total_cmp(&ms[b])).unwrap();
             let (t0, t1) = (s.t_h[start], s.t_h[end - 1]);
             match out.last_mut() {
-                Some(last) if (last.end_h - t0).abs() <= 1.5 * dt_h && last.worst_axis == ['x', 'y', 'z'][worst] => {
+                Some(last)
+                    if (last.end_h - t0).abs() <= 1.5 * dt_h
+                        && last.worst_axis == ['x', 'y', 'z'][worst] =>
+                {
                     let w0 = last.end_h - last.start_h;
                     let w1 = t1 - t0;
                     last.nis_mean = (last.nis_mean * w0 + nis * w1) / (w0 + w1).max(1e-12);
                     last.end_h = t1;
                 }
-                _ => out.push(FailureWindow { start_h: t0, end_h: t1, nis_mean: nis, worst_axis: ['x', 'y', 'z'][worst] }),
+                _ => out.push(FailureWindow {
+                    start_h: t0,
+                    end_h: t1,
+                    nis_mean: nis,
+                    worst_axis: ['x', 'y', 'z'][worst],
+                }),
             }
         }
         start = end;
@@ -417,11 +528,26 @@ pub fn correlations(s: &Series, temp_dev: &[f64]) -> Vec<RegressorCorrelation> {
         ("A_x".into(), (0..n).map(|j| a(j, 0)).collect()),
         ("A_y".into(), (0..n).map(|j| a(j, 1)).collect()),
         ("A_z".into(), (0..n).map(|j| a(j, 2)).collect()),
-        ("A_x*A_x".into(), (0..n).map(|j| a(j, 0) * a(j, 0)).collect()),
-        ("A_y*A_y".into(), (0..n).map(|j| a(j, 1) * a(j, 1)).collect()),
-        ("A_x*A_y".into(), (0..n).map(|j| a(j, 0) * a(j, 1)).collect()),
-        ("A_x*A_z".into(), (0..n).map(|j| a(j, 0) * a(j, 2)).collect()),
-        ("A_y*A_z".into(), (0..n).map(|j| a(j, 1) * a(j, 2)).collect()),
+        (
+            "A_x*A_x".into(),
+            (0..n).map(|j| a(j, 0) * a(j, 0)).collect(),
+        ),
+        (
+            "A_y*A_y".into(),
+            (0..n).map(|j| a(j, 1) * a(j, 1)).collect(),
+        ),
+        (
+            "A_x*A_y".into(),
+            (0..n).map(|j| a(j, 0) * a(j, 1)).collect(),
+        ),
+        (
+            "A_x*A_z".into(),
+            (0..n).map(|j| a(j, 0) * a(j, 2)).collect(),
+        ),
+        (
+            "A_y*A_z".into(),
+            (0..n).map(|j| a(j, 1) * a(j, 2)).collect(),
+        ),
         ("t".into(), s.t_h.clone()),
     ];
     if temp_dev.iter().any(|t| *t != 0.0) {
@@ -440,7 +566,13 @@ pub fn correlations(s: &Series, temp_dev: &[f64]) -> Vec<RegressorCorrelation> {
     };
     let res: [Vec<f64>; 3] = [0, 1, 2].map(|i| s.residual.iter().map(|r| r[i]).collect());
     let bound99 = normal_quantile(0.995) / (n as f64).sqrt();
-    regs.into_iter().map(|(name, x)| RegressorCorrelation { regressor: name, corr: per_axis(|i| corr(&x, &res[i])), bound99 }).collect()
+    regs.into_iter()
+        .map(|(name, x)| RegressorCorrelation {
+            regressor: name,
+            corr: per_axis(|i| corr(&x, &res[i])),
+            bound99,
+        })
+        .collect()
 }
 
 /// The model ladder: start from `start` effects, diagnose, add the significant leader, repeat
@@ -450,7 +582,12 @@ pub fn ladder(
     prep: &Prepared,
     start: &[&'static dyn Effect],
     cfg: &DiagnoseConfig,
-) -> anyhow::Result<(Vec<Diagnosis>, Vec<Rung>, Identification, Vec<&'static dyn Effect>)> {
+) -> anyhow::Result<(
+    Vec<Diagnosis>,
+    Vec<Rung>,
+    Identification,
+    Vec<&'static dyn Effect>,
+)> {
     let mut effects = start.to_vec();
     let mut diagnoses = vec![];
     let mut rungs: Vec<Rung> = vec![];
@@ -458,8 +595,14 @@ pub fn ladder(
         let (d, id) = diagnose(prep, &effects, cfg)?;
         let paper = id.params.iter().take(12).enumerate();
         let best = id.best();
-        let coefficients = paper.map(|(k, p)| (p.name.to_string(), best.value[k], best.sigma(k))).collect();
-        let lead = d.ranking.first().filter(|c| c.untestable.is_none() && c.p_adjusted < cfg.alpha).map(|c| (c.effect.clone(), c.p_adjusted));
+        let coefficients = paper
+            .map(|(k, p)| (p.name.to_string(), best.value[k], best.sigma(k)))
+            .collect();
+        let lead = d
+            .ranking
+            .first()
+            .filter(|c| c.untestable.is_none() && c.p_adjusted < cfg.alpha)
+            .map(|c| (c.effect.clone(), c.p_adjusted));
         rungs.push(Rung {
             model: d.model.clone(),
             residual_rms_over_floor: d.residual_rms_over_floor,
@@ -470,7 +613,9 @@ pub fn ladder(
         });
         diagnoses.push(d);
         let next = match lead {
-            Some((name, p)) if rungs.len() < cfg.max_rungs => catalog::by_name(&name).map(|e| (e, p)),
+            Some((name, p)) if rungs.len() < cfg.max_rungs => {
+                catalog::by_name(&name).map(|e| (e, p))
+            }
             _ => None,
         };
         match next {

@@ -54,7 +54,10 @@ impl Signature {
     pub fn test(&self) -> ScoreTest {
         let q = self.q;
         let scale: Vec<f64> = (0..q).map(|k| self.info[(k, k)].sqrt()).collect();
-        let inv_scale: Vec<f64> = scale.iter().map(|&s| if s > 0.0 { 1.0 / s } else { 0.0 }).collect();
+        let inv_scale: Vec<f64> = scale
+            .iter()
+            .map(|&s| if s > 0.0 { 1.0 / s } else { 0.0 })
+            .collect();
         let is = DMatrix::from_fn(q, q, |a, b| self.info[(a, b)] * inv_scale[a] * inv_scale[b]);
         let ss = DVector::from_fn(q, |a, _| self.score[a] * inv_scale[a]);
         let eig = SymmetricEigen::new(is);
@@ -71,7 +74,12 @@ impl Signature {
         let cov = DMatrix::from_fn(q, q, |a, b| pinv[(a, b)] * inv_scale[a] * inv_scale[b]);
         let estimate = &cov * &self.score;
         let statistic = ss.dot(&(&pinv * &ss));
-        ScoreTest { statistic, dof, estimate, cov }
+        ScoreTest {
+            statistic,
+            dof,
+            estimate,
+            cov,
+        }
     }
 }
 
@@ -126,7 +134,15 @@ pub fn signatures(
             let q = tk.q;
             let mut x = v.nominal_prev.as_slice().to_vec();
             x.resize(n + q, 0.0);
-            propagate(&tk.model, &mut x, v.t_prev_s, v.t_s - v.t_prev_s, v.temp_prev, v.temp, &mut tr);
+            propagate(
+                &tk.model,
+                &mut x,
+                v.t_prev_s,
+                v.t_s - v.t_prev_s,
+                v.temp_prev,
+                v.temp,
+                &mut tr,
+            );
             let mut gamma = DMatrix::zeros(n, q);
             let mut a = DMatrix::identity(q, q);
             for (r, &d) in tk.model.dynamic_states().iter().enumerate() {
@@ -140,7 +156,8 @@ pub fn signatures(
             }
             let mut xj = v.nominal.as_slice().to_vec();
             xj.resize(n + q, 0.0);
-            tk.model.measurement(&xj, v.t_s, v.temp, v.time_var_s2, &mut cols);
+            tk.model
+                .measurement(&xj, v.t_s, v.temp, v.time_var_s2, &mut cols);
             let h_beta = DMatrix::from_fn(3, q, |i, b| cols[n + b][i]);
             let psi_pred = v.phi * &tk.psi + &gamma * &tk.t;
             tk.t = &a * &tk.t;
@@ -165,7 +182,12 @@ pub fn signatures(
         .map(|tk| {
             tk.map(|tk| {
                 let n_rows = tk.rows.len() / tk.q.max(1);
-                Signature { q: tk.q, score: tk.score, info: tk.info, whitened: DMatrix::from_row_slice(n_rows, tk.q, &tk.rows) }
+                Signature {
+                    q: tk.q,
+                    score: tk.score,
+                    info: tk.info,
+                    whitened: DMatrix::from_row_slice(n_rows, tk.q, &tk.rows),
+                }
             })
         })
         .collect();
@@ -178,7 +200,9 @@ fn basis(w: &DMatrix<f64>) -> DMatrix<f64> {
     let svd = w.clone().svd(true, false);
     let u = svd.u.unwrap();
     let smax = svd.singular_values.iter().cloned().fold(0.0, f64::max);
-    let keep: Vec<usize> = (0..svd.singular_values.len()).filter(|&k| svd.singular_values[k] > 1e-6 * smax).collect();
+    let keep: Vec<usize> = (0..svd.singular_values.len())
+        .filter(|&k| svd.singular_values[k] > 1e-6 * smax)
+        .collect();
     DMatrix::from_fn(u.nrows(), keep.len(), |i, j| u[(i, keep[j])])
 }
 
@@ -190,7 +214,11 @@ pub fn canonical_correlation(a: &Signature, b: &Signature) -> f64 {
         return 0.0;
     }
     let m = qa.transpose() * qb;
-    m.singular_values().iter().cloned().fold(0.0, f64::max).min(1.0)
+    m.singular_values()
+        .iter()
+        .cloned()
+        .fold(0.0, f64::max)
+        .min(1.0)
 }
 
 /// Adds `effect` to a copy of the current effect list (helper for building `extended`).

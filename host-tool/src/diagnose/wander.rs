@@ -25,7 +25,12 @@ pub struct DriftWander {
 
 fn names() -> &'static [String] {
     static NAMES: OnceLock<Vec<String>> = OnceLock::new();
-    NAMES.get_or_init(|| ["X", "Y", "Z"].iter().flat_map(|a| (1..=MAX_BLOCKS).map(move |b| format!("W{a}{b}"))).collect())
+    NAMES.get_or_init(|| {
+        ["X", "Y", "Z"]
+            .iter()
+            .flat_map(|a| (1..=MAX_BLOCKS).map(move |b| format!("W{a}{b}")))
+            .collect()
+    })
 }
 
 impl DriftWander {
@@ -36,9 +41,17 @@ impl DriftWander {
         let names = names();
         let params = (0..3)
             .flat_map(|a| (0..blocks).map(move |b| (a, b)))
-            .map(|(a, b)| Param { name: names[a * MAX_BLOCKS + b].as_str(), unit: "deg/h", prior_sigma: 0.01 })
+            .map(|(a, b)| Param {
+                name: names[a * MAX_BLOCKS + b].as_str(),
+                unit: "deg/h",
+                prior_sigma: 0.01,
+            })
             .collect();
-        DriftWander { block_s, blocks, params }
+        DriftWander {
+            block_s,
+            blocks,
+            params,
+        }
     }
 }
 

@@ -82,7 +82,11 @@ pub fn prepare(site: Site, samples: &[Sample], cfg: &Config) -> anyhow::Result<P
     let mut avg = Averager::new(cfg.period_s, noise.raw_sigma_mps2);
     let mut measurements: Vec<Measurement> = samples.iter().filter_map(|s| avg.push(s)).collect();
     measurements.extend(avg.flush());
-    Ok(Prepared { site, measurements, noise })
+    Ok(Prepared {
+        site,
+        measurements,
+        noise,
+    })
 }
 
 /// An estimate of the model's parameters (states 3.. of the model).
@@ -162,7 +166,12 @@ fn params_of(model: &Model<'_>) -> Vec<Param> {
 }
 
 /// Runs the core EKF over all measurements from `x0`/`sigma0`.
-pub fn ekf_pass(model: &Model<'_>, meas: &[Measurement], x0: &[f64], sigma0: &[f64]) -> anyhow::Result<(Estimate, Vec<Residual>, Vec<DVector<f64>>)> {
+pub fn ekf_pass(
+    model: &Model<'_>,
+    meas: &[Measurement],
+    x0: &[f64],
+    sigma0: &[f64],
+) -> anyhow::Result<(Estimate, Vec<Residual>, Vec<DVector<f64>>)> {
     let n = model.dim();
     let mut ekf = Ekf::<MAX_STATES>::new(*model, x0, sigma0).map_err(|e| anyhow::anyhow!("{e}"))?;
     let mut residuals = Vec::with_capacity(meas.len());
@@ -173,7 +182,9 @@ pub fn ekf_pass(model: &Model<'_>, meas: &[Measurement], x0: &[f64], sigma0: &[f
         states.push(DVector::from_row_slice(ekf.state()));
     }
     let value = ekf.state()[ANGLES..].to_vec();
-    let cov = DMatrix::from_fn(n - ANGLES, n - ANGLES, |i, j| ekf.cov(i + ANGLES, j + ANGLES));
+    let cov = DMatrix::from_fn(n - ANGLES, n - ANGLES, |i, j| {
+        ekf.cov(i + ANGLES, j + ANGLES)
+    });
     Ok((Estimate { value, cov }, residuals, states))
 }
 
@@ -182,14 +193,22 @@ pub fn wide_prior(model: &Model<'_>, x0: &[f64]) -> (DVector<f64>, DMatrix<f64>)
     let n = model.dim();
     let mut p0 = DMatrix::zeros(n, n);
     for i in 0..n {
-        let s = if i < ANGLES { ANGLE_PRIOR_SIGMA_RAD } else { model.param(i).prior_sigma };
+        let s = if i < ANGLES {
+            ANGLE_PRIOR_SIGMA_RAD
+        } else {
+            model.param(i).prior_sigma
+        };
         p0[(i, i)] = s * s;
     }
     (DVector::from_row_slice(x0), p0)
 }
 
 /// The noise-free trajectory of the model with parameters `params`, at t = 0 and every measurement.
-pub fn nominal_trajectory(model: &Model<'_>, meas: &[Measurement], params: &[f64]) -> Vec<DVector<f64>> {
+pub fn nominal_trajectory(
+    model: &Model<'_>,
+    meas: &[Measurement],
+    params: &[f64],
+) -> Vec<DVector<f64>> {
     let mut x = vec![0.0; model.dim()];
     x[ANGLES..].copy_from_slice(params);
     let mut out = vec![DVector::from_row_slice(&x)];
@@ -209,25 +228,49 @@ pub fn cramer_rao_bound(model: &Model<'_>, meas: &[Measurement], params: &[f64])
     let nominal = nominal_trajectory(model, meas, params);
     let (x0, p0) = wide_prior(model, nominal[0].as_slice());
     let pass = linearised_pass(model, meas, &nominal, &x0, &p0, false);
-    (ANGLES..model.dim()).map(|i| pass.final_cov[(i, i)].sqrt()).collect()
+    (ANGLES..model.dim())
+        .map(|i| pass.final_cov[(i, i)].sqrt())
+        .collect()
 }
 
 /// Identifies the model's parameters from prepared measurements (see the module docs).
-pub fn identify(model: &Model<'_>, prep: &Prepared, cfg: &Config) -> anyhow::Result<Identification> {
+pub fn identify(
+    model: &Model<'_>,
+    prep: &Prepared,
+    cfg: &Config,
+) -> anyhow::Result<Identification> {
     let n = model.dim();
     let meas = &prep.measurements;
     if meas.is_empty() {
         bail!("no measurements to identify from");
     }
     let zeros = vec![0.0; n];
-    let mut sigma0: Vec<f64> = (0..n).map(|i| if i < ANGLES { ANGLE_PRIOR_SIGMA_RAD } else { model.param(i).prior_sigma }).collect();
-    let (single_pass, single_res, _) = ekf_pass(model, meas, &zeros, &sigma0).context("single EKF pass")?;
+    let mut sigma0: Vec<f64> = (0..n)
+        .map(|i| {
+            if i < ANGLES {
+                ANGLE_PRIOR_SIGMA_RAD
+            } else {
+                model.param(i).prior_sigma
+            }
+        })
+        .collect();
+    let (single_pass, single_res, _) =
+        ekf_pass(model, meas, &zeros, &sigma0).context("single EKF pass")?;
     let final_time_h = meas.last().unwrap().t_s / 3600.0;
     let params = params_of(model);
     if cfg.smoother_iterations == 0 {
         let weak = weak_combinations(model, &single_pass);
         let smoothed_residuals = single_res.iter().map(|r| r.innovation).collect();
-        return Ok(Identification { params, single_pass, refined: None, innovations: single_res, smoothed_residuals, final_time_h, weak, trajectory: vec![] });
+        return Ok(Identification {
+            params,
+            single_pass,
+            refined: None,
+            innovations: single_res,
+            smoothed_residuals,
+            final_time_h,
+            weak,
+            trajectory: vec![],
+        });
     }
     let mut x0 = zeros.clone();
     x0[ANGLES..].copy_from_slice(&single_pass.value);
@@ -246,7 +289,10 @@ pub fn identify(model: &Model<'_>, prep: &Prepared, cfg: &Config) -> anyhow::Res
     let final_state = &pass.states[pass.states.len() - 1];
     let refined = Estimate {
         value: final_state.as_slice()[ANGLES..].to_vec(),
-        cov: pass.final_cov.view((ANGLES, ANGLES), (n - ANGLES, n - ANGLES)).into_owned(),
+        cov: pass
+            .final_cov
+            .view((ANGLES, ANGLES), (n - ANGLES, n - ANGLES))
+            .into_owned(),
     };
     let smoothed_residuals = smoothed_residuals(model, meas, &pass.states);
     let weak = weak_combinations(model, &refined);
@@ -263,13 +309,25 @@ pub fn identify(model: &Model<'_>, prep: &Prepared, cfg: &Config) -> anyhow::Res
 }
 
 /// Measured minus h(smoothed state) at every measurement, m/s².
-pub fn smoothed_residuals(model: &Model<'_>, meas: &[Measurement], states: &[DVector<f64>]) -> Vec<[f64; 3]> {
+pub fn smoothed_residuals(
+    model: &Model<'_>,
+    meas: &[Measurement],
+    states: &[DVector<f64>],
+) -> Vec<[f64; 3]> {
     let mut scratch = [nalgebra::Vector3::zeros(); MAX_STATES];
-    let reference = meas.iter().map(|m| m.temp_c).find(|t| t.is_finite()).unwrap_or(0.0);
+    let reference = meas
+        .iter()
+        .map(|m| m.temp_c)
+        .find(|t| t.is_finite())
+        .unwrap_or(0.0);
     meas.iter()
         .zip(&states[1..])
         .map(|(m, x)| {
-            let dev = if m.temp_c.is_finite() { m.temp_c - reference } else { 0.0 };
+            let dev = if m.temp_c.is_finite() {
+                m.temp_c - reference
+            } else {
+                0.0
+            };
             let h = model.measurement(x.as_slice(), m.t_s, dev, m.time_var_s2, &mut scratch);
             [0, 1, 2].map(|i| m.specific_force[i] - h[i])
         })
@@ -278,7 +336,9 @@ pub fn smoothed_residuals(model: &Model<'_>, meas: &[Measurement], states: &[DVe
 
 /// Weakest direction of each axis' four paper coefficients, in (D0, g·Dx, g·Dy, g·Dz).
 pub fn weak_combinations(model: &Model<'_>, est: &Estimate) -> Vec<WeakCombination> {
-    let Some(e) = model.effects().iter().position(|e| e.name() == "paper") else { return vec![] };
+    let Some(e) = model.effects().iter().position(|e| e.name() == "paper") else {
+        return vec![];
+    };
     let base = model.offset(e) - ANGLES;
     let g = model.site().gravity_mps2;
     (0..3)

@@ -22,7 +22,8 @@ pub fn estimate(t_s: &[f64], force: &[[f64; 3]]) -> Option<NoiseFloor> {
     let mut d3: [Vec<f64>; 3] = Default::default();
     for k in 0..t_s.len().saturating_sub(3) {
         let dt = t_s[k + 1] - t_s[k];
-        let regular = (1..3).all(|i| ((t_s[k + i + 1] - t_s[k + i]) - dt).abs() <= 1e-6 * dt.abs().max(1e-9));
+        let regular =
+            (1..3).all(|i| ((t_s[k + i + 1] - t_s[k + i]) - dt).abs() <= 1e-6 * dt.abs().max(1e-9));
         if !regular {
             continue;
         }
@@ -40,5 +41,8 @@ pub fn estimate(t_s: &[f64], force: &[[f64; 3]]) -> Option<NoiseFloor> {
         let (_, median, _) = d.select_nth_unstable_by(mid, |a, b| a.total_cmp(b));
         (1.4826 * *median / 20f64.sqrt()).max(MIN_RAW_SIGMA_MPS2)
     });
-    Some(NoiseFloor { raw_sigma_mps2, count })
+    Some(NoiseFloor {
+        raw_sigma_mps2,
+        count,
+    })
 }

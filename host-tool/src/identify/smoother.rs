@@ -108,7 +108,13 @@ pub fn linearised_pass_observed(
     assert!(n <= MAX_STATES && nominal.len() == meas.len() + 1);
     let temps = temp_devs(meas);
     let mut nodes: Vec<Node> = Vec::with_capacity(meas.len() + 1);
-    nodes.push(Node { m_pred: x0.clone(), p_pred: p0.clone(), m: x0.clone(), p: p0.clone(), phi: DMatrix::identity(n, n) });
+    nodes.push(Node {
+        m_pred: x0.clone(),
+        p_pred: p0.clone(),
+        m: x0.clone(),
+        p: p0.clone(),
+        phi: DMatrix::identity(n, n),
+    });
     let mut innovations = Vec::with_capacity(meas.len());
     let mut tr = Transition::<MAX_STATES>::default();
     let mut hcols = [Vector3::zeros(); MAX_STATES];
@@ -119,7 +125,15 @@ pub fn linearised_pass_observed(
         let prev = nodes.last().unwrap();
         let xbar_prev = &nominal[j];
         let mut f = xbar_prev.as_slice().to_vec();
-        propagate(model, &mut f, t_prev, z.t_s - t_prev, temp_prev, temps[j], &mut tr);
+        propagate(
+            model,
+            &mut f,
+            t_prev,
+            z.t_s - t_prev,
+            temp_prev,
+            temps[j],
+            &mut tr,
+        );
         let mut phi = DMatrix::identity(n, n);
         let mut q = DMatrix::zeros(n, n);
         for (r, &d) in dynamic.iter().enumerate() {
@@ -133,17 +147,21 @@ pub fn linearised_pass_observed(
         let m_pred = DVector::from_vec(f) + &phi * (&prev.m - xbar_prev);
         let p_pred = &phi * &prev.p * phi.transpose() + q;
         let xbar = &nominal[j + 1];
-        let predicted_at_nominal = model.measurement(xbar.as_slice(), z.t_s, temps[j], z.time_var_s2, &mut hcols);
+        let predicted_at_nominal =
+            model.measurement(xbar.as_slice(), z.t_s, temps[j], z.time_var_s2, &mut hcols);
         let mut h = DMatrix::zeros(3, n);
         for c in 0..n {
             h.set_column(c, &hcols[c]);
         }
         let predicted = predicted_at_nominal + &h * (&m_pred - xbar);
-        let nu = Vector3::from(z.specific_force) - Vector3::new(predicted[0], predicted[1], predicted[2]);
+        let nu = Vector3::from(z.specific_force)
+            - Vector3::new(predicted[0], predicted[1], predicted[2]);
         let pht = &p_pred * h.transpose();
         let s_dyn = &h * &pht + DMatrix::from_diagonal(&DVector::from_row_slice(&z.variance));
         let s = Matrix3::from_fn(|a, b| 0.5 * (s_dyn[(a, b)] + s_dyn[(b, a)]));
-        let chol = s.cholesky().expect("innovation covariance positive definite");
+        let chol = s
+            .cholesky()
+            .expect("innovation covariance positive definite");
         let s_inv = chol.inverse();
         let whitened = chol.l().solve_lower_triangular(&nu).unwrap_or(nu);
         let k = &pht * DMatrix::from_fn(3, 3, |a, b| s_inv[(a, b)]);
@@ -180,7 +198,13 @@ pub fn linearised_pass_observed(
             nis: nu.dot(&(s_inv * nu)),
             rejected: false,
         });
-        nodes.push(Node { m_pred, p_pred, m, p, phi });
+        nodes.push(Node {
+            m_pred,
+            p_pred,
+            m,
+            p,
+            phi,
+        });
         t_prev = z.t_s;
         temp_prev = temps[j];
     }
@@ -196,7 +220,12 @@ pub fn linearised_pass_observed(
             let rhs = &next.phi * &nodes[j].p;
             let gt = match next.p_pred.clone().cholesky() {
                 Some(c) => c.solve(&rhs),
-                None => next.p_pred.clone().lu().solve(&rhs).expect("predicted covariance invertible"),
+                None => next
+                    .p_pred
+                    .clone()
+                    .lu()
+                    .solve(&rhs)
+                    .expect("predicted covariance invertible"),
             };
             ms = &nodes[j].m + gt.transpose() * (&ms - &next.m_pred);
             states[j] = ms.clone();
@@ -206,5 +235,9 @@ pub fn linearised_pass_observed(
             *s = node.m.clone();
         }
     }
-    Smoothed { states, final_cov, innovations }
+    Smoothed {
+        states,
+        final_cov,
+        innovations,
+    }
 }

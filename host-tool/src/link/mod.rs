@@ -90,7 +90,11 @@ impl Receiver {
 
     /// Counts so far.
     pub fn stats(&self) -> LinkStats {
-        LinkStats { decoder: *self.decoder.stats(), missing: self.seq.missing, restarts: self.seq.restarts }
+        LinkStats {
+            decoder: *self.decoder.stats(),
+            missing: self.seq.missing,
+            restarts: self.seq.restarts,
+        }
     }
 }
 
@@ -99,7 +103,13 @@ pub fn describe(msg: &Message) -> String {
     match msg {
         Message::Hello(h) => format!(
             "firmware {}.{}.{} on {:?}, {} states, filter period {} s, latitude {} deg",
-            h.firmware[0], h.firmware[1], h.firmware[2], h.board, h.state_dim, h.config.filter_period_s, h.config.latitude_deg
+            h.firmware[0],
+            h.firmware[1],
+            h.firmware[2],
+            h.board,
+            h.state_dim,
+            h.config.filter_period_s,
+            h.config.latitude_deg
         ),
         Message::Raw(r) => format!("sample {} t={} s", r.seq, r.t_s),
         Message::Estimate(e) => {
@@ -165,7 +175,10 @@ mod tests {
         }
         let mut r = Receiver::new();
         let got = r.feed(&bytes);
-        assert_eq!(got.iter().map(|p| p.seq).collect::<Vec<_>>(), vec![0, 1, 3, 4]);
+        assert_eq!(
+            got.iter().map(|p| p.seq).collect::<Vec<_>>(),
+            vec![0, 1, 3, 4]
+        );
         let s = r.stats();
         assert_eq!((s.decoder.bad(), s.missing, s.lost()), (1, 1, 1));
     }

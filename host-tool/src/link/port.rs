@@ -19,7 +19,9 @@ pub const WRITE_TIMEOUT: Duration = Duration::from_secs(60);
 
 /// A second handle on `port` for the sending side, with [`WRITE_TIMEOUT`] (reads keep [`POLL`]).
 pub fn writer_of(port: &TTYPort) -> anyhow::Result<TTYPort> {
-    let mut w = port.try_clone_native().context("cloning the serial port for writing")?;
+    let mut w = port
+        .try_clone_native()
+        .context("cloning the serial port for writing")?;
     w.set_timeout(WRITE_TIMEOUT)?;
     Ok(w)
 }
@@ -49,12 +51,19 @@ pub fn pty_pair() -> anyhow::Result<Pty> {
     let (mut master, slave) = TTYPort::pair().context("creating a pseudo-terminal pair")?;
     master.set_timeout(POLL)?;
     let slave_path = slave.name().context("the pty slave has no name")?;
-    Ok(Pty { master, slave, slave_path })
+    Ok(Pty {
+        master,
+        slave,
+        slave_path,
+    })
 }
 
 /// Whether an I/O error means "no data yet" rather than a broken link.
 pub fn is_timeout(e: &io::Error) -> bool {
-    matches!(e.kind(), io::ErrorKind::TimedOut | io::ErrorKind::WouldBlock | io::ErrorKind::Interrupted)
+    matches!(
+        e.kind(),
+        io::ErrorKind::TimedOut | io::ErrorKind::WouldBlock | io::ErrorKind::Interrupted
+    )
 }
 
 /// Whether an I/O error means the other end went away (port unplugged, QEMU exited).

@@ -84,8 +84,12 @@ fn resume(path: &Path, sink: &mut Sink, sum: &mut RecordSummary) -> anyhow::Resu
         Ok(m) if m.len() > 0 => {}
         _ => return Ok(()),
     }
-    let a = RecordingWriter::append(path)
-        .with_context(|| format!("{} exists but cannot be appended to; record to another file", path.display()))?;
+    let a = RecordingWriter::append(path).with_context(|| {
+        format!(
+            "{} exists but cannot be appended to; record to another file",
+            path.display()
+        )
+    })?;
     if let Some(r) = &a.repair {
         eprintln!("driftid record: {r}");
         sum.repairs.push(r.clone());
@@ -94,7 +98,9 @@ fn resume(path: &Path, sink: &mut Sink, sum: &mut RecordSummary) -> anyhow::Resu
         "driftid record: resuming {}: {} samples already recorded{}",
         path.display(),
         a.samples,
-        a.last_t_s.map(|t| format!(", the last at t = {t} s; later samples are appended")).unwrap_or_default()
+        a.last_t_s
+            .map(|t| format!(", the last at t = {t} s; later samples are appended"))
+            .unwrap_or_default()
     );
     sum.resumed_samples = a.samples;
     sink.last_t = a.last_t_s;
@@ -138,11 +144,21 @@ pub fn record_with<P: Read + Write>(
     let expired = || opts.duration.is_some_and(|d| start.elapsed() >= d);
     let raw = match &opts.raw {
         Some(p) => Some(
-            OpenOptions::new().create(true).append(true).open(p).with_context(|| format!("opening {}", p.display()))?,
+            OpenOptions::new()
+                .create(true)
+                .append(true)
+                .open(p)
+                .with_context(|| format!("opening {}", p.display()))?,
         ),
         None => None,
     };
-    let mut sink = Sink { csv: None, raw, last_t: None, last_seq: None, file_meta: None };
+    let mut sink = Sink {
+        csv: None,
+        raw,
+        last_t: None,
+        last_seq: None,
+        file_meta: None,
+    };
     let mut sum = RecordSummary::default();
     resume(&opts.out, &mut sink, &mut sum)?;
     // One receiver across connections: a frame cut off by a disconnect is ended by the next
@@ -184,7 +200,10 @@ pub fn record_with<P: Read + Write>(
         if !gone || !opts.reconnect {
             break;
         }
-        eprintln!("driftid record: {} disappeared; waiting for it to come back", opts.port);
+        eprintln!(
+            "driftid record: {} disappeared; waiting for it to come back",
+            opts.port
+        );
     }
     if let Some(w) = sink.csv.as_mut() {
         w.flush()?;
@@ -192,7 +211,12 @@ pub fn record_with<P: Read + Write>(
     Ok(sum)
 }
 
-fn handle(opts: &RecordOptions, sink: &mut Sink, sum: &mut RecordSummary, msg: Message) -> anyhow::Result<()> {
+fn handle(
+    opts: &RecordOptions,
+    sink: &mut Sink,
+    sum: &mut RecordSummary,
+    msg: Message,
+) -> anyhow::Result<()> {
     match msg {
         Message::Hello(h) => {
             if let Some(lat) = sink.file_meta.as_ref().and_then(|m| m.latitude_deg) {
@@ -221,7 +245,10 @@ fn handle(opts: &RecordOptions, sink: &mut Sink, sum: &mut RecordSummary, msg: M
                 }
             }
             if sink.csv.is_none() {
-                let latitude_deg = sum.hello.map(|h| h.config.latitude_deg).or(opts.latitude_deg);
+                let latitude_deg = sum
+                    .hello
+                    .map(|h| h.config.latitude_deg)
+                    .or(opts.latitude_deg);
                 let meta = Metadata {
                     latitude_deg,
                     gravity_mps2: sum.hello.and_then(|h| h.config.gravity_mps2),

@@ -18,7 +18,9 @@ use std::sync::mpsc;
 use std::time::{Duration, Instant};
 
 use anyhow::{bail, Context as _};
-use protocol::{Command, Config, Encoder, Estimate, Fault, Hello, Message, RawSample, Source, Status};
+use protocol::{
+    Command, Config, Encoder, Estimate, Fault, Hello, Message, RawSample, Source, Status,
+};
 
 use super::port::{is_gone, is_timeout};
 use super::{LinkStats, Receiver};
@@ -37,7 +39,11 @@ pub struct ReplayOptions {
 
 impl Default for ReplayOptions {
     fn default() -> Self {
-        ReplayOptions { config: Config::default(), shutdown: false, timeout: Duration::from_secs(600) }
+        ReplayOptions {
+            config: Config::default(),
+            shutdown: false,
+            timeout: Duration::from_secs(600),
+        }
     }
 }
 
@@ -85,8 +91,14 @@ pub fn link_samples(samples: &[recording::RawSample]) -> Vec<RawSample> {
 
 /// The firmware configuration for a recording: its latitude and gravity, the rest from `base`.
 pub fn config_for(meta: &recording::Metadata, base: Config) -> anyhow::Result<Config> {
-    let latitude_deg = meta.latitude_deg.context("the recording has no latitude_deg")?;
-    Ok(Config { latitude_deg, gravity_mps2: meta.gravity_mps2.or(base.gravity_mps2), ..base })
+    let latitude_deg = meta
+        .latitude_deg
+        .context("the recording has no latitude_deg")?;
+    Ok(Config {
+        latitude_deg,
+        gravity_mps2: meta.gravity_mps2.or(base.gravity_mps2),
+        ..base
+    })
 }
 
 /// Replays `samples` over a link. `reader`/`writer` are the two directions of one port (e.g. a
@@ -118,7 +130,9 @@ pub fn replay<R: Read, W: Write + Send>(
             let mut w = writer;
             let mut enc = Encoder::new();
             let mut send = |w: &mut W, cmd: Command| -> anyhow::Result<()> {
-                let f = enc.frame(Message::Command(cmd)).map_err(|e| anyhow::anyhow!("{e}"))?;
+                let f = enc
+                    .frame(Message::Command(cmd))
+                    .map_err(|e| anyhow::anyhow!("{e}"))?;
                 sent_count.fetch_add(1, Ordering::SeqCst);
                 w.write_all(f).context("writing to the link")
             };
@@ -142,7 +156,10 @@ pub fn replay<R: Read, W: Write + Send>(
                     }
                     Some(Ctl::ResendFrom(seq)) => {
                         finish_flag.store(false, Ordering::SeqCst);
-                        i = samples.iter().position(|s| s.seq == seq).unwrap_or(samples.len());
+                        i = samples
+                            .iter()
+                            .position(|s| s.seq == seq)
+                            .unwrap_or(samples.len());
                         continue;
                     }
                     Some(Ctl::Restart) => {
@@ -171,7 +188,11 @@ pub fn replay<R: Read, W: Write + Send>(
             let mut started = false;
             loop {
                 if Instant::now() > deadline {
-                    bail!("replay timed out after {:?} ({} estimates received)", opts.timeout, out.estimates.len());
+                    bail!(
+                        "replay timed out after {:?} ({} estimates received)",
+                        opts.timeout,
+                        out.estimates.len()
+                    );
                 }
                 let n = match reader.read(&mut buf) {
                     Ok(0) => {
@@ -230,7 +251,9 @@ pub fn replay<R: Read, W: Write + Send>(
             }
         })();
         let _ = ctl_tx.send(Ctl::Done(result.is_ok()));
-        let sent = writer_thread.join().map_err(|_| anyhow::anyhow!("the writer thread panicked"));
+        let sent = writer_thread
+            .join()
+            .map_err(|_| anyhow::anyhow!("the writer thread panicked"));
         (result, sent)
     });
     result?;

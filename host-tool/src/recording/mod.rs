@@ -110,7 +110,10 @@ fn collect<R: std::io::BufRead>(
             }
             // Only ever the last line (no newline follows it): keep everything before it.
             Err(e @ RecordingError::Truncated { .. }) if !samples.is_empty() => {
-                repairs.push(format!("{e}; ignored that line, kept the {} samples before it", samples.len()));
+                repairs.push(format!(
+                    "{e}; ignored that line, kept the {} samples before it",
+                    samples.len()
+                ));
             }
             Err(e) => return Err(e),
         }

@@ -159,10 +159,19 @@ fn truncated_last_line_is_dropped_and_reported() {
     let r = read(text.as_bytes()).unwrap();
     assert_eq!(r.samples.len(), 1);
     assert_eq!(r.repairs.len(), 1);
-    assert!(r.repairs[0].contains("run.csv:5: truncated last line: 3 of 4 fields and no final newline"), "{:?}", r.repairs);
+    assert!(
+        r.repairs[0].contains("run.csv:5: truncated last line: 3 of 4 fields and no final newline"),
+        "{:?}",
+        r.repairs
+    );
     // The streaming reader (the recorder's) still reports it as an error item.
-    let items: Vec<_> = RecordingReader::new(text.as_bytes(), "run.csv").unwrap().collect();
-    assert!(matches!(items.last(), Some(Err(RecordingError::Truncated { .. }))));
+    let items: Vec<_> = RecordingReader::new(text.as_bytes(), "run.csv")
+        .unwrap()
+        .collect();
+    assert!(matches!(
+        items.last(),
+        Some(Err(RecordingError::Truncated { .. }))
+    ));
     let text = format!("{HDR}0.0,0,0,9.8\n1.0,0,0,");
     // Four fields, the last empty: the value is missing.
     fails(text.as_bytes(), &["run.csv:5: column az_mps2: empty value"]);

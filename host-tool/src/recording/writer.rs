@@ -52,7 +52,10 @@ impl RecordingWriter<BufWriter<File>> {
     pub fn append(path: &Path) -> Result<Appending, super::RecordingError> {
         use super::RecordingError;
         let name = path.display().to_string();
-        let open_err = |source| RecordingError::Open { file: name.clone(), source };
+        let open_err = |source| RecordingError::Open {
+            file: name.clone(),
+            source,
+        };
         let bytes = std::fs::read(path).map_err(open_err)?;
         let complete = match bytes.iter().rposition(|&b| b == b'\n') {
             Some(i) => i + 1,
@@ -65,11 +68,15 @@ impl RecordingWriter<BufWriter<File>> {
                 "{name}:{line}: partial last line ({} bytes, no newline: the recorder was stopped mid-write) cut off before appending",
                 bytes.len() - complete
             ));
-            let f = std::fs::OpenOptions::new().write(true).open(path).map_err(open_err)?;
+            let f = std::fs::OpenOptions::new()
+                .write(true)
+                .open(path)
+                .map_err(open_err)?;
             f.set_len(complete as u64).map_err(open_err)?;
             f.sync_all().map_err(open_err)?;
         }
-        let mut reader = super::RecordingReader::new(io::Cursor::new(&bytes[..complete]), name.clone())?;
+        let mut reader =
+            super::RecordingReader::new(io::Cursor::new(&bytes[..complete]), name.clone())?;
         let meta = reader.metadata().clone();
         let has_temp = reader.has_temp();
         let mut samples = 0u64;
@@ -79,9 +86,23 @@ impl RecordingWriter<BufWriter<File>> {
             samples += 1;
             last_t_s = Some(s.t_s);
         }
-        let f = std::fs::OpenOptions::new().append(true).open(path).map_err(open_err)?;
-        let writer = RecordingWriter { w: BufWriter::with_capacity(1 << 16, f), has_temp, prev_t: last_t_s, rows: 0 };
-        Ok(Appending { writer, meta, samples, last_t_s, repair })
+        let f = std::fs::OpenOptions::new()
+            .append(true)
+            .open(path)
+            .map_err(open_err)?;
+        let writer = RecordingWriter {
+            w: BufWriter::with_capacity(1 << 16, f),
+            has_temp,
+            prev_t: last_t_s,
+            rows: 0,
+        };
+        Ok(Appending {
+            writer,
+            meta,
+            samples,
+            last_t_s,
+            repair,
+        })
     }
 }
 

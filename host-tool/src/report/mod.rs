@@ -115,7 +115,11 @@ pub fn render_html(input: &ReportInput) -> Result<String> {
     let fig = |kinds: &[Kind], h: &mut String| {
         for (f, s) in &svgs {
             if kinds.contains(&f.kind) {
-                let _ = write!(h, "<figure><div class=\"svg\">{s}</div><figcaption>{}</figcaption></figure>\n", esc(&caption(f)));
+                let _ = write!(
+                    h,
+                    "<figure><div class=\"svg\">{s}</div><figcaption>{}</figcaption></figure>\n",
+                    esc(&caption(f))
+                );
             }
         }
     };
@@ -139,19 +143,42 @@ pub fn render_html(input: &ReportInput) -> Result<String> {
 
     // Summary
     let _ = writeln!(h, "<h2>Summary</h2>");
-    let _ = writeln!(h, "<div class=\"verdict\"><b>Starting model ({}):</b> {}</div>", esc(&model_name(&first.model)), esc(&first.verdict));
+    let _ = writeln!(
+        h,
+        "<div class=\"verdict\"><b>Starting model ({}):</b> {}</div>",
+        esc(&model_name(&first.model)),
+        esc(&first.verdict)
+    );
     if last_i > 0 {
-        let _ = writeln!(h, "<div class=\"verdict\"><b>Final model ({}):</b> {}</div>", esc(&model_name(&last.model)), esc(&last.verdict));
+        let _ = writeln!(
+            h,
+            "<div class=\"verdict\"><b>Final model ({}):</b> {}</div>",
+            esc(&model_name(&last.model)),
+            esc(&last.verdict)
+        );
     }
     fit_table(&mut h, &input.diagnoses);
 
     // 1. Model vs measurements
-    let _ = writeln!(h, "<h2>1. The model against the measurements (model: {})</h2>", esc(&model_name(&first.model)));
+    let _ = writeln!(
+        h,
+        "<h2>1. The model against the measurements (model: {})</h2>",
+        esc(&model_name(&first.model))
+    );
     let _ = writeln!(
         h,
         "<p>The measured specific force (means over each filter period) and the model's prediction along the converged trajectory; the residual against the noise floor estimated from the raw samples themselves; the filter's innovations with their ±1σ/±3σ bands; the whitened innovations, unit-variance white noise when the model holds; and NIS/3, whose mean must fall in its χ² band. Shaded intervals are the failure windows.</p>"
     );
-    fig(&[Kind::MeasuredPredicted(0), Kind::Residual(0), Kind::Innovations(0), Kind::Whitened(0), Kind::Nis(0)], &mut h);
+    fig(
+        &[
+            Kind::MeasuredPredicted(0),
+            Kind::Residual(0),
+            Kind::Innovations(0),
+            Kind::Whitened(0),
+            Kind::Nis(0),
+        ],
+        &mut h,
+    );
 
     // 2. Where it fails
     let _ = writeln!(h, "<h2>2. Where it fails</h2>");
@@ -165,14 +192,28 @@ pub fn render_html(input: &ReportInput) -> Result<String> {
         if w.p_value < 0.01 { "<span class=\"bad\">(not white: the model misses a systematic effect)</span>" } else { "<span class=\"ok\">(white)</span>" }
     );
     if first.failures.is_empty() {
-        let _ = writeln!(h, "<p>No time window where the residuals leave their band.</p>");
+        let _ = writeln!(
+            h,
+            "<p>No time window where the residuals leave their band.</p>"
+        );
     } else {
-        let _ = writeln!(h, "<table><tr><th>from, h</th><th>to, h</th><th>mean NIS/3</th><th>worst axis</th></tr>");
+        let _ = writeln!(
+            h,
+            "<table><tr><th>from, h</th><th>to, h</th><th>mean NIS/3</th><th>worst axis</th></tr>"
+        );
         for f in first.failures.iter().take(20) {
-            let _ = writeln!(h, "<tr><td>{:.2}</td><td>{:.2}</td><td>{:.2}</td><td>{}</td></tr>", f.start_h, f.end_h, f.nis_mean, f.worst_axis);
+            let _ = writeln!(
+                h,
+                "<tr><td>{:.2}</td><td>{:.2}</td><td>{:.2}</td><td>{}</td></tr>",
+                f.start_h, f.end_h, f.nis_mean, f.worst_axis
+            );
         }
         if first.failures.len() > 20 {
-            let _ = writeln!(h, "<tr><td class=\"l\" colspan=\"4\">… and {} more windows</td></tr>", first.failures.len() - 20);
+            let _ = writeln!(
+                h,
+                "<tr><td class=\"l\" colspan=\"4\">… and {} more windows</td></tr>",
+                first.failures.len() - 20
+            );
         }
         let _ = writeln!(h, "</table>");
     }
@@ -221,18 +262,36 @@ pub fn render_html(input: &ReportInput) -> Result<String> {
     }
 
     // 4. The ladder
-    let _ = writeln!(h, "<h2>4. Add it and watch the error fall: the model ladder</h2>");
+    let _ = writeln!(
+        h,
+        "<h2>4. Add it and watch the error fall: the model ladder</h2>"
+    );
     ladder_table(&mut h, &input.ladder);
-    fig(&[Kind::Ladder, Kind::ResidualBeforeAfter, Kind::NisBeforeAfter], &mut h);
+    fig(
+        &[
+            Kind::Ladder,
+            Kind::ResidualBeforeAfter,
+            Kind::NisBeforeAfter,
+        ],
+        &mut h,
+    );
     if last_i > 0 {
         fig(&[Kind::Acf(last_i)], &mut h);
-        let _ = writeln!(h, "<h3>Candidates left after the final model ({})</h3>", esc(&model_name(&last.model)));
+        let _ = writeln!(
+            h,
+            "<h3>Candidates left after the final model ({})</h3>",
+            esc(&model_name(&last.model))
+        );
         ranking_table(&mut h, last);
     }
     movement_table(&mut h, &input.ladder);
 
     // 5. Coefficients
-    let _ = writeln!(h, "<h2>5. Identified coefficients (final model: {})</h2>", esc(&model_name(&last.model)));
+    let _ = writeln!(
+        h,
+        "<h2>5. Identified coefficients (final model: {})</h2>",
+        esc(&model_name(&last.model))
+    );
     coefficient_table(&mut h, &input.coefficients);
     let _ = writeln!(
         h,
@@ -307,7 +366,15 @@ fn ranking_table(h: &mut String, d: &Diagnosis) {
         }
         let mut sizes = String::new();
         for p in c.params.iter().take(6) {
-            let _ = write!(sizes, "{} = {} ± {} {} (≥ {})<br>", esc(&p.name), num(p.value), num(p.sigma), esc(&p.unit), num(p.min_detectable));
+            let _ = write!(
+                sizes,
+                "{} = {} ± {} {} (≥ {})<br>",
+                esc(&p.name),
+                num(p.value),
+                num(p.sigma),
+                esc(&p.unit),
+                num(p.min_detectable)
+            );
         }
         if c.params.len() > 6 {
             let _ = write!(sizes, "… {} more", c.params.len() - 6);
@@ -363,7 +430,10 @@ fn movement_table(h: &mut String, rungs: &[Rung]) {
     if rungs.len() < 2 {
         return;
     }
-    let _ = writeln!(h, "<h3>How the drift coefficients moved along the ladder (value ± 1σ)</h3>");
+    let _ = writeln!(
+        h,
+        "<h3>How the drift coefficients moved along the ladder (value ± 1σ)</h3>"
+    );
     let _ = write!(h, "<table><tr><th class=\"l\">coefficient</th>");
     for (i, r) in rungs.iter().enumerate() {
         let _ = write!(h, "<th>rung {i}: {}</th>", esc(&model_name(&r.model)));
@@ -383,10 +453,17 @@ fn movement_table(h: &mut String, rungs: &[Rung]) {
                 }
             }
         }
-        let (_, vl, sl) = rungs[rungs.len() - 1].coefficients.get(k).cloned().unwrap_or_default();
+        let (_, vl, sl) = rungs[rungs.len() - 1]
+            .coefficients
+            .get(k)
+            .cloned()
+            .unwrap_or_default();
         let _ = writeln!(h, "<td>{:+.1}</td></tr>", (vl - v0) / sl);
     }
-    let _ = writeln!(h, "</table><p class=\"small\">Units: D·0 deg/h, D·x/y/z deg/h/(m/s²).</p>");
+    let _ = writeln!(
+        h,
+        "</table><p class=\"small\">Units: D·0 deg/h, D·x/y/z deg/h/(m/s²).</p>"
+    );
 }
 
 fn coefficient_table(h: &mut String, rows: &[CoefRow]) {
@@ -412,7 +489,14 @@ fn coefficient_table(h: &mut String, rows: &[CoefRow]) {
                 Some(t) => {
                     let e = r.value - t;
                     let z = e / r.sigma;
-                    let _ = write!(h, "<td>{}</td><td>{}</td><td class=\"{}\">{:+.2}</td>", num(t), num(e), if z.abs() > 3.0 { "bad" } else { "ok" }, z);
+                    let _ = write!(
+                        h,
+                        "<td>{}</td><td>{}</td><td class=\"{}\">{:+.2}</td>",
+                        num(t),
+                        num(e),
+                        if z.abs() > 3.0 { "bad" } else { "ok" },
+                        z
+                    );
                 }
                 None => {
                     let _ = write!(h, "<td>—</td><td>—</td><td>—</td>");
