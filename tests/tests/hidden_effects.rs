@@ -81,6 +81,16 @@ fn check(effect: &str, spec: &str, seed: u64) {
         last.nis_mean,
         last.nis_band95
     );
+    eprintln!(
+        "{effect}: score statistic {:.1} on {} dof (p_adj {:.1e}); RMS/floor before {:.2?} → after {:.3?}; NIS/3 {:.2} → {:.3}",
+        lead.statistic,
+        lead.dof,
+        lead.p_adjusted,
+        first.residual_rms_over_floor,
+        last.residual_rms_over_floor,
+        first.nis_mean,
+        last.nis_mean
+    );
     let mut truth = sim.truth.coefficient_array();
     if let InjectedEffect::G2 {
         d_deg_h_per_mps2_sq: d,
