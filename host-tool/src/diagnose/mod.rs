@@ -409,6 +409,18 @@ fn verdict(d: &Diagnosis, alpha: f64) -> String {
             "{state} The model explains the measurements: the residual is at the noise floor, white and consistent with its covariance; no catalog effect is significant at {:.0} %.",
             alpha * 100.0
         ),
+        None if d.residual_rms_over_floor.iter().all(|r| *r < 1.05) && d.nis_mean <= d.nis_band95[1] * 1.02 => {
+            let p = d.whiteness.p_value;
+            let how = if p >= alpha / 100.0 {
+                format!("p = {p:.1e}; {:.0} % of clean runs fall below {alpha} by chance", alpha * 100.0)
+            } else {
+                "too small to be chance: a weak systematic effect below what the RMS shows".to_string()
+            };
+            format!(
+                "{state} The residual is at the noise floor and consistent with its covariance; only the whiteness test flags structure ({how}). No catalog effect is significant at {:.0} %. Check the autocorrelation and the failure windows, and whether it repeats on another run.",
+                alpha * 100.0
+            )
+        }
         None => format!(
             "{state} The residual still has structure, but no catalog effect explains it (none significant at {:.0} %): the missing physics is outside the catalog. See the failure windows and the regressor correlations for where and what.",
             alpha * 100.0
