@@ -12,59 +12,15 @@
 //!    link in both directions cost exactly the damaged frames, and both ends count them.
 
 use std::io::{self, Read, Write};
-use std::path::{Path, PathBuf};
 use std::process::{Child, Command, Stdio};
 use std::sync::OnceLock;
 use std::time::{Duration, Instant};
 
-use estimator_core::{Averager, Sample};
-use firmware_app::app::{estimate_of, filter_for};
 use host_tool::link::port::pty_pair;
 use host_tool::link::replay::{self, ReplayOptions, ReplayOutcome};
 use host_tool::simulate::{simulate, Scenario};
 use protocol::{Config, Estimate, RawSample};
-
-fn workspace() -> PathBuf {
-    Path::new(env!("CARGO_MANIFEST_DIR"))
-        .parent()
-        .unwrap()
-        .to_path_buf()
-}
-
-/// Builds the QEMU firmware once per test binary (own target dir: the outer `cargo test` holds
-/// the lock on the workspace's). Panics with the build output on failure.
-fn firmware() -> &'static Path {
-    static ELF: OnceLock<PathBuf> = OnceLock::new();
-    ELF.get_or_init(|| {
-        let qemu = Command::new("qemu-system-arm").arg("--version").output();
-        match qemu {
-            Ok(o) if o.status.success() => {}
-            _ => panic!("qemu-system-arm is missing: run .ci/qemu.sh (apt-get install qemu-system-arm)"),
-        }
-        let root = workspace();
-        let target_dir = root.join("target/qemu-fw");
-        let cargo = std::env::var("CARGO").unwrap_or_else(|_| "cargo".into());
-        let t = Instant::now();
-        let out = Command::new(cargo)
-            .current_dir(&root)
-            .args(["build", "-p", "firmware", "--release", "--target", "thumbv7em-none-eabihf"])
-            .args(["--features", "board-qemu", "--target-dir"])
-            .arg(&target_dir)
-            // The firmware's flags come from .cargo/config.toml; flags meant for the host must not leak in.
-            .env_remove("RUSTFLAGS")
-            .env_remove("CARGO_ENCODED_RUSTFLAGS")
-            .env_remove("CARGO_BUILD_TARGET")
-            .output()
-            .expect("running cargo");
-        assert!(
-            out.status.success(),
-            "building the QEMU firmware failed (is the thumbv7em-none-eabihf target installed? .ci/qemu.sh adds it):\n{}",
-            String::from_utf8_lossy(&out.stderr)
-        );
-        eprintln!("firmware built in {:.1} s", t.elapsed().as_secs_f64());
-        target_dir.join("thumbv7em-none-eabihf/release/firmware")
-    })
-}
+use tests::firmware::{host_single_pass, qemu_elf as firmware};
 
 struct Qemu {
     child: Child,
@@ -147,30 +103,6 @@ fn input() -> (Config, Vec<RawSample>) {
             )
         })
         .clone()
-}
-
-/// The host core's single pass (the same averaging and EKF as the firmware), as estimates.
-fn host_single_pass(config: &Config, samples: &[RawSample]) -> Vec<Estimate> {
-    let mut ekf = filter_for(config).unwrap();
-    let mut avg = Averager::new(config.filter_period_s, config.raw_sigma_mps2);
-    let mut ms: Vec<_> = samples
-        .iter()
-        .filter_map(|s| {
-            avg.push(&Sample {
-                t_s: s.t_s,
-                specific_force: s.specific_force,
-                temp_c: s.temp_c,
-            })
-        })
-        .collect();
-    ms.extend(avg.flush());
-    ms.iter()
-        .map(|m| {
-            let step = ekf.steps();
-            let r = ekf.step(m).unwrap();
-            estimate_of(&ekf, step, m, r.innovation, r.nis)
-        })
-        .collect()
 }
 
 /// Runs one replay through QEMU; `wrap_w`/`wrap_r` may damage the two directions.

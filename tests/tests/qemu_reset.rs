@@ -8,59 +8,14 @@
 
 use std::io::Write;
 use std::os::unix::net::UnixStream;
-use std::path::{Path, PathBuf};
 use std::process::{Child, Command, Stdio};
 use std::time::{Duration, Instant};
 
-use estimator_core::{Averager, Sample};
-use firmware_app::app::{estimate_of, filter_for};
 use host_tool::link::port::{pty_pair, writer_of};
 use host_tool::link::replay::{self, ReplayOptions};
 use host_tool::simulate::{simulate, Scenario};
-use protocol::{Config, Estimate, FaultCode, Message, RawSample};
-
-fn workspace() -> PathBuf {
-    Path::new(env!("CARGO_MANIFEST_DIR"))
-        .parent()
-        .unwrap()
-        .to_path_buf()
-}
-
-/// Builds the QEMU firmware (own target dir, as in qemu_e2e.rs).
-fn firmware() -> PathBuf {
-    match Command::new("qemu-system-arm").arg("--version").output() {
-        Ok(o) if o.status.success() => {}
-        _ => panic!("qemu-system-arm is missing: run .ci/setup (apt-get install qemu-system-arm)"),
-    }
-    let root = workspace();
-    let target_dir = root.join("target/qemu-fw");
-    let cargo = std::env::var("CARGO").unwrap_or_else(|_| "cargo".into());
-    let out = Command::new(cargo)
-        .current_dir(&root)
-        .args([
-            "build",
-            "-p",
-            "firmware",
-            "--release",
-            "--target",
-            "thumbv7em-none-eabihf",
-            "--features",
-            "board-qemu",
-            "--target-dir",
-        ])
-        .arg(&target_dir)
-        .env_remove("RUSTFLAGS")
-        .env_remove("CARGO_ENCODED_RUSTFLAGS")
-        .env_remove("CARGO_BUILD_TARGET")
-        .output()
-        .expect("running cargo");
-    assert!(
-        out.status.success(),
-        "building the QEMU firmware failed:\n{}",
-        String::from_utf8_lossy(&out.stderr)
-    );
-    target_dir.join("thumbv7em-none-eabihf/release/firmware")
-}
+use protocol::{Config, FaultCode, Message};
+use tests::firmware::{host_single_pass, qemu_elf};
 
 struct Qemu(Child);
 impl Drop for Qemu {
@@ -68,29 +23,6 @@ impl Drop for Qemu {
         let _ = self.0.kill();
         let _ = self.0.wait();
     }
-}
-
-fn host_single_pass(config: &Config, samples: &[RawSample]) -> Vec<Estimate> {
-    let mut ekf = filter_for(config).unwrap();
-    let mut avg = Averager::new(config.filter_period_s, config.raw_sigma_mps2);
-    let mut ms: Vec<_> = samples
-        .iter()
-        .filter_map(|s| {
-            avg.push(&Sample {
-                t_s: s.t_s,
-                specific_force: s.specific_force,
-                temp_c: s.temp_c,
-            })
-        })
-        .collect();
-    ms.extend(avg.flush());
-    ms.iter()
-        .map(|m| {
-            let step = ekf.steps();
-            let r = ekf.step(m).unwrap();
-            estimate_of(&ekf, step, m, r.innovation, r.nis)
-        })
-        .collect()
 }
 
 /// Seeded update numbers at which to reset: one before the first checkpoint (update 10), the
@@ -113,7 +45,7 @@ fn reset_points(seed: u64, n: usize, updates: u32) -> Vec<u32> {
 
 #[test]
 fn qemu_resets_at_random_points_end_with_the_uninterrupted_estimates() {
-    let elf = firmware();
+    let elf = qemu_elf();
     let sc = Scenario {
         hours: 4.0,
         ..Scenario::paper()
