@@ -2,51 +2,13 @@
 //! estimates bit for bit; bad samples and bad frames are rejected and counted; commands in the
 //! wrong state are refused; sensor mode samples at the timer's ticks.
 
-use std::collections::VecDeque;
-use std::convert::Infallible;
-
 use estimator_core::{Averager, Sample};
-use firmware_app::app::{filter_for, App, Event, NoTimer, Platform, SampleTimer, Tick};
+use firmware_app::app::{filter_for, App, Event, NoTimer, SampleTimer, Tick};
 use firmware_app::{AccelSample, Accelerometer, NoSensor};
 use protocol::*;
 
-#[derive(Default)]
-struct Link {
-    rx: VecDeque<u8>,
-    tx: Vec<u8>,
-}
-
-impl embedded_io::ErrorType for Link {
-    type Error = Infallible;
-}
-impl embedded_io::Read for Link {
-    fn read(&mut self, buf: &mut [u8]) -> Result<usize, Infallible> {
-        let n = buf.len().min(self.rx.len());
-        for b in buf.iter_mut().take(n) {
-            *b = self.rx.pop_front().unwrap();
-        }
-        Ok(n)
-    }
-}
-impl embedded_io::ReadReady for Link {
-    fn read_ready(&mut self) -> Result<bool, Infallible> {
-        Ok(!self.rx.is_empty())
-    }
-}
-impl embedded_io::Write for Link {
-    fn write(&mut self, buf: &[u8]) -> Result<usize, Infallible> {
-        self.tx.extend_from_slice(buf);
-        Ok(buf.len())
-    }
-    fn flush(&mut self) -> Result<(), Infallible> {
-        Ok(())
-    }
-}
-
-struct HostBoard;
-impl Platform for HostBoard {
-    const BOARD: Board = Board::Host;
-}
+mod common;
+use common::{HostBoard, Link};
 
 struct Host {
     enc: Encoder,

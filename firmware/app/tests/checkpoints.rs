@@ -2,12 +2,9 @@
 //! write; the application resumes after a reset and ends bit-identical to an uninterrupted run;
 //! a checkpoint of another model configuration or format is refused with a fault, not loaded.
 
-use std::collections::VecDeque;
-use std::convert::Infallible;
-
 use embedded_storage::nor_flash::NorFlash;
 use estimator_core::{Averager, Sample};
-use firmware_app::app::{estimate_of, filter_for, App, NoTimer, Platform};
+use firmware_app::app::{estimate_of, filter_for, App, NoTimer};
 use firmware_app::checkpoints::{CheckpointStore, RamFlash, StoreError, MAX_PAYLOAD};
 use firmware_app::NoSensor;
 use protocol::*;
@@ -109,42 +106,8 @@ fn damaged_slot_is_ignored_and_other_format_is_refused() {
 // ---------------------------------------------------------------------------------------------
 // The application
 
-#[derive(Default)]
-struct Link {
-    rx: VecDeque<u8>,
-    tx: Vec<u8>,
-}
-impl embedded_io::ErrorType for Link {
-    type Error = Infallible;
-}
-impl embedded_io::Read for Link {
-    fn read(&mut self, buf: &mut [u8]) -> Result<usize, Infallible> {
-        let n = buf.len().min(self.rx.len());
-        for b in buf.iter_mut().take(n) {
-            *b = self.rx.pop_front().unwrap();
-        }
-        Ok(n)
-    }
-}
-impl embedded_io::ReadReady for Link {
-    fn read_ready(&mut self) -> Result<bool, Infallible> {
-        Ok(!self.rx.is_empty())
-    }
-}
-impl embedded_io::Write for Link {
-    fn write(&mut self, buf: &[u8]) -> Result<usize, Infallible> {
-        self.tx.extend_from_slice(buf);
-        Ok(buf.len())
-    }
-    fn flush(&mut self) -> Result<(), Infallible> {
-        Ok(())
-    }
-}
-
-struct HostBoard;
-impl Platform for HostBoard {
-    const BOARD: Board = Board::Host;
-}
+mod common;
+use common::{HostBoard, Link};
 
 type Fw<'a> = App<Link, NoSensor, NoTimer, HostBoard, Flash<'a>>;
 
