@@ -9,8 +9,7 @@ pub mod firmware {
     use std::sync::OnceLock;
     use std::time::Instant;
 
-    use estimator_core::{Averager, Sample};
-    use firmware_app::app::{estimate_of, filter_for};
+    use estimator_core::Sample;
     use protocol::{Config, Estimate, RawSample};
 
     /// The workspace root.
@@ -59,25 +58,13 @@ pub mod firmware {
     /// The host core's single pass on `samples` (the same averaging and EKF as the firmware),
     /// as the estimate messages the firmware sends.
     pub fn host_single_pass(config: &Config, samples: &[RawSample]) -> Vec<Estimate> {
-        let mut ekf = filter_for(config).unwrap();
-        let mut avg = Averager::new(config.filter_period_s, config.raw_sigma_mps2);
-        let mut ms: Vec<_> = samples
-            .iter()
-            .filter_map(|s| {
-                avg.push(&Sample {
-                    t_s: s.t_s,
-                    specific_force: s.specific_force,
-                    temp_c: s.temp_c,
-                })
-            })
-            .collect();
-        ms.extend(avg.flush());
-        ms.iter()
-            .map(|m| {
-                let step = ekf.steps();
-                let r = ekf.step(m).unwrap();
-                estimate_of(&ekf, step, m, r.innovation, r.nis)
-            })
-            .collect()
+        let mut out = Vec::new();
+        let samples = samples.iter().map(|s| Sample {
+            t_s: s.t_s,
+            specific_force: s.specific_force,
+            temp_c: s.temp_c,
+        });
+        firmware_app::app::single_pass(config, samples, |e| out.push(e)).unwrap();
+        out
     }
 }

@@ -194,6 +194,41 @@ pub fn filter_for(c: &Config) -> Result<Filter, &'static str> {
     Ok(ekf)
 }
 
+/// Why [`single_pass`] stopped.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub enum SinglePassError {
+    /// The configuration was refused (why).
+    Config(&'static str),
+    /// The estimator refused an update.
+    Filter(estimator_core::FilterError),
+}
+
+/// The host's reference for the firmware: the same averaging and real-time EKF over `samples`,
+/// each update handed to `out` as the estimate message the firmware would send (no heap).
+pub fn single_pass(
+    config: &Config,
+    samples: impl IntoIterator<Item = Sample>,
+    mut out: impl FnMut(Estimate),
+) -> Result<(), SinglePassError> {
+    let mut ekf = filter_for(config).map_err(SinglePassError::Config)?;
+    let mut avg = Averager::new(config.filter_period_s, config.raw_sigma_mps2);
+    let mut update = |ekf: &mut Filter, m: &Measurement| -> Result<(), SinglePassError> {
+        let step = ekf.steps();
+        let r = ekf.step(m).map_err(SinglePassError::Filter)?;
+        out(estimate_of(ekf, step, m, r.innovation, r.nis));
+        Ok(())
+    };
+    for s in samples {
+        if let Some(m) = avg.push(&s) {
+            update(&mut ekf, &m)?;
+        }
+    }
+    if let Some(m) = avg.flush() {
+        update(&mut ekf, &m)?;
+    }
+    Ok(())
+}
+
 /// The estimate message of one filter update.
 pub fn estimate_of(
     ekf: &Filter,

@@ -3,8 +3,8 @@
 //! a checkpoint of another model configuration or format is refused with a fault, not loaded.
 
 use embedded_storage::nor_flash::NorFlash;
-use estimator_core::{Averager, Sample};
-use firmware_app::app::{estimate_of, filter_for, App, NoTimer};
+use estimator_core::Sample;
+use firmware_app::app::{filter_for, App, NoTimer};
 use firmware_app::checkpoints::{CheckpointStore, RamFlash, StoreError, MAX_PAYLOAD};
 use firmware_app::NoSensor;
 use protocol::*;
@@ -175,26 +175,14 @@ fn config() -> Config {
 }
 
 fn single_pass(cfg: &Config, samples: &[RawSample]) -> Vec<Estimate> {
-    let mut ekf = filter_for(cfg).unwrap();
-    let mut avg = Averager::new(cfg.filter_period_s, cfg.raw_sigma_mps2);
-    let mut ms: Vec<_> = samples
-        .iter()
-        .filter_map(|s| {
-            avg.push(&Sample {
-                t_s: s.t_s,
-                specific_force: s.specific_force,
-                temp_c: s.temp_c,
-            })
-        })
-        .collect();
-    ms.extend(avg.flush());
-    ms.iter()
-        .map(|m| {
-            let step = ekf.steps();
-            let r = ekf.step(m).unwrap();
-            estimate_of(&ekf, step, m, r.innovation, r.nis)
-        })
-        .collect()
+    let mut out = Vec::new();
+    let samples = samples.iter().map(|s| Sample {
+        t_s: s.t_s,
+        specific_force: s.specific_force,
+        temp_c: s.temp_c,
+    });
+    firmware_app::app::single_pass(cfg, samples, |e| out.push(e)).unwrap();
+    out
 }
 
 /// Replays `samples`; resets the firmware (drops it, keeps the flash) after each sample index in

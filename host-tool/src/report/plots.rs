@@ -1027,8 +1027,12 @@ fn acf<DB: DrawingBackend>(area: &DrawingArea<DB, Shift>, d: &Diagnosis) -> Resu
                 ))
                 .map_err(err)?;
         }
-        chart
-            .draw_series(wh.acf.iter().enumerate().map(|(k, a)| {
+        // (lag, clamped value, colour: red beyond the bound) of each stem.
+        let stems: Vec<(f64, f64, RGBColor)> = wh
+            .acf
+            .iter()
+            .enumerate()
+            .map(|(k, a)| {
                 let v = if a[i].is_finite() {
                     a[i].clamp(-lim, lim)
                 } else {
@@ -1039,26 +1043,22 @@ fn acf<DB: DrawingBackend>(area: &DrawingArea<DB, Shift>, d: &Diagnosis) -> Resu
                 } else {
                     AXIS_COLORS[i]
                 };
-                PathElement::new(
-                    vec![((k + 1) as f64, 0.0), ((k + 1) as f64, v)],
-                    color.stroke_width(2),
-                )
-            }))
+                ((k + 1) as f64, v, color)
+            })
+            .collect();
+        chart
+            .draw_series(
+                stems
+                    .iter()
+                    .map(|&(x, v, c)| PathElement::new(vec![(x, 0.0), (x, v)], c.stroke_width(2))),
+            )
             .map_err(err)?;
         chart
-            .draw_series(wh.acf.iter().enumerate().map(|(k, a)| {
-                let v = if a[i].is_finite() {
-                    a[i].clamp(-lim, lim)
-                } else {
-                    0.0
-                };
-                let color = if v.abs() > b {
-                    PREDICTED
-                } else {
-                    AXIS_COLORS[i]
-                };
-                Circle::new(((k + 1) as f64, v), 2, color.filled())
-            }))
+            .draw_series(
+                stems
+                    .iter()
+                    .map(|&(x, v, c)| Circle::new((x, v), 2, c.filled())),
+            )
             .map_err(err)?;
     }
     Ok(())
