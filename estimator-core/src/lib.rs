@@ -26,6 +26,7 @@
 //! - [`propagate`]: RK4 (default) or the paper's Euler step for the state and Φ.
 //! - [`filter`]: the EKF with Joseph-form update, returning a [`residual::Residual`] per update.
 //! - [`averaging`]: raw samples → filter-period means tagged at the mean sample time.
+//! - [`screening`]: raw-sample screening (glitches, stuck/dead channels, non-finite) before averaging.
 //! - [`checkpoint`]: the filter's complete state as a versioned, CRC-checked image (resets).
 #![no_std]
 #![warn(missing_docs)]
@@ -44,6 +45,7 @@ pub mod kinematics;
 pub mod model;
 pub mod propagate;
 pub mod residual;
+pub mod screening;
 pub mod units;
 
 pub use averaging::{Averager, Measurement, Sample};

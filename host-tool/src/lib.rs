@@ -2,18 +2,22 @@
 //!
 //! - [`recording`]: the CSV recording format (streaming reader with located errors, writer).
 //! - [`simulate`]: the truth simulator (independent DCM kinematics, injectable effects).
+//! - [`quality`]: data quality — raw-sample screening, metadata and physics checks, findings.
 //! - [`identify`]: the converged identification (EKF passes, iterated smoother, Cramér–Rao bound).
 //! - [`catalog`]: the physical effects the user can add by name.
+//! - [`consistency`]: the one definition of a consistent model (NIS band, whiteness, floor).
 //! - [`diagnose`]: model vs measurements, score tests of the missing effects, the model ladder.
 //! - [`report`]: the self-contained HTML report and its plots.
 //! - [`link`]: the host end of the telemetry link (record, HIL replay).
 //! - [`cli`]: one module per `driftid` subcommand.
 pub mod catalog;
+pub mod consistency;
 pub mod diagnose;
 pub mod format;
 pub mod identify;
 pub mod link;
 pub mod progress;
+pub mod quality;
 pub mod recording;
 pub mod report;
 pub mod simulate;

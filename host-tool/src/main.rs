@@ -5,7 +5,13 @@ use clap::{Parser, Subcommand};
 use host_tool::cli;
 
 #[derive(Parser, Debug)]
-#[command(name = "driftid", version, about = "Gyro drift identification for space-stable inertial navigation systems", long_about = None)]
+#[command(
+    name = "driftid",
+    version,
+    about = "Gyro drift identification for space-stable inertial navigation systems",
+    long_about = None,
+    after_help = "Exit status: 0 the result is trusted by the tool's own checks; 3 numbers were computed but are not trusted (printed, with the reasons); 2 usage error, or input that is unreadable or cannot support an estimate (the error names the file, line or sample)."
+)]
 struct Cli {
     #[command(subcommand)]
     command: Command,
@@ -44,7 +50,20 @@ fn main() {
         Command::Replay(a) => cli::replay::run(a),
     };
     if let Err(e) = result {
-        eprintln!("driftid: error: {e:#}");
-        std::process::exit(1);
+        std::process::exit(exit_status(&e));
     }
+}
+
+/// Exit status (README, "Exit status"): 0 trusted result, 3 numbers computed but not trusted
+/// (printed, with the reasons), 2 usage error or input that cannot support a result.
+fn exit_status(e: &anyhow::Error) -> i32 {
+    if let Some(u) = e.downcast_ref::<cli::common::Untrusted>() {
+        eprintln!("driftid: NOT TRUSTED (exit 3):");
+        for r in &u.0 {
+            eprintln!("  - {r}");
+        }
+        return 3;
+    }
+    eprintln!("driftid: error: {e:#}");
+    2
 }

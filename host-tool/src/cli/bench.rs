@@ -319,7 +319,8 @@ fn accuracy(args: &BenchArgs) -> anyhow::Result<()> {
             })
             .take_while(|m| m.t_s <= h * 3600.0)
             .collect();
-        let bound = cramer_rao_bound(&model, &meas, &truth);
+        let geometry = Prepared::level(site, meas, [1e-5 * site.gravity_mps2; 3]);
+        let bound = cramer_rao_bound(&model, &geometry, &truth);
         let mut rms = vec![0.0; 12];
         let mut rms_single = vec![0.0; 12];
         let mut worst = vec![0.0f64; 12];

@@ -106,15 +106,7 @@ pub fn load(path: &Path, latitude_override: Option<f64>) -> anyhow::Result<Loade
         );
     }
     let site = Site::new(latitude_deg, rec.meta.gravity_mps2);
-    let samples = rec
-        .samples
-        .iter()
-        .map(|s| Sample {
-            t_s: s.t_s,
-            specific_force: s.specific_force_mps2,
-            temp_c: s.temp_c.unwrap_or(f64::NAN),
-        })
-        .collect();
+    let samples = rec.samples.iter().map(Sample::from).collect();
     Ok(Loaded {
         site,
         samples,
@@ -135,4 +127,38 @@ pub fn build_model<'m>(
         cfg.propagation,
     )
     .map_err(|e| anyhow::anyhow!("{e}"))
+}
+
+/// The numbers were computed but the tool does not trust them (exit status 3); the reasons say
+/// why. The numbers have been printed already, flagged.
+#[derive(Debug)]
+pub struct Untrusted(pub Vec<String>);
+
+impl std::fmt::Display for Untrusted {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        write!(f, "the result is not trusted: {}", self.0.join("; "))
+    }
+}
+
+impl std::error::Error for Untrusted {}
+
+/// Ends a command: `Ok` when there is no reason for distrust, else [`Untrusted`].
+pub fn trusted_or(reasons: Vec<String>) -> anyhow::Result<()> {
+    if reasons.is_empty() {
+        Ok(())
+    } else {
+        Err(Untrusted(reasons).into())
+    }
+}
+
+/// Prints the data-quality findings (first, before any number).
+pub fn print_findings(findings: &[crate::quality::Finding]) {
+    if findings.is_empty() {
+        println!("data quality: no finding");
+        return;
+    }
+    println!("data quality: {} finding(s)", findings.len());
+    for f in findings {
+        println!("  {}", f.line());
+    }
 }

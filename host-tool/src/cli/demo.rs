@@ -53,7 +53,7 @@ pub fn run(args: &DemoArgs) -> anyhow::Result<()> {
     let prep = prepare(site, &samples, &cfg)?;
     let id = identify(&model, &prep, &cfg)?;
     let elapsed = t0.elapsed();
-    let bound = cramer_rao_bound(&model, &prep.measurements, &truth);
+    let bound = cramer_rao_bound(&model, &prep, &truth);
     let best = id.best();
     println!(
         "Identified from {} filter updates (60-s means) in {:.2} s.\n",

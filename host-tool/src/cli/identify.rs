@@ -4,7 +4,10 @@ use std::path::PathBuf;
 
 use serde_json::{json, Map, Value};
 
-use super::common::{build_model, load, ModelArgs};
+use anyhow::Context as _;
+
+use super::common::{build_model, load, print_findings, trusted_or, ModelArgs};
+use crate::consistency::{assess, Consistency, Thresholds};
 use crate::catalog;
 use crate::format::{sci, with_sigma};
 use crate::identify::{cramer_rao_bound, identify, prepare, Identification, Prepared};
@@ -55,7 +58,7 @@ pub fn rows(
         Some(t) if t.len() == best.value.len() => t.to_vec(),
         _ => best.value.clone(),
     };
-    let bound = cramer_rao_bound(model, &prep.measurements, &bound_at);
+    let bound = cramer_rao_bound(model, prep, &bound_at);
     (0..best.value.len())
         .map(|k| Row {
             name: id.params[k].name,
@@ -164,6 +167,7 @@ pub fn to_json(rows: &[Row], id: &Identification, prep: &Prepared) -> Value {
         "raw_noise_sigma_mps2": prep.noise.raw_sigma_mps2,
         "method": if id.refined.is_some() { "two EKF passes + iterated RTS smoother (3 iterations)" } else { "single EKF pass" },
         "weak_combinations": id.weak,
+        "data_quality": { "findings": prep.findings },
     })
 }
 
@@ -172,8 +176,9 @@ pub fn run(args: &IdentifyArgs) -> anyhow::Result<()> {
     let cfg = args.model.config()?;
     let loaded = load(&args.recording, args.model.latitude_deg)?;
     let effects = catalog::model_effects(&args.model.with)?;
-    let model = build_model(loaded.site, &effects, &cfg)?;
-    let prep = prepare(loaded.site, &loaded.samples, &cfg)?;
+    let prep = prepare(loaded.site, &loaded.samples, &cfg)
+        .with_context(|| format!("{}", args.recording.display()))?;
+    let model = build_model(prep.site, &effects, &cfg)?;
     let spin = crate::progress::spinner("identifying (2 EKF passes + iterated smoother)");
     let id = identify(&model, &prep, &cfg)?;
     spin.finish_and_clear();
@@ -191,12 +196,26 @@ pub fn run(args: &IdentifyArgs) -> anyhow::Result<()> {
         &prep,
         truth.as_deref().filter(|t| t.iter().all(|v| v.is_finite())),
     );
+    let check = consistency_of(&id, &prep);
+    let mut reasons = prep.untrusted_reasons();
+    match &check {
+        Some(c) if !c.is_consistent() => reasons.push(format!(
+            "the model does not explain the measurements: {}; run `driftid diagnose` to find the missing effect",
+            c.failures.join("; ")
+        )),
+        Some(_) => {}
+        None => reasons.push(
+            "single EKF pass (the paper's method): its 1σ claims far more than it knows; drop --single-pass for a trusted estimate".into(),
+        ),
+    }
     if args.json {
-        println!(
-            "{}",
-            serde_json::to_string_pretty(&to_json(&rows, &id, &prep))?
-        );
+        let mut out = to_json(&rows, &id, &prep);
+        out["consistency"] = serde_json::to_value(&check)?;
+        out["trusted"] = json!(reasons.is_empty());
+        out["untrusted_reasons"] = json!(reasons);
+        println!("{}", serde_json::to_string_pretty(&out)?);
     } else {
+        print_findings(&prep.findings);
         println!(
             "{}: drift coefficients ({})",
             args.recording.display(),
@@ -208,6 +227,28 @@ pub fn run(args: &IdentifyArgs) -> anyhow::Result<()> {
         );
         print_table(&rows, id.refined.is_some());
         print_summary(&id, &prep);
+        if !reasons.is_empty() {
+            println!("NOT TRUSTED: the numbers above are computed but the tool does not trust them:");
+            for r in &reasons {
+                println!("  - {r}");
+            }
+        }
     }
-    Ok(())
+    trusted_or(reasons)
+}
+
+/// The consistency of the converged identification (`None` for a single pass).
+pub fn consistency_of(id: &Identification, prep: &Prepared) -> Option<Consistency> {
+    id.refined.as_ref()?;
+    let whitened: Vec<[f64; 3]> = id.innovations.iter().map(|r| r.whitened).collect();
+    let white = crate::diagnose::whiteness(&whitened, crate::diagnose::DiagnoseConfig::default().lags);
+    let rms = id.residual_rms_mps2();
+    let floor = prep.floor_mps2();
+    Some(assess(
+        id.nis_mean(),
+        id.innovations.len(),
+        white.p_value,
+        [0, 1, 2].map(|i| rms[i] / floor[i]),
+        &Thresholds::default(),
+    ))
 }

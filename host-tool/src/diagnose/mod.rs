@@ -167,7 +167,9 @@ pub fn diagnose(
                 .and_then(|l| build_model(prep.site, l, &cfg.identify).ok())
         })
         .collect();
-    let (x0, p0) = wide_prior(&model, &vec![0.0; n]);
+    let mut x0 = vec![0.0; n];
+    x0[..3].copy_from_slice(&prep.initial_angles);
+    let (x0, p0) = wide_prior(&model, &x0, &prep.initial_angle_sigma);
     let (pass, sigs, nu_w) = signatures(&model, &extended, meas, &id.trajectory, &x0, &p0);
 
     // Series and residual statistics.
@@ -191,11 +193,7 @@ pub fn diagnose(
         whitened: pass.innovations.iter().map(|r| r.whitened).collect(),
         nis: pass.innovations.iter().map(|r| r.nis).collect(),
     };
-    let floor_mps2 = per_axis(|i| {
-        let mut v: Vec<f64> = meas.iter().map(|m| m.variance[i].sqrt()).collect();
-        v.sort_by(f64::total_cmp);
-        v[v.len() / 2]
-    });
+    let floor_mps2 = prep.floor_mps2();
     let residual_rms_mps2 =
         per_axis(|i| (residual.iter().map(|r| r[i] * r[i]).sum::<f64>() / n_upd as f64).sqrt());
     let residual_rms_over_floor = per_axis(|i| residual_rms_mps2[i] / floor_mps2[i]);

@@ -23,6 +23,7 @@ use estimator_core::{Averager, Ekf, Measurement, Propagation, Residual, Sample, 
 use nalgebra::{DMatrix, DVector, SymmetricEigen};
 
 use self::noise::NoiseFloor;
+use crate::quality::{self, Action, Finding};
 use self::smoother::linearised_pass;
 
 /// Settings of an identification.
@@ -58,34 +59,102 @@ impl Default for Config {
 /// Measurements ready for the filter.
 #[derive(Clone, Debug)]
 pub struct Prepared {
-    /// Site of the run.
+    /// Site of the run (after data-quality repairs, e.g. gravity from the data).
     pub site: Site,
-    /// Filter-period means.
+    /// Filter-period means of the accepted samples.
     pub measurements: Vec<Measurement>,
     /// Raw-sample noise used (estimated or given).
     pub noise: NoiseFloor,
+    /// Platform angles at t = 0 (rad): zero for a level start, levelled from the data otherwise.
+    pub initial_angles: [f64; 3],
+    /// Prior 1σ of those angles, rad.
+    pub initial_angle_sigma: [f64; 3],
+    /// Data-quality findings (empty for a clean recording).
+    pub findings: Vec<Finding>,
 }
 
-/// Averages samples to the filter period and sets the measurement noise.
-pub fn prepare(site: Site, samples: &[Sample], cfg: &Config) -> anyhow::Result<Prepared> {
-    if samples.len() < 2 {
-        bail!("need at least two samples, got {}", samples.len());
+impl Prepared {
+    /// Measurements of a level start with no data-quality findings (synthetic geometry, benches).
+    pub fn level(site: Site, measurements: Vec<Measurement>, raw_sigma_mps2: [f64; 3]) -> Self {
+        Prepared {
+            site,
+            measurements,
+            noise: NoiseFloor {
+                raw_sigma_mps2,
+                count: 0,
+            },
+            initial_angles: [0.0; 3],
+            initial_angle_sigma: [ANGLE_PRIOR_SIGMA_RAD; 3],
+            findings: vec![],
+        }
     }
-    let t: Vec<f64> = samples.iter().map(|s| s.t_s).collect();
-    let a: Vec<[f64; 3]> = samples.iter().map(|s| s.specific_force).collect();
+    /// Noise floor of one filter-period mean per axis, m/s² (median over the updates).
+    pub fn floor_mps2(&self) -> [f64; 3] {
+        [0, 1, 2].map(|i| {
+            let mut v: Vec<f64> = self
+                .measurements
+                .iter()
+                .map(|m| m.variance[i].sqrt())
+                .collect();
+            if v.is_empty() {
+                return f64::NAN;
+            }
+            let mid = v.len() / 2;
+            *v.select_nth_unstable_by(mid, f64::total_cmp).1
+        })
+    }
+
+    /// Reasons from the data quality not to trust an estimate (empty when there are none).
+    pub fn untrusted_reasons(&self) -> Vec<String> {
+        self.findings
+            .iter()
+            .filter(|f| f.action == Action::NotRepaired)
+            .map(|f| f.line())
+            .collect()
+    }
+}
+
+/// Screens the samples ([`crate::quality`]: rejected samples never enter a mean, repairs are
+/// applied, a recording that cannot support an estimate is refused), averages the accepted ones
+/// to the filter period and sets the measurement noise. Every analysis goes through here.
+pub fn prepare(site: Site, samples: &[Sample], cfg: &Config) -> anyhow::Result<Prepared> {
+    let screened = quality::screen(site, samples, cfg.period_s)?;
     let noise = match cfg.raw_sigma_mps2 {
-        Some(raw_sigma_mps2) => NoiseFloor { raw_sigma_mps2, count: 0 },
-        None => noise::estimate(&t, &a).context(
-            "cannot estimate the accelerometer noise: fewer than 8 runs of 4 equally spaced samples; give --raw-sigma",
-        )?,
+        Some(raw_sigma_mps2) => NoiseFloor {
+            raw_sigma_mps2,
+            count: 0,
+        },
+        None => NoiseFloor {
+            raw_sigma_mps2: screened.raw_sigma_mps2,
+            count: screened.samples.len(),
+        },
     };
     let mut avg = Averager::new(cfg.period_s, noise.raw_sigma_mps2);
-    let mut measurements: Vec<Measurement> = samples.iter().filter_map(|s| avg.push(s)).collect();
+    let mut measurements: Vec<Measurement> =
+        screened.samples.iter().filter_map(|s| avg.push(s)).collect();
     measurements.extend(avg.flush());
+    if let (None, Some(over)) = (cfg.raw_sigma_mps2, screened.mean_sigma_override_mps2) {
+        // The means' own scatter (quantised or correlated noise), scaled to each window's count.
+        let mut counts: Vec<u32> = measurements.iter().map(|m| m.count).collect();
+        let mid = counts.len() / 2;
+        let typical = f64::from(*counts.select_nth_unstable(mid).1);
+        for m in &mut measurements {
+            for a in 0..3 {
+                m.variance[a] = over[a] * over[a] * typical / f64::from(m.count);
+            }
+        }
+    }
+    let (initial_angles, initial_angle_sigma) = match screened.initial_tilt {
+        Some(([tx, ty], s)) => ([tx, ty, 0.0], [s, s, ANGLE_PRIOR_SIGMA_RAD]),
+        None => ([0.0; 3], [ANGLE_PRIOR_SIGMA_RAD; 3]),
+    };
     Ok(Prepared {
-        site,
+        site: screened.site,
         measurements,
         noise,
+        initial_angles,
+        initial_angle_sigma,
+        findings: screened.findings,
     })
 }
 
@@ -188,13 +257,18 @@ pub fn ekf_pass(
     Ok((Estimate { value, cov }, residuals, states))
 }
 
-/// The wide prior of every identification: zero angles (1σ 1e-6 rad) and each effect's prior.
-pub fn wide_prior(model: &Model<'_>, x0: &[f64]) -> (DVector<f64>, DMatrix<f64>) {
+/// The wide prior of every identification: the initial angles with `angle_sigma` (1e-6 rad for a
+/// level start) and each effect's prior.
+pub fn wide_prior(
+    model: &Model<'_>,
+    x0: &[f64],
+    angle_sigma: &[f64; 3],
+) -> (DVector<f64>, DMatrix<f64>) {
     let n = model.dim();
     let mut p0 = DMatrix::zeros(n, n);
     for i in 0..n {
         let s = if i < ANGLES {
-            ANGLE_PRIOR_SIGMA_RAD
+            angle_sigma[i]
         } else {
             model.param(i).prior_sigma
         };
@@ -203,13 +277,16 @@ pub fn wide_prior(model: &Model<'_>, x0: &[f64]) -> (DVector<f64>, DMatrix<f64>)
     (DVector::from_row_slice(x0), p0)
 }
 
-/// The noise-free trajectory of the model with parameters `params`, at t = 0 and every measurement.
+/// The noise-free trajectory of the model from angles `angles0` with parameters `params`, at t = 0
+/// and every measurement.
 pub fn nominal_trajectory(
     model: &Model<'_>,
     meas: &[Measurement],
+    angles0: &[f64; 3],
     params: &[f64],
 ) -> Vec<DVector<f64>> {
     let mut x = vec![0.0; model.dim()];
+    x[..ANGLES].copy_from_slice(angles0);
     x[ANGLES..].copy_from_slice(params);
     let mut out = vec![DVector::from_row_slice(&x)];
     let mut tr = Transition::<MAX_STATES>::default();
@@ -224,9 +301,10 @@ pub fn nominal_trajectory(
 
 /// The Cramér–Rao bound (1σ per parameter) for parameters `params`: the covariance of the filter
 /// linearised along their noise-free trajectory, with the gyro random drift as process noise.
-pub fn cramer_rao_bound(model: &Model<'_>, meas: &[Measurement], params: &[f64]) -> Vec<f64> {
-    let nominal = nominal_trajectory(model, meas, params);
-    let (x0, p0) = wide_prior(model, nominal[0].as_slice());
+pub fn cramer_rao_bound(model: &Model<'_>, prep: &Prepared, params: &[f64]) -> Vec<f64> {
+    let meas = &prep.measurements;
+    let nominal = nominal_trajectory(model, meas, &prep.initial_angles, params);
+    let (x0, p0) = wide_prior(model, nominal[0].as_slice(), &prep.initial_angle_sigma);
     let pass = linearised_pass(model, meas, &nominal, &x0, &p0, false);
     (ANGLES..model.dim())
         .map(|i| pass.final_cov[(i, i)].sqrt())
@@ -244,11 +322,12 @@ pub fn identify(
     if meas.is_empty() {
         bail!("no measurements to identify from");
     }
-    let zeros = vec![0.0; n];
+    let mut zeros = vec![0.0; n];
+    zeros[..ANGLES].copy_from_slice(&prep.initial_angles);
     let mut sigma0: Vec<f64> = (0..n)
         .map(|i| {
             if i < ANGLES {
-                ANGLE_PRIOR_SIGMA_RAD
+                prep.initial_angle_sigma[i]
             } else {
                 model.param(i).prior_sigma
             }
@@ -278,7 +357,7 @@ pub fn identify(
         *s /= cfg.pass2_prior_shrink;
     }
     let (_, _, mut nominal) = ekf_pass(model, meas, &x0, &sigma0).context("second EKF pass")?;
-    let (x0w, p0w) = wide_prior(model, &zeros);
+    let (x0w, p0w) = wide_prior(model, &zeros, &prep.initial_angle_sigma);
     let mut last = None;
     for _ in 0..cfg.smoother_iterations {
         let pass = linearised_pass(model, meas, &nominal, &x0w, &p0w, true);

@@ -55,6 +55,17 @@ pub struct RawSample {
     pub temp_c: Option<f64>,
 }
 
+impl From<&RawSample> for estimator_core::Sample {
+    /// The one conversion from a recorded sample to the core's (temperature NaN when absent).
+    fn from(s: &RawSample) -> Self {
+        estimator_core::Sample {
+            t_s: s.t_s,
+            specific_force: s.specific_force_mps2,
+            temp_c: s.temp_c.unwrap_or(f64::NAN),
+        }
+    }
+}
+
 /// A whole recording in memory.
 #[derive(Clone, Debug, PartialEq)]
 pub struct Recording {

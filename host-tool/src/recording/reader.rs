@@ -348,7 +348,12 @@ impl<R: BufRead> RecordingReader<R> {
             for (i, field) in text.split(',').enumerate() {
                 if let Some(k) = self.idx.iter().position(|&j| j == i) {
                     let column = REQUIRED_COLUMNS[k];
-                    let v = parse_number(clean_field(field), file, line, column)?;
+                    // A non-finite value (a sensor's NaN) is kept: the data-quality screening
+                    // rejects and counts that sample instead of refusing the whole file.
+                    let v = match parse_number(clean_field(field), file, line, column) {
+                        Err(RecordingError::NotFinite { .. }) => f64::NAN,
+                        other => other?,
+                    };
                     if k > 0 && v.abs() > MAX_ABS_SPECIFIC_FORCE_MPS2 {
                         return Err(RecordingError::OutOfRange {
                             file: file.to_string(),
@@ -377,7 +382,9 @@ impl<R: BufRead> RecordingReader<R> {
                 }
             }
             let t = vals[0];
-            if let Some((prev, prev_line)) = self.prev {
+            if !t.is_finite() {
+                // Kept for the screening to count; it does not enter the time-order check.
+            } else if let Some((prev, prev_line)) = self.prev {
                 // `!(t > prev)` also catches what the finiteness check already excludes.
                 if t.partial_cmp(&prev) != Some(std::cmp::Ordering::Greater) {
                     return Err(RecordingError::TimeNotIncreasing {
@@ -389,7 +396,9 @@ impl<R: BufRead> RecordingReader<R> {
                     });
                 }
             }
-            self.prev = Some((t, line));
+            if t.is_finite() {
+                self.prev = Some((t, line));
+            }
             return Ok(Some((
                 line,
                 RawSample {

@@ -1,0 +1,388 @@
+//! Screening of raw accelerometer samples before they are averaged: the one implementation the
+//! firmware and the host both run, so that a glitch, a stuck or dead channel or a non-finite
+//! value never enters a filter-period mean.
+//!
+//! Per axis, in this order:
+//! 1. **non-finite** values (NaN, ±∞) and **all-zero samples** (a sensor that drops out reads
+//!    exactly 0 on every axis, which is impossible at rest: |A| = g) are flagged;
+//! 2. **stuck runs**: a run of bit-identical consecutive readings longer than white noise allows.
+//!    With a per-step repeat probability `p` (measured on the axis itself, so quantisation is
+//!    accounted for), a run of `L` samples has probability `p^(L−1)`; a run is flagged when
+//!    `N·p^(L−1) < stuck_false_alarm` (and `L ≥ min_stuck_run`);
+//! 3. **outliers** (glitches, spikes): each sample against a robust local line through the
+//!    medians of its left and right neighbours (unflagged samples only), in units of the raw noise
+//!    1σ given by the caller. The threshold `outlier_k` (default 8σ after the prediction's own
+//!    uncertainty) never fires on Gaussian noise (P ≈ 1e-15 per sample), while the slow gravity
+//!    cone signal is followed exactly by the local line.
+//!
+//! No heap: the caller passes the samples and a flag slice of the same length; the summary holds
+//! counts. The host groups consecutive flagged samples into findings; the firmware screens its
+//! sample blocks the same way.
+
+use crate::averaging::Sample;
+
+/// Flag bits of one sample (any bit set: the sample is rejected).
+pub mod flag {
+    /// A value is NaN or infinite.
+    pub const NON_FINITE: u8 = 1;
+    /// Every axis reads exactly zero (a dropout).
+    pub const ZERO: u8 = 2;
+    /// Part of a stuck run on the axis given by [`super::axis_bit`].
+    pub const STUCK: u8 = 4;
+    /// An outlier (glitch) on some axis.
+    pub const OUTLIER: u8 = 8;
+    /// Stuck on axis x (bit 4), y (bit 5), z (bit 6) — which axis stuck.
+    pub const STUCK_AXIS_SHIFT: u8 = 4;
+}
+
+/// Bit marking axis `a` (0, 1, 2) in a flag byte (stuck or outlier axis).
+pub const fn axis_bit(a: usize) -> u8 {
+    1 << (flag::STUCK_AXIS_SHIFT as usize + a)
+}
+
+/// Thresholds of the screening (a tiny config, like a rejection criterion).
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct ScreenConfig {
+    /// Neighbours on each side used for the local line (≤ [`MAX_HALF_WINDOW`]).
+    pub half_window: usize,
+    /// Outlier threshold in units of the prediction error's 1σ.
+    pub outlier_k: f64,
+    /// Accepted probability of one false stuck run in the whole record.
+    pub stuck_false_alarm: f64,
+    /// Shortest run of identical readings ever called stuck.
+    pub min_stuck_run: usize,
+}
+
+/// Largest `half_window` (the median buffers are fixed arrays).
+pub const MAX_HALF_WINDOW: usize = 15;
+
+impl Default for ScreenConfig {
+    fn default() -> Self {
+        ScreenConfig {
+            half_window: 7,
+            outlier_k: 8.0,
+            stuck_false_alarm: 1e-6,
+            min_stuck_run: 5,
+        }
+    }
+}
+
+/// Counts of a screening.
+#[derive(Clone, Copy, Debug, Default, PartialEq)]
+pub struct ScreenSummary {
+    /// Samples with a non-finite value.
+    pub non_finite: usize,
+    /// Samples reading zero on every axis.
+    pub zero: usize,
+    /// Samples in stuck runs, per axis.
+    pub stuck: [usize; 3],
+    /// Outliers per axis.
+    pub outliers: [usize; 3],
+    /// Probability of a repeated reading per step, per axis (quantisation makes it large).
+    pub repeat_rate: [f64; 3],
+    /// Samples rejected (any flag).
+    pub rejected: usize,
+}
+
+/// Screens `samples` (time order) with raw noise 1σ `sigma` (m/s², per axis) and writes one flag
+/// byte per sample into `flags` (same length; 0 = accepted).
+pub fn screen(
+    samples: &[Sample],
+    sigma: &[f64; 3],
+    cfg: &ScreenConfig,
+    flags: &mut [u8],
+) -> ScreenSummary {
+    let n = samples.len().min(flags.len());
+    let mut sum = ScreenSummary::default();
+    for (f, s) in flags.iter_mut().zip(samples) {
+        *f = 0;
+        if s.specific_force.iter().any(|v| !v.is_finite()) || !s.t_s.is_finite() {
+            *f |= flag::NON_FINITE;
+            sum.non_finite += 1;
+        } else if s.specific_force.iter().all(|v| *v == 0.0) {
+            *f |= flag::ZERO;
+            sum.zero += 1;
+        }
+    }
+    for a in 0..3 {
+        sum.repeat_rate[a] = repeat_rate(&samples[..n], &flags[..n], a);
+        sum.stuck[a] = flag_stuck(
+            &samples[..n],
+            &mut flags[..n],
+            a,
+            sum.repeat_rate[a],
+            sigma[a],
+            cfg,
+        );
+    }
+    for a in 0..3 {
+        sum.outliers[a] = flag_outliers(&samples[..n], &mut flags[..n], a, sigma[a], cfg);
+    }
+    sum.rejected = flags[..n].iter().filter(|f| **f != 0).count();
+    sum
+}
+
+/// Fraction of steps whose reading repeats the previous one exactly (accepted samples only).
+fn repeat_rate(s: &[Sample], flags: &[u8], a: usize) -> f64 {
+    let (mut steps, mut repeats) = (0usize, 0usize);
+    for k in 1..s.len() {
+        if flags[k] == 0 && flags[k - 1] == 0 {
+            steps += 1;
+            if s[k].specific_force[a] == s[k - 1].specific_force[a] {
+                repeats += 1;
+            }
+        }
+    }
+    if steps == 0 {
+        0.0
+    } else {
+        repeats as f64 / steps as f64
+    }
+}
+
+/// Shortest run that is a stuck channel: `N·p^(L−1) < α`.
+pub fn min_stuck_run(n: usize, repeat_rate: f64, cfg: &ScreenConfig) -> usize {
+    let p = repeat_rate.clamp(1e-12, 1.0 - 1e-9);
+    let l = 1.0 + libm::log(cfg.stuck_false_alarm / (n.max(1) as f64)) / libm::log(p);
+    let l = if l.is_finite() { libm::ceil(l) } else { 1e18 };
+    (l.min(1e18) as usize).max(cfg.min_stuck_run)
+}
+
+/// Repeat rate above which the outputs are quantised coarsely against the noise: runs then follow
+/// the signal's slope, not a geometric law, and a run counts as stuck only if the signal moved
+/// while it lasted (its neighbours on either side differ from it by more than `outlier_k`·σ).
+pub const QUANTISED_REPEAT_RATE: f64 = 0.01;
+
+fn flag_stuck(
+    s: &[Sample],
+    flags: &mut [u8],
+    a: usize,
+    p: f64,
+    sigma: f64,
+    cfg: &ScreenConfig,
+) -> usize {
+    let min_run = min_stuck_run(s.len(), p, cfg);
+    let h = cfg.half_window.clamp(2, MAX_HALF_WINDOW);
+    let moved = |start: usize, end: usize, v: f64| {
+        let mut buf = [0.0; MAX_HALF_WINDOW];
+        let before = start.saturating_sub(h);
+        let after = (end + h).min(s.len());
+        let mut jump = 0.0f64;
+        for range in [before..start, end..after] {
+            let m = range.len();
+            if m == 0 {
+                continue;
+            }
+            for (b, k) in buf.iter_mut().zip(range) {
+                *b = s[k].specific_force[a];
+            }
+            let md = median(&mut buf[..m]);
+            if md.is_finite() {
+                jump = jump.max(libm::fabs(md - v));
+            }
+        }
+        jump > cfg.outlier_k * sigma
+    };
+    let mut count = 0;
+    let mut start = 0;
+    while start < s.len() {
+        let v = s[start].specific_force[a];
+        let mut end = start + 1;
+        while end < s.len() && s[end].specific_force[a] == v && flags[end] & flag::NON_FINITE == 0
+        {
+            end += 1;
+        }
+        if end - start >= min_run
+            && v.is_finite()
+            && (p < QUANTISED_REPEAT_RATE || moved(start, end, v))
+        {
+            for f in &mut flags[start..end] {
+                *f |= flag::STUCK | axis_bit(a);
+            }
+            count += end - start;
+        }
+        start = end;
+    }
+    count
+}
+
+/// Median of `v[..n]` (sorted in place; n ≥ 1).
+fn median(v: &mut [f64]) -> f64 {
+    // Insertion sort: at most MAX_HALF_WINDOW elements.
+    for i in 1..v.len() {
+        let mut j = i;
+        while j > 0 && v[j - 1] > v[j] {
+            v.swap(j - 1, j);
+            j -= 1;
+        }
+    }
+    let m = v.len();
+    if m % 2 == 1 {
+        v[m / 2]
+    } else {
+        0.5 * (v[m / 2 - 1] + v[m / 2])
+    }
+}
+
+/// Values and times of one side's neighbours.
+type Window = ([f64; MAX_HALF_WINDOW], [f64; MAX_HALF_WINDOW]);
+
+/// Collects up to `h` accepted neighbours of `i` on one side (value, time).
+fn side(
+    s: &[Sample],
+    flags: &[u8],
+    i: usize,
+    a: usize,
+    h: usize,
+    left: bool,
+    buf: &mut Window,
+) -> usize {
+    let (val, tim) = (&mut buf.0, &mut buf.1);
+    let mut m = 0;
+    let mut k = i;
+    // Look at most 4h samples away, so a long rejected stretch does not pull in distant data.
+    for _ in 0..4 * h {
+        if left {
+            if k == 0 {
+                break;
+            }
+            k -= 1;
+        } else {
+            k += 1;
+            if k >= s.len() {
+                break;
+            }
+        }
+        if flags[k] & (flag::NON_FINITE | flag::ZERO | flag::STUCK) == 0 {
+            val[m] = s[k].specific_force[a];
+            tim[m] = s[k].t_s;
+            m += 1;
+            if m == h {
+                break;
+            }
+        }
+    }
+    m
+}
+
+fn flag_outliers(s: &[Sample], flags: &mut [u8], a: usize, sigma: f64, cfg: &ScreenConfig) -> usize {
+    let h = cfg.half_window.clamp(2, MAX_HALF_WINDOW);
+    if sigma.is_nan() || sigma <= 0.0 {
+        return 0;
+    }
+    let mut count = 0;
+    let mut l: Window = ([0.0; MAX_HALF_WINDOW], [0.0; MAX_HALF_WINDOW]);
+    let mut r: Window = ([0.0; MAX_HALF_WINDOW], [0.0; MAX_HALF_WINDOW]);
+    for i in 0..s.len() {
+        if flags[i] & (flag::NON_FINITE | flag::ZERO | flag::STUCK) != 0 {
+            continue;
+        }
+        let nl = side(s, flags, i, a, h, true, &mut l);
+        let nr = side(s, flags, i, a, h, false, &mut r);
+        let ((lv, lt), (rv, rt)) = (&mut l, &mut r);
+        // Each side's median value and median time (times are increasing: the middle one).
+        let (pred, var_factor) = if nl >= 3 && nr >= 3 {
+            let (ml, mr) = (median(&mut lv[..nl]), median(&mut rv[..nr]));
+            let (tl, tr) = (median(&mut lt[..nl]), median(&mut rt[..nr]));
+            let u = if tr > tl { (s[i].t_s - tl) / (tr - tl) } else { 0.5 };
+            // Prediction = (1−u)·ml + u·mr; a median of m samples has variance ≈ (π/2)σ²/m.
+            let v = core::f64::consts::FRAC_PI_2
+                * ((1.0 - u) * (1.0 - u) / nl as f64 + u * u / nr as f64);
+            ((1.0 - u) * ml + u * mr, v)
+        } else if nl + nr >= 3 {
+            // Too few on one side (record edge, long gap): the other side's median, no slope —
+            // valid only where the signal is locally flat, so widen the threshold by the spread.
+            let (vals, m) = if nl >= nr { (lv, nl) } else { (rv, nr) };
+            let md = median(&mut vals[..m]);
+            let spread = vals[..m].iter().fold(0.0f64, |acc, v| acc.max(libm::fabs(v - md)));
+            let extra = spread / sigma;
+            (md, core::f64::consts::FRAC_PI_2 / m as f64 + extra * extra)
+        } else {
+            continue;
+        };
+        let d = libm::fabs(s[i].specific_force[a] - pred);
+        if d > cfg.outlier_k * sigma * libm::sqrt(1.0 + var_factor) {
+            flags[i] |= flag::OUTLIER | axis_bit(a);
+            count += 1;
+        }
+    }
+    count
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// A slowly turning gravity projection with deterministic pseudo-noise of 1σ ≈ `sigma`.
+    fn signal(n: usize, sigma: f64) -> [Sample; 2000] {
+        let mut out = [Sample {
+            t_s: 0.0,
+            specific_force: [0.0; 3],
+            temp_c: f64::NAN,
+        }; 2000];
+        let mut state: u64 = 0x9e3779b97f4a7c15;
+        let mut uniform = || {
+            state ^= state << 13;
+            state ^= state >> 7;
+            state ^= state << 17;
+            (state >> 11) as f64 / (1u64 << 53) as f64
+        };
+        for (k, s) in out.iter_mut().enumerate().take(n) {
+            let t = k as f64;
+            let w = 7.29e-5 * 0.78; // Earth rate × cos(latitude), rad/s
+            // Sum of 12 uniforms − 6: unit variance, bounded at ±6 (no chance alarms).
+            let mut noise = || (0..12).map(|_| uniform()).sum::<f64>() - 6.0;
+            s.t_s = t;
+            s.specific_force = [
+                9.8 * libm::sin(w * t) + sigma * noise(),
+                -9.8 * 0.6 * libm::sin(w * t) + sigma * noise(),
+                9.8 * libm::cos(w * t) + sigma * noise(),
+            ];
+        }
+        out
+    }
+
+    #[test]
+    fn clean_signal_is_not_flagged() {
+        let s = signal(2000, 7e-4);
+        let mut f = [0u8; 2000];
+        let sum = screen(&s, &[7e-4; 3], &ScreenConfig::default(), &mut f);
+        assert_eq!(sum.rejected, 0, "{sum:?}");
+    }
+
+    #[test]
+    fn glitch_stuck_zero_and_nan_are_flagged() {
+        let mut s = signal(2000, 7e-4);
+        s[100].specific_force[0] += 0.05; // 70σ glitch
+        s[1999].specific_force[2] -= 0.05; // at the very end
+        for k in 500..540 {
+            s[k].specific_force[1] = s[500].specific_force[1]; // stuck y for 40 samples
+        }
+        s[700].specific_force = [0.0; 3];
+        s[900].specific_force[2] = f64::NAN;
+        let mut f = [0u8; 2000];
+        let sum = screen(&s, &[7e-4; 3], &ScreenConfig::default(), &mut f);
+        assert_ne!(f[100] & flag::OUTLIER, 0);
+        assert_ne!(f[1999] & flag::OUTLIER, 0);
+        assert!(f[500..540].iter().all(|x| x & axis_bit(1) != 0));
+        assert_eq!(sum.stuck, [0, 40, 0]);
+        assert_eq!(sum.zero, 1);
+        assert_eq!(sum.non_finite, 1);
+        // Nothing else: 1 + 1 outliers, 40 stuck, 1 zero, 1 NaN.
+        assert_eq!(sum.rejected, 44, "{sum:?}");
+    }
+
+    #[test]
+    fn quantised_signal_raises_the_stuck_threshold() {
+        let mut s = signal(2000, 7e-4);
+        for x in s.iter_mut() {
+            for v in x.specific_force.iter_mut() {
+                *v = libm::round(*v / 0.01) * 0.01;
+            }
+        }
+        let mut f = [0u8; 2000];
+        let sum = screen(&s, &[0.01 / libm::sqrt(12.0); 3], &ScreenConfig::default(), &mut f);
+        assert_eq!(sum.rejected, 0, "{sum:?}");
+        assert!(sum.repeat_rate[2] > 0.9);
+    }
+}

@@ -1,0 +1,461 @@
+//! Data quality: the recording checked sample by sample (the core's [`screening`]), against its
+//! metadata and against physics, before anything is identified. Every defect becomes a
+//! [`Finding`] the user can act on: repaired (and said so), rejected samples (and counted), not
+//! repaired (the estimate is then not trusted: exit 3) or refused (no estimate: exit 2).
+//!
+//! Checks, each physically grounded (docs/data-quality.md):
+//! - raw samples: non-finite, all-zero dropouts, stuck runs, glitches ([`screening`]); a dead axis;
+//! - the time axis: its unit against the Earth's rotation seen in the gravity direction
+//!   ([`time`]), gaps, a change of sample rate;
+//! - gravity: the mean specific-force magnitude against the metadata gravity, outputs in g;
+//!   the start: gravity along +z (platform level), or an inverted/swapped axis ([`physics`]);
+//! - the noise at the filter period: window means scattering more than the raw noise predicts
+//!   (quantisation, correlated noise), and steps in the means ([`steps`]).
+//!
+//! [`screening`]: estimator_core::screening
+
+pub mod physics;
+pub mod steps;
+pub mod time;
+
+use estimator_core::screening::{self, flag, ScreenConfig, ScreenSummary};
+use estimator_core::{Averager, Sample, Site};
+use serde::Serialize;
+
+use crate::identify::noise;
+
+/// What was done about a finding.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize)]
+#[serde(rename_all = "kebab-case")]
+pub enum Action {
+    /// The defect was corrected (e.g. a time unit, outputs in g); the estimate stands.
+    Repaired,
+    /// The affected samples were left out of the filter-period means.
+    Rejected,
+    /// Noted; nothing to do (e.g. a gap the filter bridges).
+    Noted,
+    /// Not repaired: the numbers are computed but not trusted (exit 3).
+    NotRepaired,
+    /// The recording cannot support an estimate (exit 2).
+    Refused,
+}
+
+/// One data-quality finding.
+#[derive(Clone, Debug, PartialEq, Serialize)]
+pub struct Finding {
+    /// Kind, e.g. `glitch`, `stuck`, `time-units`, `gravity-mismatch`.
+    pub kind: &'static str,
+    /// What is wrong, in plain words with the numbers.
+    pub message: String,
+    /// First affected time, s (recording's time axis after any time repair).
+    pub start_s: Option<f64>,
+    /// Last affected time, s.
+    pub end_s: Option<f64>,
+    /// Samples affected.
+    pub samples: usize,
+    /// What was done.
+    pub action: Action,
+}
+
+impl Finding {
+    /// One line for the terminal.
+    pub fn line(&self) -> String {
+        let when = match (self.start_s, self.end_s) {
+            (Some(a), Some(b)) if b > a => format!(" [t = {a:.1}–{b:.1} s]"),
+            (Some(a), _) => format!(" [t = {a:.1} s]"),
+            _ => String::new(),
+        };
+        let act = match self.action {
+            Action::Repaired => "repaired",
+            Action::Rejected => "samples rejected",
+            Action::Noted => "noted",
+            Action::NotRepaired => "NOT repaired — estimate not trusted",
+            Action::Refused => "refused",
+        };
+        format!("{}{when}: {} ({act})", self.kind, self.message)
+    }
+}
+
+/// A recording that cannot support an estimate: the findings say why.
+#[derive(Debug)]
+pub struct Refusal {
+    /// Every finding so far, the refused ones included.
+    pub findings: Vec<Finding>,
+}
+
+impl std::fmt::Display for Refusal {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        let refused: Vec<String> = self
+            .findings
+            .iter()
+            .filter(|x| x.action == Action::Refused)
+            .map(|x| x.line())
+            .collect();
+        write!(f, "the recording cannot support an estimate: {}", refused.join("; "))
+    }
+}
+
+impl std::error::Error for Refusal {}
+
+/// The screened recording: accepted (and repaired) samples, the site, the findings.
+#[derive(Clone, Debug)]
+pub struct Screened {
+    /// Site after repairs (gravity from the data when the metadata is wrong).
+    pub site: Site,
+    /// Accepted samples, in time order, repaired where a repair applies.
+    pub samples: Vec<Sample>,
+    /// Raw-sample noise 1σ per axis, m/s² (robust, from accepted samples).
+    pub raw_sigma_mps2: [f64; 3],
+    /// Noise 1σ of one filter-period mean to use instead of raw/√n, when the means scatter more
+    /// (or less) than white raw noise predicts.
+    pub mean_sigma_override_mps2: Option<[f64; 3]>,
+    /// The start's tilt from level (tx, ty, rad) and its 1σ, when it is significant.
+    pub initial_tilt: Option<([f64; 2], f64)>,
+    /// Everything found, in the order checked.
+    pub findings: Vec<Finding>,
+    /// The screening's counts.
+    pub summary: ScreenSummary,
+}
+
+impl Screened {
+    /// Whether any finding makes the estimate untrusted.
+    pub fn untrusted_reasons(&self) -> Vec<String> {
+        self.findings
+            .iter()
+            .filter(|f| f.action == Action::NotRepaired)
+            .map(|f| f.line())
+            .collect()
+    }
+}
+
+/// Fraction of rejected samples beyond which the recording is refused.
+pub const MAX_REJECTED_FRACTION: f64 = 0.5;
+
+/// Screens samples in the core's form for a run at `site` analysed at `period_s`.
+pub fn screen(site: Site, samples: &[Sample], period_s: f64) -> Result<Screened, Refusal> {
+    let mut findings = vec![];
+    let refuse = |mut findings: Vec<Finding>, kind, message: String| {
+        findings.push(Finding {
+            kind,
+            message,
+            start_s: None,
+            end_s: None,
+            samples: 0,
+            action: Action::Refused,
+        });
+        Err(Refusal { findings })
+    };
+    if samples.len() < 16 {
+        return refuse(
+            findings,
+            "too-few-samples",
+            format!("{} samples; at least 16 are needed", samples.len()),
+        );
+    }
+    // 1. Raw screening, twice: the second pass with the noise of the accepted samples only (a long
+    //    stuck run would otherwise pull the median-based noise estimate down).
+    let cfg = ScreenConfig::default();
+    let mut flags = vec![0u8; samples.len()];
+    let Some(sigma0) = robust_sigma(samples, &flags) else {
+        return refuse(findings, "too-few-samples", "fewer than 8 runs of 4 equally spaced finite samples: cannot estimate the noise".into());
+    };
+    screening::screen(samples, &sigma0, &cfg, &mut flags);
+    let sigma = robust_sigma(samples, &flags).unwrap_or(sigma0);
+    let summary = screening::screen(samples, &sigma, &cfg, &mut flags);
+    if let Some(f) = dead_axis(samples, &flags) {
+        return refuse(findings, "dead-axis", f);
+    }
+    findings.extend(group_flags(samples, &flags, &summary));
+    if summary.rejected as f64 > MAX_REJECTED_FRACTION * samples.len() as f64 {
+        return refuse(
+            findings,
+            "too-many-rejected",
+            format!(
+                "{} of {} samples rejected (more than {:.0} %)",
+                summary.rejected,
+                samples.len(),
+                100.0 * MAX_REJECTED_FRACTION
+            ),
+        );
+    }
+    let mut accepted: Vec<Sample> = samples
+        .iter()
+        .zip(&flags)
+        .filter(|(_, f)| **f == 0)
+        .map(|(s, _)| *s)
+        .collect();
+    // 2. Physics: gravity magnitude and units, the time axis, the start.
+    let mut site = site;
+    let mut sigma = sigma;
+    if let Err(f) = physics::check_gravity(&mut site, &mut accepted, &mut sigma, &mut findings) {
+        return refuse(findings, f.0, f.1);
+    }
+    let factor = match time::check_units(&site, &mut accepted, &mut findings) {
+        Ok(f) => f,
+        Err(f) => return refuse(findings, f.0, f.1),
+    };
+    let times: Vec<f64> = samples
+        .iter()
+        .map(|s| s.t_s * factor)
+        .filter(|t| t.is_finite())
+        .collect();
+    time::check_spacing(&times, &mut findings);
+    let initial_tilt =
+        match physics::check_start(&site, &accepted, period_s, &sigma, &mut findings) {
+            Ok(t) => t,
+            Err(f) => return refuse(findings, f.0, f.1),
+        };
+    // 3. Quantisation, the noise at the filter period, and steps in the means.
+    let quantum = quantisation(&accepted, &summary, &mut findings);
+    let means = window_means(&accepted, period_s, &sigma);
+    let mut mean_sigma_override_mps2 = steps::check_mean_noise(&means, &sigma, &mut findings);
+    if quantum.iter().any(|q| q.is_some()) {
+        let mut over = mean_sigma_override_mps2.unwrap_or_else(|| {
+            let n = means.iter().map(|m| f64::from(m.count)).sum::<f64>() / means.len().max(1) as f64;
+            sigma.map(|s| s / n.max(1.0).sqrt())
+        });
+        for (o, q) in over.iter_mut().zip(&quantum) {
+            if let Some(q) = q {
+                *o = o.max(q / 12f64.sqrt());
+            }
+        }
+        mean_sigma_override_mps2 = Some(over);
+    }
+    // Undithered rounding makes the means jump by an LSB as the signal crosses a step: no steps
+    // are looked for on those axes.
+    steps::check_steps(&means, &quantum.map(|q| q.is_some()), &mut findings);
+    Ok(Screened {
+        site,
+        samples: accepted,
+        raw_sigma_mps2: sigma,
+        mean_sigma_override_mps2,
+        initial_tilt,
+        findings,
+        summary,
+    })
+}
+
+/// Repeat rate beyond which the noise does not dither the outputs' rounding.
+pub const UNDITHERED_REPEAT_RATE: f64 = 0.5;
+
+/// The output step (LSB) of each axis whose rounding the noise does not dither: most consecutive
+/// readings repeat, so the rounding error follows the slowly turning signal and does not average
+/// out over a window. The floor of a mean is then at least q/√12 (not over √n), and the estimate
+/// is not trusted.
+fn quantisation(samples: &[Sample], sum: &ScreenSummary, findings: &mut Vec<Finding>) -> [Option<f64>; 3] {
+    let mut out = [None; 3];
+    for (a, o) in out.iter_mut().enumerate() {
+        if sum.repeat_rate[a] <= UNDITHERED_REPEAT_RATE {
+            continue;
+        }
+        let Some(q) = lsb(samples, a) else { continue };
+        *o = Some(q);
+        findings.push(Finding {
+            kind: "quantization",
+            message: format!(
+                "axis {}: outputs come in steps of {q:.3e} m/s^2 and {:.0} % of consecutive readings repeat: the noise does not dither the rounding, \
+                 whose error follows the slowly turning signal and does not average out; the floor of a filter-period mean is set to q/√12 = {:.2e} m/s^2 \
+                 (the 1σ grow accordingly), and the estimate is not trusted",
+                axis_name(a),
+                100.0 * sum.repeat_rate[a],
+                q / 12f64.sqrt()
+            ),
+            start_s: None,
+            end_s: None,
+            samples: samples.len(),
+            action: Action::NotRepaired,
+        });
+    }
+    out
+}
+
+/// The output step of axis `a`: a low quantile of the non-zero differences between readings.
+fn lsb(samples: &[Sample], a: usize) -> Option<f64> {
+    let mut nz: Vec<f64> = samples
+        .windows(2)
+        .map(|w| (w[1].specific_force[a] - w[0].specific_force[a]).abs())
+        .filter(|d| *d > 0.0)
+        .collect();
+    if nz.is_empty() {
+        return None;
+    }
+    let k = nz.len() / 20;
+    Some(*nz.select_nth_unstable_by(k, f64::total_cmp).1)
+}
+
+/// Robust raw noise per axis from third differences of accepted, equally spaced samples.
+fn robust_sigma(samples: &[Sample], flags: &[u8]) -> Option<[f64; 3]> {
+    let (mut t, mut a) = (vec![], vec![]);
+    for (s, f) in samples.iter().zip(flags) {
+        if *f == 0 && s.specific_force.iter().all(|v| v.is_finite()) && s.t_s.is_finite() {
+            t.push(s.t_s);
+            a.push(s.specific_force);
+        }
+    }
+    let mut sigma = noise::estimate(&t, &a)?.raw_sigma_mps2;
+    // Quantised outputs: when many steps repeat the reading, third differences are often 0 and
+    // their median collapses; the rounding error of one LSB q is then the floor, q/√12.
+    for (ax, s) in sigma.iter_mut().enumerate() {
+        let steps = a.windows(2).count();
+        let repeats = a.windows(2).filter(|w| w[1][ax] == w[0][ax]).count();
+        if steps >= 8 && repeats * 5 > steps {
+            let core: Vec<Sample> = a
+                .iter()
+                .map(|f| Sample { t_s: 0.0, specific_force: *f, temp_c: f64::NAN })
+                .collect();
+            if let Some(q) = lsb(&core, ax) {
+                *s = s.max(q / 12f64.sqrt());
+            }
+        }
+    }
+    Some(sigma)
+}
+
+/// An axis whose every finite reading is the same value (or that has none).
+fn dead_axis(samples: &[Sample], flags: &[u8]) -> Option<String> {
+    for a in 0..3 {
+        let mut vals = samples
+            .iter()
+            .zip(flags)
+            .filter(|(_, f)| **f & flag::NON_FINITE == 0)
+            .map(|(s, _)| s.specific_force[a]);
+        let Some(first) = vals.next() else {
+            return Some(format!("axis {} has no finite reading", axis_name(a)));
+        };
+        if vals.all(|v| v == first) {
+            return Some(format!(
+                "axis {} is dead: every one of {} readings is {first} m/s^2",
+                axis_name(a),
+                samples.len()
+            ));
+        }
+    }
+    None
+}
+
+/// `x`, `y` or `z`.
+pub fn axis_name(a: usize) -> char {
+    ['x', 'y', 'z'][a.min(2)]
+}
+
+/// Findings from the flags: one per stuck run (the longest 10 listed, then a summary), one for all
+/// glitches, one for dropouts, one for non-finite samples.
+fn group_flags(samples: &[Sample], flags: &[u8], sum: &ScreenSummary) -> Vec<Finding> {
+    let mut out = vec![];
+    let times = |pred: &dyn Fn(u8) -> bool| -> (usize, Option<f64>, Option<f64>) {
+        let mut n = 0;
+        let (mut a, mut b) = (None, None);
+        for (s, f) in samples.iter().zip(flags) {
+            if pred(*f) {
+                n += 1;
+                a = a.or(Some(s.t_s));
+                b = Some(s.t_s);
+            }
+        }
+        (n, a, b)
+    };
+    if sum.non_finite > 0 {
+        let (n, a, b) = times(&|f| f & flag::NON_FINITE != 0);
+        out.push(Finding {
+            kind: "non-finite",
+            message: format!("{n} samples with a NaN or infinite value"),
+            start_s: a,
+            end_s: b,
+            samples: n,
+            action: Action::Rejected,
+        });
+    }
+    if sum.zero > 0 {
+        let (n, a, b) = times(&|f| f & flag::ZERO != 0);
+        out.push(Finding {
+            kind: "dropout",
+            message: format!("{n} samples read exactly 0 on every axis (at rest |A| = g): sensor dropouts"),
+            start_s: a,
+            end_s: b,
+            samples: n,
+            action: Action::Rejected,
+        });
+    }
+    for ax in 0..3 {
+        let bit = screening::axis_bit(ax);
+        let mut runs = vec![];
+        let mut k = 0;
+        while k < samples.len() {
+            if flags[k] & flag::STUCK != 0 && flags[k] & bit != 0 {
+                let start = k;
+                while k < samples.len() && flags[k] & flag::STUCK != 0 && flags[k] & bit != 0 {
+                    k += 1;
+                }
+                runs.push((start, k));
+            } else {
+                k += 1;
+            }
+        }
+        runs.sort_by_key(|(a, b)| std::cmp::Reverse(b - a));
+        let min_run = screening::min_stuck_run(samples.len(), sum.repeat_rate[ax], &ScreenConfig::default());
+        for (i, &(a, b)) in runs.iter().enumerate() {
+            if i == 10 {
+                let rest: usize = runs[10..].iter().map(|(a, b)| b - a).sum();
+                out.push(Finding {
+                    kind: "stuck",
+                    message: format!("axis {}: {} more stuck runs, {rest} samples", axis_name(ax), runs.len() - 10),
+                    start_s: None,
+                    end_s: None,
+                    samples: rest,
+                    action: Action::Rejected,
+                });
+                break;
+            }
+            out.push(Finding {
+                kind: "stuck",
+                message: format!(
+                    "axis {} repeats {} m/s^2 for {} samples (noise makes a run of {} already improbable)",
+                    axis_name(ax),
+                    samples[a].specific_force[ax],
+                    b - a,
+                    min_run
+                ),
+                start_s: Some(samples[a].t_s),
+                end_s: Some(samples[b - 1].t_s),
+                samples: b - a,
+                action: Action::Rejected,
+            });
+        }
+    }
+    let glitches: usize = sum.outliers.iter().sum();
+    if glitches > 0 {
+        let (n, a, b) = times(&|f| f & flag::OUTLIER != 0);
+        let first: Vec<String> = samples
+            .iter()
+            .zip(flags)
+            .filter(|(_, f)| **f & flag::OUTLIER != 0)
+            .take(5)
+            .map(|(s, _)| format!("{:.1} s", s.t_s))
+            .collect();
+        out.push(Finding {
+            kind: "glitch",
+            message: format!(
+                "{n} samples depart from their neighbours by more than {}σ of the raw noise (x {}, y {}, z {}; first at {})",
+                ScreenConfig::default().outlier_k,
+                sum.outliers[0],
+                sum.outliers[1],
+                sum.outliers[2],
+                first.join(", ")
+            ),
+            start_s: a,
+            end_s: b,
+            samples: n,
+            action: Action::Rejected,
+        });
+    }
+    out
+}
+
+/// Filter-period means of accepted samples (the core's averager; raw noise `sigma`).
+pub fn window_means(samples: &[Sample], period_s: f64, sigma: &[f64; 3]) -> Vec<estimator_core::Measurement> {
+    let mut avg = Averager::new(period_s, *sigma);
+    let mut out: Vec<_> = samples.iter().filter_map(|s| avg.push(s)).collect();
+    out.extend(avg.flush());
+    out
+}
+

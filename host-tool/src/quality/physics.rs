@@ -1,0 +1,193 @@
+//! The recording against physics: gravity's magnitude (metadata, units) and its direction at the
+//! start (a level platform sees +g on z; an inverted or swapped axis does not).
+
+use estimator_core::model::ANGLES;
+use estimator_core::propagate::{propagate, Transition};
+use estimator_core::units::RAD_PER_DEG;
+use estimator_core::{Model, Propagation, Sample, Site, PAPER_EFFECTS};
+use nalgebra::Vector3;
+
+use super::{Action, Finding};
+use crate::recording::GRAVITY_RANGE_MPS2;
+
+/// A refusal: finding kind and message.
+pub type Refuse = (&'static str, String);
+
+/// Relative disagreement of the measured |A| with the metadata gravity beyond which the metadata
+/// is wrong: accelerometer scale-factor errors are 1e-5–1e-4, so 1e-3 is far outside them.
+pub const GRAVITY_REL_TOL: f64 = 1e-3;
+/// Standard gravity, m/s² (the unit "g").
+pub const STANDARD_GRAVITY: f64 = 9.806_65;
+/// Largest tilt at the start that is levelled (beyond: an axis inverted or swapped, or the
+/// platform far from level), deg.
+pub const MAX_START_TILT_DEG: f64 = 10.0;
+/// A start tilt is levelled when it exceeds this many 1σ of its own uncertainty.
+pub const TILT_SIGMAS: f64 = 6.0;
+
+fn mean_magnitude(samples: &[Sample]) -> f64 {
+    let n = samples.len().max(1) as f64;
+    samples
+        .iter()
+        .map(|s| Vector3::from(s.specific_force).norm())
+        .sum::<f64>()
+        / n
+}
+
+/// Mean |A| against the site's gravity: outputs in g are converted, a wrong metadata gravity is
+/// replaced by the measured one, anything else is refused.
+pub fn check_gravity(
+    site: &mut Site,
+    samples: &mut [Sample],
+    sigma: &mut [f64; 3],
+    findings: &mut Vec<Finding>,
+) -> Result<(), Refuse> {
+    let mut m = mean_magnitude(samples);
+    let g = site.gravity_mps2;
+    if (m / STANDARD_GRAVITY - 1.0).abs() > 0.5 && (m - 1.0).abs() < 0.05 {
+        for s in samples.iter_mut() {
+            for v in s.specific_force.iter_mut() {
+                *v *= STANDARD_GRAVITY;
+            }
+        }
+        for s in sigma.iter_mut() {
+            *s *= STANDARD_GRAVITY;
+        }
+        findings.push(Finding {
+            kind: "units-g",
+            message: format!(
+                "mean |A| = {m:.6} in the file: the outputs are in g, not m/s^2; converted with 1 g = {STANDARD_GRAVITY} m/s^2"
+            ),
+            start_s: None,
+            end_s: None,
+            samples: samples.len(),
+            action: Action::Repaired,
+        });
+        m *= STANDARD_GRAVITY;
+    }
+    let rel = m / g - 1.0;
+    if rel.abs() <= GRAVITY_REL_TOL {
+        return Ok(());
+    }
+    let (lo, hi) = GRAVITY_RANGE_MPS2;
+    if (lo..=hi).contains(&m) {
+        findings.push(Finding {
+            kind: "gravity-mismatch",
+            message: format!(
+                "the mean specific-force magnitude is {m:.5} m/s^2 but the metadata gravity is {g:.5} m/s^2 \
+                 (relative {rel:+.1e}; accelerometer scale errors are 1e-5–1e-4, so {GRAVITY_REL_TOL:.0e} is far beyond them): \
+                 the metadata is wrong; the model uses the measured {m:.5} m/s^2"
+            ),
+            start_s: None,
+            end_s: None,
+            samples: samples.len(),
+            action: Action::Repaired,
+        });
+        site.gravity_mps2 = m;
+        Ok(())
+    } else {
+        Err((
+            "gravity-mismatch",
+            format!(
+                "the mean specific-force magnitude is {m:.4} m/s^2, not gravity ({g:.4} m/s^2, or 1 if the outputs were in g): \
+                 the accelerometer outputs have a wrong unit or scale"
+            ),
+        ))
+    }
+}
+
+/// Where gravity points at the start. A level start sees +g on z (after the Earth-rate turn of
+/// the first window, which the core's model predicts); a small tilt is levelled (the returned
+/// angles), a large one or gravity on another axis is refused.
+pub fn check_start(
+    site: &Site,
+    samples: &[Sample],
+    period_s: f64,
+    sigma: &[f64; 3],
+    findings: &mut Vec<Finding>,
+) -> Result<Option<([f64; 2], f64)>, Refuse> {
+    let t0 = samples.first().map(|s| s.t_s).unwrap_or(0.0);
+    let window: Vec<&Sample> = samples
+        .iter()
+        .take_while(|s| s.t_s < t0 + period_s.max(1e-9))
+        .collect();
+    let window = if window.len() < 4 {
+        samples.iter().take(4).collect()
+    } else {
+        window
+    };
+    let n = window.len() as f64;
+    let t_mid = window.iter().map(|s| s.t_s).sum::<f64>() / n;
+    let a = window
+        .iter()
+        .fold(Vector3::zeros(), |acc, s| acc + Vector3::from(s.specific_force))
+        / n;
+    let g = a.norm();
+    let tilt_deg = (a.z / g).clamp(-1.0, 1.0).acos() / RAD_PER_DEG;
+    if tilt_deg > MAX_START_TILT_DEG {
+        let (ax, _) = a.iter().enumerate().fold((0, 0.0), |best, (i, v)| {
+            if v.abs() > best.1 {
+                (i, v.abs())
+            } else {
+                best
+            }
+        });
+        let sign = if a[ax] < 0.0 { '-' } else { '+' };
+        let what = match (ax, sign) {
+            (2, '-') => "the z axis is inverted (or the platform is upside down)".to_string(),
+            (2, _) => format!("the platform is tilted {tilt_deg:.1} deg from level"),
+            _ => format!(
+                "gravity lies along {sign}{}: columns swapped (e.g. {}↔z) or an inverted axis, or the platform is far from level",
+                super::axis_name(ax),
+                super::axis_name(ax)
+            ),
+        };
+        return Err((
+            "initial-orientation",
+            format!(
+                "at the start (first {:.0} s) the specific force is [{:.4}, {:.4}, {:.4}] m/s^2, {tilt_deg:.1} deg from +z: {what}. \
+                 The model starts from a level platform (x east, y north, z up); fix the columns or signs of the recording",
+                window.last().map(|s| s.t_s).unwrap_or(t0) - t0,
+                a.x,
+                a.y,
+                a.z
+            ),
+        ));
+    }
+    // The level start's prediction at the window's mean time (no drift).
+    let Ok(model) = Model::new(*site, &PAPER_EFFECTS, 0.0, Propagation::default()) else {
+        return Ok(None);
+    };
+    let mut x = vec![0.0; model.dim()];
+    let mut tr = Transition::<{ estimator_core::model::MAX_STATES }>::default();
+    propagate(&model, &mut x, 0.0, t_mid, 0.0, 0.0, &mut tr);
+    let mut scratch = [Vector3::zeros(); estimator_core::model::MAX_STATES];
+    let pred = model.measurement(&x, t_mid, 0.0, 0.0, &mut scratch);
+    let d = a - pred;
+    // A = C·[0,0,g] ≈ g·(−ty, tx, 1) for small tilts.
+    let (tx, ty) = (d.y / site.gravity_mps2, -d.x / site.gravity_mps2);
+    let tilt = tx.hypot(ty);
+    // Its 1σ: the window mean's noise, plus the platform turn a drift of the prior's size (1 deg/h
+    // on each axis) makes before the window's mean time.
+    let drift_radps = estimator_core::units::RADPS_PER_DEGPH * model.param(ANGLES).prior_sigma;
+    let noise = sigma[0].max(sigma[1]) / n.sqrt() / site.gravity_mps2;
+    let sigma_tilt = noise.hypot(drift_radps * (t_mid - 0.0).max(0.0)).max(1e-6);
+    if tilt > TILT_SIGMAS * sigma_tilt {
+        findings.push(Finding {
+            kind: "initial-tilt",
+            message: format!(
+                "the platform starts {:.3} deg from level (tx = {:+.4} deg, ty = {:+.4} deg, 1σ {:.1e} deg): \
+                 the initial state is levelled from the first window's gravity direction (azimuth from the alignment)",
+                tilt / RAD_PER_DEG,
+                tx / RAD_PER_DEG,
+                ty / RAD_PER_DEG,
+                sigma_tilt / RAD_PER_DEG
+            ),
+            start_s: Some(t0),
+            end_s: window.last().map(|s| s.t_s),
+            samples: window.len(),
+            action: Action::Repaired,
+        });
+        return Ok(Some(([tx, ty], sigma_tilt)));
+    }
+    Ok(None)
+}

@@ -1,0 +1,133 @@
+//! The noise at the filter period and steps in the filter-period means.
+//!
+//! Third differences of consecutive means remove the slow gravity-cone signal (~7e-7 m/s² at
+//! 60 s) and keep the means' own noise with variance 20σ_m². Compared with the raw noise over
+//! √n they reveal quantised or correlated noise (the floor the filter must use), and an isolated
+//! jump of size J leaves the pattern (J, −2J, J): a bias step.
+
+use estimator_core::Measurement;
+
+use super::{axis_name, Action, Finding};
+
+/// A step is reported beyond this many robust 1σ of the third differences.
+pub const STEP_SIGMAS: f64 = 8.0;
+/// The means' scatter must differ from white raw noise by at least this factor to replace it.
+pub const MEAN_NOISE_FACTOR: f64 = 1.5;
+
+/// Third differences of each axis over runs of four evenly spaced means: (index of the first, value).
+fn third_differences(means: &[Measurement], axis: usize) -> Vec<(usize, f64)> {
+    let mut out = vec![];
+    for k in 0..means.len().saturating_sub(3) {
+        let dt = means[k + 1].t_s - means[k].t_s;
+        let even = (1..3).all(|i| ((means[k + i + 1].t_s - means[k + i].t_s) / dt - 1.0).abs() < 0.2);
+        if even {
+            let x = |i: usize| means[k + i].specific_force[axis];
+            out.push((k, x(3) - 3.0 * x(2) + 3.0 * x(1) - x(0)));
+        }
+    }
+    out
+}
+
+fn robust_sigma(d: &[(usize, f64)]) -> f64 {
+    let mut v: Vec<f64> = d.iter().map(|(_, x)| x.abs()).collect();
+    let mid = v.len() / 2;
+    let (_, m, _) = v.select_nth_unstable_by(mid, f64::total_cmp);
+    1.4826 * *m
+}
+
+/// Compares the means' scatter with raw noise/√n; returns the means' own 1σ per axis to use when
+/// they disagree (other axes keep raw/√n), with a finding.
+pub fn check_mean_noise(
+    means: &[Measurement],
+    raw_sigma: &[f64; 3],
+    findings: &mut Vec<Finding>,
+) -> Option<[f64; 3]> {
+    let mut counts: Vec<u32> = means.iter().map(|m| m.count).collect();
+    if counts.is_empty() {
+        return None;
+    }
+    let mid = counts.len() / 2;
+    let n = f64::from(*counts.select_nth_unstable(mid).1);
+    let mut out = [0.0; 3];
+    let mut any = vec![];
+    for a in 0..3 {
+        let d = third_differences(means, a);
+        let white = raw_sigma[a] / n.sqrt();
+        out[a] = white;
+        if d.len() < 30 {
+            continue;
+        }
+        let emp = robust_sigma(&d) / 20f64.sqrt();
+        // The MAD of overlapping third differences: relative 1σ ≈ 2/√N.
+        let tol = MEAN_NOISE_FACTOR.ln().max(6.0 * 2.0 / (d.len() as f64).sqrt());
+        if (emp / white).ln().abs() > tol {
+            out[a] = emp;
+            any.push(format!("{} {:.2}×", axis_name(a), emp / white));
+        }
+    }
+    if any.is_empty() {
+        return None;
+    }
+    findings.push(Finding {
+        kind: "mean-noise",
+        message: format!(
+            "the filter-period means scatter unlike white raw noise would ({}; raw 1σ [{:.2e}, {:.2e}, {:.2e}] m/s^2 over √{n:.0}): \
+             quantised outputs or correlated noise; the filter uses the means' own scatter [{:.2e}, {:.2e}, {:.2e}] m/s^2",
+            any.join(", "),
+            raw_sigma[0],
+            raw_sigma[1],
+            raw_sigma[2],
+            out[0],
+            out[1],
+            out[2]
+        ),
+        start_s: None,
+        end_s: None,
+        samples: 0,
+        action: Action::Repaired,
+    });
+    Some(out)
+}
+
+/// Steps: third differences beyond [`STEP_SIGMAS`]; one finding per jump (not repaired).
+pub fn check_steps(means: &[Measurement], skip: &[bool; 3], findings: &mut Vec<Finding>) {
+    for a in (0..3).filter(|&a| !skip[a]) {
+        let d = third_differences(means, a);
+        if d.len() < 30 {
+            continue;
+        }
+        let s = robust_sigma(&d);
+        if s <= 0.0 {
+            continue;
+        }
+        let mut k = 0;
+        while k < d.len() {
+            if d[k].1.abs() > STEP_SIGMAS * s {
+                // The event spans consecutive exceedances; its peak is the middle of (J, −2J, J).
+                let start = k;
+                while k < d.len() && d[k].0 <= d[start].0 + 4 && d[k].0 - d[start].0 <= 4 {
+                    k += 1;
+                }
+                let peak = (start..k).max_by(|&i, &j| d[i].1.abs().total_cmp(&d[j].1.abs())).unwrap_or(start);
+                let j = -d[peak].1 / 2.0;
+                let idx = (d[peak].0 + 2).min(means.len() - 1);
+                findings.push(Finding {
+                    kind: "step",
+                    message: format!(
+                        "axis {}: the filter-period means jump by about {j:+.2e} m/s^2 near t = {:.0} s ({:.0}× the noise of their third differences): \
+                         a bias step or a disturbance of the platform; not repaired",
+                        axis_name(a),
+                        means[idx].t_s,
+                        d[peak].1.abs() / s
+                    ),
+                    start_s: Some(means[d[start].0].t_s),
+                    end_s: Some(means[(d[k - 1].0 + 3).min(means.len() - 1)].t_s),
+                    samples: 0,
+                    action: Action::NotRepaired,
+                });
+            } else {
+                k += 1;
+            }
+        }
+    }
+}

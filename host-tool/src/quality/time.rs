@@ -1,0 +1,168 @@
+//! The time axis against the Earth: on a static base gravity turns in the space-stable platform
+//! frame at the Earth's rate about the Earth's axis, so the angle it sweeps between two samples
+//! fixes how many seconds lie between them. A time column in ms (or minutes, hours) shows up as a
+//! sweep rate 1000× (1/60×, 1/3600×) off; gaps and a change of sample rate are noted.
+
+use estimator_core::units::EARTH_RATE_RADPS;
+use estimator_core::{Sample, Site};
+use nalgebra::Vector3;
+
+use super::physics::Refuse;
+use super::{Action, Finding};
+
+/// The measured sweep may differ from the Earth-rate prediction by this factor (drift of a few
+/// deg/h against 15 cos(L) deg/h, a latitude a few degrees off) before the time unit is doubted.
+pub const RATE_TOLERANCE: f64 = 1.35;
+/// Time units recognised, as the factor from the file's unit to seconds.
+pub const UNITS: [(f64, &str); 4] = [
+    (1e-3, "milliseconds"),
+    (1e-6, "microseconds"),
+    (60.0, "minutes"),
+    (3600.0, "hours"),
+];
+/// Smallest swept angle that tests the unit, rad (1°; noise of a block mean is ~1e-5 rad).
+pub const MIN_SWEEP_RAD: f64 = 0.0175;
+
+/// Ratio of the time elapsed according to the Earth's rotation to the file's time difference,
+/// from ≤ 200 block means; `None` when the run sweeps too little (short, or near a pole).
+pub fn time_scale(site: &Site, samples: &[Sample]) -> Option<f64> {
+    let cos2 = site.latitude_rad.cos().powi(2);
+    if samples.len() < 8 || cos2 < 0.05 {
+        return None;
+    }
+    let blocks = 200.min(samples.len() / 4).max(2);
+    let per = samples.len() / blocks;
+    let mean = |k: usize| {
+        let chunk = &samples[k * per..(k + 1) * per];
+        let a = chunk
+            .iter()
+            .fold(Vector3::zeros(), |acc, s| acc + Vector3::from(s.specific_force));
+        let t = chunk.iter().map(|s| s.t_s).sum::<f64>() / chunk.len() as f64;
+        (t, a.normalize())
+    };
+    let (t0, u0) = mean(0);
+    let mut scales = vec![];
+    for k in 1..blocks {
+        let (t, u) = mean(k);
+        let angle = u0.cross(&u).norm().atan2(u0.dot(&u));
+        if angle < MIN_SWEEP_RAD {
+            continue;
+        }
+        // On the cone: cos(angle) = 1 − cos²L·(1 − cos Ωτ).
+        let c = 1.0 - (1.0 - angle.cos()) / cos2;
+        if !(-1.0..=1.0).contains(&c) {
+            continue;
+        }
+        let omega_tau = c.acos();
+        if omega_tau > 2.5 {
+            break; // past the point where the chord turns back
+        }
+        scales.push(omega_tau / EARTH_RATE_RADPS / (t - t0));
+    }
+    if scales.len() < 3 {
+        return None;
+    }
+    scales.sort_by(f64::total_cmp);
+    Some(scales[scales.len() / 2])
+}
+
+/// Checks the time unit against the Earth's rotation and repairs a recognised one; returns the
+/// factor applied to the file's times (1 when they are seconds).
+pub fn check_units(
+    site: &Site,
+    samples: &mut [Sample],
+    findings: &mut Vec<Finding>,
+) -> Result<f64, Refuse> {
+    let mut applied = 1.0;
+    if let Some(s) = time_scale(site, samples) {
+        if !(1.0 / RATE_TOLERANCE..=RATE_TOLERANCE).contains(&s) {
+            let unit = UNITS
+                .iter()
+                .find(|(f, _)| (1.0 / RATE_TOLERANCE..=RATE_TOLERANCE).contains(&(s / f)));
+            match unit {
+                Some(&(factor, name)) => {
+                    for x in samples.iter_mut() {
+                        x.t_s *= factor;
+                    }
+                    applied = factor;
+                    findings.push(Finding {
+                        kind: "time-units",
+                        message: format!(
+                            "gravity turns {:.4}× as fast per time unit as the Earth's rotation predicts at latitude {:.2} deg: \
+                             the time column is in {name}; converted to seconds",
+                            1.0 / s,
+                            site.latitude_rad.to_degrees()
+                        ),
+                        start_s: None,
+                        end_s: None,
+                        samples: samples.len(),
+                        action: Action::Repaired,
+                    });
+                }
+                None => {
+                    return Err((
+                        "time-units",
+                        format!(
+                            "gravity turns {:.3e}× as fast per time unit as the Earth's rotation predicts at latitude {:.2} deg: \
+                             the time column is not in seconds (nor ms, µs, minutes or hours), or the latitude is far off",
+                            1.0 / s,
+                            site.latitude_rad.to_degrees()
+                        ),
+                    ));
+                }
+            }
+        }
+    }
+    Ok(applied)
+}
+
+fn median(mut v: Vec<f64>) -> f64 {
+    if v.is_empty() {
+        return f64::NAN;
+    }
+    let mid = v.len() / 2;
+    let (_, m, _) = v.select_nth_unstable_by(mid, f64::total_cmp);
+    *m
+}
+
+/// Gaps (> 5 median intervals) and a change of the sample interval (> 10 % between the first and
+/// last quarter) are noted: the averager and the filter bridge both.
+pub fn check_spacing(times: &[f64], findings: &mut Vec<Finding>) {
+    let dt: Vec<f64> = times.windows(2).map(|w| w[1] - w[0]).collect();
+    if dt.len() < 8 {
+        return;
+    }
+    let med = median(dt.clone());
+    let gaps: Vec<usize> = (0..dt.len()).filter(|&k| dt[k] > 5.0 * med).collect();
+    if !gaps.is_empty() {
+        let total: f64 = gaps.iter().map(|&k| dt[k] - med).sum();
+        let longest = gaps.iter().copied().max_by(|&a, &b| dt[a].total_cmp(&dt[b])).unwrap_or(0);
+        findings.push(Finding {
+            kind: "time-gap",
+            message: format!(
+                "{} gaps in the time axis totalling {total:.1} s (longest {:.1} s after t = {:.1} s; usual interval {med:.4} s); the filter bridges them",
+                gaps.len(),
+                dt[longest],
+                times[longest]
+            ),
+            start_s: Some(times[gaps[0]]),
+            end_s: Some(times[gaps[gaps.len() - 1] + 1]),
+            samples: 0,
+            action: Action::Noted,
+        });
+    }
+    let q = dt.len() / 4;
+    let (first, last) = (median(dt[..q].to_vec()), median(dt[dt.len() - q..].to_vec()));
+    if (first / last - 1.0).abs() > 0.1 {
+        findings.push(Finding {
+            kind: "sample-rate-change",
+            message: format!(
+                "the sample interval changes from {first:.4} s (first quarter) to {last:.4} s (last quarter); the filter-period means use the actual times"
+            ),
+            start_s: None,
+            end_s: None,
+            samples: 0,
+            action: Action::Noted,
+        });
+    }
+}
