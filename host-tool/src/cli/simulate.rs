@@ -50,6 +50,10 @@ pub struct SimulateArgs {
     /// No gyro random walk and no accelerometer (or temperature sensor) noise.
     #[arg(long)]
     pub no_noise: bool,
+    /// Platform orientation at t = 0 relative to local level ENU, deg: the paper's Euler angles
+    /// tx,ty,tz (C = Rz(tz)·Ry(ty)·Rx(tx), passive). Written to the recording's metadata.
+    #[arg(long, value_delimiter = ',', allow_hyphen_values = true, value_name = "TX,TY,TZ")]
+    pub initial_orientation_deg: Option<Vec<f64>>,
 }
 
 impl SimulateArgs {
@@ -73,6 +77,12 @@ impl SimulateArgs {
         }
         s.effects = self.effects.clone();
         s.write_temp = self.write_temp;
+        if let Some(o) = &self.initial_orientation_deg {
+            match o.as_slice() {
+                [tx, ty, tz] if o.iter().all(|v| v.is_finite()) => s.initial_orientation_deg = [*tx, *ty, *tz],
+                _ => anyhow::bail!("--initial-orientation-deg takes three finite angles tx,ty,tz in degrees, got {o:?}"),
+            }
+        }
         if self.no_noise {
             s = s.without_noise();
         }

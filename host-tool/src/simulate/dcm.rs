@@ -34,6 +34,18 @@ pub fn c_0i(n0: &Vector3<f64>, t_s: f64) -> Matrix3<f64> {
     passive(&(n0 * (-EARTH_RATE_RADPS * t_s)))
 }
 
+/// C = Rz(tz)·Ry(ty)·Rx(tx) from Euler angles (rad), passive elementary rotations (the inverse
+/// of [`euler_zyx`]).
+pub fn from_euler_zyx(theta: &[f64; 3]) -> Matrix3<f64> {
+    let (sx, cx) = theta[0].sin_cos();
+    let (sy, cy) = theta[1].sin_cos();
+    let (sz, cz) = theta[2].sin_cos();
+    let rx = Matrix3::new(1.0, 0.0, 0.0, 0.0, cx, sx, 0.0, -sx, cx);
+    let ry = Matrix3::new(cy, 0.0, -sy, 0.0, 1.0, 0.0, sy, 0.0, cy);
+    let rz = Matrix3::new(cz, sz, 0.0, -sz, cz, 0.0, 0.0, 0.0, 1.0);
+    rz * ry * rx
+}
+
 /// Euler angles (tx, ty, tz) of C = Rz(tz)·Ry(ty)·Rx(tx) (passive elementary rotations):
 /// C[2][0] = sin ty, C[2][1] = −cos ty sin tx, C[2][2] = cos ty cos tx, C[1][0] = −sin tz cos ty,
 /// C[0][0] = cos tz cos ty. Angles in (−π, π], ty in [−π/2, π/2].
@@ -120,5 +132,19 @@ mod tests {
     #[test]
     fn normal_gravity_at_tianjin() {
         assert!((normal_gravity(39.1f64.to_radians()) - 9.800898).abs() < 5e-7);
+    }
+}
+
+#[cfg(test)]
+mod euler_tests {
+    use super::*;
+
+    #[test]
+    fn from_euler_inverts_euler_zyx() {
+        let th = [0.3, -1.2, 2.5];
+        let back = euler_zyx(&from_euler_zyx(&th));
+        for i in 0..3 {
+            assert!((back[i] - th[i]).abs() < 1e-12, "{back:?}");
+        }
     }
 }

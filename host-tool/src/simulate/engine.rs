@@ -95,9 +95,10 @@ impl Simulator {
             markov: Vec::new(),
             q: s.arw_deg2_per_h * (std::f64::consts::PI / 180.0).powi(2) / 3600.0,
             t: 0.0,
-            c_ip: Matrix3::identity(),
+            // At t = 0 frame i coincides with frame 0, so C_i^p(0) = C_0^p(θ0).
+            c_ip: dcm::from_euler_zyx(&s.initial_orientation_deg.map(f64::to_radians)),
             c_0i: Matrix3::identity(),
-            theta: [0.0; 3],
+            theta: s.initial_orientation_deg.map(f64::to_radians),
             steps: 0,
             rng_gyro: rng(s.seed, stream::GYRO),
             rng_markov: rng(s.seed, stream::MARKOV),

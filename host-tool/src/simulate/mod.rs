@@ -79,6 +79,9 @@ fn default_max_substep() -> f64 {
     1.0
 }
 
+/// Metadata key of the platform's initial orientation (deg, `tx, ty, tz`).
+pub const INITIAL_ORIENTATION_KEY: &str = "initial_orientation_deg";
+
 /// Everything that defines a simulated run.
 #[derive(Clone, Debug, PartialEq, serde::Serialize, serde::Deserialize)]
 pub struct Scenario {
@@ -111,6 +114,10 @@ pub struct Scenario {
     /// Longest integration substep, s (≤ 1; finer if `rate_s` is shorter).
     #[serde(default = "default_max_substep")]
     pub max_substep_s: f64,
+    /// Platform orientation at t = 0 relative to local level ENU: the paper's Euler angles
+    /// (C = Rz(tz)·Ry(ty)·Rx(tx), passive), deg. Zero: a level, north-aligned start.
+    #[serde(default)]
+    pub initial_orientation_deg: [f64; 3],
 }
 
 impl Scenario {
@@ -132,6 +139,7 @@ impl Scenario {
             write_temp: false,
             temp_profile: TempProfile::default(),
             max_substep_s: 1.0,
+            initial_orientation_deg: [0.0; 3],
         }
     }
 
@@ -405,11 +413,19 @@ pub fn simulate(s: &Scenario) -> Simulation {
         final_theta_rad: sim.theta_rad(),
         final_c_0p: to_rows(&sim.c_0p()),
     };
+    let mut extra = Vec::new();
+    if s.initial_orientation_deg != [0.0; 3] {
+        let [tx, ty, tz] = s.initial_orientation_deg;
+        extra.push((
+            INITIAL_ORIENTATION_KEY.to_string(),
+            format!("{tx:?}, {ty:?}, {tz:?}"),
+        ));
+    }
     let meta = Metadata {
         latitude_deg: Some(s.latitude_deg),
         gravity_mps2: Some(g),
         description: Some(describe(s)),
-        extra: Vec::new(),
+        extra,
     };
     Simulation {
         meta,
