@@ -4,12 +4,14 @@
 //! - [`simulate`]: the truth simulator (independent DCM kinematics, injectable effects).
 //! - [`identify`]: the converged identification (EKF passes, iterated smoother, Cramér–Rao bound).
 //! - [`catalog`]: the physical effects the user can add by name.
+//! - [`effects_file`]: effects defined by the user in a TOML file (`--effects FILE`).
 //! - [`diagnose`]: model vs measurements, score tests of the missing effects, the model ladder.
 //! - [`report`]: the self-contained HTML report and its plots.
 //! - [`link`]: the host end of the telemetry link (record, HIL replay).
 //! - [`cli`]: one module per `driftid` subcommand.
 pub mod catalog;
 pub mod diagnose;
+pub mod effects_file;
 pub mod format;
 pub mod identify;
 pub mod link;
