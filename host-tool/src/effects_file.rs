@@ -42,6 +42,7 @@ use std::path::{Path, PathBuf};
 use estimator_core::effects::{Context, Effect, Param, Partials};
 use estimator_core::units::S_PER_H;
 use exmex::prelude::*;
+use exmex::MatchLiteral; // named by literal_matcher_from_pattern!
 use serde::Deserialize;
 use toml::Spanned;
 
@@ -84,13 +85,27 @@ enum Slot {
 struct AxisExpr {
     /// The expression as written (for messages).
     source: String,
-    value: FlatEx<f64>,
+    value: Expr,
     /// Binding of each of `value.var_names()` (the derivatives keep the same variable list).
     slots: Vec<Slot>,
     /// ∂/∂parameter k, for the parameters the expression uses.
-    d_params: Vec<(usize, FlatEx<f64>)>,
+    d_params: Vec<(usize, Expr)>,
     /// ∂/∂A_j, for the force components the expression uses.
-    d_force: Vec<(usize, FlatEx<f64>)>,
+    d_force: Vec<(usize, Expr)>,
+}
+
+// exmex's default number literal has no exponent (`1e-6` would not parse): numbers here are
+// decimal literals with an optional exponent, read by `f64::from_str`.
+exmex::literal_matcher_from_pattern!(
+    SciNumber,
+    r"^([0-9]+(\.[0-9]*)?|\.[0-9]+)([eE][+-]?[0-9]+)?"
+);
+
+/// A compiled expression: f64, exmex's float operators, numbers with exponents.
+type Expr = FlatEx<f64, exmex::FloatOpsFactory<f64>, SciNumber>;
+
+fn parse_expr(s: &str) -> exmex::ExResult<Expr> {
+    Expr::parse(s)
 }
 
 /// Most expressions have a handful of variables: evaluate them without allocating.
@@ -112,7 +127,7 @@ impl AxisExpr {
 
 /// Evaluates a compiled expression. The variable count is fixed at load time, so exmex cannot
 /// fail here; should it ever, the value is NaN, which the filter's checks report with the step.
-fn eval(e: &FlatEx<f64>, vars: &[f64]) -> f64 {
+fn eval(e: &Expr, vars: &[f64]) -> f64 {
     e.eval(vars).unwrap_or(f64::NAN)
 }
 
@@ -331,7 +346,7 @@ fn compile(
             format!("{what}: empty expression (write \"0\" for an axis the effect does not touch)"),
         ));
     }
-    let value = exmex::parse::<f64>(src).map_err(|e| {
+    let value = parse_expr(src).map_err(|e| {
         loc.err(
             span.clone(),
             effect,
@@ -487,7 +502,7 @@ fn build_effect(
             ));
         }
         // exmex reads some names as operators or constants (`sin`, `E`, `PI`, …).
-        let as_var = exmex::parse::<f64>(pn)
+        let as_var = parse_expr(pn)
             .map(|e| e.var_names() == [pn.to_string()])
             .unwrap_or(false);
         if !as_var {

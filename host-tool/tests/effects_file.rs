@@ -72,12 +72,12 @@ fn bad_files_are_errors_naming_file_effect_and_position() {
         ),
         (
             k2_file("K2x * A_x^2", "K2y * A_y^2", Some("K2x * A_z^2")),
-            "bad.toml:7:23: effect `acc-k2`: parameter `K2z` appears in none of x, y, z",
+            "bad.toml:7:21: effect `acc-k2`: parameter `K2z` appears in none of x, y, z",
             &["cannot be identified"],
         ),
         (
             k2_file("K2x * A_x^2", "K2y * A_y^2 * 0", Some("K2z * A_z^2")),
-            "bad.toml:6:23: effect `acc-k2`: parameter `K2y` has a zero partial derivative",
+            "bad.toml:6:21: effect `acc-k2`: parameter `K2y` has a zero partial derivative",
             &[],
         ),
         (
@@ -94,24 +94,24 @@ fn bad_files_are_errors_naming_file_effect_and_position() {
         (
             k2_file("K2x * A_x^2", "K2y * A_y^2", Some("K2z * A_z^2"))
                 .replace("prior_sigma = 1e-5 },\n           { name = \"K2y\"", "prior_sigma = -1 },\n           { name = \"K2y\""),
-            "bad.toml:5:69: effect `acc-k2`: parameter `K2x`: prior_sigma = -1 must be a finite positive number",
+            "bad.toml:5:62: effect `acc-k2`: parameter `K2x`: prior_sigma = -1 must be a finite positive number",
             &[],
         ),
         (
             k2_file("K2x * A_x^2", "K2y * A_y^2", Some("K2z * A_z^2")).replace("\"K2y\"", "\"K2x\""),
-            "bad.toml:6:23: effect `acc-k2`: parameter `K2x` given twice",
+            "bad.toml:6:21: effect `acc-k2`: parameter `K2x` given twice",
             &[],
         ),
         (
             k2_file("K2x * A_x^2", "K2y * A_y^2", Some("K2z * A_z^2")).replace("\"K2y\"", "\"sin\""),
-            "bad.toml:6:23: effect `acc-k2`: parameter name `sin` is a function or constant",
+            "bad.toml:6:21: effect `acc-k2`: parameter name `sin` is a function or constant",
             &[],
         ),
         // TOML-level errors: the position comes from the toml crate's span; the effect is the
         // [[effect]] table around it.
         (
             k2_file("K2x * A_x^2", "K2y * A_y^2", Some("K2z * A_z^2")).replace("prior_sigma = 1e-5 }", "prior_sigma = \"big\" }"),
-            "bad.toml:5:68: effect `acc-k2`: ",
+            "bad.toml:5:62: effect `acc-k2`: ",
             &["invalid type"],
         ),
         (
@@ -553,8 +553,12 @@ fn acc_k2_from_the_file_is_found_by_diagnose() {
     );
     assert!(lead.p_adjusted < 0.01, "p_adjusted {}", lead.p_adjusted);
     assert_eq!(
-        rungs.iter().map(|r| r.model.as_str()).collect::<Vec<_>>(),
-        ["paper", "paper + acc-k2"]
+        rungs
+            .iter()
+            .map(|r| r.model.join(" + "))
+            .collect::<Vec<_>>(),
+        ["", "acc-k2"],
+        "the ladder (effects beyond the paper's) should add acc-k2, then stop"
     );
     assert_eq!(effects.last().unwrap().name(), "acc-k2");
     let last = diagnoses.last().unwrap();
