@@ -112,7 +112,7 @@ pub fn model_effects(with: &[String]) -> anyhow::Result<Vec<&'static dyn Effect>
         let e = by_name(name).ok_or_else(|| {
             let known: Vec<_> = candidates().iter().map(|e| e.name()).collect();
             anyhow::anyhow!(
-                "unknown effect `{name}`; the catalog has: {}",
+                "unknown effect `{name}`; the catalog has: {} (effects defined in a file need --effects FILE)",
                 known.join(", ")
             )
         })?;
