@@ -518,9 +518,9 @@ fn acc_k2_from_the_file_is_found_by_diagnose() {
     let prep = prepare(site, &samples, &cfg.identify).unwrap();
 
     // Registration is refused for a clash with a built-in name (and leaves the catalog as is).
-    let clash = parse(&format!(
-        "[[effect]]\nname = \"acc-bias\"\napplies_to = \"accelerometer\"\nparams = [ {{ name = \"Q\", prior_sigma = 1 }} ]\nx = \"Q\"\ny = \"0\"\nz = \"0\"\n"
-    ));
+    let clash = parse(
+        "[[effect]]\nname = \"acc-bias\"\napplies_to = \"accelerometer\"\nparams = [ { name = \"Q\", prior_sigma = 1 } ]\nx = \"Q\"\ny = \"0\"\nz = \"0\"\n",
+    );
     let clash: &'static UserEffect = Box::leak(Box::new(clash.into_iter().next().unwrap()));
     let e = catalog::register(vec![clash]).unwrap_err().to_string();
     assert!(e.contains("`acc-bias`") && e.contains("built-in"), "{e}");
@@ -570,14 +570,14 @@ fn acc_k2_from_the_file_is_found_by_diagnose() {
         );
     }
     let best = id.best();
-    for k in 0..3 {
-        let z = (best.value[12 + k] - k_true[k]) / best.sigma(12 + k);
+    for (k, t) in k_true.iter().enumerate() {
+        let z = (best.value[12 + k] - t) / best.sigma(12 + k);
         assert!(
             z.abs() < 3.0,
             "{} = {} vs injected {} ({z:.2} σ)",
             id.params[12 + k].name,
             best.value[12 + k],
-            k_true[k]
+            t
         );
     }
     eprintln!(
