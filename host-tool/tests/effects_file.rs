@@ -596,3 +596,20 @@ fn acc_k2_from_the_file_is_found_by_diagnose() {
         best.sigma(14)
     );
 }
+
+/// The catalog refuses a file effect whose parameter name is already used by a built-in effect
+/// (results are keyed by parameter name) and leaves the catalog unchanged (the refusal happens
+/// before anything is added, so this test cannot disturb the one that registers acc-k2).
+#[test]
+fn registering_a_clashing_parameter_name_is_refused() {
+    let e = parse(
+        "[[effect]]\nname = \"my-bias\"\napplies_to = \"accelerometer\"\nparams = [ { name = \"BAx\", prior_sigma = 1e-3 } ]\nx = \"BAx\"\ny = \"0\"\nz = \"0\"\n",
+    );
+    let e: &'static UserEffect = Box::leak(Box::new(e.into_iter().next().unwrap()));
+    let err = catalog::register(vec![e]).unwrap_err().to_string();
+    assert_eq!(
+        err,
+        "effect `my-bias`: parameter name `BAx` is already used by effect `acc-bias`; rename it"
+    );
+    assert!(catalog::by_name("my-bias").is_none());
+}
