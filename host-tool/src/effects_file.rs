@@ -131,7 +131,8 @@ fn eval(e: &Expr, vars: &[f64]) -> f64 {
     e.eval(vars).unwrap_or(f64::NAN)
 }
 
-/// An effect read from a TOML file. Its strings are leaked once per run (see [`load_file`]).
+/// An effect read from a TOML file. Its strings are leaked once per run (see `leak`); the
+/// registered effect itself is leaked by [`load_and_register`].
 #[derive(Debug)]
 pub struct UserEffect {
     name: &'static str,
