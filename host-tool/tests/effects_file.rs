@@ -613,3 +613,34 @@ fn registering_a_clashing_parameter_name_is_refused() {
     );
     assert!(catalog::by_name("my-bias").is_none());
 }
+
+/// The binary: `--effects` with a bad file is a located error (exit code 1) on each of identify,
+/// diagnose and report, before the recording is read (so the recording need not exist here).
+#[test]
+fn the_cli_reports_a_bad_effects_file() {
+    let dir = std::env::temp_dir().join(format!("driftid-effects-file-{}", std::process::id()));
+    std::fs::create_dir_all(&dir).unwrap();
+    let bad = dir.join("bad.toml");
+    std::fs::write(
+        &bad,
+        k2_file("K2x * A_x^2", "K2y * A_y^3 * lux", Some("K2z * A_z^2")),
+    )
+    .unwrap();
+    for cmd in ["identify", "diagnose", "report"] {
+        let out = std::process::Command::new(env!("CARGO_BIN_EXE_driftid"))
+            .arg(cmd)
+            .arg(dir.join("run.csv"))
+            .arg("--effects")
+            .arg(&bad)
+            .output()
+            .unwrap();
+        let stderr = String::from_utf8_lossy(&out.stderr);
+        assert_eq!(out.status.code(), Some(1), "{cmd}: {stderr}");
+        let expected = format!(
+            "driftid: error: {}:9:5: effect `acc-k2`: y = \"K2y * A_y^3 * lux\": unknown variable `lux` (character 15 of the expression)",
+            bad.display()
+        );
+        assert!(stderr.starts_with(&expected), "{cmd}: {stderr}");
+    }
+    std::fs::remove_dir_all(&dir).ok();
+}
