@@ -6,6 +6,7 @@
 //! - [`identify`]: the converged identification (EKF passes, iterated smoother, Cramér–Rao bound).
 //! - [`catalog`]: the physical effects the user can add by name.
 //! - [`consistency`]: the one definition of a consistent model (NIS band, whiteness, floor).
+//! - [`effects_file`]: effects defined by the user in a TOML file (`--effects FILE`).
 //! - [`diagnose`]: model vs measurements, score tests of the missing effects, the model ladder.
 //! - [`report`]: the self-contained HTML report and its plots.
 //! - [`link`]: the host end of the telemetry link (record, HIL replay).
@@ -13,6 +14,7 @@
 pub mod catalog;
 pub mod consistency;
 pub mod diagnose;
+pub mod effects_file;
 pub mod format;
 pub mod identify;
 pub mod link;

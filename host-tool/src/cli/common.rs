@@ -33,7 +33,14 @@ pub struct ModelArgs {
     /// Effects added to the paper's model, comma-separated (e.g. `acc-bias,drift-markov`).
     #[arg(long = "with", value_delimiter = ',')]
     pub with: Vec<String>,
+    /// TOML file of effects defined by the user, added to the catalog for this run (repeatable);
+    /// see the README, "Effects defined in a file".
+    #[arg(long = "effects", value_name = "FILE")]
+    pub effects: Vec<std::path::PathBuf>,
 }
+
+/// Loads and registers the `--effects` files: call first in identify, diagnose and report.
+pub use crate::effects_file::load_effects_args;
 
 impl ModelArgs {
     /// The identification settings these options give.

@@ -179,6 +179,7 @@ pub fn print_ladder(rungs: &[Rung]) {
 
 /// Runs `driftid diagnose`.
 pub fn run(args: &DiagnoseArgs) -> anyhow::Result<()> {
+    super::common::load_effects_args(&args.model)?; // --effects FILE: user effects join the catalog
     let cfg = DiagnoseConfig {
         identify: args.model.config()?,
         max_rungs: if args.no_ladder { 1 } else { 4 },

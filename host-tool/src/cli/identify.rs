@@ -173,6 +173,7 @@ pub fn to_json(rows: &[Row], id: &Identification, prep: &Prepared) -> Value {
 
 /// Runs `driftid identify`.
 pub fn run(args: &IdentifyArgs) -> anyhow::Result<()> {
+    super::common::load_effects_args(&args.model)?; // --effects FILE: user effects join the catalog
     let cfg = args.model.config()?;
     let loaded = load(&args.recording, args.model.latitude_deg)?;
     let effects = catalog::model_effects(&args.model.with)?;

@@ -30,6 +30,7 @@ pub struct ReportArgs {
 
 /// Runs `driftid report`.
 pub fn run(args: &ReportArgs) -> anyhow::Result<()> {
+    super::common::load_effects_args(&args.model)?; // --effects FILE: user effects join the catalog
     let cfg = DiagnoseConfig {
         identify: args.model.config()?,
         ..Default::default()
