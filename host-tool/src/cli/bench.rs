@@ -22,13 +22,13 @@ pub struct BenchArgs {
     #[arg(value_parser = ["accuracy", "calibration", "sensitivity"])]
     pub what: String,
     /// Number of seeds.
-    #[arg(long, default_value_t = 24)]
+    #[arg(long, default_value_t = 24, value_parser = super::args::seed_count)]
     pub seeds: u64,
     /// Run lengths at which to evaluate, h.
-    #[arg(long, value_delimiter = ',', default_value = "12,24,30,48,60")]
+    #[arg(long, value_delimiter = ',', default_value = "12,24,30,48,60", value_parser = super::args::positive_f64)]
     pub hours: Vec<f64>,
     /// Raw sample interval, s.
-    #[arg(long, default_value_t = 1.0)]
+    #[arg(long, default_value_t = 1.0, value_parser = super::args::positive_f64)]
     pub rate_s: f64,
     /// Print one JSON object instead of tables.
     #[arg(long)]
@@ -55,6 +55,13 @@ fn truncated(prep: &Prepared, hours: f64) -> Prepared {
 
 /// Runs the chosen benchmark.
 pub fn run(args: &BenchArgs) -> anyhow::Result<()> {
+    // The longest run asked for must be one the simulator accepts (it panics otherwise).
+    let mut longest = Scenario::paper();
+    longest.hours = args.hours.iter().cloned().fold(0.0, f64::max);
+    longest.rate_s = args.rate_s;
+    longest
+        .validate()
+        .map_err(|e| anyhow::anyhow!("--hours/--rate-s: {e}"))?;
     match args.what.as_str() {
         "calibration" => calibration(args),
         "sensitivity" => sensitivity(args),
@@ -117,7 +124,10 @@ fn calibration(args: &BenchArgs) -> anyhow::Result<()> {
         .collect();
     let per_seed: Vec<_> = per_seed.into_iter().collect::<anyhow::Result<_>>()?;
     let n = per_seed.len() as f64;
-    let mut names: Vec<String> = per_seed[0].iter().map(|r| r.0.clone()).collect();
+    let mut names: Vec<String> = per_seed
+        .first()
+        .map(|s| s.iter().map(|r| r.0.clone()).collect())
+        .unwrap_or_default();
     names.sort();
     let mut rows = vec![];
     for name in &names {
@@ -225,7 +235,11 @@ fn sensitivity(args: &BenchArgs) -> anyhow::Result<()> {
                     sc.seed = 6000 + seed;
                     sc.effects = vec![spec.parse().map_err(|e: String| anyhow::anyhow!(e))?];
                     let d = diagnose_run(&sc)?;
-                    let c = d.ranking.iter().find(|c| c.effect == effect).unwrap();
+                    let c = d
+                        .ranking
+                        .iter()
+                        .find(|c| c.effect == effect)
+                        .ok_or_else(|| anyhow::anyhow!("{effect} missing from the ranking"))?;
                     Ok((
                         c.p_adjusted < 0.01,
                         d.ranking[0].effect == effect && c.p_adjusted < 0.01,
