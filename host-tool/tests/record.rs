@@ -232,9 +232,15 @@ fn a_nonfinite_or_out_of_range_sample_is_skipped_and_counted() {
     let sum = run(&opts, vec![bytes]).unwrap();
     assert_eq!((sum.nonfinite, sum.out_of_range), (3, 1), "each counted");
     assert_eq!(sum.samples, 31 - 4, "every other sample written");
-    assert_eq!((sum.duplicates, sum.sample_gaps), (0, 0), "skipped is not lost");
+    assert_eq!(
+        (sum.duplicates, sum.sample_gaps),
+        (0, 0),
+        "skipped is not lost"
+    );
     assert!(
-        sum.first_skipped.as_deref().is_some_and(|s| s.contains("sample 5")),
+        sum.first_skipped
+            .as_deref()
+            .is_some_and(|s| s.contains("sample 5")),
         "{:?}",
         sum.first_skipped
     );
@@ -278,6 +284,9 @@ fn metadata_the_reader_would_refuse_is_not_written() {
     assert!(sum.notes[1].contains("gravity_mps2") && sum.notes[1].contains("50"));
     let rec = read_recording(&opts.out).expect("the reader accepts what record wrote");
     assert_eq!(rec.meta.latitude_deg, Some(45.0), "from --latitude-deg");
-    assert_eq!(rec.meta.gravity_mps2, None, "left out: normal gravity is used");
+    assert_eq!(
+        rec.meta.gravity_mps2, None,
+        "left out: normal gravity is used"
+    );
     let _ = std::fs::remove_dir_all(&dir);
 }

@@ -28,7 +28,9 @@ fn stderr(out: &Output) -> String {
 fn simulate(dir: &Path, hours: &str, rate_s: &str) -> PathBuf {
     let csv = dir.join("run.csv");
     let out = driftid()
-        .args(["simulate", "--hours", hours, "--rate-s", rate_s, "--seed", "2"])
+        .args([
+            "simulate", "--hours", hours, "--rate-s", rate_s, "--seed", "2",
+        ])
         .arg("--out")
         .arg(&csv)
         .output()
@@ -58,7 +60,10 @@ fn every_bad_numeric_argument_exits_2_naming_the_option() {
         (&["simulate", "--out", "x.csv", "--hours", "nan"], "--hours"),
         (&["simulate", "--out", "x.csv", "--hours", "inf"], "--hours"),
         (&["simulate", "--out", "x.csv", "--rate-s", "0"], "--rate-s"),
-        (&["simulate", "--out", "x.csv", "--rate-s", "NaN"], "--rate-s"),
+        (
+            &["simulate", "--out", "x.csv", "--rate-s", "NaN"],
+            "--rate-s",
+        ),
         (
             &["simulate", "--out", "x.csv", "--latitude-deg", "91"],
             "--latitude-deg",
@@ -71,58 +76,157 @@ fn every_bad_numeric_argument_exits_2_naming_the_option() {
         (&["identify", "x.csv", "--period-s", "nan"], "--period-s"),
         (&["identify", "x.csv", "--arw", "-1"], "--arw"),
         (&["identify", "x.csv", "--raw-sigma", "0"], "--raw-sigma"),
-        (&["identify", "x.csv", "--raw-sigma", "1e-4,nan,1e-4"], "--raw-sigma"),
-        (&["identify", "x.csv", "--latitude-deg", "inf"], "--latitude-deg"),
-        (&["identify", "x.csv", "--latitude-deg", "-95"], "--latitude-deg"),
+        (
+            &["identify", "x.csv", "--raw-sigma", "1e-4,nan,1e-4"],
+            "--raw-sigma",
+        ),
+        (
+            &["identify", "x.csv", "--latitude-deg", "inf"],
+            "--latitude-deg",
+        ),
+        (
+            &["identify", "x.csv", "--latitude-deg", "-95"],
+            "--latitude-deg",
+        ),
         (&["diagnose", "x.csv", "--period-s", "-60"], "--period-s"),
         (&["report", "x.csv", "--arw", "nan"], "--arw"),
         (
-            &["record", "--port", "/nonexistent", "--out", "x.csv", "--duration-s", "-1"],
+            &[
+                "record",
+                "--port",
+                "/nonexistent",
+                "--out",
+                "x.csv",
+                "--duration-s",
+                "-1",
+            ],
             "--duration-s",
         ),
         (
-            &["record", "--port", "/nonexistent", "--out", "x.csv", "--duration-s", "nan"],
+            &[
+                "record",
+                "--port",
+                "/nonexistent",
+                "--out",
+                "x.csv",
+                "--duration-s",
+                "nan",
+            ],
             "--duration-s",
         ),
         (
-            &["record", "--port", "/nonexistent", "--out", "x.csv", "--duration-s", "inf"],
+            &[
+                "record",
+                "--port",
+                "/nonexistent",
+                "--out",
+                "x.csv",
+                "--duration-s",
+                "inf",
+            ],
             "--duration-s",
         ),
         (
             // Finite, but beyond what a Duration holds: from_secs_f64 panicked on it too.
-            &["record", "--port", "/nonexistent", "--out", "x.csv", "--duration-s", "1e300"],
+            &[
+                "record",
+                "--port",
+                "/nonexistent",
+                "--out",
+                "x.csv",
+                "--duration-s",
+                "1e300",
+            ],
             "--duration-s",
         ),
         (
-            &["record", "--port", "/nonexistent", "--out", "x.csv", "--baud", "0"],
+            &[
+                "record",
+                "--port",
+                "/nonexistent",
+                "--out",
+                "x.csv",
+                "--baud",
+                "0",
+            ],
             "--baud",
         ),
         (
-            &["record", "--port", "/nonexistent", "--out", "x.csv", "--latitude-deg", "100"],
+            &[
+                "record",
+                "--port",
+                "/nonexistent",
+                "--out",
+                "x.csv",
+                "--latitude-deg",
+                "100",
+            ],
             "--latitude-deg",
         ),
         (
-            &["replay", "x.csv", "--port", "/nonexistent", "--timeout-s", "-1"],
+            &[
+                "replay",
+                "x.csv",
+                "--port",
+                "/nonexistent",
+                "--timeout-s",
+                "-1",
+            ],
             "--timeout-s",
         ),
         (
-            &["replay", "x.csv", "--port", "/nonexistent", "--timeout-s", "nan"],
+            &[
+                "replay",
+                "x.csv",
+                "--port",
+                "/nonexistent",
+                "--timeout-s",
+                "nan",
+            ],
             "--timeout-s",
         ),
         (
-            &["replay", "x.csv", "--port", "/nonexistent", "--timeout-s", "inf"],
+            &[
+                "replay",
+                "x.csv",
+                "--port",
+                "/nonexistent",
+                "--timeout-s",
+                "inf",
+            ],
             "--timeout-s",
         ),
         (
-            &["replay", "x.csv", "--port", "/nonexistent", "--period-s", "0"],
+            &[
+                "replay",
+                "x.csv",
+                "--port",
+                "/nonexistent",
+                "--period-s",
+                "0",
+            ],
             "--period-s",
         ),
         (
-            &["replay", "x.csv", "--port", "/nonexistent", "--gate-nis", "-1"],
+            &[
+                "replay",
+                "x.csv",
+                "--port",
+                "/nonexistent",
+                "--gate-nis",
+                "-1",
+            ],
             "--gate-nis",
         ),
         (
-            &["replay", "x.csv", "--port", "/nonexistent", "--raw-sigma", "-1e-4"],
+            &[
+                "replay",
+                "x.csv",
+                "--port",
+                "/nonexistent",
+                "--raw-sigma",
+                "-1e-4",
+            ],
             "--raw-sigma",
         ),
         (
@@ -143,6 +247,7 @@ fn every_bad_numeric_argument_exits_2_naming_the_option() {
             "--hours",
         ),
         (&["demo", "--seed", "-1"], "--seed"),
+        (&["simulate", "--out", "x.csv", "--seed", "1.5"], "--seed"),
     ];
     for (args, option) in cases {
         let out = driftid().args(*args).output().unwrap();
@@ -207,7 +312,12 @@ fn report_and_replay_refuse_to_overwrite_their_input() {
     let truth_before = std::fs::read(&truth).unwrap();
     let other_spelling = dir.join(".").join("run.csv");
     let cases: Vec<Vec<std::ffi::OsString>> = vec![
-        vec!["report".into(), csv.clone().into(), "-o".into(), csv.clone().into()],
+        vec![
+            "report".into(),
+            csv.clone().into(),
+            "-o".into(),
+            csv.clone().into(),
+        ],
         vec![
             "report".into(),
             csv.clone().into(),
@@ -247,7 +357,11 @@ fn report_and_replay_refuse_to_overwrite_their_input() {
             err.contains("refusing to overwrite") && err.contains("run."),
             "{args:?}: should say which input it refuses to overwrite: {err}"
         );
-        assert_eq!(std::fs::read(&csv).unwrap(), before, "{args:?}: recording changed");
+        assert_eq!(
+            std::fs::read(&csv).unwrap(),
+            before,
+            "{args:?}: recording changed"
+        );
         assert_eq!(
             std::fs::read(&truth).unwrap(),
             truth_before,
@@ -280,7 +394,10 @@ fn a_failing_replay_leaves_no_output_file() {
     let err = stderr(&out);
     assert_eq!(out.status.code(), Some(2), "{err}");
     assert!(err.contains("timed out"), "{err}");
-    assert!(!out_csv.exists(), "a failed replay must leave no output file");
+    assert!(
+        !out_csv.exists(),
+        "a failed replay must leave no output file"
+    );
     assert_eq!(
         names_in(&dir),
         ["run.csv", "run.truth.json"],
@@ -304,7 +421,9 @@ fn simulate_killed_mid_write_leaves_a_consistent_pair() {
     let (old_csv, old_truth) = (std::fs::read(&csv).unwrap(), std::fs::read(&truth).unwrap());
     // About 700 000 rows (tens of MB): the write phase lasts far longer than the polling below.
     let mut child = driftid()
-        .args(["simulate", "--hours", "20", "--rate-s", "0.1", "--seed", "9", "--out"])
+        .args([
+            "simulate", "--hours", "20", "--rate-s", "0.1", "--seed", "9", "--out",
+        ])
         .arg(&csv)
         .stdout(Stdio::null())
         .stderr(Stdio::null())
@@ -324,19 +443,37 @@ fn simulate_killed_mid_write_leaves_a_consistent_pair() {
     }
     let _ = child.kill();
     let _ = child.wait();
-    assert!(saw_temp, "the simulate never started writing (or finished unseen)");
+    assert!(
+        saw_temp,
+        "the simulate never started writing (or finished unseen)"
+    );
     let now_csv = std::fs::read(&csv).expect("run.csv still there");
     let rec = host_tool::recording::read_recording(&csv)
         .expect("the recording at the real name is complete and readable");
-    assert!(rec.repairs.is_empty(), "no truncated line: {:?}", rec.repairs);
+    assert!(
+        rec.repairs.is_empty(),
+        "no truncated line: {:?}",
+        rec.repairs
+    );
     if now_csv == old_csv {
         if truth.exists() {
             assert_eq!(std::fs::read(&truth).unwrap(), old_truth, "old pair intact");
         }
     } else if truth.exists() {
         let t = host_tool::simulate::read_truth(&truth).unwrap();
-        assert_eq!(t.sample_count, rec.samples.len() as u64, "truth describes the CSV");
+        assert_eq!(
+            t.sample_count,
+            rec.samples.len() as u64,
+            "truth describes the CSV"
+        );
     }
+    // The kill landed before the last rename: its temporary (SIGKILL runs no clean-up) is still
+    // there. Writing ~48 MB takes far longer than the 1-ms polling above, so this only fails if
+    // the write phase became near-instant — then make the run longer.
+    assert!(
+        names_in(&dir).iter().any(|n| n.starts_with(".driftid-")),
+        "the kill came after the simulate had finished writing; the test did not test anything"
+    );
     // A kill leaves at most hidden temporaries, never another visible file.
     for n in names_in(&dir) {
         assert!(

@@ -21,7 +21,9 @@ fn number(s: &str) -> Result<f64, String> {
     if v.is_finite() {
         Ok(v)
     } else {
-        Err(format!("{s} is not finite (NaN and infinity are not allowed)"))
+        Err(format!(
+            "{s} is not finite (NaN and infinity are not allowed)"
+        ))
     }
 }
 
@@ -56,7 +58,9 @@ pub fn latitude_deg(s: &str) -> Result<f64, String> {
 pub fn duration_s(s: &str) -> Result<f64, String> {
     match positive_f64(s)? {
         v if v <= MAX_DURATION_S => Ok(v),
-        v => Err(format!("{v} s is more than the {MAX_DURATION_S:e} s accepted")),
+        v => Err(format!(
+            "{v} s is more than the {MAX_DURATION_S:e} s accepted"
+        )),
     }
 }
 

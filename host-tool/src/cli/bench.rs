@@ -22,13 +22,13 @@ pub struct BenchArgs {
     #[arg(value_parser = ["accuracy", "calibration", "sensitivity"])]
     pub what: String,
     /// Number of seeds.
-    #[arg(long, default_value_t = 24, value_parser = super::args::seed_count)]
+    #[arg(long, default_value_t = 24, allow_hyphen_values = true, value_parser = super::args::seed_count)]
     pub seeds: u64,
     /// Run lengths at which to evaluate, h.
-    #[arg(long, value_delimiter = ',', default_value = "12,24,30,48,60", value_parser = super::args::positive_f64)]
+    #[arg(long, value_delimiter = ',', default_value = "12,24,30,48,60", allow_hyphen_values = true, value_parser = super::args::positive_f64)]
     pub hours: Vec<f64>,
     /// Raw sample interval, s.
-    #[arg(long, default_value_t = 1.0, value_parser = super::args::positive_f64)]
+    #[arg(long, default_value_t = 1.0, allow_hyphen_values = true, value_parser = super::args::positive_f64)]
     pub rate_s: f64,
     /// Print one JSON object instead of tables.
     #[arg(long)]

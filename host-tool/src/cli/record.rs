@@ -14,7 +14,7 @@ pub struct RecordArgs {
     #[arg(long)]
     pub port: String,
     /// Baud rate.
-    #[arg(long, default_value_t = port::DEFAULT_BAUD, value_parser = super::args::positive_u32)]
+    #[arg(long, default_value_t = port::DEFAULT_BAUD, allow_hyphen_values = true, value_parser = super::args::positive_u32)]
     pub baud: u32,
     /// The recording to write (CSV interchange format).
     #[arg(long)]
@@ -26,7 +26,7 @@ pub struct RecordArgs {
     #[arg(long, allow_hyphen_values = true, value_parser = super::args::latitude_deg)]
     pub latitude_deg: Option<f64>,
     /// Stop after this many seconds (default: until interrupted).
-    #[arg(long, value_parser = super::args::duration_s)]
+    #[arg(long, allow_hyphen_values = true, value_parser = super::args::duration_s)]
     pub duration_s: Option<f64>,
     /// Exit when the port disappears instead of waiting for it to come back.
     #[arg(long)]

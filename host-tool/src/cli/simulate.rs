@@ -25,13 +25,13 @@ pub struct SimulateArgs {
     #[arg(long, value_enum, default_value_t = Preset::Paper)]
     pub scenario: Preset,
     /// Duration, hours (preset: 60).
-    #[arg(long, value_parser = super::args::nonneg_f64)]
+    #[arg(long, allow_hyphen_values = true, value_parser = super::args::nonneg_f64)]
     pub hours: Option<f64>,
     /// Sample interval, seconds (preset: 1).
-    #[arg(long, value_parser = super::args::positive_f64)]
+    #[arg(long, allow_hyphen_values = true, value_parser = super::args::positive_f64)]
     pub rate_s: Option<f64>,
     /// Random seed (preset: 1).
-    #[arg(long)]
+    #[arg(long, allow_hyphen_values = true)]
     pub seed: Option<u64>,
     /// Latitude, degrees (preset: 39.1). Gravity and the default accelerometer noise
     /// (1e-5 g per 60-s mean) follow it.

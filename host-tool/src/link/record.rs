@@ -313,18 +313,19 @@ fn handle(
 /// normal gravity) and said in [`RecordSummary::notes`].
 fn new_metadata(opts: &RecordOptions, sum: &mut RecordSummary) -> Metadata {
     let hello = sum.hello;
-    let mut keep = |what: &str, from: &str, v: Option<f64>, check: fn(f64) -> Result<f64, String>| {
-        v.and_then(|v| match check(v) {
-            Ok(v) => Some(v),
-            Err(e) => {
-                sum.notes.push(format!(
-                    "{}: {from} {what} {e}; left out of the recording's metadata",
-                    opts.out.display()
-                ));
-                None
-            }
-        })
-    };
+    let mut keep =
+        |what: &str, from: &str, v: Option<f64>, check: fn(f64) -> Result<f64, String>| {
+            v.and_then(|v| match check(v) {
+                Ok(v) => Some(v),
+                Err(e) => {
+                    sum.notes.push(format!(
+                        "{}: {from} {what} {e}; left out of the recording's metadata",
+                        opts.out.display()
+                    ));
+                    None
+                }
+            })
+        };
     let latitude_deg = match hello {
         Some(h) => keep(
             "latitude_deg",
@@ -334,7 +335,14 @@ fn new_metadata(opts: &RecordOptions, sum: &mut RecordSummary) -> Metadata {
         ),
         None => None,
     }
-    .or_else(|| keep("latitude_deg", "the given", opts.latitude_deg, check_latitude_deg));
+    .or_else(|| {
+        keep(
+            "latitude_deg",
+            "the given",
+            opts.latitude_deg,
+            check_latitude_deg,
+        )
+    });
     let gravity_mps2 = keep(
         "gravity_mps2",
         "the firmware's",

@@ -146,7 +146,9 @@ fn read_line<R: BufRead>(
         buf.extend_from_slice(&chunk[..take]);
         reader.consume(take);
         // The line without its ending (\n or \r\n) must fit.
-        let content = buf.len() - usize::from(done) - usize::from(done && buf.len() >= 2 && buf[buf.len() - 2] == b'\r');
+        let content = buf.len()
+            - usize::from(done)
+            - usize::from(done && buf.len() >= 2 && buf[buf.len() - 2] == b'\r');
         if content > MAX_LINE_BYTES {
             return Err(RecordingError::LineTooLong {
                 file: file.to_string(),

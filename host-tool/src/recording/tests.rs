@@ -327,8 +327,14 @@ fn a_line_beyond_the_cap_is_an_error_naming_line_and_limit() {
     }
     // One byte more: refused.
     let text = format!("{HDR}1.0,0.1,0.2,9.8\n2.0,0.1,0.2, {pad}9.8\n");
-    let e = fails(text.as_bytes(), &["run.csv:5:", &MAX_LINE_BYTES.to_string()]);
-    assert!(matches!(e, RecordingError::LineTooLong { line: 5, .. }), "{e:?}");
+    let e = fails(
+        text.as_bytes(),
+        &["run.csv:5:", &MAX_LINE_BYTES.to_string()],
+    );
+    assert!(
+        matches!(e, RecordingError::LineTooLong { line: 5, .. }),
+        "{e:?}"
+    );
     // A "file" with no line break at all: refused on line 1, without reading all of it.
     let big = vec![b'x'; 4 * MAX_LINE_BYTES];
     let e = fails(&big, &["run.csv:1:", "longer than"]);
@@ -340,7 +346,10 @@ fn a_line_beyond_the_cap_is_an_error_naming_line_and_limit() {
 fn errors_quote_only_a_short_prefix_of_bad_text() {
     let long = "z".repeat(10_000);
     let text = format!("{HDR}0.0,{long},0.2,9.8\n");
-    let e = fails(text.as_bytes(), &["run.csv:4:", "ax_mps2", "10000 bytes in all"]);
+    let e = fails(
+        text.as_bytes(),
+        &["run.csv:4:", "ax_mps2", "10000 bytes in all"],
+    );
     assert!(e.to_string().len() < 300, "{} bytes", e.to_string().len());
     let text = format!("# latitude_deg: 39.1\nt_s,{long}\n");
     let e = fails(text.as_bytes(), &["run.csv:2:", "missing required column"]);
@@ -372,11 +381,20 @@ fn the_writer_refuses_what_the_reader_refuses() {
         specific_force_mps2: [0.0, a, 9.8],
         temp_c: temp,
     };
-    assert!(w.write_sample(&s(0.0, 2000.0, None)).is_err(), "|a| > limit");
-    assert!(w.write_sample(&s(0.0, 0.0, Some(5000.0))).is_err(), "temperature");
+    assert!(
+        w.write_sample(&s(0.0, 2000.0, None)).is_err(),
+        "|a| > limit"
+    );
+    assert!(
+        w.write_sample(&s(0.0, 0.0, Some(5000.0))).is_err(),
+        "temperature"
+    );
     assert!(w.write_sample(&s(f64::NAN, 0.0, None)).is_err(), "NaN time");
     w.write_sample(&s(0.0, 0.0, Some(20.0))).unwrap();
-    assert!(w.write_sample(&s(0.0, 0.0, None)).is_err(), "time not increasing");
+    assert!(
+        w.write_sample(&s(0.0, 0.0, None)).is_err(),
+        "time not increasing"
+    );
     let bytes = w.into_inner().unwrap();
     assert_eq!(read(&bytes).unwrap().samples.len(), 1);
 }

@@ -142,7 +142,8 @@ impl<W: Write> RecordingWriter<W> {
                 .split_whitespace()
                 .collect::<Vec<_>>()
                 .join("_");
-            if k.is_empty() || ["latitude_deg", "gravity_mps2", "description"].contains(&k.as_str()) {
+            if k.is_empty() || ["latitude_deg", "gravity_mps2", "description"].contains(&k.as_str())
+            {
                 continue;
             }
             lines.push(format!("# {k}: {}", one_line(v)));

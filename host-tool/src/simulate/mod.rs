@@ -461,9 +461,7 @@ pub fn write_simulation(csv: &Path, sim: &Simulation) -> anyhow::Result<PathBuf>
     match std::fs::remove_file(&tp) {
         Ok(()) => {}
         Err(e) if e.kind() == std::io::ErrorKind::NotFound => {}
-        Err(e) => {
-            return Err(e).with_context(|| format!("removing the previous {}", tp.display()))
-        }
+        Err(e) => return Err(e).with_context(|| format!("removing the previous {}", tp.display())),
     }
     csv_file.commit()?;
     truth_file.commit()?;
