@@ -69,6 +69,9 @@ pub fn run(args: &BenchArgs) -> anyhow::Result<()> {
     }
 }
 
+/// One candidate's result on one seed: name, p, Holm-adjusted p, largest detection limit in σ.
+type CandidateP = (String, f64, f64, f64);
+
 /// False alarms of the diagnosis on clean runs (paper model, no hidden effect): per candidate the
 /// fraction of seeds with p < 1 %, and the family-wise rate after Holm's adjustment.
 fn calibration(args: &BenchArgs) -> anyhow::Result<()> {
@@ -77,7 +80,7 @@ fn calibration(args: &BenchArgs) -> anyhow::Result<()> {
     let t0 = std::time::Instant::now();
     let cfg = DiagnoseConfig::default();
     let pb = crate::progress::bar(args.seeds, "clean seeds");
-    let per_seed: Vec<anyhow::Result<Vec<(String, f64, f64, f64)>>> = (1..=args.seeds)
+    let per_seed: Vec<anyhow::Result<Vec<CandidateP>>> = (1..=args.seeds)
         .into_par_iter()
         .progress_with(pb.clone())
         .map(|seed| {
@@ -334,9 +337,9 @@ fn accuracy(args: &BenchArgs) -> anyhow::Result<()> {
             .take_while(|m| m.t_s <= h * 3600.0)
             .collect();
         let bound = cramer_rao_bound(&model, &meas, &truth);
-        let mut rms = vec![0.0; 12];
-        let mut rms_single = vec![0.0; 12];
-        let mut worst = vec![0.0f64; 12];
+        let mut rms = [0.0; 12];
+        let mut rms_single = [0.0; 12];
+        let mut worst = [0.0f64; 12];
         let mut nees = 0.0;
         for r in &results {
             let (e, p, es) = &r.at[c];

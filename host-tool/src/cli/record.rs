@@ -51,7 +51,7 @@ pub fn run(a: &RecordArgs) -> anyhow::Result<()> {
     let sum = record::record(&opts, |m| match m {
         Message::Raw(_) => {
             samples += 1;
-            if samples % 600 == 0 {
+            if samples.is_multiple_of(600) {
                 eprintln!("{samples} samples received");
             }
         }

@@ -115,9 +115,9 @@ pub fn render_html(input: &ReportInput) -> Result<String> {
     let fig = |kinds: &[Kind], h: &mut String| {
         for (f, s) in &svgs {
             if kinds.contains(&f.kind) {
-                let _ = write!(
+                let _ = writeln!(
                     h,
-                    "<figure><div class=\"svg\">{s}</div><figcaption>{}</figcaption></figure>\n",
+                    "<figure><div class=\"svg\">{s}</div><figcaption>{}</figcaption></figure>",
                     esc(&caption(f))
                 );
             }
