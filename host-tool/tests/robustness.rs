@@ -247,6 +247,11 @@ fn every_bad_numeric_argument_exits_2_naming_the_option() {
             "--hours",
         ),
         (&["demo", "--seed", "-1"], "--seed"),
+        (
+            // Each value in range, but together more samples than the simulator takes.
+            &["simulate", "--out", "x.csv", "--hours", "1e9"],
+            "--hours",
+        ),
         (&["simulate", "--out", "x.csv", "--seed", "1.5"], "--seed"),
     ];
     for (args, option) in cases {
@@ -505,5 +510,37 @@ fn a_10_mb_file_without_newlines_is_refused_quickly_with_a_short_error() {
     // Reading 64 KiB and stopping takes milliseconds; 10 s only fails if the file is read whole
     // on a very slow machine, or worse.
     assert!(elapsed < Duration::from_secs(10), "took {elapsed:?}");
+    let _ = std::fs::remove_dir_all(&dir);
+}
+
+/// `simulate` failing at the last step (here: the old truth file cannot be removed, because a
+/// directory sits at its name) renames nothing: the earlier recording is left byte-identical
+/// and no temporary file remains — the recording and its truth are replaced both or neither.
+#[test]
+fn a_simulate_that_fails_before_the_renames_leaves_the_earlier_recording() {
+    let dir = temp_dir("simfail");
+    let csv = simulate(&dir, "0.2", "10");
+    let before = std::fs::read(&csv).unwrap();
+    let truth = dir.join("run.truth.json");
+    std::fs::remove_file(&truth).unwrap();
+    std::fs::create_dir(&truth).unwrap();
+    let out = driftid()
+        .args(["simulate", "--hours", "0.3", "--rate-s", "10", "--out"])
+        .arg(&csv)
+        .output()
+        .unwrap();
+    let err = stderr(&out);
+    assert_eq!(out.status.code(), Some(2), "{err}");
+    assert!(err.contains("run.truth.json"), "{err}");
+    assert_eq!(
+        std::fs::read(&csv).unwrap(),
+        before,
+        "earlier recording kept"
+    );
+    assert_eq!(
+        names_in(&dir),
+        ["run.csv", "run.truth.json"],
+        "no temporaries"
+    );
     let _ = std::fs::remove_dir_all(&dir);
 }

@@ -76,7 +76,14 @@ impl SimulateArgs {
         if self.no_noise {
             s = s.without_noise();
         }
-        s.validate().map_err(anyhow::Error::msg)?;
+        s.validate().map_err(|e| {
+            anyhow::anyhow!(
+                "{e} (from --hours {}, --rate-s {}, --latitude-deg {} and the --effect values)",
+                s.hours,
+                s.rate_s,
+                s.latitude_deg
+            )
+        })?;
         Ok(s)
     }
 }
