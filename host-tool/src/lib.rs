@@ -10,6 +10,7 @@
 //! - [`diagnose`]: model vs measurements, score tests of the missing effects, the model ladder.
 //! - [`report`]: the self-contained HTML report and its plots.
 //! - [`link`]: the host end of the telemetry link (record, HIL replay).
+//! - [`output`]: atomic writes of every output file; an output never overwrites an input.
 //! - [`cli`]: one module per `driftid` subcommand.
 pub mod catalog;
 pub mod consistency;
@@ -18,6 +19,7 @@ pub mod effects_file;
 pub mod format;
 pub mod identify;
 pub mod link;
+pub mod output;
 pub mod progress;
 pub mod quality;
 pub mod recording;
@@ -26,6 +28,7 @@ pub mod simulate;
 pub mod stats;
 pub mod cli {
     //! One module per subcommand: its arguments and its `run`.
+    pub mod args;
     pub mod bench;
     pub mod common;
     pub mod demo;

@@ -38,6 +38,17 @@ enum Command {
 }
 
 fn main() {
+    // A closed stdout (`driftid identify … | head`) ends the process quietly, as for any Unix
+    // filter: Rust ignores SIGPIPE, so a write to a closed pipe would fail and `println!` panic;
+    // with the default action the process ends at that write, silently (status: signal 13).
+    // One line here covers every print of every subcommand. Only pipes and sockets raise
+    // SIGPIPE; outputs are files (written atomically, see `output`) and the link is a tty.
+    #[cfg(unix)]
+    // SAFETY: setting a signal's disposition to SIG_DFL at the start of main, before any thread
+    // exists; no handler is installed.
+    unsafe {
+        libc::signal(libc::SIGPIPE, libc::SIG_DFL);
+    }
     let cli = Cli::parse();
     let result = match &cli.command {
         Command::Demo(a) => cli::demo::run(a),

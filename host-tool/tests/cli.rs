@@ -115,9 +115,10 @@ fn a_broken_recording_is_a_located_error_not_a_panic() {
         std::fs::write(&path, text).unwrap();
         let out = driftid().arg("identify").arg(&path).output().unwrap();
         let stderr = String::from_utf8_lossy(&out.stderr);
+        // 2: an input that cannot be used (README, "Bad input").
         assert_eq!(
             out.status.code(),
-            Some(1),
+            Some(2),
             "{name}: exit code; stderr: {stderr}"
         );
         assert!(!stderr.contains("panicked"), "{name}: panic: {stderr}");

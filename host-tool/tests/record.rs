@@ -206,3 +206,87 @@ fn a_recording_of_another_run_is_not_mixed_and_a_broken_one_not_appended_to() {
     );
     let _ = std::fs::remove_dir_all(&dir);
 }
+
+/// A NaN/∞ or out-of-range sample in the stream used to stop the recorder (its writer refused the
+/// row with an error) and lose everything after it. Now each is skipped and counted by the
+/// reader's own rules, recording goes on, and the file reads back with every other sample.
+#[test]
+fn a_nonfinite_or_out_of_range_sample_is_skipped_and_counted() {
+    let dir = temp_dir("nonfinite");
+    let opts = options(&dir);
+    let mut enc = Encoder::new();
+    let mut bytes = enc.frame(hello(39.1)).unwrap().to_vec();
+    let bad = [5u32, 9, 12, 20];
+    for k in 0..=30u32 {
+        let mut s = sample(k);
+        match k {
+            5 => s.specific_force[0] = f64::NAN,
+            9 => s.t_s = f64::INFINITY,
+            12 => s.specific_force[2] = f64::NEG_INFINITY,
+            // Finite, but beyond the reader's |a| limit (1000 m/s²): the reader would refuse it.
+            20 => s.specific_force[1] = 2000.0,
+            _ => {}
+        }
+        bytes.extend(enc.frame(Message::Raw(s)).unwrap());
+    }
+    let sum = run(&opts, vec![bytes]).unwrap();
+    assert_eq!((sum.nonfinite, sum.out_of_range), (3, 1), "each counted");
+    assert_eq!(sum.samples, 31 - 4, "every other sample written");
+    assert_eq!(
+        (sum.duplicates, sum.sample_gaps),
+        (0, 0),
+        "skipped is not lost"
+    );
+    assert!(
+        sum.first_skipped
+            .as_deref()
+            .is_some_and(|s| s.contains("sample 5")),
+        "{:?}",
+        sum.first_skipped
+    );
+    let rec = read_recording(&opts.out).expect("the reader accepts what record wrote");
+    let want: Vec<f64> = (0..=30u32)
+        .filter(|k| !bad.contains(k))
+        .map(f64::from)
+        .collect();
+    let got: Vec<f64> = rec.samples.iter().map(|s| s.t_s).collect();
+    assert_eq!(got, want);
+    let _ = std::fs::remove_dir_all(&dir);
+}
+
+/// Metadata the recording format refuses (a latitude outside [-90, 90], an implausible gravity)
+/// used to be written as announced by the firmware, giving a file the reader then refused. Now
+/// each is checked by the reader's rules, left out with a note, and `--latitude-deg` fills in.
+#[test]
+fn metadata_the_reader_would_refuse_is_not_written() {
+    let dir = temp_dir("badmeta");
+    let mut opts = options(&dir);
+    opts.latitude_deg = Some(45.0);
+    let mut enc = Encoder::new();
+    let h = Message::Hello(Hello {
+        board: protocol::Board::Host,
+        firmware: [0, 1, 0],
+        state_dim: 15,
+        config: Config {
+            latitude_deg: 120.0,
+            gravity_mps2: Some(50.0),
+            ..Config::default()
+        },
+    });
+    let mut bytes = enc.frame(h).unwrap().to_vec();
+    for k in 0..10 {
+        bytes.extend(enc.frame(Message::Raw(sample(k))).unwrap());
+    }
+    let sum = run(&opts, vec![bytes]).unwrap();
+    assert_eq!(sum.samples, 10);
+    assert_eq!(sum.notes.len(), 2, "{:?}", sum.notes);
+    assert!(sum.notes[0].contains("latitude_deg") && sum.notes[0].contains("120"));
+    assert!(sum.notes[1].contains("gravity_mps2") && sum.notes[1].contains("50"));
+    let rec = read_recording(&opts.out).expect("the reader accepts what record wrote");
+    assert_eq!(rec.meta.latitude_deg, Some(45.0), "from --latitude-deg");
+    assert_eq!(
+        rec.meta.gravity_mps2, None,
+        "left out: normal gravity is used"
+    );
+    let _ = std::fs::remove_dir_all(&dir);
+}

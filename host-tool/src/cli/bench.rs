@@ -22,13 +22,13 @@ pub struct BenchArgs {
     #[arg(value_parser = ["accuracy", "calibration", "sensitivity"])]
     pub what: String,
     /// Number of seeds.
-    #[arg(long, default_value_t = 24)]
+    #[arg(long, default_value_t = 24, allow_hyphen_values = true, value_parser = super::args::seed_count)]
     pub seeds: u64,
     /// Run lengths at which to evaluate, h.
-    #[arg(long, value_delimiter = ',', default_value = "12,24,30,48,60")]
+    #[arg(long, value_delimiter = ',', default_value = "12,24,30,48,60", allow_hyphen_values = true, value_parser = super::args::positive_f64)]
     pub hours: Vec<f64>,
     /// Raw sample interval, s.
-    #[arg(long, default_value_t = 1.0)]
+    #[arg(long, default_value_t = 1.0, allow_hyphen_values = true, value_parser = super::args::positive_f64)]
     pub rate_s: f64,
     /// Print one JSON object instead of tables.
     #[arg(long)]
@@ -55,12 +55,22 @@ fn truncated(prep: &Prepared, hours: f64) -> Prepared {
 
 /// Runs the chosen benchmark.
 pub fn run(args: &BenchArgs) -> anyhow::Result<()> {
+    // The longest run asked for must be one the simulator accepts (it panics otherwise).
+    let mut longest = Scenario::paper();
+    longest.hours = args.hours.iter().cloned().fold(0.0, f64::max);
+    longest.rate_s = args.rate_s;
+    longest
+        .validate()
+        .map_err(|e| anyhow::anyhow!("--hours/--rate-s: {e}"))?;
     match args.what.as_str() {
         "calibration" => calibration(args),
         "sensitivity" => sensitivity(args),
         _ => accuracy(args),
     }
 }
+
+/// One candidate's result on one seed: name, p, Holm-adjusted p, largest detection limit in σ.
+type CandidateP = (String, f64, f64, f64);
 
 /// False alarms of the diagnosis on clean runs (paper model, no hidden effect): per candidate the
 /// fraction of seeds with p < 1 %, and the family-wise rate after Holm's adjustment.
@@ -70,7 +80,7 @@ fn calibration(args: &BenchArgs) -> anyhow::Result<()> {
     let t0 = std::time::Instant::now();
     let cfg = DiagnoseConfig::default();
     let pb = crate::progress::bar(args.seeds, "clean seeds");
-    let per_seed: Vec<anyhow::Result<Vec<(String, f64, f64, f64)>>> = (1..=args.seeds)
+    let per_seed: Vec<anyhow::Result<Vec<CandidateP>>> = (1..=args.seeds)
         .into_par_iter()
         .progress_with(pb.clone())
         .map(|seed| {
@@ -117,7 +127,10 @@ fn calibration(args: &BenchArgs) -> anyhow::Result<()> {
         .collect();
     let per_seed: Vec<_> = per_seed.into_iter().collect::<anyhow::Result<_>>()?;
     let n = per_seed.len() as f64;
-    let mut names: Vec<String> = per_seed[0].iter().map(|r| r.0.clone()).collect();
+    let mut names: Vec<String> = per_seed
+        .first()
+        .map(|s| s.iter().map(|r| r.0.clone()).collect())
+        .unwrap_or_default();
     names.sort();
     let mut rows = vec![];
     for name in &names {
@@ -225,7 +238,11 @@ fn sensitivity(args: &BenchArgs) -> anyhow::Result<()> {
                     sc.seed = 6000 + seed;
                     sc.effects = vec![spec.parse().map_err(|e: String| anyhow::anyhow!(e))?];
                     let d = diagnose_run(&sc)?;
-                    let c = d.ranking.iter().find(|c| c.effect == effect).unwrap();
+                    let c = d
+                        .ranking
+                        .iter()
+                        .find(|c| c.effect == effect)
+                        .ok_or_else(|| anyhow::anyhow!("{effect} missing from the ranking"))?;
                     Ok((
                         c.p_adjusted < 0.01,
                         d.ranking[0].effect == effect && c.p_adjusted < 0.01,
@@ -321,9 +338,9 @@ fn accuracy(args: &BenchArgs) -> anyhow::Result<()> {
             .collect();
         let geometry = Prepared::level(site, meas, [1e-5 * site.gravity_mps2; 3]);
         let bound = cramer_rao_bound(&model, &geometry, &truth);
-        let mut rms = vec![0.0; 12];
-        let mut rms_single = vec![0.0; 12];
-        let mut worst = vec![0.0f64; 12];
+        let mut rms = [0.0; 12];
+        let mut rms_single = [0.0; 12];
+        let mut worst = [0.0f64; 12];
         let mut nees = 0.0;
         for r in &results {
             let (e, p, es) = &r.at[c];

@@ -18,7 +18,7 @@ pub const PAPER_TABLE2: [f64; 12] = [
 #[derive(clap::Args, Debug)]
 pub struct DemoArgs {
     /// Simulation seed.
-    #[arg(long, default_value_t = 1)]
+    #[arg(long, default_value_t = 1, allow_hyphen_values = true)]
     pub seed: u64,
     /// Skip part 2 (the hidden-effect diagnosis).
     #[arg(long)]

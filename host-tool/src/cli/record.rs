@@ -1,7 +1,6 @@
 //! `driftid record`: record the navigation computer's telemetry to a recording CSV.
 
 use std::path::PathBuf;
-use std::time::Duration;
 
 use protocol::Message;
 
@@ -15,7 +14,7 @@ pub struct RecordArgs {
     #[arg(long)]
     pub port: String,
     /// Baud rate.
-    #[arg(long, default_value_t = port::DEFAULT_BAUD)]
+    #[arg(long, default_value_t = port::DEFAULT_BAUD, allow_hyphen_values = true, value_parser = super::args::positive_u32)]
     pub baud: u32,
     /// The recording to write (CSV interchange format).
     #[arg(long)]
@@ -24,10 +23,10 @@ pub struct RecordArgs {
     #[arg(long)]
     pub raw: Option<PathBuf>,
     /// Latitude for the recording's metadata when the firmware does not announce one, degrees.
-    #[arg(long, allow_hyphen_values = true)]
+    #[arg(long, allow_hyphen_values = true, value_parser = super::args::latitude_deg)]
     pub latitude_deg: Option<f64>,
     /// Stop after this many seconds (default: until interrupted).
-    #[arg(long)]
+    #[arg(long, allow_hyphen_values = true, value_parser = super::args::duration_s)]
     pub duration_s: Option<f64>,
     /// Exit when the port disappears instead of waiting for it to come back.
     #[arg(long)]
@@ -42,14 +41,17 @@ pub fn run(a: &RecordArgs) -> anyhow::Result<()> {
         out: a.out.clone(),
         raw: a.raw.clone(),
         latitude_deg: a.latitude_deg,
-        duration: a.duration_s.map(Duration::from_secs_f64),
+        duration: a
+            .duration_s
+            .map(|s| super::args::to_duration(s, "--duration-s"))
+            .transpose()?,
         reconnect: !a.no_reconnect,
     };
     let mut samples = 0u64;
     let sum = record::record(&opts, |m| match m {
         Message::Raw(_) => {
             samples += 1;
-            if samples % 600 == 0 {
+            if samples.is_multiple_of(600) {
                 eprintln!("{samples} samples received");
             }
         }
@@ -69,6 +71,21 @@ pub fn run(a: &RecordArgs) -> anyhow::Result<()> {
         sum.connections,
         sum.rx
     );
+    if sum.nonfinite + sum.out_of_range + sum.temp_dropped > 0 {
+        eprintln!(
+            "driftid record: skipped {} non-finite and {} out-of-range samples{}; kept {} samples without their out-of-range temperature",
+            sum.nonfinite,
+            sum.out_of_range,
+            sum.first_skipped
+                .as_deref()
+                .map(|s| format!(" (first: {s})"))
+                .unwrap_or_default(),
+            sum.temp_dropped
+        );
+    }
+    for n in &sum.notes {
+        eprintln!("driftid record: warning: {n}");
+    }
     if let Some(e) = sum.last_estimate {
         for (i, n) in COEFFICIENT_NAMES.iter().enumerate() {
             eprintln!("  {n:>4} = {:+.5} ± {:.5}", e.state[3 + i], e.sigma[3 + i]);

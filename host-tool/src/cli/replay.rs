@@ -1,15 +1,14 @@
 //! `driftid replay`: stream a recording into the firmware (hardware-in-the-loop replay) and
 //! record what comes back.
 
-use std::fs::File;
-use std::io::{BufWriter, Write};
+use std::io::Write;
 use std::path::PathBuf;
-use std::time::Duration;
 
 use anyhow::Context as _;
 use protocol::{Config, Estimate};
 
 use crate::link::{self, port, replay};
+use crate::output::{self, AtomicFile};
 use crate::recording;
 use crate::simulate::COEFFICIENT_NAMES;
 
@@ -22,20 +21,20 @@ pub struct ReplayArgs {
     #[arg(long)]
     pub port: String,
     /// Baud rate.
-    #[arg(long, default_value_t = port::DEFAULT_BAUD)]
+    #[arg(long, default_value_t = port::DEFAULT_BAUD, allow_hyphen_values = true, value_parser = super::args::positive_u32)]
     pub baud: u32,
     /// Filter period, s.
-    #[arg(long, default_value_t = 60.0)]
+    #[arg(long, default_value_t = 60.0, allow_hyphen_values = true, value_parser = super::args::positive_f64)]
     pub period_s: f64,
     /// 1σ noise of one raw sample, m/s² (default: 1e-5 g per 60-s mean at the recording's rate).
-    #[arg(long)]
+    #[arg(long, allow_hyphen_values = true, value_parser = super::args::positive_f64)]
     pub raw_sigma: Option<f64>,
     /// Gyro angle random walk, deg²/h.
-    #[arg(long, default_value_t = 1e-8)]
+    #[arg(long, default_value_t = 1e-8, allow_hyphen_values = true, value_parser = super::args::nonneg_f64)]
     pub arw: f64,
     /// χ² innovation gate of the firmware's filter (NIS threshold; 0: off). Rejections are
     /// counted in the status; 10 in a row raise a fault.
-    #[arg(long, default_value_t = 0.0)]
+    #[arg(long, default_value_t = 0.0, allow_hyphen_values = true, value_parser = super::args::nonneg_f64)]
     pub gate_nis: f64,
     /// Where to write the firmware's estimates (CSV); default: RECORDING.firmware.csv.
     #[arg(long)]
@@ -47,7 +46,7 @@ pub struct ReplayArgs {
     #[arg(long)]
     pub shutdown: bool,
     /// Give up after this many seconds.
-    #[arg(long, default_value_t = 3600.0)]
+    #[arg(long, default_value_t = 3600.0, allow_hyphen_values = true, value_parser = super::args::duration_s)]
     pub timeout_s: f64,
     /// Print every estimate.
     #[arg(long)]
@@ -87,6 +86,15 @@ pub fn estimate_row(e: &Estimate) -> String {
 
 /// Runs `driftid replay`.
 pub fn run(a: &ReplayArgs) -> anyhow::Result<()> {
+    let out_path = a
+        .out
+        .clone()
+        .unwrap_or_else(|| a.recording.with_extension("firmware.csv"));
+    output::ensure_not_input(&out_path, "--out", &[&a.recording])?;
+    if let Some(raw) = &a.raw {
+        output::ensure_not_input(raw, "--raw", &[&a.recording, &out_path])?;
+    }
+    let timeout = super::args::to_duration(a.timeout_s, "--timeout-s")?;
     let rec = recording::read_recording(&a.recording)?;
     let rate_s = if rec.samples.len() > 1 {
         (rec.samples[rec.samples.len() - 1].t_s - rec.samples[0].t_s)
@@ -108,10 +116,6 @@ pub fn run(a: &ReplayArgs) -> anyhow::Result<()> {
     let samples = replay::link_samples(&rec.samples);
     let port = port::open(&a.port, a.baud)?;
     let writer = port::writer_of(&port)?;
-    let out_path = a
-        .out
-        .clone()
-        .unwrap_or_else(|| a.recording.with_extension("firmware.csv"));
     let mut raw = match &a.raw {
         Some(p) => Some(
             std::fs::OpenOptions::new()
@@ -125,7 +129,7 @@ pub fn run(a: &ReplayArgs) -> anyhow::Result<()> {
     let opts = replay::ReplayOptions {
         config,
         shutdown: a.shutdown,
-        timeout: Duration::from_secs_f64(a.timeout_s),
+        timeout,
     };
     eprintln!(
         "driftid replay: {} samples from {} into {}",
@@ -134,12 +138,11 @@ pub fn run(a: &ReplayArgs) -> anyhow::Result<()> {
         a.port
     );
     let verbose = a.verbose;
-    // Estimates are written as they arrive (flushed each), so a replay that dies keeps them.
-    let mut w = BufWriter::new(
-        File::create(&out_path).with_context(|| format!("creating {}", out_path.display()))?,
-    );
+    // Estimates are written as they arrive to a temporary file beside the output, renamed into
+    // place when the replay succeeds: a replay that fails leaves no output (and an earlier one
+    // as it was). What the firmware sent is still in the --raw log, if given.
+    let mut w = AtomicFile::create(&out_path)?;
     writeln!(w, "{}", estimates_header())?;
-    w.flush()?;
     let mut write_err: Option<std::io::Error> = None;
     let total_steps = (rec.samples.last().map_or(0.0, |s| s.t_s) / a.period_s).ceil() as u64;
     let outcome = replay::replay(
@@ -158,7 +161,7 @@ pub fn run(a: &ReplayArgs) -> anyhow::Result<()> {
         |m| match m {
             protocol::Message::Estimate(e) => {
                 if write_err.is_none() {
-                    if let Err(err) = writeln!(w, "{}", estimate_row(e)).and_then(|_| w.flush()) {
+                    if let Err(err) = writeln!(w, "{}", estimate_row(e)) {
                         write_err = Some(err);
                     }
                 }
@@ -176,6 +179,7 @@ pub fn run(a: &ReplayArgs) -> anyhow::Result<()> {
         return Err(err).with_context(|| format!("writing {}", out_path.display()));
     }
     let outcome = outcome?;
+    w.commit()?;
     if let Some(s) = outcome.final_status() {
         eprintln!("{}", link::describe(&protocol::Message::Status(*s)));
     }

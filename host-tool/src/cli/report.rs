@@ -7,6 +7,7 @@ use super::identify::rows;
 use crate::catalog;
 use crate::diagnose::{ladder, DiagnoseConfig};
 use crate::identify::prepare;
+use crate::output;
 use crate::report::{render_html, write_pngs, CoefRow, ReportInput};
 use crate::simulate::read_truth;
 
@@ -31,6 +32,10 @@ pub struct ReportArgs {
 /// Runs `driftid report`.
 pub fn run(args: &ReportArgs) -> anyhow::Result<()> {
     super::common::load_effects_args(&args.model)?; // --effects FILE: user effects join the catalog
+    // Outputs never overwrite an input: checked before the long computation.
+    let mut inputs: Vec<&std::path::Path> = vec![&args.recording];
+    inputs.extend(args.truth.as_deref());
+    output::ensure_not_input(&args.out, "--out", &inputs)?;
     let cfg = DiagnoseConfig {
         identify: args.model.config()?,
         ..Default::default()
@@ -84,11 +89,12 @@ pub fn run(args: &ReportArgs) -> anyhow::Result<()> {
         coefficients,
     };
     let html = render_html(&input)?;
-    std::fs::write(&args.out, html).map_err(|e| anyhow::anyhow!("{}: {e}", args.out.display()))?;
+    output::write_atomic(&args.out, html.as_bytes())?;
     println!("wrote {}", args.out.display());
     if let Some(dir) = &args.png {
         std::fs::create_dir_all(dir).map_err(|e| anyhow::anyhow!("{}: {e}", dir.display()))?;
-        let files = write_pngs(&input, dir)?;
+        inputs.push(&args.out);
+        let files = write_pngs(&input, dir, &inputs)?;
         println!("wrote {} PNG plots to {}", files.len(), dir.display());
     }
     Ok(())

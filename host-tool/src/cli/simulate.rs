@@ -25,17 +25,17 @@ pub struct SimulateArgs {
     #[arg(long, value_enum, default_value_t = Preset::Paper)]
     pub scenario: Preset,
     /// Duration, hours (preset: 60).
-    #[arg(long)]
+    #[arg(long, allow_hyphen_values = true, value_parser = super::args::nonneg_f64)]
     pub hours: Option<f64>,
     /// Sample interval, seconds (preset: 1).
-    #[arg(long)]
+    #[arg(long, allow_hyphen_values = true, value_parser = super::args::positive_f64)]
     pub rate_s: Option<f64>,
     /// Random seed (preset: 1).
-    #[arg(long)]
+    #[arg(long, allow_hyphen_values = true)]
     pub seed: Option<u64>,
     /// Latitude, degrees (preset: 39.1). Gravity and the default accelerometer noise
     /// (1e-5 g per 60-s mean) follow it.
-    #[arg(long, allow_hyphen_values = true)]
+    #[arg(long, allow_hyphen_values = true, value_parser = super::args::latitude_deg)]
     pub latitude_deg: Option<f64>,
     /// Output recording; the truth goes to the same name with .truth.json instead of .csv.
     #[arg(long)]
@@ -86,7 +86,14 @@ impl SimulateArgs {
         if self.no_noise {
             s = s.without_noise();
         }
-        s.validate().map_err(anyhow::Error::msg)?;
+        s.validate().map_err(|e| {
+            anyhow::anyhow!(
+                "{e} (from --hours {}, --rate-s {}, --latitude-deg {} and the --effect values)",
+                s.hours,
+                s.rate_s,
+                s.latitude_deg
+            )
+        })?;
         Ok(s)
     }
 }

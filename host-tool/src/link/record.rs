@@ -20,7 +20,9 @@ use protocol::{Command, Encoder, Estimate, Hello, Message};
 
 use super::port::{self, is_gone, is_timeout};
 use super::{LinkStats, Receiver};
-use crate::recording::{Metadata, RawSample, RecordingWriter};
+use crate::recording::{
+    check_gravity_mps2, check_latitude_deg, sample_problem, Metadata, RawSample, RecordingWriter,
+};
 
 /// Opens the link for one connection; `Ok(None)`: no more connections (tests).
 pub type Opener<'a, P> = dyn FnMut() -> anyhow::Result<Option<P>> + 'a;
@@ -67,6 +69,16 @@ pub struct RecordSummary {
     pub resumed_samples: u64,
     /// Repairs made to the existing file before appending (a partial last line).
     pub repairs: Vec<String>,
+    /// Samples skipped because a value was NaN or infinite (the reader refuses them).
+    pub nonfinite: u64,
+    /// Samples skipped because a value was out of the reader's range (|a| too large).
+    pub out_of_range: u64,
+    /// Samples kept without their temperature, which was outside the reader's range.
+    pub temp_dropped: u64,
+    /// The first skipped sample and why (for the summary).
+    pub first_skipped: Option<String>,
+    /// Metadata the firmware announced that the recording format refuses, left out of the file.
+    pub notes: Vec<String>,
 }
 
 struct Sink {
@@ -142,6 +154,9 @@ pub fn record_with<P: Read + Write>(
 ) -> anyhow::Result<RecordSummary> {
     let start = Instant::now();
     let expired = || opts.duration.is_some_and(|d| start.elapsed() >= d);
+    if let Some(raw) = &opts.raw {
+        crate::output::ensure_not_input(raw, "--raw", &[&opts.out])?;
+    }
     let raw = match &opts.raw {
         Some(p) => Some(
             OpenOptions::new()
@@ -220,7 +235,9 @@ fn handle(
     match msg {
         Message::Hello(h) => {
             if let Some(lat) = sink.file_meta.as_ref().and_then(|m| m.latitude_deg) {
-                if (lat - h.config.latitude_deg).abs() > 1e-9 {
+                // Written so that a NaN from the firmware is a mismatch too.
+                let same = (lat - h.config.latitude_deg).abs() <= 1e-9;
+                if !same {
                     anyhow::bail!(
                         "{}: recorded at latitude {lat} deg, but the firmware reports {} deg: refusing to mix two runs in one recording; record to another file",
                         opts.out.display(),
@@ -241,36 +258,101 @@ fn handle(
             }
             if let Some(prev) = sink.last_seq {
                 if r.seq > prev.wrapping_add(1) {
-                    sum.sample_gaps += u64::from(r.seq - prev - 1);
+                    sum.sample_gaps += u64::from(r.seq.wrapping_sub(prev).wrapping_sub(1));
+                }
+            }
+            sink.last_seq = Some(r.seq);
+            // Only what the reader accepts is written (its own rules, `sample_problem`): a bad
+            // sample is skipped and counted, and recording goes on.
+            let mut sample = RawSample {
+                t_s: r.t_s,
+                specific_force_mps2: r.specific_force,
+                temp_c: None,
+            };
+            if let Some(problem) = sample_problem(&sample) {
+                let finite = r.t_s.is_finite() && r.specific_force.iter().all(|v| v.is_finite());
+                if finite {
+                    sum.out_of_range += 1;
+                } else {
+                    sum.nonfinite += 1;
+                }
+                if sum.first_skipped.is_none() {
+                    sum.first_skipped = Some(format!("sample {}: {problem}", r.seq));
+                }
+                return Ok(());
+            }
+            // NaN is the firmware's "no temperature"; an implausible one is dropped, counted.
+            if r.temp_c.is_finite() {
+                sample.temp_c = Some(r.temp_c);
+                if sample_problem(&sample).is_some() {
+                    sample.temp_c = None;
+                    sum.temp_dropped += 1;
                 }
             }
             if sink.csv.is_none() {
-                let latitude_deg = sum
-                    .hello
-                    .map(|h| h.config.latitude_deg)
-                    .or(opts.latitude_deg);
-                let meta = Metadata {
-                    latitude_deg,
-                    gravity_mps2: sum.hello.and_then(|h| h.config.gravity_mps2),
-                    description: Some(format!("driftid record from {}", opts.port)),
-                    extra: Vec::new(),
-                };
+                let meta = new_metadata(opts, sum);
                 let w = RecordingWriter::create(&opts.out, &meta, r.temp_c.is_finite())
                     .with_context(|| format!("creating {}", opts.out.display()))?;
                 sink.csv = Some(w);
             }
-            let w = sink.csv.as_mut().expect("created above");
-            w.write_sample(&RawSample {
-                t_s: r.t_s,
-                specific_force_mps2: r.specific_force,
-                temp_c: r.temp_c.is_finite().then_some(r.temp_c),
-            })
-            .context("writing the recording")?;
+            let Some(w) = sink.csv.as_mut() else {
+                anyhow::bail!("internal error: no recording writer");
+            };
+            w.write_sample(&sample).context("writing the recording")?;
             sink.last_t = Some(r.t_s);
-            sink.last_seq = Some(r.seq);
             sum.samples += 1;
         }
         Message::Status(_) | Message::Fault(_) | Message::Command(_) => {}
     }
     Ok(())
+}
+
+/// The metadata of a new recording: latitude and gravity from the firmware's Hello (latitude
+/// from `--latitude-deg` when no Hello came first), each checked by the reader's own rules; a
+/// value the reader would refuse is left out (the reader then asks for `--latitude-deg`, or uses
+/// normal gravity) and said in [`RecordSummary::notes`].
+fn new_metadata(opts: &RecordOptions, sum: &mut RecordSummary) -> Metadata {
+    let hello = sum.hello;
+    let mut keep =
+        |what: &str, from: &str, v: Option<f64>, check: fn(f64) -> Result<f64, String>| {
+            v.and_then(|v| match check(v) {
+                Ok(v) => Some(v),
+                Err(e) => {
+                    sum.notes.push(format!(
+                        "{}: {from} {what} {e}; left out of the recording's metadata",
+                        opts.out.display()
+                    ));
+                    None
+                }
+            })
+        };
+    let latitude_deg = match hello {
+        Some(h) => keep(
+            "latitude_deg",
+            "the firmware's",
+            Some(h.config.latitude_deg),
+            check_latitude_deg,
+        ),
+        None => None,
+    }
+    .or_else(|| {
+        keep(
+            "latitude_deg",
+            "the given",
+            opts.latitude_deg,
+            check_latitude_deg,
+        )
+    });
+    let gravity_mps2 = keep(
+        "gravity_mps2",
+        "the firmware's",
+        hello.and_then(|h| h.config.gravity_mps2),
+        check_gravity_mps2,
+    );
+    Metadata {
+        latitude_deg,
+        gravity_mps2,
+        description: Some(format!("driftid record from {}", opts.port)),
+        extra: Vec::new(),
+    }
 }

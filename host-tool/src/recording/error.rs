@@ -22,6 +22,14 @@ pub enum RecordingError {
         #[source]
         source: io::Error,
     },
+    /// Line `line` is longer than the reader accepts ([`super::MAX_LINE_BYTES`]); reading stopped
+    /// there (a file without line breaks is not read whole).
+    #[error("{file}:{line}: line longer than {limit} bytes (the longest line a recording may have); not a recording, or a line break is missing")]
+    LineTooLong {
+        file: String,
+        line: u32,
+        limit: usize,
+    },
     /// Line `line` is not valid UTF-8.
     #[error("{file}:{line}: not valid UTF-8 (byte 0x{byte:02x} at byte {offset} of the line); the file must be UTF-8 text")]
     InvalidUtf8 {
@@ -129,6 +137,7 @@ impl RecordingError {
         match self {
             Open { file, .. }
             | Read { file, .. }
+            | LineTooLong { file, .. }
             | InvalidUtf8 { file, .. }
             | Metadata { file, .. }
             | MissingColumn { file, .. }
@@ -150,6 +159,7 @@ impl RecordingError {
         match self {
             Open { .. } | NoSamples { .. } => None,
             Read { line, .. }
+            | LineTooLong { line, .. }
             | InvalidUtf8 { line, .. }
             | Metadata { line, .. }
             | MissingColumn { line, .. }

@@ -14,7 +14,8 @@
 //! double quotes, a last line without newline if it is complete. Rejected: missing required
 //! columns, wrong field counts, a cut-off last line, values that are not numbers, NaN/Inf,
 //! |a| > 1000 m/s², time not strictly increasing, bad `latitude_deg`/`gravity_mps2`,
-//! invalid UTF-8, no samples.
+//! invalid UTF-8, a line longer than [`MAX_LINE_BYTES`], no samples. An error quotes at most
+//! [`ERROR_EXCERPT_CHARS`] characters of the file's text.
 
 mod error;
 mod reader;
@@ -26,8 +27,9 @@ use std::path::{Path, PathBuf};
 
 pub use error::RecordingError;
 pub use reader::{
-    RecordingReader, GRAVITY_RANGE_MPS2, MAX_ABS_SPECIFIC_FORCE_MPS2, REQUIRED_COLUMNS,
-    TEMP_COLUMN, TEMP_RANGE_C,
+    check_gravity_mps2, check_latitude_deg, excerpt, sample_problem, RecordingReader,
+    ERROR_EXCERPT_CHARS, GRAVITY_RANGE_MPS2, LATITUDE_RANGE_DEG, MAX_ABS_SPECIFIC_FORCE_MPS2,
+    MAX_LINE_BYTES, REQUIRED_COLUMNS, TEMP_COLUMN, TEMP_RANGE_C,
 };
 pub use writer::{write_recording, Appending, RecordingWriter};
 

@@ -11,6 +11,82 @@ pub const TEMP_RANGE_C: (f64, f64) = (-273.15, 1000.0);
 /// Plausible local gravity at the Earth's surface, m/s².
 pub const GRAVITY_RANGE_MPS2: (f64, f64) = (9.0, 10.5);
 
+/// Plausible latitudes, degrees.
+pub const LATITUDE_RANGE_DEG: (f64, f64) = (-90.0, 90.0);
+
+/// Longest line accepted, in bytes (without its line ending): 64 KiB. A data row is under 200
+/// bytes and a header or `# description:` line a few hundred; the cap bounds the memory a file
+/// without line breaks (binary data, a wrong file) can take, and such a file stops at once with
+/// [`RecordingError::LineTooLong`] instead of being read whole.
+pub const MAX_LINE_BYTES: usize = 64 * 1024;
+
+/// Most characters of a file's text echoed into an error message ([`excerpt`]).
+pub const ERROR_EXCERPT_CHARS: usize = 80;
+
+/// `text` for an error message: whole if short, else its first [`ERROR_EXCERPT_CHARS`]
+/// characters and how long it was.
+pub fn excerpt(text: &str) -> String {
+    match text.char_indices().nth(ERROR_EXCERPT_CHARS) {
+        None => text.to_string(),
+        Some((end, _)) => format!("{}… ({} bytes in all)", &text[..end], text.len()),
+    }
+}
+
+/// The reader's rule for `latitude_deg` (metadata and `--latitude-deg`): finite, in
+/// [`LATITUDE_RANGE_DEG`]. The error says why.
+pub fn check_latitude_deg(v: f64) -> Result<f64, String> {
+    let (lo, hi) = LATITUDE_RANGE_DEG;
+    if !v.is_finite() {
+        Err(format!("{v} is not finite"))
+    } else if !(lo..=hi).contains(&v) {
+        Err(format!("{v:?} is outside [{lo}, {hi}] degrees"))
+    } else {
+        Ok(v)
+    }
+}
+
+/// The reader's rule for `gravity_mps2`: finite, in [`GRAVITY_RANGE_MPS2`].
+pub fn check_gravity_mps2(v: f64) -> Result<f64, String> {
+    let (lo, hi) = GRAVITY_RANGE_MPS2;
+    if !v.is_finite() {
+        Err(format!("{v} is not finite"))
+    } else if !(lo..=hi).contains(&v) {
+        Err(format!(
+            "{v:?} is not a plausible gravity at the Earth's surface (expected {lo}..{hi} m/s^2)"
+        ))
+    } else {
+        Ok(v)
+    }
+}
+
+/// Why the reader would refuse this sample's values, if it would (non-finite time or specific
+/// force, |a| > [`MAX_ABS_SPECIFIC_FORCE_MPS2`], a temperature outside [`TEMP_RANGE_C`]); the
+/// order of samples is checked separately.
+pub fn sample_problem(s: &RawSample) -> Option<String> {
+    if !s.t_s.is_finite() {
+        return Some(format!("t_s = {} is not finite", s.t_s));
+    }
+    for (v, c) in s.specific_force_mps2.iter().zip(&REQUIRED_COLUMNS[1..]) {
+        if !v.is_finite() {
+            return Some(format!("{c} = {v} is not finite"));
+        }
+        if v.abs() > MAX_ABS_SPECIFIC_FORCE_MPS2 {
+            return Some(format!(
+                "{c} = {v:?} m/s^2 is implausibly large (|a| > {MAX_ABS_SPECIFIC_FORCE_MPS2} m/s^2)"
+            ));
+        }
+    }
+    if let Some(t) = s.temp_c {
+        if !(TEMP_RANGE_C.0..=TEMP_RANGE_C.1).contains(&t) {
+            return Some(format!(
+                "{TEMP_COLUMN} = {t} is not in the plausible range [{}, {}] deg C",
+                TEMP_RANGE_C.0, TEMP_RANGE_C.1
+            ));
+        }
+    }
+    None
+}
+
 /// The header's required columns, in the order of [`RawSample::specific_force_mps2`] after `t_s`.
 pub const REQUIRED_COLUMNS: [&str; 4] = ["t_s", "ax_mps2", "ay_mps2", "az_mps2"];
 /// The optional temperature column.
@@ -37,7 +113,8 @@ pub struct RecordingReader<R: BufRead> {
 }
 
 /// Reads the next line into `buf` without its line ending. `Ok(None)` at end of file, otherwise
-/// `Ok(Some(had_newline))`.
+/// `Ok(Some(had_newline))`. A line longer than [`MAX_LINE_BYTES`] is an error: at most that
+/// much (plus one buffer) is read of it.
 fn read_line<R: BufRead>(
     reader: &mut R,
     buf: &mut Vec<u8>,
@@ -45,18 +122,49 @@ fn read_line<R: BufRead>(
     file: &str,
 ) -> Result<Option<bool>, RecordingError> {
     buf.clear();
-    let n = reader
-        .read_until(b'\n', buf)
-        .map_err(|source| RecordingError::Read {
-            file: file.to_string(),
-            line: line_no.saturating_add(1),
-            source,
-        })?;
-    if n == 0 {
+    let this_line = line_no.saturating_add(1);
+    let mut had_newline = false;
+    loop {
+        let chunk = match reader.fill_buf() {
+            Ok(c) => c,
+            Err(e) if e.kind() == std::io::ErrorKind::Interrupted => continue,
+            Err(source) => {
+                return Err(RecordingError::Read {
+                    file: file.to_string(),
+                    line: this_line,
+                    source,
+                })
+            }
+        };
+        if chunk.is_empty() {
+            break;
+        }
+        let (take, done) = match chunk.iter().position(|&b| b == b'\n') {
+            Some(i) => (i + 1, true),
+            None => (chunk.len(), false),
+        };
+        buf.extend_from_slice(&chunk[..take]);
+        reader.consume(take);
+        // The line without its ending (\n or \r\n) must fit.
+        let content = buf.len()
+            - usize::from(done)
+            - usize::from(done && buf.len() >= 2 && buf[buf.len() - 2] == b'\r');
+        if content > MAX_LINE_BYTES {
+            return Err(RecordingError::LineTooLong {
+                file: file.to_string(),
+                line: this_line,
+                limit: MAX_LINE_BYTES,
+            });
+        }
+        if done {
+            had_newline = true;
+            break;
+        }
+    }
+    if buf.is_empty() {
         return Ok(None);
     }
-    *line_no = line_no.saturating_add(1);
-    let had_newline = buf.last() == Some(&b'\n');
+    *line_no = this_line;
     if had_newline {
         buf.pop();
         if buf.last() == Some(&b'\r') {
@@ -100,14 +208,14 @@ fn parse_number(text: &str, file: &str, line: u32, column: &str) -> Result<f64, 
         file: file.to_string(),
         line,
         column: column.to_string(),
-        text: text.to_string(),
+        text: excerpt(text),
     })?;
     if !v.is_finite() {
         return Err(RecordingError::NotFinite {
             file: file.to_string(),
             line,
             column: column.to_string(),
-            text: text.to_string(),
+            text: excerpt(text),
         });
     }
     Ok(v)
@@ -117,8 +225,8 @@ fn parse_number(text: &str, file: &str, line: u32, column: &str) -> Result<f64, 
 fn parse_meta_number(value: &str) -> Result<f64, String> {
     match value.parse::<f64>() {
         Ok(v) if v.is_finite() => Ok(v),
-        Ok(_) => Err(format!("{value} is not finite")),
-        Err(_) => Err(format!("{value:?} is not a number")),
+        Ok(_) => Err(format!("{} is not finite", excerpt(value))),
+        Err(_) => Err(format!("{:?} is not a number", excerpt(value))),
     }
 }
 
@@ -150,7 +258,7 @@ impl MetaParser {
         let err = |reason: String| RecordingError::Metadata {
             file: file.to_string(),
             line,
-            key: key.to_string(),
+            key: excerpt(key),
             reason,
         };
         let twice = |first: u32| err(format!("given twice (first on line {first})"));
@@ -159,10 +267,9 @@ impl MetaParser {
                 if let Some(first) = self.lat_line {
                     return Err(twice(first));
                 }
-                let v = parse_meta_number(value).map_err(err)?;
-                if !(-90.0..=90.0).contains(&v) {
-                    return Err(err(format!("{v:?} is outside [-90, 90] degrees")));
-                }
+                let v = parse_meta_number(value)
+                    .and_then(check_latitude_deg)
+                    .map_err(err)?;
                 self.lat_line = Some(line);
                 meta.latitude_deg = Some(v);
             }
@@ -170,13 +277,9 @@ impl MetaParser {
                 if let Some(first) = self.g_line {
                     return Err(twice(first));
                 }
-                let v = parse_meta_number(value).map_err(err)?;
-                let (lo, hi) = GRAVITY_RANGE_MPS2;
-                if !(lo..=hi).contains(&v) {
-                    return Err(err(format!(
-                        "{v:?} is not a plausible gravity at the Earth's surface (expected {lo}..{hi} m/s^2)"
-                    )));
-                }
+                let v = parse_meta_number(value)
+                    .and_then(check_gravity_mps2)
+                    .map_err(err)?;
                 self.g_line = Some(line);
                 meta.gravity_mps2 = Some(v);
             }
@@ -245,7 +348,7 @@ impl<R: BufRead> RecordingReader<R> {
                 return Err(RecordingError::DuplicateColumn {
                     file,
                     line: header_line,
-                    column: name.clone(),
+                    column: excerpt(name),
                     first: i + 1,
                     second: i + 2 + j,
                 });
@@ -260,7 +363,7 @@ impl<R: BufRead> RecordingReader<R> {
                         file,
                         line: header_line,
                         column: col,
-                        header: header.join(", "),
+                        header: excerpt(&header.join(", ")),
                     })
                 }
             }

@@ -312,3 +312,89 @@ fn writer_refuses_what_the_reader_would_reject() {
     };
     assert!(w.write_sample(&bad).is_err());
 }
+
+/// A line longer than MAX_LINE_BYTES stops the reader at that line, naming file, line and limit;
+/// a line of exactly the limit (CRLF or not) is still read.
+#[test]
+fn a_line_beyond_the_cap_is_an_error_naming_line_and_limit() {
+    // A data row padded with spaces inside a field up to exactly the cap: accepted.
+    let row = "2.0,0.1,0.2,9.8";
+    let pad = " ".repeat(MAX_LINE_BYTES - row.len());
+    for ending in ["\n", "\r\n"] {
+        let text = format!("{HDR}1.0,0.1,0.2,9.8\n2.0,0.1,0.2,{pad}9.8{ending}");
+        let r = read(text.as_bytes()).unwrap();
+        assert_eq!(r.samples.len(), 2, "a line of exactly the cap is fine");
+    }
+    // One byte more: refused.
+    let text = format!("{HDR}1.0,0.1,0.2,9.8\n2.0,0.1,0.2, {pad}9.8\n");
+    let e = fails(
+        text.as_bytes(),
+        &["run.csv:5:", &MAX_LINE_BYTES.to_string()],
+    );
+    assert!(
+        matches!(e, RecordingError::LineTooLong { line: 5, .. }),
+        "{e:?}"
+    );
+    // A "file" with no line break at all: refused on line 1, without reading all of it.
+    let big = vec![b'x'; 4 * MAX_LINE_BYTES];
+    let e = fails(&big, &["run.csv:1:", "longer than"]);
+    assert!(e.to_string().len() < 200, "short message: {e}");
+}
+
+/// Errors quote at most a short prefix of the file's text.
+#[test]
+fn errors_quote_only_a_short_prefix_of_bad_text() {
+    let long = "z".repeat(10_000);
+    let text = format!("{HDR}0.0,{long},0.2,9.8\n");
+    let e = fails(
+        text.as_bytes(),
+        &["run.csv:4:", "ax_mps2", "10000 bytes in all"],
+    );
+    assert!(e.to_string().len() < 300, "{} bytes", e.to_string().len());
+    let text = format!("# latitude_deg: 39.1\nt_s,{long}\n");
+    let e = fails(text.as_bytes(), &["run.csv:2:", "missing required column"]);
+    assert!(e.to_string().len() < 300, "{} bytes", e.to_string().len());
+    let text = format!("# latitude_deg: {long}\nt_s,ax_mps2,ay_mps2,az_mps2\n0,0,0,9.8\n");
+    let e = fails(text.as_bytes(), &["run.csv:1:", "latitude_deg"]);
+    assert!(e.to_string().len() < 300, "{} bytes", e.to_string().len());
+    assert_eq!(excerpt("short"), "short");
+    let cut = excerpt(&"é".repeat(100));
+    assert!(cut.starts_with(&"é".repeat(ERROR_EXCERPT_CHARS)) && cut.contains("200 bytes"));
+}
+
+/// The writer refuses what the reader would refuse, so a written file always reads back.
+#[test]
+fn the_writer_refuses_what_the_reader_refuses() {
+    let meta = Metadata {
+        latitude_deg: Some(120.0),
+        ..Metadata::default()
+    };
+    assert!(RecordingWriter::new(Vec::new(), &meta, false).is_err());
+    let meta = Metadata {
+        gravity_mps2: Some(f64::NAN),
+        ..Metadata::default()
+    };
+    assert!(RecordingWriter::new(Vec::new(), &meta, false).is_err());
+    let mut w = RecordingWriter::new(Vec::new(), &Metadata::default(), true).unwrap();
+    let s = |t: f64, a: f64, temp: Option<f64>| RawSample {
+        t_s: t,
+        specific_force_mps2: [0.0, a, 9.8],
+        temp_c: temp,
+    };
+    assert!(
+        w.write_sample(&s(0.0, 2000.0, None)).is_err(),
+        "|a| > limit"
+    );
+    assert!(
+        w.write_sample(&s(0.0, 0.0, Some(5000.0))).is_err(),
+        "temperature"
+    );
+    assert!(w.write_sample(&s(f64::NAN, 0.0, None)).is_err(), "NaN time");
+    w.write_sample(&s(0.0, 0.0, Some(20.0))).unwrap();
+    assert!(
+        w.write_sample(&s(0.0, 0.0, None)).is_err(),
+        "time not increasing"
+    );
+    let bytes = w.into_inner().unwrap();
+    assert_eq!(read(&bytes).unwrap().samples.len(), 1);
+}

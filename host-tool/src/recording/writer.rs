@@ -4,7 +4,10 @@ use std::fs::File;
 use std::io::{self, BufWriter, Write};
 use std::path::Path;
 
-use super::reader::{REQUIRED_COLUMNS, TEMP_COLUMN};
+use super::reader::{
+    check_gravity_mps2, check_latitude_deg, sample_problem, MAX_LINE_BYTES, REQUIRED_COLUMNS,
+    TEMP_COLUMN,
+};
 use super::{Metadata, RawSample};
 
 /// Metadata values are single-line: line breaks become spaces.
@@ -23,7 +26,9 @@ pub struct RecordingWriter<W: Write> {
 
 impl RecordingWriter<BufWriter<File>> {
     /// Creates (truncates) `path` and writes the metadata and the header.
+    /// Metadata [`RecordingWriter::new`] refuses is refused before the file is touched.
     pub fn create(path: &Path, meta: &Metadata, has_temp: bool) -> io::Result<Self> {
+        RecordingWriter::new(io::sink(), meta, has_temp)?;
         let f = File::create(path)?;
         RecordingWriter::new(BufWriter::with_capacity(1 << 16, f), meta, has_temp)
     }
@@ -113,15 +118,23 @@ fn invalid(msg: String) -> io::Error {
 impl<W: Write> RecordingWriter<W> {
     /// Writes the metadata lines and the header row to `w`. With `has_temp` the rows carry a
     /// `temp_c` column (empty where a sample has no temperature).
+    ///
+    /// Metadata the reader would refuse is refused here (`InvalidInput`, nothing written): a
+    /// latitude or gravity outside the reader's ranges ([`check_latitude_deg`],
+    /// [`check_gravity_mps2`]), a line longer than [`MAX_LINE_BYTES`]; extra keys that would
+    /// repeat `latitude_deg`, `gravity_mps2` or `description` are left out.
     pub fn new(mut w: W, meta: &Metadata, has_temp: bool) -> io::Result<Self> {
+        let mut lines = Vec::new();
         if let Some(l) = meta.latitude_deg {
-            writeln!(w, "# latitude_deg: {l:?}")?;
+            check_latitude_deg(l).map_err(|e| invalid(format!("metadata latitude_deg: {e}")))?;
+            lines.push(format!("# latitude_deg: {l:?}"));
         }
         if let Some(g) = meta.gravity_mps2 {
-            writeln!(w, "# gravity_mps2: {g:?}")?;
+            check_gravity_mps2(g).map_err(|e| invalid(format!("metadata gravity_mps2: {e}")))?;
+            lines.push(format!("# gravity_mps2: {g:?}"));
         }
         if let Some(d) = &meta.description {
-            writeln!(w, "# description: {}", one_line(d))?;
+            lines.push(format!("# description: {}", one_line(d)));
         }
         for (k, v) in &meta.extra {
             let k: String = one_line(k)
@@ -129,10 +142,20 @@ impl<W: Write> RecordingWriter<W> {
                 .split_whitespace()
                 .collect::<Vec<_>>()
                 .join("_");
-            if k.is_empty() {
+            if k.is_empty() || ["latitude_deg", "gravity_mps2", "description"].contains(&k.as_str())
+            {
                 continue;
             }
-            writeln!(w, "# {k}: {}", one_line(v))?;
+            lines.push(format!("# {k}: {}", one_line(v)));
+        }
+        if let Some(l) = lines.iter().find(|l| l.len() > MAX_LINE_BYTES) {
+            return Err(invalid(format!(
+                "metadata line of {} bytes is longer than the {MAX_LINE_BYTES} a recording line may have",
+                l.len()
+            )));
+        }
+        for l in &lines {
+            writeln!(w, "{l}")?;
         }
         write!(w, "{}", REQUIRED_COLUMNS.join(","))?;
         if has_temp {
@@ -147,15 +170,13 @@ impl<W: Write> RecordingWriter<W> {
         })
     }
 
-    /// Appends one row. Refuses (`InvalidInput`) non-finite values and times that do not
-    /// strictly increase, which the reader would reject.
+    /// Appends one row. Refuses (`InvalidInput`) what the reader would reject: non-finite
+    /// values, |a| or a temperature out of the reader's range ([`sample_problem`]), times that
+    /// do not strictly increase.
     pub fn write_sample(&mut self, s: &RawSample) -> io::Result<()> {
         let a = s.specific_force_mps2;
-        if !s.t_s.is_finite() || a.iter().any(|v| !v.is_finite()) {
-            return Err(invalid(format!(
-                "non-finite value in sample at t_s = {:?}",
-                s.t_s
-            )));
+        if let Some(p) = sample_problem(s) {
+            return Err(invalid(format!("sample at t_s = {:?}: {p}", s.t_s)));
         }
         if let Some(p) = self.prev_t {
             if s.t_s <= p {
@@ -201,14 +222,15 @@ impl<W: Write> RecordingWriter<W> {
     }
 }
 
-/// Writes a whole recording to `path`. A `temp_c` column is written if any sample has a
-/// temperature.
+/// Writes a whole recording to `path`, atomically (a temporary file renamed into place, see
+/// [`crate::output`]): on an error the previous file, if any, is left as it was. A `temp_c`
+/// column is written if any sample has a temperature.
 pub fn write_recording(path: &Path, meta: &Metadata, samples: &[RawSample]) -> io::Result<()> {
     let has_temp = samples.iter().any(|s| s.temp_c.is_some());
-    let mut w = RecordingWriter::create(path, meta, has_temp)?;
+    let file = crate::output::AtomicFile::create(path).map_err(io::Error::other)?;
+    let mut w = RecordingWriter::new(file, meta, has_temp)?;
     for s in samples {
         w.write_sample(s)?;
     }
-    w.into_inner()?;
-    Ok(())
+    w.into_inner()?.commit().map_err(io::Error::other)
 }

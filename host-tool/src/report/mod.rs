@@ -115,9 +115,9 @@ pub fn render_html(input: &ReportInput) -> Result<String> {
     let fig = |kinds: &[Kind], h: &mut String| {
         for (f, s) in &svgs {
             if kinds.contains(&f.kind) {
-                let _ = write!(
+                let _ = writeln!(
                     h,
-                    "<figure><div class=\"svg\">{s}</div><figcaption>{}</figcaption></figure>\n",
+                    "<figure><div class=\"svg\">{s}</div><figcaption>{}</figcaption></figure>",
                     esc(&caption(f))
                 );
             }
@@ -508,13 +508,25 @@ fn coefficient_table(h: &mut String, rows: &[CoefRow]) {
     let _ = writeln!(h, "</table>");
 }
 
-/// Writes every figure as `DIR/NN-name.png`; returns the files written.
-pub fn write_pngs(input: &ReportInput, dir: &Path) -> Result<Vec<PathBuf>> {
+/// Writes every figure as `DIR/NN-name.png`; returns the files written. Each is written under a
+/// temporary name and renamed into place ([`crate::output`]); a PNG that would be one of the
+/// files in `protect` (the command's inputs) is refused before anything is written.
+pub fn write_pngs(input: &ReportInput, dir: &Path, protect: &[&Path]) -> Result<Vec<PathBuf>> {
     anyhow::ensure!(!input.diagnoses.is_empty(), "report: no diagnosis to plot");
+    let figures = plots::figures(input);
+    let paths: Vec<PathBuf> = figures
+        .iter()
+        .map(|f| dir.join(format!("{}.png", f.file)))
+        .collect();
+    for p in &paths {
+        crate::output::ensure_not_input(p, "--png", protect)?;
+    }
     let mut out = vec![];
-    for f in plots::figures(input) {
-        let p = dir.join(format!("{}.png", f.file));
-        plots::png(&f, input, &p).map_err(|e| anyhow::anyhow!("{}: {e:#}", p.display()))?;
+    for (f, p) in figures.iter().zip(paths) {
+        // Drawn under a temporary name and renamed into place: never a partial PNG.
+        let tmp = crate::output::TempPath::new(&p)?;
+        plots::png(f, input, tmp.path()).map_err(|e| anyhow::anyhow!("{}: {e:#}", p.display()))?;
+        tmp.commit()?;
         out.push(p);
     }
     Ok(out)

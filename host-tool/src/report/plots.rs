@@ -294,12 +294,12 @@ pub fn decimate(
             }
         }
     };
-    for i in 0..t.len() {
+    for (i, &ti) in t.iter().enumerate() {
         let y = v(i);
-        if !(y.is_finite() && t[i].is_finite()) {
+        if !(y.is_finite() && ti.is_finite()) {
             continue;
         }
-        let c = (((t[i] - x.0) / span * cols as f64).floor().max(0.0) as usize).min(cols - 1);
+        let c = (((ti - x.0) / span * cols as f64).floor().max(0.0) as usize).min(cols - 1);
         match cur {
             Some((cc, a, b)) if cc == c => {
                 let a = if y < v(a) { i } else { a };

@@ -18,6 +18,7 @@ mod effects;
 mod engine;
 
 use std::collections::BTreeMap;
+use std::io::Write as _;
 use std::path::{Path, PathBuf};
 
 use anyhow::Context as _;
@@ -27,6 +28,7 @@ use rand_distr::{Distribution, StandardNormal};
 pub use effects::{InjectedEffect, EFFECT_NAMES, EFFECT_SYNTAX_HELP};
 pub use engine::Simulator;
 
+use crate::output::AtomicFile;
 use crate::recording::{Metadata, RawSample, RecordingWriter};
 
 /// Names of the 12 drift coefficients, in [`Scenario::coefficients`] order.
@@ -446,24 +448,49 @@ pub fn truth_path_for(csv: &Path) -> PathBuf {
 }
 
 /// Writes the recording to `csv` and the truth beside it; returns the truth file's path.
+///
+/// Both or neither: the recording and the truth are first written in full to temporary files
+/// beside them ([`crate::output`]); an error (or an interruption) up to there leaves the previous
+/// pair as it was. Then, in this order: the previous truth file is removed, the recording is
+/// renamed into place, the truth is renamed into place. Whatever step an interruption falls
+/// after, a truth file never sits beside a recording it does not describe — the states in
+/// between are "the old recording without a truth" and "the new recording without its truth"
+/// (a truth file that is missing is reported by `--truth`; a stale one would silently give wrong
+/// errors). Renaming the truth first, or the recording first without removing the old truth,
+/// would each leave a mismatched pair.
 pub fn write_simulation(csv: &Path, sim: &Simulation) -> anyhow::Result<PathBuf> {
-    let mut w = RecordingWriter::create(csv, &sim.meta, sim.truth.scenario.has_temp())
-        .with_context(|| format!("creating {}", csv.display()))?;
+    let tp = truth_path_for(csv);
+    let file = AtomicFile::create(csv)?;
+    let mut w = RecordingWriter::new(file, &sim.meta, sim.truth.scenario.has_temp())
+        .with_context(|| format!("writing {}", csv.display()))?;
     for s in &sim.samples {
         w.write_sample(s)
             .with_context(|| format!("writing {}", csv.display()))?;
     }
-    w.into_inner()
+    let csv_file = w
+        .into_inner()
         .with_context(|| format!("writing {}", csv.display()))?;
-    let tp = truth_path_for(csv);
-    write_truth(&tp, &sim.truth)?;
+    let mut truth_file = AtomicFile::create(&tp)?;
+    truth_file
+        .write_all(truth_json(&sim.truth)?.as_bytes())
+        .with_context(|| format!("writing {}", tp.display()))?;
+    match std::fs::remove_file(&tp) {
+        Ok(()) => {}
+        Err(e) if e.kind() == std::io::ErrorKind::NotFound => {}
+        Err(e) => return Err(e).with_context(|| format!("removing the previous {}", tp.display())),
+    }
+    csv_file.commit()?;
+    truth_file.commit()?;
     Ok(tp)
 }
 
-/// Writes a truth file (pretty JSON).
+fn truth_json(truth: &Truth) -> anyhow::Result<String> {
+    Ok(serde_json::to_string_pretty(truth)? + "\n")
+}
+
+/// Writes a truth file (pretty JSON), atomically.
 pub fn write_truth(path: &Path, truth: &Truth) -> anyhow::Result<()> {
-    let json = serde_json::to_string_pretty(truth)?;
-    std::fs::write(path, json + "\n").with_context(|| format!("writing {}", path.display()))
+    crate::output::write_atomic(path, truth_json(truth)?.as_bytes())
 }
 
 /// Reads a truth file and checks that its named coefficients agree with its scenario.

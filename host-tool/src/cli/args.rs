@@ -1,0 +1,125 @@
+//! Validated parsers of the numeric command-line options, one definition each, used by every
+//! subcommand through clap's `value_parser`. A bad value is a usage error (exit code 2) that clap
+//! reports naming the option, e.g.
+//! `error: invalid value 'nan' for '--period-s <PERIOD_S>': must be a finite number > 0`.
+//! NaN, infinities and values out of range never reach the code behind the options.
+
+use crate::recording::check_latitude_deg;
+
+/// Longest duration accepted by `--duration-s`/`--timeout-s`, s (about 31.7 years): far beyond
+/// any run, and well inside what `std::time::Duration` holds.
+pub const MAX_DURATION_S: f64 = 1e9;
+
+/// Most seeds a benchmark accepts.
+pub const MAX_SEEDS: u64 = 1_000_000;
+
+fn number(s: &str) -> Result<f64, String> {
+    let v: f64 = s
+        .trim()
+        .parse()
+        .map_err(|_| format!("{s:?} is not a number"))?;
+    if v.is_finite() {
+        Ok(v)
+    } else {
+        Err(format!(
+            "{s} is not finite (NaN and infinity are not allowed)"
+        ))
+    }
+}
+
+/// Any finite number.
+pub fn finite_f64(s: &str) -> Result<f64, String> {
+    number(s)
+}
+
+/// A finite number > 0.
+pub fn positive_f64(s: &str) -> Result<f64, String> {
+    match number(s)? {
+        v if v > 0.0 => Ok(v),
+        v => Err(format!("{v} is not > 0 (must be a finite number > 0)")),
+    }
+}
+
+/// A finite number ≥ 0.
+pub fn nonneg_f64(s: &str) -> Result<f64, String> {
+    match number(s)? {
+        v if v >= 0.0 => Ok(v),
+        v => Err(format!("{v} is negative (must be a finite number >= 0)")),
+    }
+}
+
+/// A latitude in degrees, in the range the recording format accepts (the reader's own check).
+pub fn latitude_deg(s: &str) -> Result<f64, String> {
+    check_latitude_deg(number(s)?)
+}
+
+/// A duration in seconds: finite, > 0 and at most [`MAX_DURATION_S`] (so converting it to a
+/// `Duration` cannot fail).
+pub fn duration_s(s: &str) -> Result<f64, String> {
+    match positive_f64(s)? {
+        v if v <= MAX_DURATION_S => Ok(v),
+        v => Err(format!(
+            "{v} s is more than the {MAX_DURATION_S:e} s accepted"
+        )),
+    }
+}
+
+/// An integer ≥ 1 that fits a u32 (e.g. a baud rate).
+pub fn positive_u32(s: &str) -> Result<u32, String> {
+    match s.trim().parse::<u32>() {
+        Ok(0) => Err("0 is not allowed (must be an integer >= 1)".into()),
+        Ok(v) => Ok(v),
+        Err(_) => Err(format!(
+            "{s:?} is not an integer in 1..={} (must be an integer >= 1)",
+            u32::MAX
+        )),
+    }
+}
+
+/// A number of seeds: an integer in 1..=[`MAX_SEEDS`].
+pub fn seed_count(s: &str) -> Result<u64, String> {
+    match s.trim().parse::<u64>() {
+        Ok(v) if (1..=MAX_SEEDS).contains(&v) => Ok(v),
+        _ => Err(format!(
+            "{s:?} is not an integer in 1..={MAX_SEEDS} (the number of seeds)"
+        )),
+    }
+}
+
+/// `secs` (already checked by [`duration_s`]) as a `Duration`, without a panic path.
+pub fn to_duration(secs: f64, option: &str) -> anyhow::Result<std::time::Duration> {
+    std::time::Duration::try_from_secs_f64(secs)
+        .map_err(|e| anyhow::anyhow!("{option} {secs}: not a valid duration ({e})"))
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn each_parser_refuses_what_it_should() {
+        for bad in ["nan", "NaN", "inf", "-inf", "abc", "", "1e400"] {
+            assert!(finite_f64(bad).is_err(), "{bad}");
+            assert!(positive_f64(bad).is_err(), "{bad}");
+            assert!(nonneg_f64(bad).is_err(), "{bad}");
+            assert!(duration_s(bad).is_err(), "{bad}");
+            assert!(latitude_deg(bad).is_err(), "{bad}");
+        }
+        assert_eq!(finite_f64("-2.5"), Ok(-2.5));
+        assert!(positive_f64("0").is_err() && positive_f64("-1").is_err());
+        assert_eq!(positive_f64("1e-9"), Ok(1e-9));
+        assert_eq!(nonneg_f64("0"), Ok(0.0));
+        assert!(nonneg_f64("-0.1").is_err());
+        assert!(duration_s("0").is_err() && duration_s("-1").is_err());
+        assert!(duration_s("1e300").is_err(), "would overflow Duration");
+        assert_eq!(duration_s("0.5"), Ok(0.5));
+        assert!(to_duration(MAX_DURATION_S, "--timeout-s").is_ok());
+        assert!(latitude_deg("90.5").is_err() && latitude_deg("-91").is_err());
+        assert_eq!(latitude_deg("-39.1"), Ok(-39.1));
+        assert!(positive_u32("0").is_err() && positive_u32("-1").is_err());
+        assert!(positive_u32("4294967296").is_err());
+        assert_eq!(positive_u32("115200"), Ok(115_200));
+        assert!(seed_count("0").is_err() && seed_count("1000001").is_err());
+        assert_eq!(seed_count("24"), Ok(24));
+    }
+}

@@ -1,0 +1,546 @@
+//! The `driftid` binary against bad arguments, closed pipes, outputs that would overwrite an
+//! input, interrupted and failing writes, and files that are not recordings (issue 8).
+//!
+//! Exit codes (README): 0 a trusted result, 3 numbers computed but not trusted, 2 a usage error
+//! or an input that cannot be used — every case here is one of the latter, so 2, and never a
+//! panic (which would be 101 and a "panicked" message).
+
+use std::path::{Path, PathBuf};
+use std::process::{Command, Output, Stdio};
+use std::time::{Duration, Instant};
+
+fn driftid() -> Command {
+    Command::new(env!("CARGO_BIN_EXE_driftid"))
+}
+
+fn temp_dir(name: &str) -> PathBuf {
+    let d = std::env::temp_dir().join(format!("driftid-robust-{}-{name}", std::process::id()));
+    let _ = std::fs::remove_dir_all(&d);
+    std::fs::create_dir_all(&d).unwrap();
+    d
+}
+
+fn stderr(out: &Output) -> String {
+    String::from_utf8_lossy(&out.stderr).into_owned()
+}
+
+/// A small simulated recording `DIR/run.csv` (+ `run.truth.json`).
+fn simulate(dir: &Path, hours: &str, rate_s: &str) -> PathBuf {
+    let csv = dir.join("run.csv");
+    let out = driftid()
+        .args([
+            "simulate", "--hours", hours, "--rate-s", rate_s, "--seed", "2",
+        ])
+        .arg("--out")
+        .arg(&csv)
+        .output()
+        .unwrap();
+    assert!(out.status.success(), "simulate failed: {}", stderr(&out));
+    csv
+}
+
+fn names_in(dir: &Path) -> Vec<String> {
+    let mut v: Vec<String> = std::fs::read_dir(dir)
+        .unwrap()
+        .map(|e| e.unwrap().file_name().to_string_lossy().into_owned())
+        .collect();
+    v.sort();
+    v
+}
+
+/// Every numeric option of every subcommand refuses NaN, infinities and out-of-range values
+/// in its parser: exit code 2 (clap's usage error) with the option named, before anything runs
+/// (the files named here do not exist: a parser that let the value through would fail on the
+/// file instead, with another message). Before issue 8, `--duration-s -1`, `--timeout-s nan` and
+/// `bench --rate-s 0` panicked.
+#[test]
+fn every_bad_numeric_argument_exits_2_naming_the_option() {
+    let cases: &[(&[&str], &str)] = &[
+        (&["simulate", "--out", "x.csv", "--hours", "-1"], "--hours"),
+        (&["simulate", "--out", "x.csv", "--hours", "nan"], "--hours"),
+        (&["simulate", "--out", "x.csv", "--hours", "inf"], "--hours"),
+        (&["simulate", "--out", "x.csv", "--rate-s", "0"], "--rate-s"),
+        (
+            &["simulate", "--out", "x.csv", "--rate-s", "NaN"],
+            "--rate-s",
+        ),
+        (
+            &["simulate", "--out", "x.csv", "--latitude-deg", "91"],
+            "--latitude-deg",
+        ),
+        (
+            &["simulate", "--out", "x.csv", "--latitude-deg", "-inf"],
+            "--latitude-deg",
+        ),
+        (&["identify", "x.csv", "--period-s", "0"], "--period-s"),
+        (&["identify", "x.csv", "--period-s", "nan"], "--period-s"),
+        (&["identify", "x.csv", "--arw", "-1"], "--arw"),
+        (&["identify", "x.csv", "--raw-sigma", "0"], "--raw-sigma"),
+        (
+            &["identify", "x.csv", "--raw-sigma", "1e-4,nan,1e-4"],
+            "--raw-sigma",
+        ),
+        (
+            &["identify", "x.csv", "--latitude-deg", "inf"],
+            "--latitude-deg",
+        ),
+        (
+            &["identify", "x.csv", "--latitude-deg", "-95"],
+            "--latitude-deg",
+        ),
+        (&["diagnose", "x.csv", "--period-s", "-60"], "--period-s"),
+        (&["report", "x.csv", "--arw", "nan"], "--arw"),
+        (
+            &[
+                "record",
+                "--port",
+                "/nonexistent",
+                "--out",
+                "x.csv",
+                "--duration-s",
+                "-1",
+            ],
+            "--duration-s",
+        ),
+        (
+            &[
+                "record",
+                "--port",
+                "/nonexistent",
+                "--out",
+                "x.csv",
+                "--duration-s",
+                "nan",
+            ],
+            "--duration-s",
+        ),
+        (
+            &[
+                "record",
+                "--port",
+                "/nonexistent",
+                "--out",
+                "x.csv",
+                "--duration-s",
+                "inf",
+            ],
+            "--duration-s",
+        ),
+        (
+            // Finite, but beyond what a Duration holds: from_secs_f64 panicked on it too.
+            &[
+                "record",
+                "--port",
+                "/nonexistent",
+                "--out",
+                "x.csv",
+                "--duration-s",
+                "1e300",
+            ],
+            "--duration-s",
+        ),
+        (
+            &[
+                "record",
+                "--port",
+                "/nonexistent",
+                "--out",
+                "x.csv",
+                "--baud",
+                "0",
+            ],
+            "--baud",
+        ),
+        (
+            &[
+                "record",
+                "--port",
+                "/nonexistent",
+                "--out",
+                "x.csv",
+                "--latitude-deg",
+                "100",
+            ],
+            "--latitude-deg",
+        ),
+        (
+            &[
+                "replay",
+                "x.csv",
+                "--port",
+                "/nonexistent",
+                "--timeout-s",
+                "-1",
+            ],
+            "--timeout-s",
+        ),
+        (
+            &[
+                "replay",
+                "x.csv",
+                "--port",
+                "/nonexistent",
+                "--timeout-s",
+                "nan",
+            ],
+            "--timeout-s",
+        ),
+        (
+            &[
+                "replay",
+                "x.csv",
+                "--port",
+                "/nonexistent",
+                "--timeout-s",
+                "inf",
+            ],
+            "--timeout-s",
+        ),
+        (
+            &[
+                "replay",
+                "x.csv",
+                "--port",
+                "/nonexistent",
+                "--period-s",
+                "0",
+            ],
+            "--period-s",
+        ),
+        (
+            &[
+                "replay",
+                "x.csv",
+                "--port",
+                "/nonexistent",
+                "--gate-nis",
+                "-1",
+            ],
+            "--gate-nis",
+        ),
+        (
+            &[
+                "replay",
+                "x.csv",
+                "--port",
+                "/nonexistent",
+                "--raw-sigma",
+                "-1e-4",
+            ],
+            "--raw-sigma",
+        ),
+        (
+            &["replay", "x.csv", "--port", "/nonexistent", "--arw", "inf"],
+            "--arw",
+        ),
+        (
+            &["replay", "x.csv", "--port", "/nonexistent", "--baud", "-5"],
+            "--baud",
+        ),
+        (&["bench", "accuracy", "--rate-s", "0"], "--rate-s"),
+        (&["bench", "accuracy", "--seeds", "0"], "--seeds"),
+        (&["bench", "accuracy", "--hours", "0"], "--hours"),
+        (&["bench", "calibration", "--hours", "12,nan"], "--hours"),
+        (
+            // Finite and positive, but more samples than the simulator takes: it panicked.
+            &["bench", "calibration", "--hours", "1e9", "--seeds", "1"],
+            "--hours",
+        ),
+        (&["demo", "--seed", "-1"], "--seed"),
+        (
+            // Each value in range, but together more samples than the simulator takes.
+            &["simulate", "--out", "x.csv", "--hours", "1e9"],
+            "--hours",
+        ),
+        (&["simulate", "--out", "x.csv", "--seed", "1.5"], "--seed"),
+    ];
+    for (args, option) in cases {
+        let out = driftid().args(*args).output().unwrap();
+        let err = stderr(&out);
+        assert_eq!(
+            out.status.code(),
+            Some(2),
+            "{args:?}: exit code (2: usage error); stderr: {err}"
+        );
+        assert!(!err.contains("panicked"), "{args:?}: panic: {err}");
+        assert!(
+            err.contains(option),
+            "{args:?}: the error should name {option}: {err}"
+        );
+    }
+}
+
+/// `driftid identify … | head`: the reader of stdout goes away before the table is printed.
+/// The process must end quietly — killed by SIGPIPE like any Unix filter (main restores the
+/// default action), not a `println!` panic ("failed printing to stdout: Broken pipe", 101).
+#[test]
+fn identify_into_a_closed_pipe_ends_without_a_panic() {
+    let dir = temp_dir("pipe");
+    let csv = simulate(&dir, "6", "10");
+    let mut child = driftid()
+        .arg("identify")
+        .arg(&csv)
+        .stdout(Stdio::piped())
+        .stderr(Stdio::piped())
+        .spawn()
+        .unwrap();
+    // Close the read end at once: identify needs far longer than this to reach its first print.
+    drop(child.stdout.take());
+    let out = child.wait_with_output().unwrap();
+    let err = stderr(&out);
+    assert!(
+        !err.contains("panicked") && !err.contains("Broken pipe"),
+        "a closed stdout must end quietly: {err}"
+    );
+    assert_ne!(out.status.code(), Some(101), "exit code of a panic");
+    #[cfg(unix)]
+    {
+        use std::os::unix::process::ExitStatusExt as _;
+        assert_eq!(
+            out.status.signal(),
+            Some(13),
+            "ended by SIGPIPE (status {:?}); stderr: {err}",
+            out.status
+        );
+    }
+    let _ = std::fs::remove_dir_all(&dir);
+}
+
+/// `report REC -o REC` used to overwrite the recording with the HTML page. Refused before any
+/// work, exit 2, whatever the spelling of the path, and REC is left byte-identical.
+#[test]
+fn report_and_replay_refuse_to_overwrite_their_input() {
+    let dir = temp_dir("same");
+    let csv = simulate(&dir, "0.2", "10");
+    let truth = dir.join("run.truth.json");
+    let before = std::fs::read(&csv).unwrap();
+    let truth_before = std::fs::read(&truth).unwrap();
+    let other_spelling = dir.join(".").join("run.csv");
+    let cases: Vec<Vec<std::ffi::OsString>> = vec![
+        vec![
+            "report".into(),
+            csv.clone().into(),
+            "-o".into(),
+            csv.clone().into(),
+        ],
+        vec![
+            "report".into(),
+            csv.clone().into(),
+            "--out".into(),
+            other_spelling.clone().into(),
+        ],
+        vec![
+            "report".into(),
+            csv.clone().into(),
+            "--truth".into(),
+            truth.clone().into(),
+            "-o".into(),
+            truth.clone().into(),
+        ],
+        vec![
+            "replay".into(),
+            csv.clone().into(),
+            "--port".into(),
+            "/nonexistent".into(),
+            "--out".into(),
+            csv.clone().into(),
+        ],
+        vec![
+            "replay".into(),
+            csv.clone().into(),
+            "--port".into(),
+            "/nonexistent".into(),
+            "--raw".into(),
+            other_spelling.clone().into(),
+        ],
+    ];
+    for args in &cases {
+        let out = driftid().args(args).output().unwrap();
+        let err = stderr(&out);
+        assert_eq!(out.status.code(), Some(2), "{args:?}: {err}");
+        assert!(
+            err.contains("refusing to overwrite") && err.contains("run."),
+            "{args:?}: should say which input it refuses to overwrite: {err}"
+        );
+        assert_eq!(
+            std::fs::read(&csv).unwrap(),
+            before,
+            "{args:?}: recording changed"
+        );
+        assert_eq!(
+            std::fs::read(&truth).unwrap(),
+            truth_before,
+            "{args:?}: truth changed"
+        );
+    }
+    assert_eq!(names_in(&dir), ["run.csv", "run.truth.json"]);
+    let _ = std::fs::remove_dir_all(&dir);
+}
+
+/// A replay into a firmware that never answers times out. Its estimates file used to be created
+/// up front (and truncated an earlier one); now the estimates go to a temporary file renamed
+/// into place on success only: after the failure there is no output file and no temporary one.
+#[cfg(unix)]
+#[test]
+fn a_failing_replay_leaves_no_output_file() {
+    let dir = temp_dir("replay");
+    let csv = simulate(&dir, "0.05", "10");
+    // A pty nobody answers on: the replay sends its few frames (they fit the pty's buffer), then
+    // waits for estimates until --timeout-s.
+    let pty = host_tool::link::port::pty_pair().unwrap();
+    let out_csv = dir.join("estimates.csv");
+    let out = driftid()
+        .arg("replay")
+        .arg(&csv)
+        .args(["--port", &pty.slave_path, "--timeout-s", "1", "--out"])
+        .arg(&out_csv)
+        .output()
+        .unwrap();
+    let err = stderr(&out);
+    assert_eq!(out.status.code(), Some(2), "{err}");
+    assert!(err.contains("timed out"), "{err}");
+    assert!(
+        !out_csv.exists(),
+        "a failed replay must leave no output file"
+    );
+    assert_eq!(
+        names_in(&dir),
+        ["run.csv", "run.truth.json"],
+        "no temporary file left either"
+    );
+    drop(pty);
+    let _ = std::fs::remove_dir_all(&dir);
+}
+
+/// `simulate` killed while it writes (SIGKILL, like a Ctrl-C: no destructor runs) over an
+/// earlier run. Whatever moment the kill falls on, the real names hold a consistent state: the
+/// recording is complete (the old one or the new one), and a truth file beside it describes it
+/// (same number of samples) — never a partial CSV beside the previous run's truth. The kill is
+/// aimed at the write phase: it comes as soon as the temporary file appears.
+#[cfg(unix)]
+#[test]
+fn simulate_killed_mid_write_leaves_a_consistent_pair() {
+    let dir = temp_dir("kill");
+    let csv = simulate(&dir, "0.5", "10");
+    let truth = dir.join("run.truth.json");
+    let (old_csv, old_truth) = (std::fs::read(&csv).unwrap(), std::fs::read(&truth).unwrap());
+    // About 700 000 rows (tens of MB): the write phase lasts far longer than the polling below.
+    let mut child = driftid()
+        .args([
+            "simulate", "--hours", "20", "--rate-s", "0.1", "--seed", "9", "--out",
+        ])
+        .arg(&csv)
+        .stdout(Stdio::null())
+        .stderr(Stdio::null())
+        .spawn()
+        .unwrap();
+    let t0 = Instant::now();
+    let mut saw_temp = false;
+    while t0.elapsed() < Duration::from_secs(300) {
+        if names_in(&dir).iter().any(|n| n.starts_with(".driftid-")) {
+            saw_temp = true;
+            break;
+        }
+        if child.try_wait().unwrap().is_some() {
+            break;
+        }
+        std::thread::sleep(Duration::from_millis(1));
+    }
+    let _ = child.kill();
+    let _ = child.wait();
+    assert!(
+        saw_temp,
+        "the simulate never started writing (or finished unseen)"
+    );
+    let now_csv = std::fs::read(&csv).expect("run.csv still there");
+    let rec = host_tool::recording::read_recording(&csv)
+        .expect("the recording at the real name is complete and readable");
+    assert!(
+        rec.repairs.is_empty(),
+        "no truncated line: {:?}",
+        rec.repairs
+    );
+    if now_csv == old_csv {
+        if truth.exists() {
+            assert_eq!(std::fs::read(&truth).unwrap(), old_truth, "old pair intact");
+        }
+    } else if truth.exists() {
+        let t = host_tool::simulate::read_truth(&truth).unwrap();
+        assert_eq!(
+            t.sample_count,
+            rec.samples.len() as u64,
+            "truth describes the CSV"
+        );
+    }
+    // The kill landed before the last rename: its temporary (SIGKILL runs no clean-up) is still
+    // there. Writing ~48 MB takes far longer than the 1-ms polling above, so this only fails if
+    // the write phase became near-instant — then make the run longer.
+    assert!(
+        names_in(&dir).iter().any(|n| n.starts_with(".driftid-")),
+        "the kill came after the simulate had finished writing; the test did not test anything"
+    );
+    // A kill leaves at most hidden temporaries, never another visible file.
+    for n in names_in(&dir) {
+        assert!(
+            n == "run.csv" || n == "run.truth.json" || n.starts_with(".driftid-"),
+            "unexpected file {n}"
+        );
+    }
+    let _ = std::fs::remove_dir_all(&dir);
+}
+
+/// A 10 MB file without a line break used to be read whole as one header line and echoed into
+/// the error message. Now reading stops at the line cap (64 KiB): a clear error naming the file,
+/// the line and the limit, a short message, at once.
+#[test]
+fn a_10_mb_file_without_newlines_is_refused_quickly_with_a_short_error() {
+    let dir = temp_dir("long");
+    let path = dir.join("noline.csv");
+    std::fs::write(&path, vec![b'7'; 10 * 1024 * 1024]).unwrap();
+    let t0 = Instant::now();
+    let out = driftid().arg("identify").arg(&path).output().unwrap();
+    let elapsed = t0.elapsed();
+    let err = stderr(&out);
+    assert_eq!(out.status.code(), Some(2), "{err}");
+    assert!(
+        err.contains("noline.csv:1:") && err.contains("65536") && err.contains("longer than"),
+        "names file, line and limit: {err}"
+    );
+    assert!(err.len() < 400, "{} bytes of error message", err.len());
+    // Reading 64 KiB and stopping takes milliseconds; 10 s only fails if the file is read whole
+    // on a very slow machine, or worse.
+    assert!(elapsed < Duration::from_secs(10), "took {elapsed:?}");
+    let _ = std::fs::remove_dir_all(&dir);
+}
+
+/// `simulate` failing at the last step (here: the old truth file cannot be removed, because a
+/// directory sits at its name) renames nothing: the earlier recording is left byte-identical
+/// and no temporary file remains — the recording and its truth are replaced both or neither.
+#[test]
+fn a_simulate_that_fails_before_the_renames_leaves_the_earlier_recording() {
+    let dir = temp_dir("simfail");
+    let csv = simulate(&dir, "0.2", "10");
+    let before = std::fs::read(&csv).unwrap();
+    let truth = dir.join("run.truth.json");
+    std::fs::remove_file(&truth).unwrap();
+    std::fs::create_dir(&truth).unwrap();
+    let out = driftid()
+        .args(["simulate", "--hours", "0.3", "--rate-s", "10", "--out"])
+        .arg(&csv)
+        .output()
+        .unwrap();
+    let err = stderr(&out);
+    assert_eq!(out.status.code(), Some(2), "{err}");
+    assert!(err.contains("run.truth.json"), "{err}");
+    assert_eq!(
+        std::fs::read(&csv).unwrap(),
+        before,
+        "earlier recording kept"
+    );
+    assert_eq!(
+        names_in(&dir),
+        ["run.csv", "run.truth.json"],
+        "no temporaries"
+    );
+    let _ = std::fs::remove_dir_all(&dir);
+}
