@@ -17,3 +17,50 @@ pub fn with_sigma(value: f64, sigma: f64) -> String {
 pub fn sci(v: f64) -> String {
     format!("{v:.2e}")
 }
+
+/// `value ± sigma` with two significant digits of `sigma` and the value to the same decimal, in
+/// scientific notation when the numbers are very small or large: `2.00031e-3 ± 9.0e-7`,
+/// `0.0921 ± 0.0065`. A missing or zero 1σ prints the value alone with 4 significant digits.
+pub fn pm(value: f64, sigma: f64) -> String {
+    if !value.is_finite() {
+        return "n/a".into();
+    }
+    if !(sigma.is_finite() && sigma > 0.0) {
+        return format!("{value:.3e}");
+    }
+    let last = sigma.log10().floor() as i32 - 1; // place of sigma's second significant digit
+    let mag = if value != 0.0 {
+        value.abs().log10().floor() as i32
+    } else {
+        last + 1
+    };
+    if (-3..5).contains(&mag.max(last + 1)) && last >= -12 {
+        let d = (-last).clamp(0, 15) as usize;
+        format!("{value:.d$} ± {sigma:.d$}")
+    } else {
+        let d = (mag.max(last + 1) - last).clamp(1, 15) as usize;
+        format!("{value:.d$e} ± {sigma:.1e}")
+    }
+}
+
+/// A p-value, or its natural log when it underflows to 0: `3.1e-7`, `e^-4.8e6`.
+pub fn p_or_ln(p: f64, ln_p: f64) -> String {
+    if p > 0.0 || !ln_p.is_finite() {
+        format!("{p:.2e}")
+    } else {
+        format!("e^{ln_p:.3e}")
+    }
+}
+
+#[cfg(test)]
+mod pm_tests {
+    use super::pm;
+
+    #[test]
+    fn digits_follow_the_sigma() {
+        assert_eq!(pm(-0.0921, 6.49e-6), "-0.0921000 ± 0.0000065");
+        assert_eq!(pm(2.0003e-3, 9.04e-7), "0.00200030 ± 0.00000090");
+        assert_eq!(pm(5.54e-6, 2.07e-7), "5.54e-6 ± 2.1e-7");
+        assert_eq!(pm(12345.6, 78.0), "12346 ± 78");
+    }
+}

@@ -5,10 +5,12 @@ use std::path::PathBuf;
 
 use serde_json::json;
 
-use super::common::{load, ModelArgs};
+use anyhow::Context as _;
+
+use super::common::{load, print_findings, trusted_or, ModelArgs};
 use crate::catalog;
 use crate::diagnose::{ladder, DiagnoseConfig, Diagnosis, Rung};
-use crate::format::sci;
+use crate::format::{p_or_ln, pm, sci};
 use crate::identify::prepare;
 
 /// Arguments of `driftid diagnose`.
@@ -47,10 +49,10 @@ pub fn print_diagnosis(d: &Diagnosis) {
         sci(d.floor_mps2[2])
     );
     println!(
-        "  mean NIS/3 {:.3} (95 % band {:.3}–{:.3}); Ljung–Box Q {:.1} on {} dof, p = {:.2e}",
+        "  mean NIS/3 {:.3} (99.9 % band {:.3}–{:.3}); Ljung–Box Q {:.1} on {} dof, p = {:.2e}",
         d.nis_mean,
-        d.nis_band95[0],
-        d.nis_band95[1],
+        d.consistency.nis_band[0],
+        d.consistency.nis_band[1],
         d.whiteness.ljung_box_q,
         d.whiteness.dof,
         d.whiteness.p_value
@@ -91,7 +93,10 @@ pub fn print_diagnosis(d: &Diagnosis) {
     if !strong.is_empty() {
         println!("  residual correlates with: {}", strong.join(", "));
     }
-    println!("  {:<13} {:>10} {:>4} {:>9} {:>9} {:>22}  largest parameter (estimate ± 1σ; detectable from)", "candidate", "statistic", "dof", "p", "p (Holm)", "expected RMS/floor");
+    println!(
+        "  {:<13} {:>10} {:>4} {:>11} {:>11}  {:>9} {:>21}  largest parameter (estimate ± 1σ; detectable from)",
+        "candidate", "statistic", "dof", "p", "p (Holm)", "evidence", "refit RMS/floor"
+    );
     for c in &d.ranking {
         if let Some(why) = &c.untestable {
             println!("  {:<13} not tested: {why}", c.effect);
@@ -105,25 +110,33 @@ pub fn print_diagnosis(d: &Diagnosis) {
         let big = big
             .map(|p| {
                 format!(
-                    "{} = {} ± {} {} (≥ {})",
+                    "{} = {} {} (≥ {})",
                     p.name,
-                    sci(p.value),
-                    sci(p.sigma),
+                    pm(p.value, p.sigma),
                     p.unit,
                     sci(p.min_detectable)
                 )
             })
             .unwrap_or_default();
+        let (ev, after) = match &c.refit {
+            Some(r) => (
+                format!("{:+.1}", r.evidence_gain),
+                format!(
+                    "[{:.2}, {:.2}, {:.2}]",
+                    r.rms_over_floor[0], r.rms_over_floor[1], r.rms_over_floor[2]
+                ),
+            ),
+            None => ("—".into(), "(not refitted)".into()),
+        };
         println!(
-            "  {:<13} {:>10.1} {:>4} {:>9.2e} {:>9.2e}   [{:.2}, {:.2}, {:.2}]  {big}",
+            "  {:<13} {:>10.1} {:>4} {:>11} {:>11}  {:>9} {:>21}  {big}",
             c.effect,
             c.statistic,
             c.dof,
-            c.p_value,
-            c.p_adjusted,
-            c.expected_rms_over_floor[0],
-            c.expected_rms_over_floor[1],
-            c.expected_rms_over_floor[2]
+            p_or_ln(c.p_value, c.ln_p_value),
+            p_or_ln(c.p_adjusted, c.ln_p_adjusted),
+            ev,
+            after
         );
     }
     for cf in &d.confounding {
@@ -164,13 +177,26 @@ pub fn print_ladder(rungs: &[Rung]) {
             r.whiteness_p
         );
     }
+    for r in rungs {
+        if let Some(why) = &r.next_reason {
+            println!("  why: {why}");
+        }
+    }
+    if let Some(last) = rungs.last() {
+        if !last.effect_params.is_empty() {
+            println!("  added effects' parameters (last model):");
+            for (name, unit, v, s) in &last.effect_params {
+                println!("    {name:<8} {} {unit}", pm(*v, *s));
+            }
+        }
+    }
     if rungs.len() > 1 {
         let (a, b) = (&rungs[0], &rungs[rungs.len() - 1]);
         println!("  drift coefficients, first → last model (1σ of the last):");
         for ((name, v0, _), (_, v1, s1)) in a.coefficients.iter().zip(&b.coefficients) {
             println!(
-                "    {name:<4} {v0:>12.6} → {v1:>12.6} ± {}  (moved {:+.1} σ)",
-                sci(*s1),
+                "    {name:<4} {v0:>12.6} → {}  (moved {:+.1} σ)",
+                pm(*v1, *s1),
                 (v1 - v0) / s1
             );
         }
@@ -191,10 +217,27 @@ pub fn run(args: &DiagnoseArgs) -> anyhow::Result<()> {
     );
     let loaded = load(&args.recording, args.model.latitude_deg)?;
     let effects = catalog::model_effects(&args.model.with)?;
-    let prep = prepare(loaded.site, &loaded.samples, &cfg.identify)?;
+    let prep = prepare(loaded.site, &loaded.samples, &cfg.identify)
+        .with_context(|| format!("{}", args.recording.display()))?;
+    let mut cfg = cfg;
+    let faults = prep.untrusted_reasons();
+    if !faults.is_empty() {
+        // A data fault is named as a fault, never explained by a physical effect: no ladder.
+        cfg.max_rungs = 1;
+    }
     let spin = crate::progress::spinner("identifying, diagnosing and climbing the model ladder");
     let (diagnoses, rungs, _, _) = ladder(&prep, &effects, &cfg)?;
     spin.finish_and_clear();
+    let last = diagnoses.last().map(|d| d.consistency.clone());
+    let mut reasons = faults.clone();
+    if let Some(c) = &last {
+        if !c.is_consistent() {
+            reasons.push(format!(
+                "the final model does not explain the measurements: {}",
+                c.failures.join("; ")
+            ));
+        }
+    }
     let d = &diagnoses[0];
     if args.json {
         let out = json!({
@@ -213,9 +256,17 @@ pub fn run(args: &DiagnoseArgs) -> anyhow::Result<()> {
             "verdict": d.verdict,
             "ladder": rungs,
             "final_verdict": diagnoses.last().map(|d| d.verdict.clone()),
+            "final_consistency": last,
+            "data_quality": { "findings": prep.findings },
+            "trusted": reasons.is_empty(),
+            "untrusted_reasons": reasons,
         });
         println!("{}", serde_json::to_string_pretty(&out)?);
     } else {
+        print_findings(&prep.findings);
+        if !faults.is_empty() {
+            println!("the data have faults the tool did not repair: they are named above as faults; no physical effect is added to explain them (no model ladder)");
+        }
         println!(
             "{}: {} updates of {} s",
             args.recording.display(),
@@ -230,6 +281,12 @@ pub fn run(args: &DiagnoseArgs) -> anyhow::Result<()> {
             }
         }
         print_ladder(&rungs);
+        if !reasons.is_empty() {
+            println!("NOT TRUSTED:");
+            for r in &reasons {
+                println!("  - {r}");
+            }
+        }
     }
-    Ok(())
+    trusted_or(reasons)
 }

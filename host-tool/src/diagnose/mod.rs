@@ -12,6 +12,7 @@
 //! - how alike the leading candidates' signatures are (canonical correlation).
 
 pub mod score;
+pub mod select;
 pub mod types;
 pub mod wander;
 
@@ -27,7 +28,8 @@ use crate::catalog;
 use crate::cli::common::build_model;
 use crate::identify::smoother::temp_devs;
 use crate::identify::{identify, smoothed_residuals, wide_prior, Config, Identification, Prepared};
-use crate::stats::{chi2_quantile, chi2_sf, normal_quantile};
+use crate::consistency::{assess, Thresholds};
+use crate::stats::{chi2_ln_sf, chi2_quantile, chi2_sf, normal_quantile};
 
 /// Statistic gap below which two similar candidates are "not clearly separated": a likelihood
 /// ratio below e^5 ≈ 150 : 1.
@@ -170,7 +172,7 @@ pub fn diagnose(
     let mut x0 = vec![0.0; n];
     x0[..3].copy_from_slice(&prep.initial_angles);
     let (x0, p0) = wide_prior(&model, &x0, &prep.initial_angle_sigma);
-    let (pass, sigs, nu_w) = signatures(&model, &extended, meas, &id.trajectory, &x0, &p0);
+    let (pass, sigs, _) = signatures(&model, &extended, meas, &id.trajectory, &x0, &p0);
 
     // Series and residual statistics.
     let residual = smoothed_residuals(&model, meas, &id.trajectory);
@@ -221,8 +223,10 @@ pub fn diagnose(
                     dof: 0.0,
                     p_value: f64::NAN,
                     p_adjusted: f64::NAN,
+                    ln_p_value: f64::NAN,
+                    ln_p_adjusted: f64::NAN,
                     params: vec![],
-                    expected_rms_over_floor: residual_rms_over_floor,
+                    refit: None,
                     untestable: s
                         .untestable
                         .clone()
@@ -232,11 +236,12 @@ pub fn diagnose(
             ),
             Some(sig) => {
                 let t = sig.test();
-                let p_value = if t.dof > 0 {
-                    chi2_sf(t.statistic, t.dof as f64)
+                let ln_p_value = if t.dof > 0 {
+                    chi2_ln_sf(t.statistic, t.dof as f64)
                 } else {
-                    1.0
+                    0.0
                 };
+                let p_value = ln_p_value.exp();
                 let lambda = noncentrality_for_power(t.dof.max(1) as f64, cfg.alpha, 0.9);
                 let e: &dyn Effect = match &s.effect {
                     Some(b) => b.as_ref(),
@@ -258,18 +263,6 @@ pub fn diagnose(
                         },
                     })
                     .collect();
-                // Expected residual after adding the effect: the whitened innovations minus its
-                // fitted signature, axis by axis, scales today's RMS/floor.
-                let fitted = &sig.whitened * &t.estimate;
-                let expected = per_axis(|i| {
-                    let (mut before, mut after) = (0.0, 0.0);
-                    for j in 0..n_upd {
-                        let w = nu_w[3 * j + i];
-                        before += w * w;
-                        after += (w - fitted[3 * j + i]).powi(2);
-                    }
-                    residual_rms_over_floor[i] * (after / before.max(1e-300)).sqrt()
-                });
                 (
                     Candidate {
                         effect: s.name.into(),
@@ -278,8 +271,10 @@ pub fn diagnose(
                         dof: t.dof as f64,
                         p_value,
                         p_adjusted: p_value,
+                        ln_p_value,
+                        ln_p_adjusted: ln_p_value,
                         params,
-                        expected_rms_over_floor: expected,
+                        refit: None,
                         untestable: None,
                     },
                     Some(sig),
@@ -291,22 +286,23 @@ pub fn diagnose(
         |a, b| match (a.0.untestable.is_some(), b.0.untestable.is_some()) {
             (false, true) => std::cmp::Ordering::Less,
             (true, false) => std::cmp::Ordering::Greater,
-            _ => {
-                a.0.p_value
-                    .total_cmp(&b.0.p_value)
-                    .then(b.0.statistic.total_cmp(&a.0.statistic))
-            }
+            _ => a
+                .0
+                .ln_p_value
+                .total_cmp(&b.0.ln_p_value)
+                .then(a.0.dof.total_cmp(&b.0.dof)),
         },
     );
-    // Holm's step-down adjustment over the tested candidates.
-    let mut running: f64 = 0.0;
+    // Holm's step-down adjustment over the tested candidates, in logs (no underflow).
+    let mut running = f64::NEG_INFINITY;
     for (rank, (c, _)) in ranking
         .iter_mut()
         .filter(|(c, _)| c.untestable.is_none())
         .enumerate()
     {
-        running = running.max(((tested - rank) as f64 * c.p_value).min(1.0));
-        c.p_adjusted = running;
+        running = running.max((((tested - rank) as f64).ln() + c.ln_p_value).min(0.0));
+        c.ln_p_adjusted = running;
+        c.p_adjusted = running.exp();
     }
     // Confounding among the leading candidates.
     let mut confounding = vec![];
@@ -331,7 +327,29 @@ pub fn diagnose(
             }
         }
     }
-    let ranking: Vec<Candidate> = ranking.into_iter().map(|(c, _)| c).collect();
+    let mut ranking: Vec<Candidate> = ranking.into_iter().map(|(c, _)| c).collect();
+    // The leading significant candidates refitted; the evidence chooses among them.
+    let leaders: Vec<String> = ranking
+        .iter()
+        .filter(|c| c.untestable.is_none() && c.p_adjusted < cfg.alpha)
+        .take(select::REFIT_LEADERS)
+        .map(|c| c.effect.clone())
+        .collect();
+    let base_evidence = select::neg2_log_evidence(&id);
+    let refits = select::refit(prep, effects, base_evidence, &leaders, cfg);
+    for r in &refits {
+        if let Some(c) = ranking.iter_mut().find(|c| c.effect == r.effect) {
+            c.refit = Some(r.clone());
+        }
+    }
+    let choice = select::choose(&refits);
+    let consistency = assess(
+        nis_mean,
+        n_upd,
+        whiteness.p_value,
+        residual_rms_over_floor,
+        &Thresholds::default(),
+    );
     let model_names: Vec<String> = effects
         .iter()
         .filter(|e| e.name() != "paper")
@@ -349,6 +367,8 @@ pub fn diagnose(
         correlations,
         ranking,
         confounding,
+        consistency,
+        choice,
         verdict: String::new(),
         series,
     };
@@ -356,11 +376,9 @@ pub fn diagnose(
     Ok((d, id))
 }
 
-/// Whether the model explains the data: residual at the floor (within 5 %), white, NIS in band.
-pub fn is_consistent(d: &Diagnosis, alpha: f64) -> bool {
-    d.residual_rms_over_floor.iter().all(|r| *r < 1.05)
-        && d.whiteness.p_value >= alpha
-        && d.nis_mean <= d.nis_band95[1] * 1.02
+/// Whether the model explains the data: the one definition ([`crate::consistency`]).
+pub fn is_consistent(d: &Diagnosis) -> bool {
+    d.consistency.is_consistent()
 }
 
 fn verdict(d: &Diagnosis, alpha: f64) -> String {
@@ -370,60 +388,67 @@ fn verdict(d: &Diagnosis, alpha: f64) -> String {
         .map(|r| format!("{r:.2}"))
         .collect();
     let state = format!(
-        "Residual RMS / noise floor = [{}] (x, y, z), mean NIS/3 = {:.2} (95 % band {:.3}–{:.3}), Ljung–Box p = {:.2e}.",
+        "Residual RMS / noise floor = [{}] (x, y, z), mean NIS/3 = {:.3} (99.9 % band {:.3}–{:.3}), Ljung–Box p = {:.2e}.",
         rms.join(", "),
         d.nis_mean,
-        d.nis_band95[0],
-        d.nis_band95[1],
+        d.consistency.nis_band[0],
+        d.consistency.nis_band[1],
         d.whiteness.p_value
     );
-    let lead = d
-        .ranking
-        .first()
-        .filter(|c| c.untestable.is_none() && c.p_adjusted < alpha);
-    match lead {
-        Some(c) => {
-            let after: Vec<String> = c.expected_rms_over_floor.iter().map(|r| format!("{r:.2}")).collect();
-            let mut s = format!(
-                "{state} The model misses a physical effect: `{}` explains the residual structure best (score statistic {:.1} with {} dof, p = {:.1e} after adjusting for {} candidates). Adding it should bring the residual RMS / floor to about [{}]. {}",
-                c.effect,
-                c.statistic,
-                c.dof,
-                c.p_adjusted,
-                d.ranking.iter().filter(|c| c.untestable.is_none()).count(),
-                after.join(", "),
-                c.about
+    if let Some(choice) = &d.choice {
+        let c = d.ranking.iter().find(|c| c.effect == choice.effect);
+        let mut s = format!("{state} The model misses a physical effect: {}.", choice.reason);
+        if let Some(r) = c.and_then(|c| c.refit.as_ref()) {
+            s += &format!(
+                " With it the residual RMS / floor is [{:.2}, {:.2}, {:.2}], NIS/3 {:.3}, Ljung–Box p {:.1e} ({}).",
+                r.rms_over_floor[0],
+                r.rms_over_floor[1],
+                r.rms_over_floor[2],
+                r.nis_mean,
+                r.whiteness_p,
+                if r.consistent { "consistent" } else { "still not consistent" }
             );
+        }
+        if let Some(c) = c {
+            s += &format!(" {}", c.about);
             for cf in d.confounding.iter().filter(|cf| !cf.separated && (cf.a == c.effect || cf.b == c.effect)) {
                 let rival = if cf.a == c.effect { &cf.b } else { &cf.a };
                 s += &format!(
-                    " Caution: `{rival}` leaves almost the same signature on this run (canonical correlation {:.3}, statistic gap {:.1}); the data barely separate them. What would: {}.",
-                    cf.canonical_correlation, cf.statistic_gap.abs(), cf.separate_by
+                    " Caution: `{rival}` leaves almost the same signature on this run (canonical correlation {:.3}); the data barely separate them. What would: {}.",
+                    cf.canonical_correlation, cf.separate_by
                 );
             }
-            s
         }
-        None if is_consistent(d, alpha) => format!(
-            "{state} The model explains the measurements: the residual is at the noise floor, white and consistent with its covariance; no catalog effect is significant at {:.0} %.",
-            alpha * 100.0
-        ),
-        None if d.residual_rms_over_floor.iter().all(|r| *r < 1.05) && d.nis_mean <= d.nis_band95[1] * 1.02 => {
-            let p = d.whiteness.p_value;
-            let how = if p >= alpha / 100.0 {
-                format!("p = {p:.1e}; {:.0} % of clean runs fall below {alpha} by chance", alpha * 100.0)
-            } else {
-                "too small to be chance: a weak systematic effect below what the RMS shows".to_string()
-            };
-            format!(
-                "{state} The residual is at the noise floor and consistent with its covariance; only the whiteness test flags structure ({how}). No catalog effect is significant at {:.0} %. Check the autocorrelation and the failure windows, and whether it repeats on another run.",
-                alpha * 100.0
-            )
-        }
-        None => format!(
-            "{state} The residual still has structure, but no catalog effect explains it (none significant at {:.0} %): the missing physics is outside the catalog. See the failure windows and the regressor correlations for where and what.",
-            alpha * 100.0
-        ),
+        return s;
     }
+    if is_consistent(d) {
+        return format!(
+            "{state} The model explains the measurements: the residual is at the noise floor, white and consistent with its covariance; no catalog effect earns its place (score tests at {:.0} %, refits by evidence).",
+            alpha * 100.0
+        );
+    }
+    let why = d.consistency.failures.join("; ");
+    let corr: Vec<String> = d
+        .correlations
+        .iter()
+        .filter_map(|c| {
+            let m = c.corr.iter().fold(0.0f64, |a, v| a.max(v.abs()));
+            (m > c.bound99).then(|| format!("{} ({:+.2})", c.regressor, m))
+        })
+        .collect();
+    let windows: Vec<String> = d
+        .failures
+        .iter()
+        .take(5)
+        .map(|f| format!("{:.1}–{:.1} h (axis {})", f.start_h, f.end_h, f.worst_axis))
+        .collect();
+    format!(
+        "{state} OUTSIDE THE CATALOG: the model does not explain the measurements ({why}), and no catalog effect improves it enough to earn its place. \
+         The residual still correlates with: {}; it fails most in: {}. Define the missing effect in a file \
+         (`--effects FILE.toml`, README \"Effects defined in a file\") as an expression of A_x, A_y, A_z, t_h, temp_c and its parameters, and diagnose again.",
+        if corr.is_empty() { "none of the regressors beyond chance".to_string() } else { corr.join(", ") },
+        if windows.is_empty() { "no particular window".to_string() } else { windows.join(", ") }
+    )
 }
 
 /// Smallest noncentrality λ of χ²(k, λ) that exceeds the level-`alpha` critical value with
@@ -603,34 +628,53 @@ pub fn ladder(
     let mut rungs: Vec<Rung> = vec![];
     loop {
         let (d, id) = diagnose(prep, &effects, cfg)?;
-        let paper = id.params.iter().take(12).enumerate();
         let best = id.best();
-        let coefficients = paper
+        let coefficients = id
+            .params
+            .iter()
+            .take(12)
+            .enumerate()
             .map(|(k, p)| (p.name.to_string(), best.value[k], best.sigma(k)))
             .collect();
-        let lead = d
-            .ranking
-            .first()
-            .filter(|c| c.untestable.is_none() && c.p_adjusted < cfg.alpha)
-            .map(|c| (c.effect.clone(), c.p_adjusted));
+        let effect_params = id
+            .params
+            .iter()
+            .enumerate()
+            .skip(12)
+            .map(|(k, p)| (p.name.to_string(), p.unit.to_string(), best.value[k], best.sigma(k)))
+            .collect();
+        let choice = d.choice.clone();
         rungs.push(Rung {
             model: d.model.clone(),
             residual_rms_over_floor: d.residual_rms_over_floor,
             nis_mean: d.nis_mean,
             whiteness_p: d.whiteness.p_value,
             coefficients,
+            effect_params,
+            consistent: is_consistent(&d),
             next: None,
+            next_reason: None,
         });
-        diagnoses.push(d);
-        let next = match lead {
-            Some((name, p)) if rungs.len() < cfg.max_rungs => {
-                catalog::by_name(&name).map(|e| (e, p))
+        let p_of = |name: &str| {
+            d.ranking
+                .iter()
+                .find(|c| c.effect == name)
+                .map(|c| c.p_adjusted)
+                .unwrap_or(f64::NAN)
+        };
+        let next = match &choice {
+            Some(c) if rungs.len() < cfg.max_rungs => {
+                catalog::by_name(&c.effect).map(|e| (e, p_of(&c.effect), c.reason.clone()))
             }
             _ => None,
         };
+        diagnoses.push(d);
         match next {
-            Some((e, p)) => {
-                rungs.last_mut().unwrap().next = Some((e.name().to_string(), p));
+            Some((e, p, reason)) => {
+                if let Some(last) = rungs.last_mut() {
+                    last.next = Some((e.name().to_string(), p));
+                    last.next_reason = Some(reason);
+                }
                 effects.push(e);
             }
             None => return Ok((diagnoses, rungs, id, effects)),

@@ -93,10 +93,14 @@ pub struct Candidate {
     pub p_value: f64,
     /// p-value adjusted for the number of candidates tested (Holm).
     pub p_adjusted: f64,
+    /// Natural log of the p-value (does not underflow: ranks candidates whose p is 0 in f64).
+    pub ln_p_value: f64,
+    /// Natural log of the Holm-adjusted p-value.
+    pub ln_p_adjusted: f64,
     /// Estimated parameters with 1σ and the detection limit.
     pub params: Vec<ParamEstimate>,
-    /// Expected residual RMS over the floor after adding this effect, per axis.
-    pub expected_rms_over_floor: [f64; 3],
+    /// The leading candidates refitted: evidence, residual and consistency after adding it.
+    pub refit: Option<super::select::Refit>,
     /// Why it could not be tested (e.g. no temperature column); `None` when tested.
     pub untestable: Option<String>,
 }
@@ -144,6 +148,10 @@ pub struct Diagnosis {
     pub ranking: Vec<Candidate>,
     /// Confounded pairs among the leading candidates.
     pub confounding: Vec<Confounding>,
+    /// The consistency of this model (one definition, [`crate::consistency`]).
+    pub consistency: crate::consistency::Consistency,
+    /// The effect the evidence adds next, and why (`None`: nothing earns its place).
+    pub choice: Option<super::select::Choice>,
     /// One-paragraph verdict in plain words.
     pub verdict: String,
     /// The time series (for plots).
@@ -164,6 +172,12 @@ pub struct Rung {
     pub whiteness_p: f64,
     /// The 12 drift coefficients (name, value, 1σ) in this model.
     pub coefficients: Vec<(String, f64, f64)>,
+    /// Every parameter of the added effects: (name, unit, value, 1σ).
+    pub effect_params: Vec<(String, String, f64, f64)>,
+    /// Whether this model is consistent with the measurements.
+    pub consistent: bool,
     /// The effect added at the next rung, with its p-value, if any.
     pub next: Option<(String, f64)>,
+    /// Why that effect was added (the evidence).
+    pub next_reason: Option<String>,
 }

@@ -357,21 +357,20 @@ fn ranking_table(h: &mut String, d: &Diagnosis) {
     }
     let _ = writeln!(
         h,
-        "<table><tr><th>#</th><th class=\"l\">effect</th><th>statistic</th><th>dof</th><th>p</th><th>p (Holm)</th><th class=\"l\">estimated size ± 1σ (detectable ≥)</th><th>expected RMS/floor after (x, y, z)</th><th class=\"l\">physics</th></tr>"
+        "<table><tr><th>#</th><th class=\"l\">effect</th><th>statistic</th><th>dof</th><th>p</th><th>p (Holm)</th><th class=\"l\">estimated size ± 1σ (detectable ≥)</th><th>evidence gain (refit)</th><th>RMS/floor after refit (x, y, z)</th><th class=\"l\">physics</th></tr>"
     );
     for (i, c) in d.ranking.iter().enumerate() {
         if let Some(why) = &c.untestable {
-            let _ = writeln!(h, "<tr><td>{}</td><td class=\"l\">{}</td><td colspan=\"6\" class=\"l\">not testable: {}</td><td class=\"l small\">{}</td></tr>", i + 1, esc(&c.effect), esc(why), esc(&c.about));
+            let _ = writeln!(h, "<tr><td>{}</td><td class=\"l\">{}</td><td colspan=\"7\" class=\"l\">not testable: {}</td><td class=\"l small\">{}</td></tr>", i + 1, esc(&c.effect), esc(why), esc(&c.about));
             continue;
         }
         let mut sizes = String::new();
         for p in c.params.iter().take(6) {
             let _ = write!(
                 sizes,
-                "{} = {} ± {} {} (≥ {})<br>",
+                "{} = {} {} (≥ {})<br>",
                 esc(&p.name),
-                num(p.value),
-                num(p.sigma),
+                esc(&crate::format::pm(p.value, p.sigma)),
                 esc(&p.unit),
                 num(p.min_detectable)
             );
@@ -381,18 +380,20 @@ fn ranking_table(h: &mut String, d: &Diagnosis) {
         }
         let _ = writeln!(
             h,
-            "<tr><td>{}</td><td class=\"l\"><b>{}</b></td><td>{:.1}</td><td>{:.0}</td><td>{}</td><td class=\"{}\">{}</td><td class=\"l\">{}</td><td>{:.3}, {:.3}, {:.3}</td><td class=\"l small\">{}</td></tr>",
+            "<tr><td>{}</td><td class=\"l\"><b>{}</b></td><td>{:.1}</td><td>{:.0}</td><td>{}</td><td class=\"{}\">{}</td><td class=\"l\">{}</td><td>{}</td><td>{}</td><td class=\"l small\">{}</td></tr>",
             i + 1,
             esc(&c.effect),
             c.statistic,
             c.dof,
-            fmt_p(c.p_value),
+            esc(&crate::format::p_or_ln(c.p_value, c.ln_p_value)),
             if c.p_adjusted < 0.01 { "bad" } else { "ok" },
-            fmt_p(c.p_adjusted),
+            esc(&crate::format::p_or_ln(c.p_adjusted, c.ln_p_adjusted)),
             sizes,
-            c.expected_rms_over_floor[0],
-            c.expected_rms_over_floor[1],
-            c.expected_rms_over_floor[2],
+            c.refit.as_ref().map(|r| format!("{:+.1}", r.evidence_gain)).unwrap_or_else(|| "—".into()),
+            c.refit
+                .as_ref()
+                .map(|r| format!("{:.3}, {:.3}, {:.3}", r.rms_over_floor[0], r.rms_over_floor[1], r.rms_over_floor[2]))
+                .unwrap_or_else(|| "not refitted".into()),
             esc(&c.about)
         );
     }

@@ -1,0 +1,211 @@
+//! Model selection by evidence: the leading candidates are refitted and compared by the log
+//! marginal likelihood of the measurements (the Kalman filter's prediction-error decomposition),
+//!
+//! `−2 ln p(y | M) = Σ_j ( ν_jᵀ S_j⁻¹ ν_j + ln det S_j + 3 ln 2π )`,
+//!
+//! evaluated on the converged model's final forward pass. Every parameter a model adds must pay
+//! for itself: its prior spreads the prediction (larger S) until the data pin it, the Occam
+//! factor of Bayesian evidence, so a 3-parameter trend and a 33-parameter stand-in, or a
+//! Gauss–Markov process that can follow anything, are weighed fairly. On top of that:
+//! - a candidate is adopted only if its evidence gain exceeds [`MIN_EVIDENCE_GAIN`] (2 ln B > 10:
+//!   "very strong" on the Kass–Raftery scale);
+//! - the stochastic catch-all (`drift-markov`) is adopted only when no deterministic candidate
+//!   explains the data as well: a deterministic refit that is consistent, or within
+//!   [`MIN_EVIDENCE_GAIN`] of the catch-all, wins.
+
+use estimator_core::effects::Effect;
+use serde::Serialize;
+
+use super::DiagnoseConfig;
+use crate::catalog;
+use crate::cli::common::build_model;
+use crate::consistency::{assess, Thresholds};
+use crate::identify::{identify, Identification, Prepared};
+
+/// Evidence gain (in −2 ln units) a candidate must bring to be adopted.
+pub const MIN_EVIDENCE_GAIN: f64 = 10.0;
+/// How many leading candidates are refitted at each rung.
+pub const REFIT_LEADERS: usize = 3;
+/// Effects that are stochastic catch-alls rather than a deterministic physical law.
+pub const STOCHASTIC: [&str; 1] = ["drift-markov"];
+
+/// One candidate refitted: the current model plus that effect, converged.
+#[derive(Clone, Debug, Serialize)]
+pub struct Refit {
+    /// Effect added.
+    pub effect: String,
+    /// −2 ln p(y) of the extended model.
+    pub neg2_log_evidence: f64,
+    /// Evidence gain over the current model (positive: the data prefer the extension).
+    pub evidence_gain: f64,
+    /// Residual RMS over the floor after the refit, per axis.
+    pub rms_over_floor: [f64; 3],
+    /// Mean NIS/3 after the refit.
+    pub nis_mean: f64,
+    /// Ljung–Box p after the refit.
+    pub whiteness_p: f64,
+    /// Whether the extended model is consistent (one definition: [`crate::consistency`]).
+    pub consistent: bool,
+    /// Estimated parameters of the added effect: (name, unit, value, 1σ).
+    pub params: Vec<(String, String, f64, f64)>,
+}
+
+/// The effect chosen for the next rung, and why.
+#[derive(Clone, Debug, Serialize)]
+pub struct Choice {
+    /// Effect adopted.
+    pub effect: String,
+    /// Why it won, in words with the numbers.
+    pub reason: String,
+}
+
+/// −2 ln p(y) of an identification's final forward pass.
+pub fn neg2_log_evidence(id: &Identification) -> f64 {
+    id.innovations
+        .iter()
+        .map(|r| {
+            let s = nalgebra::Matrix3::from_fn(|a, b| r.s[a][b]);
+            let det = s.determinant().max(1e-300);
+            r.nis + det.ln() + 3.0 * (2.0 * std::f64::consts::PI).ln()
+        })
+        .sum()
+}
+
+/// Fit statistics of a converged identification: RMS/floor, NIS/3, Ljung–Box p.
+pub fn fit_stats(id: &Identification, prep: &Prepared, lags: usize) -> ([f64; 3], f64, f64) {
+    let rms = id.residual_rms_mps2();
+    let floor = prep.floor_mps2();
+    let w: Vec<[f64; 3]> = id.innovations.iter().map(|r| r.whitened).collect();
+    let p = super::whiteness(&w, lags).p_value;
+    ([0, 1, 2].map(|i| rms[i] / floor[i]), id.nis_mean(), p)
+}
+
+/// Refits the current model plus each named candidate.
+pub fn refit(
+    prep: &Prepared,
+    effects: &[&'static dyn Effect],
+    base_evidence: f64,
+    names: &[String],
+    cfg: &DiagnoseConfig,
+) -> Vec<Refit> {
+    let mut out = vec![];
+    for name in names {
+        let Some(e) = catalog::by_name(name) else {
+            continue;
+        };
+        let mut list = effects.to_vec();
+        list.push(e);
+        let Ok(model) = build_model(prep.site, &list, &cfg.identify) else {
+            continue;
+        };
+        let Ok(id) = identify(&model, prep, &cfg.identify) else {
+            continue;
+        };
+        let (rms, nis, white) = fit_stats(&id, prep, cfg.lags);
+        let c = assess(nis, id.innovations.len(), white, rms, &Thresholds::default());
+        let ev = neg2_log_evidence(&id);
+        let offset = id.params.len() - e.params().len();
+        let best = id.best();
+        out.push(Refit {
+            effect: name.clone(),
+            neg2_log_evidence: ev,
+            evidence_gain: base_evidence - ev,
+            rms_over_floor: rms,
+            nis_mean: nis,
+            whiteness_p: white,
+            consistent: c.is_consistent(),
+            params: e
+                .params()
+                .iter()
+                .enumerate()
+                .map(|(k, p)| {
+                    (
+                        p.name.to_string(),
+                        p.unit.to_string(),
+                        best.value[offset + k],
+                        best.sigma(offset + k),
+                    )
+                })
+                .collect(),
+        });
+    }
+    out
+}
+
+/// Chooses the next effect among refits (see the module docs); `None`: nothing earns its place.
+pub fn choose(refits: &[Refit]) -> Option<Choice> {
+    let is_stochastic = |r: &Refit| STOCHASTIC.contains(&r.effect.as_str());
+    let best = refits
+        .iter()
+        .filter(|r| r.evidence_gain > MIN_EVIDENCE_GAIN)
+        .max_by(|a, b| a.evidence_gain.total_cmp(&b.evidence_gain))?;
+    let runner = refits
+        .iter()
+        .filter(|r| r.effect != best.effect)
+        .max_by(|a, b| a.evidence_gain.total_cmp(&b.evidence_gain));
+    if is_stochastic(best) {
+        let det = refits
+            .iter()
+            .filter(|r| !is_stochastic(r) && r.evidence_gain > MIN_EVIDENCE_GAIN)
+            .max_by(|a, b| a.evidence_gain.total_cmp(&b.evidence_gain));
+        if let Some(d) = det {
+            if d.consistent || best.evidence_gain - d.evidence_gain < MIN_EVIDENCE_GAIN {
+                return Some(Choice {
+                    effect: d.effect.clone(),
+                    reason: format!(
+                        "`{}` (deterministic) explains the data {}: evidence gain {:.1} against {:.1} for the stochastic catch-all `{}`, which is adopted only when no physical law does as well",
+                        d.effect,
+                        if d.consistent { "to the noise floor" } else { "almost as well" },
+                        d.evidence_gain,
+                        best.evidence_gain,
+                        best.effect
+                    ),
+                });
+            }
+        }
+    }
+    let reason = match runner {
+        Some(r) => format!(
+            "`{}` has the largest evidence gain after refitting, {:.1} (−2 ln of the marginal likelihood, which charges every added parameter), against {:.1} for `{}`",
+            best.effect, best.evidence_gain, r.evidence_gain, r.effect
+        ),
+        None => format!(
+            "`{}` is the only candidate whose refit gains evidence ({:.1})",
+            best.effect, best.evidence_gain
+        ),
+    };
+    Some(Choice {
+        effect: best.effect.clone(),
+        reason,
+    })
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn r(effect: &str, gain: f64, consistent: bool) -> Refit {
+        Refit {
+            effect: effect.into(),
+            neg2_log_evidence: 0.0,
+            evidence_gain: gain,
+            rms_over_floor: [1.0; 3],
+            nis_mean: 1.0,
+            whiteness_p: 0.5,
+            consistent,
+            params: vec![],
+        }
+    }
+
+    #[test]
+    fn the_catch_all_yields_to_a_law_that_explains_as_well() {
+        // Markov slightly ahead, the trend consistent: the trend wins.
+        let c = choose(&[r("drift-markov", 1000.0, true), r("drift-trend", 995.0, true)]);
+        assert_eq!(c.unwrap().effect, "drift-trend");
+        // Markov far ahead of an inconsistent law: Markov wins.
+        let c = choose(&[r("drift-markov", 1000.0, true), r("g2", 500.0, false)]);
+        assert_eq!(c.unwrap().effect, "drift-markov");
+        // Nothing gains enough: no choice.
+        assert!(choose(&[r("g2", 3.0, false)]).is_none());
+    }
+}
