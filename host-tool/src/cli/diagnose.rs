@@ -220,6 +220,16 @@ pub fn run(args: &DiagnoseArgs) -> anyhow::Result<()> {
     let prep = prepare(loaded.site, &loaded.samples, &cfg.identify)
         .with_context(|| format!("{}", args.recording.display()))?;
     let mut cfg = cfg;
+    let mut prep = prep;
+    if prep.untrusted_reasons().is_empty() {
+        // If the starting model does not fit, is the metadata latitude the culprit?
+        let model = super::common::build_model(prep.site, &effects, &cfg.identify)?;
+        let id = crate::identify::identify(&model, &prep, &cfg.identify)?;
+        if super::identify::consistency_of(&id, &prep).is_some_and(|c| !c.is_consistent()) {
+            let found = crate::quality::latitude::check(&prep, &effects, &cfg.identify);
+            prep.findings.extend(found);
+        }
+    }
     let faults = prep.untrusted_reasons();
     if !faults.is_empty() {
         // A data fault is named as a fault, never explained by a physical effect: no ladder.

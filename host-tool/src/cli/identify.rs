@@ -198,6 +198,14 @@ pub fn run(args: &IdentifyArgs) -> anyhow::Result<()> {
         truth.as_deref().filter(|t| t.iter().all(|v| v.is_finite())),
     );
     let check = consistency_of(&id, &prep);
+    let mut prep = prep;
+    if check.as_ref().is_some_and(|c| !c.is_consistent()) {
+        // A model that does not fit: first ask whether the metadata latitude is the culprit.
+        let spin = crate::progress::spinner("the model does not fit: profiling the latitude");
+        let found = crate::quality::latitude::check(&prep, &effects, &cfg);
+        spin.finish_and_clear();
+        prep.findings.extend(found);
+    }
     let mut reasons = prep.untrusted_reasons();
     match &check {
         Some(c) if !c.is_consistent() => reasons.push(format!(

@@ -1,0 +1,114 @@
+//! The latitude against the data. On a static base the Earth's rate in the platform frame (its
+//! direction fixed by the latitude) drives the whole gravity cone; a constant drift mimics part of
+//! a latitude error but not all of it over a long run, so a wrong `latitude_deg` leaves a misfit
+//! no drift model removes. When a model does not fit, its evidence is profiled over the latitude:
+//! if another latitude makes the same model consistent, the metadata is named as the culprit
+//! (with the data's latitude and its 1σ) instead of any physical effect.
+
+use estimator_core::effects::Effect;
+use estimator_core::Site;
+
+use super::{Action, Finding};
+use crate::cli::common::build_model;
+use crate::consistency::{assess, Thresholds};
+use crate::diagnose::select::{fit_stats, neg2_log_evidence};
+use crate::identify::{identify, Config, Prepared};
+
+/// Half-width of the searched interval around the metadata latitude, deg.
+pub const SEARCH_HALF_WIDTH_DEG: f64 = 12.0;
+/// Evidence gain (−2 ln units) a latitude must bring to be reported.
+pub const MIN_GAIN: f64 = 100.0;
+
+/// The data's latitude for a model: estimate, 1σ (deg), evidence gain over the metadata latitude,
+/// and whether the model is consistent there.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct LatitudeFit {
+    /// Best latitude, deg.
+    pub latitude_deg: f64,
+    /// Its 1σ from the curvature of −2 ln p(y), deg.
+    pub sigma_deg: f64,
+    /// −2 ln p(y) at the metadata latitude minus at the best.
+    pub gain: f64,
+    /// Whether the model is consistent at the best latitude.
+    pub consistent: bool,
+}
+
+fn evidence_at(prep: &Prepared, effects: &[&'static dyn Effect], cfg: &Config, lat: f64) -> Option<f64> {
+    let mut p = prep.clone();
+    p.site = Site::new(lat, Some(prep.site.gravity_mps2));
+    let model = build_model(p.site, effects, cfg).ok()?;
+    let id = identify(&model, &p, cfg).ok()?;
+    Some(neg2_log_evidence(&id))
+}
+
+/// Profiles the evidence over latitude: a grid of 2° then a golden-section refinement.
+pub fn profile(prep: &Prepared, effects: &[&'static dyn Effect], cfg: &Config) -> Option<LatitudeFit> {
+    let l0 = prep.site.latitude_rad.to_degrees();
+    let f0 = evidence_at(prep, effects, cfg, l0)?;
+    let f = |l: f64| evidence_at(prep, effects, cfg, l).unwrap_or(f64::INFINITY);
+    let lo = (l0 - SEARCH_HALF_WIDTH_DEG).max(-89.0);
+    let hi = (l0 + SEARCH_HALF_WIDTH_DEG).min(89.0);
+    let grid: Vec<f64> = (0..=((hi - lo) / 2.0).floor() as usize).map(|k| lo + 2.0 * k as f64).collect();
+    let vals: Vec<f64> = grid.iter().map(|&l| if (l - l0).abs() < 1e-9 { f0 } else { f(l) }).collect();
+    let k = (0..grid.len()).min_by(|&a, &b| vals[a].total_cmp(&vals[b]))?;
+    let (mut a, mut b) = ((grid[k] - 2.0).max(lo), (grid[k] + 2.0).min(hi));
+    let r = (5f64.sqrt() - 1.0) / 2.0;
+    let (mut c, mut d) = (b - r * (b - a), a + r * (b - a));
+    let (mut fc, mut fd) = (f(c), f(d));
+    for _ in 0..14 {
+        if fc < fd {
+            b = d;
+            d = c;
+            fd = fc;
+            c = b - r * (b - a);
+            fc = f(c);
+        } else {
+            a = c;
+            c = d;
+            fc = fd;
+            d = a + r * (b - a);
+            fd = f(d);
+        }
+    }
+    let best = 0.5 * (a + b);
+    // Curvature from a symmetric three-point stencil: −2 ln p ≈ const + (L − L̂)²/σ².
+    let h = ((b - a).max(1e-3)).min(0.05);
+    let (fm, fb, fp) = (f(best - h), f(best), f(best + h));
+    let curv = (fp - 2.0 * fb + fm) / (h * h);
+    let sigma_deg = if curv > 0.0 { (2.0 / curv).sqrt() } else { f64::INFINITY };
+    let mut p = prep.clone();
+    p.site = Site::new(best, Some(prep.site.gravity_mps2));
+    let model = build_model(p.site, effects, cfg).ok()?;
+    let id = identify(&model, &p, cfg).ok()?;
+    let (rms, nis, white) = fit_stats(&id, &p, 20);
+    let consistent = assess(nis, id.innovations.len(), white, rms, &Thresholds::default()).is_consistent();
+    Some(LatitudeFit {
+        latitude_deg: best,
+        sigma_deg,
+        gain: f0 - fb,
+        consistent,
+    })
+}
+
+/// A finding when the data clearly put the site at another latitude and the model fits there.
+pub fn check(prep: &Prepared, effects: &[&'static dyn Effect], cfg: &Config) -> Option<Finding> {
+    let fit = profile(prep, effects, cfg)?;
+    let l0 = prep.site.latitude_rad.to_degrees();
+    if !(fit.gain > MIN_GAIN && fit.consistent && (fit.latitude_deg - l0).abs() > 5.0 * fit.sigma_deg) {
+        return None;
+    }
+    Some(Finding {
+        kind: "latitude",
+        message: format!(
+            "the data put the site at latitude {} deg; the metadata says {l0} deg. At the data's latitude the same model explains the measurements \
+             (−2 ln p(y) lower by {:.1}); at the metadata's it does not. The metadata latitude is wrong: rerun with --latitude-deg {:.4}",
+            crate::format::pm(fit.latitude_deg, fit.sigma_deg),
+            fit.gain,
+            fit.latitude_deg
+        ),
+        start_s: None,
+        end_s: None,
+        samples: 0,
+        action: Action::NotRepaired,
+    })
+}
