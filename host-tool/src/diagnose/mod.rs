@@ -168,7 +168,7 @@ pub fn diagnose(
         })
         .collect();
     let (x0, p0) = wide_prior(&model, &vec![0.0; n]);
-    let (pass, sigs, nu_w) = signatures(&model, &extended, meas, &id.trajectory, &x0, &p0);
+    let (pass, sigs, nu_w) = signatures(&model, &extended, meas, &id.trajectory, &x0, &p0)?;
 
     // Series and residual statistics.
     let residual = smoothed_residuals(&model, meas, &id.trajectory);
