@@ -14,8 +14,7 @@ use estimator_core::units::arw_deg2ph_to_rad2ps;
 use estimator_core::{Measurement, Model, Propagation, Residual, Sample, Site, PAPER_EFFECTS};
 use host_tool::catalog;
 use host_tool::identify::smoother::{
-    final_covariance, linearised_pass, linearised_pass_observed, temp_devs, Smoothed,
-    SmootherError,
+    final_covariance, linearised_pass, linearised_pass_observed, temp_devs, Smoothed, SmootherError,
 };
 use host_tool::identify::{ekf_pass, identify, prepare, wide_prior, Config, Prepared};
 use host_tool::simulate::{simulate, Scenario};
@@ -191,7 +190,11 @@ fn max_rel_diff<'a>(
 fn compare(new: &Smoothed, old: &Smoothed, what: &str) {
     const TOL: f64 = 1e-9;
     assert_eq!(new.states.len(), old.states.len(), "{what}: state count");
-    assert_eq!(new.innovations.len(), old.innovations.len(), "{what}: innovation count");
+    assert_eq!(
+        new.innovations.len(),
+        old.innovations.len(),
+        "{what}: innovation count"
+    );
     let d_states = max_rel_diff(
         new.states.iter().map(|v| v.as_slice()),
         old.states.iter().map(|v| v.as_slice()),
@@ -212,11 +215,17 @@ fn compare(new: &Smoothed, old: &Smoothed, what: &str) {
     let d_innov = if fa.is_empty() {
         0.0
     } else {
-        max_rel_diff(fa.iter().map(|v| v.as_slice()), fb.iter().map(|v| v.as_slice()))
+        max_rel_diff(
+            fa.iter().map(|v| v.as_slice()),
+            fb.iter().map(|v| v.as_slice()),
+        )
     };
     eprintln!("{what}: max relative difference states {d_states:.3e}, final covariance {d_cov:.3e}, innovations {d_innov:.3e}");
     assert!(d_states <= TOL, "{what}: states differ by {d_states:e}");
-    assert!(d_cov <= TOL, "{what}: final covariance differs by {d_cov:e}");
+    assert!(
+        d_cov <= TOL,
+        "{what}: final covariance differs by {d_cov:e}"
+    );
     assert!(d_innov <= TOL, "{what}: innovations differ by {d_innov:e}");
 }
 
@@ -330,7 +339,10 @@ fn identify_is_unchanged_by_checkpointing() {
     );
     assert!(d <= 1e-9, "trajectory differs by {d:e}");
     let refined = id.refined.as_ref().unwrap();
-    let old_cov = old.final_cov.view((ANGLES, ANGLES), (n - ANGLES, n - ANGLES)).into_owned();
+    let old_cov = old
+        .final_cov
+        .view((ANGLES, ANGLES), (n - ANGLES, n - ANGLES))
+        .into_owned();
     let d = max_rel_diff([refined.cov.as_slice()], [old_cov.as_slice()]);
     assert!(d <= 1e-9, "refined covariance differs by {d:e}");
     assert_eq!(id.innovations.len(), old.innovations.len());
@@ -355,7 +367,9 @@ fn segment_boundaries_and_gauss_markov_rows_match_the_dense_smoother() {
         )
         .unwrap();
         let (x0, p0) = wide_prior(&model, &vec![0.0; model.dim()]);
-        for len in [0, 1, 2, 3, 4, 5, 8, 9, 10, 15, 16, 17, 24, 25, 26, 99, 100, 101, 181] {
+        for len in [
+            0, 1, 2, 3, 4, 5, 8, 9, 10, 15, 16, 17, 24, 25, 26, 99, 100, 101, 181,
+        ] {
             let meas = &prep.measurements[..len.min(prep.measurements.len())];
             let nominal = if meas.is_empty() {
                 vec![x0.clone()]
@@ -364,7 +378,11 @@ fn segment_boundaries_and_gauss_markov_rows_match_the_dense_smoother() {
             };
             let new = linearised_pass(&model, meas, &nominal, &x0, &p0, true).unwrap();
             let old = dense_reference(&model, meas, &nominal, &x0, &p0, true);
-            compare(&new, &old, &format!("{} states, {len} updates", model.dim()));
+            compare(
+                &new,
+                &old,
+                &format!("{} states, {len} updates", model.dim()),
+            );
         }
     }
 }
@@ -391,7 +409,9 @@ fn a_negative_variance_is_an_error_naming_the_update_not_a_panic() {
     );
     let text = err.to_string();
     assert!(
-        text.starts_with(&format!("update 57 at t = {t} s: innovation covariance not positive definite")),
+        text.starts_with(&format!(
+            "update 57 at t = {t} s: innovation covariance not positive definite"
+        )),
         "{text}"
     );
     // identify() reports it instead of panicking (here pass 1's own EKF already refuses it, or
@@ -401,7 +421,10 @@ fn a_negative_variance_is_an_error_naming_the_update_not_a_panic() {
         ..prep.clone()
     };
     assert!(identify(&model, &bad, &Config::default()).is_err());
-    assert!(host_tool::identify::try_cramer_rao_bound(&model, &bad.measurements, &vec![0.0; 12]).is_err());
+    assert!(
+        host_tool::identify::try_cramer_rao_bound(&model, &bad.measurements, &vec![0.0; 12])
+            .is_err()
+    );
     let bound = host_tool::identify::cramer_rao_bound(&model, &bad.measurements, &vec![0.0; 12]);
     assert!(bound.len() == 12 && bound.iter().all(|b| b.is_nan()));
 }
@@ -414,8 +437,14 @@ fn a_non_finite_measurement_is_an_error_naming_the_update() {
     let (x0, p0) = wide_prior(&model, &vec![0.0; model.dim()]);
     let nominal = pass2_nominal(&model, &prep.measurements);
     let err = linearised_pass(&model, &meas, &nominal, &x0, &p0, false).unwrap_err();
-    assert!(matches!(err, SmootherError::InnovationNotFinite { update: 80, .. }), "{err:?}");
-    assert!(err.to_string().starts_with(&format!("update 80 at t = {} s: innovation not finite", meas[80].t_s)));
+    assert!(
+        matches!(err, SmootherError::InnovationNotFinite { update: 80, .. }),
+        "{err:?}"
+    );
+    assert!(err.to_string().starts_with(&format!(
+        "update 80 at t = {} s: innovation not finite",
+        meas[80].t_s
+    )));
     // A non-finite nominal (a diverged previous iteration) is caught the same way.
     let mut nominal = nominal;
     nominal[12][0] = f64::INFINITY;
@@ -447,7 +476,9 @@ fn a_singular_predicted_covariance_is_an_error_not_a_panic() {
         matches!(err, SmootherError::PredictedCovariance { update, .. } if update == upd),
         "{err:?}"
     );
-    assert!(err.to_string().contains("predicted covariance not invertible"));
+    assert!(err
+        .to_string()
+        .contains("predicted covariance not invertible"));
     // The forward pass alone does not need P⁻'s inverse and completes.
     assert!(linearised_pass(&model, meas, &nominal, &x0, &p0, false).is_ok());
 }

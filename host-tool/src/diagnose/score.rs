@@ -177,7 +177,8 @@ pub fn signatures(
                 tk.rows.extend(dw.row(i).iter());
             }
         }
-    })?;
+    });
+    let pass = pass?;
     let sigs = trackers
         .into_iter()
         .map(|tk| {
