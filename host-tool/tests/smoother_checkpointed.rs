@@ -86,8 +86,8 @@ fn dense_reference(
         let predicted_at_nominal =
             model.measurement(xbar.as_slice(), z.t_s, temps[j], z.time_var_s2, &mut hcols);
         let mut h = DMatrix::zeros(3, n);
-        for c in 0..n {
-            h.set_column(c, &hcols[c]);
+        for (c, col) in hcols.iter().enumerate().take(n) {
+            h.set_column(c, col);
         }
         let predicted = predicted_at_nominal + &h * (&m_pred - xbar);
         let nu = Vector3::from(z.specific_force)
@@ -422,10 +422,9 @@ fn a_negative_variance_is_an_error_naming_the_update_not_a_panic() {
     };
     assert!(identify(&model, &bad, &Config::default()).is_err());
     assert!(
-        host_tool::identify::try_cramer_rao_bound(&model, &bad.measurements, &vec![0.0; 12])
-            .is_err()
+        host_tool::identify::try_cramer_rao_bound(&model, &bad.measurements, &[0.0; 12]).is_err()
     );
-    let bound = host_tool::identify::cramer_rao_bound(&model, &bad.measurements, &vec![0.0; 12]);
+    let bound = host_tool::identify::cramer_rao_bound(&model, &bad.measurements, &[0.0; 12]);
     assert!(bound.len() == 12 && bound.iter().all(|b| b.is_nan()));
 }
 

@@ -93,6 +93,10 @@ struct Tracker<'m> {
     rows: Vec<f64>,
 }
 
+/// What [`signatures`] returns: the pass, each candidate's signature, the whitened innovations
+/// (3 per update).
+pub type Replay = (Smoothed, Vec<Option<Signature>>, Vec<f64>);
+
 /// Replays the current model's final forward pass once and carries every candidate's signature.
 /// `extended[c]` is the current model's effects followed by candidate c's (its state layout
 /// extends the current one). Returns the pass and, per candidate, its signature (`None` when
@@ -105,7 +109,7 @@ pub fn signatures(
     nominal: &[DVector<f64>],
     x0: &DVector<f64>,
     p0: &DMatrix<f64>,
-) -> Result<(Smoothed, Vec<Option<Signature>>, Vec<f64>), SmootherError> {
+) -> Result<Replay, SmootherError> {
     let n = model.dim();
     let mut trackers: Vec<Option<Tracker<'_>>> = extended
         .iter()
