@@ -8,6 +8,16 @@
 //! including the gyro random drift (process noise on the angles).
 //!
 //! All model evaluations (propagation, Φ, Q, h, H) are the core's: the math lives in one place.
+//!
+//! Bad data (swapped or mis-scaled columns, a start far from level, a stuck axis, spikes) can
+//! make S = H P⁻ Hᵀ + R or P⁻ singular: a pass then returns a [`SmootherError`] naming the
+//! update and its time, never panics.
+//!
+//! Memory: the backward pass is checkpointed. The forward pass keeps the filter's (m, P) only
+//! every ⌈√N⌉ updates; the backward pass recomputes one segment's nodes at a time from its
+//! checkpoint, with the same operations on the same inputs, so the results are bit-identical to
+//! keeping every node. Node memory is O(√N) (a few MB at 2 M updates) for about one more forward
+//! pass of work; what grows with N is the output (states and innovations).
 
 use estimator_core::model::{Model, MAX_STATES};
 use estimator_core::propagate::{propagate, Transition};
