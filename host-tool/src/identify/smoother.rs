@@ -115,7 +115,7 @@ pub enum SmootherError {
         predicted: [f64; 3],
     },
     /// S = H P⁻ Hᵀ + R has no Cholesky factor.
-    #[error("update {update} at t = {t_s} s: innovation covariance not positive definite (diagonal {diagonal:?} (m/s²)²); check the recording for swapped or mis-scaled columns, a start far from level, a stuck axis or spikes")]
+    #[error("update {update} at t = {t_s} s: innovation covariance not positive definite (diagonal {:.3e}, {:.3e}, {:.3e} (m/s²)²); check the recording for swapped or mis-scaled columns, a start far from level, a stuck axis or spikes", .diagonal[0], .diagonal[1], .diagonal[2])]
     InnovationCovariance {
         /// Update index.
         update: usize,
