@@ -16,7 +16,7 @@
 //! Memory: the backward pass is checkpointed. The forward pass keeps the filter's (m, P) only
 //! every ⌈√N⌉ updates; the backward pass recomputes one segment's nodes at a time from its
 //! checkpoint, with the same operations on the same inputs, so the results are bit-identical to
-//! keeping every node. Node memory is O(√N) (a few MB at 2 M updates) for about one more forward
+//! keeping every node. Node memory is O(√N) (about 15 MB at 2 M updates) for one more forward
 //! pass of work; what grows with N is the output (states and innovations).
 
 use estimator_core::model::{Model, MAX_STATES};
