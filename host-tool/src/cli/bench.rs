@@ -8,7 +8,7 @@ use rayon::prelude::*;
 
 use super::common::build_model;
 use crate::catalog;
-use crate::identify::{cramer_rao_bound, identify, prepare, Config, Prepared};
+use crate::identify::{try_cramer_rao_bound, identify, prepare, Config, Prepared};
 use crate::simulate::{simulate, Scenario};
 use crate::stats::chi2_quantile;
 
@@ -337,7 +337,7 @@ fn accuracy(args: &BenchArgs) -> anyhow::Result<()> {
             .take_while(|m| m.t_s <= h * 3600.0)
             .collect();
         let geometry = Prepared::level(site, meas, [1e-5 * site.gravity_mps2; 3]);
-        let bound = cramer_rao_bound(&model, &geometry, &truth);
+        let bound = try_cramer_rao_bound(&model, &geometry, &truth)?;
         let mut rms = [0.0; 12];
         let mut rms_single = [0.0; 12];
         let mut worst = [0.0f64; 12];

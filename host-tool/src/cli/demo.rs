@@ -5,7 +5,7 @@ use estimator_core::Sample;
 use super::common::build_model;
 use crate::catalog;
 use crate::format::sci;
-use crate::identify::{cramer_rao_bound, identify, prepare, Config};
+use crate::identify::{try_cramer_rao_bound, identify, prepare, Config};
 use crate::simulate::{simulate, Scenario};
 
 /// The paper's Table 2: its single-pass estimates at 60 h.
@@ -53,7 +53,7 @@ pub fn run(args: &DemoArgs) -> anyhow::Result<()> {
     let prep = prepare(site, &samples, &cfg)?;
     let id = identify(&model, &prep, &cfg)?;
     let elapsed = t0.elapsed();
-    let bound = cramer_rao_bound(&model, &prep, &truth);
+    let bound = try_cramer_rao_bound(&model, &prep, &truth)?;
     let best = id.best();
     println!(
         "Identified from {} filter updates (60-s means) in {:.2} s.\n",

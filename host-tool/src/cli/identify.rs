@@ -10,7 +10,7 @@ use super::common::{build_model, load, print_findings, trusted_or, ModelArgs};
 use crate::consistency::{assess, Consistency, Thresholds};
 use crate::catalog;
 use crate::format::{sci, with_sigma};
-use crate::identify::{cramer_rao_bound, identify, prepare, Identification, Prepared};
+use crate::identify::{try_cramer_rao_bound, identify, prepare, Identification, Prepared};
 use crate::simulate::read_truth;
 
 /// Arguments of `driftid identify`.
@@ -58,7 +58,12 @@ pub fn rows(
         Some(t) if t.len() == best.value.len() => t.to_vec(),
         _ => best.value.clone(),
     };
-    let bound = cramer_rao_bound(model, prep, &bound_at);
+    // The bound is printed beside the estimate; where the linearised filter breaks down on
+    // these measurements it is shown as n/a, with a warning, rather than ending the run.
+    let bound = try_cramer_rao_bound(model, prep, &bound_at).unwrap_or_else(|e| {
+        eprintln!("driftid: warning: no Cramér–Rao bound: {e:#}");
+        vec![f64::NAN; best.value.len()]
+    });
     (0..best.value.len())
         .map(|k| Row {
             name: id.params[k].name,

@@ -172,7 +172,7 @@ pub fn diagnose(
     let mut x0 = vec![0.0; n];
     x0[..3].copy_from_slice(&prep.initial_angles);
     let (x0, p0) = wide_prior(&model, &x0, &prep.initial_angle_sigma);
-    let (pass, sigs, _) = signatures(&model, &extended, meas, &id.trajectory, &x0, &p0);
+    let (pass, sigs, _) = signatures(&model, &extended, meas, &id.trajectory, &x0, &p0)?;
 
     // Series and residual statistics.
     let residual = smoothed_residuals(&model, meas, &id.trajectory);

@@ -22,7 +22,7 @@ use estimator_core::propagate::{propagate, Transition};
 use estimator_core::Measurement;
 use nalgebra::{DMatrix, DVector, SymmetricEigen, Vector3};
 
-use crate::identify::smoother::{linearised_pass_observed, Smoothed, StepView};
+use crate::identify::smoother::{linearised_pass_observed, Smoothed, SmootherError, StepView};
 
 /// The signature of one candidate and its test.
 pub struct Signature {
@@ -93,10 +93,15 @@ struct Tracker<'m> {
     rows: Vec<f64>,
 }
 
+/// What [`signatures`] returns: the pass, each candidate's signature, the whitened innovations
+/// (3 per update).
+pub type Replay = (Smoothed, Vec<Option<Signature>>, Vec<f64>);
+
 /// Replays the current model's final forward pass once and carries every candidate's signature.
 /// `extended[c]` is the current model's effects followed by candidate c's (its state layout
 /// extends the current one). Returns the pass and, per candidate, its signature (`None` when
-/// the extended model does not fit in the state capacity).
+/// the extended model does not fit in the state capacity), or the pass's error (naming the
+/// update) when the linearised filter breaks down on these measurements.
 pub fn signatures(
     model: &Model<'_>,
     extended: &[Option<Model<'_>>],
@@ -104,7 +109,7 @@ pub fn signatures(
     nominal: &[DVector<f64>],
     x0: &DVector<f64>,
     p0: &DMatrix<f64>,
-) -> (Smoothed, Vec<Option<Signature>>, Vec<f64>) {
+) -> Result<Replay, SmootherError> {
     let n = model.dim();
     let mut trackers: Vec<Option<Tracker<'_>>> = extended
         .iter()
@@ -177,6 +182,7 @@ pub fn signatures(
             }
         }
     });
+    let pass = pass?;
     let sigs = trackers
         .into_iter()
         .map(|tk| {
@@ -191,7 +197,7 @@ pub fn signatures(
             })
         })
         .collect();
-    (pass, sigs, nu_whitened)
+    Ok((pass, sigs, nu_whitened))
 }
 
 /// Orthonormal basis of the column space of `w` (directions with singular value above 1e-6 of

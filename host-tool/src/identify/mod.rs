@@ -23,8 +23,8 @@ use estimator_core::{Averager, Ekf, Measurement, Propagation, Residual, Sample, 
 use nalgebra::{DMatrix, DVector, SymmetricEigen};
 
 use self::noise::NoiseFloor;
+use self::smoother::{final_covariance, linearised_pass};
 use crate::quality::{self, Action, Finding};
-use self::smoother::linearised_pass;
 
 /// Settings of an identification.
 #[derive(Clone, Debug)]
@@ -301,14 +301,17 @@ pub fn nominal_trajectory(
 
 /// The Cramér–Rao bound (1σ per parameter) for parameters `params`: the covariance of the filter
 /// linearised along their noise-free trajectory, with the gyro random drift as process noise.
-pub fn cramer_rao_bound(model: &Model<'_>, prep: &Prepared, params: &[f64]) -> Vec<f64> {
+/// Fails (naming the update) when the linearised filter breaks down on these measurements.
+pub fn try_cramer_rao_bound(
+    model: &Model<'_>,
+    prep: &Prepared,
+    params: &[f64],
+) -> anyhow::Result<Vec<f64>> {
     let meas = &prep.measurements;
     let nominal = nominal_trajectory(model, meas, &prep.initial_angles, params);
     let (x0, p0) = wide_prior(model, nominal[0].as_slice(), &prep.initial_angle_sigma);
-    let pass = linearised_pass(model, meas, &nominal, &x0, &p0, false);
-    (ANGLES..model.dim())
-        .map(|i| pass.final_cov[(i, i)].sqrt())
-        .collect()
+    let cov = final_covariance(model, meas, &nominal, &x0, &p0).context("Cramér–Rao bound")?;
+    Ok((ANGLES..model.dim()).map(|i| cov[(i, i)].sqrt()).collect())
 }
 
 /// Identifies the model's parameters from prepared measurements (see the module docs).
@@ -335,7 +338,7 @@ pub fn identify(
         .collect();
     let (single_pass, single_res, _) =
         ekf_pass(model, meas, &zeros, &sigma0).context("single EKF pass")?;
-    let final_time_h = meas.last().unwrap().t_s / 3600.0;
+    let final_time_h = meas.last().map_or(0.0, |m| m.t_s) / 3600.0;
     let params = params_of(model);
     if cfg.smoother_iterations == 0 {
         let weak = weak_combinations(model, &single_pass);
@@ -356,34 +359,43 @@ pub fn identify(
     for s in sigma0.iter_mut().skip(ANGLES) {
         *s /= cfg.pass2_prior_shrink;
     }
+    // Memory: the single pass's innovations are not returned on this path; each pass below
+    // replaces the previous one (nominal in, states out), so at most one nominal, one pass's
+    // states and one set of innovations are alive at a time.
+    drop(single_res);
     let (_, _, mut nominal) = ekf_pass(model, meas, &x0, &sigma0).context("second EKF pass")?;
     let (x0w, p0w) = wide_prior(model, &zeros, &prep.initial_angle_sigma);
     let mut last = None;
-    for _ in 0..cfg.smoother_iterations {
-        let pass = linearised_pass(model, meas, &nominal, &x0w, &p0w, true);
-        nominal = pass.states.clone();
-        last = Some(pass);
+    for iteration in 1..=cfg.smoother_iterations {
+        drop(last.take());
+        let pass = linearised_pass(model, meas, &nominal, &x0w, &p0w, true)
+            .with_context(|| format!("smoother iteration {iteration}"))?;
+        nominal = pass.states;
+        last = Some((pass.final_cov, pass.innovations));
     }
-    let pass = last.unwrap();
-    let final_state = &pass.states[pass.states.len() - 1];
+    let Some((final_cov, innovations)) = last else {
+        bail!("no smoother iteration ran");
+    };
+    let Some(final_state) = nominal.last() else {
+        bail!("the smoother returned no states");
+    };
     let refined = Estimate {
         value: final_state.as_slice()[ANGLES..].to_vec(),
-        cov: pass
-            .final_cov
+        cov: final_cov
             .view((ANGLES, ANGLES), (n - ANGLES, n - ANGLES))
             .into_owned(),
     };
-    let smoothed_residuals = smoothed_residuals(model, meas, &pass.states);
+    let smoothed_residuals = smoothed_residuals(model, meas, &nominal);
     let weak = weak_combinations(model, &refined);
     Ok(Identification {
         params,
         single_pass,
         refined: Some(refined),
-        innovations: pass.innovations,
+        innovations,
         smoothed_residuals,
         final_time_h,
         weak,
-        trajectory: pass.states,
+        trajectory: nominal,
     })
 }
 

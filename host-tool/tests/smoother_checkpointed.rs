@@ -1,0 +1,548 @@
+//! The checkpointed smoother (`identify::smoother`) against a private copy of the dense RTS
+//! smoother it replaced (every node's m⁻, P⁻, m, P, Φ kept for the backward pass), and its errors
+//! on bad data.
+//!
+//! The checkpointed pass recomputes each segment's nodes with the same operations on the same
+//! inputs as the forward pass, so it should reproduce the dense smoother bit for bit. The tests
+//! allow a relative difference of 1e-9 (the brief's "identical to rounding"): far above any
+//! rounding reordering (~1e-15 per operation, a few hundred operations per node) and far below
+//! any real change (a wrong Φ row, a node off by one or a stale segment moves the states by
+//! percents). `max_rel_diff` scales each difference by the largest magnitude of its quantity
+//! across the record, so that states that cross zero do not blow the ratio up.
+
+use estimator_core::filter::ANGLE_PRIOR_SIGMA_RAD;
+use estimator_core::units::arw_deg2ph_to_rad2ps;
+use estimator_core::{Measurement, Model, Propagation, Residual, Sample, Site, PAPER_EFFECTS};
+use host_tool::catalog;
+use host_tool::identify::smoother::{
+    final_covariance, linearised_pass, linearised_pass_observed, temp_devs, Smoothed, SmootherError,
+};
+use host_tool::identify::{ekf_pass, identify, prepare, wide_prior, Config, Prepared};
+use host_tool::simulate::{simulate, Scenario};
+use nalgebra::{DMatrix, DVector, Matrix3, Vector3};
+
+use estimator_core::effects::Effect;
+use estimator_core::model::{ANGLES, MAX_STATES};
+use estimator_core::propagate::{propagate, Transition};
+
+/// The dense implementation before checkpointing (commit f63db56), verbatim in its arithmetic.
+fn dense_reference(
+    model: &Model<'_>,
+    meas: &[Measurement],
+    nominal: &[DVector<f64>],
+    x0: &DVector<f64>,
+    p0: &DMatrix<f64>,
+    smooth: bool,
+) -> Smoothed {
+    struct Node {
+        m_pred: DVector<f64>,
+        p_pred: DMatrix<f64>,
+        m: DVector<f64>,
+        p: DMatrix<f64>,
+        phi: DMatrix<f64>,
+    }
+    let n = model.dim();
+    assert!(n <= MAX_STATES && nominal.len() == meas.len() + 1);
+    let temps = temp_devs(meas);
+    let mut nodes: Vec<Node> = Vec::with_capacity(meas.len() + 1);
+    nodes.push(Node {
+        m_pred: x0.clone(),
+        p_pred: p0.clone(),
+        m: x0.clone(),
+        p: p0.clone(),
+        phi: DMatrix::identity(n, n),
+    });
+    let mut innovations = Vec::with_capacity(meas.len());
+    let mut tr = Transition::<MAX_STATES>::default();
+    let mut hcols = [Vector3::zeros(); MAX_STATES];
+    let dynamic = model.dynamic_states();
+    let mut t_prev = 0.0;
+    let mut temp_prev = temps.first().copied().unwrap_or(0.0);
+    for (j, z) in meas.iter().enumerate() {
+        let prev = nodes.last().unwrap();
+        let xbar_prev = &nominal[j];
+        let mut f = xbar_prev.as_slice().to_vec();
+        propagate(
+            model,
+            &mut f,
+            t_prev,
+            z.t_s - t_prev,
+            temp_prev,
+            temps[j],
+            &mut tr,
+        );
+        let mut phi = DMatrix::identity(n, n);
+        let mut q = DMatrix::zeros(n, n);
+        for (r, &d) in dynamic.iter().enumerate() {
+            for c in 0..n {
+                phi[(d, c)] = tr.rows[r][c];
+            }
+            for (s, &e) in dynamic.iter().enumerate() {
+                q[(d, e)] = tr.q[r][s];
+            }
+        }
+        let m_pred = DVector::from_vec(f) + &phi * (&prev.m - xbar_prev);
+        let p_pred = &phi * &prev.p * phi.transpose() + q;
+        let xbar = &nominal[j + 1];
+        let predicted_at_nominal =
+            model.measurement(xbar.as_slice(), z.t_s, temps[j], z.time_var_s2, &mut hcols);
+        let mut h = DMatrix::zeros(3, n);
+        for (c, col) in hcols.iter().enumerate().take(n) {
+            h.set_column(c, col);
+        }
+        let predicted = predicted_at_nominal + &h * (&m_pred - xbar);
+        let nu = Vector3::from(z.specific_force)
+            - Vector3::new(predicted[0], predicted[1], predicted[2]);
+        let pht = &p_pred * h.transpose();
+        let s_dyn = &h * &pht + DMatrix::from_diagonal(&DVector::from_row_slice(&z.variance));
+        let s = Matrix3::from_fn(|a, b| 0.5 * (s_dyn[(a, b)] + s_dyn[(b, a)]));
+        let chol = s
+            .cholesky()
+            .expect("innovation covariance positive definite");
+        let s_inv = chol.inverse();
+        let whitened = chol.l().solve_lower_triangular(&nu).unwrap_or(nu);
+        let k = &pht * DMatrix::from_fn(3, 3, |a, b| s_inv[(a, b)]);
+        let nu_d = DVector::from_row_slice(nu.as_slice());
+        let m = &m_pred + &k * &nu_d;
+        let ikh = DMatrix::identity(n, n) - &k * &h;
+        let r = DMatrix::from_diagonal(&DVector::from_row_slice(&z.variance));
+        let mut p = &ikh * &p_pred * ikh.transpose() + &k * r * k.transpose();
+        p = (&p + p.transpose()) * 0.5;
+        innovations.push(Residual {
+            step: j as u32,
+            t_s: z.t_s,
+            measured: z.specific_force,
+            predicted: [predicted[0], predicted[1], predicted[2]],
+            innovation: nu.into(),
+            s: s.transpose().into(),
+            whitened: whitened.into(),
+            nis: nu.dot(&(s_inv * nu)),
+            rejected: false,
+        });
+        nodes.push(Node {
+            m_pred,
+            p_pred,
+            m,
+            p,
+            phi,
+        });
+        t_prev = z.t_s;
+        temp_prev = temps[j];
+    }
+    let last = nodes.last().unwrap();
+    let final_cov = last.p.clone();
+    let mut states = vec![DVector::zeros(n); nodes.len()];
+    *states.last_mut().unwrap() = last.m.clone();
+    if smooth {
+        let mut ms = last.m.clone();
+        for j in (0..nodes.len() - 1).rev() {
+            let next = &nodes[j + 1];
+            let rhs = &next.phi * &nodes[j].p;
+            let gt = match next.p_pred.clone().cholesky() {
+                Some(c) => c.solve(&rhs),
+                None => next
+                    .p_pred
+                    .clone()
+                    .lu()
+                    .solve(&rhs)
+                    .expect("predicted covariance invertible"),
+            };
+            ms = &nodes[j].m + gt.transpose() * (&ms - &next.m_pred);
+            states[j] = ms.clone();
+        }
+    } else {
+        for (s, node) in states.iter_mut().zip(&nodes) {
+            *s = node.m.clone();
+        }
+    }
+    Smoothed {
+        states,
+        final_cov,
+        innovations,
+    }
+}
+
+/// Largest |a − b| / scale over paired sequences of vectors, where `scale` is, per component, the
+/// largest |b| of that component over the whole sequence (floor 1e-300).
+fn max_rel_diff<'a>(
+    a: impl IntoIterator<Item = &'a [f64]>,
+    b: impl IntoIterator<Item = &'a [f64]> + Clone,
+) -> f64 {
+    let mut scale: Vec<f64> = Vec::new();
+    for v in b.clone() {
+        scale.resize(v.len().max(scale.len()), 1e-300);
+        for (s, x) in scale.iter_mut().zip(v) {
+            *s = s.max(x.abs());
+        }
+    }
+    let mut worst = 0.0f64;
+    let mut count = 0;
+    for (u, v) in a.into_iter().zip(b) {
+        assert_eq!(u.len(), v.len());
+        for (i, (x, y)) in u.iter().zip(v).enumerate() {
+            worst = worst.max((x - y).abs() / scale[i]);
+        }
+        count += 1;
+    }
+    assert!(count > 0);
+    worst
+}
+
+fn compare(new: &Smoothed, old: &Smoothed, what: &str) {
+    const TOL: f64 = 1e-9;
+    assert_eq!(new.states.len(), old.states.len(), "{what}: state count");
+    assert_eq!(
+        new.innovations.len(),
+        old.innovations.len(),
+        "{what}: innovation count"
+    );
+    let d_states = max_rel_diff(
+        new.states.iter().map(|v| v.as_slice()),
+        old.states.iter().map(|v| v.as_slice()),
+    );
+    let d_cov = max_rel_diff([new.final_cov.as_slice()], [old.final_cov.as_slice()]);
+    let flat = |r: &Residual| -> Vec<f64> {
+        let mut v = Vec::with_capacity(22);
+        v.extend(r.predicted);
+        v.extend(r.innovation);
+        v.extend(r.s.iter().flatten());
+        v.extend(r.whitened);
+        v.push(r.nis);
+        v.push(r.t_s);
+        v
+    };
+    let fa: Vec<Vec<f64>> = new.innovations.iter().map(flat).collect();
+    let fb: Vec<Vec<f64>> = old.innovations.iter().map(flat).collect();
+    let d_innov = if fa.is_empty() {
+        0.0
+    } else {
+        max_rel_diff(
+            fa.iter().map(|v| v.as_slice()),
+            fb.iter().map(|v| v.as_slice()),
+        )
+    };
+    eprintln!("{what}: max relative difference states {d_states:.3e}, final covariance {d_cov:.3e}, innovations {d_innov:.3e}");
+    assert!(d_states <= TOL, "{what}: states differ by {d_states:e}");
+    assert!(
+        d_cov <= TOL,
+        "{what}: final covariance differs by {d_cov:e}"
+    );
+    assert!(d_innov <= TOL, "{what}: innovations differ by {d_innov:e}");
+}
+
+fn paper_model(site: Site, effects: &'static [&'static dyn Effect]) -> Model<'static> {
+    Model::new(
+        site,
+        effects,
+        arw_deg2ph_to_rad2ps(1e-8),
+        Propagation::default(),
+    )
+    .unwrap()
+}
+
+/// The paper's scenario (Table 1 truth, 60-s period, 1-s samples) over `hours`.
+fn paper_run(hours: f64) -> Prepared {
+    let mut sc = Scenario::paper();
+    sc.hours = hours;
+    let sim = simulate(&sc);
+    let samples: Vec<Sample> = sim
+        .samples
+        .iter()
+        .map(|s| Sample {
+            t_s: s.t_s,
+            specific_force: s.specific_force_mps2,
+            temp_c: f64::NAN,
+        })
+        .collect();
+    let site = Site::new(sc.latitude_deg, sc.gravity_mps2);
+    prepare(site, &samples, &Config::default()).unwrap()
+}
+
+/// Pass 2's trajectory, the nominal identify() starts the smoother from.
+fn pass2_nominal(model: &Model<'_>, meas: &[Measurement]) -> Vec<DVector<f64>> {
+    let n = model.dim();
+    let sigma: Vec<f64> = (0..n)
+        .map(|i| {
+            if i < ANGLES {
+                1e-6
+            } else {
+                model.param(i).prior_sigma / 20.0
+            }
+        })
+        .collect();
+    ekf_pass(model, meas, &vec![0.0; n], &sigma).unwrap().2
+}
+
+#[test]
+fn checkpointed_smoother_matches_the_dense_one_on_the_paper_run() {
+    let prep = paper_run(60.0);
+    let model = paper_model(prep.site, &PAPER_EFFECTS);
+    let meas = &prep.measurements;
+    let (x0, p0) = wide_prior(&model, &vec![0.0; model.dim()], &[ANGLE_PRIOR_SIGMA_RAD; 3]);
+    // Three Gauss–Newton iterations as identify() runs them, old and new side by side.
+    let mut nominal = pass2_nominal(&model, meas);
+    for it in 0..3 {
+        let new = linearised_pass(&model, meas, &nominal, &x0, &p0, true).unwrap();
+        let old = dense_reference(&model, meas, &nominal, &x0, &p0, true);
+        compare(&new, &old, &format!("smoothed, iteration {it}"));
+        nominal = old.states;
+    }
+    // The forward-only pass (score tests) and the covariance-only pass (Cramér–Rao bound).
+    let new = linearised_pass(&model, meas, &nominal, &x0, &p0, false).unwrap();
+    let old = dense_reference(&model, meas, &nominal, &x0, &p0, false);
+    compare(&new, &old, "filtered");
+    let mut steps = 0;
+    linearised_pass_observed(&model, meas, &nominal, &x0, &p0, false, |v| {
+        assert_eq!(v.j, steps);
+        steps += 1;
+    })
+    .unwrap();
+    assert_eq!(steps, meas.len(), "observer called once per update");
+    let cov = final_covariance(&model, meas, &nominal, &x0, &p0).unwrap();
+    let d = max_rel_diff([cov.as_slice()], [old.final_cov.as_slice()]);
+    assert!(d <= 1e-9, "covariance-only pass differs by {d:e}");
+}
+
+#[test]
+fn identify_is_unchanged_by_checkpointing() {
+    // identify() now moves states instead of cloning them and drops passes early: its result must
+    // be the dense smoother iterated from pass 2's nominal (same 1e-9 tolerance as above).
+    let prep = paper_run(30.0);
+    let model = paper_model(prep.site, &PAPER_EFFECTS);
+    let cfg = Config::default();
+    let id = identify(&model, &prep, &cfg).unwrap();
+    let meas = &prep.measurements;
+    let n = model.dim();
+    let (x0, p0) = wide_prior(&model, &vec![0.0; n], &[ANGLE_PRIOR_SIGMA_RAD; 3]);
+    // identify's pass 2 starts at pass 1's coefficients with a 20× narrower prior.
+    let mut start = vec![0.0; n];
+    start[ANGLES..].copy_from_slice(&id.single_pass.value);
+    let sigma: Vec<f64> = (0..n)
+        .map(|i| {
+            if i < ANGLES {
+                1e-6
+            } else {
+                model.param(i).prior_sigma / cfg.pass2_prior_shrink
+            }
+        })
+        .collect();
+    let mut nominal = ekf_pass(&model, meas, &start, &sigma).unwrap().2;
+    let mut old = None;
+    for _ in 0..cfg.smoother_iterations {
+        let pass = dense_reference(&model, meas, &nominal, &x0, &p0, true);
+        nominal = pass.states.clone();
+        old = Some(pass);
+    }
+    let old = old.unwrap();
+    let d = max_rel_diff(
+        id.trajectory.iter().map(|v| v.as_slice()),
+        old.states.iter().map(|v| v.as_slice()),
+    );
+    assert!(d <= 1e-9, "trajectory differs by {d:e}");
+    let refined = id.refined.as_ref().unwrap();
+    let old_cov = old
+        .final_cov
+        .view((ANGLES, ANGLES), (n - ANGLES, n - ANGLES))
+        .into_owned();
+    let d = max_rel_diff([refined.cov.as_slice()], [old_cov.as_slice()]);
+    assert!(d <= 1e-9, "refined covariance differs by {d:e}");
+    assert_eq!(id.innovations.len(), old.innovations.len());
+    for (a, b) in id.innovations.iter().zip(&old.innovations) {
+        assert!((a.nis - b.nis).abs() <= 1e-9 * b.nis.abs().max(1.0));
+    }
+}
+
+#[test]
+fn segment_boundaries_and_gauss_markov_rows_match_the_dense_smoother() {
+    // Record lengths around the segment length ⌈√N⌉ (perfect squares, one more, one less, tiny),
+    // on a model with Gauss–Markov drift states (Φ has more dynamic rows than the three angles).
+    let prep = paper_run(3.0);
+    let markov = catalog::by_name("drift-markov").unwrap();
+    let lists: [Vec<&dyn Effect>; 2] = [vec![catalog::paper()], vec![catalog::paper(), markov]];
+    for effects in &lists {
+        let model = Model::new(
+            prep.site,
+            effects,
+            arw_deg2ph_to_rad2ps(1e-8),
+            Propagation::default(),
+        )
+        .unwrap();
+        let (x0, p0) = wide_prior(&model, &vec![0.0; model.dim()], &[ANGLE_PRIOR_SIGMA_RAD; 3]);
+        for len in [
+            0, 1, 2, 3, 4, 5, 8, 9, 10, 15, 16, 17, 24, 25, 26, 99, 100, 101, 181,
+        ] {
+            let meas = &prep.measurements[..len.min(prep.measurements.len())];
+            let nominal = if meas.is_empty() {
+                vec![x0.clone()]
+            } else {
+                pass2_nominal(&model, meas)
+            };
+            let new = linearised_pass(&model, meas, &nominal, &x0, &p0, true).unwrap();
+            let old = dense_reference(&model, meas, &nominal, &x0, &p0, true);
+            compare(
+                &new,
+                &old,
+                &format!("{} states, {len} updates", model.dim()),
+            );
+        }
+    }
+}
+
+#[test]
+fn a_tilted_start_is_an_error_from_the_smoother_not_a_panic() {
+    // 0.45, 0.5 or 0.62 m/s² added to every x sample (a start 2.6–3.6° off level): both EKF
+    // passes get through, the smoother's second or third iteration meets an S that is not
+    // positive definite (the linearisation about a far-off nominal loses P's definiteness). Before
+    // the change these panicked at `.expect("innovation covariance positive definite")`. Which
+    // tilt fails where is chaotic (nearby tilts fail in the EKF passes, or not at all), so the
+    // test asks for no panic on each, the update/time message on every smoother error, and at
+    // least one of the three reaching the smoother.
+    let mut sc = Scenario::paper();
+    sc.hours = 60.0;
+    let sim = simulate(&sc);
+    let site = Site::new(sc.latitude_deg, sc.gravity_mps2);
+    let cfg = Config::default();
+    let model = paper_model(site, &PAPER_EFFECTS);
+    let mut from_smoother = 0;
+    for tilt in [0.45, 0.5, 0.62] {
+        let samples: Vec<Sample> = sim
+            .samples
+            .iter()
+            .map(|s| Sample {
+                t_s: s.t_s,
+                specific_force: [
+                    s.specific_force_mps2[0] + tilt,
+                    s.specific_force_mps2[1],
+                    s.specific_force_mps2[2],
+                ],
+                temp_c: f64::NAN,
+            })
+            .collect();
+        let prep = prepare(site, &samples, &cfg).unwrap();
+        let Err(err) = identify(&model, &prep, &cfg) else {
+            continue;
+        };
+        let text = format!("{err:#}");
+        if let Some(e) = err.root_cause().downcast_ref::<SmootherError>() {
+            from_smoother += 1;
+            let SmootherError::InnovationCovariance { update, t_s, .. } = e else {
+                panic!("tilt {tilt}: expected an innovation-covariance error, got {text}");
+            };
+            assert_eq!(*t_s, prep.measurements[*update].t_s);
+            assert!(text.starts_with("smoother iteration "), "{text}");
+            assert!(
+                text.contains(&format!(
+                    "update {update} at t = {t_s} s: innovation covariance not positive definite"
+                )),
+                "{text}"
+            );
+        }
+    }
+    assert!(from_smoother >= 1, "no tilt reached the smoother's error");
+}
+
+/// A short clean run for the error tests.
+fn short_run() -> (Prepared, Model<'static>) {
+    let prep = paper_run(2.0);
+    let model = paper_model(prep.site, &PAPER_EFFECTS);
+    (prep, model)
+}
+
+#[test]
+fn a_negative_variance_is_an_error_naming_the_update_not_a_panic() {
+    let (prep, model) = short_run();
+    let mut meas = prep.measurements.clone();
+    meas[57].variance = [-1.0; 3];
+    let (x0, p0) = wide_prior(&model, &vec![0.0; model.dim()], &[ANGLE_PRIOR_SIGMA_RAD; 3]);
+    let nominal = pass2_nominal(&model, &prep.measurements);
+    let err = linearised_pass(&model, &meas, &nominal, &x0, &p0, true).unwrap_err();
+    let t = meas[57].t_s;
+    assert!(
+        matches!(err, SmootherError::InnovationCovariance { update: 57, t_s, .. } if t_s == t),
+        "{err:?}"
+    );
+    let text = err.to_string();
+    assert!(
+        text.starts_with(&format!(
+            "update 57 at t = {t} s: innovation covariance not positive definite"
+        )),
+        "{text}"
+    );
+    // identify() reports it instead of panicking (here pass 1's own EKF already refuses it, or
+    // the smoother does: either way an error, with the chain of context).
+    let bad = Prepared {
+        measurements: meas,
+        ..prep.clone()
+    };
+    assert!(identify(&model, &bad, &Config::default()).is_err());
+    assert!(host_tool::identify::try_cramer_rao_bound(&model, &bad, &[0.0; 12]).is_err());
+}
+
+#[test]
+fn a_non_finite_measurement_is_an_error_naming_the_update() {
+    let (prep, model) = short_run();
+    let mut meas = prep.measurements.clone();
+    meas[80].specific_force[1] = f64::NAN;
+    let (x0, p0) = wide_prior(&model, &vec![0.0; model.dim()], &[ANGLE_PRIOR_SIGMA_RAD; 3]);
+    let nominal = pass2_nominal(&model, &prep.measurements);
+    let err = linearised_pass(&model, &meas, &nominal, &x0, &p0, false).unwrap_err();
+    assert!(
+        matches!(err, SmootherError::InnovationNotFinite { update: 80, .. }),
+        "{err:?}"
+    );
+    assert!(err.to_string().starts_with(&format!(
+        "update 80 at t = {} s: innovation not finite",
+        meas[80].t_s
+    )));
+    // A non-finite nominal (a diverged previous iteration) is caught the same way.
+    let mut nominal = nominal;
+    nominal[12][0] = f64::INFINITY;
+    let err = linearised_pass(&model, &prep.measurements, &nominal, &x0, &p0, true).unwrap_err();
+    assert!(
+        matches!(
+            err,
+            SmootherError::InnovationNotFinite { update: 11, .. }
+                | SmootherError::InnovationCovariance { update: 11, .. }
+        ),
+        "{err:?}"
+    );
+}
+
+#[test]
+fn a_singular_predicted_covariance_is_an_error_not_a_panic() {
+    // A prior with zero variance on one constant coefficient: its row and column of P⁻ stay zero
+    // (no process noise on constants), Cholesky fails and the LU solve finds the zero pivot. The
+    // backward pass meets it first at the last update.
+    let (prep, model) = short_run();
+    let meas = &prep.measurements;
+    let (x0, mut p0) = wide_prior(&model, &vec![0.0; model.dim()], &[ANGLE_PRIOR_SIGMA_RAD; 3]);
+    let last = model.dim() - 1;
+    p0[(last, last)] = 0.0;
+    let nominal = pass2_nominal(&model, meas);
+    let err = linearised_pass(&model, meas, &nominal, &x0, &p0, true).unwrap_err();
+    let upd = meas.len() - 1;
+    assert!(
+        matches!(err, SmootherError::PredictedCovariance { update, .. } if update == upd),
+        "{err:?}"
+    );
+    assert!(err
+        .to_string()
+        .contains("predicted covariance not invertible"));
+    // The forward pass alone does not need P⁻'s inverse and completes.
+    assert!(linearised_pass(&model, meas, &nominal, &x0, &p0, false).is_ok());
+}
+
+#[test]
+fn a_wrong_nominal_length_is_an_error() {
+    let (prep, model) = short_run();
+    let (x0, p0) = wide_prior(&model, &vec![0.0; model.dim()], &[ANGLE_PRIOR_SIGMA_RAD; 3]);
+    let nominal = vec![x0.clone(); 3];
+    let err = linearised_pass(&model, &prep.measurements, &nominal, &x0, &p0, true).unwrap_err();
+    assert_eq!(
+        err,
+        SmootherError::NominalLength {
+            got: 3,
+            need: prep.measurements.len() + 1
+        }
+    );
+}
