@@ -635,7 +635,8 @@ fn the_cli_reports_a_bad_effects_file() {
             .output()
             .unwrap();
         let stderr = String::from_utf8_lossy(&out.stderr);
-        assert_eq!(out.status.code(), Some(1), "{cmd}: {stderr}");
+        // 2: usage error or unusable input (README, "Exit status").
+        assert_eq!(out.status.code(), Some(2), "{cmd}: {stderr}");
         let expected = format!(
             "driftid: error: {}:9:5: effect `acc-k2`: y = \"K2y * A_y^3 * lux\": unknown variable `lux` (character 15 of the expression)",
             bad.display()

@@ -389,7 +389,7 @@ fn segment_boundaries_and_gauss_markov_rows_match_the_dense_smoother() {
 }
 
 #[test]
-fn a_tilted_start_is_an_error_from_the_smoother_not_a_panic() {
+fn a_tilted_start_is_named_and_never_a_panic() {
     // 0.45, 0.5 or 0.62 m/s² added to every x sample (a start 2.6–3.6° off level): both EKF
     // passes get through, the smoother's second or third iteration meets an S that is not
     // positive definite (the linearisation about a far-off nominal loses P's definiteness). Before
@@ -403,7 +403,10 @@ fn a_tilted_start_is_an_error_from_the_smoother_not_a_panic() {
     let site = Site::new(sc.latitude_deg, sc.gravity_mps2);
     let cfg = Config::default();
     let model = paper_model(site, &PAPER_EFFECTS);
-    let mut from_smoother = 0;
+    // An x offset of 0.45–0.62 m/s^2 (a start 2.6–3.6° off level, |A| 1–2e-3 above g) used to
+    // reach the smoother and panic there. The data-quality screening now names and repairs it
+    // (the initial state is levelled, the gravity taken from the data); identification then
+    // either succeeds or fails with an error — never a panic.
     for tilt in [0.45, 0.5, 0.62] {
         let samples: Vec<Sample> = sim
             .samples
@@ -419,26 +422,13 @@ fn a_tilted_start_is_an_error_from_the_smoother_not_a_panic() {
             })
             .collect();
         let prep = prepare(site, &samples, &cfg).unwrap();
-        let Err(err) = identify(&model, &prep, &cfg) else {
-            continue;
-        };
-        let text = format!("{err:#}");
-        if let Some(e) = err.root_cause().downcast_ref::<SmootherError>() {
-            from_smoother += 1;
-            let SmootherError::InnovationCovariance { update, t_s, .. } = e else {
-                panic!("tilt {tilt}: expected an innovation-covariance error, got {text}");
-            };
-            assert_eq!(*t_s, prep.measurements[*update].t_s);
-            assert!(text.starts_with("smoother iteration "), "{text}");
-            assert!(
-                text.contains(&format!(
-                    "update {update} at t = {t_s} s: innovation covariance not positive definite"
-                )),
-                "{text}"
-            );
+        let kinds: Vec<&str> = prep.findings.iter().map(|f| f.kind).collect();
+        assert!(kinds.contains(&"initial-tilt"), "tilt {tilt}: {kinds:?}");
+        if let Err(err) = identify(&model, &prep, &cfg) {
+            let text = format!("{err:#}");
+            assert!(!text.is_empty());
         }
     }
-    assert!(from_smoother >= 1, "no tilt reached the smoother's error");
 }
 
 /// A short clean run for the error tests.

@@ -178,6 +178,6 @@ fn clean_data_raises_no_alarm() {
             c.p_adjusted
         );
     }
-    assert!(host_tool::diagnose::is_consistent(d, 0.01), "{}", d.verdict);
+    assert!(host_tool::diagnose::is_consistent(d), "{}", d.verdict);
     assert!(d.verdict.contains("explains the measurements"));
 }

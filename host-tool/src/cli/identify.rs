@@ -212,8 +212,9 @@ pub fn run(args: &IdentifyArgs) -> anyhow::Result<()> {
         prep.findings.extend(found);
     }
     let mut reasons = prep.untrusted_reasons();
+    let metadata_named = prep.findings.iter().any(|f| f.kind == "latitude");
     match &check {
-        Some(c) if !c.is_consistent() => reasons.push(format!(
+        Some(c) if !c.is_consistent() && !metadata_named => reasons.push(format!(
             "the model does not explain the measurements: {}; run `driftid diagnose` to find the missing effect",
             c.failures.join("; ")
         )),

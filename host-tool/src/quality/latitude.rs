@@ -6,6 +6,7 @@
 //! (with the data's latitude and its 1σ) instead of any physical effect.
 
 use estimator_core::effects::Effect;
+use estimator_core::frames::normal_gravity;
 use estimator_core::Site;
 
 use super::{Action, Finding};
@@ -33,9 +34,16 @@ pub struct LatitudeFit {
     pub consistent: bool,
 }
 
+/// The site at another latitude: gravity moves with it when it was normal gravity (no metadata
+/// gravity), and stays when it was given or measured.
+fn site_at(prep: &Prepared, lat: f64) -> Site {
+    let derived = (prep.site.gravity_mps2 - normal_gravity(prep.site.latitude_rad)).abs() < 1e-12;
+    Site::new(lat, (!derived).then_some(prep.site.gravity_mps2))
+}
+
 fn evidence_at(prep: &Prepared, effects: &[&'static dyn Effect], cfg: &Config, lat: f64) -> Option<f64> {
     let mut p = prep.clone();
-    p.site = Site::new(lat, Some(prep.site.gravity_mps2));
+    p.site = site_at(prep, lat);
     let model = build_model(p.site, effects, cfg).ok()?;
     let id = identify(&model, &p, cfg).ok()?;
     Some(neg2_log_evidence(&id))
@@ -77,7 +85,7 @@ pub fn profile(prep: &Prepared, effects: &[&'static dyn Effect], cfg: &Config) -
     let curv = (fp - 2.0 * fb + fm) / (h * h);
     let sigma_deg = if curv > 0.0 { (2.0 / curv).sqrt() } else { f64::INFINITY };
     let mut p = prep.clone();
-    p.site = Site::new(best, Some(prep.site.gravity_mps2));
+    p.site = site_at(prep, best);
     let model = build_model(p.site, effects, cfg).ok()?;
     let id = identify(&model, &p, cfg).ok()?;
     let (rms, nis, white) = fit_stats(&id, &p, 20);

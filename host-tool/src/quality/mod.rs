@@ -92,7 +92,17 @@ impl std::fmt::Display for Refusal {
             .filter(|x| x.action == Action::Refused)
             .map(|x| x.line())
             .collect();
-        write!(f, "the recording cannot support an estimate: {}", refused.join("; "))
+        write!(f, "the recording cannot support an estimate: {}", refused.join("; "))?;
+        let others: Vec<String> = self
+            .findings
+            .iter()
+            .filter(|x| x.action != Action::Refused)
+            .map(|x| x.line())
+            .collect();
+        if !others.is_empty() {
+            write!(f, " (also found: {})", others.join("; "))?;
+        }
+        Ok(())
     }
 }
 

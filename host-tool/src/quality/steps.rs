@@ -14,12 +14,14 @@ pub const STEP_SIGMAS: f64 = 8.0;
 /// The means' scatter must differ from white raw noise by at least this factor to replace it.
 pub const MEAN_NOISE_FACTOR: f64 = 1.5;
 
-/// Third differences of each axis over runs of four evenly spaced means: (index of the first, value).
+/// Third differences of each axis over runs of four evenly spaced means (spacing equal to 1e-3:
+/// the third difference of a line vanishes only on an even grid, and a window cut short by a
+/// gap or rejected samples is tagged off it): (index of the first, value).
 fn third_differences(means: &[Measurement], axis: usize) -> Vec<(usize, f64)> {
     let mut out = vec![];
     for k in 0..means.len().saturating_sub(3) {
         let dt = means[k + 1].t_s - means[k].t_s;
-        let even = (1..3).all(|i| ((means[k + i + 1].t_s - means[k + i].t_s) / dt - 1.0).abs() < 0.2);
+        let even = (1..3).all(|i| ((means[k + i + 1].t_s - means[k + i].t_s) / dt - 1.0).abs() < 1e-3);
         if even {
             let x = |i: usize| means[k + i].specific_force[axis];
             out.push((k, x(3) - 3.0 * x(2) + 3.0 * x(1) - x(0)));

@@ -87,16 +87,22 @@ fn empty_and_header_only() {
 }
 
 #[test]
-fn nan_and_inf_rejected() {
+fn nan_and_inf_are_kept_for_the_screening() {
+    // A sensor's NaN or infinity is a bad sample, not a bad file: it is read (as NaN) and the
+    // data-quality screening rejects and counts it (quality::screen).
     for bad in ["NaN", "nan", "inf", "-inf", "Infinity"] {
-        let text = format!("{HDR}0.0,0,0,9.8\n1.0,0,{bad},9.8\n");
-        fails(
-            text.as_bytes(),
-            &[&format!("run.csv:5: column ay_mps2: {bad} is not finite")],
-        );
+        let text = format!("{HDR}0.0,0,0,9.8\n1.0,0,{bad},9.8\n2.0,0,0,9.8\n");
+        let r = read(text.as_bytes()).unwrap();
+        assert_eq!(r.samples.len(), 3);
+        assert!(r.samples[1].specific_force_mps2[1].is_nan(), "{bad}");
     }
-    let text = format!("{HDR}NaN,0,0,9.8\n");
-    fails(text.as_bytes(), &["run.csv:4: column t_s:", "not finite"]);
+    // A non-finite time is kept too and does not break the order check of the rows around it.
+    let text = format!("{HDR}0.0,0,0,9.8\nNaN,0,0,9.8\n1.0,0,0,9.8\n");
+    let r = read(text.as_bytes()).unwrap();
+    assert!(r.samples[1].t_s.is_nan());
+    // But time still has to increase between finite times.
+    let text = format!("{HDR}1.0,0,0,9.8\nNaN,0,0,9.8\n0.5,0,0,9.8\n");
+    fails(text.as_bytes(), &["run.csv:6"]);
 }
 
 #[test]
