@@ -188,8 +188,7 @@ fn flag_stuck(
     while start < s.len() {
         let v = s[start].specific_force[a];
         let mut end = start + 1;
-        while end < s.len() && s[end].specific_force[a] == v && flags[end] & flag::NON_FINITE == 0
-        {
+        while end < s.len() && s[end].specific_force[a] == v && flags[end] & flag::NON_FINITE == 0 {
             end += 1;
         }
         if end - start >= min_run
@@ -265,7 +264,13 @@ fn side(
     m
 }
 
-fn flag_outliers(s: &[Sample], flags: &mut [u8], a: usize, sigma: f64, cfg: &ScreenConfig) -> usize {
+fn flag_outliers(
+    s: &[Sample],
+    flags: &mut [u8],
+    a: usize,
+    sigma: f64,
+    cfg: &ScreenConfig,
+) -> usize {
     let h = cfg.half_window.clamp(2, MAX_HALF_WINDOW);
     if sigma.is_nan() || sigma <= 0.0 {
         return 0;
@@ -284,7 +289,11 @@ fn flag_outliers(s: &[Sample], flags: &mut [u8], a: usize, sigma: f64, cfg: &Scr
         let (pred, var_factor) = if nl >= 3 && nr >= 3 {
             let (ml, mr) = (median(&mut lv[..nl]), median(&mut rv[..nr]));
             let (tl, tr) = (median(&mut lt[..nl]), median(&mut rt[..nr]));
-            let u = if tr > tl { (s[i].t_s - tl) / (tr - tl) } else { 0.5 };
+            let u = if tr > tl {
+                (s[i].t_s - tl) / (tr - tl)
+            } else {
+                0.5
+            };
             // Prediction = (1−u)·ml + u·mr; a median of m samples has variance ≈ (π/2)σ²/m.
             let v = core::f64::consts::FRAC_PI_2
                 * ((1.0 - u) * (1.0 - u) / nl as f64 + u * u / nr as f64);
@@ -294,7 +303,9 @@ fn flag_outliers(s: &[Sample], flags: &mut [u8], a: usize, sigma: f64, cfg: &Scr
             // valid only where the signal is locally flat, so widen the threshold by the spread.
             let (vals, m) = if nl >= nr { (lv, nl) } else { (rv, nr) };
             let md = median(&mut vals[..m]);
-            let spread = vals[..m].iter().fold(0.0f64, |acc, v| acc.max(libm::fabs(v - md)));
+            let spread = vals[..m]
+                .iter()
+                .fold(0.0f64, |acc, v| acc.max(libm::fabs(v - md)));
             let extra = spread / sigma;
             (md, core::f64::consts::FRAC_PI_2 / m as f64 + extra * extra)
         } else {
@@ -330,7 +341,7 @@ mod tests {
         for (k, s) in out.iter_mut().enumerate().take(n) {
             let t = k as f64;
             let w = 7.29e-5 * 0.78; // Earth rate × cos(latitude), rad/s
-            // Sum of 12 uniforms − 6: unit variance, bounded at ±6 (no chance alarms).
+                                    // Sum of 12 uniforms − 6: unit variance, bounded at ±6 (no chance alarms).
             let mut noise = || (0..12).map(|_| uniform()).sum::<f64>() - 6.0;
             s.t_s = t;
             s.specific_force = [
@@ -381,7 +392,12 @@ mod tests {
             }
         }
         let mut f = [0u8; 2000];
-        let sum = screen(&s, &[0.01 / libm::sqrt(12.0); 3], &ScreenConfig::default(), &mut f);
+        let sum = screen(
+            &s,
+            &[0.01 / libm::sqrt(12.0); 3],
+            &ScreenConfig::default(),
+            &mut f,
+        );
         assert_eq!(sum.rejected, 0, "{sum:?}");
         assert!(sum.repeat_rate[2] > 0.9);
     }

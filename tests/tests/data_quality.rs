@@ -15,7 +15,13 @@ use host_tool::identify::{identify, prepare, Config, Prepared};
 use host_tool::quality::{Action, Refusal};
 use host_tool::simulate::{simulate, Scenario};
 
-fn run(seed: u64, latitude_deg: f64, hours: f64, rate_s: f64, tilt_deg: [f64; 3]) -> (Scenario, Vec<Sample>) {
+fn run(
+    seed: u64,
+    latitude_deg: f64,
+    hours: f64,
+    rate_s: f64,
+    tilt_deg: [f64; 3],
+) -> (Scenario, Vec<Sample>) {
     let mut sc = Scenario::paper();
     sc.seed = seed;
     sc.latitude_deg = latitude_deg;
@@ -71,7 +77,10 @@ fn clean_recordings_produce_no_finding() {
             alarms.push((seed, lat, kinds(&prep)));
         }
     }
-    eprintln!("clean controls: {} of 32 with a finding: {alarms:?}", alarms.len());
+    eprintln!(
+        "clean controls: {} of 32 with a finding: {alarms:?}",
+        alarms.len()
+    );
     assert!(alarms.is_empty(), "false alarms on clean data: {alarms:?}");
 }
 
@@ -84,16 +93,28 @@ fn repairable_faults_are_repaired_and_the_estimate_holds() {
     let clean_worst = worst_err_over_sigma(&sc, &base);
     assert!(clean_worst < 3.0, "clean run itself: {clean_worst}");
 
-    type Fault = (&'static str, &'static str, Box<dyn Fn(&mut Vec<Sample>, &mut Site)>);
+    type Fault = (
+        &'static str,
+        &'static str,
+        Box<dyn Fn(&mut Vec<Sample>, &mut Site)>,
+    );
     let faults: Vec<Fault> = vec![
-        ("one spike of +500 m/s^2", "glitch", Box::new(|s, _| s[40_000].specific_force[1] += 500.0)),
+        (
+            "one spike of +500 m/s^2",
+            "glitch",
+            Box::new(|s, _| s[40_000].specific_force[1] += 500.0),
+        ),
         (
             "25 glitches of 0.01–0.2 m/s^2",
             "glitch",
             Box::new(|s, _| {
                 for k in 0..25 {
                     let i = 3_000 + k * 4_111;
-                    s[i].specific_force[k % 3] += if k % 2 == 0 { 0.01 + 0.007 * k as f64 } else { -0.05 };
+                    s[i].specific_force[k % 3] += if k % 2 == 0 {
+                        0.01 + 0.007 * k as f64
+                    } else {
+                        -0.05
+                    };
                 }
             }),
         ),
@@ -159,9 +180,15 @@ fn repairable_faults_are_repaired_and_the_estimate_holds() {
         apply(&mut s, &mut st);
         let prep = prepare(st, &s, &Config::default()).unwrap_or_else(|e| panic!("{what}: {e:#}"));
         let found = kinds(&prep);
-        assert!(found.contains(&kind), "{what}: expected `{kind}`, found {found:?}");
         assert!(
-            prep.findings.iter().all(|f| matches!(f.action, Action::Repaired | Action::Rejected | Action::Noted)),
+            found.contains(&kind),
+            "{what}: expected `{kind}`, found {found:?}"
+        );
+        assert!(
+            prep.findings.iter().all(|f| matches!(
+                f.action,
+                Action::Repaired | Action::Rejected | Action::Noted
+            )),
             "{what}: {:?}",
             prep.findings
         );
@@ -189,17 +216,35 @@ fn unrepairable_faults_are_refused_or_not_trusted() {
     let (sc, clean) = run(11, 39.1, 12.0, 1.0, [0.0; 3]);
     let site = site_of(&sc);
     let refused: Vec<(&str, &str, Box<dyn Fn(&mut Vec<Sample>)>)> = vec![
-        ("dead sensor", "dead-axis", Box::new(|s| s.iter_mut().for_each(|x| x.specific_force = [0.0; 3]))),
-        ("inverted z", "initial-orientation", Box::new(|s| s.iter_mut().for_each(|x| x.specific_force[2] *= -1.0))),
-        ("x and z swapped", "initial-orientation", Box::new(|s| s.iter_mut().for_each(|x| x.specific_force.swap(0, 2)))),
-        ("time column in days", "time-units", Box::new(|s| s.iter_mut().for_each(|x| x.t_s /= 86_400.0))),
+        (
+            "dead sensor",
+            "dead-axis",
+            Box::new(|s| s.iter_mut().for_each(|x| x.specific_force = [0.0; 3])),
+        ),
+        (
+            "inverted z",
+            "initial-orientation",
+            Box::new(|s| s.iter_mut().for_each(|x| x.specific_force[2] *= -1.0)),
+        ),
+        (
+            "x and z swapped",
+            "initial-orientation",
+            Box::new(|s| s.iter_mut().for_each(|x| x.specific_force.swap(0, 2))),
+        ),
+        (
+            "time column in days",
+            "time-units",
+            Box::new(|s| s.iter_mut().for_each(|x| x.t_s /= 86_400.0)),
+        ),
     ];
     for (what, kind, apply) in refused {
         let mut s = clean.clone();
         apply(&mut s);
         let r = refusal(site, &s);
         assert!(
-            r.findings.iter().any(|f| f.kind == kind && f.action == Action::Refused),
+            r.findings
+                .iter()
+                .any(|f| f.kind == kind && f.action == Action::Refused),
             "{what}: {r}"
         );
         eprintln!("{what}: {r}");
@@ -207,15 +252,27 @@ fn unrepairable_faults_are_refused_or_not_trusted() {
     // Rounded to 0.01 m/s^2 (13× the raw noise): the noise floor does not collapse, the
     // estimate is computed but flagged.
     let mut s = clean.clone();
-    s.iter_mut().for_each(|x| x.specific_force.iter_mut().for_each(|v| *v = (*v / 0.01).round() * 0.01));
+    s.iter_mut().for_each(|x| {
+        x.specific_force
+            .iter_mut()
+            .for_each(|v| *v = (*v / 0.01).round() * 0.01)
+    });
     let prep = prepare(site, &s, &Config::default()).unwrap();
     assert!(kinds(&prep).contains(&"quantization"), "{:?}", kinds(&prep));
     assert!(!prep.untrusted_reasons().is_empty());
-    assert!(prep.floor_mps2().iter().all(|f| *f >= 0.01 / 12f64.sqrt() * 0.99), "{:?}", prep.floor_mps2());
+    assert!(
+        prep.floor_mps2()
+            .iter()
+            .all(|f| *f >= 0.01 / 12f64.sqrt() * 0.99),
+        "{:?}",
+        prep.floor_mps2()
+    );
     // A bias step of 2e-3 m/s^2 (20× the floor of a 60-s mean) on y halfway.
     let mut s = clean.clone();
     let half = s.len() / 2;
-    s[half..].iter_mut().for_each(|x| x.specific_force[1] += 2e-3);
+    s[half..]
+        .iter_mut()
+        .for_each(|x| x.specific_force[1] += 2e-3);
     let prep = prepare(site, &s, &Config::default()).unwrap();
     assert!(kinds(&prep).contains(&"step"), "{:?}", kinds(&prep));
     assert!(!prep.untrusted_reasons().is_empty());
@@ -231,9 +288,21 @@ fn a_wrong_metadata_latitude_is_named_with_the_datas_latitude() {
     assert_eq!(f.kind, "latitude");
     eprintln!("{}", f.message);
     // The estimate in the message must be within 0.05° of the truth (its 1σ is ~0.002° on 30 h).
-    let est: f64 = f.message.split("latitude ").nth(1).unwrap().split(' ').next().unwrap().parse().unwrap();
+    let est: f64 = f
+        .message
+        .split("latitude ")
+        .nth(1)
+        .unwrap()
+        .split(' ')
+        .next()
+        .unwrap()
+        .parse()
+        .unwrap();
     assert!((est - 39.1).abs() < 0.05, "{est}");
     // And the right latitude gives no such finding.
     let right = prepare(site_of(&sc), &samples, &Config::default()).unwrap();
-    assert!(host_tool::quality::latitude::check(&right, &[catalog::paper()], &Config::default()).is_none());
+    assert!(
+        host_tool::quality::latitude::check(&right, &[catalog::paper()], &Config::default())
+            .is_none()
+    );
 }

@@ -105,7 +105,10 @@ fn no_samples() {
 fn nan_and_infinity_are_bad_samples_not_a_bad_file() {
     // A sensor's NaN/∞ is read as NaN (line kept in `lines`); the data-quality screening then
     // rejects and counts that sample (tests/tests/data_quality.rs) instead of refusing the file.
-    for (name, field, col) in [("nan.csv", "3.0,0,NaN,9.8", 1), ("inf.csv", "3.0,0,0,-inf", 2)] {
+    for (name, field, col) in [
+        ("nan.csv", "3.0,0,NaN,9.8", 1),
+        ("inf.csv", "3.0,0,0,-inf", 2),
+    ] {
         let text = format!("{HDR}{}{field}\n", rows(3));
         let p = write(name, text.as_bytes());
         let r = read_recording(&p).unwrap();

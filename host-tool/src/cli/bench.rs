@@ -8,7 +8,7 @@ use rayon::prelude::*;
 
 use super::common::build_model;
 use crate::catalog;
-use crate::identify::{try_cramer_rao_bound, identify, prepare, Config, Prepared};
+use crate::identify::{identify, prepare, try_cramer_rao_bound, Config, Prepared};
 use crate::simulate::{simulate, Scenario};
 use crate::stats::chi2_quantile;
 

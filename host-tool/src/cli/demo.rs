@@ -5,7 +5,7 @@ use estimator_core::Sample;
 use super::common::build_model;
 use crate::catalog;
 use crate::format::sci;
-use crate::identify::{try_cramer_rao_bound, identify, prepare, Config};
+use crate::identify::{identify, prepare, try_cramer_rao_bound, Config};
 use crate::simulate::{simulate, Scenario};
 
 /// The paper's Table 2: its single-pass estimates at 60 h.

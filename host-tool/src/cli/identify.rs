@@ -7,10 +7,10 @@ use serde_json::{json, Map, Value};
 use anyhow::Context as _;
 
 use super::common::{build_model, load, print_findings, trusted_or, ModelArgs};
-use crate::consistency::{assess, Consistency, Thresholds};
 use crate::catalog;
+use crate::consistency::{assess, Consistency, Thresholds};
 use crate::format::{sci, with_sigma};
-use crate::identify::{try_cramer_rao_bound, identify, prepare, Identification, Prepared};
+use crate::identify::{identify, prepare, try_cramer_rao_bound, Identification, Prepared};
 use crate::simulate::read_truth;
 
 /// Arguments of `driftid identify`.
@@ -243,7 +243,9 @@ pub fn run(args: &IdentifyArgs) -> anyhow::Result<()> {
         print_table(&rows, id.refined.is_some());
         print_summary(&id, &prep);
         if !reasons.is_empty() {
-            println!("NOT TRUSTED: the numbers above are computed but the tool does not trust them:");
+            println!(
+                "NOT TRUSTED: the numbers above are computed but the tool does not trust them:"
+            );
             for r in &reasons {
                 println!("  - {r}");
             }
@@ -256,7 +258,8 @@ pub fn run(args: &IdentifyArgs) -> anyhow::Result<()> {
 pub fn consistency_of(id: &Identification, prep: &Prepared) -> Option<Consistency> {
     id.refined.as_ref()?;
     let whitened: Vec<[f64; 3]> = id.innovations.iter().map(|r| r.whitened).collect();
-    let white = crate::diagnose::whiteness(&whitened, crate::diagnose::DiagnoseConfig::default().lags);
+    let white =
+        crate::diagnose::whiteness(&whitened, crate::diagnose::DiagnoseConfig::default().lags);
     let rms = id.residual_rms_mps2();
     let floor = prep.floor_mps2();
     Some(assess(

@@ -32,7 +32,7 @@ pub struct ReportArgs {
 /// Runs `driftid report`.
 pub fn run(args: &ReportArgs) -> anyhow::Result<()> {
     super::common::load_effects_args(&args.model)?; // --effects FILE: user effects join the catalog
-    // Outputs never overwrite an input: checked before the long computation.
+                                                    // Outputs never overwrite an input: checked before the long computation.
     let mut inputs: Vec<&std::path::Path> = vec![&args.recording];
     inputs.extend(args.truth.as_deref());
     output::ensure_not_input(&args.out, "--out", &inputs)?;

@@ -52,7 +52,12 @@ pub struct SimulateArgs {
     pub no_noise: bool,
     /// Platform orientation at t = 0 relative to local level ENU, deg: the paper's Euler angles
     /// tx,ty,tz (C = Rz(tz)·Ry(ty)·Rx(tx), passive). Written to the recording's metadata.
-    #[arg(long, value_delimiter = ',', allow_hyphen_values = true, value_name = "TX,TY,TZ")]
+    #[arg(
+        long,
+        value_delimiter = ',',
+        allow_hyphen_values = true,
+        value_name = "TX,TY,TZ"
+    )]
     pub initial_orientation_deg: Option<Vec<f64>>,
 }
 

@@ -26,9 +26,9 @@ pub use self::types::*;
 use self::wander::DriftWander;
 use crate::catalog;
 use crate::cli::common::build_model;
+use crate::consistency::{assess, Thresholds};
 use crate::identify::smoother::temp_devs;
 use crate::identify::{identify, smoothed_residuals, wide_prior, Config, Identification, Prepared};
-use crate::consistency::{assess, Thresholds};
 use crate::stats::{chi2_ln_sf, chi2_quantile, chi2_sf, normal_quantile};
 
 /// Statistic gap below which two similar candidates are "not clearly separated": a likelihood
@@ -286,11 +286,11 @@ pub fn diagnose(
         |a, b| match (a.0.untestable.is_some(), b.0.untestable.is_some()) {
             (false, true) => std::cmp::Ordering::Less,
             (true, false) => std::cmp::Ordering::Greater,
-            _ => a
-                .0
-                .ln_p_value
-                .total_cmp(&b.0.ln_p_value)
-                .then(a.0.dof.total_cmp(&b.0.dof)),
+            _ => {
+                a.0.ln_p_value
+                    .total_cmp(&b.0.ln_p_value)
+                    .then(a.0.dof.total_cmp(&b.0.dof))
+            }
         },
     );
     // Holm's step-down adjustment over the tested candidates, in logs (no underflow).
@@ -397,7 +397,10 @@ fn verdict(d: &Diagnosis, alpha: f64) -> String {
     );
     if let Some(choice) = &d.choice {
         let c = d.ranking.iter().find(|c| c.effect == choice.effect);
-        let mut s = format!("{state} The model misses a physical effect: {}.", choice.reason);
+        let mut s = format!(
+            "{state} The model misses a physical effect: {}.",
+            choice.reason
+        );
         if let Some(r) = c.and_then(|c| c.refit.as_ref()) {
             s += &format!(
                 " With it the residual RMS / floor is [{:.2}, {:.2}, {:.2}], NIS/3 {:.3}, Ljung–Box p {:.1e} ({}).",
@@ -411,7 +414,11 @@ fn verdict(d: &Diagnosis, alpha: f64) -> String {
         }
         if let Some(c) = c {
             s += &format!(" {}", c.about);
-            for cf in d.confounding.iter().filter(|cf| !cf.separated && (cf.a == c.effect || cf.b == c.effect)) {
+            for cf in d
+                .confounding
+                .iter()
+                .filter(|cf| !cf.separated && (cf.a == c.effect || cf.b == c.effect))
+            {
                 let rival = if cf.a == c.effect { &cf.b } else { &cf.a };
                 s += &format!(
                     " Caution: `{rival}` leaves almost the same signature on this run (canonical correlation {:.3}); the data barely separate them. What would: {}.",
@@ -641,7 +648,14 @@ pub fn ladder(
             .iter()
             .enumerate()
             .skip(12)
-            .map(|(k, p)| (p.name.to_string(), p.unit.to_string(), best.value[k], best.sigma(k)))
+            .map(|(k, p)| {
+                (
+                    p.name.to_string(),
+                    p.unit.to_string(),
+                    best.value[k],
+                    best.sigma(k),
+                )
+            })
             .collect();
         let choice = d.choice.clone();
         rungs.push(Rung {

@@ -102,7 +102,13 @@ pub fn refit(
             continue;
         };
         let (rms, nis, white) = fit_stats(&id, prep, cfg.lags);
-        let c = assess(nis, id.innovations.len(), white, rms, &Thresholds::default());
+        let c = assess(
+            nis,
+            id.innovations.len(),
+            white,
+            rms,
+            &Thresholds::default(),
+        );
         let ev = neg2_log_evidence(&id);
         let offset = id.params.len() - e.params().len();
         let best = id.best();
@@ -200,7 +206,10 @@ mod tests {
     #[test]
     fn the_catch_all_yields_to_a_law_that_explains_as_well() {
         // Markov slightly ahead, the trend consistent: the trend wins.
-        let c = choose(&[r("drift-markov", 1000.0, true), r("drift-trend", 995.0, true)]);
+        let c = choose(&[
+            r("drift-markov", 1000.0, true),
+            r("drift-trend", 995.0, true),
+        ]);
         assert_eq!(c.unwrap().effect, "drift-trend");
         // Markov far ahead of an inconsistent law: Markov wins.
         let c = choose(&[r("drift-markov", 1000.0, true), r("g2", 500.0, false)]);

@@ -130,8 +130,11 @@ pub fn prepare(site: Site, samples: &[Sample], cfg: &Config) -> anyhow::Result<P
         },
     };
     let mut avg = Averager::new(cfg.period_s, noise.raw_sigma_mps2);
-    let mut measurements: Vec<Measurement> =
-        screened.samples.iter().filter_map(|s| avg.push(s)).collect();
+    let mut measurements: Vec<Measurement> = screened
+        .samples
+        .iter()
+        .filter_map(|s| avg.push(s))
+        .collect();
     measurements.extend(avg.flush());
     if let (None, Some(over)) = (cfg.raw_sigma_mps2, screened.mean_sigma_override_mps2) {
         // The means' own scatter (quantised or correlated noise), scaled to each window's count.

@@ -41,7 +41,12 @@ fn site_at(prep: &Prepared, lat: f64) -> Site {
     Site::new(lat, (!derived).then_some(prep.site.gravity_mps2))
 }
 
-fn evidence_at(prep: &Prepared, effects: &[&'static dyn Effect], cfg: &Config, lat: f64) -> Option<f64> {
+fn evidence_at(
+    prep: &Prepared,
+    effects: &[&'static dyn Effect],
+    cfg: &Config,
+    lat: f64,
+) -> Option<f64> {
     let mut p = prep.clone();
     p.site = site_at(prep, lat);
     let model = build_model(p.site, effects, cfg).ok()?;
@@ -50,14 +55,23 @@ fn evidence_at(prep: &Prepared, effects: &[&'static dyn Effect], cfg: &Config, l
 }
 
 /// Profiles the evidence over latitude: a grid of 2° then a golden-section refinement.
-pub fn profile(prep: &Prepared, effects: &[&'static dyn Effect], cfg: &Config) -> Option<LatitudeFit> {
+pub fn profile(
+    prep: &Prepared,
+    effects: &[&'static dyn Effect],
+    cfg: &Config,
+) -> Option<LatitudeFit> {
     let l0 = prep.site.latitude_rad.to_degrees();
     let f0 = evidence_at(prep, effects, cfg, l0)?;
     let f = |l: f64| evidence_at(prep, effects, cfg, l).unwrap_or(f64::INFINITY);
     let lo = (l0 - SEARCH_HALF_WIDTH_DEG).max(-89.0);
     let hi = (l0 + SEARCH_HALF_WIDTH_DEG).min(89.0);
-    let grid: Vec<f64> = (0..=((hi - lo) / 2.0).floor() as usize).map(|k| lo + 2.0 * k as f64).collect();
-    let vals: Vec<f64> = grid.iter().map(|&l| if (l - l0).abs() < 1e-9 { f0 } else { f(l) }).collect();
+    let grid: Vec<f64> = (0..=((hi - lo) / 2.0).floor() as usize)
+        .map(|k| lo + 2.0 * k as f64)
+        .collect();
+    let vals: Vec<f64> = grid
+        .iter()
+        .map(|&l| if (l - l0).abs() < 1e-9 { f0 } else { f(l) })
+        .collect();
     let k = (0..grid.len()).min_by(|&a, &b| vals[a].total_cmp(&vals[b]))?;
     let (mut a, mut b) = ((grid[k] - 2.0).max(lo), (grid[k] + 2.0).min(hi));
     let r = (5f64.sqrt() - 1.0) / 2.0;
@@ -83,13 +97,24 @@ pub fn profile(prep: &Prepared, effects: &[&'static dyn Effect], cfg: &Config) -
     let h = ((b - a).max(1e-3)).min(0.05);
     let (fm, fb, fp) = (f(best - h), f(best), f(best + h));
     let curv = (fp - 2.0 * fb + fm) / (h * h);
-    let sigma_deg = if curv > 0.0 { (2.0 / curv).sqrt() } else { f64::INFINITY };
+    let sigma_deg = if curv > 0.0 {
+        (2.0 / curv).sqrt()
+    } else {
+        f64::INFINITY
+    };
     let mut p = prep.clone();
     p.site = site_at(prep, best);
     let model = build_model(p.site, effects, cfg).ok()?;
     let id = identify(&model, &p, cfg).ok()?;
     let (rms, nis, white) = fit_stats(&id, &p, 20);
-    let consistent = assess(nis, id.innovations.len(), white, rms, &Thresholds::default()).is_consistent();
+    let consistent = assess(
+        nis,
+        id.innovations.len(),
+        white,
+        rms,
+        &Thresholds::default(),
+    )
+    .is_consistent();
     Some(LatitudeFit {
         latitude_deg: best,
         sigma_deg,
@@ -102,7 +127,10 @@ pub fn profile(prep: &Prepared, effects: &[&'static dyn Effect], cfg: &Config) -
 pub fn check(prep: &Prepared, effects: &[&'static dyn Effect], cfg: &Config) -> Option<Finding> {
     let fit = profile(prep, effects, cfg)?;
     let l0 = prep.site.latitude_rad.to_degrees();
-    if !(fit.gain > MIN_GAIN && fit.consistent && (fit.latitude_deg - l0).abs() > 5.0 * fit.sigma_deg) {
+    if !(fit.gain > MIN_GAIN
+        && fit.consistent
+        && (fit.latitude_deg - l0).abs() > 5.0 * fit.sigma_deg)
+    {
         return None;
     }
     Some(Finding {

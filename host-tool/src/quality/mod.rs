@@ -92,7 +92,11 @@ impl std::fmt::Display for Refusal {
             .filter(|x| x.action == Action::Refused)
             .map(|x| x.line())
             .collect();
-        write!(f, "the recording cannot support an estimate: {}", refused.join("; "))?;
+        write!(
+            f,
+            "the recording cannot support an estimate: {}",
+            refused.join("; ")
+        )?;
         let others: Vec<String> = self
             .findings
             .iter()
@@ -168,7 +172,12 @@ pub fn screen(site: Site, samples: &[Sample], period_s: f64) -> Result<Screened,
     let cfg = ScreenConfig::default();
     let mut flags = vec![0u8; samples.len()];
     let Some(sigma0) = robust_sigma(samples, &flags) else {
-        return refuse(findings, "too-few-samples", "fewer than 8 runs of 4 equally spaced finite samples: cannot estimate the noise".into());
+        return refuse(
+            findings,
+            "too-few-samples",
+            "fewer than 8 runs of 4 equally spaced finite samples: cannot estimate the noise"
+                .into(),
+        );
     };
     screening::screen(samples, &sigma0, &cfg, &mut flags);
     let sigma = robust_sigma(samples, &flags).unwrap_or(sigma0);
@@ -211,18 +220,19 @@ pub fn screen(site: Site, samples: &[Sample], period_s: f64) -> Result<Screened,
         .filter(|t| t.is_finite())
         .collect();
     time::check_spacing(&times, &mut findings);
-    let initial_tilt =
-        match physics::check_start(&site, &accepted, period_s, &sigma, &mut findings) {
-            Ok(t) => t,
-            Err(f) => return refuse(findings, f.0, f.1),
-        };
+    let initial_tilt = match physics::check_start(&site, &accepted, period_s, &sigma, &mut findings)
+    {
+        Ok(t) => t,
+        Err(f) => return refuse(findings, f.0, f.1),
+    };
     // 3. Quantisation, the noise at the filter period, and steps in the means.
     let quantum = quantisation(&accepted, &summary, &mut findings);
     let means = window_means(&accepted, period_s, &sigma);
     let mut mean_sigma_override_mps2 = steps::check_mean_noise(&means, &sigma, &mut findings);
     if quantum.iter().any(|q| q.is_some()) {
         let mut over = mean_sigma_override_mps2.unwrap_or_else(|| {
-            let n = means.iter().map(|m| f64::from(m.count)).sum::<f64>() / means.len().max(1) as f64;
+            let n =
+                means.iter().map(|m| f64::from(m.count)).sum::<f64>() / means.len().max(1) as f64;
             sigma.map(|s| s / n.max(1.0).sqrt())
         });
         for (o, q) in over.iter_mut().zip(&quantum) {
@@ -253,7 +263,11 @@ pub const UNDITHERED_REPEAT_RATE: f64 = 0.5;
 /// readings repeat, so the rounding error follows the slowly turning signal and does not average
 /// out over a window. The floor of a mean is then at least q/√12 (not over √n), and the estimate
 /// is not trusted.
-fn quantisation(samples: &[Sample], sum: &ScreenSummary, findings: &mut Vec<Finding>) -> [Option<f64>; 3] {
+fn quantisation(
+    samples: &[Sample],
+    sum: &ScreenSummary,
+    findings: &mut Vec<Finding>,
+) -> [Option<f64>; 3] {
     let mut out = [None; 3];
     for (a, o) in out.iter_mut().enumerate() {
         if sum.repeat_rate[a] <= UNDITHERED_REPEAT_RATE {
@@ -312,7 +326,11 @@ fn robust_sigma(samples: &[Sample], flags: &[u8]) -> Option<[f64; 3]> {
         if steps >= 8 && repeats * 5 > steps {
             let core: Vec<Sample> = a
                 .iter()
-                .map(|f| Sample { t_s: 0.0, specific_force: *f, temp_c: f64::NAN })
+                .map(|f| Sample {
+                    t_s: 0.0,
+                    specific_force: *f,
+                    temp_c: f64::NAN,
+                })
                 .collect();
             if let Some(q) = lsb(&core, ax) {
                 *s = s.max(q / 12f64.sqrt());
@@ -380,7 +398,9 @@ fn group_flags(samples: &[Sample], flags: &[u8], sum: &ScreenSummary) -> Vec<Fin
         let (n, a, b) = times(&|f| f & flag::ZERO != 0);
         out.push(Finding {
             kind: "dropout",
-            message: format!("{n} samples read exactly 0 on every axis (at rest |A| = g): sensor dropouts"),
+            message: format!(
+                "{n} samples read exactly 0 on every axis (at rest |A| = g): sensor dropouts"
+            ),
             start_s: a,
             end_s: b,
             samples: n,
@@ -403,13 +423,18 @@ fn group_flags(samples: &[Sample], flags: &[u8], sum: &ScreenSummary) -> Vec<Fin
             }
         }
         runs.sort_by_key(|(a, b)| std::cmp::Reverse(b - a));
-        let min_run = screening::min_stuck_run(samples.len(), sum.repeat_rate[ax], &ScreenConfig::default());
+        let min_run =
+            screening::min_stuck_run(samples.len(), sum.repeat_rate[ax], &ScreenConfig::default());
         for (i, &(a, b)) in runs.iter().enumerate() {
             if i == 10 {
                 let rest: usize = runs[10..].iter().map(|(a, b)| b - a).sum();
                 out.push(Finding {
                     kind: "stuck",
-                    message: format!("axis {}: {} more stuck runs, {rest} samples", axis_name(ax), runs.len() - 10),
+                    message: format!(
+                        "axis {}: {} more stuck runs, {rest} samples",
+                        axis_name(ax),
+                        runs.len() - 10
+                    ),
                     start_s: None,
                     end_s: None,
                     samples: rest,
@@ -463,10 +488,13 @@ fn group_flags(samples: &[Sample], flags: &[u8], sum: &ScreenSummary) -> Vec<Fin
 }
 
 /// Filter-period means of accepted samples (the core's averager; raw noise `sigma`).
-pub fn window_means(samples: &[Sample], period_s: f64, sigma: &[f64; 3]) -> Vec<estimator_core::Measurement> {
+pub fn window_means(
+    samples: &[Sample],
+    period_s: f64,
+    sigma: &[f64; 3],
+) -> Vec<estimator_core::Measurement> {
     let mut avg = Averager::new(period_s, *sigma);
     let mut out: Vec<_> = samples.iter().filter_map(|s| avg.push(s)).collect();
     out.extend(avg.flush());
     out
 }
-

@@ -117,20 +117,23 @@ pub fn check_start(
     };
     let n = window.len() as f64;
     let t_mid = window.iter().map(|s| s.t_s).sum::<f64>() / n;
-    let a = window
-        .iter()
-        .fold(Vector3::zeros(), |acc, s| acc + Vector3::from(s.specific_force))
-        / n;
+    let a = window.iter().fold(Vector3::zeros(), |acc, s| {
+        acc + Vector3::from(s.specific_force)
+    }) / n;
     let g = a.norm();
     let tilt_deg = (a.z / g).clamp(-1.0, 1.0).acos() / RAD_PER_DEG;
     if tilt_deg > MAX_START_TILT_DEG {
-        let (ax, _) = a.iter().enumerate().fold((0, 0.0), |best, (i, v)| {
-            if v.abs() > best.1 {
-                (i, v.abs())
-            } else {
-                best
-            }
-        });
+        let (ax, _) =
+            a.iter().enumerate().fold(
+                (0, 0.0),
+                |best, (i, v)| {
+                    if v.abs() > best.1 {
+                        (i, v.abs())
+                    } else {
+                        best
+                    }
+                },
+            );
         let sign = if a[ax] < 0.0 { '-' } else { '+' };
         let what = match (ax, sign) {
             (2, '-') => "the z axis is inverted (or the platform is upside down)".to_string(),

@@ -21,7 +21,8 @@ fn third_differences(means: &[Measurement], axis: usize) -> Vec<(usize, f64)> {
     let mut out = vec![];
     for k in 0..means.len().saturating_sub(3) {
         let dt = means[k + 1].t_s - means[k].t_s;
-        let even = (1..3).all(|i| ((means[k + i + 1].t_s - means[k + i].t_s) / dt - 1.0).abs() < 1e-3);
+        let even =
+            (1..3).all(|i| ((means[k + i + 1].t_s - means[k + i].t_s) / dt - 1.0).abs() < 1e-3);
         if even {
             let x = |i: usize| means[k + i].specific_force[axis];
             out.push((k, x(3) - 3.0 * x(2) + 3.0 * x(1) - x(0)));
@@ -61,7 +62,9 @@ pub fn check_mean_noise(
         }
         let emp = robust_sigma(&d) / 20f64.sqrt();
         // The MAD of overlapping third differences: relative 1σ ≈ 2/√N.
-        let tol = MEAN_NOISE_FACTOR.ln().max(6.0 * 2.0 / (d.len() as f64).sqrt());
+        let tol = MEAN_NOISE_FACTOR
+            .ln()
+            .max(6.0 * 2.0 / (d.len() as f64).sqrt());
         if (emp / white).ln().abs() > tol {
             out[a] = emp;
             any.push(format!("{} {:.2}×", axis_name(a), emp / white));
@@ -110,7 +113,9 @@ pub fn check_steps(means: &[Measurement], skip: &[bool; 3], findings: &mut Vec<F
                 while k < d.len() && d[k].0 <= d[start].0 + 4 && d[k].0 - d[start].0 <= 4 {
                     k += 1;
                 }
-                let peak = (start..k).max_by(|&i, &j| d[i].1.abs().total_cmp(&d[j].1.abs())).unwrap_or(start);
+                let peak = (start..k)
+                    .max_by(|&i, &j| d[i].1.abs().total_cmp(&d[j].1.abs()))
+                    .unwrap_or(start);
                 let j = -d[peak].1 / 2.0;
                 let idx = (d[peak].0 + 2).min(means.len() - 1);
                 findings.push(Finding {

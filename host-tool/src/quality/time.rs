@@ -34,9 +34,9 @@ pub fn time_scale(site: &Site, samples: &[Sample]) -> Option<f64> {
     let per = samples.len() / blocks;
     let mean = |k: usize| {
         let chunk = &samples[k * per..(k + 1) * per];
-        let a = chunk
-            .iter()
-            .fold(Vector3::zeros(), |acc, s| acc + Vector3::from(s.specific_force));
+        let a = chunk.iter().fold(Vector3::zeros(), |acc, s| {
+            acc + Vector3::from(s.specific_force)
+        });
         let t = chunk.iter().map(|s| s.t_s).sum::<f64>() / chunk.len() as f64;
         (t, a.normalize())
     };
@@ -136,7 +136,11 @@ pub fn check_spacing(times: &[f64], findings: &mut Vec<Finding>) {
     let gaps: Vec<usize> = (0..dt.len()).filter(|&k| dt[k] > 5.0 * med).collect();
     if !gaps.is_empty() {
         let total: f64 = gaps.iter().map(|&k| dt[k] - med).sum();
-        let longest = gaps.iter().copied().max_by(|&a, &b| dt[a].total_cmp(&dt[b])).unwrap_or(0);
+        let longest = gaps
+            .iter()
+            .copied()
+            .max_by(|&a, &b| dt[a].total_cmp(&dt[b]))
+            .unwrap_or(0);
         findings.push(Finding {
             kind: "time-gap",
             message: format!(
@@ -152,7 +156,10 @@ pub fn check_spacing(times: &[f64], findings: &mut Vec<Finding>) {
         });
     }
     let q = dt.len() / 4;
-    let (first, last) = (median(dt[..q].to_vec()), median(dt[dt.len() - q..].to_vec()));
+    let (first, last) = (
+        median(dt[..q].to_vec()),
+        median(dt[dt.len() - q..].to_vec()),
+    );
     if (first / last - 1.0).abs() > 0.1 {
         findings.push(Finding {
             kind: "sample-rate-change",
