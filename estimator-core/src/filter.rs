@@ -434,7 +434,7 @@ impl<'m, const CAP: usize> Ekf<'m, CAP> {
             rejected: false,
         };
         if let Some(g) = self.gate {
-            if !(nis <= g.nis_max) {
+            if nis.is_nan() || nis > g.nis_max {
                 // Keep the prediction (time and covariance move on), skip the correction.
                 return Ok(Residual {
                     rejected: true,

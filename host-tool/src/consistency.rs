@@ -89,13 +89,16 @@ pub fn assess(
             band[1]
         ));
     }
-    if !(whiteness_p >= t.whiteness_alpha) {
+    if whiteness_p.is_nan() || whiteness_p < t.whiteness_alpha {
         failures.push(format!(
             "the innovations are not white (Ljung–Box p = {whiteness_p:.1e} < {:.0e})",
             t.whiteness_alpha
         ));
     }
-    if rms_over_floor.iter().any(|r| !(*r < t.max_rms_over_floor)) {
+    if rms_over_floor
+        .iter()
+        .any(|r| r.is_nan() || *r >= t.max_rms_over_floor)
+    {
         failures.push(format!(
             "the residual RMS is [{:.3}, {:.3}, {:.3}] × the noise floor (limit {:.2})",
             rms_over_floor[0], rms_over_floor[1], rms_over_floor[2], t.max_rms_over_floor

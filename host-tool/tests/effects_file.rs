@@ -533,7 +533,12 @@ fn acc_k2_from_the_file_is_found_by_diagnose() {
     // Registering the same file twice is a name clash.
     assert!(load_and_register(&[example_file()]).is_err());
 
-    let (diagnoses, rungs, id, effects) = ladder(&prep, &[catalog::paper()], &cfg).unwrap();
+    let host_tool::diagnose::Ladder {
+        diagnoses,
+        rungs,
+        identification: id,
+        effects,
+    } = ladder(&prep, &[catalog::paper()], &cfg).unwrap();
     let first = &diagnoses[0];
     assert!(
         first.residual_rms_over_floor.iter().any(|r| *r > 1.1),

@@ -34,6 +34,9 @@ fn run(
     (sc, samples)
 }
 
+/// A change applied to a copy of the clean samples.
+type Mutation = Box<dyn Fn(&mut Vec<Sample>)>;
+
 fn site_of(sc: &Scenario) -> Site {
     Site::new(sc.latitude_deg, sc.gravity_mps2)
 }
@@ -215,7 +218,7 @@ fn a_tilted_start_gives_the_coefficients_of_a_level_one() {
 fn unrepairable_faults_are_refused_or_not_trusted() {
     let (sc, clean) = run(11, 39.1, 12.0, 1.0, [0.0; 3]);
     let site = site_of(&sc);
-    let refused: Vec<(&str, &str, Box<dyn Fn(&mut Vec<Sample>)>)> = vec![
+    let refused: Vec<(&str, &str, Mutation)> = vec![
         (
             "dead sensor",
             "dead-axis",

@@ -42,7 +42,12 @@ fn check(effect: &str, spec: &str, seed: u64) {
         ..Default::default()
     };
     let prep = prepare(site, &samples, &Config::default()).unwrap();
-    let (diagnoses, rungs, id, _) = ladder(&prep, &[catalog::paper()], &cfg).unwrap();
+    let host_tool::diagnose::Ladder {
+        diagnoses,
+        rungs,
+        identification: id,
+        ..
+    } = ladder(&prep, &[catalog::paper()], &cfg).unwrap();
     let first = &diagnoses[0];
     assert!(
         first.residual_rms_over_floor.iter().any(|r| *r > 1.3),
@@ -166,8 +171,9 @@ fn clean_data_raises_no_alarm() {
         .collect();
     let site = estimator_core::Site::new(sc.latitude_deg, sc.gravity_mps2);
     let prep = prepare(site, &samples, &Config::default()).unwrap();
-    let (diagnoses, rungs, _, _) =
-        ladder(&prep, &[catalog::paper()], &DiagnoseConfig::default()).unwrap();
+    let host_tool::diagnose::Ladder {
+        diagnoses, rungs, ..
+    } = ladder(&prep, &[catalog::paper()], &DiagnoseConfig::default()).unwrap();
     assert_eq!(rungs.len(), 1, "a clean run must not climb the ladder");
     let d = &diagnoses[0];
     for c in d.ranking.iter().filter(|c| c.untestable.is_none()) {

@@ -80,7 +80,7 @@ fn qemu_resets_at_random_points_end_with_the_uninterrupted_estimates() {
         .arg("-monitor")
         .arg(format!("unix:{},server=on,wait=off", sock.display()))
         .args(["-serial", &pty.slave_path, "-kernel"])
-        .arg(&elf)
+        .arg(elf)
         .stdin(Stdio::null())
         .stdout(Stdio::null())
         .stderr(Stdio::null())

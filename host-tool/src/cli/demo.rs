@@ -115,7 +115,7 @@ pub fn run(args: &DemoArgs) -> anyhow::Result<()> {
 /// it and the residual falls to the noise floor.
 fn hidden_effect_story(seed: u64) -> anyhow::Result<()> {
     use crate::cli::diagnose::{print_diagnosis, print_ladder};
-    use crate::diagnose::{ladder, DiagnoseConfig};
+    use crate::diagnose::{ladder, DiagnoseConfig, Ladder};
     let mut sc = Scenario::paper();
     sc.seed = seed + 100;
     sc.rate_s = 10.0;
@@ -141,7 +141,9 @@ fn hidden_effect_story(seed: u64) -> anyhow::Result<()> {
     let site = estimator_core::Site::new(sc.latitude_deg, sc.gravity_mps2);
     let cfg = DiagnoseConfig::default();
     let prep = prepare(site, &samples, &cfg.identify)?;
-    let (diagnoses, rungs, _, _) = ladder(&prep, &[catalog::paper()], &cfg)?;
+    let Ladder {
+        diagnoses, rungs, ..
+    } = ladder(&prep, &[catalog::paper()], &cfg)?;
     for d in &diagnoses {
         print_diagnosis(d);
         println!();

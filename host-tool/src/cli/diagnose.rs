@@ -9,7 +9,7 @@ use anyhow::Context as _;
 
 use super::common::{load, print_findings, trusted_or, ModelArgs};
 use crate::catalog;
-use crate::diagnose::{ladder, DiagnoseConfig, Diagnosis, Rung};
+use crate::diagnose::{ladder, DiagnoseConfig, Diagnosis, Ladder, Rung};
 use crate::format::{p_or_ln, pm, sci};
 use crate::identify::prepare;
 
@@ -236,7 +236,9 @@ pub fn run(args: &DiagnoseArgs) -> anyhow::Result<()> {
         cfg.max_rungs = 1;
     }
     let spin = crate::progress::spinner("identifying, diagnosing and climbing the model ladder");
-    let (diagnoses, rungs, _, _) = ladder(&prep, &effects, &cfg)?;
+    let Ladder {
+        diagnoses, rungs, ..
+    } = ladder(&prep, &effects, &cfg)?;
     spin.finish_and_clear();
     let last = diagnoses.last().map(|d| d.consistency.clone());
     let mut reasons = faults.clone();

@@ -5,7 +5,7 @@ use std::path::PathBuf;
 use super::common::{load, ModelArgs};
 use super::identify::rows;
 use crate::catalog;
-use crate::diagnose::{ladder, DiagnoseConfig};
+use crate::diagnose::{ladder, DiagnoseConfig, Ladder};
 use crate::identify::prepare;
 use crate::output;
 use crate::report::{render_html, write_pngs, CoefRow, ReportInput};
@@ -48,7 +48,12 @@ pub fn run(args: &ReportArgs) -> anyhow::Result<()> {
     let effects = catalog::model_effects(&args.model.with)?;
     let prep = prepare(loaded.site, &loaded.samples, &cfg.identify)?;
     let spin = crate::progress::spinner("identifying, diagnosing and climbing the model ladder");
-    let (diagnoses, rungs, id, final_effects) = ladder(&prep, &effects, &cfg)?;
+    let Ladder {
+        diagnoses,
+        rungs,
+        identification: id,
+        effects: final_effects,
+    } = ladder(&prep, &effects, &cfg)?;
     spin.finish_and_clear();
     let model = super::common::build_model(prep.site, &final_effects, &cfg.identify)?;
     let truth = match &args.truth {

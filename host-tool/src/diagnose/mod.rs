@@ -617,19 +617,25 @@ pub fn correlations(s: &Series, temp_dev: &[f64]) -> Vec<RegressorCorrelation> {
         .collect()
 }
 
-/// The model ladder: start from `start` effects, diagnose, add the significant leader, repeat
-/// until no candidate is significant (or `max_rungs`). Returns every rung's diagnosis, the rung
-/// summaries, the final identification and the final effect list.
+/// What the model ladder produces.
+pub struct Ladder {
+    /// Every rung's diagnosis, the starting model first.
+    pub diagnoses: Vec<Diagnosis>,
+    /// The rung summaries (the same order).
+    pub rungs: Vec<Rung>,
+    /// The final model's identification.
+    pub identification: Identification,
+    /// The final model's effects (the paper's drift first).
+    pub effects: Vec<&'static dyn Effect>,
+}
+
+/// The model ladder: start from `start` effects, diagnose, add the effect the evidence chooses,
+/// repeat until nothing earns its place (or `max_rungs`).
 pub fn ladder(
     prep: &Prepared,
     start: &[&'static dyn Effect],
     cfg: &DiagnoseConfig,
-) -> anyhow::Result<(
-    Vec<Diagnosis>,
-    Vec<Rung>,
-    Identification,
-    Vec<&'static dyn Effect>,
-)> {
+) -> anyhow::Result<Ladder> {
     let mut effects = start.to_vec();
     let mut diagnoses = vec![];
     let mut rungs: Vec<Rung> = vec![];
@@ -691,7 +697,14 @@ pub fn ladder(
                 }
                 effects.push(e);
             }
-            None => return Ok((diagnoses, rungs, id, effects)),
+            None => {
+                return Ok(Ladder {
+                    diagnoses,
+                    rungs,
+                    identification: id,
+                    effects,
+                })
+            }
         }
     }
 }

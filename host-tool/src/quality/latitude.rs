@@ -94,7 +94,7 @@ pub fn profile(
     }
     let best = 0.5 * (a + b);
     // Curvature from a symmetric three-point stencil: −2 ln p ≈ const + (L − L̂)²/σ².
-    let h = ((b - a).max(1e-3)).min(0.05);
+    let h = (b - a).clamp(1e-3, 0.05);
     let (fm, fb, fp) = (f(best - h), f(best), f(best + h));
     let curv = (fp - 2.0 * fb + fm) / (h * h);
     let sigma_deg = if curv > 0.0 {
