@@ -24,6 +24,10 @@ pub struct DiagnoseArgs {
     /// Only diagnose the given model; do not climb the ladder.
     #[arg(long)]
     pub no_ladder: bool,
+    /// Write the residual time series of every rung as CSV into this folder (units in the
+    /// headers; for MATLAB, pandas): rung0.csv, rung1.csv, … and rungs.csv.
+    #[arg(long, value_name = "DIR")]
+    pub export: Option<PathBuf>,
     #[command(flatten)]
     pub model: ModelArgs,
 }
@@ -186,18 +190,24 @@ pub fn print_ladder(rungs: &[Rung]) {
         if !last.effect_params.is_empty() {
             println!("  added effects' parameters (last model):");
             for (name, unit, v, s) in &last.effect_params {
-                println!("    {name:<8} {} {unit}", pm(*v, *s));
+                let resolved = if v.abs() < 2.0 * s {
+                    "  (not resolved by this run: |value| < 2σ)"
+                } else {
+                    ""
+                };
+                println!("    {name:<8} {} {unit}{resolved}", pm(*v, *s));
             }
         }
     }
     if rungs.len() > 1 {
         let (a, b) = (&rungs[0], &rungs[rungs.len() - 1]);
-        println!("  drift coefficients, first → last model (1σ of the last):");
-        for ((name, v0, _), (_, v1, s1)) in a.coefficients.iter().zip(&b.coefficients) {
+        println!("  drift coefficients, first → last model (1σ of the last; how much the added effects widen it):");
+        for ((name, v0, s0), (_, v1, s1)) in a.coefficients.iter().zip(&b.coefficients) {
             println!(
-                "    {name:<4} {v0:>12.6} → {}  (moved {:+.1} σ)",
+                "    {name:<4} {v0:>12.6} → {}  (moved {:+.1} σ; 1σ ×{:.1})",
                 pm(*v1, *s1),
-                (v1 - v0) / s1
+                (v1 - v0) / s1,
+                s1 / s0
             );
         }
     }
@@ -240,6 +250,9 @@ pub fn run(args: &DiagnoseArgs) -> anyhow::Result<()> {
         diagnoses, rungs, ..
     } = ladder(&prep, &effects, &cfg)?;
     spin.finish_and_clear();
+    if let Some(dir) = &args.export {
+        export(dir, &diagnoses)?;
+    }
     let last = diagnoses.last().map(|d| d.consistency.clone());
     let mut reasons = faults.clone();
     if let Some(c) = &last {
@@ -301,4 +314,72 @@ pub fn run(args: &DiagnoseArgs) -> anyhow::Result<()> {
         }
     }
     trusted_or(reasons)
+}
+
+/// Writes each rung's series (`rungK.csv`) and a summary (`rungs.csv`) into `dir`, each file
+/// whole or not at all.
+pub fn export(dir: &std::path::Path, diagnoses: &[Diagnosis]) -> anyhow::Result<()> {
+    use std::fmt::Write as _;
+    std::fs::create_dir_all(dir).with_context(|| format!("{}", dir.display()))?;
+    let mut index = String::from(
+        "rung,model,rms_over_floor_x,rms_over_floor_y,rms_over_floor_z,nis_mean,whiteness_p,consistent\n",
+    );
+    for (k, d) in diagnoses.iter().enumerate() {
+        let model = if d.model.is_empty() {
+            "paper".to_string()
+        } else {
+            format!("paper+{}", d.model.join("+"))
+        };
+        let _ = writeln!(
+            index,
+            "{k},{model},{},{},{},{},{},{}",
+            d.residual_rms_over_floor[0],
+            d.residual_rms_over_floor[1],
+            d.residual_rms_over_floor[2],
+            d.nis_mean,
+            d.whiteness.p_value,
+            d.consistency.is_consistent()
+        );
+        let s = &d.series;
+        let mut csv = String::new();
+        let _ = write!(csv, "t_h");
+        for q in [
+            "measured",
+            "predicted",
+            "residual",
+            "innovation",
+            "innovation_sigma",
+        ] {
+            for a in ["x", "y", "z"] {
+                let _ = write!(csv, ",{q}_{a}_mps2");
+            }
+        }
+        let _ = writeln!(csv, ",whitened_x,whitened_y,whitened_z,nis");
+        for j in 0..s.t_h.len() {
+            let _ = write!(csv, "{}", s.t_h[j]);
+            for q in [
+                &s.measured,
+                &s.predicted,
+                &s.residual,
+                &s.innovation,
+                &s.innovation_sigma,
+            ] {
+                for v in q[j] {
+                    let _ = write!(csv, ",{v}");
+                }
+            }
+            for v in s.whitened[j] {
+                let _ = write!(csv, ",{v}");
+            }
+            let _ = writeln!(csv, ",{}", s.nis[j]);
+        }
+        crate::output::write_atomic(&dir.join(format!("rung{k}.csv")), csv.as_bytes())?;
+    }
+    crate::output::write_atomic(&dir.join("rungs.csv"), index.as_bytes())?;
+    println!(
+        "wrote {} rung files and rungs.csv to {}",
+        diagnoses.len(),
+        dir.display()
+    );
+    Ok(())
 }
