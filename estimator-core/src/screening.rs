@@ -271,53 +271,255 @@ fn flag_outliers(
     sigma: f64,
     cfg: &ScreenConfig,
 ) -> usize {
-    let h = cfg.half_window.clamp(2, MAX_HALF_WINDOW);
-    if sigma.is_nan() || sigma <= 0.0 {
-        return 0;
-    }
     let mut count = 0;
-    let mut l: Window = ([0.0; MAX_HALF_WINDOW], [0.0; MAX_HALF_WINDOW]);
-    let mut r: Window = ([0.0; MAX_HALF_WINDOW], [0.0; MAX_HALF_WINDOW]);
     for i in 0..s.len() {
-        if flags[i] & (flag::NON_FINITE | flag::ZERO | flag::STUCK) != 0 {
-            continue;
-        }
-        let nl = side(s, flags, i, a, h, true, &mut l);
-        let nr = side(s, flags, i, a, h, false, &mut r);
-        let ((lv, lt), (rv, rt)) = (&mut l, &mut r);
-        // Each side's median value and median time (times are increasing: the middle one).
-        let (pred, var_factor) = if nl >= 3 && nr >= 3 {
-            let (ml, mr) = (median(&mut lv[..nl]), median(&mut rv[..nr]));
-            let (tl, tr) = (median(&mut lt[..nl]), median(&mut rt[..nr]));
-            let u = if tr > tl {
-                (s[i].t_s - tl) / (tr - tl)
-            } else {
-                0.5
-            };
-            // Prediction = (1−u)·ml + u·mr; a median of m samples has variance ≈ (π/2)σ²/m.
-            let v = core::f64::consts::FRAC_PI_2
-                * ((1.0 - u) * (1.0 - u) / nl as f64 + u * u / nr as f64);
-            ((1.0 - u) * ml + u * mr, v)
-        } else if nl + nr >= 3 {
-            // Too few on one side (record edge, long gap): the other side's median, no slope —
-            // valid only where the signal is locally flat, so widen the threshold by the spread.
-            let (vals, m) = if nl >= nr { (lv, nl) } else { (rv, nr) };
-            let md = median(&mut vals[..m]);
-            let spread = vals[..m]
-                .iter()
-                .fold(0.0f64, |acc, v| acc.max(libm::fabs(v - md)));
-            let extra = spread / sigma;
-            (md, core::f64::consts::FRAC_PI_2 / m as f64 + extra * extra)
-        } else {
-            continue;
-        };
-        let d = libm::fabs(s[i].specific_force[a] - pred);
-        if d > cfg.outlier_k * sigma * libm::sqrt(1.0 + var_factor) {
+        if outlier_at(s, flags, i, a, sigma, cfg) {
             flags[i] |= flag::OUTLIER | axis_bit(a);
             count += 1;
         }
     }
     count
+}
+
+/// Whether sample `i` of `s` is an outlier on axis `a` against the robust local line through its
+/// neighbours' medians (the one outlier test, used by [`screen`] and [`Screener`]).
+pub fn outlier_at(
+    s: &[Sample],
+    flags: &[u8],
+    i: usize,
+    a: usize,
+    sigma: f64,
+    cfg: &ScreenConfig,
+) -> bool {
+    let h = cfg.half_window.clamp(2, MAX_HALF_WINDOW);
+    if sigma.is_nan()
+        || sigma <= 0.0
+        || flags[i] & (flag::NON_FINITE | flag::ZERO | flag::STUCK) != 0
+    {
+        return false;
+    }
+    let mut l: Window = ([0.0; MAX_HALF_WINDOW], [0.0; MAX_HALF_WINDOW]);
+    let mut r: Window = ([0.0; MAX_HALF_WINDOW], [0.0; MAX_HALF_WINDOW]);
+    let nl = side(s, flags, i, a, h, true, &mut l);
+    let nr = side(s, flags, i, a, h, false, &mut r);
+    let ((lv, lt), (rv, rt)) = (&mut l, &mut r);
+    // Each side's median value and median time (times are increasing: the middle one).
+    let (pred, var_factor) = if nl >= 3 && nr >= 3 {
+        let (ml, mr) = (median(&mut lv[..nl]), median(&mut rv[..nr]));
+        let (tl, tr) = (median(&mut lt[..nl]), median(&mut rt[..nr]));
+        let u = if tr > tl {
+            (s[i].t_s - tl) / (tr - tl)
+        } else {
+            0.5
+        };
+        // Prediction = (1−u)·ml + u·mr; a median of m samples has variance ≈ (π/2)σ²/m.
+        let v =
+            core::f64::consts::FRAC_PI_2 * ((1.0 - u) * (1.0 - u) / nl as f64 + u * u / nr as f64);
+        ((1.0 - u) * ml + u * mr, v)
+    } else if nl + nr >= 3 {
+        // Too few on one side (record edge, long gap): the other side's median, no slope —
+        // valid only where the signal is locally flat, so widen the threshold by the spread.
+        let (vals, m) = if nl >= nr { (lv, nl) } else { (rv, nr) };
+        let md = median(&mut vals[..m]);
+        let spread = vals[..m]
+            .iter()
+            .fold(0.0f64, |acc, v| acc.max(libm::fabs(v - md)));
+        let extra = spread / sigma;
+        (md, core::f64::consts::FRAC_PI_2 / m as f64 + extra * extra)
+    } else {
+        return false;
+    };
+    let d = libm::fabs(s[i].specific_force[a] - pred);
+    d > cfg.outlier_k * sigma * libm::sqrt(1.0 + var_factor)
+}
+
+/// Samples a [`Screener`] holds: the sample under test and `MAX_HALF_WINDOW` on each side.
+pub const STREAM_WINDOW: usize = 2 * MAX_HALF_WINDOW + 1;
+
+/// The same screening for a stream of samples (the firmware): each sample comes out
+/// `half_window` samples later with its flags, judged by [`outlier_at`] on the same neighbours
+/// the batch [`screen`] uses. Stuck runs are counted as they grow, with the threshold of
+/// [`min_stuck_run`] for the repeat rate seen so far (at least `expected_samples` samples are
+/// assumed, so an early run is not judged on a tiny record); the first samples of a run longer
+/// than the window are already out when it is recognised, so they pass. A stream cannot see
+/// where a run ends, so the batch's test for coarsely quantised outputs (did the signal move
+/// while the run lasted?) is not available: the stream assumes outputs finer than the noise (the
+/// ADXL355's 20-bit LSB, 3.9 µg, is well below its noise) and skips stuck detection on an axis
+/// whose repeat rate says otherwise. No heap.
+#[derive(Clone, Debug)]
+pub struct Screener {
+    cfg: ScreenConfig,
+    sigma: [f64; 3],
+    expected_samples: usize,
+    buf: [Sample; STREAM_WINDOW],
+    flags: [u8; STREAM_WINDOW],
+    len: usize,
+    emitted: usize,
+    run: [usize; 3],
+    steps: usize,
+    repeats: [usize; 3],
+    /// Counts of what was flagged so far.
+    pub summary: ScreenSummary,
+}
+
+impl Screener {
+    /// A screener for raw noise 1σ `sigma` (m/s², per axis), expecting about `expected_samples`
+    /// samples in a run (for the stuck-run threshold).
+    pub fn new(sigma: [f64; 3], cfg: ScreenConfig, expected_samples: usize) -> Self {
+        let blank = Sample {
+            t_s: 0.0,
+            specific_force: [0.0; 3],
+            temp_c: f64::NAN,
+        };
+        Screener {
+            cfg,
+            sigma,
+            expected_samples,
+            buf: [blank; STREAM_WINDOW],
+            flags: [0; STREAM_WINDOW],
+            len: 0,
+            emitted: 0,
+            run: [0; 3],
+            steps: 0,
+            repeats: [0; 3],
+            summary: ScreenSummary::default(),
+        }
+    }
+
+    fn h(&self) -> usize {
+        self.cfg.half_window.clamp(2, MAX_HALF_WINDOW)
+    }
+
+    /// Adds a sample; returns the sample `half_window` back with its flags once it has its right
+    /// neighbours (0 = accepted).
+    pub fn push(&mut self, s: Sample) -> Option<(Sample, u8)> {
+        let h = self.h();
+        if self.len == STREAM_WINDOW {
+            self.drop_front();
+        }
+        let mut f = 0;
+        if s.specific_force.iter().any(|v| !v.is_finite()) || !s.t_s.is_finite() {
+            f |= flag::NON_FINITE;
+        } else if s.specific_force.iter().all(|v| *v == 0.0) {
+            f |= flag::ZERO;
+        }
+        let prev = self
+            .len
+            .checked_sub(1)
+            .map(|k| (self.buf[k], self.flags[k]));
+        self.buf[self.len] = s;
+        self.flags[self.len] = f;
+        self.len += 1;
+        self.track_runs(prev, s, f);
+        // The oldest sample not yet out has its h right neighbours now: judge and emit it.
+        let out = if self.len - self.emitted > h {
+            Some(self.emit_next())
+        } else {
+            None
+        };
+        // Keep h already-emitted samples as left neighbours.
+        while self.emitted > h {
+            self.drop_front();
+        }
+        out
+    }
+
+    fn track_runs(&mut self, prev: Option<(Sample, u8)>, s: Sample, f: u8) {
+        let Some((p, pf)) = prev else {
+            self.run = [1; 3];
+            return;
+        };
+        if f & flag::NON_FINITE == 0 && pf & flag::NON_FINITE == 0 {
+            self.steps += 1;
+        }
+        for a in 0..3 {
+            let same = f & flag::NON_FINITE == 0
+                && pf & flag::NON_FINITE == 0
+                && p.specific_force[a] == s.specific_force[a];
+            self.run[a] = if same { self.run[a] + 1 } else { 1 };
+            // Repeats inside a run already suspicious do not raise the rate the run is judged by.
+            if same && self.run[a] < self.cfg.min_stuck_run {
+                self.repeats[a] += 1;
+            }
+        }
+        let n = self.expected_samples.max(self.steps + 1);
+        for a in 0..3 {
+            let rate = self.repeats[a] as f64 / self.steps.max(1) as f64;
+            // Coarse quantisation: the batch screening asks whether the signal moved during the
+            // run, which a stream cannot see before the run ends; it is not judged here.
+            if rate >= QUANTISED_REPEAT_RATE {
+                continue;
+            }
+            if self.run[a] >= min_stuck_run(n, rate, &self.cfg) {
+                let back = self.run[a].min(self.len);
+                for k in self.len - back..self.len {
+                    self.flags[k] |= flag::STUCK | axis_bit(a);
+                }
+            }
+        }
+    }
+
+    fn drop_front(&mut self) {
+        self.buf.copy_within(1..self.len, 0);
+        self.flags.copy_within(1..self.len, 0);
+        self.len -= 1;
+        self.emitted = self.emitted.saturating_sub(1);
+    }
+
+    /// Judges and emits the oldest sample not yet out.
+    fn emit_next(&mut self) -> (Sample, u8) {
+        let i = self.emitted;
+        self.judge(i);
+        self.emitted += 1;
+        let (s, f) = (self.buf[i], self.flags[i]);
+        self.count(f);
+        (s, f)
+    }
+
+    fn judge(&mut self, i: usize) {
+        for a in 0..3 {
+            if outlier_at(
+                &self.buf[..self.len],
+                &self.flags[..self.len],
+                i,
+                a,
+                self.sigma[a],
+                &self.cfg,
+            ) {
+                self.flags[i] |= flag::OUTLIER | axis_bit(a);
+            }
+        }
+    }
+
+    fn count(&mut self, f: u8) {
+        let sum = &mut self.summary;
+        if f & flag::NON_FINITE != 0 {
+            sum.non_finite += 1;
+        }
+        if f & flag::ZERO != 0 {
+            sum.zero += 1;
+        }
+        for a in 0..3 {
+            if f & axis_bit(a) != 0 {
+                if f & flag::STUCK != 0 {
+                    sum.stuck[a] += 1;
+                } else {
+                    sum.outliers[a] += 1;
+                }
+            }
+        }
+        if f != 0 {
+            sum.rejected += 1;
+        }
+    }
+
+    /// Emits every sample still held (end of the run), judged with the neighbours there are.
+    pub fn flush(&mut self, mut emit: impl FnMut(Sample, u8)) {
+        while self.emitted < self.len {
+            let (s, f) = self.emit_next();
+            emit(s, f);
+        }
+    }
 }
 
 #[cfg(test)]
@@ -381,6 +583,45 @@ mod tests {
         assert_eq!(sum.non_finite, 1);
         // Nothing else: 1 + 1 outliers, 40 stuck, 1 zero, 1 NaN.
         assert_eq!(sum.rejected, 44, "{sum:?}");
+    }
+
+    #[test]
+    fn the_stream_flags_what_the_batch_flags() {
+        // The firmware's streaming screener and the host's batch screening on the same faults.
+        let mut s = signal(2000, 7e-4);
+        s[100].specific_force[0] += 0.05;
+        s[1999].specific_force[2] -= 0.05;
+        for k in 500..540 {
+            s[k].specific_force[1] = s[500].specific_force[1];
+        }
+        s[700].specific_force = [0.0; 3];
+        s[900].specific_force[2] = f64::NAN;
+        let mut batch = [0u8; 2000];
+        let sum = screen(&s, &[7e-4; 3], &ScreenConfig::default(), &mut batch);
+        let mut st = Screener::new([7e-4; 3], ScreenConfig::default(), 2000);
+        let mut stream = [0u8; 2000];
+        let mut k = 0;
+        for x in s.iter() {
+            if let Some((_, f)) = st.push(*x) {
+                stream[k] = f;
+                k += 1;
+            }
+        }
+        st.flush(|_, f| {
+            stream[k] = f;
+            k += 1;
+        });
+        assert_eq!(k, 2000);
+        for i in 0..2000 {
+            assert_eq!(
+                stream[i] != 0,
+                batch[i] != 0,
+                "sample {i}: {} vs {}",
+                stream[i],
+                batch[i]
+            );
+        }
+        assert_eq!(st.summary.rejected, sum.rejected);
     }
 
     #[test]
