@@ -53,6 +53,8 @@ pub(crate) struct Unstuffer {
 impl Clone for Unstuffer {
     fn clone(&self) -> Self {
         use ::cobs::DecoderState::{Grab, GrabChain, Idle};
+        // Not a needless match: the crate's DecoderState is not Clone, so it is rebuilt.
+        #[allow(clippy::needless_match)]
         let state = match self.state {
             Idle => Idle,
             Grab(n) => Grab(n),

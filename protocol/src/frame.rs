@@ -237,7 +237,7 @@ impl Decoder {
             return Err(DecodeError::Version(body[0]));
         }
         match postcard::take_from_bytes::<Packet>(body) {
-            Ok((p, rest)) if rest.is_empty() => Ok(p),
+            Ok((p, [])) => Ok(p),
             _ => Err(DecodeError::Malformed),
         }
     }

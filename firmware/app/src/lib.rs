@@ -8,7 +8,10 @@
 //! - [`app`]: the loop: commands and replayed samples from the link, sampling at a fixed rate,
 //!   rejection and counting of invalid samples, averaging, the real-time EKF, telemetry,
 //!   checkpoints and resume after a reset.
-//! - [`checkpoints`]: double-buffered checkpoint storage over NOR flash.
+//! - [`checkpoints`]: the append-only checkpoint log over NOR flash (few erases, power-loss safe).
+//! - [`resume`]: the resume block (one documented layout) stored with the filter image.
+//! - [`screen`]: sample screening (NaN/∞, saturation, time order, stuck axes).
+//! - [`counters`]: what the application counts, incremented in one place.
 #![no_std]
 #![warn(missing_docs)]
 
@@ -16,6 +19,9 @@ pub mod accel;
 pub mod adxl355;
 pub mod app;
 pub mod checkpoints;
+pub mod counters;
+pub mod resume;
+pub mod screen;
 
 pub use accel::{AccelSample, Accelerometer, NoSensor};
 pub use app::{App, Event, NoTimer, Platform, SampleTimer, Tick};
