@@ -12,6 +12,8 @@
 //! - [`resume`]: the resume block (one documented layout) stored with the filter image.
 //! - [`screen`]: sample screening (NaN/∞, saturation, time order, stuck axes).
 //! - [`counters`]: what the application counts, incremented in one place.
+//! - [`serial`]: the receive ring the UART interrupt fills, so no byte is lost while the loop
+//!   is blocked (flash erase, filter step).
 #![no_std]
 #![warn(missing_docs)]
 
@@ -22,6 +24,7 @@ pub mod checkpoints;
 pub mod counters;
 pub mod resume;
 pub mod screen;
+pub mod serial;
 
 pub use accel::{AccelSample, Accelerometer, NoSensor};
 pub use app::{App, Event, NoTimer, Platform, SampleTimer, Tick};
