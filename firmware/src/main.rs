@@ -2,7 +2,7 @@
 //!
 //! Boards (one per build, chosen by feature):
 //! - default: the STM32H743 navigation computer (`board/stm32h743.rs`): USART3 link, ADXL355 on
-//!   SPI1, SysTick sample timer, DWT cycle counter; memory map `memory.x` at the repo root.
+//!   SPI1, SysTick sample timer, DWT cycle counter; memory map `firmware/memory.x`.
 //! - `board-qemu`: QEMU `mps2-an500` (`board/qemu.rs`): CMSDK UART0 link, no sensor (samples come
 //!   by replay), SysTick tick counter, semihosting exit codes; memory map `memory-qemu.x`.
 //!
@@ -61,6 +61,17 @@ fn main() -> ! {
 fn crash_test() {
     #[cfg(feature = "crash-panic")]
     panic!("crash test: deliberate panic");
+    #[cfg(feature = "crash-stackoverflow")]
+    {
+        // Unbounded recursion with a live frame per call: runs the stack off the start of RAM.
+        #[inline(never)]
+        #[allow(unconditional_recursion)] // the point: it never returns
+        fn deeper(n: u32) -> u32 {
+            let frame = core::hint::black_box([n; 64]);
+            deeper(n + 1).wrapping_add(frame[(n % 64) as usize])
+        }
+        let _ = deeper(0);
+    }
     #[cfg(feature = "crash-hardfault")]
     // SAFETY: deliberately not safe: an undefined instruction raises a fault (escalated to
     // HardFault, the only fault handler enabled).

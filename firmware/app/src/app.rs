@@ -657,7 +657,7 @@ where
                 self.send(Message::Fault(Fault::new(
                     FaultCode::Filter,
                     step,
-                    format_args!("{e}"),
+                    format_args!("{}", FilterFault(e)),
                 )));
             }
         }
@@ -704,6 +704,51 @@ where
         if let Ok(frame) = self.encoder.frame(msg) {
             let _ = self.serial.write_all(frame);
             counters::bump(&mut self.counters, Count::FramesTx);
+        }
+    }
+}
+
+/// A filter error for the fault frame, without floating-point formatting (which would link
+/// ~15 KB of `core::fmt::float` into the firmware): times in whole milliseconds.
+struct FilterFault(estimator_core::FilterError);
+
+impl core::fmt::Display for FilterFault {
+    fn fmt(&self, f: &mut core::fmt::Formatter<'_>) -> core::fmt::Result {
+        use estimator_core::FilterError as E;
+        let ms = |t: f64| (t * 1e3) as i64; // saturating; NaN -> 0
+        match self.0 {
+            E::TimeNotIncreasing {
+                step,
+                t_s,
+                filter_t_s,
+            } => write!(
+                f,
+                "step {step}: measurement at t = {} ms is not after the filter time {} ms",
+                ms(t_s),
+                ms(filter_t_s)
+            ),
+            // The core's texts, repeated: calling its Display would link its float formatting.
+            E::Capacity { needed, capacity } => write!(
+                f,
+                "model needs {needed} states, filter capacity is {capacity}"
+            ),
+            E::Dimension { expected, got } => write!(f, "expected {expected} values, got {got}"),
+            E::BadMeasurement { step } => write!(
+                f,
+                "step {step}: measurement or its variance is not finite and positive"
+            ),
+            E::SingularInnovation { step } => write!(
+                f,
+                "step {step}: innovation covariance is not positive definite"
+            ),
+            E::Unhealthy { step, index } => write!(
+                f,
+                "step {step}: covariance or state unhealthy at state {index}"
+            ),
+            E::RejectionRun { step, count } => write!(
+                f,
+                "step {step}: {count} consecutive measurements failed the innovation gate"
+            ),
         }
     }
 }

@@ -31,6 +31,9 @@ use protocol::{Board, Fault, FaultCode};
 
 const CORE_HZ: u32 = 64_000_000;
 
+/// Start of RAM (memory.x: AXI SRAM): the bottom of the stack under flip-link.
+pub const RAM_ORIGIN: usize = 0x2400_0000;
+
 // RCC
 const RCC: usize = 0x5802_4400;
 const RCC_D2CCIP1R: usize = RCC + 0x050;
@@ -354,7 +357,11 @@ pub fn init() -> Parts {
             };
             (
                 Sensor(None),
-                Some(Fault::new(code, 0, format_args!("ADXL355: {e:?}"))),
+                Some(Fault::new(
+                    code,
+                    0,
+                    format_args!("ADXL355: {}", SensorFault(&e)),
+                )),
             )
         }
     };
@@ -371,6 +378,27 @@ pub fn init() -> Parts {
         platform: Stm32h743,
         storage: Flash::take(),
         boot_fault,
+    }
+}
+
+/// A sensor error for the boot fault, without floating-point formatting (~15 KB of
+/// `core::fmt::float` otherwise): the self-test response in milli-g.
+struct SensorFault<'a>(&'a adxl355::Error<SpiError>);
+
+impl core::fmt::Display for SensorFault<'_> {
+    fn fmt(&self, f: &mut core::fmt::Formatter<'_>) -> core::fmt::Result {
+        match self.0 {
+            adxl355::Error::Spi(_) => write!(f, "SPI error"),
+            adxl355::Error::BadId(id) => {
+                write!(f, "bad id {:02x} {:02x} {:02x}", id[0], id[1], id[2])
+            }
+            adxl355::Error::SelfTest { axis, response_g } => write!(
+                f,
+                "self-test axis {axis}: response {} mg out of limits",
+                (response_g * 1e3) as i64
+            ),
+            adxl355::Error::NotReady => write!(f, "no new data"),
+        }
     }
 }
 
@@ -521,7 +549,11 @@ impl NorFlash for Flash {
 
     fn erase(&mut self, from: u32, to: u32) -> Result<(), FlashError> {
         let (a, b) = (from as usize, to as usize);
-        if a % SECTOR_SIZE != 0 || b % SECTOR_SIZE != 0 || a > b || b > 2 * SECTOR_SIZE {
+        if !a.is_multiple_of(SECTOR_SIZE)
+            || !b.is_multiple_of(SECTOR_SIZE)
+            || a > b
+            || b > 2 * SECTOR_SIZE
+        {
             return Err(FlashError::OutOfBounds);
         }
         Self::wait_idle()?;
@@ -550,7 +582,10 @@ impl NorFlash for Flash {
 
     fn write(&mut self, offset: u32, bytes: &[u8]) -> Result<(), FlashError> {
         let o = offset as usize;
-        if o % 32 != 0 || bytes.len() % 32 != 0 || o + bytes.len() > 2 * SECTOR_SIZE {
+        if !o.is_multiple_of(32)
+            || !bytes.len().is_multiple_of(32)
+            || o + bytes.len() > 2 * SECTOR_SIZE
+        {
             return Err(FlashError::OutOfBounds);
         }
         Self::wait_idle()?;
