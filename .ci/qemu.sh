@@ -15,10 +15,13 @@ ELF=target/$T/release/firmware
 # ratchet (it may only go down) and prints the gap to the target. Lower a ratchet when a change
 # wins bytes or instructions; never raise it to make a build pass without saying why.
 TEXT_TARGET=$((64 * 1024))
-TEXT_RATCHET=109000          # STM32H743 .text, bytes (measured 107 536 after this change)
-STACK_TARGET=$((16 * 1024))  # self-test stack high-water (EKF steps + checkpoint round trip)
+TEXT_RATCHET=106000          # STM32H743 .text, bytes: measured 104 868 (embassy-stm32 board)
+STACK_TARGET=$((16 * 1024))
+STACK_RATCHET=22000          # self-test stack high-water (EKF steps + checkpoint round trip):
+                             # measured 21 440
 INSTR_TARGET=30000
-INSTR_RATCHET=40500          # max instructions per EKF update (measured max 39 8xx): estimator-core
+INSTR_RATCHET=39000          # max instructions per EKF update: measured 38 560 (the EKF is
+                             # estimator-core's; the firmware only calls it)
 
 sizetool=""
 for s in llvm-size size; do command -v "$s" >/dev/null 2>&1 && { sizetool=$s; break; }; done
@@ -65,7 +68,7 @@ instr_max=$(sed -n 's/.*instructions per update: mean [0-9]* (min [0-9]*, max \(
 stack=$(sed -n 's/^stack high-water \([0-9]*\) of.*/\1/p' /tmp/driftid-selftest.log)
 [ -n "$instr_max" ] && [ -n "$stack" ] || { echo "qemu.sh: could not read the self-test figures" >&2; exit 1; }
 budget "instructions per EKF update (max)" "$instr_max" "$INSTR_TARGET" "$INSTR_RATCHET"
-budget "stack high-water bytes (self-test)" "$stack" "$STACK_TARGET"
+budget "stack high-water bytes (self-test)" "$stack" "$STACK_TARGET" "$STACK_RATCHET"
 
 echo "== firmware: QEMU mps2-an500 link build (the image the qemu end-to-end tests boot) =="
 cargo build -p firmware --release --target $T --features board-qemu

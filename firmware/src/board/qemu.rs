@@ -13,7 +13,13 @@
 //! its own .data/.bss), so it plays the part of the real board's flash in the reset tests.
 
 use core::ptr::{read_volatile, write_volatile};
+
+// The STM32 board's HAL is a dependency of every build (Cargo has no "unless feature"), and its
+// PAC turns on cortex-m-rt's device vector table: link it so that table exists. Its handlers
+// all default to DefaultHandler below, which serves UART0's receive interrupt (IRQ 0). Nothing
+// else of embassy runs on this board.
 use core::sync::atomic::{AtomicU32, Ordering};
+use embassy_stm32 as _;
 
 use cortex_m::peripheral::syst::SystClkSource;
 use cortex_m::peripheral::SYST;
