@@ -208,6 +208,8 @@ impl<const CAP: usize> Ekf<'_, CAP> {
             *v = r.f64();
         }
         let mut p = [[0.0; CAP]; CAP];
+        // Index loops: the upper triangle is mirrored into the lower one.
+        #[allow(clippy::needless_range_loop)]
         for i in 0..n {
             for j in i..n {
                 let v = r.f64();
