@@ -131,6 +131,24 @@ fn damaged_record_is_ignored_and_other_format_is_refused() {
     assert_eq!(store.load(&mut buf), Err(StoreError::Format { found: 9 }));
 }
 
+/// Every configuration's checkpoint payload fits the store's (deliberately tight) buffer: the
+/// longest postcard encoding has gravity set and the varint counters at their maximum.
+#[test]
+fn the_longest_configuration_fits_max_payload() {
+    let longest = Config {
+        gravity_mps2: Some(9.8),
+        status_every: u32::MAX,
+        checkpoint_every: u32::MAX,
+        ..Config::default()
+    };
+    let default = firmware_app::resume::payload_len(&Config::default()).unwrap();
+    let max = firmware_app::resume::payload_len(&longest).unwrap();
+    // Default: 20 + 137 + 1 068; longest: +8 (gravity) +4 (status_every: 5 varint bytes, not 1)
+    // +4 (checkpoint_every: 5, not 1).
+    assert_eq!((default, max), (1225, 1241));
+    assert!(max <= MAX_PAYLOAD);
+}
+
 /// Flash wear on the STM32H743's geometry (two 128-KiB sectors, 32-byte flash words) with the
 /// application's real checkpoint payload: erases are counted over many checkpoints and turned
 /// into erases per day and flash life at the default settings.
