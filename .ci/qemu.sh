@@ -15,12 +15,13 @@ ELF=target/$T/release/firmware
 # ratchet (it may only go down) and prints the gap to the target. Lower a ratchet when a change
 # wins bytes or instructions; never raise it to make a build pass without saying why.
 TEXT_TARGET=$((64 * 1024))
-TEXT_RATCHET=106000          # STM32H743 .text, bytes: measured 104 868 (embassy-stm32 board)
+TEXT_RATCHET=89500           # STM32H743 .text, bytes: measured 88 308 (embassy-stm32 board,
+                             # opt-level 2 under fat LTO: Cargo.toml)
 STACK_TARGET=$((16 * 1024))
-STACK_RATCHET=21000          # self-test stack high-water (EKF steps + checkpoint round trip):
-                             # measured 20 672 (EKF steps alone: 10 592)
+STACK_RATCHET=20500          # self-test stack high-water (EKF steps + checkpoint round trip):
+                             # measured 19 960 (EKF steps alone: ~10.6 KB)
 INSTR_TARGET=30000
-INSTR_RATCHET=39000          # max instructions per EKF update: measured 38 560 (the EKF is
+INSTR_RATCHET=38800          # max instructions per EKF update: measured 38 360 (the EKF is
                              # estimator-core's; the firmware only calls it)
 
 sizetool=""
