@@ -327,29 +327,38 @@ where
 
     /// Restores a run from a checkpoint payload ([`crate::resume`]).
     fn restore(&mut self, payload: &[u8], generation: u32) -> Result<(), Msg> {
-        let Some(r) = resume::restore(payload)? else {
+        let Some(b) = resume::decode(payload)? else {
             return Ok(()); // "no run"
         };
-        let (config, source, point) = (r.config, r.source, r.point);
-        let step = r.ekf.steps();
-        let t_s = r.ekf.time_s();
-        self.config = config;
-        self.last_source = source;
+        let (config, source, point) = (b.config, b.source, b.point);
+        let ekf = filter_for(&config).map_err(|why| msg(format_args!("checkpoint: {why}")))?;
         let time_offset_s = match (source, point.last_t_s) {
             // The sensor's clock restarts at 0 after a reset; without a real-time clock the
             // outage is unknown, so time continues from the last sample (documented limitation).
             (Source::Sensor, Some(t)) => t + 1.0 / config.sample_rate_hz,
             _ => 0.0,
         };
+        // The run is built first and its filter loaded in place (one filter on the stack, not
+        // several); if the image is refused, no run is left behind.
         self.run = Some(Run {
             source,
             averager: Averager::new(config.filter_period_s, config.raw_sigma_mps2),
-            ekf: r.ekf,
+            ekf,
             screen: Screen::new(point.last_t_s),
             sample_seq: point.next_seq,
             resync: (source == Source::Replay).then_some(point.next_seq),
             time_offset_s,
         });
+        let Some(run) = self.run.as_mut() else {
+            return Ok(());
+        };
+        if let Err(why) = resume::load_filter(&mut run.ekf, b.image) {
+            self.run = None;
+            return Err(why);
+        }
+        let (step, t_s) = (run.ekf.steps(), run.ekf.time_s());
+        self.config = config;
+        self.last_source = source;
         if source == Source::Sensor {
             self.timer.start(config.sample_rate_hz);
         }

@@ -113,9 +113,21 @@ pub fn msg(args: core::fmt::Arguments<'_>) -> Msg {
     s
 }
 
-/// Decodes a payload: `Ok(None)` for "no run", the restored run otherwise. `Err` says what is
-/// wrong (another block version, a truncated block, a configuration or filter image refused).
-pub fn restore(payload: &[u8]) -> Result<Option<Restored>, Msg> {
+/// A decoded resume block; the filter image is not loaded yet ([`load_filter`]).
+pub struct Block<'a> {
+    /// The run's source.
+    pub source: Source,
+    /// Where it resumes.
+    pub point: ResumePoint,
+    /// Its configuration (validated).
+    pub config: Config,
+    /// The estimator core's checkpoint image.
+    pub image: &'a [u8],
+}
+
+/// Decodes a payload: `Ok(None)` for "no run", the block otherwise. `Err` says what is wrong
+/// (another block version, a truncated block, a configuration refused).
+pub fn decode(payload: &[u8]) -> Result<Option<Block<'_>>, Msg> {
     let bad = |what: &str| msg(format_args!("checkpoint: {what}"));
     let head = payload
         .get(..FIXED)
@@ -145,16 +157,34 @@ pub fn restore(payload: &[u8]) -> Result<Option<Restored>, Msg> {
         postcard::from_bytes(cfg_bytes).map_err(|_| bad("configuration unreadable"))?;
     validate(&config)
         .map_err(|why| msg(format_args!("checkpoint configuration refused: {why}")))?;
-    let mut ekf = filter_for(&config).map_err(bad)?;
-    ekf.resume(&payload[FIXED + c..])
-        .map_err(|e| msg(format_args!("{e}")))?;
-    Ok(Some(Restored {
+    Ok(Some(Block {
         source,
         point: ResumePoint {
             next_seq: u32::from_le_bytes(seq),
             last_t_s: (!last.is_nan()).then_some(last),
         },
         config,
+        image: &payload[FIXED + c..],
+    }))
+}
+
+/// Loads a block's filter image into `ekf`, a fresh filter of the block's configuration (in
+/// place: the caller keeps one filter on its stack or in its state, not several).
+pub fn load_filter(ekf: &mut Filter, image: &[u8]) -> Result<(), Msg> {
+    ekf.resume(image).map_err(|e| msg(format_args!("{e}")))
+}
+
+/// [`decode`], then a filter of the block's configuration restored from its image.
+pub fn restore(payload: &[u8]) -> Result<Option<Restored>, Msg> {
+    let Some(b) = decode(payload)? else {
+        return Ok(None);
+    };
+    let mut ekf = filter_for(&b.config).map_err(|why| msg(format_args!("checkpoint: {why}")))?;
+    load_filter(&mut ekf, b.image)?;
+    Ok(Some(Restored {
+        source: b.source,
+        point: b.point,
+        config: b.config,
         ekf,
     }))
 }

@@ -358,9 +358,16 @@ fn checkpoint_round_trip(ekf: &firmware_app::app::Filter, storage: Storage) -> &
         return "save failed";
     }
     match store.load(&mut buf) {
-        Ok(Some(f)) => match resume::restore(&buf[..f.len]) {
-            Ok(Some(r)) if r.ekf.state() == ekf.state() => "ok",
-            _ => "restore failed",
+        // As the application restores: decode, a fresh filter, its image loaded in place.
+        Ok(Some(f)) => match resume::decode(&buf[..f.len]) {
+            Ok(Some(b)) => match firmware_app::app::filter_for(&b.config) {
+                Ok(mut restored) => match resume::load_filter(&mut restored, b.image) {
+                    Ok(()) if restored.state() == ekf.state() => "ok",
+                    _ => "restore failed",
+                },
+                Err(_) => "filter refused",
+            },
+            _ => "decode failed",
         },
         _ => "load failed",
     }
