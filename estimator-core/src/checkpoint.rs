@@ -61,20 +61,13 @@ impl core::fmt::Display for CheckpointError {
     }
 }
 
-/// CRC-32 (IEEE 802.3, reflected, as zlib), bitwise: small and fast enough for ~1 kB images.
+/// The CRC-32 of checkpoints (IEEE 802.3 / ISO-HDLC, reflected, as zlib and the wire protocol),
+/// from the `crc` crate: the one CRC implementation of the workspace.
+pub const CRC32: crc::Crc<u32> = crc::Crc::<u32>::new(&crc::CRC_32_ISO_HDLC);
+
+/// CRC-32 of `bytes` ([`CRC32`]).
 pub fn crc32(bytes: &[u8]) -> u32 {
-    let mut crc = !0u32;
-    for &b in bytes {
-        crc ^= u32::from(b);
-        for _ in 0..8 {
-            crc = if crc & 1 != 0 {
-                (crc >> 1) ^ 0xEDB8_8320
-            } else {
-                crc >> 1
-            };
-        }
-    }
-    !crc
+    CRC32.checksum(bytes)
 }
 
 fn fnv(h: &mut u32, bytes: &[u8]) {
@@ -215,6 +208,8 @@ impl<const CAP: usize> Ekf<'_, CAP> {
             *v = r.f64();
         }
         let mut p = [[0.0; CAP]; CAP];
+        // Index loops: the upper triangle is mirrored into the lower one.
+        #[allow(clippy::needless_range_loop)]
         for i in 0..n {
             for j in i..n {
                 let v = r.f64();

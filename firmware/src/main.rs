@@ -1,10 +1,14 @@
 //! Navigation-computer firmware: a thin board layer under [`firmware_app::App`].
 //!
 //! Boards (one per build, chosen by feature):
-//! - default: the STM32H743 navigation computer (`board/stm32h743.rs`): USART3 link, ADXL355 on
-//!   SPI1, SysTick sample timer, DWT cycle counter; memory map `memory.x` at the repo root.
-//! - `board-qemu`: QEMU `mps2-an500` (`board/qemu.rs`): CMSDK UART0 link, no sensor (samples come
-//!   by replay), SysTick tick counter, semihosting exit codes; memory map `memory-qemu.x`.
+//! - default: the STM32H743 navigation computer (`board/stm32h743.rs`, on embassy-stm32): USART3
+//!   link (interrupt-driven receive ring), ADXL355 on SPI1, SysTick sample timer, DWT cycle
+//!   counter; memory map `firmware/memory.x`.
+//! - `board-qemu`: QEMU `mps2-an500` (`board/qemu.rs`): CMSDK UART0 link (receive interrupt into
+//!   a ring), no sensor (samples come by replay), SysTick tick counter, semihosting exit codes;
+//!   memory map `firmware/memory-qemu.x`.
+//!
+//! Linked by flip-link: the stack lies below the statics, so an overflow faults.
 //!
 //! Both paint the stack at boot and report its high-water mark and the static RAM in every
 //! status frame. A panic or HardFault is reported (fault frame / semihosting / defmt) and, under
@@ -61,6 +65,17 @@ fn main() -> ! {
 fn crash_test() {
     #[cfg(feature = "crash-panic")]
     panic!("crash test: deliberate panic");
+    #[cfg(feature = "crash-stackoverflow")]
+    {
+        // Unbounded recursion with a live frame per call: runs the stack off the start of RAM.
+        #[inline(never)]
+        #[allow(unconditional_recursion)] // the point: it never returns
+        fn deeper(n: u32) -> u32 {
+            let frame = core::hint::black_box([n; 64]);
+            deeper(n + 1).wrapping_add(frame[(n % 64) as usize])
+        }
+        let _ = deeper(0);
+    }
     #[cfg(feature = "crash-hardfault")]
     // SAFETY: deliberately not safe: an undefined instruction raises a fault (escalated to
     // HardFault, the only fault handler enabled).

@@ -1,8 +1,11 @@
 //! Stack painting and RAM figures from cortex-m-rt's linker symbols.
 //!
-//! RAM layout (cortex-m-rt): `.data`, `.bss`, `.uninit` from the start of RAM up to `__sheap`;
-//! the stack grows down from `_stack_start` (end of RAM) towards `__sheap`. At boot we fill the
-//! gap with a pattern; the high-water mark is the lowest word no longer holding it.
+//! RAM layout as flip-link (the linker) makes it: the stack grows down from `_stack_start` to the
+//! start of RAM ([`crate::board::RAM_ORIGIN`]), and `.data`, `.bss`, `.uninit` sit above it, up
+//! to `__sheap`; an overflow runs off the start of RAM and faults. (Linked without flip-link,
+//! cortex-m-rt's layout: statics first, the stack from the end of RAM down to `__sheap`; both
+//! are handled.) At boot we fill the free stack with a pattern; the high-water mark is the
+//! lowest word no longer holding it.
 
 use core::ptr::{addr_of, read_volatile, write_volatile};
 
@@ -14,8 +17,14 @@ extern "C" {
     static _stack_start: u32;
 }
 
+/// (lowest, highest) address of the stack.
 fn bounds() -> (usize, usize) {
-    (addr_of!(__sheap) as usize, addr_of!(_stack_start) as usize)
+    let top = addr_of!(_stack_start) as usize;
+    if top <= addr_of!(__sdata) as usize {
+        (crate::board::RAM_ORIGIN, top) // flip-link: the stack below the statics
+    } else {
+        (addr_of!(__sheap) as usize, top)
+    }
 }
 
 /// Paints the free stack up to 256 bytes below the current stack pointer.
@@ -48,6 +57,5 @@ pub fn stack_usage() -> (u32, u32) {
 
 /// Static RAM: .data + .bss + .uninit, bytes.
 pub fn static_ram() -> u32 {
-    let start = addr_of!(__sdata) as usize;
-    (bounds().0 - start) as u32
+    (addr_of!(__sheap) as usize - addr_of!(__sdata) as usize) as u32
 }

@@ -1,57 +1,79 @@
-//! Consistent Overhead Byte Stuffing: removes every `0x00` from a block so `0x00` can delimit
-//! frames. Overhead: one byte per 254 bytes of input, plus one.
+//! Consistent Overhead Byte Stuffing, from the [`cobs`](https://docs.rs/cobs) crate (the one
+//! postcard already depends on): removes every `0x00` from a block so `0x00` can delimit frames.
+//! Overhead: one byte per 254 bytes of input, plus one.
+//!
+//! This module only adapts the crate to the frame decoder: the crate's streaming
+//! [`cobs::DecoderState`] does the unstuffing; loss counting, the fixed buffer and
+//! resynchronisation on the next delimiter are the [`crate::Decoder`]'s (the crate's
+//! `CobsDecoder` accumulator has neither counts nor a frame-at-a-time error model).
 
 /// Worst-case encoded length of `n` input bytes (without delimiters).
 pub const fn max_encoded_len(n: usize) -> usize {
-    n + n / 254 + 1
+    ::cobs::max_encoding_length(n)
 }
 
 /// Encodes `src` into `dst` (no delimiter written); returns the encoded length, or `None` when
 /// `dst` is too small.
 pub fn encode(src: &[u8], dst: &mut [u8]) -> Option<usize> {
-    if dst.len() < max_encoded_len(src.len()) {
+    if src.is_empty() {
+        // The crate encodes nothing as nothing; the canonical encoding is one code byte (a
+        // frame is never empty: a packet has at least its version and CRC).
+        *dst.first_mut()? = 1;
+        return Some(1);
+    }
+    ::cobs::try_encode(src, dst).ok()
+}
+
+/// Decodes one COBS block (no delimiters) into `dst`; returns the decoded length, or `None` if
+/// the input is malformed (a zero byte, a block running past the end) or `dst` is too small.
+pub fn decode(src: &[u8], dst: &mut [u8]) -> Option<usize> {
+    if src.contains(&0) {
         return None;
     }
-    let mut code_at = 0;
-    let mut out = 1;
-    let mut code: u8 = 1;
+    let mut u = Unstuffer::default();
+    let mut n = 0;
     for &b in src {
-        if b == 0 {
-            dst[code_at] = code;
-            code_at = out;
-            out += 1;
-            code = 1;
-        } else {
-            dst[out] = b;
-            out += 1;
-            code += 1;
-            if code == 0xFF {
-                dst[code_at] = code;
-                code_at = out;
-                out += 1;
-                code = 1;
-            }
+        if let Some(v) = u.push(b) {
+            *dst.get_mut(n)? = v;
+            n += 1;
         }
     }
-    dst[code_at] = code;
-    Some(out)
+    u.complete().then_some(n)
 }
 
-/// Streaming COBS decoder state for one frame (used by [`crate::Decoder`]).
-#[derive(Clone, Copy, Debug, Default)]
+/// Streaming unstuffing of one frame's non-zero bytes over [`cobs::DecoderState`].
+#[derive(Debug)]
 pub(crate) struct Unstuffer {
-    /// Data bytes left in the current block (0: the next byte is a code byte).
-    remaining: u8,
-    /// Code of the current block (0: no block started yet in this frame).
-    code: u8,
+    state: ::cobs::DecoderState,
+    /// A byte was refused (a zero inside a block cannot occur: zeros are the frame
+    /// delimiters the caller handles; kept so a future crate change cannot go unnoticed).
+    broken: bool,
 }
 
-/// What one non-zero input byte produces.
-pub(crate) enum Unstuffed {
-    /// Nothing to output (a code byte opening a block that follows a 0xFF block or starts the frame).
-    None,
-    /// One output byte.
-    Byte(u8),
+impl Clone for Unstuffer {
+    fn clone(&self) -> Self {
+        use ::cobs::DecoderState::{Grab, GrabChain, Idle};
+        // Not a needless match: the crate's DecoderState is not Clone, so it is rebuilt.
+        #[allow(clippy::needless_match)]
+        let state = match self.state {
+            Idle => Idle,
+            Grab(n) => Grab(n),
+            GrabChain(n) => GrabChain(n),
+        };
+        Unstuffer {
+            state,
+            broken: self.broken,
+        }
+    }
+}
+
+impl Default for Unstuffer {
+    fn default() -> Self {
+        Unstuffer {
+            state: ::cobs::DecoderState::Idle,
+            broken: false,
+        }
+    }
 }
 
 impl Unstuffer {
@@ -59,46 +81,29 @@ impl Unstuffer {
         *self = Unstuffer::default();
     }
 
-    /// Feeds one non-zero encoded byte. A code byte after a block shorter than 254 data bytes
-    /// stands for the zero that block ended with.
-    pub(crate) fn push(&mut self, b: u8) -> Unstuffed {
+    /// Feeds one non-zero encoded byte; returns the decoded byte it yields, if any.
+    pub(crate) fn push(&mut self, b: u8) -> Option<u8> {
         debug_assert!(b != 0);
-        if self.remaining == 0 {
-            let implicit_zero = self.code != 0 && self.code != 0xFF;
-            self.code = b;
-            self.remaining = b - 1;
-            if implicit_zero {
-                Unstuffed::Byte(0)
-            } else {
-                Unstuffed::None
+        match self.state.feed(b) {
+            Ok(::cobs::DecodeResult::DataContinue(v)) => Some(v),
+            Ok(_) => None,
+            Err(_) => {
+                self.broken = true;
+                None
             }
-        } else {
-            self.remaining -= 1;
-            Unstuffed::Byte(b)
         }
     }
 
-    /// At the delimiter: a well-formed frame ends exactly at the end of a block.
+    /// At the delimiter: a well-formed frame ends exactly at the end of a block (the crate's
+    /// state machine reports `DataComplete` for the delimiter only then). Does not change the
+    /// state: call [`Unstuffer::reset`] for the next frame.
     pub(crate) fn complete(&self) -> bool {
-        self.remaining == 0 && self.code != 0
+        !self.broken
+            && matches!(
+                self.state,
+                ::cobs::DecoderState::Grab(0) | ::cobs::DecoderState::GrabChain(0)
+            )
     }
-}
-
-/// Decodes one COBS block (no delimiters) into `dst`; returns the decoded length, or `None` if
-/// the input is malformed (a zero byte, a block running past the end) or `dst` is too small.
-pub fn decode(src: &[u8], dst: &mut [u8]) -> Option<usize> {
-    let mut u = Unstuffer::default();
-    let mut n = 0;
-    for &b in src {
-        if b == 0 {
-            return None;
-        }
-        if let Unstuffed::Byte(v) = u.push(b) {
-            *dst.get_mut(n)? = v;
-            n += 1;
-        }
-    }
-    u.complete().then_some(n)
 }
 
 #[cfg(test)]
@@ -122,6 +127,19 @@ mod tests {
             let m = decode(enc, &mut back).unwrap();
             assert_eq!(&back[..m], *raw, "decode {enc:?}");
         }
+    }
+
+    #[test]
+    fn malformed_blocks_are_refused() {
+        let mut back = [0u8; 16];
+        // A code byte promising 3 data bytes, only 1 present: the frame ends inside a block.
+        assert_eq!(decode(&[4, 0x11], &mut back), None);
+        // A zero inside the block.
+        assert_eq!(decode(&[3, 0x11, 0, 0x22], &mut back), None);
+        // An empty block is not a frame.
+        assert_eq!(decode(&[], &mut back), None);
+        // Output too small.
+        assert_eq!(decode(&[5, 1, 2, 3, 4], &mut back[..2]), None);
     }
 
     #[test]

@@ -1,6 +1,6 @@
 //! Framing: postcard + CRC-32 + COBS + delimiters, and the streaming decoder.
 
-use crate::cobs::{self, Unstuffed, Unstuffer};
+use crate::cobs::{self, Unstuffer};
 use crate::{Message, Packet, CRC, MAX_FRAME, MAX_PACKET, PROTOCOL_VERSION};
 
 /// Why a packet could not be framed.
@@ -199,7 +199,7 @@ impl Decoder {
         if self.overflow {
             return None;
         }
-        if let Unstuffed::Byte(v) = self.unstuff.push(byte) {
+        if let Some(v) = self.unstuff.push(byte) {
             if self.len == MAX_PACKET {
                 self.overflow = true;
             } else {

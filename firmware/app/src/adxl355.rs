@@ -245,8 +245,8 @@ impl<SPI: SpiDevice> Adxl355<SPI> {
         for _ in 0..4 {
             delay.delay_ms(10);
             let r = self.read_raw()?;
-            for i in 0..3 {
-                sum[i] += f64::from(r.axes[i]) / self.range.lsb_per_g();
+            for (s, &a) in sum.iter_mut().zip(&r.axes) {
+                *s += f64::from(a) / self.range.lsb_per_g();
             }
         }
         Ok(sum.map(|s| s / 4.0))

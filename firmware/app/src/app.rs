@@ -19,6 +19,10 @@ use protocol::{
 
 use crate::accel::Accelerometer;
 use crate::checkpoints::{CheckpointStore, NoStorage, StoreError, MAX_PAYLOAD};
+use crate::counters::{self, Count};
+use crate::resume::{self, msg, Msg, ResumePoint};
+use crate::screen::Screen;
+pub use crate::screen::STUCK_RUN;
 
 /// Firmware version sent in [`Hello`].
 pub const FIRMWARE_VERSION: [u16; 3] = [0, 1, 0];
@@ -92,37 +96,17 @@ struct Run {
     source: Source,
     averager: Averager,
     ekf: Filter,
-    last_t_s: Option<f64>,
+    /// Sample screening (last accepted time, stuck-axis runs).
+    screen: Screen,
     sample_seq: u32,
     /// After a resume (replay): discard samples until the one with this sequence number.
     resync: Option<u32>,
     /// Sensor mode after a resume: added to the timer's sample times, s.
     time_offset_s: f64,
-    /// Stuck-value detection: the previous reading and how many times it repeated, per axis.
-    prev_raw: [f64; 3],
-    same: [u32; 3],
 }
 
 /// Consecutive gate rejections that raise a fault (`Config::gate_nis`).
 pub const GATE_MAX_RUN: u32 = 10;
-
-/// Identical consecutive readings on one axis from which the sensor counts as stuck.
-pub const STUCK_RUN: u32 = 8;
-
-/// Where a run can be resumed from: the sample that opened the current averaging window.
-#[derive(Clone, Copy)]
-struct ResumePoint {
-    /// Sequence number of that sample.
-    next_seq: u32,
-    /// Time of the last sample before it (the resumed run accepts only later samples).
-    last_t_s: Option<f64>,
-}
-
-/// Version of the application's resume block inside a checkpoint payload.
-const RESUME_BLOCK: u16 = 1;
-/// Source byte of a payload that says "no run in progress" (written at start and end of runs, so
-/// a reset never resumes a finished or abandoned run).
-const NO_RUN: u8 = 0xFF;
 
 /// The application. `N` is the non-volatile storage for checkpoints ([`NoStorage`]: none).
 pub struct App<S, A, T, P, N = NoStorage> {
@@ -272,9 +256,9 @@ where
     P: Platform,
     N: NorFlash,
 {
-    /// The application with checkpoint storage on `flash` (two slots; see
-    /// [`crate::checkpoints`]). Flash too small for two slots means no checkpoints (reported by
-    /// [`App::boot`] as a storage fault).
+    /// The application with checkpoint storage on `flash` (an append-only record log across its
+    /// erase sectors; see [`crate::checkpoints`]). Flash of fewer than two sectors means no
+    /// checkpoints.
     pub fn with_storage(serial: S, accel: A, timer: T, platform: P, flash: N) -> Self {
         App {
             serial,
@@ -301,7 +285,7 @@ where
     /// A checkpoint that cannot be used (other format or model configuration, damaged contents)
     /// is refused with a [`FaultCode::CheckpointRefused`] fault and the firmware starts idle.
     pub fn boot(&mut self) {
-        let mut refused: Option<(FaultCode, heapless_msg::Msg)> = None;
+        let mut refused: Option<(FaultCode, Msg)> = None;
         if let Some(store) = self.store.as_mut() {
             let mut buf = [0u8; MAX_PAYLOAD];
             match store.load(&mut buf) {
@@ -312,15 +296,12 @@ where
                 }
                 Ok(None) => {}
                 Err(e @ StoreError::Format { .. }) => {
-                    refused = Some((
-                        FaultCode::CheckpointRefused,
-                        heapless_msg::of(format_args!("{e}")),
-                    ))
+                    refused = Some((FaultCode::CheckpointRefused, msg(format_args!("{e}"))))
                 }
                 Err(e) => {
                     refused = Some((
                         FaultCode::Storage,
-                        heapless_msg::of(format_args!("loading checkpoint: {e}")),
+                        msg(format_args!("loading checkpoint: {e}")),
                     ))
                 }
             }
@@ -344,71 +325,47 @@ where
         self.resumed
     }
 
-    /// Restores a run from a checkpoint payload (resume block + the core's filter image).
-    fn restore(&mut self, payload: &[u8], generation: u32) -> Result<(), heapless_msg::Msg> {
-        let bad = |what: &str| heapless_msg::of(format_args!("checkpoint: {what}"));
-        if payload.len() < 20 {
-            return Err(bad("resume block truncated"));
-        }
-        let version = u16::from_le_bytes([payload[0], payload[1]]);
-        if version != RESUME_BLOCK {
-            return Err(heapless_msg::of(format_args!(
-                "checkpoint resume block v{version}, firmware reads v{RESUME_BLOCK}"
-            )));
-        }
-        let source = match payload[2] {
-            NO_RUN => return Ok(()),
-            0 => Source::Sensor,
-            1 => Source::Replay,
-            _ => return Err(bad("unknown source")),
+    /// Restores a run from a checkpoint payload ([`crate::resume`]).
+    fn restore(&mut self, payload: &[u8], generation: u32) -> Result<(), Msg> {
+        let Some(b) = resume::decode(payload)? else {
+            return Ok(()); // "no run"
         };
-        let next_seq = u32::from_le_bytes([payload[4], payload[5], payload[6], payload[7]]);
-        let mut t = [0u8; 8];
-        t.copy_from_slice(&payload[8..16]);
-        let last = f64::from_le_bytes(t);
-        let last_t_s = if last.is_nan() { None } else { Some(last) };
-        let cfg_len = u16::from_le_bytes([payload[16], payload[17]]) as usize;
-        let cfg_end = 20 + cfg_len;
-        let cfg_bytes = payload
-            .get(20..cfg_end)
-            .ok_or_else(|| bad("configuration truncated"))?;
-        let config: Config =
-            postcard::from_bytes(cfg_bytes).map_err(|_| bad("configuration unreadable"))?;
-        validate(&config).map_err(|why| {
-            heapless_msg::of(format_args!("checkpoint configuration refused: {why}"))
-        })?;
-        let mut ekf = filter_for(&config)
-            .map_err(|why| heapless_msg::of(format_args!("checkpoint: {why}")))?;
-        ekf.resume(&payload[cfg_end..])
-            .map_err(|e| heapless_msg::of(format_args!("{e}")))?;
-        let step = ekf.steps();
-        let t_s = ekf.time_s();
-        self.config = config;
-        self.last_source = source;
-        let time_offset_s = match (source, last_t_s) {
+        let (config, source, point) = (b.config, b.source, b.point);
+        let ekf = filter_for(&config).map_err(|why| msg(format_args!("checkpoint: {why}")))?;
+        let time_offset_s = match (source, point.last_t_s) {
             // The sensor's clock restarts at 0 after a reset; without a real-time clock the
             // outage is unknown, so time continues from the last sample (documented limitation).
             (Source::Sensor, Some(t)) => t + 1.0 / config.sample_rate_hz,
             _ => 0.0,
         };
+        // The run is built first and its filter loaded in place (one filter on the stack, not
+        // several); if the image is refused, no run is left behind.
         self.run = Some(Run {
             source,
             averager: Averager::new(config.filter_period_s, config.raw_sigma_mps2),
             ekf,
-            last_t_s,
-            sample_seq: next_seq,
-            resync: (source == Source::Replay).then_some(next_seq),
+            screen: Screen::new(point.last_t_s),
+            sample_seq: point.next_seq,
+            resync: (source == Source::Replay).then_some(point.next_seq),
             time_offset_s,
-            prev_raw: [f64::NAN; 3],
-            same: [0; 3],
         });
+        let Some(run) = self.run.as_mut() else {
+            return Ok(());
+        };
+        if let Err(why) = resume::load_filter(&mut run.ekf, b.image) {
+            self.run = None;
+            return Err(why);
+        }
+        let (step, t_s) = (run.ekf.steps(), run.ekf.time_s());
+        self.config = config;
+        self.last_source = source;
         if source == Source::Sensor {
             self.timer.start(config.sample_rate_hz);
         }
         self.resumed = Some(Resume {
             step,
             t_s,
-            next_seq,
+            next_seq: point.next_seq,
             generation,
         });
         self.last_t_s = t_s;
@@ -421,43 +378,20 @@ where
             return;
         };
         let mut buf = [0u8; MAX_PAYLOAD];
-        buf[0..2].copy_from_slice(&RESUME_BLOCK.to_le_bytes());
         let len = match (point, self.run.as_ref()) {
             (Some(p), Some(run)) => {
-                buf[2] = match run.source {
-                    Source::Sensor => 0,
-                    Source::Replay => 1,
-                };
-                buf[4..8].copy_from_slice(&p.next_seq.to_le_bytes());
-                buf[8..16].copy_from_slice(&p.last_t_s.unwrap_or(f64::NAN).to_le_bytes());
-                let Ok(cfg) = postcard::to_slice(&self.config, &mut buf[20..]).map(|c| c.len())
-                else {
-                    self.counters.checkpoint_errors =
-                        self.counters.checkpoint_errors.wrapping_add(1);
-                    return;
-                };
-                buf[16..18].copy_from_slice(&(cfg as u16).to_le_bytes());
-                match run.ekf.checkpoint(&mut buf[20 + cfg..]) {
-                    Ok(n) => 20 + cfg + n,
-                    Err(_) => {
-                        self.counters.checkpoint_errors =
-                            self.counters.checkpoint_errors.wrapping_add(1);
-                        return;
-                    }
-                }
+                resume::encode_run(&mut buf, run.source, p, &self.config, &run.ekf)
             }
-            _ => {
-                buf[2] = NO_RUN;
-                20
-            }
+            _ => resume::encode_no_run(&mut buf),
+        };
+        let Ok(len) = len else {
+            counters::bump(&mut self.counters, Count::CheckpointErrors);
+            return;
         };
         match store.save(&buf[..len]) {
-            Ok(_) => {
-                self.counters.checkpoints_written =
-                    self.counters.checkpoints_written.wrapping_add(1)
-            }
+            Ok(_) => counters::bump(&mut self.counters, Count::CheckpointsWritten),
             Err(e) => {
-                self.counters.checkpoint_errors = self.counters.checkpoint_errors.wrapping_add(1);
+                counters::bump(&mut self.counters, Count::CheckpointErrors);
                 let step = self.counters.filter_steps;
                 self.send(Message::Fault(Fault::new(
                     FaultCode::Storage,
@@ -494,6 +428,8 @@ where
     }
 
     /// One pass of the loop; never blocks except on serial output.
+    // clippy's collapsible_match would move the packet into a guard, which cannot be done.
+    #[allow(clippy::collapsible_match)]
     pub fn poll(&mut self) -> Event {
         let mut buf = [0u8; 64];
         while let Ok(true) = self.serial.read_ready() {
@@ -510,9 +446,7 @@ where
                             return Event::Shutdown;
                         }
                     }
-                    Some(Err(_)) => {
-                        self.counters.frames_rx_bad = self.counters.frames_rx_bad.wrapping_add(1)
-                    }
+                    Some(Err(_)) => counters::bump(&mut self.counters, Count::FramesRxBad),
                 }
             }
         }
@@ -525,7 +459,7 @@ where
         );
         if sensor_run {
             if let Some(tick) = self.timer.poll() {
-                self.counters.read_errors = self.counters.read_errors.wrapping_add(tick.missed);
+                counters::add(&mut self.counters, Count::ReadErrors, tick.missed);
                 let offset = self.run.as_ref().map_or(0.0, |r| r.time_offset_s);
                 let t_s = offset + f64::from(tick.index) / self.config.sample_rate_hz;
                 match self.accel.sample(t_s) {
@@ -537,7 +471,7 @@ where
                         };
                         self.accept(&sample, s.saturated);
                     }
-                    Err(_) => self.counters.read_errors = self.counters.read_errors.wrapping_add(1),
+                    Err(_) => counters::bump(&mut self.counters, Count::ReadErrors),
                 }
             }
         }
@@ -545,9 +479,9 @@ where
     }
 
     fn handle(&mut self, p: Packet) -> Event {
-        self.counters.frames_rx = self.counters.frames_rx.wrapping_add(1);
+        counters::bump(&mut self.counters, Count::FramesRx);
         if let SeqEvent::Gap { missing } = self.rx_seq.observe(p.seq) {
-            self.counters.frames_rx_missing = self.counters.frames_rx_missing.wrapping_add(missing);
+            counters::add(&mut self.counters, Count::FramesRxMissing, missing);
         }
         let Message::Command(cmd) = p.msg else {
             return self.refuse(FaultCode::BadCommand, "not a command");
@@ -583,12 +517,10 @@ where
                     source,
                     averager,
                     ekf,
-                    last_t_s: None,
+                    screen: Screen::new(None),
                     sample_seq: 0,
                     resync: None,
                     time_offset_s: 0.0,
-                    prev_raw: [f64::NAN; 3],
-                    same: [0; 3],
                 });
                 self.last_source = source;
                 if source == Source::Sensor {
@@ -601,8 +533,7 @@ where
                     if let Some(want) = run.resync {
                         if s.seq != want {
                             // Sent before the host saw the reset: the host resends from `want`.
-                            self.counters.samples_resync =
-                                self.counters.samples_resync.wrapping_add(1);
+                            counters::bump(&mut self.counters, Count::SamplesResync);
                             return Event::Continue;
                         }
                         run.resync = None;
@@ -621,7 +552,7 @@ where
             Command::Finish => {
                 if self.run.as_ref().is_some_and(|r| r.resync.is_some()) {
                     // A Finish sent before the reset: the resent samples come first.
-                    self.counters.samples_resync = self.counters.samples_resync.wrapping_add(1);
+                    counters::bump(&mut self.counters, Count::SamplesResync);
                     return Event::Continue;
                 }
                 if let Some(m) = self.run.as_mut().and_then(|r| r.averager.flush()) {
@@ -652,7 +583,7 @@ where
     }
 
     fn refuse(&mut self, code: FaultCode, why: &str) -> Event {
-        self.counters.commands_refused = self.counters.commands_refused.wrapping_add(1);
+        counters::bump(&mut self.counters, Count::CommandsRefused);
         let step = self.counters.filter_steps;
         self.send(Message::Fault(Fault::new(
             code,
@@ -674,49 +605,14 @@ where
         let Some(run) = self.run.as_mut() else {
             return false;
         };
-        let c = &mut self.counters;
-        if !(s.t_s.is_finite() && s.specific_force.iter().all(|v| v.is_finite())) {
-            c.samples_nan = c.samples_nan.wrapping_add(1);
+        let before = run.screen.last_t_s;
+        let live = run.source == Source::Sensor;
+        let limit = self.config.saturation_mps2;
+        if let Err(why) = run.screen.check(s, saturated, limit, live) {
+            counters::bump(&mut self.counters, Count::Rejected(why));
             return false;
         }
-        if saturated
-            || s.specific_force
-                .iter()
-                .any(|v| v.abs() >= self.config.saturation_mps2)
-        {
-            c.samples_saturated = c.samples_saturated.wrapping_add(1);
-            return false;
-        }
-        if run.last_t_s == Some(s.t_s) {
-            c.samples_duplicate = c.samples_duplicate.wrapping_add(1);
-            return false;
-        }
-        if run.last_t_s.is_some_and(|t| s.t_s < t) || s.t_s < 0.0 {
-            c.samples_out_of_order = c.samples_out_of_order.wrapping_add(1);
-            return false;
-        }
-        if run.source == Source::Sensor {
-            // A live sensor's noise (tens of LSB per sample) never repeats a reading exactly
-            // STUCK_RUN times on an axis: such a run means a stuck converter or a dead bus.
-            let mut stuck = false;
-            for i in 0..3 {
-                let v = s.specific_force[i];
-                run.same[i] = if v.to_bits() == run.prev_raw[i].to_bits() {
-                    run.same[i].saturating_add(1)
-                } else {
-                    0
-                };
-                run.prev_raw[i] = v;
-                stuck |= run.same[i] + 1 >= STUCK_RUN;
-            }
-            if stuck {
-                c.samples_stuck = c.samples_stuck.wrapping_add(1);
-                return false;
-            }
-        }
-        let before = run.last_t_s;
-        run.last_t_s = Some(s.t_s);
-        c.samples_ok = c.samples_ok.wrapping_add(1);
+        counters::bump(&mut self.counters, Count::SamplesOk);
         let seq = source_seq.unwrap_or(run.sample_seq);
         run.sample_seq = seq.wrapping_add(1);
         let done = run.averager.push(s);
@@ -749,28 +645,28 @@ where
         match r {
             Ok(res) => {
                 if res.rejected {
-                    self.counters.updates_rejected = self.counters.updates_rejected.wrapping_add(1);
+                    counters::bump(&mut self.counters, Count::UpdatesRejected);
                 }
                 let e = estimate_of(&run.ekf, step, m, res.innovation, res.nis);
                 self.last_t_s = run.ekf.time_s();
-                self.counters.filter_steps = self.counters.filter_steps.wrapping_add(1);
+                counters::bump(&mut self.counters, Count::FilterSteps);
                 self.send(Message::Estimate(e));
                 let every = self.config.status_every;
-                if every > 0 && self.counters.filter_steps % every == 0 {
+                if every > 0 && self.counters.filter_steps.is_multiple_of(every) {
                     self.send_status();
                 }
                 let every = self.config.checkpoint_every;
                 let done = run_steps(&self.run);
-                if let (true, Some(p)) = (every > 0 && done % every == 0, point) {
+                if let (true, Some(p)) = (every > 0 && done.is_multiple_of(every), point) {
                     self.save_checkpoint(Some(p));
                 }
             }
             Err(e) => {
-                self.counters.filter_errors = self.counters.filter_errors.wrapping_add(1);
+                counters::bump(&mut self.counters, Count::FilterErrors);
                 self.send(Message::Fault(Fault::new(
                     FaultCode::Filter,
                     step,
-                    format_args!("{e}"),
+                    format_args!("{}", FilterFault(e)),
                 )));
             }
         }
@@ -816,20 +712,53 @@ where
     pub fn send(&mut self, msg: Message) {
         if let Ok(frame) = self.encoder.frame(msg) {
             let _ = self.serial.write_all(frame);
-            self.counters.frames_tx = self.counters.frames_tx.wrapping_add(1);
+            counters::bump(&mut self.counters, Count::FramesTx);
         }
     }
 }
 
-/// Short fault texts without a heap.
-mod heapless_msg {
-    /// A fault detail (truncated to the protocol's 80 bytes).
-    pub type Msg = heapless::String<80>;
-    /// Formats into a [`Msg`], truncating what does not fit.
-    pub fn of(args: core::fmt::Arguments<'_>) -> Msg {
-        let mut s = Msg::new();
-        let _ = core::fmt::write(&mut s, args);
-        s
+/// A filter error for the fault frame, without floating-point formatting (which would link
+/// ~15 KB of `core::fmt::float` into the firmware): times in whole milliseconds.
+struct FilterFault(estimator_core::FilterError);
+
+impl core::fmt::Display for FilterFault {
+    fn fmt(&self, f: &mut core::fmt::Formatter<'_>) -> core::fmt::Result {
+        use estimator_core::FilterError as E;
+        let ms = |t: f64| (t * 1e3) as i64; // saturating; NaN -> 0
+        match self.0 {
+            E::TimeNotIncreasing {
+                step,
+                t_s,
+                filter_t_s,
+            } => write!(
+                f,
+                "step {step}: measurement at t = {} ms is not after the filter time {} ms",
+                ms(t_s),
+                ms(filter_t_s)
+            ),
+            // The core's texts, repeated: calling its Display would link its float formatting.
+            E::Capacity { needed, capacity } => write!(
+                f,
+                "model needs {needed} states, filter capacity is {capacity}"
+            ),
+            E::Dimension { expected, got } => write!(f, "expected {expected} values, got {got}"),
+            E::BadMeasurement { step } => write!(
+                f,
+                "step {step}: measurement or its variance is not finite and positive"
+            ),
+            E::SingularInnovation { step } => write!(
+                f,
+                "step {step}: innovation covariance is not positive definite"
+            ),
+            E::Unhealthy { step, index } => write!(
+                f,
+                "step {step}: covariance or state unhealthy at state {index}"
+            ),
+            E::RejectionRun { step, count } => write!(
+                f,
+                "step {step}: {count} consecutive measurements failed the innovation gate"
+            ),
+        }
     }
 }
 

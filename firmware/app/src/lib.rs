@@ -8,7 +8,12 @@
 //! - [`app`]: the loop: commands and replayed samples from the link, sampling at a fixed rate,
 //!   rejection and counting of invalid samples, averaging, the real-time EKF, telemetry,
 //!   checkpoints and resume after a reset.
-//! - [`checkpoints`]: double-buffered checkpoint storage over NOR flash.
+//! - [`checkpoints`]: the append-only checkpoint log over NOR flash (few erases, power-loss safe).
+//! - [`resume`]: the resume block (one documented layout) stored with the filter image.
+//! - [`screen`]: sample screening (NaN/∞, saturation, time order, stuck axes).
+//! - [`counters`]: what the application counts, incremented in one place.
+//! - [`serial`]: the receive ring the UART interrupt fills, so no byte is lost while the loop
+//!   is blocked (flash erase, filter step).
 #![no_std]
 #![warn(missing_docs)]
 
@@ -16,6 +21,10 @@ pub mod accel;
 pub mod adxl355;
 pub mod app;
 pub mod checkpoints;
+pub mod counters;
+pub mod resume;
+pub mod screen;
+pub mod serial;
 
 pub use accel::{AccelSample, Accelerometer, NoSensor};
 pub use app::{App, Event, NoTimer, Platform, SampleTimer, Tick};

@@ -1,11 +1,12 @@
-//! Checkpoints on the host: the double-buffered store survives a power loss at any byte of a
-//! write; the application resumes after a reset and ends bit-identical to an uninterrupted run;
-//! a checkpoint of another model configuration or format is refused with a fault, not loaded.
+//! Checkpoints on the host: the append-only checkpoint log survives a power loss at any byte of
+//! a write or an erase and erases a sector once per sector-full of checkpoints; the application
+//! resumes after a reset and ends bit-identical to an uninterrupted run; a checkpoint of another
+//! model configuration or format is refused with a fault, not loaded.
 
 use embedded_storage::nor_flash::NorFlash;
 use estimator_core::Sample;
 use firmware_app::app::{filter_for, App, NoTimer};
-use firmware_app::checkpoints::{CheckpointStore, RamFlash, StoreError, MAX_PAYLOAD};
+use firmware_app::checkpoints::{CheckpointStore, RamFlash, StoreError, HEADER, MAX_PAYLOAD};
 use firmware_app::NoSensor;
 use protocol::*;
 
@@ -15,8 +16,12 @@ type Flash<'a> = RamFlash<'a, SECTOR>;
 // ---------------------------------------------------------------------------------------------
 // The store
 
+fn payload(g: u32, len: usize) -> Vec<u8> {
+    (0..len).map(|i| (i as u32 * 31 + g * 7) as u8).collect()
+}
+
 #[test]
-fn store_round_trip_alternates_slots_and_keeps_the_newest() {
+fn store_appends_records_and_keeps_the_newest() {
     let mut mem = vec![0xFFu8; 2 * SECTOR];
     let mut store = CheckpointStore::new(Flash::new(&mut mem)).unwrap();
     let mut buf = [0u8; MAX_PAYLOAD];
@@ -25,59 +30,83 @@ fn store_round_trip_alternates_slots_and_keeps_the_newest() {
         None,
         "erased flash holds no checkpoint"
     );
-    for g in 1..=5u32 {
-        let payload: Vec<u8> = (0..(100 + g as usize * 7))
-            .map(|i| (i as u32 * g) as u8)
-            .collect();
-        assert_eq!(store.save(&payload).unwrap(), g);
+    // 300-byte payloads: records of 24 + 304 = 328 bytes (8-byte writes), 12 per 4-KiB sector.
+    assert_eq!(CheckpointStore::<Flash<'_>>::records_per_sector(300), 12);
+    for g in 1..=30u32 {
+        let p = payload(g, 300);
+        assert_eq!(store.save(&p).unwrap(), g);
         let found = store.load(&mut buf).unwrap().unwrap();
+        // Records fill sector 0, then sector 1, then sector 0 again (erased) ...
+        let k = (g - 1) as usize;
         assert_eq!(
-            (found.generation, found.slot, found.len),
-            (g, ((g - 1) % 2) as usize, payload.len())
+            (found.generation, found.sector, found.offset, found.len),
+            (g, (k / 12) % 2, (k % 12) as u32 * 328, 300)
         );
-        assert_eq!(&buf[..found.len], &payload[..]);
+        assert_eq!(&buf[..found.len], &p[..]);
+    }
+    // 30 records, 12 per sector: each move to the next sector erases it first (sector 1 for
+    // records 13.., sector 0 for 25..): 2 erases.
+    assert_eq!(store.flash_mut().erases, 2);
+}
+
+/// Saves `n` 300-byte records (generations 1..=n) on fresh flash.
+fn filled(mem: &mut [u8], n: u32) {
+    let mut store = CheckpointStore::new(Flash::new(mem)).unwrap();
+    for g in 1..=n {
+        store.save(&payload(g, 300)).unwrap();
     }
 }
 
-/// A reset at any byte of a checkpoint write (the erase done, the payload or the header half
-/// written) leaves the previous checkpoint loadable: never only a broken copy.
+/// A reset at any byte of a checkpoint save — a plain append, or one that first erases the next
+/// sector (at every byte of the erase, then of the write) — leaves the previous checkpoint
+/// loadable, and the store goes on appending afterwards: never only a broken copy.
 #[test]
-fn a_power_loss_at_any_byte_of_a_write_keeps_the_previous_checkpoint() {
-    let old: Vec<u8> = (0..300).map(|i| i as u8).collect();
-    let new: Vec<u8> = (0..300).map(|i| (i as u8) ^ 0x5A).collect();
-    // Bytes one save writes: the payload (rounded to 8) and the 24-byte header.
-    let total = 304 + 24;
+fn a_power_loss_at_any_byte_of_a_write_or_erase_keeps_the_previous_checkpoint() {
     let mut buf = [0u8; MAX_PAYLOAD];
-    for cut in 0..=total {
-        let mut mem = vec![0xFFu8; 2 * SECTOR];
-        {
+    // Before: 5 records (an append into sector 0), 12 (sector 0 full: the save erases sector 1),
+    // 24 (both full: the save erases sector 0, which holds the oldest records).
+    for before in [5u32, 12, 24] {
+        let rollover = before % 12 == 0;
+        // Bytes one save writes: the payload (304) and the header (24), plus the erased sector.
+        let total = 304 + 24 + if rollover { SECTOR } else { 0 };
+        let mut mem0 = vec![0xFFu8; 2 * SECTOR];
+        filled(&mut mem0, before);
+        for cut in 0..=total {
+            let mut mem = mem0.clone();
+            {
+                let mut store = CheckpointStore::new(Flash::new(&mut mem)).unwrap();
+                store.load(&mut buf).unwrap();
+                store.flash_mut().fail_after_bytes = Some(cut);
+                let r = store.save(&payload(before + 1, 300));
+                assert_eq!(r.is_ok(), cut == total, "before {before}, cut at {cut}");
+            }
+            // "Reset": a new store over the same memory.
             let mut store = CheckpointStore::new(Flash::new(&mut mem)).unwrap();
-            store.load(&mut buf).unwrap();
-            store.save(&old).unwrap();
-            store.flash_mut().fail_after_bytes = Some(cut);
-            let r = store.save(&new);
-            assert_eq!(r.is_ok(), cut == total, "cut at {cut}");
-        }
-        // "Reset": a new store over the same memory.
-        let mut store = CheckpointStore::new(Flash::new(&mut mem)).unwrap();
-        let found = store
-            .load(&mut buf)
-            .unwrap()
-            .expect("a checkpoint survives");
-        if cut == total {
-            assert_eq!((found.generation, &buf[..found.len]), (2, &new[..]));
-        } else {
+            let found = store
+                .load(&mut buf)
+                .unwrap()
+                .expect("a checkpoint survives");
+            let want = if cut == total { before + 1 } else { before };
             assert_eq!(
                 (found.generation, &buf[..found.len]),
-                (1, &old[..]),
-                "cut at {cut}"
+                (want, &payload(want, 300)[..]),
+                "before {before}, cut at {cut}"
+            );
+            // The log goes on: the next save is the newest (and nothing is programmed twice:
+            // RamFlash refuses to write a byte that is not erased).
+            assert_eq!(store.save(&payload(want + 1, 300)).unwrap(), want + 1);
+            let found = store.load(&mut buf).unwrap().unwrap();
+            assert_eq!(
+                (found.generation, &buf[..found.len]),
+                (want + 1, &payload(want + 1, 300)[..]),
+                "before {before}, cut at {cut}: the save after the reset"
             );
         }
     }
 }
 
 #[test]
-fn damaged_slot_is_ignored_and_other_format_is_refused() {
+fn damaged_record_is_ignored_and_other_format_is_refused() {
     let mut mem = vec![0xFFu8; 2 * SECTOR];
     let mut buf = [0u8; MAX_PAYLOAD];
     {
@@ -85,22 +114,79 @@ fn damaged_slot_is_ignored_and_other_format_is_refused() {
         store.save(&[1u8; 64]).unwrap();
         store.save(&[2u8; 64]).unwrap();
     }
-    // Flip a payload bit of the newest (slot 1): the older one is loaded.
-    mem[SECTOR + 24 + 10] ^= 0x01;
+    // Records of 24 + 64 = 88 bytes. Flip a payload bit of the newest: the older one is loaded.
+    mem[88 + HEADER + 10] ^= 0x01;
     {
         let mut store = CheckpointStore::new(Flash::new(&mut mem)).unwrap();
         let f = store.load(&mut buf).unwrap().unwrap();
         assert_eq!((f.generation, buf[0]), (1, 1));
     }
-    // Both slots of another record format (header CRC kept valid): refused, not loaded.
-    for slot in 0..2 {
-        let h = slot * SECTOR;
+    // Records of another format only (header CRC kept valid): refused, not loaded.
+    for h in [0, 88] {
         mem[h + 4] = 9;
         let crc = estimator_core::checkpoint::crc32(&mem[h..h + 20]);
         mem[h + 20..h + 24].copy_from_slice(&crc.to_le_bytes());
     }
     let mut store = CheckpointStore::new(Flash::new(&mut mem)).unwrap();
     assert_eq!(store.load(&mut buf), Err(StoreError::Format { found: 9 }));
+}
+
+/// Every configuration's checkpoint payload fits the store's (deliberately tight) buffer: the
+/// longest postcard encoding has gravity set and the varint counters at their maximum.
+#[test]
+fn the_longest_configuration_fits_max_payload() {
+    let longest = Config {
+        gravity_mps2: Some(9.8),
+        status_every: u32::MAX,
+        checkpoint_every: u32::MAX,
+        ..Config::default()
+    };
+    let default = firmware_app::resume::payload_len(&Config::default()).unwrap();
+    let max = firmware_app::resume::payload_len(&longest).unwrap();
+    // Default: 20 + 137 + 1 068; longest: +8 (gravity) +4 (status_every: 5 varint bytes, not 1)
+    // +4 (checkpoint_every: 5, not 1).
+    assert_eq!((default, max), (1225, 1241));
+    assert!(max <= MAX_PAYLOAD);
+}
+
+/// Flash wear on the STM32H743's geometry (two 128-KiB sectors, 32-byte flash words) with the
+/// application's real checkpoint payload: erases are counted over many checkpoints and turned
+/// into erases per day and flash life at the default settings.
+#[test]
+fn flash_wear_at_the_default_settings_lasts_over_ten_years() {
+    const H7_SECTOR: usize = 128 * 1024;
+    type H7Flash<'a> = RamFlash<'a, H7_SECTOR, 32>;
+    let cfg = Config::default();
+    // The payload the application writes: resume block + the core's 15-state image.
+    let len = firmware_app::resume::payload_len(&cfg).expect("default config encodes");
+    let per_sector = CheckpointStore::<H7Flash<'_>>::records_per_sector(len);
+    // 1 225-byte payload -> 32 + 1 248 = 1 280-byte records, 102 per sector.
+    assert_eq!((len, per_sector), (1225, 102), "payload and records/sector");
+    let mut mem = vec![0xFFu8; 2 * H7_SECTOR];
+    let mut store = CheckpointStore::new(H7Flash::new(&mut mem)).unwrap();
+    let p = payload(0, len);
+    let n = 10 * per_sector as u64 + 1;
+    for _ in 0..n {
+        store.save(&p).unwrap();
+    }
+    let erases = store.flash_mut().erases;
+    // The log starts in sector 0 without an erase; each move to the next sector erases it
+    // first: 10 moves for 10 sector-fulls + 1 record.
+    assert_eq!(erases, 10, "erases for {n} checkpoints");
+    // Default: a checkpoint every 10 updates of 60 s = 144 a day.
+    assert_eq!((cfg.checkpoint_every, cfg.filter_period_s), (10, 60.0));
+    let per_day = 86_400.0 / (cfg.checkpoint_every as f64 * cfg.filter_period_s);
+    let erases_per_day = per_day * erases as f64 / n as f64;
+    // Two sectors share the erases; each is rated for 10 000 cycles.
+    let life_years = 10_000.0 * 2.0 / erases_per_day / 365.25;
+    println!(
+        "flash wear: {len}-byte payload, {per_sector} records/sector, {erases} erases for {n} checkpoints; {erases_per_day:.2} erases/day; life {life_years:.1} years at 10 000 cycles"
+    );
+    // 144 / 102 = 1.41 erases/day (the extra 1021st record makes it 1.41 x 1020/1021): 38.8
+    // years; 0.02 covers that rounding. The floor is 10 years; the old two-slot store (an
+    // erase per checkpoint, 144/day) gave 0.38 years.
+    assert!((erases_per_day - 1.41).abs() < 0.02, "{erases_per_day}");
+    assert!(life_years >= 10.0, "{life_years}");
 }
 
 // ---------------------------------------------------------------------------------------------
@@ -326,18 +412,15 @@ fn a_checkpoint_of_another_model_configuration_is_refused() {
         ..cfg
     };
     let ekf = filter_for(&other).unwrap();
-    // The application's payload: resume block v1 (source, next sample, last time, config) and
-    // the core's image — see `App::restore`.
-    let mut payload = vec![0u8; 20];
-    payload[0..2].copy_from_slice(&1u16.to_le_bytes());
-    payload[2] = 1;
-    payload[8..16].copy_from_slice(&f64::NAN.to_le_bytes());
-    let cfg_bytes = postcard::to_allocvec(&cfg).unwrap();
-    payload[16..18].copy_from_slice(&(cfg_bytes.len() as u16).to_le_bytes());
-    payload.extend(cfg_bytes);
-    let mut image = vec![0u8; estimator_core::checkpoint::size(15)];
-    ekf.checkpoint(&mut image).unwrap();
-    payload.extend(image);
+    // The application's payload (`firmware_app::resume`): this run's configuration, the other
+    // model's filter image.
+    let point = firmware_app::resume::ResumePoint {
+        next_seq: 0,
+        last_t_s: None,
+    };
+    let mut buf = [0u8; MAX_PAYLOAD];
+    let n = firmware_app::resume::encode_run(&mut buf, Source::Replay, point, &cfg, &ekf).unwrap();
+    let mut payload = buf[..n].to_vec();
     {
         let mut store = CheckpointStore::new(Flash::new(&mut mem)).unwrap();
         store.save(&payload).unwrap();

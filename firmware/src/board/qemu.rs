@@ -1,5 +1,7 @@
 //! QEMU `mps2-an500` board: Cortex-M7 with double-precision FPU, code at 0x0, RAM at
-//! 0x2000_0000, CMSDK APB UART0 at 0x4000_4000 (QEMU's first `-serial`). No accelerometer:
+//! 0x2000_0000, CMSDK APB UART0 at 0x4000_4000 (QEMU's first `-serial`). Reception as on the
+//! real board: UART0's receive interrupt (IRQ 0) moves each byte into the receive ring
+//! ([`firmware_app::serial::RxRing`]) the application reads. No accelerometer:
 //! samples come over the link (HIL replay). SysTick runs free on the core clock as the tick
 //! counter for timing filter updates; with `-icount shift=0` one instruction is one virtual
 //! nanosecond, so ticks convert exactly to instructions. Semihosting ends the run with an exit
@@ -11,7 +13,13 @@
 //! its own .data/.bss), so it plays the part of the real board's flash in the reset tests.
 
 use core::ptr::{read_volatile, write_volatile};
+
+// The STM32 board's HAL is a dependency of every build (Cargo has no "unless feature"), and its
+// PAC turns on cortex-m-rt's device vector table: link it so that table exists. Its handlers
+// all default to DefaultHandler below, which serves UART0's receive interrupt (IRQ 0). Nothing
+// else of embassy runs on this board.
 use core::sync::atomic::{AtomicU32, Ordering};
+use embassy_stm32 as _;
 
 use cortex_m::peripheral::syst::SystClkSource;
 use cortex_m::peripheral::SYST;
@@ -19,8 +27,12 @@ use cortex_m_rt::exception;
 use cortex_m_semihosting::{debug, hprintln};
 use firmware_app::app::{App, NoTimer, Platform};
 use firmware_app::checkpoints::RamFlash;
+use firmware_app::serial::{RingSerial, RxRing, RX_RING_BYTES};
 use firmware_app::NoSensor;
 use protocol::{Board, Fault, FaultCode};
+
+/// Start of RAM (memory-qemu.x): the bottom of the stack under flip-link.
+pub const RAM_ORIGIN: usize = 0x2000_0000;
 
 /// QEMU's mps2 system clock, which clocks SysTick (CLKSOURCE = core).
 pub const SYSCLK_HZ: u32 = 25_000_000;
@@ -30,8 +42,46 @@ const DATA: usize = 0x00;
 const STATE: usize = 0x04;
 const CTRL: usize = 0x08;
 const BAUDDIV: usize = 0x10;
+const INTCLEAR: usize = 0x0C;
 const STATE_TX_FULL: u32 = 1 << 0;
 const STATE_RX_FULL: u32 = 1 << 1;
+const CTRL_TX_EN: u32 = 1 << 0;
+const CTRL_RX_EN: u32 = 1 << 1;
+const CTRL_RX_INT_EN: u32 = 1 << 3;
+const INT_RX: u32 = 1 << 1;
+
+/// UART0's receive interrupt on mps2-an500 (QEMU `hw/arm/mps2.c`: RX IRQ 0, TX IRQ 1).
+#[derive(Clone, Copy)]
+struct Uart0Rx;
+// SAFETY: 0 is UART0's RX interrupt line on this machine.
+unsafe impl cortex_m::interrupt::InterruptNumber for Uart0Rx {
+    fn number(self) -> u16 {
+        0
+    }
+}
+
+/// What UART0's receive interrupt fills and the application reads.
+static RX: RxRing<RX_RING_BYTES> = RxRing::new();
+
+/// Every interrupt without its own handler lands here (cortex-m-rt, no device crate): UART0
+/// receive drains the UART into [`RX`]; anything else is a fault.
+#[exception]
+unsafe fn DefaultHandler(irqn: i16) {
+    if irqn == 0 {
+        // SAFETY: MMIO registers of UART0; the main loop only transmits (TX registers).
+        unsafe {
+            write_volatile((UART0 + INTCLEAR) as *mut u32, INT_RX);
+            while read_volatile((UART0 + STATE) as *const u32) & STATE_RX_FULL != 0 {
+                RX.push(read_volatile((UART0 + DATA) as *const u32) as u8);
+            }
+        }
+    } else {
+        fatal(
+            FaultCode::HardFault,
+            format_args!("unexpected interrupt {irqn}"),
+        );
+    }
+}
 
 /// The CMSDK APB UART as an embedded-io port.
 pub struct Uart {
@@ -43,7 +93,7 @@ impl Uart {
     /// One instance per UART.
     unsafe fn new(base: usize) -> Self {
         write_volatile((base + BAUDDIV) as *mut u32, 16);
-        write_volatile((base + CTRL) as *mut u32, 0b11); // TX and RX enable
+        write_volatile((base + CTRL) as *mut u32, CTRL_TX_EN | CTRL_RX_EN);
         Uart { base }
     }
     fn state(&self) -> u32 {
@@ -71,29 +121,6 @@ impl embedded_io::Write for Uart {
     fn flush(&mut self) -> Result<(), Self::Error> {
         while self.state() & STATE_TX_FULL != 0 {}
         Ok(())
-    }
-}
-
-impl embedded_io::ReadReady for Uart {
-    fn read_ready(&mut self) -> Result<bool, Self::Error> {
-        Ok(self.state() & STATE_RX_FULL != 0)
-    }
-}
-
-impl embedded_io::Read for Uart {
-    fn read(&mut self, buf: &mut [u8]) -> Result<usize, Self::Error> {
-        let mut n = 0;
-        if buf.is_empty() {
-            return Ok(0);
-        }
-        // Blocking for the first byte, as embedded-io asks; then whatever is there.
-        while self.state() & STATE_RX_FULL == 0 {}
-        while n < buf.len() && self.state() & STATE_RX_FULL != 0 {
-            // SAFETY: MMIO register of our UART.
-            buf[n] = unsafe { read_volatile((self.base + DATA) as *const u32) } as u8;
-            n += 1;
-        }
-        Ok(n)
     }
 }
 
@@ -149,12 +176,22 @@ pub type Storage = RamFlash<'static, 4096>;
 const STORAGE_BASE: usize = 0x2010_0000;
 const STORAGE_LEN: usize = 2 * 4096;
 
+/// The checkpoint storage (call once: the only reference to the region).
+fn init_storage() -> Storage {
+    // SAFETY: the region is RAM on mps2-an500, outside every linker section, and only this
+    // slice refers to it (init or the self-test runs once).
+    RamFlash::new(unsafe { core::slice::from_raw_parts_mut(STORAGE_BASE as *mut u8, STORAGE_LEN) })
+}
+
 /// The application on this board.
-pub type BoardApp = App<Uart, NoSensor, NoTimer, Qemu, Storage>;
+pub type BoardApp = App<Serial, NoSensor, NoTimer, Qemu, Storage>;
+
+/// The link: the receive ring (UART0's interrupt) and UART0's transmitter.
+pub type Serial = RingSerial<'static, Uart, RX_RING_BYTES>;
 
 /// The board's parts for the application.
 pub struct Parts {
-    pub serial: Uart,
+    pub serial: Serial,
     pub accel: NoSensor,
     pub timer: NoTimer,
     pub platform: Qemu,
@@ -167,17 +204,22 @@ pub fn init() -> Parts {
     let cp = cortex_m::Peripherals::take().expect("peripherals taken once");
     start_systick(cp.SYST);
     // SAFETY: the only UART0 instance.
-    let serial = unsafe { Uart::new(UART0) };
+    let uart = unsafe { Uart::new(UART0) };
+    // Reception by interrupt from here on.
+    // SAFETY: UART0 registers; the interrupt handler is DefaultHandler above.
+    unsafe {
+        write_volatile(
+            (UART0 + CTRL) as *mut u32,
+            CTRL_TX_EN | CTRL_RX_EN | CTRL_RX_INT_EN,
+        );
+        cortex_m::peripheral::NVIC::unmask(Uart0Rx);
+    }
     Parts {
-        serial,
+        serial: RingSerial::new(&RX, uart),
         accel: NoSensor,
         timer: NoTimer,
         platform: Qemu,
-        // SAFETY: the region is RAM on mps2-an500, outside every linker section, and only this
-        // slice refers to it (init runs once).
-        storage: RamFlash::new(unsafe {
-            core::slice::from_raw_parts_mut(STORAGE_BASE as *mut u8, STORAGE_LEN)
-        }),
+        storage: init_storage(),
         boot_fault: None,
     }
 }
@@ -253,6 +295,11 @@ pub fn selftest() -> ! {
             n += 1;
         }
     }
+    // The checkpoint path the link loop runs (its deepest stack): encode the resume block and
+    // the filter image, append it to the log in the board's storage, load it back, restore.
+    let storage = init_storage();
+    let ckpt = checkpoint_round_trip(&ekf, storage);
+    hprintln!("checkpoint round trip: {}", ckpt);
     let steps = n - 1;
     let mean = sum as f64 / f64::from(steps);
     let (used, size) = crate::memory::stack_usage();
@@ -286,6 +333,43 @@ pub fn selftest() -> ! {
     debug::exit(debug::EXIT_SUCCESS);
     loop {
         cortex_m::asm::wfi();
+    }
+}
+
+/// Saves `ekf` as a checkpoint into `storage` and restores it: "ok" or what failed.
+#[cfg(feature = "selftest")]
+#[inline(never)]
+fn checkpoint_round_trip(ekf: &firmware_app::app::Filter, storage: Storage) -> &'static str {
+    use firmware_app::checkpoints::{CheckpointStore, MAX_PAYLOAD};
+    use firmware_app::resume;
+    let Ok(mut store) = CheckpointStore::new(storage) else {
+        return "storage geometry refused";
+    };
+    let mut buf = [0u8; MAX_PAYLOAD];
+    let point = resume::ResumePoint {
+        next_seq: 0,
+        last_t_s: None,
+    };
+    let cfg = protocol::Config::default();
+    let Ok(n) = resume::encode_run(&mut buf, protocol::Source::Replay, point, &cfg, ekf) else {
+        return "encode failed";
+    };
+    if store.save(&buf[..n]).is_err() {
+        return "save failed";
+    }
+    match store.load(&mut buf) {
+        // As the application restores: decode, a fresh filter, its image loaded in place.
+        Ok(Some(f)) => match resume::decode(&buf[..f.len]) {
+            Ok(Some(b)) => match firmware_app::app::filter_for(&b.config) {
+                Ok(mut restored) => match resume::load_filter(&mut restored, b.image) {
+                    Ok(()) if restored.state() == ekf.state() => "ok",
+                    _ => "restore failed",
+                },
+                Err(_) => "filter refused",
+            },
+            _ => "decode failed",
+        },
+        _ => "load failed",
     }
 }
 

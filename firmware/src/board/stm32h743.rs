@@ -1,236 +1,59 @@
-//! The navigation computer: STM32H743 (Nucleo-H743ZI pin-out), register-level, no PAC.
+//! The navigation computer: STM32H743 (Nucleo-H743ZI pin-out), on the embassy-stm32 HAL's
+//! blocking drivers (no register addresses here).
 //!
-//! - Clock: the reset default, HSI 64 MHz for the core and all buses (the EKF needs ~40 k
-//!   instructions per 60-s update: no PLL needed).
-//! - Link: USART3 on PD8 (TX) / PD9 (RX), AF7, 115 200 Bd, 8N1 (the Nucleo's ST-LINK virtual COM port).
-//! - Accelerometer: ADXL355 on SPI1, PA5 SCK / PA6 MISO / PA7 MOSI (AF5), chip select PD14,
-//!   mode 0, 4 MHz (per_ck = HSI 64 MHz / 16).
+//! - Clock: HSI 64 MHz for the core and all buses, no PLL (the EKF needs ~40 k instructions per
+//!   60-s update). SPI1's kernel clock: per_ck = HSI.
+//! - Link: USART3 on PD8 (TX) / PD9 (RX), 115 200 Bd, 8N1 (the Nucleo's ST-LINK virtual COM
+//!   port), embassy's interrupt-driven `BufferedUart`: the receive interrupt fills a
+//!   [`RX_RING_BYTES`] ring (2.8 s of input), so a flash erase or a filter step loses no byte.
+//! - Accelerometer: ADXL355 on SPI1, PA5 SCK / PA6 MISO / PA7 MOSI, chip select PD14, mode 0,
+//!   4 MHz, through embedded-hal-bus's `ExclusiveDevice`.
 //! - Sample timer: SysTick at 1 kHz; ticks for timing filter updates: DWT CYCCNT at 64 MHz.
 //! - Shutdown: system reset. Fatal errors: a fault frame on the link, then halt (a watchdog,
-//!   when fitted, resets; issue 5 resumes from the checkpoint).
-//!
-//! - Checkpoints: the last two 128-KiB sectors of flash bank 2 (sectors 6 and 7, 0x081C_0000 to
-//!   0x081F_FFFF), kept out of the program's FLASH region by `memory.x`; programmed through the
-//!   bank-2 registers in 256-bit flash words ([`Flash`]).
+//!   when fitted, resets; the run resumes from the checkpoint).
+//! - Checkpoints: the last two 128-KiB sectors of flash bank 2 (0x081C_0000 to 0x081F_FFFF),
+//!   kept out of the program's FLASH region by `memory.x`, through embassy's blocking flash
+//!   driver in 32-byte flash words. Bank 2 is erased while the code runs from bank 1
+//!   (read-while-write), so interrupts — the UART's — keep running during the erase.
 //!
 //! Not yet run on hardware: built and size-checked in CI only (see the README).
 
-use core::ptr::{read_volatile, write_volatile};
+use core::ptr::addr_of_mut;
 use core::sync::atomic::{AtomicU32, Ordering};
 
 use cortex_m::peripheral::syst::SystClkSource;
 use cortex_m_rt::exception;
-use embedded_hal::spi::{ErrorType, Operation, SpiDevice};
-use embedded_storage::nor_flash::{
-    ErrorType as FlashErrorType, NorFlash, NorFlashError, NorFlashErrorKind, ReadNorFlash,
-};
+use embassy_stm32::flash::{Blocking, Flash as HalFlash};
+use embassy_stm32::gpio::{Level, Output, Speed};
+use embassy_stm32::mode::Blocking as BlockingMode;
+use embassy_stm32::spi::{self, Spi};
+use embassy_stm32::time::Hertz;
+use embassy_stm32::usart::{self, BufferedUart};
+use embassy_stm32::{bind_interrupts, peripherals};
+use embedded_hal_bus::spi::ExclusiveDevice;
+use embedded_storage::nor_flash::{ErrorType as FlashErrorType, NorFlash, ReadNorFlash};
 use firmware_app::adxl355::{self, Adxl355};
 use firmware_app::app::{App, Platform, SampleTimer, Tick};
+use firmware_app::serial::RX_RING_BYTES;
 use firmware_app::{AccelSample, Accelerometer};
 use protocol::{Board, Fault, FaultCode};
 
 const CORE_HZ: u32 = 64_000_000;
+const BAUD: u32 = 115_200;
 
-// RCC
-const RCC: usize = 0x5802_4400;
-const RCC_D2CCIP1R: usize = RCC + 0x050;
-const RCC_AHB4ENR: usize = RCC + 0x0E0;
-const RCC_APB1LENR: usize = RCC + 0x0E8;
-const RCC_APB2ENR: usize = RCC + 0x0F0;
-// GPIO
-const GPIOA: usize = 0x5802_0000;
-const GPIOD: usize = 0x5802_0C00;
-const MODER: usize = 0x00;
-const OSPEEDR: usize = 0x08;
-const BSRR: usize = 0x18;
-const AFRL: usize = 0x20;
-const AFRH: usize = 0x24;
-// USART3
-const USART3: usize = 0x4000_4800;
-const U_CR1: usize = 0x00;
-const U_BRR: usize = 0x0C;
-const U_ISR: usize = 0x1C;
-const U_ICR: usize = 0x20;
-const U_RDR: usize = 0x24;
-const U_TDR: usize = 0x28;
-const ISR_RXNE: u32 = 1 << 5;
-const ISR_TXE: u32 = 1 << 7;
-const ISR_TC: u32 = 1 << 6;
-const ISR_ORE: u32 = 1 << 3;
-// SPI1
-const SPI1: usize = 0x4001_3000;
-const S_CR1: usize = 0x00;
-const S_CFG1: usize = 0x08;
-const S_CFG2: usize = 0x0C;
-const S_SR: usize = 0x14;
-const S_IFCR: usize = 0x18;
-const S_TXDR: usize = 0x20;
-const S_RXDR: usize = 0x30;
-const SR_RXP: u32 = 1 << 0;
-const SR_TXP: u32 = 1 << 1;
-const SR_SUSP: u32 = 1 << 11;
-const CS_PIN: u32 = 14;
+/// Start of RAM (memory.x: AXI SRAM): the bottom of the stack under flip-link.
+pub const RAM_ORIGIN: usize = 0x2400_0000;
 
-fn rd(addr: usize) -> u32 {
-    // SAFETY: addresses are this board's peripheral registers.
-    unsafe { read_volatile(addr as *const u32) }
-}
-fn wr(addr: usize, v: u32) {
-    // SAFETY: as above.
-    unsafe { write_volatile(addr as *mut u32, v) }
-}
-fn modify(addr: usize, clear: u32, set: u32) {
-    wr(addr, (rd(addr) & !clear) | set);
-}
+bind_interrupts!(struct Irqs {
+    USART3 => usart::BufferedInterruptHandler<peripherals::USART3>;
+});
 
-/// Pins `pins` of `port` to alternate function `af`, high speed.
-fn alternate(port: usize, pins: &[u32], af: u32) {
-    for &p in pins {
-        modify(port + MODER, 0b11 << (2 * p), 0b10 << (2 * p));
-        modify(port + OSPEEDR, 0b11 << (2 * p), 0b10 << (2 * p));
-        let (reg, sh) = if p < 8 {
-            (AFRL, 4 * p)
-        } else {
-            (AFRH, 4 * (p - 8))
-        };
-        modify(port + reg, 0xF << sh, af << sh);
-    }
-}
+/// The link: USART3 with interrupt-driven receive and transmit rings.
+pub type Serial = BufferedUart<'static>;
 
-/// USART3 as an embedded-io port.
-pub struct Usart3;
-
-impl Usart3 {
-    fn init() -> Self {
-        modify(RCC_AHB4ENR, 0, 1 << 3); // GPIOD
-        modify(RCC_APB1LENR, 0, 1 << 18); // USART3
-        let _ = rd(RCC_APB1LENR);
-        alternate(GPIOD, &[8, 9], 7);
-        wr(USART3 + U_CR1, 0);
-        wr(USART3 + U_BRR, CORE_HZ / 115_200);
-        wr(USART3 + U_CR1, (1 << 29) | (1 << 3) | (1 << 2) | 1); // FIFOEN, TE, RE, UE
-        Usart3
-    }
-    fn put(b: u8) {
-        while rd(USART3 + U_ISR) & ISR_TXE == 0 {}
-        wr(USART3 + U_TDR, u32::from(b));
-    }
-}
-
-impl embedded_io::ErrorType for Usart3 {
-    type Error = core::convert::Infallible;
-}
-impl embedded_io::Write for Usart3 {
-    fn write(&mut self, buf: &[u8]) -> Result<usize, Self::Error> {
-        for &b in buf {
-            Self::put(b);
-        }
-        Ok(buf.len())
-    }
-    fn flush(&mut self) -> Result<(), Self::Error> {
-        while rd(USART3 + U_ISR) & ISR_TC == 0 {}
-        Ok(())
-    }
-}
-impl embedded_io::ReadReady for Usart3 {
-    fn read_ready(&mut self) -> Result<bool, Self::Error> {
-        let isr = rd(USART3 + U_ISR);
-        if isr & ISR_ORE != 0 {
-            // Overrun: bytes were lost; the frame decoder will drop and count the damaged frame.
-            wr(USART3 + U_ICR, ISR_ORE);
-        }
-        Ok(isr & ISR_RXNE != 0)
-    }
-}
-impl embedded_io::Read for Usart3 {
-    fn read(&mut self, buf: &mut [u8]) -> Result<usize, Self::Error> {
-        if buf.is_empty() {
-            return Ok(0);
-        }
-        while rd(USART3 + U_ISR) & ISR_RXNE == 0 {}
-        let mut n = 0;
-        while n < buf.len() && rd(USART3 + U_ISR) & ISR_RXNE != 0 {
-            buf[n] = rd(USART3 + U_RDR) as u8;
-            n += 1;
-        }
-        Ok(n)
-    }
-}
-
-/// SPI1 with a GPIO chip select, as an embedded-hal `SpiDevice` (polled, byte-wide).
-pub struct Spi1;
-
-/// SPI errors (none are detected beyond the bus hanging, which the polling loops do not time out).
-#[derive(Clone, Copy, Debug)]
-pub struct SpiError;
-
-impl embedded_hal::spi::Error for SpiError {
-    fn kind(&self) -> embedded_hal::spi::ErrorKind {
-        embedded_hal::spi::ErrorKind::Other
-    }
-}
-
-impl Spi1 {
-    fn init() -> Self {
-        modify(RCC_AHB4ENR, 0, (1 << 0) | (1 << 3)); // GPIOA, GPIOD
-        modify(RCC_D2CCIP1R, 0b111 << 12, 0b100 << 12); // SPI123 kernel clock = per_ck (HSI)
-        modify(RCC_APB2ENR, 0, 1 << 12); // SPI1
-        let _ = rd(RCC_APB2ENR);
-        alternate(GPIOA, &[5, 6, 7], 5);
-        wr(GPIOD + BSRR, 1 << CS_PIN); // CS high
-        modify(GPIOD + MODER, 0b11 << (2 * CS_PIN), 0b01 << (2 * CS_PIN));
-        wr(SPI1 + S_CFG1, (0b011 << 28) | 7); // /16, 8-bit frames
-        wr(SPI1 + S_CFG2, (1 << 31) | (1 << 26) | (1 << 22)); // AFCNTR, SSM, MASTER; mode 0
-        wr(SPI1 + S_CR1, 1 << 12); // SSI
-        Spi1
-    }
-    fn byte(out: u8) -> u8 {
-        while rd(SPI1 + S_SR) & SR_TXP == 0 {}
-        // SAFETY: byte access to the data register sends one 8-bit frame.
-        unsafe { write_volatile((SPI1 + S_TXDR) as *mut u8, out) };
-        while rd(SPI1 + S_SR) & SR_RXP == 0 {}
-        // SAFETY: as above.
-        unsafe { read_volatile((SPI1 + S_RXDR) as *const u8) }
-    }
-}
-
-impl ErrorType for Spi1 {
-    type Error = SpiError;
-}
-
-impl SpiDevice for Spi1 {
-    fn transaction(&mut self, ops: &mut [Operation<'_, u8>]) -> Result<(), SpiError> {
-        wr(GPIOD + BSRR, 1 << (CS_PIN + 16)); // CS low
-        modify(SPI1 + S_CR1, 0, 1); // SPE
-        modify(SPI1 + S_CR1, 0, 1 << 9); // CSTART
-        for op in ops.iter_mut() {
-            match op {
-                Operation::Read(b) => b.iter_mut().for_each(|x| *x = Self::byte(0)),
-                Operation::Write(b) => b.iter().for_each(|&x| {
-                    Self::byte(x);
-                }),
-                Operation::Transfer(r, w) => {
-                    for i in 0..r.len().max(w.len()) {
-                        let v = Self::byte(w.get(i).copied().unwrap_or(0));
-                        if let Some(x) = r.get_mut(i) {
-                            *x = v;
-                        }
-                    }
-                }
-                Operation::TransferInPlace(b) => b.iter_mut().for_each(|x| *x = Self::byte(*x)),
-                Operation::DelayNs(ns) => {
-                    cortex_m::asm::delay(ns.saturating_mul(CORE_HZ / 1_000_000) / 1000 + 1)
-                }
-            }
-        }
-        modify(SPI1 + S_CR1, 0, 1 << 10); // CSUSP
-        while rd(SPI1 + S_SR) & SR_SUSP == 0 {}
-        wr(SPI1 + S_IFCR, 0xFF8); // clear flags
-        modify(SPI1 + S_CR1, 1, 0); // SPE off
-        wr(GPIOD + BSRR, 1 << CS_PIN); // CS high
-        Ok(())
-    }
-}
+/// The ADXL355's SPI device: SPI1 with the PD14 chip select.
+type SpiDev =
+    ExclusiveDevice<Spi<'static, BlockingMode, spi::mode::Master>, Output<'static>, Delay>;
 
 /// Busy-wait delay on the core clock.
 pub struct Delay;
@@ -285,7 +108,9 @@ impl SampleTimer for MsTimer {
 }
 
 /// The accelerometer, if it passed its checks at boot.
-pub struct Sensor(Option<Adxl355<Spi1>>);
+pub struct Sensor(Option<Adxl355<SpiDev>>);
+
+type SpiError = <SpiDev as embedded_hal::spi::ErrorType>::Error;
 
 impl Accelerometer for Sensor {
     type Error = adxl355::Error<SpiError>;
@@ -320,11 +145,11 @@ impl Platform for Stm32h743 {
 }
 
 /// The application on this board.
-pub type BoardApp = App<Usart3, Sensor, MsTimer, Stm32h743, Flash>;
+pub type BoardApp = App<Serial, Sensor, MsTimer, Stm32h743, Flash>;
 
 /// The board's parts for the application.
 pub struct Parts {
-    pub serial: Usart3,
+    pub serial: Serial,
     pub accel: Sensor,
     pub timer: MsTimer,
     pub platform: Stm32h743,
@@ -332,9 +157,21 @@ pub struct Parts {
     pub boot_fault: Option<Fault>,
 }
 
+fn uart_config() -> usart::Config {
+    let mut c = usart::Config::default();
+    c.baudrate = BAUD;
+    c
+}
+
 /// Brings up clocks, link, sensor and timers.
 pub fn init() -> Parts {
-    let mut cp = cortex_m::Peripherals::take().expect("peripherals taken once");
+    let mut config = embassy_stm32::Config::default();
+    // HSI 64 MHz everywhere (the reset clock), and SPI1's kernel clock from per_ck = HSI.
+    config.rcc.mux.persel = embassy_stm32::rcc::mux::Persel::HSI;
+    config.rcc.mux.spi123sel = embassy_stm32::rcc::mux::Saisel::PER;
+    let p = embassy_stm32::init(config);
+
+    let mut cp = cortex_m::Peripherals::take().expect("core peripherals taken once");
     cp.DCB.enable_trace();
     cp.DWT.enable_cycle_counter();
     cp.SYST.set_clock_source(SystClkSource::Core);
@@ -342,21 +179,42 @@ pub fn init() -> Parts {
     cp.SYST.clear_current();
     cp.SYST.enable_interrupt();
     cp.SYST.enable_counter();
-    let serial = Usart3::init();
-    let mut dev = Adxl355::new(Spi1::init());
-    let (accel, boot_fault) = match dev.init(&adxl355::Config::default(), &mut Delay) {
-        Ok(()) => (Sensor(Some(dev)), None),
-        Err(e) => {
-            let code = match e {
-                adxl355::Error::BadId(_) => FaultCode::SensorId,
-                adxl355::Error::SelfTest { .. } => FaultCode::SensorSelfTest,
-                _ => FaultCode::SensorRead,
-            };
-            (
-                Sensor(None),
-                Some(Fault::new(code, 0, format_args!("ADXL355: {e:?}"))),
-            )
+
+    static mut TX_BUF: [u8; 1024] = [0; 1024];
+    static mut RX_BUF: [u8; RX_RING_BYTES] = [0; RX_RING_BYTES];
+    // SAFETY: init runs once; these are the only references to the two buffers.
+    let (tx_buf, rx_buf) = unsafe { (&mut *addr_of_mut!(TX_BUF), &mut *addr_of_mut!(RX_BUF)) };
+    let serial = BufferedUart::new(p.USART3, p.PD9, p.PD8, tx_buf, rx_buf, Irqs, uart_config())
+        .expect("USART3 configuration");
+
+    let mut spi_config = spi::Config::default();
+    spi_config.frequency = Hertz(4_000_000);
+    let spi = Spi::new_blocking(p.SPI1, p.PA5, p.PA7, p.PA6, spi_config);
+    let cs = Output::new(p.PD14, Level::High, Speed::VeryHigh);
+    let (accel, boot_fault) = match ExclusiveDevice::new(spi, cs, Delay) {
+        Ok(dev) => {
+            let mut dev = Adxl355::new(dev);
+            match dev.init(&adxl355::Config::default(), &mut Delay) {
+                Ok(()) => (Sensor(Some(dev)), None),
+                Err(e) => {
+                    let code = match e {
+                        adxl355::Error::BadId(_) => FaultCode::SensorId,
+                        adxl355::Error::SelfTest { .. } => FaultCode::SensorSelfTest,
+                        _ => FaultCode::SensorRead,
+                    };
+                    let fault = Fault::new(code, 0, format_args!("ADXL355: {}", SensorFault(&e)));
+                    (Sensor(None), Some(fault))
+                }
+            }
         }
+        Err(_) => (
+            Sensor(None),
+            Some(Fault::new(
+                FaultCode::SensorRead,
+                0,
+                format_args!("ADXL355: chip select"),
+            )),
+        ),
     };
     let timer = MsTimer {
         start_ms: 0,
@@ -369,8 +227,29 @@ pub fn init() -> Parts {
         accel,
         timer,
         platform: Stm32h743,
-        storage: Flash::take(),
+        storage: Flash(HalFlash::new_blocking(p.FLASH)),
         boot_fault,
+    }
+}
+
+/// A sensor error for the boot fault, without floating-point formatting (~15 KB of
+/// `core::fmt::float` otherwise): the self-test response in milli-g.
+struct SensorFault<'a>(&'a adxl355::Error<SpiError>);
+
+impl core::fmt::Display for SensorFault<'_> {
+    fn fmt(&self, f: &mut core::fmt::Formatter<'_>) -> core::fmt::Result {
+        match self.0 {
+            adxl355::Error::Spi(_) => write!(f, "SPI error"),
+            adxl355::Error::BadId(id) => {
+                write!(f, "bad id {:02x} {:02x} {:02x}", id[0], id[1], id[2])
+            }
+            adxl355::Error::SelfTest { axis, response_g } => write!(
+                f,
+                "self-test axis {axis}: response {} mg out of limits",
+                (response_g * 1e3) as i64
+            ),
+            adxl355::Error::NotReady => write!(f, "no new data"),
+        }
     }
 }
 
@@ -379,7 +258,8 @@ pub fn shutdown() -> ! {
     cortex_m::peripheral::SCB::sys_reset()
 }
 
-/// Reports a fatal error on the link (a fault frame) and halts.
+/// Reports a fatal error on the link (a fault frame, through a blocking transmitter taken over
+/// from the application) and halts.
 pub fn fatal(code: FaultCode, detail: core::fmt::Arguments<'_>) -> ! {
     let fault = Fault::new(code, 0, detail);
     let mut buf = [0u8; protocol::MAX_FRAME];
@@ -387,8 +267,12 @@ pub fn fatal(code: FaultCode, detail: core::fmt::Arguments<'_>) -> ! {
         &protocol::Packet::new(u32::MAX, protocol::Message::Fault(fault)),
         &mut buf,
     ) {
-        for &b in f {
-            Usart3::put(b);
+        // SAFETY: we are going down with interrupts off; the application no longer runs, so
+        // nothing else uses USART3 or its TX pin.
+        let (usart, tx) = unsafe { (peripherals::USART3::steal(), peripherals::PD8::steal()) };
+        if let Ok(mut tx) = usart::UartTx::new_blocking(usart, tx, uart_config()) {
+            let _ = tx.blocking_write(f);
+            let _ = tx.blocking_flush();
         }
     }
     loop {
@@ -397,99 +281,25 @@ pub fn fatal(code: FaultCode, detail: core::fmt::Arguments<'_>) -> ! {
 }
 
 // ---------------------------------------------------------------------------------------------
-// Checkpoint flash: bank 2, sectors 6 and 7 (RM0433 §4: embedded flash memory).
+// Checkpoint flash: bank 2, sectors 6 and 7.
 
-const FLASH_REGS: usize = 0x5200_2000;
-const FLASH_KEYR2: usize = FLASH_REGS + 0x104;
-const FLASH_CR2: usize = FLASH_REGS + 0x10C;
-const FLASH_SR2: usize = FLASH_REGS + 0x110;
-const FLASH_CCR2: usize = FLASH_REGS + 0x114;
-const FLASH_KEY1: u32 = 0x4567_0123;
-const FLASH_KEY2: u32 = 0xCDEF_89AB;
-const CR_LOCK: u32 = 1 << 0;
-const CR_PG: u32 = 1 << 1;
-const CR_SER: u32 = 1 << 2;
-const CR_PSIZE_X64: u32 = 0b11 << 4;
-const CR_START: u32 = 1 << 7;
-const SR_BSY: u32 = 1 << 0;
-const SR_WBNE: u32 = 1 << 1;
-const SR_QW: u32 = 1 << 2;
-/// WRPERR, PGSERR, STRBERR, INCERR, OPERR, RDPERR, RDSERR, SNECCERR, DBECCERR.
-const SR_ERRORS: u32 = (1 << 17)
-    | (1 << 18)
-    | (1 << 19)
-    | (1 << 21)
-    | (1 << 22)
-    | (1 << 23)
-    | (1 << 24)
-    | (1 << 25)
-    | (1 << 26);
-/// Base address of the checkpoint region (bank 2, sector 6).
-const CKPT_BASE: usize = 0x081C_0000;
-const CKPT_SECTOR0: u32 = 6;
+/// Offset of the checkpoint region from the start of flash (bank 2, sector 6).
+const CKPT_OFFSET: u32 = 0x1C_0000;
 const SECTOR_SIZE: usize = 128 * 1024;
 
-/// The checkpoint region of the internal flash as a NOR flash (offsets from 0x081C_0000).
-pub struct Flash {
-    _private: (),
-}
+/// The checkpoint region of the internal flash as a NOR flash (offsets from 0x081C_0000), over
+/// embassy's blocking driver (its unlocked erase and write: interrupts stay enabled).
+pub struct Flash(HalFlash<'static, Blocking>);
 
-/// Flash errors: the SR2 error bits of the failed operation, or an access outside the region.
-#[derive(Clone, Copy, Debug, PartialEq, Eq)]
-pub enum FlashError {
-    /// Outside the checkpoint region or not aligned to the flash word / sector.
-    OutOfBounds,
-    /// The controller reported these SR2 error flags.
-    Controller(u32),
-}
-
-impl NorFlashError for FlashError {
-    fn kind(&self) -> NorFlashErrorKind {
-        match self {
-            FlashError::OutOfBounds => NorFlashErrorKind::OutOfBounds,
-            FlashError::Controller(_) => NorFlashErrorKind::Other,
-        }
-    }
-}
+/// Flash errors: embassy's, or an access outside the checkpoint region.
+pub type FlashError = embassy_stm32::flash::Error;
 
 impl Flash {
-    /// The checkpoint region (init runs once).
-    fn take() -> Self {
-        Flash { _private: () }
-    }
-
-    fn wait_idle() -> Result<(), FlashError> {
-        // SAFETY: FLASH_SR2 is a read-only status register of this MCU.
-        while unsafe { read_volatile(FLASH_SR2 as *const u32) } & (SR_BSY | SR_QW | SR_WBNE) != 0 {}
-        let sr = unsafe { read_volatile(FLASH_SR2 as *const u32) };
-        let errors = sr & SR_ERRORS;
-        if errors != 0 {
-            // SAFETY: writing ones to CCR2 clears those flags.
-            unsafe { write_volatile(FLASH_CCR2 as *mut u32, errors) };
-            return Err(FlashError::Controller(errors));
+    fn check(from: u32, len: usize) -> Result<u32, FlashError> {
+        if from as usize + len > 2 * SECTOR_SIZE {
+            return Err(FlashError::Size);
         }
-        Ok(())
-    }
-
-    /// Unlocks CR2 (no-op when unlocked).
-    fn unlock() {
-        // SAFETY: the documented key sequence on FLASH_KEYR2.
-        unsafe {
-            if read_volatile(FLASH_CR2 as *const u32) & CR_LOCK != 0 {
-                write_volatile(FLASH_KEYR2 as *mut u32, FLASH_KEY1);
-                write_volatile(FLASH_KEYR2 as *mut u32, FLASH_KEY2);
-            }
-        }
-    }
-
-    fn lock() {
-        // SAFETY: setting LOCK re-locks the bank-2 control register.
-        unsafe {
-            write_volatile(
-                FLASH_CR2 as *mut u32,
-                read_volatile(FLASH_CR2 as *const u32) | CR_LOCK,
-            )
-        };
+        Ok(CKPT_OFFSET + from)
     }
 }
 
@@ -500,15 +310,8 @@ impl FlashErrorType for Flash {
 impl ReadNorFlash for Flash {
     const READ_SIZE: usize = 1;
     fn read(&mut self, offset: u32, bytes: &mut [u8]) -> Result<(), FlashError> {
-        let o = offset as usize;
-        if o + bytes.len() > 2 * SECTOR_SIZE {
-            return Err(FlashError::OutOfBounds);
-        }
-        for (i, b) in bytes.iter_mut().enumerate() {
-            // SAFETY: inside the memory-mapped checkpoint region.
-            *b = unsafe { read_volatile((CKPT_BASE + o + i) as *const u8) };
-        }
-        Ok(())
+        let at = Self::check(offset, bytes.len())?;
+        self.0.blocking_read(at, bytes)
     }
     fn capacity(&self) -> usize {
         2 * SECTOR_SIZE
@@ -520,61 +323,15 @@ impl NorFlash for Flash {
     const ERASE_SIZE: usize = SECTOR_SIZE;
 
     fn erase(&mut self, from: u32, to: u32) -> Result<(), FlashError> {
-        let (a, b) = (from as usize, to as usize);
-        if a % SECTOR_SIZE != 0 || b % SECTOR_SIZE != 0 || a > b || b > 2 * SECTOR_SIZE {
-            return Err(FlashError::OutOfBounds);
+        if to < from {
+            return Err(FlashError::Size);
         }
-        Self::wait_idle()?;
-        Self::unlock();
-        let mut r = Ok(());
-        for sector in (a / SECTOR_SIZE)..(b / SECTOR_SIZE) {
-            let snb = CKPT_SECTOR0 + sector as u32;
-            // SAFETY: sector erase of a checkpoint sector (never program code: memory.x).
-            unsafe {
-                write_volatile(FLASH_CR2 as *mut u32, CR_SER | CR_PSIZE_X64 | (snb << 8));
-                write_volatile(
-                    FLASH_CR2 as *mut u32,
-                    CR_SER | CR_PSIZE_X64 | (snb << 8) | CR_START,
-                );
-            }
-            r = Self::wait_idle();
-            if r.is_err() {
-                break;
-            }
-        }
-        // SAFETY: clears SER/SNB.
-        unsafe { write_volatile(FLASH_CR2 as *mut u32, 0) };
-        Self::lock();
-        r
+        let a = Self::check(from, (to - from) as usize)?;
+        self.0.blocking_erase(a, a + (to - from))
     }
 
     fn write(&mut self, offset: u32, bytes: &[u8]) -> Result<(), FlashError> {
-        let o = offset as usize;
-        if o % 32 != 0 || bytes.len() % 32 != 0 || o + bytes.len() > 2 * SECTOR_SIZE {
-            return Err(FlashError::OutOfBounds);
-        }
-        Self::wait_idle()?;
-        Self::unlock();
-        // SAFETY: PG with 64-bit parallelism for the bank-2 checkpoint region.
-        unsafe { write_volatile(FLASH_CR2 as *mut u32, CR_PG | CR_PSIZE_X64) };
-        let mut r = Ok(());
-        for (k, word) in bytes.chunks_exact(32).enumerate() {
-            let addr = CKPT_BASE + o + 32 * k;
-            for (j, w) in word.chunks_exact(4).enumerate() {
-                let v = u32::from_le_bytes([w[0], w[1], w[2], w[3]]);
-                // SAFETY: one 256-bit flash word written as eight aligned 32-bit writes; the
-                // controller programs it when the write buffer is full.
-                unsafe { write_volatile((addr + 4 * j) as *mut u32, v) };
-            }
-            cortex_m::asm::dsb();
-            r = Self::wait_idle();
-            if r.is_err() {
-                break;
-            }
-        }
-        // SAFETY: ends programming.
-        unsafe { write_volatile(FLASH_CR2 as *mut u32, 0) };
-        Self::lock();
-        r
+        let at = Self::check(offset, bytes.len())?;
+        self.0.blocking_write(at, bytes)
     }
 }
