@@ -46,7 +46,22 @@ pub struct Row {
     pub truth: Option<f64>,
 }
 
-/// Builds the rows of an identification (bound at `truth` when given).
+/// The true value of each of the identification's parameters (NaN where the truth file has none:
+/// an effect not injected is 0, a Gauss–Markov state has no fixed truth).
+pub fn truth_of(truth: &crate::simulate::Truth, id: &Identification) -> Vec<f64> {
+    let values = truth.parameter_values();
+    id.params
+        .iter()
+        .map(|p| match values.get(p.name) {
+            Some(v) => *v,
+            None if p.name.starts_with('M') && p.name.len() == 2 => f64::NAN,
+            None => 0.0,
+        })
+        .collect()
+}
+
+/// Builds the rows of an identification (bound at `truth` where it is known, NaN entries
+/// meaning unknown).
 pub fn rows(
     id: &Identification,
     model: &estimator_core::Model<'_>,
@@ -54,10 +69,14 @@ pub fn rows(
     truth: Option<&[f64]>,
 ) -> Vec<Row> {
     let best = id.best();
-    let bound_at: Vec<f64> = match truth {
-        Some(t) if t.len() == best.value.len() => t.to_vec(),
-        _ => best.value.clone(),
-    };
+    let bound_at: Vec<f64> = (0..best.value.len())
+        .map(|k| {
+            truth
+                .and_then(|t| t.get(k).copied())
+                .filter(|v| v.is_finite())
+                .unwrap_or(best.value[k])
+        })
+        .collect();
     // The bound is printed beside the estimate; where the linearised filter breaks down on
     // these measurements it is shown as n/a, with a warning, rather than ending the run.
     let bound = try_cramer_rao_bound(model, prep, &bound_at).unwrap_or_else(|e| {
@@ -72,7 +91,7 @@ pub fn rows(
             sigma: best.sigma(k),
             bound: bound[k],
             single: (id.single_pass.value[k], id.single_pass.sigma(k)),
-            truth: truth.and_then(|t| t.get(k).copied()),
+            truth: truth.and_then(|t| t.get(k).copied()).filter(|v| v.is_finite()),
         })
         .collect()
 }
@@ -108,6 +127,8 @@ pub fn print_table(rows: &[Row], refined: bool) {
                 "-".into()
             };
             print!(" {:>10} {:>10} {:>8} {:>7.2}", t, sci(e), pct, e / r.sigma);
+        } else if has_truth {
+            print!(" {:>10} {:>10} {:>8} {:>7}", "—", "", "", "");
         }
         println!(
             "  {:>12} {:>9}",
@@ -189,19 +210,10 @@ pub fn run(args: &IdentifyArgs) -> anyhow::Result<()> {
     let id = identify(&model, &prep, &cfg)?;
     spin.finish_and_clear();
     let truth = match &args.truth {
-        Some(p) => Some(read_truth(p)?.coefficient_array().to_vec()),
+        Some(p) => Some(truth_of(&read_truth(p)?, &id)),
         None => None,
     };
-    let truth = truth.map(|mut t| {
-        t.resize(id.params.len(), f64::NAN);
-        t
-    });
-    let rows = rows(
-        &id,
-        &model,
-        &prep,
-        truth.as_deref().filter(|t| t.iter().all(|v| v.is_finite())),
-    );
+    let rows = rows(&id, &model, &prep, truth.as_deref());
     let check = consistency_of(&id, &prep);
     let mut prep = prep;
     if check.as_ref().is_some_and(|c| !c.is_consistent()) {

@@ -57,14 +57,10 @@ pub fn run(args: &ReportArgs) -> anyhow::Result<()> {
     spin.finish_and_clear();
     let model = super::common::build_model(prep.site, &final_effects, &cfg.identify)?;
     let truth = match &args.truth {
-        Some(p) => Some(read_truth(p)?.coefficient_array().to_vec()),
+        Some(p) => Some(super::identify::truth_of(&read_truth(p)?, &id)),
         None => None,
     };
-    let truth = truth.map(|mut t| {
-        t.resize(id.params.len(), f64::NAN);
-        t
-    });
-    let table = rows(&id, &model, &prep, None);
+    let table = rows(&id, &model, &prep, truth.as_deref());
     let coefficients = table
         .iter()
         .enumerate()

@@ -271,6 +271,70 @@ impl Truth {
     pub fn coefficient_array(&self) -> [f64; 12] {
         self.scenario.coefficients
     }
+
+    /// The true value of every model parameter this run determines, by the catalog's parameter
+    /// names: the 12 drift coefficients and each injected deterministic effect's parameters (a
+    /// Gauss–Markov drift is a random process: no parameter truth). With g² drift the constant
+    /// D(i)0 a static run sees is D(i)0 + g²·D(i)zz (|A| = g merges them), and the identifiable
+    /// g² combinations are xx−zz, yy−zz, xy, xz, yz.
+    pub fn parameter_values(&self) -> BTreeMap<String, f64> {
+        let mut out: BTreeMap<String, f64> = COEFFICIENT_NAMES
+            .iter()
+            .zip(self.scenario.coefficients)
+            .map(|(n, v)| (n.to_string(), v))
+            .collect();
+        let xyz = ['X', 'Y', 'Z'];
+        let lower = ['x', 'y', 'z'];
+        for e in &self.effects {
+            let mut put = |name: String, v: f64| {
+                *out.entry(name).or_insert(0.0) += v;
+            };
+            match e {
+                InjectedEffect::G2 {
+                    d_deg_h_per_mps2_sq: d,
+                } => {
+                    let g2 = self.gravity_mps2 * self.gravity_mps2;
+                    for (i, a) in xyz.iter().enumerate() {
+                        // Order xx, xy, xz, yy, yz, zz.
+                        let [xx, xy, xz, yy, yz, zz] = d[i];
+                        put(format!("D{a}0"), g2 * zz);
+                        put(format!("G{a}xx-zz"), xx - zz);
+                        put(format!("G{a}yy-zz"), yy - zz);
+                        put(format!("G{a}xy"), xy);
+                        put(format!("G{a}xz"), xz);
+                        put(format!("G{a}yz"), yz);
+                    }
+                }
+                InjectedEffect::AccBias { b_mps2 } => {
+                    for (i, v) in b_mps2.iter().enumerate() {
+                        put(format!("BA{}", lower[i]), *v);
+                    }
+                }
+                InjectedEffect::AccScale { s_ppm } => {
+                    for (i, v) in s_ppm.iter().enumerate() {
+                        put(format!("SA{}", lower[i]), *v);
+                    }
+                }
+                InjectedEffect::AccMisalign { m_rad } => {
+                    for (name, v) in ["Mxy", "Mxz", "Myx", "Myz", "Mzx", "Mzy"].iter().zip(m_rad) {
+                        put(name.to_string(), *v);
+                    }
+                }
+                InjectedEffect::DriftTrend { k_deg_h_per_h } => {
+                    for (i, v) in k_deg_h_per_h.iter().enumerate() {
+                        put(format!("T{}", xyz[i]), *v);
+                    }
+                }
+                InjectedEffect::TempDrift { c_deg_h_per_c } => {
+                    for (i, v) in c_deg_h_per_c.iter().enumerate() {
+                        put(format!("K{}", xyz[i]), *v);
+                    }
+                }
+                InjectedEffect::DriftMarkov { .. } => {}
+            }
+        }
+        out
+    }
 }
 
 fn units() -> BTreeMap<String, String> {
