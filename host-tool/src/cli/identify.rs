@@ -91,7 +91,9 @@ pub fn rows(
             sigma: best.sigma(k),
             bound: bound[k],
             single: (id.single_pass.value[k], id.single_pass.sigma(k)),
-            truth: truth.and_then(|t| t.get(k).copied()).filter(|v| v.is_finite()),
+            truth: truth
+                .and_then(|t| t.get(k).copied())
+                .filter(|v| v.is_finite()),
         })
         .collect()
 }

@@ -61,14 +61,7 @@ pub struct Choice {
 
 /// −2 ln p(y) of an identification's final forward pass.
 pub fn neg2_log_evidence(id: &Identification) -> f64 {
-    id.innovations
-        .iter()
-        .map(|r| {
-            let s = nalgebra::Matrix3::from_fn(|a, b| r.s[a][b]);
-            let det = s.determinant().max(1e-300);
-            r.nis + det.ln() + 3.0 * (2.0 * std::f64::consts::PI).ln()
-        })
-        .sum()
+    crate::identify::neg2_log_evidence(&id.innovations)
 }
 
 /// Fit statistics of a converged identification: RMS/floor, NIS/3, Ljung–Box p.
