@@ -70,15 +70,32 @@ pub fn nis_band(updates: usize, prob: f64) -> [f64; 2] {
     ]
 }
 
-/// Assesses the statistics of one converged model.
+/// The NIS/3 band widened for the noise floor's own uncertainty: the floor is estimated from the
+/// data with relative 1σ `floor_rel_sd`, which scales every NIS by (σ/σ̂)² — a relative 1σ of
+/// 2·`floor_rel_sd` — independently of the χ² scatter; the two half-widths add in quadrature.
+/// On a long record at a short period the χ² band alone (±0.6 % at 216 000 updates) is narrower
+/// than the floor can be known (±0.8 % at 1σ from 216 000 raw samples).
+pub fn nis_band_with_floor(updates: usize, prob: f64, floor_rel_sd: f64) -> [f64; 2] {
+    let [lo, hi] = nis_band(updates, prob);
+    let z = crate::stats::normal_quantile(0.5 * (1.0 + prob));
+    let extra = z * 2.0 * floor_rel_sd.max(0.0);
+    [
+        1.0 - ((1.0 - lo).powi(2) + extra * extra).sqrt(),
+        1.0 + ((hi - 1.0).powi(2) + extra * extra).sqrt(),
+    ]
+}
+
+/// Assesses the statistics of one converged model; `floor_rel_sd` is the relative 1σ of the
+/// noise floor estimate (0 when the floor is given).
 pub fn assess(
     nis_mean: f64,
     updates: usize,
     whiteness_p: f64,
     rms_over_floor: [f64; 3],
+    floor_rel_sd: f64,
     t: &Thresholds,
 ) -> Consistency {
-    let band = nis_band(updates, t.nis_band_prob);
+    let band = nis_band_with_floor(updates, t.nis_band_prob, floor_rel_sd);
     let mut failures = vec![];
     if !(band[0]..=band[1]).contains(&nis_mean) {
         failures.push(format!(
@@ -129,11 +146,21 @@ mod tests {
     }
 
     #[test]
+    fn the_band_widens_by_the_floors_uncertainty() {
+        // No floor uncertainty: the χ² band. 1 % floor uncertainty on 216 000 updates: the NIS
+        // scale is uncertain by 2 %, so 3.29 × 2 % ≈ 6.6 % dominates the χ² ±0.6 %.
+        assert_eq!(nis_band_with_floor(3600, 0.999, 0.0), nis_band(3600, 0.999));
+        let b = nis_band_with_floor(216_000, 0.999, 0.01);
+        assert!((b[1] - 1.0659).abs() < 2e-3, "{b:?}");
+        assert!((1.0 - b[0] - 0.0659).abs() < 2e-3, "{b:?}");
+    }
+
+    #[test]
     fn each_failure_is_named() {
         let t = Thresholds::default();
-        let ok = assess(1.0, 3600, 0.5, [1.0, 1.0, 1.0], &t);
+        let ok = assess(1.0, 3600, 0.5, [1.0, 1.0, 1.0], 0.0, &t);
         assert!(ok.is_consistent());
-        let bad = assess(0.94, 3600, 1e-5, [1.0, 1.2, 1.0], &t);
+        let bad = assess(0.94, 3600, 1e-5, [1.0, 1.2, 1.0], 0.0, &t);
         assert_eq!(bad.failures.len(), 3, "{:?}", bad.failures);
     }
 }

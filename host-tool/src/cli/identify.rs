@@ -281,6 +281,7 @@ pub fn consistency_of(id: &Identification, prep: &Prepared) -> Option<Consistenc
         id.innovations.len(),
         white.p_value,
         [0, 1, 2].map(|i| rms[i] / floor[i]),
+        prep.floor_rel_sd(),
         &Thresholds::default(),
     ))
 }

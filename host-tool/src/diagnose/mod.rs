@@ -348,6 +348,7 @@ pub fn diagnose(
         n_upd,
         whiteness.p_value,
         residual_rms_over_floor,
+        prep.floor_rel_sd(),
         &Thresholds::default(),
     );
     let model_names: Vec<String> = effects

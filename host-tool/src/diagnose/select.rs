@@ -100,6 +100,7 @@ pub fn refit(
             id.innovations.len(),
             white,
             rms,
+            prep.floor_rel_sd(),
             &Thresholds::default(),
         );
         let ev = neg2_log_evidence(&id);

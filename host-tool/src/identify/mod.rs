@@ -104,6 +104,17 @@ impl Prepared {
         })
     }
 
+    /// Relative 1σ of the noise floor estimate: 0 when the floor was given; else from the number
+    /// of third differences it rests on, 1.75/√n — the median-based scale estimator's 1.17/√n
+    /// for independent samples, times 1.5 for the correlation of overlapping third differences.
+    pub fn floor_rel_sd(&self) -> f64 {
+        if self.noise.count == 0 {
+            0.0
+        } else {
+            1.75 / (self.noise.count as f64).sqrt()
+        }
+    }
+
     /// Reasons from the data quality not to trust an estimate (empty when there are none).
     pub fn untrusted_reasons(&self) -> Vec<String> {
         self.findings

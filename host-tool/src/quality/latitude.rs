@@ -112,6 +112,7 @@ pub fn profile(
         id.innovations.len(),
         white,
         rms,
+        p.floor_rel_sd(),
         &Thresholds::default(),
     )
     .is_consistent();
