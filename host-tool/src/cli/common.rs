@@ -3,8 +3,7 @@
 use std::path::Path;
 
 use anyhow::Context as _;
-use estimator_core::units::arw_deg2ph_to_rad2ps;
-use estimator_core::{Effect, Model, Propagation, Sample, Site};
+use estimator_core::{Propagation, Sample, Site};
 
 use crate::identify::Config;
 use crate::recording::read_recording;
@@ -121,20 +120,8 @@ pub fn load(path: &Path, latitude_override: Option<f64>) -> anyhow::Result<Loade
     })
 }
 
-/// The model with the paper's drift and the chosen effects.
-pub fn build_model<'m>(
-    site: Site,
-    effects: &'m [&'m dyn Effect],
-    cfg: &Config,
-) -> anyhow::Result<Model<'m>> {
-    Model::new(
-        site,
-        effects,
-        arw_deg2ph_to_rad2ps(cfg.arw_deg2_per_h),
-        cfg.propagation,
-    )
-    .map_err(|e| anyhow::anyhow!("{e}"))
-}
+/// The model with the paper's drift and the chosen effects (lives in [`crate::identify`]).
+pub use crate::identify::build_model;
 
 /// The numbers were computed but the tool does not trust them (exit status 3); the reasons say
 /// why. The numbers have been printed already, flagged.

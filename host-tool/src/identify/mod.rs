@@ -172,6 +172,21 @@ pub fn prepare(site: Site, samples: &[Sample], cfg: &Config) -> anyhow::Result<P
     })
 }
 
+/// The model with the paper's drift and the chosen effects.
+pub fn build_model<'m>(
+    site: Site,
+    effects: &'m [&'m dyn estimator_core::Effect],
+    cfg: &Config,
+) -> anyhow::Result<Model<'m>> {
+    Model::new(
+        site,
+        effects,
+        estimator_core::units::arw_deg2ph_to_rad2ps(cfg.arw_deg2_per_h),
+        cfg.propagation,
+    )
+    .map_err(|e| anyhow::anyhow!("{e}"))
+}
+
 /// An estimate of the model's parameters (states 3.. of the model).
 #[derive(Clone, Debug)]
 pub struct Estimate {
