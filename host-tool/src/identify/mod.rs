@@ -320,9 +320,15 @@ pub fn nominal_trajectory(
     let mut out = vec![DVector::from_row_slice(&x)];
     let mut tr = Transition::<MAX_STATES>::default();
     let mut t = 0.0;
-    for m in meas {
-        propagate(model, &mut x, t, m.t_s - t, 0.0, 0.0, &mut tr);
+    // The measured temperature deviations drive temperature-sensitive effects along the nominal
+    // exactly as in the smoother (without them the bound of a temperature-drift model was taken
+    // along another trajectory, and came out 10 % above the estimate's own 1σ).
+    let temps = smoother::temp_devs(meas);
+    let mut temp_prev = temps.first().copied().unwrap_or(0.0);
+    for (m, &temp) in meas.iter().zip(&temps) {
+        propagate(model, &mut x, t, m.t_s - t, temp_prev, temp, &mut tr);
         t = m.t_s;
+        temp_prev = temp;
         out.push(DVector::from_row_slice(&x));
     }
     out
