@@ -79,6 +79,9 @@ pub struct Loaded {
     pub samples: Vec<Sample>,
     /// Free-text description from the file, if any.
     pub description: Option<String>,
+    /// The platform's orientation at t = 0 from the metadata `initial_orientation_deg`, rad
+    /// (zero: level, the default).
+    pub initial_orientation_rad: [f64; 3],
 }
 
 /// Reads a recording; a bad file is an error naming file and line.
@@ -113,10 +116,32 @@ pub fn load(path: &Path, latitude_override: Option<f64>) -> anyhow::Result<Loade
     }
     let site = Site::new(latitude_deg, rec.meta.gravity_mps2);
     let samples = rec.samples.iter().map(Sample::from).collect();
+    let initial_orientation_rad = match rec
+        .meta
+        .extra
+        .iter()
+        .find(|(k, _)| k == crate::simulate::INITIAL_ORIENTATION_KEY)
+    {
+        None => [0.0; 3],
+        Some((_, v)) => {
+            let parts: Vec<Option<f64>> = v
+                .split(',')
+                .map(|p| p.trim().parse::<f64>().ok().filter(|x| x.is_finite()))
+                .collect();
+            match parts.as_slice() {
+                [Some(a), Some(b), Some(c)] => [a.to_radians(), b.to_radians(), c.to_radians()],
+                _ => anyhow::bail!(
+                    "{}: metadata initial_orientation_deg: {v:?} is not three finite angles tx, ty, tz in degrees",
+                    path.display()
+                ),
+            }
+        }
+    };
     Ok(Loaded {
         site,
         samples,
         description: rec.meta.description.clone(),
+        initial_orientation_rad,
     })
 }
 

@@ -11,7 +11,7 @@ use super::common::{load, print_findings, trusted_or, ModelArgs};
 use crate::catalog;
 use crate::diagnose::{ladder, DiagnoseConfig, Diagnosis, Ladder, Rung};
 use crate::format::{p_or_ln, pm, sci};
-use crate::identify::prepare;
+use crate::identify::prepare_oriented;
 
 /// Arguments of `driftid diagnose`.
 #[derive(clap::Args, Debug)]
@@ -227,8 +227,13 @@ pub fn run(args: &DiagnoseArgs) -> anyhow::Result<()> {
     );
     let loaded = load(&args.recording, args.model.latitude_deg)?;
     let effects = catalog::model_effects(&args.model.with)?;
-    let prep = prepare(loaded.site, &loaded.samples, &cfg.identify)
-        .with_context(|| format!("{}", args.recording.display()))?;
+    let prep = prepare_oriented(
+        loaded.site,
+        &loaded.samples,
+        &cfg.identify,
+        loaded.initial_orientation_rad,
+    )
+    .with_context(|| format!("{}", args.recording.display()))?;
     let mut cfg = cfg;
     let mut prep = prep;
     if prep.untrusted_reasons().is_empty() {

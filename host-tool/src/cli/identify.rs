@@ -10,7 +10,7 @@ use super::common::{build_model, load, print_findings, trusted_or, ModelArgs};
 use crate::catalog;
 use crate::consistency::{assess, Consistency, Thresholds};
 use crate::format::{sci, with_sigma};
-use crate::identify::{identify, prepare, try_cramer_rao_bound, Identification, Prepared};
+use crate::identify::{identify, prepare_oriented, try_cramer_rao_bound, Identification, Prepared};
 use crate::simulate::read_truth;
 
 /// Arguments of `driftid identify`.
@@ -205,8 +205,13 @@ pub fn run(args: &IdentifyArgs) -> anyhow::Result<()> {
     let cfg = args.model.config()?;
     let loaded = load(&args.recording, args.model.latitude_deg)?;
     let effects = catalog::model_effects(&args.model.with)?;
-    let prep = prepare(loaded.site, &loaded.samples, &cfg)
-        .with_context(|| format!("{}", args.recording.display()))?;
+    let prep = prepare_oriented(
+        loaded.site,
+        &loaded.samples,
+        &cfg,
+        loaded.initial_orientation_rad,
+    )
+    .with_context(|| format!("{}", args.recording.display()))?;
     let model = build_model(prep.site, &effects, &cfg)?;
     let spin = crate::progress::spinner("identifying (2 EKF passes + iterated smoother)");
     let id = identify(&model, &prep, &cfg)?;

@@ -6,7 +6,7 @@ use super::common::{load, ModelArgs};
 use super::identify::rows;
 use crate::catalog;
 use crate::diagnose::{ladder, DiagnoseConfig, Ladder};
-use crate::identify::prepare;
+use crate::identify::prepare_oriented;
 use crate::output;
 use crate::report::{render_html, write_pngs, CoefRow, ReportInput};
 use crate::simulate::read_truth;
@@ -46,7 +46,12 @@ pub fn run(args: &ReportArgs) -> anyhow::Result<()> {
     );
     let loaded = load(&args.recording, args.model.latitude_deg)?;
     let effects = catalog::model_effects(&args.model.with)?;
-    let prep = prepare(loaded.site, &loaded.samples, &cfg.identify)?;
+    let prep = prepare_oriented(
+        loaded.site,
+        &loaded.samples,
+        &cfg.identify,
+        loaded.initial_orientation_rad,
+    )?;
     let spin = crate::progress::spinner("identifying, diagnosing and climbing the model ladder");
     let Ladder {
         diagnoses,

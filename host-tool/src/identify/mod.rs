@@ -129,7 +129,18 @@ impl Prepared {
 /// applied, a recording that cannot support an estimate is refused), averages the accepted ones
 /// to the filter period and sets the measurement noise. Every analysis goes through here.
 pub fn prepare(site: Site, samples: &[Sample], cfg: &Config) -> anyhow::Result<Prepared> {
-    let screened = quality::screen(site, samples, cfg.period_s)?;
+    prepare_oriented(site, samples, cfg, [0.0; 3])
+}
+
+/// [`prepare`] for a platform whose stated orientation at t = 0 is `theta0` (rad; the recording's
+/// `initial_orientation_deg`): the model starts there, with the alignment's tight prior.
+pub fn prepare_oriented(
+    site: Site,
+    samples: &[Sample],
+    cfg: &Config,
+    theta0: [f64; 3],
+) -> anyhow::Result<Prepared> {
+    let screened = quality::screen_oriented(site, samples, cfg.period_s, theta0)?;
     let noise = match cfg.raw_sigma_mps2 {
         Some(raw_sigma_mps2) => NoiseFloor {
             raw_sigma_mps2,
@@ -159,8 +170,17 @@ pub fn prepare(site: Site, samples: &[Sample], cfg: &Config) -> anyhow::Result<P
         }
     }
     let (initial_angles, initial_angle_sigma) = match screened.initial_tilt {
-        Some(([tx, ty], s)) => ([tx, ty, 0.0], [s, s, ANGLE_PRIOR_SIGMA_RAD]),
-        None => ([0.0; 3], [ANGLE_PRIOR_SIGMA_RAD; 3]),
+        // Level start: the correction is tx, ty and the azimuth keeps the alignment's prior; from
+        // another orientation the unseen turn about gravity mixes all three Euler angles.
+        Some((d, s)) => (
+            [theta0[0] + d[0], theta0[1] + d[1], theta0[2] + d[2]],
+            if theta0 == [0.0; 3] {
+                [s, s, ANGLE_PRIOR_SIGMA_RAD]
+            } else {
+                [s; 3]
+            },
+        ),
+        None => (theta0, [ANGLE_PRIOR_SIGMA_RAD; 3]),
     };
     Ok(Prepared {
         site: screened.site,

@@ -124,8 +124,9 @@ pub struct Screened {
     /// Noise 1σ of one filter-period mean to use instead of raw/√n, when the means scatter more
     /// (or less) than white raw noise predicts.
     pub mean_sigma_override_mps2: Option<[f64; 3]>,
-    /// The start's tilt from level (tx, ty, rad) and its 1σ, when it is significant.
-    pub initial_tilt: Option<([f64; 2], f64)>,
+    /// The start's correction to the stated orientation (tx, ty, tz, rad) and its 1σ, when it is
+    /// significant.
+    pub initial_tilt: Option<([f64; 3], f64)>,
     /// Everything found, in the order checked.
     pub findings: Vec<Finding>,
     /// The screening's counts.
@@ -148,6 +149,17 @@ pub const MAX_REJECTED_FRACTION: f64 = 0.5;
 
 /// Screens samples in the core's form for a run at `site` analysed at `period_s`.
 pub fn screen(site: Site, samples: &[Sample], period_s: f64) -> Result<Screened, Refusal> {
+    screen_oriented(site, samples, period_s, [0.0; 3])
+}
+
+/// [`screen`] for a platform whose stated orientation at t = 0 is `theta0` (rad, the paper's
+/// Euler angles from local level ENU; metadata `initial_orientation_deg`).
+pub fn screen_oriented(
+    site: Site,
+    samples: &[Sample],
+    period_s: f64,
+    theta0: [f64; 3],
+) -> Result<Screened, Refusal> {
     let mut findings = vec![];
     let refuse = |mut findings: Vec<Finding>, kind, message: String| {
         findings.push(Finding {
@@ -220,11 +232,11 @@ pub fn screen(site: Site, samples: &[Sample], period_s: f64) -> Result<Screened,
         .filter(|t| t.is_finite())
         .collect();
     time::check_spacing(&times, &mut findings);
-    let initial_tilt = match physics::check_start(&site, &accepted, period_s, &sigma, &mut findings)
-    {
-        Ok(t) => t,
-        Err(f) => return refuse(findings, f.0, f.1),
-    };
+    let initial_tilt =
+        match physics::check_start(&site, &accepted, period_s, &sigma, theta0, &mut findings) {
+            Ok(t) => t,
+            Err(f) => return refuse(findings, f.0, f.1),
+        };
     // 3. Quantisation, the noise at the filter period, and steps in the means.
     let quantum = quantisation(&accepted, &summary, &mut findings);
     let means = window_means(&accepted, period_s, &sigma);

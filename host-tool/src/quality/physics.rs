@@ -95,16 +95,19 @@ pub fn check_gravity(
     }
 }
 
-/// Where gravity points at the start. A level start sees +g on z (after the Earth-rate turn of
-/// the first window, which the core's model predicts); a small tilt is levelled (the returned
-/// angles), a large one or gravity on another axis is refused.
+/// Where gravity points at the start. A level start (`theta0` = 0) sees +g on z, any other
+/// initial orientation what the model predicts from `theta0` (after the Earth-rate turn of the
+/// first window); a small departure is levelled (the returned angle correction, least-norm: the
+/// rotation about gravity is not seen, the azimuth stays the alignment's), a large one or
+/// gravity on another axis is refused.
 pub fn check_start(
     site: &Site,
     samples: &[Sample],
     period_s: f64,
     sigma: &[f64; 3],
+    theta0: [f64; 3],
     findings: &mut Vec<Finding>,
-) -> Result<Option<([f64; 2], f64)>, Refuse> {
+) -> Result<Option<([f64; 3], f64)>, Refuse> {
     let t0 = samples.first().map(|s| s.t_s).unwrap_or(0.0);
     let window: Vec<&Sample> = samples
         .iter()
@@ -122,7 +125,30 @@ pub fn check_start(
     }) / n;
     let g = a.norm();
     let tilt_deg = (a.z / g).clamp(-1.0, 1.0).acos() / RAD_PER_DEG;
-    if tilt_deg > MAX_START_TILT_DEG {
+    // The prediction of the stated start at the window's mean time (no drift), and ∂A/∂θ there.
+    let Ok(model) = Model::new(*site, &PAPER_EFFECTS, 0.0, Propagation::default()) else {
+        return Ok(None);
+    };
+    let mut x = vec![0.0; model.dim()];
+    x[..ANGLES].copy_from_slice(&theta0);
+    let mut tr = Transition::<{ estimator_core::model::MAX_STATES }>::default();
+    propagate(&model, &mut x, 0.0, t_mid, 0.0, 0.0, &mut tr);
+    let mut jac = [Vector3::zeros(); estimator_core::model::MAX_STATES];
+    let pred = model.measurement(&x, t_mid, 0.0, 0.0, &mut jac);
+    if theta0 != [0.0; 3] {
+        let off_deg = a.angle(&pred) / RAD_PER_DEG;
+        if off_deg > MAX_START_TILT_DEG {
+            return Err((
+                "initial-orientation",
+                format!(
+                    "at the start the specific force is [{:.4}, {:.4}, {:.4}] m/s^2, {off_deg:.1} deg from the [{:.4}, {:.4}, {:.4}] m/s^2 \
+                     the metadata's initial orientation ({:.3}, {:.3}, {:.3} deg) predicts: the orientation metadata, the columns or their signs are wrong",
+                    a.x, a.y, a.z, pred.x, pred.y, pred.z,
+                    theta0[0] / RAD_PER_DEG, theta0[1] / RAD_PER_DEG, theta0[2] / RAD_PER_DEG
+                ),
+            ));
+        }
+    } else if tilt_deg > MAX_START_TILT_DEG {
         let (ax, _) =
             a.iter().enumerate().fold(
                 (0, 0.0),
@@ -156,19 +182,16 @@ pub fn check_start(
             ),
         ));
     }
-    // The level start's prediction at the window's mean time (no drift).
-    let Ok(model) = Model::new(*site, &PAPER_EFFECTS, 0.0, Propagation::default()) else {
+    let d = a - pred;
+    // Least-norm angle correction: A ≈ pred + J·δ; J has rank 2 (a turn about gravity is not
+    // seen). For a level start this is tx = d_y/g, ty = −d_x/g, tz = 0.
+    let j = nalgebra::Matrix3::from_columns(&[jac[0], jac[1], jac[2]]);
+    let Ok(pinv) = j.pseudo_inverse(1e-9 * site.gravity_mps2) else {
         return Ok(None);
     };
-    let mut x = vec![0.0; model.dim()];
-    let mut tr = Transition::<{ estimator_core::model::MAX_STATES }>::default();
-    propagate(&model, &mut x, 0.0, t_mid, 0.0, 0.0, &mut tr);
-    let mut scratch = [Vector3::zeros(); estimator_core::model::MAX_STATES];
-    let pred = model.measurement(&x, t_mid, 0.0, 0.0, &mut scratch);
-    let d = a - pred;
-    // A = C·[0,0,g] ≈ g·(−ty, tx, 1) for small tilts.
-    let (tx, ty) = (d.y / site.gravity_mps2, -d.x / site.gravity_mps2);
-    let tilt = tx.hypot(ty);
+    let delta = pinv * d;
+    let (tx, ty) = (delta.x, delta.y);
+    let tilt = (j * delta).norm() / site.gravity_mps2;
     // Its 1σ: the window mean's noise, plus the platform turn a drift of the prior's size (1 deg/h
     // on each axis) makes before the window's mean time.
     let drift_radps = estimator_core::units::RADPS_PER_DEGPH * model.param(ANGLES).prior_sigma;
@@ -178,7 +201,7 @@ pub fn check_start(
         findings.push(Finding {
             kind: "initial-tilt",
             message: format!(
-                "the platform starts {:.3} deg from level (tx = {:+.4} deg, ty = {:+.4} deg, 1σ {:.1e} deg): \
+                "the platform starts {:.3} deg from the stated orientation (correction tx {:+.4} deg, ty {:+.4} deg, 1σ {:.1e} deg): \
                  the initial state is levelled from the first window's gravity direction (azimuth from the alignment)",
                 tilt / RAD_PER_DEG,
                 tx / RAD_PER_DEG,
@@ -190,7 +213,7 @@ pub fn check_start(
             samples: window.len(),
             action: Action::Repaired,
         });
-        return Ok(Some(([tx, ty], sigma_tilt)));
+        return Ok(Some(([delta.x, delta.y, delta.z], sigma_tilt)));
     }
     Ok(None)
 }
