@@ -52,6 +52,13 @@ pub fn run(args: &ReportArgs) -> anyhow::Result<()> {
         &cfg.identify,
         loaded.initial_orientation_rad,
     )?;
+    super::common::print_findings(&prep.findings);
+    let faults = prep.untrusted_reasons();
+    let mut cfg = cfg;
+    if !faults.is_empty() {
+        // A data fault is named as a fault, never explained by a physical effect: no ladder.
+        cfg.max_rungs = 1;
+    }
     let spin = crate::progress::spinner("identifying, diagnosing and climbing the model ladder");
     let Ladder {
         diagnoses,
@@ -61,6 +68,15 @@ pub fn run(args: &ReportArgs) -> anyhow::Result<()> {
     } = ladder(&prep, &effects, &cfg)?;
     spin.finish_and_clear();
     let model = super::common::build_model(prep.site, &final_effects, &cfg.identify)?;
+    let mut untrusted = faults;
+    if let Some(d) = diagnoses.last() {
+        if !d.consistency.is_consistent() {
+            untrusted.push(format!(
+                "the final model does not explain the measurements: {}",
+                d.consistency.failures.join("; ")
+            ));
+        }
+    }
     let truth = match &args.truth {
         Some(p) => Some(super::identify::truth_of(&read_truth(p)?, &id)),
         None => None,
@@ -93,6 +109,8 @@ pub fn run(args: &ReportArgs) -> anyhow::Result<()> {
         diagnoses,
         ladder: rungs,
         coefficients,
+        findings: prep.findings.clone(),
+        untrusted: untrusted.clone(),
     };
     let html = render_html(&input)?;
     output::write_atomic(&args.out, html.as_bytes())?;
@@ -103,5 +121,5 @@ pub fn run(args: &ReportArgs) -> anyhow::Result<()> {
         let files = write_pngs(&input, dir, &inputs)?;
         println!("wrote {} PNG plots to {}", files.len(), dir.display());
     }
-    Ok(())
+    super::common::trusted_or(untrusted)
 }

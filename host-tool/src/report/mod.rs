@@ -48,6 +48,10 @@ pub struct ReportInput {
     pub ladder: Vec<Rung>,
     /// The final model's identified parameters.
     pub coefficients: Vec<CoefRow>,
+    /// Data-quality findings (shown first; empty for a clean recording).
+    pub findings: Vec<crate::quality::Finding>,
+    /// Why the result is not trusted (empty: trusted).
+    pub untrusted: Vec<String>,
 }
 
 /// A p-value as HTML text (`< 1e-300` must be escaped).
@@ -140,6 +144,25 @@ pub fn render_html(input: &ReportInput) -> Result<String> {
         input.description.as_deref().map(|d| format!(" — {}", esc(d))).unwrap_or_default(),
         env!("CARGO_PKG_VERSION")
     );
+
+    // Data quality, first.
+    let _ = writeln!(h, "<h2>Data quality</h2>");
+    if input.findings.is_empty() {
+        let _ = writeln!(h, "<p>No finding: every sample passed the screening and the recording agrees with its metadata and with physics.</p>");
+    } else {
+        let _ = writeln!(h, "<ul>");
+        for f in &input.findings {
+            let _ = writeln!(h, "<li>{}</li>", esc(&f.line()));
+        }
+        let _ = writeln!(h, "</ul>");
+    }
+    if !input.untrusted.is_empty() {
+        let _ = writeln!(h, "<div class=\"verdict\"><b>NOT TRUSTED:</b> the numbers below are computed but the tool does not trust them:<ul>");
+        for r in &input.untrusted {
+            let _ = writeln!(h, "<li>{}</li>", esc(r));
+        }
+        let _ = writeln!(h, "</ul></div>");
+    }
 
     // Summary
     let _ = writeln!(h, "<h2>Summary</h2>");
