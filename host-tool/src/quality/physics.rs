@@ -185,7 +185,13 @@ pub fn check_start(
     let d = a - pred;
     // Least-norm angle correction: A ≈ pred + J·δ; J has rank 2 (a turn about gravity is not
     // seen). For a level start this is tx = d_y/g, ty = −d_x/g, tz = 0.
-    let j = nalgebra::Matrix3::from_columns(&[jac[0], jac[1], jac[2]]);
+    // A level start levels tx, ty only: the azimuth stays the alignment's (tz = 0 exactly).
+    let level = theta0 == [0.0; 3];
+    let j = nalgebra::Matrix3::from_columns(&[
+        jac[0],
+        jac[1],
+        if level { Vector3::zeros() } else { jac[2] },
+    ]);
     let Ok(pinv) = j.pseudo_inverse(1e-9 * site.gravity_mps2) else {
         return Ok(None);
     };
