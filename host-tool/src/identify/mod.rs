@@ -19,7 +19,7 @@ use estimator_core::effects::Param;
 use estimator_core::filter::ANGLE_PRIOR_SIGMA_RAD;
 use estimator_core::model::{Model, ANGLES, MAX_STATES};
 use estimator_core::propagate::{propagate, Transition};
-use estimator_core::{Averager, Ekf, Measurement, Propagation, Residual, Sample, Site};
+use estimator_core::{Ekf, Measurement, Propagation, Residual, Sample, Site};
 use nalgebra::{DMatrix, DVector, SymmetricEigen};
 
 use self::noise::NoiseFloor;
@@ -151,13 +151,8 @@ pub fn prepare_oriented(
             count: screened.samples.len(),
         },
     };
-    let mut avg = Averager::new(cfg.period_s, noise.raw_sigma_mps2);
-    let mut measurements: Vec<Measurement> = screened
-        .samples
-        .iter()
-        .filter_map(|s| avg.push(s))
-        .collect();
-    measurements.extend(avg.flush());
+    let mut measurements =
+        quality::window_means(&screened.samples, cfg.period_s, &noise.raw_sigma_mps2);
     if let (None, Some(over)) = (cfg.raw_sigma_mps2, screened.mean_sigma_override_mps2) {
         // The means' own scatter (quantised or correlated noise), scaled to each window's count.
         let mut counts: Vec<u32> = measurements.iter().map(|m| m.count).collect();
