@@ -88,6 +88,10 @@ pub fn fingerprint(model: &Model<'_>) -> u32 {
     let site = model.site();
     fnv(&mut h, &site.latitude_rad.to_le_bytes());
     fnv(&mut h, &site.gravity_mps2.to_le_bytes());
+    if site.chart != crate::frames::Chart::Enu {
+        // (ENU adds nothing: fingerprints of checkpoints written before charts stay valid.)
+        fnv(&mut h, b"chart-polar");
+    }
     fnv(&mut h, &model.arw_rad2ps().to_le_bytes());
     match model.propagation() {
         Propagation::Euler => fnv(&mut h, b"euler"),

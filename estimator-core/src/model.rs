@@ -212,7 +212,7 @@ impl<'m> Model<'m> {
     fn context(&self, att: &Attitude, t_s: f64, temp_dev_c: f64) -> Context {
         Context {
             t_s,
-            specific_force: att.specific_force(self.site.gravity_mps2),
+            specific_force: att.specific_force(&self.site.gravity_r()),
             temp_dev_c,
         }
     }
@@ -274,7 +274,7 @@ impl<'m> Model<'m> {
         let ctx = self.context(&att, t_s, temp_dev_c);
         let (drift_degph, d_force) = self.effect_terms(x, &ctx, d_dx, true);
         let k = rate_to_euler(&att);
-        let we0 = self.site.earth_rate_0();
+        let we0 = self.site.earth_rate_r();
         let w = drift_degph * RADPS_PER_DEGPH - att.c * we0;
         let k_deg = k * RADPS_PER_DEGPH;
         for col in d_dx[ANGLES..n].iter_mut() {
@@ -283,9 +283,9 @@ impl<'m> Model<'m> {
             }
         }
         let dk = d_rate_to_euler(&att, &w);
-        let g = self.site.gravity_mps2;
+        let g = self.site.gravity_r();
         for j in 0..ANGLES {
-            let dw = d_force * att.d_specific_force(g, j) * RADPS_PER_DEGPH - att.dc[j] * we0;
+            let dw = d_force * att.d_specific_force(&g, j) * RADPS_PER_DEGPH - att.dc[j] * we0;
             d_dx[j] = dk[j] + k * dw;
         }
         k * w
@@ -310,12 +310,12 @@ impl<'m> Model<'m> {
         let att = Attitude::new(&Vector3::new(x[0], x[1], x[2]));
         let ctx = self.context(&att, t_s, temp_dev_c);
         let (error, d_force) = self.effect_terms(x, &ctx, d_dx, false);
-        let g = self.site.gravity_mps2;
+        let g = self.site.gravity_r();
         let d_total = Matrix3::identity() + d_force;
-        let we0 = self.site.earth_rate_0();
-        let curvature_0 = we0.cross(&we0.cross(&self.site.gravity_0())) * (0.5 * time_var_s2);
+        let we0 = self.site.earth_rate_r();
+        let curvature_0 = we0.cross(&we0.cross(&g)) * (0.5 * time_var_s2);
         for j in 0..ANGLES {
-            d_dx[j] = d_total * att.d_specific_force(g, j) + att.dc[j] * curvature_0;
+            d_dx[j] = d_total * att.d_specific_force(&g, j) + att.dc[j] * curvature_0;
         }
         ctx.specific_force + error + att.c * curvature_0
     }

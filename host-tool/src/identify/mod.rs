@@ -132,14 +132,18 @@ pub fn prepare(site: Site, samples: &[Sample], cfg: &Config) -> anyhow::Result<P
     prepare_oriented(site, samples, cfg, [0.0; 3])
 }
 
-/// [`prepare`] for a platform whose stated orientation at t = 0 is `theta0` (rad; the recording's
-/// `initial_orientation_deg`): the model starts there, with the alignment's tight prior.
+/// [`prepare`] for a platform whose stated orientation at t = 0 is `theta0_enu` (rad, ENU Euler
+/// angles; the recording's `initial_orientation_deg`): the model starts there, with the
+/// alignment's tight prior. The site's chart is chosen for that start
+/// ([`Site::chart_for_start`]); `Prepared::initial_angles` are in that chart.
 pub fn prepare_oriented(
-    site: Site,
+    mut site: Site,
     samples: &[Sample],
     cfg: &Config,
-    theta0: [f64; 3],
+    theta0_enu: [f64; 3],
 ) -> anyhow::Result<Prepared> {
+    site.chart = site.chart_for_start(&theta0_enu);
+    let theta0 = site.angles_to_chart(&theta0_enu);
     let screened = quality::screen_oriented(site, samples, cfg.period_s, theta0)?;
     let noise = match cfg.raw_sigma_mps2 {
         Some(raw_sigma_mps2) => NoiseFloor {

@@ -153,7 +153,8 @@ pub fn screen(site: Site, samples: &[Sample], period_s: f64) -> Result<Screened,
 }
 
 /// [`screen`] for a platform whose stated orientation at t = 0 is `theta0` (rad, the paper's
-/// Euler angles from local level ENU; metadata `initial_orientation_deg`).
+/// Euler angles measured in the site's chart, [`estimator_core::frames::Chart`]; for the ENU
+/// chart these are the metadata's `initial_orientation_deg`).
 pub fn screen_oriented(
     site: Site,
     samples: &[Sample],

@@ -138,13 +138,14 @@ pub fn check_start(
     if theta0 != [0.0; 3] {
         let off_deg = a.angle(&pred) / RAD_PER_DEG;
         if off_deg > MAX_START_TILT_DEG {
+            let enu = site.angles_to_enu(&theta0);
             return Err((
                 "initial-orientation",
                 format!(
                     "at the start the specific force is [{:.4}, {:.4}, {:.4}] m/s^2, {off_deg:.1} deg from the [{:.4}, {:.4}, {:.4}] m/s^2 \
                      the metadata's initial orientation ({:.3}, {:.3}, {:.3} deg) predicts: the orientation metadata, the columns or their signs are wrong",
                     a.x, a.y, a.z, pred.x, pred.y, pred.z,
-                    theta0[0] / RAD_PER_DEG, theta0[1] / RAD_PER_DEG, theta0[2] / RAD_PER_DEG
+                    enu[0] / RAD_PER_DEG, enu[1] / RAD_PER_DEG, enu[2] / RAD_PER_DEG
                 ),
             ));
         }
