@@ -11,6 +11,7 @@
 //! A single pass linearises about poor estimates for the first day and leaves errors of several
 //! percent with a covariance that claims far more than it knows; steps 3–4 remove that.
 
+pub mod joint;
 pub mod noise;
 pub mod smoother;
 
@@ -643,4 +644,19 @@ pub fn weak_combinations(model: &Model<'_>, est: &Estimate) -> Vec<WeakCombinati
             }
         })
         .collect()
+}
+
+/// Largest canonical correlation between the estimates of parameter blocks `a` and `b` (indices
+/// into `cov`): the largest singular value of `La⁻¹·Σab·Lb⁻ᵀ` with `Σaa = La·Laᵀ`,
+/// `Σbb = Lb·Lbᵀ`. Near 1: some combination of `a` and one of `b` are estimated as one.
+/// `None` when a block's covariance is not positive definite.
+pub fn canonical_correlation(cov: &DMatrix<f64>, a: &[usize], b: &[usize]) -> Option<f64> {
+    let block =
+        |r: &[usize], c: &[usize]| DMatrix::from_fn(r.len(), c.len(), |i, j| cov[(r[i], c[j])]);
+    let la = block(a, a).cholesky()?.l();
+    let lb = block(b, b).cholesky()?.l();
+    let left = la.solve_lower_triangular(&block(a, b))?;
+    let whitened = lb.solve_lower_triangular(&left.transpose())?;
+    let sv = whitened.singular_values();
+    Some(sv.iter().copied().fold(0.0, f64::max).min(1.0))
 }

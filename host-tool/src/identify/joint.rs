@@ -1,0 +1,223 @@
+//! Joint identification: one set of parameters from several runs of the same system.
+//!
+//! Each run keeps its own site and chart, initial attitude (a nuisance the run's own smoother
+//! carries), start time, noise floor and temperature; the parameters are shared. Given a joint
+//! estimate p̂, each run's linearised smoother about its nominal trajectory at p̂ yields the
+//! posterior N(p_r, P_r) of the parameters from the common prior N(0, P0) and that run's data
+//! alone, with the run's angles marginalised. The runs' data are independent given p, so in the
+//! linearised problem the information adds up exactly (the prior counted once):
+//!
+//! ```text
+//! Λ = P0⁻¹ + Σ_r (P_r⁻¹ − P0⁻¹),   p̂ = Λ⁻¹ Σ_r P_r⁻¹ p_r      (prior mean 0)
+//! ```
+//!
+//! Iterating (each run relinearised about p̂) is Gauss–Newton for the joint likelihood. Each run
+//! is first identified alone ([`super::identify`], with its fall-backs) for a start. Effects with
+//! Gauss–Markov states (time-varying parameters) are per run and cannot be shared: refused.
+
+use anyhow::{bail, Context as _};
+use estimator_core::effects::Param;
+use estimator_core::model::{Model, ANGLES};
+use estimator_core::Residual;
+use nalgebra::{DMatrix, DVector};
+
+use super::smoother::linearised_pass;
+use super::{
+    identify, nominal_trajectory, smoothed_residuals, weak_combinations, wide_prior, Config,
+    Estimate, Identification, Prepared, WeakCombination,
+};
+
+/// Gauss–Newton iterations of the joint fit after the runs' own fits (the second changes the
+/// estimate by far less than 1σ on the paper's scenario).
+pub const JOINT_ITERATIONS: usize = 3;
+
+/// One run of a joint identification: its model (site and chart are the run's own) and data.
+pub struct Run<'a, 'm> {
+    /// The run's model: the same effects for every run, the run's own site.
+    pub model: &'a Model<'m>,
+    /// The run's prepared measurements.
+    pub prep: &'a Prepared,
+}
+
+/// What the joint fit says about one run.
+#[derive(Clone, Debug)]
+pub struct RunFit {
+    /// The run identified alone.
+    pub alone: Identification,
+    /// Innovations of the run's forward pass with the joint posterior as the parameters' prior.
+    pub innovations: Vec<Residual>,
+    /// Measured minus predicted along the run's trajectory at the joint estimate, m/s².
+    pub residuals: Vec<[f64; 3]>,
+    /// Smoothed initial angles in the run's chart, rad.
+    pub initial_angles: [f64; 3],
+}
+
+impl RunFit {
+    /// Mean NIS/3 of the run under the joint estimate.
+    pub fn nis_mean(&self) -> f64 {
+        super::mean_nis(&self.innovations)
+    }
+    /// RMS of the run's residual per axis, m/s².
+    pub fn residual_rms_mps2(&self) -> [f64; 3] {
+        let n = self.residuals.len().max(1) as f64;
+        [0, 1, 2].map(|i| (self.residuals.iter().map(|r| r[i] * r[i]).sum::<f64>() / n).sqrt())
+    }
+}
+
+/// The joint estimate and each run's fit.
+#[derive(Clone, Debug)]
+pub struct JointIdentification {
+    /// The shared parameters (name, unit, prior), in state order after the angles.
+    pub params: Vec<Param>,
+    /// Joint estimate and covariance.
+    pub estimate: Estimate,
+    /// Per run, in the order given.
+    pub runs: Vec<RunFit>,
+    /// Weakest combinations of the paper's coefficients in the joint information.
+    pub weak: Vec<WeakCombination>,
+}
+
+/// Information form of a Gaussian: (Λ, η) with Λ = P⁻¹, η = P⁻¹·m.
+fn information(cov: &DMatrix<f64>, mean: &[f64]) -> anyhow::Result<(DMatrix<f64>, DVector<f64>)> {
+    let sym = (cov + cov.transpose()) * 0.5;
+    let Some(chol) = sym.cholesky() else {
+        bail!("a run's parameter covariance is not positive definite");
+    };
+    let lambda = chol.inverse();
+    let eta = &lambda * DVector::from_row_slice(mean);
+    Ok((lambda, eta))
+}
+
+/// Fuses the runs' posteriors (each from the prior `p0`, mean 0) into the joint one.
+pub fn fuse(posteriors: &[Estimate], p0: &DMatrix<f64>) -> anyhow::Result<Estimate> {
+    let n = p0.nrows();
+    let (prior_info, _) = information(p0, &vec![0.0; n])?;
+    let mut lambda = prior_info.clone();
+    let mut eta = DVector::zeros(n);
+    for post in posteriors {
+        let (l, e) = information(&post.cov, &post.value)?;
+        lambda += l - &prior_info;
+        eta += e;
+    }
+    let sym = (&lambda + lambda.transpose()) * 0.5;
+    let Some(chol) = sym.cholesky() else {
+        bail!("the joint information is not positive definite");
+    };
+    let value = chol.solve(&eta);
+    Ok(Estimate {
+        value: value.as_slice().to_vec(),
+        cov: chol.inverse(),
+    })
+}
+
+/// The parameter block of the wide prior (the same for every run).
+fn parameter_prior(model: &Model<'_>) -> DMatrix<f64> {
+    let (_, p0) = wide_prior(model, &vec![0.0; model.dim()], &[0.0; 3]);
+    p0.view(
+        (ANGLES, ANGLES),
+        (model.dim() - ANGLES, model.dim() - ANGLES),
+    )
+    .into_owned()
+}
+
+/// One run linearised about its trajectory at `params` from `angles0`: its posterior from the
+/// wide prior, and its smoothed initial angles.
+fn run_posterior(
+    run: &Run<'_, '_>,
+    angles0: &[f64; 3],
+    params: &[f64],
+) -> anyhow::Result<(Estimate, [f64; 3])> {
+    let (model, meas) = (run.model, &run.prep.measurements);
+    let n = model.dim();
+    let nominal = nominal_trajectory(model, meas, angles0, params);
+    let mut start = vec![0.0; n];
+    start[..ANGLES].copy_from_slice(&run.prep.initial_angles);
+    let (x0, p0) = wide_prior(model, &start, &run.prep.initial_angle_sigma);
+    let pass = linearised_pass(model, meas, &nominal, &x0, &p0, true)?;
+    let (Some(first), Some(last)) = (pass.states.first(), pass.states.last()) else {
+        bail!("the smoother returned no states");
+    };
+    let estimate = Estimate {
+        value: last.as_slice()[ANGLES..].to_vec(),
+        cov: pass
+            .final_cov
+            .view((ANGLES, ANGLES), (n - ANGLES, n - ANGLES))
+            .into_owned(),
+    };
+    Ok((estimate, [first[0], first[1], first[2]]))
+}
+
+/// The run's innovations and residuals under the joint estimate: a forward–backward pass about
+/// the trajectory at `joint`, with the joint posterior as the parameters' prior.
+fn fit_under(
+    run: &Run<'_, '_>,
+    angles0: &[f64; 3],
+    joint: &Estimate,
+    alone: Identification,
+) -> anyhow::Result<RunFit> {
+    let (model, meas) = (run.model, &run.prep.measurements);
+    let n = model.dim();
+    let nominal = nominal_trajectory(model, meas, angles0, &joint.value);
+    let mut x0 = vec![0.0; n];
+    x0[..ANGLES].copy_from_slice(angles0);
+    x0[ANGLES..].copy_from_slice(&joint.value);
+    let (x0, mut p0) = wide_prior(model, &x0, &run.prep.initial_angle_sigma);
+    p0.view_mut((ANGLES, ANGLES), (n - ANGLES, n - ANGLES))
+        .copy_from(&joint.cov);
+    let pass = linearised_pass(model, meas, &nominal, &x0, &p0, true)?;
+    let residuals = smoothed_residuals(model, meas, &pass.states);
+    let first = &pass.states[0];
+    Ok(RunFit {
+        alone,
+        innovations: pass.innovations,
+        residuals,
+        initial_angles: [first[0], first[1], first[2]],
+    })
+}
+
+/// Identifies one set of parameters from several runs (see the module docs).
+pub fn identify_joint(runs: &[Run<'_, '_>], cfg: &Config) -> anyhow::Result<JointIdentification> {
+    let Some(first) = runs.first() else {
+        bail!("no runs to identify from");
+    };
+    if first.model.dynamic_states().len() > ANGLES {
+        bail!("effects with Gauss-Markov states (drift-markov) vary within each run and cannot be shared between runs; identify those runs one at a time");
+    }
+    let p0 = parameter_prior(first.model);
+    let mut alone = Vec::with_capacity(runs.len());
+    let mut posteriors = Vec::with_capacity(runs.len());
+    let mut angles = Vec::with_capacity(runs.len());
+    for (r, run) in runs.iter().enumerate() {
+        let id = identify(run.model, run.prep, cfg).with_context(|| format!("run {}", r + 1))?;
+        posteriors.push(id.best().clone());
+        let a = id
+            .trajectory
+            .first()
+            .map_or(run.prep.initial_angles, |x| [x[0], x[1], x[2]]);
+        angles.push(a);
+        alone.push(id);
+    }
+    let mut joint = fuse(&posteriors, &p0)?;
+    for _ in 0..JOINT_ITERATIONS {
+        for (r, run) in runs.iter().enumerate() {
+            let (post, a) = run_posterior(run, &angles[r], &joint.value)
+                .with_context(|| format!("joint fit, run {}", r + 1))?;
+            posteriors[r] = post;
+            angles[r] = a;
+        }
+        joint = fuse(&posteriors, &p0)?;
+    }
+    let mut fits = Vec::with_capacity(runs.len());
+    for ((run, id), a) in runs.iter().zip(alone).zip(&angles) {
+        fits.push(fit_under(run, a, &joint, id)?);
+    }
+    let weak = weak_combinations(first.model, &joint);
+    Ok(JointIdentification {
+        params: (ANGLES..first.model.dim())
+            .map(|i| first.model.param(i))
+            .collect(),
+        estimate: joint,
+        runs: fits,
+        weak,
+    })
+}
