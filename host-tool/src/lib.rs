@@ -34,6 +34,7 @@ pub mod cli {
     pub mod demo;
     pub mod diagnose;
     pub mod identify;
+    pub mod joint;
     pub mod record;
     pub mod replay;
     pub mod report;

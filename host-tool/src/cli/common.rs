@@ -107,13 +107,6 @@ pub fn load(path: &Path, latitude_override: Option<f64>) -> anyhow::Result<Loade
             path.display()
         );
     }
-    if latitude_deg.abs() < 0.5 {
-        anyhow::bail!(
-            "{}: latitude {latitude_deg} deg is within 0.5 deg of the equator, where the Euler-angle kinematics \
-             (Rz·Ry·Rx) become singular as the platform turns through ty = ±90 deg",
-            path.display()
-        );
-    }
     let site = Site::new(latitude_deg, rec.meta.gravity_mps2);
     let samples = rec.samples.iter().map(Sample::from).collect();
     let initial_orientation_rad = match rec

@@ -16,8 +16,10 @@ use crate::simulate::read_truth;
 /// Arguments of `driftid identify`.
 #[derive(clap::Args, Debug)]
 pub struct IdentifyArgs {
-    /// Recording (CSV, see docs/recording-format.md).
-    pub recording: PathBuf,
+    /// Recording(s) (CSV, see docs/recording-format.md). Several runs of the same system are
+    /// identified jointly: one set of coefficients, each run with its own attitude and noise.
+    #[arg(required = true, num_args = 1..)]
+    pub recordings: Vec<PathBuf>,
     /// Truth file of a simulated run (`NAME.truth.json`): adds error and error/σ columns.
     #[arg(long)]
     pub truth: Option<PathBuf>,
@@ -202,8 +204,12 @@ pub fn to_json(rows: &[Row], id: &Identification, prep: &Prepared) -> Value {
 /// Runs `driftid identify`.
 pub fn run(args: &IdentifyArgs) -> anyhow::Result<()> {
     super::common::load_effects_args(&args.model)?; // --effects FILE: user effects join the catalog
+    if args.recordings.len() > 1 {
+        return super::joint::run(args);
+    }
+    let recording = &args.recordings[0];
     let cfg = args.model.config()?;
-    let loaded = load(&args.recording, args.model.latitude_deg)?;
+    let loaded = load(recording, args.model.latitude_deg)?;
     let effects = catalog::model_effects(&args.model.with)?;
     let prep = prepare_oriented(
         loaded.site,
@@ -211,7 +217,7 @@ pub fn run(args: &IdentifyArgs) -> anyhow::Result<()> {
         &cfg,
         loaded.initial_orientation_rad,
     )
-    .with_context(|| format!("{}", args.recording.display()))?;
+    .with_context(|| format!("{}", recording.display()))?;
     let model = build_model(prep.site, &effects, &cfg)?;
     let spin = crate::progress::spinner("identifying (2 EKF passes + iterated smoother)");
     let id = identify(&model, &prep, &cfg)?;
@@ -252,7 +258,7 @@ pub fn run(args: &IdentifyArgs) -> anyhow::Result<()> {
         print_findings(&prep.findings);
         println!(
             "{}: drift coefficients ({})",
-            args.recording.display(),
+            recording.display(),
             if id.refined.is_some() {
                 "converged: 2 EKF passes + iterated RTS smoother"
             } else {

@@ -221,3 +221,39 @@ pub fn identify_joint(runs: &[Run<'_, '_>], cfg: &Config) -> anyhow::Result<Join
         weak,
     })
 }
+
+/// The joint Cramér–Rao bound (1σ per parameter) at `params`: each run's filter linearised along
+/// its noise-free trajectory, the information fused as in [`fuse`].
+pub fn joint_bound(runs: &[Run<'_, '_>], params: &[f64]) -> anyhow::Result<Vec<f64>> {
+    let Some(first) = runs.first() else {
+        bail!("no runs");
+    };
+    let p0 = parameter_prior(first.model);
+    let mut posteriors = Vec::with_capacity(runs.len());
+    for run in runs {
+        let cov = run_bound_cov(run, &run.prep.initial_angles, params)?;
+        posteriors.push(Estimate {
+            value: vec![0.0; params.len()],
+            cov,
+        });
+    }
+    let fused = fuse(&posteriors, &p0)?;
+    Ok((0..params.len()).map(|k| fused.sigma(k)).collect())
+}
+
+/// One run's parameter covariance from its filter linearised along the noise-free trajectory at
+/// `params` (the run's Cramér–Rao bound, the wide prior included).
+pub fn run_bound_cov(
+    run: &Run<'_, '_>,
+    angles0: &[f64; 3],
+    params: &[f64],
+) -> anyhow::Result<DMatrix<f64>> {
+    let (model, meas) = (run.model, &run.prep.measurements);
+    let n = model.dim();
+    let nominal = nominal_trajectory(model, meas, angles0, params);
+    let (x0, p0) = wide_prior(model, nominal[0].as_slice(), &run.prep.initial_angle_sigma);
+    let cov = super::smoother::final_covariance(model, meas, &nominal, &x0, &p0)?;
+    Ok(cov
+        .view((ANGLES, ANGLES), (n - ANGLES, n - ANGLES))
+        .into_owned())
+}

@@ -1,0 +1,277 @@
+//! `driftid identify A.csv B.csv …`: one set of coefficients from several runs of one system.
+
+use std::path::PathBuf;
+
+use anyhow::Context as _;
+use serde_json::{json, Map, Value};
+
+use super::common::{build_model, load, print_findings, trusted_or};
+use super::identify::IdentifyArgs;
+use crate::catalog;
+use crate::consistency::{assess, Consistency, Thresholds};
+use crate::format::{sci, with_sigma};
+use crate::identify::joint::{identify_joint, joint_bound, JointIdentification, Run, RunFit};
+use crate::identify::{prepare_oriented, Config, Prepared};
+use crate::simulate::read_truth;
+
+/// One run as loaded and prepared.
+pub struct LoadedRun {
+    /// Where it came from.
+    pub path: PathBuf,
+    /// Its prepared measurements (site and chart its own).
+    pub prep: Prepared,
+    /// Stated initial orientation (ENU Euler angles), rad.
+    pub orientation_rad: [f64; 3],
+}
+
+/// Loads and prepares every recording; an unreadable or refused one names its file.
+pub fn load_runs(
+    paths: &[PathBuf],
+    latitude_deg: Option<f64>,
+    cfg: &Config,
+) -> anyhow::Result<Vec<LoadedRun>> {
+    paths
+        .iter()
+        .map(|path| {
+            let loaded = load(path, latitude_deg)?;
+            let prep = prepare_oriented(
+                loaded.site,
+                &loaded.samples,
+                cfg,
+                loaded.initial_orientation_rad,
+            )
+            .with_context(|| format!("{}", path.display()))?;
+            Ok(LoadedRun {
+                path: path.clone(),
+                prep,
+                orientation_rad: loaded.initial_orientation_rad,
+            })
+        })
+        .collect()
+}
+
+/// The consistency of one run under the joint estimate (the one definition in
+/// [`crate::consistency`]).
+pub fn run_consistency(fit: &RunFit, prep: &Prepared) -> Consistency {
+    let whitened: Vec<[f64; 3]> = fit.innovations.iter().map(|r| r.whitened).collect();
+    let white =
+        crate::diagnose::whiteness(&whitened, crate::diagnose::DiagnoseConfig::default().lags);
+    let rms = fit.residual_rms_mps2();
+    let floor = prep.floor_mps2();
+    assess(
+        fit.nis_mean(),
+        fit.innovations.len(),
+        white.p_value,
+        [0, 1, 2].map(|i| rms[i] / floor[i]),
+        prep.floor_rel_sd(),
+        &Thresholds::default(),
+    )
+}
+
+/// Runs the joint `driftid identify`.
+pub fn run(args: &IdentifyArgs) -> anyhow::Result<()> {
+    let cfg = args.model.config()?;
+    let effects = catalog::model_effects(&args.model.with)?;
+    let runs = load_runs(&args.recordings, args.model.latitude_deg, &cfg)?;
+    let models = runs
+        .iter()
+        .map(|r| build_model(r.prep.site, &effects, &cfg))
+        .collect::<anyhow::Result<Vec<_>>>()?;
+    let joint_runs: Vec<Run> = models
+        .iter()
+        .zip(&runs)
+        .map(|(model, r)| Run {
+            model,
+            prep: &r.prep,
+        })
+        .collect();
+    let spin = crate::progress::spinner(&format!("identifying {} runs jointly", runs.len()));
+    let joint = identify_joint(&joint_runs, &cfg);
+    spin.finish_and_clear();
+    let joint = joint?;
+    let truth: Option<Vec<f64>> = match &args.truth {
+        Some(p) => {
+            let values = read_truth(p)?.parameter_values();
+            Some(
+                joint
+                    .params
+                    .iter()
+                    .map(|p| values.get(p.name).copied().unwrap_or(0.0))
+                    .collect(),
+            )
+        }
+        None => None,
+    };
+    let bound_at = truth.clone().unwrap_or_else(|| joint.estimate.value.clone());
+    let bound = joint_bound(&joint_runs, &bound_at).unwrap_or_else(|e| {
+        eprintln!("driftid: warning: no Cramér–Rao bound: {e:#}");
+        vec![f64::NAN; bound_at.len()]
+    });
+    let checks: Vec<Consistency> = joint
+        .runs
+        .iter()
+        .zip(&runs)
+        .map(|(fit, r)| run_consistency(fit, &r.prep))
+        .collect();
+    let mut reasons = vec![];
+    for ((r, c), fit) in runs.iter().zip(&checks).zip(&joint.runs) {
+        let name = r.path.display();
+        reasons.extend(
+            r.prep
+                .untrusted_reasons()
+                .into_iter()
+                .map(|m| format!("{name}: {m}")),
+        );
+        if !c.is_consistent() {
+            reasons.push(format!(
+                "{name}: the joint model does not explain this run: {} (alone: NIS/3 {:.3}); run `driftid diagnose` on it",
+                c.failures.join("; "),
+                fit.alone.nis_mean()
+            ));
+        }
+    }
+    if args.json {
+        let mut out = to_json(&joint, &runs, &checks, &bound, truth.as_deref());
+        out["trusted"] = json!(reasons.is_empty());
+        out["untrusted_reasons"] = json!(reasons);
+        println!("{}", serde_json::to_string_pretty(&out)?);
+    } else {
+        print_text(&joint, &runs, &checks, &bound, truth.as_deref());
+        if !reasons.is_empty() {
+            println!(
+                "NOT TRUSTED: the numbers above are computed but the tool does not trust them:"
+            );
+            for r in &reasons {
+                println!("  - {r}");
+            }
+        }
+    }
+    trusted_or(reasons)
+}
+
+fn deg3(a: &[f64; 3]) -> [f64; 3] {
+    a.map(|v| (v.to_degrees() * 1e4).round() / 1e4)
+}
+
+fn print_text(
+    joint: &JointIdentification,
+    runs: &[LoadedRun],
+    checks: &[Consistency],
+    bound: &[f64],
+    truth: Option<&[f64]>,
+) {
+    for ((r, fit), c) in runs.iter().zip(&joint.runs).zip(checks) {
+        print_findings(&r.prep.findings);
+        let rms = fit.residual_rms_mps2();
+        let floor = r.prep.floor_mps2();
+        println!(
+            "run {}: {:.2} h, {} updates, initial orientation {:?} deg ({:?} chart); residual/floor [{:.3}, {:.3}, {:.3}]; NIS/3 {:.3}; {}",
+            r.path.display(),
+            fit.alone.final_time_h,
+            r.prep.measurements.len(),
+            deg3(&r.orientation_rad),
+            r.prep.site.chart,
+            rms[0] / floor[0],
+            rms[1] / floor[1],
+            rms[2] / floor[2],
+            fit.nis_mean(),
+            if c.is_consistent() { "consistent" } else { "NOT consistent" }
+        );
+    }
+    println!(
+        "joint drift coefficients from {} runs (each run's smoother relinearised about the joint estimate)",
+        runs.len()
+    );
+    print!(
+        "{:<6} {:<16} {:>12} {:>10} {:>10} {:>12}",
+        "coef", "unit", "estimate", "1σ", "CRB 1σ", "best run 1σ"
+    );
+    if truth.is_some() {
+        print!(" {:>10} {:>10} {:>7}", "truth", "error", "err/σ");
+    }
+    println!();
+    let e = &joint.estimate;
+    for (k, p) in joint.params.iter().enumerate() {
+        let alone = joint
+            .runs
+            .iter()
+            .map(|f| f.alone.best().sigma(k))
+            .fold(f64::INFINITY, f64::min);
+        print!(
+            "{:<6} {:<16} {:>12} {:>10} {:>10} {:>12}",
+            p.name,
+            p.unit,
+            with_sigma(e.value[k], e.sigma(k)),
+            sci(e.sigma(k)),
+            sci(bound[k]),
+            sci(alone)
+        );
+        if let Some(t) = truth {
+            let err = e.value[k] - t[k];
+            print!(" {:>10} {:>10} {:>7.2}", t[k], sci(err), err / e.sigma(k));
+        }
+        println!();
+    }
+    for w in &joint.weak {
+        println!(
+            "axis {}: weakest combination {:.2}·D0 {:+.2}·g·Dx {:+.2}·g·Dy {:+.2}·g·Dz, 1σ {} deg/h, {:.1}x weaker than the next{}",
+            w.axis,
+            w.direction[0],
+            w.direction[1],
+            w.direction[2],
+            w.direction[3],
+            sci(w.sigma_degph),
+            w.ratio_to_next,
+            if w.ratio_to_next >= 10.0 {
+                " — the runs do not separate it: `driftid plan` recommends the next orientation"
+            } else {
+                ""
+            }
+        );
+    }
+}
+
+fn to_json(
+    joint: &JointIdentification,
+    runs: &[LoadedRun],
+    checks: &[Consistency],
+    bound: &[f64],
+    truth: Option<&[f64]>,
+) -> Value {
+    let mut coefs = Map::new();
+    let e = &joint.estimate;
+    for (k, p) in joint.params.iter().enumerate() {
+        let mut o = json!({ "value": e.value[k], "sigma": e.sigma(k), "bound": bound[k], "unit": p.unit,
+            "alone_sigma": joint.runs.iter().map(|f| f.alone.best().sigma(k)).collect::<Vec<_>>() });
+        if let Some(t) = truth {
+            o["truth"] = json!(t[k]);
+            o["error"] = json!(e.value[k] - t[k]);
+        }
+        coefs.insert(p.name.to_string(), o);
+    }
+    let run_objs: Vec<Value> = runs
+        .iter()
+        .zip(&joint.runs)
+        .zip(checks)
+        .map(|((r, fit), c)| {
+            json!({
+                "recording": r.path.display().to_string(),
+                "initial_orientation_deg": deg3(&r.orientation_rad),
+                "chart": format!("{:?}", r.prep.site.chart),
+                "final_time_h": fit.alone.final_time_h,
+                "updates": r.prep.measurements.len(),
+                "residual_rms_mps2": fit.residual_rms_mps2(),
+                "floor_mps2": r.prep.floor_mps2(),
+                "nis_mean": fit.nis_mean(),
+                "consistency": c,
+                "data_quality": { "findings": r.prep.findings },
+            })
+        })
+        .collect();
+    json!({
+        "runs": run_objs,
+        "coefficients": coefs,
+        "weak_combinations": joint.weak,
+        "method": "joint Gauss-Newton: per-run iterated RTS smoothers, information fused",
+    })
+}
