@@ -20,6 +20,7 @@ pub mod format;
 pub mod identify;
 pub mod link;
 pub mod output;
+pub mod plan;
 pub mod progress;
 pub mod quality;
 pub mod recording;
@@ -35,6 +36,7 @@ pub mod cli {
     pub mod diagnose;
     pub mod identify;
     pub mod joint;
+    pub mod plan;
     pub mod record;
     pub mod replay;
     pub mod report;

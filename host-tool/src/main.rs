@@ -25,6 +25,8 @@ enum Command {
     Simulate(cli::simulate::SimulateArgs),
     /// Identify the drift coefficients of a recording, with 1σ and the Cramér–Rao bound.
     Identify(cli::identify::IdentifyArgs),
+    /// The initial orientation of the next run (or a first pair) that best pins down what the runs so far leave weak.
+    Plan(cli::plan::PlanArgs),
     /// Compare the model with the measurements, rank the missing effects, climb the model ladder.
     Diagnose(cli::diagnose::DiagnoseArgs),
     /// The whole story as one self-contained HTML page: model vs data, where it fails, the ranking, the ladder.
@@ -56,6 +58,7 @@ fn main() {
         Command::Identify(a) => cli::identify::run(a),
         Command::Bench(a) => cli::bench::run(a),
         Command::Diagnose(a) => cli::diagnose::run(a),
+        Command::Plan(a) => cli::plan::run(a),
         Command::Report(a) => cli::report::run(a),
         Command::Record(a) => cli::record::run(a),
         Command::Replay(a) => cli::replay::run(a),

@@ -102,7 +102,9 @@ pub fn run(args: &IdentifyArgs) -> anyhow::Result<()> {
         }
         None => None,
     };
-    let bound_at = truth.clone().unwrap_or_else(|| joint.estimate.value.clone());
+    let bound_at = truth
+        .clone()
+        .unwrap_or_else(|| joint.estimate.value.clone());
     let bound = joint_bound(&joint_runs, &bound_at).unwrap_or_else(|e| {
         eprintln!("driftid: warning: no Cramér–Rao bound: {e:#}");
         vec![f64::NAN; bound_at.len()]

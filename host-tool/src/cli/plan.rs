@@ -1,0 +1,252 @@
+//! `driftid plan [RUN.csv …]`: the initial orientation of the next run (or, with no runs, of a
+//! first pair) that most shrinks the weakest combination's 1σ or best separates two effects.
+
+use std::path::PathBuf;
+
+use serde_json::json;
+
+use super::common::{build_model, ModelArgs};
+use super::joint::load_runs;
+use crate::catalog;
+use crate::format::sci;
+use crate::identify::joint::{identify_joint, Run};
+use crate::identify::{Estimate, Prepared};
+use crate::plan::{rank, Criterion, Design};
+use crate::simulate::Scenario;
+
+/// Arguments of `driftid plan`.
+#[derive(clap::Args, Debug)]
+pub struct PlanArgs {
+    /// Runs made so far (none: plan a first pair from the simulator's defaults).
+    pub recordings: Vec<PathBuf>,
+    /// Duration of the planned run(s), h (default: the runs' mean, or 60 h).
+    #[arg(long, value_parser = super::args::positive_f64)]
+    pub hours: Option<f64>,
+    /// Sample interval of the planned run(s), s (default: that of the last run, or 1 s).
+    #[arg(long, value_parser = super::args::positive_f64)]
+    pub rate_s: Option<f64>,
+    /// Two effects to separate (minimise the canonical correlation of their estimates), e.g.
+    /// `acc-bias,acc-scale`; both are added to the model if missing.
+    #[arg(long, value_delimiter = ',', num_args = 2)]
+    pub separate: Option<Vec<String>>,
+    /// Number of alternatives to list after the best.
+    #[arg(long, default_value_t = 4)]
+    pub alternatives: usize,
+    /// Print one JSON object instead of the text.
+    #[arg(long)]
+    pub json: bool,
+    #[command(flatten)]
+    pub model: ModelArgs,
+}
+
+/// Runs `driftid plan`.
+pub fn run(args: &PlanArgs) -> anyhow::Result<()> {
+    super::common::load_effects_args(&args.model)?;
+    let cfg = args.model.config()?;
+    let mut with = args.model.with.clone();
+    if let Some(pair) = &args.separate {
+        for name in pair {
+            if name != "paper" && !with.contains(name) {
+                with.push(name.clone());
+            }
+        }
+    }
+    let effects = catalog::model_effects(&with)?;
+    let runs = load_runs(&args.recordings, args.model.latitude_deg, &cfg)?;
+    let defaults = Scenario::paper();
+    let (site, template, before, params) = if runs.is_empty() {
+        let lat = args.model.latitude_deg.unwrap_or(defaults.latitude_deg);
+        let site = estimator_core::Site::new(lat, None);
+        let sigma = cfg.raw_sigma_mps2.unwrap_or([1e-5 * site.gravity_mps2; 3]);
+        let template = Design {
+            orientation_deg: [0.0; 3],
+            hours: args.hours.unwrap_or(defaults.hours),
+            rate_s: args.rate_s.unwrap_or(defaults.rate_s),
+            raw_sigma_mps2: sigma,
+        };
+        let model = build_model(site, &effects, &cfg)?;
+        let mut params = vec![0.0; model.dim() - 3];
+        params[..12].copy_from_slice(&defaults.coefficients);
+        (site, template, None, params)
+    } else {
+        let models = runs
+            .iter()
+            .map(|r| build_model(r.prep.site, &effects, &cfg))
+            .collect::<anyhow::Result<Vec<_>>>()?;
+        let joint_runs: Vec<Run> = models
+            .iter()
+            .zip(&runs)
+            .map(|(model, r)| Run {
+                model,
+                prep: &r.prep,
+            })
+            .collect();
+        let spin = crate::progress::spinner("identifying the runs so far");
+        let joint = identify_joint(&joint_runs, &cfg);
+        spin.finish_and_clear();
+        let joint = joint?;
+        let last = &runs[runs.len() - 1].prep;
+        let mean_hours = runs
+            .iter()
+            .map(|r| r.prep.measurements.last().map_or(0.0, |m| m.t_s) / 3600.0)
+            .sum::<f64>()
+            / runs.len() as f64;
+        let template = Design {
+            orientation_deg: [0.0; 3],
+            hours: args.hours.unwrap_or(mean_hours),
+            rate_s: args.rate_s.unwrap_or_else(|| rate_of(last, cfg.period_s)),
+            raw_sigma_mps2: last.noise.raw_sigma_mps2,
+        };
+        let mut site = last.site;
+        site.chart = Default::default();
+        let params = joint.estimate.value.clone();
+        (site, template, Some(joint.estimate), params)
+    };
+    let model = build_model(site, &effects, &cfg)?;
+    let criterion = match &args.separate {
+        Some(p) => Criterion::separate(&model, &p[0], &p[1])?,
+        None => Criterion::Weakest,
+    };
+    let spin = crate::progress::spinner("evaluating the Fisher information over 48 orientations");
+    let ranked = rank(
+        &model,
+        &effects,
+        &criterion,
+        before.as_ref(),
+        &template,
+        &params,
+        &cfg,
+    );
+    spin.finish_and_clear();
+    let ranked = ranked?;
+    let Some(best) = ranked.first() else {
+        anyhow::bail!("no candidate orientation could be evaluated");
+    };
+    let before_score = before.as_ref().map(|b| criterion.score(&model, &b.cov));
+    let names: Vec<&str> = (3..model.dim()).map(|i| model.param(i).name).collect();
+    let units: Vec<&str> = (3..model.dim()).map(|i| model.param(i).unit).collect();
+    let what = match &criterion {
+        Criterion::Weakest => "largest 1σ of a weak combination, deg/h".to_string(),
+        Criterion::Separate { names, .. } => {
+            format!("canonical correlation of {} and {}", names[0], names[1])
+        }
+    };
+    if args.json {
+        let sig = |e: &nalgebra::DMatrix<f64>| {
+            (0..e.nrows()).map(|k| e[(k, k)].sqrt()).collect::<Vec<_>>()
+        };
+        let out = json!({
+            "criterion": what,
+            "runs_so_far": args.recordings.iter().map(|p| p.display().to_string()).collect::<Vec<_>>(),
+            "recommended": best.designs,
+            "score_before": before_score,
+            "score_after": best.score,
+            "parameters": names,
+            "units": units,
+            "sigma_before": before.as_ref().map(|b| sig(&b.cov)),
+            "sigma_after": sig(&best.cov),
+            "alternatives": ranked.iter().skip(1).take(args.alternatives)
+                .map(|c| json!({ "designs": c.designs, "score": c.score })).collect::<Vec<_>>(),
+        });
+        println!("{}", serde_json::to_string_pretty(&out)?);
+        return Ok(());
+    }
+    print_plan(
+        &names,
+        &units,
+        &what,
+        before.as_ref(),
+        before_score,
+        &ranked,
+        args.alternatives,
+    );
+    Ok(())
+}
+
+/// Mean sample interval of a prepared run, s (from the samples per filter period).
+fn rate_of(prep: &Prepared, period_s: f64) -> f64 {
+    let mut counts: Vec<u32> = prep.measurements.iter().map(|m| m.count).collect();
+    if counts.is_empty() {
+        return 1.0;
+    }
+    let mid = counts.len() / 2;
+    period_s / f64::from((*counts.select_nth_unstable(mid).1).max(1))
+}
+
+fn print_plan(
+    names: &[&str],
+    units: &[&str],
+    what: &str,
+    before: Option<&Estimate>,
+    before_score: Option<f64>,
+    ranked: &[crate::plan::Candidate],
+    alternatives: usize,
+) {
+    let best = &ranked[0];
+    let runs = |c: &crate::plan::Candidate| {
+        c.designs
+            .iter()
+            .map(|d| {
+                format!(
+                    "({:.0}, {:.0}, {:.0}) deg",
+                    d.orientation_deg[0], d.orientation_deg[1], d.orientation_deg[2]
+                )
+            })
+            .collect::<Vec<_>>()
+            .join(" and ")
+    };
+    let d = &best.designs[0];
+    println!(
+        "plan: {} {}: initial orientation tx, ty, tz = {} ({:.1} h at {} s per sample)",
+        if best.designs.len() == 2 {
+            "first pair of runs"
+        } else {
+            "next run"
+        },
+        if before.is_some() {
+            "after the runs so far"
+        } else {
+            "from the simulator's defaults"
+        },
+        runs(best),
+        d.hours,
+        d.rate_s
+    );
+    match before_score {
+        Some(b) => println!("{what}: {} now, {} after", sci(b), sci(best.score)),
+        None => println!("{what}: {} after the pair", sci(best.score)),
+    }
+    println!(
+        "{:<6} {:<16} {:>12} {:>12} {:>8}",
+        "coef", "unit", "1σ now", "1σ after", "ratio"
+    );
+    for k in 0..names.len() {
+        let after = best.cov[(k, k)].sqrt();
+        match before {
+            Some(b) => {
+                let now = b.cov[(k, k)].sqrt();
+                println!(
+                    "{:<6} {:<16} {:>12} {:>12} {:>8.2}",
+                    names[k],
+                    units[k],
+                    sci(now),
+                    sci(after),
+                    now / after
+                );
+            }
+            None => println!(
+                "{:<6} {:<16} {:>12} {:>12}",
+                names[k],
+                units[k],
+                "—",
+                sci(after)
+            ),
+        }
+    }
+    if alternatives > 0 {
+        println!("alternatives:");
+        for c in ranked.iter().skip(1).take(alternatives) {
+            println!("  {} → {}", runs(c), sci(c.score));
+        }
+    }
+}

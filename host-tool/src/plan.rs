@@ -1,0 +1,227 @@
+//! The plan for the next run: which initial orientation (for how long) most improves what the
+//! runs so far leave poorly determined.
+//!
+//! A candidate run is scored by its Fisher information: the filter linearised along the
+//! noise-free trajectory from that orientation at the current parameters (the Cramér–Rao
+//! bound of [`crate::identify::joint::run_bound_cov`]), fused with the information the runs so
+//! far carry ([`crate::identify::joint::fuse`]). Two criteria:
+//! - **weakest** (default): the largest 1σ of any combination of one gyro's four paper
+//!   coefficients (D0, g·Dx, g·Dy, g·Dz), deg/h — the direction a static run leaves 12–19×
+//!   weaker than the rest;
+//! - **separate A,B**: the largest canonical correlation between the estimates of two effects'
+//!   parameters (e.g. acc-bias and acc-scale).
+
+use anyhow::{bail, Context as _};
+use estimator_core::filter::ANGLE_PRIOR_SIGMA_RAD;
+use estimator_core::model::{Model, ANGLES};
+use estimator_core::{Effect, Sample, Site};
+use nalgebra::DMatrix;
+
+use crate::identify::joint::{fuse, run_bound_cov, Run};
+use crate::identify::noise::NoiseFloor;
+use crate::identify::{
+    build_model, canonical_correlation, weak_combinations, Config, Estimate, Prepared,
+};
+
+/// What a run to be made looks like.
+#[derive(Clone, Copy, Debug, serde::Serialize)]
+pub struct Design {
+    /// Initial orientation, ENU Euler angles (tx, ty, tz), deg.
+    pub orientation_deg: [f64; 3],
+    /// Duration, h.
+    pub hours: f64,
+    /// Sample interval, s.
+    pub rate_s: f64,
+    /// Raw accelerometer noise 1σ per axis, m/s².
+    pub raw_sigma_mps2: [f64; 3],
+}
+
+/// What the plan minimises.
+#[derive(Clone, Debug)]
+pub enum Criterion {
+    /// The weakest paper combination's 1σ, deg/h.
+    Weakest,
+    /// The canonical correlation between two parameter blocks (state indices after the angles).
+    Separate {
+        /// Names of the two effects.
+        names: [String; 2],
+        /// Their parameter indices.
+        blocks: [Vec<usize>; 2],
+    },
+}
+
+impl Criterion {
+    /// `--separate A,B` against a model that contains both effects.
+    pub fn separate(model: &Model<'_>, a: &str, b: &str) -> anyhow::Result<Self> {
+        let block = |name: &str| -> anyhow::Result<Vec<usize>> {
+            let Some(e) = model.effects().iter().position(|e| e.name() == name) else {
+                bail!("--separate: effect {name:?} is not in the model (add it with --with)");
+            };
+            let (from, to) = (model.offset(e), model.offset(e + 1));
+            Ok((from - ANGLES..to - ANGLES).collect())
+        };
+        Ok(Criterion::Separate {
+            names: [a.to_string(), b.to_string()],
+            blocks: [block(a)?, block(b)?],
+        })
+    }
+
+    /// The score of a parameter covariance (smaller is better); NaN if it cannot be computed.
+    pub fn score(&self, model: &Model<'_>, cov: &DMatrix<f64>) -> f64 {
+        match self {
+            Criterion::Weakest => {
+                let est = Estimate {
+                    value: vec![0.0; cov.nrows()],
+                    cov: cov.clone(),
+                };
+                weak_combinations(model, &est)
+                    .iter()
+                    .map(|w| w.sigma_degph)
+                    .fold(f64::NAN, f64::max)
+            }
+            Criterion::Separate { blocks, .. } => {
+                canonical_correlation(cov, &blocks[0], &blocks[1]).unwrap_or(f64::NAN)
+            }
+        }
+    }
+}
+
+/// The orientations a plan considers: tx in steps of 45°, ty ∈ {−45°, 0°, 45°} and tz ∈ {0°, 90°}
+/// (48 starts; with the Earth's turn they span the directions of gravity and of the pole in
+/// platform axes that matter).
+pub fn grid() -> Vec<[f64; 3]> {
+    let mut out = vec![];
+    for tz in [0.0, 90.0] {
+        for ty in [-45.0, 0.0, 45.0] {
+            for k in 0..8 {
+                let tx = -135.0 + 45.0 * f64::from(k);
+                out.push([tx, ty, tz]);
+            }
+        }
+    }
+    out
+}
+
+/// The measurements of a designed run (values are irrelevant to the information; their timing
+/// and noise are those the run would have).
+pub fn designed_prepared(site: Site, design: &Design, cfg: &Config) -> anyhow::Result<Prepared> {
+    if !(design.hours > 0.0 && design.rate_s > 0.0 && design.rate_s <= cfg.period_s) {
+        bail!(
+            "a planned run needs hours > 0 and 0 < rate-s <= the filter period {} s",
+            cfg.period_s
+        );
+    }
+    let mut site = site;
+    let theta_enu = design.orientation_deg.map(f64::to_radians);
+    site.chart = site.chart_for_start(&theta_enu);
+    let n = (design.hours * 3600.0 / design.rate_s).floor() as usize + 1;
+    let samples: Vec<Sample> = (0..n)
+        .map(|k| Sample {
+            t_s: k as f64 * design.rate_s,
+            specific_force: [0.0; 3],
+            temp_c: f64::NAN,
+        })
+        .collect();
+    let measurements = crate::quality::window_means(&samples, cfg.period_s, &design.raw_sigma_mps2);
+    Ok(Prepared {
+        site,
+        measurements,
+        noise: NoiseFloor {
+            raw_sigma_mps2: design.raw_sigma_mps2,
+            count: 0,
+        },
+        initial_angles: site.angles_to_chart(&theta_enu),
+        initial_angle_sigma: [ANGLE_PRIOR_SIGMA_RAD; 3],
+        findings: vec![],
+    })
+}
+
+/// The parameter covariance (Cramér–Rao bound, wide prior included) of one designed run at
+/// `params`.
+pub fn design_cov(
+    site: Site,
+    effects: &[&dyn Effect],
+    design: &Design,
+    params: &[f64],
+    cfg: &Config,
+) -> anyhow::Result<DMatrix<f64>> {
+    let prep = designed_prepared(site, design, cfg)?;
+    let model = build_model(prep.site, effects, cfg)?;
+    let run = Run {
+        model: &model,
+        prep: &prep,
+    };
+    run_bound_cov(&run, &prep.initial_angles, params)
+        .with_context(|| format!("run from {:?} deg", design.orientation_deg))
+}
+
+/// One candidate of a plan.
+#[derive(Clone, Debug)]
+pub struct Candidate {
+    /// The run(s) proposed: one for a next run, two for a first pair.
+    pub designs: Vec<Design>,
+    /// Covariance of the parameters after the proposed run(s).
+    pub cov: DMatrix<f64>,
+    /// The criterion's value after.
+    pub score: f64,
+}
+
+/// The candidates, best first: the next run after `before` (the runs so far, a posterior from
+/// the model's wide prior `p0`), or with `before = None` the best first pair.
+pub fn rank(
+    model: &Model<'_>,
+    effects: &[&dyn Effect],
+    criterion: &Criterion,
+    before: Option<&Estimate>,
+    template: &Design,
+    params: &[f64],
+    cfg: &Config,
+) -> anyhow::Result<Vec<Candidate>> {
+    let n = model.dim() - ANGLES;
+    let (_, p0_full) = crate::identify::wide_prior(model, &vec![0.0; model.dim()], &[0.0; 3]);
+    let p0 = p0_full.view((ANGLES, ANGLES), (n, n)).into_owned();
+    let designs: Vec<Design> = grid()
+        .into_iter()
+        .map(|o| Design {
+            orientation_deg: o,
+            ..*template
+        })
+        .collect();
+    let posterior = |cov: DMatrix<f64>| Estimate {
+        value: vec![0.0; n],
+        cov,
+    };
+    let covs = designs
+        .iter()
+        .map(|d| design_cov(*model.site(), effects, d, params, cfg).map(posterior))
+        .collect::<anyhow::Result<Vec<_>>>()?;
+    let mut out = vec![];
+    match before {
+        Some(b) => {
+            for (d, c) in designs.iter().zip(&covs) {
+                let cov = fuse(&[posterior(b.cov.clone()), c.clone()], &p0)?.cov;
+                let score = criterion.score(model, &cov);
+                out.push(Candidate {
+                    designs: vec![*d],
+                    cov,
+                    score,
+                });
+            }
+        }
+        None => {
+            for i in 0..designs.len() {
+                for j in i + 1..designs.len() {
+                    let cov = fuse(&[covs[i].clone(), covs[j].clone()], &p0)?.cov;
+                    let score = criterion.score(model, &cov);
+                    out.push(Candidate {
+                        designs: vec![designs[i], designs[j]],
+                        cov,
+                        score,
+                    });
+                }
+            }
+        }
+    }
+    out.sort_by(|a, b| a.score.total_cmp(&b.score));
+    Ok(out)
+}
