@@ -147,3 +147,74 @@ fn joint_nees_is_in_its_band_over_20_seeds() {
         "{total} outside {band:?}"
     );
 }
+
+#[test]
+fn the_plans_predicted_sigma_agree_with_a_monte_carlo_of_the_planned_pair() {
+    // The plan for a first pair (48 h at 30 s, the simulator's default noise and coefficients)
+    // predicts each coefficient's 1σ from the Fisher information. 20 simulated pairs at the
+    // recommended orientations, identified jointly, must scatter as predicted:
+    // - pooled over 12 coefficients × 20 seeds, RMS(error / predicted 1σ) within 20 % of 1
+    //   (its sampling spread is 1/√(2·240) = 4.6 %, so 20 % is > 4 standard errors);
+    // - per coefficient, the 20-seed RMS within [0.55, 1.6] of the prediction (χ²(20) 99.9 %);
+    // - the joint fit's own reported 1σ within 20 % of the prediction (mean over seeds).
+    let cfg = Config::default();
+    let effects = [catalog::paper()];
+    let site = Site::new(39.1, None);
+    let model = host_tool::cli::common::build_model(site, &effects, &cfg).unwrap();
+    let defaults = Scenario::paper();
+    let template = host_tool::plan::Design {
+        orientation_deg: [0.0; 3],
+        hours: 48.0,
+        rate_s: 30.0,
+        raw_sigma_mps2: [1e-5 * site.gravity_mps2; 3],
+    };
+    let ranked = host_tool::plan::rank(
+        &model,
+        &effects,
+        &host_tool::plan::Criterion::Weakest,
+        None,
+        &template,
+        &defaults.coefficients,
+        &cfg,
+    )
+    .unwrap();
+    let best = &ranked[0];
+    let [a_deg, b_deg] = [
+        best.designs[0].orientation_deg,
+        best.designs[1].orientation_deg,
+    ];
+    let predicted: Vec<f64> = (0..12).map(|k| best.cov[(k, k)].sqrt()).collect();
+    eprintln!("planned pair {a_deg:?} + {b_deg:?}");
+    let seeds = 20u64;
+    let mut sq = [0.0; 12];
+    let mut reported = [0.0; 12];
+    for s in 0..seeds {
+        let mut sa = scenario(500 + 2 * s, a_deg, 48.0);
+        sa.rate_s = 30.0;
+        let mut sb = scenario(501 + 2 * s, b_deg, 48.0);
+        sb.rate_s = 30.0;
+        let preps = [prepared(&sa, &cfg), prepared(&sb, &cfg)];
+        let ms = models(&preps, &effects, &cfg);
+        let runs: Vec<Run> = ms
+            .iter()
+            .zip(&preps)
+            .map(|(model, prep)| Run { model, prep })
+            .collect();
+        let j = identify_joint(&runs, &cfg).unwrap();
+        for k in 0..12 {
+            let z = (j.estimate.value[k] - sa.coefficients[k]) / predicted[k];
+            sq[k] += z * z;
+            reported[k] += j.estimate.sigma(k) / seeds as f64;
+        }
+    }
+    let pooled = (sq.iter().sum::<f64>() / (12 * seeds) as f64).sqrt();
+    eprintln!("pooled RMS(err/predicted σ) {pooled:.3}");
+    assert!((pooled - 1.0).abs() < 0.2, "pooled {pooled}");
+    for k in 0..12 {
+        let rms = (sq[k] / seeds as f64).sqrt();
+        let ratio = reported[k] / predicted[k];
+        eprintln!("coef {k}: RMS err/σ {rms:.2}, reported/predicted σ {ratio:.3}");
+        assert!((0.55..1.6).contains(&rms), "coefficient {k}: {rms}");
+        assert!((ratio - 1.0).abs() < 0.2, "coefficient {k}: {ratio}");
+    }
+}

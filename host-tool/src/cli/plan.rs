@@ -27,7 +27,7 @@ pub struct PlanArgs {
     pub rate_s: Option<f64>,
     /// Two effects to separate (minimise the canonical correlation of their estimates), e.g.
     /// `acc-bias,acc-scale`; both are added to the model if missing.
-    #[arg(long, value_delimiter = ',', num_args = 2)]
+    #[arg(long, value_delimiter = ',')]
     pub separate: Option<Vec<String>>,
     /// Number of alternatives to list after the best.
     #[arg(long, default_value_t = 4)]
@@ -45,6 +45,11 @@ pub fn run(args: &PlanArgs) -> anyhow::Result<()> {
     let cfg = args.model.config()?;
     let mut with = args.model.with.clone();
     if let Some(pair) = &args.separate {
+        if pair.len() != 2 || pair[0] == pair[1] {
+            anyhow::bail!(
+                "--separate takes two different effects, e.g. acc-bias,acc-scale; got {pair:?}"
+            );
+        }
         for name in pair {
             if name != "paper" && !with.contains(name) {
                 with.push(name.clone());
@@ -212,9 +217,16 @@ fn print_plan(
         d.hours,
         d.rate_s
     );
+    let show = |v: f64| {
+        if what.starts_with("canonical") {
+            format!("{v:.3}")
+        } else {
+            sci(v)
+        }
+    };
     match before_score {
-        Some(b) => println!("{what}: {} now, {} after", sci(b), sci(best.score)),
-        None => println!("{what}: {} after the pair", sci(best.score)),
+        Some(b) => println!("{what}: {} now, {} after", show(b), show(best.score)),
+        None => println!("{what}: {} after the pair", show(best.score)),
     }
     println!(
         "{:<6} {:<16} {:>12} {:>12} {:>8}",
@@ -246,7 +258,7 @@ fn print_plan(
     if alternatives > 0 {
         println!("alternatives:");
         for c in ranked.iter().skip(1).take(alternatives) {
-            println!("  {} → {}", runs(c), sci(c.score));
+            println!("  {} → {}", runs(c), show(c.score));
         }
     }
 }
