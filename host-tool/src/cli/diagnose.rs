@@ -16,8 +16,10 @@ use crate::identify::prepare_oriented;
 /// Arguments of `driftid diagnose`.
 #[derive(clap::Args, Debug)]
 pub struct DiagnoseArgs {
-    /// Recording (CSV).
-    pub recording: PathBuf,
+    /// Recording(s) (CSV). With several runs of one system each is diagnosed, then the effects
+    /// their ladders chose are identified jointly from all of them.
+    #[arg(required = true, num_args = 1..)]
+    pub recordings: Vec<PathBuf>,
     /// Print one JSON object instead of the text summary.
     #[arg(long)]
     pub json: bool,
@@ -216,6 +218,32 @@ pub fn print_ladder(rungs: &[Rung]) {
 /// Runs `driftid diagnose`.
 pub fn run(args: &DiagnoseArgs) -> anyhow::Result<()> {
     super::common::load_effects_args(&args.model)?; // --effects FILE: user effects join the catalog
+    if args.recordings.len() > 1 {
+        return super::joint::diagnose(args);
+    }
+    let one = diagnose_one(&args.recordings[0], args, args.export.as_deref())?;
+    if args.json {
+        println!("{}", serde_json::to_string_pretty(&one.json)?);
+    }
+    trusted_or(one.reasons)
+}
+
+/// The outcome of one recording's diagnosis.
+pub struct OneDiagnosis {
+    /// The JSON object (`--json`).
+    pub json: serde_json::Value,
+    /// Reasons not to trust it (empty: trusted).
+    pub reasons: Vec<String>,
+    /// Effects of the ladder's final model (besides the paper's).
+    pub final_model: Vec<String>,
+}
+
+/// Diagnoses one recording: prints the text unless `--json`, returns the JSON and the reasons.
+pub fn diagnose_one(
+    recording: &std::path::Path,
+    args: &DiagnoseArgs,
+    export_dir: Option<&std::path::Path>,
+) -> anyhow::Result<OneDiagnosis> {
     let cfg = DiagnoseConfig {
         identify: args.model.config()?,
         max_rungs: if args.no_ladder { 1 } else { 4 },
@@ -225,7 +253,7 @@ pub fn run(args: &DiagnoseArgs) -> anyhow::Result<()> {
         cfg.identify.smoother_iterations > 0,
         "diagnose needs the converged identification; drop --single-pass"
     );
-    let loaded = load(&args.recording, args.model.latitude_deg)?;
+    let loaded = load(recording, args.model.latitude_deg)?;
     let effects = catalog::model_effects(&args.model.with)?;
     let prep = prepare_oriented(
         loaded.site,
@@ -233,7 +261,7 @@ pub fn run(args: &DiagnoseArgs) -> anyhow::Result<()> {
         &cfg.identify,
         loaded.initial_orientation_rad,
     )
-    .with_context(|| format!("{}", args.recording.display()))?;
+    .with_context(|| format!("{}", recording.display()))?;
     let mut cfg = cfg;
     let mut prep = prep;
     if prep.untrusted_reasons().is_empty() {
@@ -255,7 +283,7 @@ pub fn run(args: &DiagnoseArgs) -> anyhow::Result<()> {
         diagnoses, rungs, ..
     } = ladder(&prep, &effects, &cfg)?;
     spin.finish_and_clear();
-    if let Some(dir) = &args.export {
+    if let Some(dir) = export_dir {
         export(dir, &diagnoses)?;
     }
     let last = diagnoses.last().map(|d| d.consistency.clone());
@@ -269,37 +297,39 @@ pub fn run(args: &DiagnoseArgs) -> anyhow::Result<()> {
         }
     }
     let d = &diagnoses[0];
-    if args.json {
-        let out = json!({
-            "recording": args.recording.display().to_string(),
-            "model": d.model,
-            "residual_rms_over_floor": d.residual_rms_over_floor,
-            "residual_rms_mps2": d.residual_rms_mps2,
-            "floor_mps2": d.floor_mps2,
-            "nis_mean": d.nis_mean,
-            "nis_band95": d.nis_band95,
-            "whiteness_p": d.whiteness.p_value,
-            "ljung_box": { "q": d.whiteness.ljung_box_q, "dof": d.whiteness.dof },
-            "ranking": d.ranking,
-            "confounding": d.confounding,
-            "failures": d.failures,
-            "verdict": d.verdict,
-            "ladder": rungs,
-            "final_verdict": diagnoses.last().map(|d| d.verdict.clone()),
-            "final_consistency": last,
-            "data_quality": { "findings": prep.findings },
-            "trusted": reasons.is_empty(),
-            "untrusted_reasons": reasons,
-        });
-        println!("{}", serde_json::to_string_pretty(&out)?);
-    } else {
+    let final_model = diagnoses
+        .last()
+        .map(|d| d.model.clone())
+        .unwrap_or_default();
+    let out = json!({
+        "recording": recording.display().to_string(),
+        "model": d.model,
+        "residual_rms_over_floor": d.residual_rms_over_floor,
+        "residual_rms_mps2": d.residual_rms_mps2,
+        "floor_mps2": d.floor_mps2,
+        "nis_mean": d.nis_mean,
+        "nis_band95": d.nis_band95,
+        "whiteness_p": d.whiteness.p_value,
+        "ljung_box": { "q": d.whiteness.ljung_box_q, "dof": d.whiteness.dof },
+        "ranking": d.ranking,
+        "confounding": d.confounding,
+        "failures": d.failures,
+        "verdict": d.verdict,
+        "ladder": rungs,
+        "final_verdict": diagnoses.last().map(|d| d.verdict.clone()),
+        "final_consistency": last,
+        "data_quality": { "findings": prep.findings },
+        "trusted": reasons.is_empty(),
+        "untrusted_reasons": reasons,
+    });
+    if !args.json {
         print_findings(&prep.findings);
         if !faults.is_empty() {
             println!("the data have faults the tool did not repair: they are named above as faults; no physical effect is added to explain them (no model ladder)");
         }
         println!(
             "{}: {} updates of {} s",
-            args.recording.display(),
+            recording.display(),
             prep.measurements.len(),
             cfg.identify.period_s
         );
@@ -318,7 +348,11 @@ pub fn run(args: &DiagnoseArgs) -> anyhow::Result<()> {
             }
         }
     }
-    trusted_or(reasons)
+    Ok(OneDiagnosis {
+        json: out,
+        reasons,
+        final_model,
+    })
 }
 
 /// Writes each rung's series (`rungK.csv`) and a summary (`rungs.csv`) into `dir`, each file

@@ -5,7 +5,8 @@ use std::path::PathBuf;
 use anyhow::Context as _;
 use serde_json::{json, Map, Value};
 
-use super::common::{build_model, load, print_findings, trusted_or};
+use super::common::{build_model, load, print_findings, trusted_or, ModelArgs};
+use super::diagnose::{diagnose_one, DiagnoseArgs};
 use super::identify::IdentifyArgs;
 use crate::catalog;
 use crate::consistency::{assess, Consistency, Thresholds};
@@ -70,9 +71,92 @@ pub fn run_consistency(fit: &RunFit, prep: &Prepared) -> Consistency {
 
 /// Runs the joint `driftid identify`.
 pub fn run(args: &IdentifyArgs) -> anyhow::Result<()> {
-    let cfg = args.model.config()?;
-    let effects = catalog::model_effects(&args.model.with)?;
-    let runs = load_runs(&args.recordings, args.model.latitude_deg, &cfg)?;
+    let (out, reasons) = identify_runs(
+        &args.recordings,
+        &args.model,
+        &args.model.with,
+        args.truth.as_deref(),
+        args.json,
+    )?;
+    if args.json {
+        println!("{}", serde_json::to_string_pretty(&out)?);
+    }
+    trusted_or(reasons)
+}
+
+/// `driftid diagnose A.csv B.csv …`: each run diagnosed (its own ladder), then the effects the
+/// ladders chose, together, identified jointly from all runs. Effects with Gauss–Markov states
+/// are per run and stay out of the joint model (said so).
+pub fn diagnose(args: &DiagnoseArgs) -> anyhow::Result<()> {
+    let mut per_run = vec![];
+    let mut reasons = vec![];
+    let mut with: Vec<String> = args.model.with.clone();
+    for (i, path) in args.recordings.iter().enumerate() {
+        if !args.json {
+            println!("== run {}: {} ==", i + 1, path.display());
+        }
+        let dir = args
+            .export
+            .as_ref()
+            .map(|d| d.join(format!("run{}", i + 1)));
+        let one = diagnose_one(path, args, dir.as_deref())?;
+        reasons.extend(
+            one.reasons
+                .iter()
+                .map(|r| format!("{}: {r}", path.display())),
+        );
+        for e in &one.final_model {
+            if !with.contains(e) {
+                with.push(e.clone());
+            }
+        }
+        per_run.push(one.json);
+    }
+    let (shared, per_run_only): (Vec<String>, Vec<String>) = with.into_iter().partition(|e| {
+        catalog::by_name(e).is_none_or(|x| (0..x.params().len()).all(|k| x.markov(k).is_none()))
+    });
+    if !args.json {
+        println!(
+            "== joint: paper{} from {} runs ==",
+            shared.iter().map(|e| format!(" + {e}")).collect::<String>(),
+            args.recordings.len()
+        );
+        if !per_run_only.is_empty() {
+            println!(
+                "(not shared between runs: {} — Gauss–Markov states vary within each run)",
+                per_run_only.join(", ")
+            );
+        }
+    }
+    let (joint, joint_reasons) =
+        identify_runs(&args.recordings, &args.model, &shared, None, args.json)?;
+    reasons.extend(joint_reasons);
+    if args.json {
+        let out = json!({
+            "runs": per_run,
+            "joint_model": shared,
+            "not_shared": per_run_only,
+            "joint": joint,
+            "trusted": reasons.is_empty(),
+            "untrusted_reasons": reasons,
+        });
+        println!("{}", serde_json::to_string_pretty(&out)?);
+    }
+    trusted_or(reasons)
+}
+
+/// Identifies `paths` jointly with the paper's model plus `with`; prints the text unless `json`
+/// and returns the JSON object and the reasons not to trust it.
+pub fn identify_runs(
+    paths: &[PathBuf],
+    model_args: &ModelArgs,
+    with: &[String],
+    truth_path: Option<&std::path::Path>,
+    as_json: bool,
+) -> anyhow::Result<(Value, Vec<String>)> {
+    let cfg = model_args.config()?;
+    let effects = catalog::model_effects(with)?;
+    let runs = load_runs(paths, model_args.latitude_deg, &cfg)?;
     let models = runs
         .iter()
         .map(|r| build_model(r.prep.site, &effects, &cfg))
@@ -89,7 +173,7 @@ pub fn run(args: &IdentifyArgs) -> anyhow::Result<()> {
     let joint = identify_joint(&joint_runs, &cfg);
     spin.finish_and_clear();
     let joint = joint?;
-    let truth: Option<Vec<f64>> = match &args.truth {
+    let truth: Option<Vec<f64>> = match truth_path {
         Some(p) => {
             let values = read_truth(p)?.parameter_values();
             Some(
@@ -132,12 +216,10 @@ pub fn run(args: &IdentifyArgs) -> anyhow::Result<()> {
             ));
         }
     }
-    if args.json {
-        let mut out = to_json(&joint, &runs, &checks, &bound, truth.as_deref());
-        out["trusted"] = json!(reasons.is_empty());
-        out["untrusted_reasons"] = json!(reasons);
-        println!("{}", serde_json::to_string_pretty(&out)?);
-    } else {
+    let mut out = to_json(&joint, &runs, &checks, &bound, truth.as_deref());
+    out["trusted"] = json!(reasons.is_empty());
+    out["untrusted_reasons"] = json!(reasons);
+    if !as_json {
         print_text(&joint, &runs, &checks, &bound, truth.as_deref());
         if !reasons.is_empty() {
             println!(
@@ -148,7 +230,7 @@ pub fn run(args: &IdentifyArgs) -> anyhow::Result<()> {
             }
         }
     }
-    trusted_or(reasons)
+    Ok((out, reasons))
 }
 
 fn deg3(a: &[f64; 3]) -> [f64; 3] {
