@@ -96,3 +96,52 @@ fn a_level_start_keeps_the_papers_enu_angles() {
     let equator = Site::new(0.0, None);
     assert_eq!(equator.chart_for_start(&[0.0; 3]), Chart::Polar);
 }
+
+#[test]
+fn an_unstated_orientation_is_estimated_from_the_earths_turn() {
+    // Recordings far from level without an `initial_orientation_deg` line: the start is found
+    // from how gravity turns in the first hours (a finding says so), within the 3σ its 1σ
+    // claims (drift tilts the fit by up to ~7°), and the filter, starting there, identifies every
+    // coefficient within 3σ of the truth.
+    for (deg, seed) in [([30.0, -20.0, 45.0], 21), ([150.0, 40.0, -100.0], 22)] {
+        let mut sc = Scenario::paper();
+        sc.seed = seed;
+        sc.accel_sigma_mps2 = 1e-5 * sc.gravity();
+        sc.hours = 30.0;
+        sc.rate_s = 10.0;
+        sc.initial_orientation_deg = deg;
+        let site = Site::new(sc.latitude_deg, sc.gravity_mps2);
+        let samples: Vec<Sample> = simulate(&sc).samples.iter().map(Sample::from).collect();
+        let cfg = Config::default();
+        let prep = prepare_oriented(site, &samples, &cfg, [0.0; 3]).unwrap();
+        let f = prep
+            .findings
+            .iter()
+            .find(|f| f.kind == "initial-orientation")
+            .expect("the estimate is reported");
+        eprintln!("{}", f.message);
+        // Compare attitudes, not Euler triples: the angle of C_est·C_trueᵀ.
+        let c_true = Attitude::new(&Vector3::from(deg.map(f64::to_radians))).c;
+        let enu = prep.site.angles_to_enu(&prep.initial_angles);
+        let c_est = Attitude::new(&Vector3::from(enu)).c;
+        let off = ((c_est * c_true.transpose()).trace() - 1.0) / 2.0;
+        let off_deg = off.clamp(-1.0, 1.0).acos().to_degrees();
+        let three_sigma = 3.0 * host_tool::quality::attitude::START_SIGMA_RAD.to_degrees();
+        assert!(
+            off_deg < three_sigma,
+            "start off by {off_deg:.2} deg (3σ = {three_sigma:.0}°)"
+        );
+        let effects = [catalog::paper()];
+        let model = host_tool::cli::common::build_model(prep.site, &effects, &cfg).unwrap();
+        let id = identify(&model, &prep, &cfg).unwrap();
+        let best = id.best();
+        let worst = (0..12)
+            .map(|k| ((best.value[k] - sc.coefficients[k]) / best.sigma(k)).abs())
+            .fold(0.0, f64::max);
+        eprintln!(
+            "{deg:?}: start off {off_deg:.2} deg, worst |err|/σ {worst:.2}, NIS/3 {:.3}",
+            id.nis_mean()
+        );
+        assert!(worst < 3.0, "{deg:?}: worst |error|/σ = {worst:.2}");
+    }
+}

@@ -143,6 +143,19 @@ pub fn prepare_oriented(
     cfg: &Config,
     theta0_enu: [f64; 3],
 ) -> anyhow::Result<Prepared> {
+    // No stated orientation and not level: the orientation from the Earth's turn, if the data
+    // fix it (else the screening refuses the start, naming what looks wrong).
+    let mut theta0_enu = theta0_enu;
+    let mut estimated = None;
+    if theta0_enu == [0.0; 3]
+        && quality::attitude::start_tilt_deg(samples, cfg.period_s)
+            > quality::physics::MAX_START_TILT_DEG
+    {
+        if let Ok(est) = quality::attitude::estimate_start(&site, samples) {
+            theta0_enu = est.theta_enu;
+            estimated = Some(est);
+        }
+    }
     site.chart = site.chart_for_start(&theta0_enu);
     let theta0 = site.angles_to_chart(&theta0_enu);
     let screened = quality::screen_oriented(site, samples, cfg.period_s, theta0)?;
@@ -182,13 +195,39 @@ pub fn prepare_oriented(
         ),
         None => (theta0, [ANGLE_PRIOR_SIGMA_RAD; 3]),
     };
+    let mut findings = screened.findings;
+    let initial_angle_sigma = match estimated {
+        None => initial_angle_sigma,
+        Some(est) => {
+            let d = est.theta_enu.map(f64::to_degrees);
+            findings.insert(
+                0,
+                Finding {
+                    kind: "initial-orientation",
+                    message: format!(
+                        "the recording states no initial orientation and does not start level: estimated from the Earth's turn of gravity \
+                         in the first hours as tx, ty, tz = {:.2}, {:.2}, {:.2} deg (fit {:.2} deg RMS; 1σ {:.1} deg given to the filter, \
+                         which refines it); add `# initial_orientation_deg: tx, ty, tz` to state it",
+                        d[0], d[1], d[2],
+                        est.fit_rms_rad.to_degrees(),
+                        quality::attitude::START_SIGMA_RAD.to_degrees()
+                    ),
+                    start_s: None,
+                    end_s: None,
+                    samples: 0,
+                    action: Action::Repaired,
+                },
+            );
+            initial_angle_sigma.map(|s| s.max(quality::attitude::START_SIGMA_RAD))
+        }
+    };
     Ok(Prepared {
         site: screened.site,
         measurements,
         noise,
         initial_angles,
         initial_angle_sigma,
-        findings: screened.findings,
+        findings,
     })
 }
 

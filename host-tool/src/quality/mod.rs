@@ -14,6 +14,7 @@
 //!
 //! [`screening`]: estimator_core::screening
 
+pub mod attitude;
 pub mod latitude;
 pub mod physics;
 pub mod steps;
