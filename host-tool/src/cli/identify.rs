@@ -169,7 +169,7 @@ pub fn print_summary(id: &Identification, prep: &Prepared) {
             println!(
                 "warning: axis {} — the combination {:.2}·D0 {:+.2}·g·Dx {:+.2}·g·Dy {:+.2}·g·Dz is {:.0}x weaker than the next (1σ {} deg/h): \
                  on a static run only the drift-induced turn of the platform separates it; a longer run or another \
-                 initial orientation would pin it down",
+                 initial orientation would pin it down (`driftid plan RUN.csv` recommends one)",
                 w.axis, w.direction[0], w.direction[1], w.direction[2], w.direction[3], w.ratio_to_next, sci(w.sigma_degph)
             );
         }
