@@ -16,6 +16,7 @@ use estimator_core::filter::ANGLE_PRIOR_SIGMA_RAD;
 use estimator_core::model::{Model, ANGLES};
 use estimator_core::{Effect, Sample, Site};
 use nalgebra::DMatrix;
+use rayon::prelude::*;
 
 use crate::identify::joint::{fuse, run_bound_cov, Run};
 use crate::identify::noise::NoiseFloor;
@@ -191,8 +192,9 @@ pub fn rank(
         value: vec![0.0; n],
         cov,
     };
+    // One bound per orientation, on all cores.
     let covs = designs
-        .iter()
+        .par_iter()
         .map(|d| design_cov(*model.site(), effects, d, params, cfg).map(posterior))
         .collect::<anyhow::Result<Vec<_>>>()?;
     let mut out = vec![];

@@ -20,6 +20,7 @@ use estimator_core::effects::Param;
 use estimator_core::model::{Model, ANGLES};
 use estimator_core::Residual;
 use nalgebra::{DMatrix, DVector};
+use rayon::prelude::*;
 
 use super::smoother::linearised_pass;
 use super::{
@@ -187,8 +188,16 @@ pub fn identify_joint(runs: &[Run<'_, '_>], cfg: &Config) -> anyhow::Result<Join
     let mut alone = Vec::with_capacity(runs.len());
     let mut posteriors = Vec::with_capacity(runs.len());
     let mut angles = Vec::with_capacity(runs.len());
-    for (r, run) in runs.iter().enumerate() {
-        let id = identify(run.model, run.prep, cfg).with_context(|| format!("run {}", r + 1))?;
+    // The runs' own fits are independent: on all cores.
+    let fits: Vec<anyhow::Result<Identification>> = runs
+        .par_iter()
+        .enumerate()
+        .map(|(r, run)| {
+            identify(run.model, run.prep, cfg).with_context(|| format!("run {}", r + 1))
+        })
+        .collect();
+    for (run, id) in runs.iter().zip(fits) {
+        let id = id?;
         posteriors.push(id.best().clone());
         let a = id
             .trajectory
