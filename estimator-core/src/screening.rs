@@ -436,10 +436,15 @@ impl Screener {
             let same = f & flag::NON_FINITE == 0
                 && pf & flag::NON_FINITE == 0
                 && p.specific_force[a] == s.specific_force[a];
-            self.run[a] = if same { self.run[a] + 1 } else { 1 };
-            // Repeats inside a run already suspicious do not raise the rate the run is judged by.
-            if same && self.run[a] < self.cfg.min_stuck_run {
-                self.repeats[a] += 1;
+            if same {
+                self.run[a] += 1;
+            } else {
+                // A run counts towards the repeat rate when it has ended, so that a run is
+                // judged by the rate before it (a stuck channel early in a stream would
+                // otherwise raise the rate past the quantisation limit by its own repeats).
+                // Repeats inside a run already suspicious do not raise the rate.
+                self.repeats[a] += self.run[a].min(self.cfg.min_stuck_run.max(1) - 1).max(1) - 1;
+                self.run[a] = 1;
             }
         }
         let n = self.expected_samples.max(self.steps + 1);
@@ -515,10 +520,133 @@ impl Screener {
 
     /// Emits every sample still held (end of the run), judged with the neighbours there are.
     pub fn flush(&mut self, mut emit: impl FnMut(Sample, u8)) {
-        while self.emitted < self.len {
-            let (s, f) = self.emit_next();
+        while let Some((s, f)) = self.drain() {
             emit(s, f);
         }
+    }
+
+    /// Emits the oldest sample still held (end of the run), judged with the neighbours there
+    /// are; `None` when every sample is out ([`Screener::flush`] one at a time).
+    pub fn drain(&mut self) -> Option<(Sample, u8)> {
+        (self.emitted < self.len).then(|| self.emit_next())
+    }
+}
+/// Bytes of a [`Screener`]'s saved state at most ([`Screener::save`]): the counters and the
+/// samples it holds (at most `2·half_window`, each 5 values and its flags).
+pub const SCREENER_STATE_MAX: usize = STATE_HEAD + 2 * MAX_HALF_WINDOW * STATE_SAMPLE;
+/// Fixed part of the saved state: held and emitted counts (1 byte each), then 16 u32: the run
+/// lengths (3), the steps (1), the repeats (3) and the summary counts (non-finite, zero, stuck
+/// ×3, outliers ×3, rejected).
+const STATE_HEAD: usize = 2 + 16 * 4;
+/// One held sample in the saved state: time, specific force (3), temperature (f64), flags.
+const STATE_SAMPLE: usize = 5 * 8 + 1;
+
+impl Screener {
+    /// Bytes [`Screener::save`] writes for a screener of `cfg` holding as many samples as it
+    /// can (the checkpoint of a run in progress).
+    pub fn state_len(cfg: &ScreenConfig) -> usize {
+        STATE_HEAD + 2 * cfg.half_window.clamp(2, MAX_HALF_WINDOW) * STATE_SAMPLE
+    }
+
+    /// The sample emitted last (it is the newest sample the caller has averaged), if any.
+    pub fn last_emitted(&self) -> Option<(Sample, u8)> {
+        let k = self.emitted.checked_sub(1)?;
+        Some((self.buf[k], self.flags[k]))
+    }
+
+    /// Writes the screening state (little-endian; not the thresholds or σ, which come from the
+    /// caller's configuration) into `buf`; returns its length, or `None` if `buf` is too short.
+    /// With [`Screener::load`] a screener resumes exactly where this one stands.
+    pub fn save(&self, buf: &mut [u8]) -> Option<usize> {
+        let n = STATE_HEAD + self.len * STATE_SAMPLE;
+        let out = buf.get_mut(..n)?;
+        out[0] = self.len as u8;
+        out[1] = self.emitted as u8;
+        let s = &self.summary;
+        let words = [
+            self.run[0],
+            self.run[1],
+            self.run[2],
+            self.steps,
+            self.repeats[0],
+            self.repeats[1],
+            self.repeats[2],
+            s.non_finite,
+            s.zero,
+            s.stuck[0],
+            s.stuck[1],
+            s.stuck[2],
+            s.outliers[0],
+            s.outliers[1],
+            s.outliers[2],
+            s.rejected,
+        ];
+        for (k, w) in words.iter().enumerate() {
+            let w = u32::try_from(*w).unwrap_or(u32::MAX);
+            out[2 + 4 * k..6 + 4 * k].copy_from_slice(&w.to_le_bytes());
+        }
+        for k in 0..self.len {
+            let at = STATE_HEAD + k * STATE_SAMPLE;
+            let x = &self.buf[k];
+            let vals = [
+                x.t_s,
+                x.specific_force[0],
+                x.specific_force[1],
+                x.specific_force[2],
+                x.temp_c,
+            ];
+            for (j, v) in vals.iter().enumerate() {
+                out[at + 8 * j..at + 8 * j + 8].copy_from_slice(&v.to_le_bytes());
+            }
+            out[at + 40] = self.flags[k];
+        }
+        Some(n)
+    }
+
+    /// Restores a state written by [`Screener::save`] into this screener (made with the same
+    /// configuration); `None` (and the screener unchanged) if the bytes are not such a state.
+    pub fn load(&mut self, bytes: &[u8]) -> Option<()> {
+        let (len, emitted) = (usize::from(*bytes.first()?), usize::from(*bytes.get(1)?));
+        let h = self.h();
+        if bytes.len() != STATE_HEAD + len * STATE_SAMPLE
+            || len > 2 * h
+            || emitted > len
+            || emitted > h
+            || len - emitted > h
+        {
+            return None;
+        }
+        let word = |k: usize| {
+            let mut w = [0u8; 4];
+            w.copy_from_slice(&bytes[2 + 4 * k..6 + 4 * k]);
+            u32::from_le_bytes(w) as usize
+        };
+        self.len = len;
+        self.emitted = emitted;
+        self.run = [word(0), word(1), word(2)];
+        self.steps = word(3);
+        self.repeats = [word(4), word(5), word(6)];
+        let s = &mut self.summary;
+        s.non_finite = word(7);
+        s.zero = word(8);
+        s.stuck = [word(9), word(10), word(11)];
+        s.outliers = [word(12), word(13), word(14)];
+        s.rejected = word(15);
+        for k in 0..len {
+            let at = STATE_HEAD + k * STATE_SAMPLE;
+            let v = |j: usize| {
+                let mut b = [0u8; 8];
+                b.copy_from_slice(&bytes[at + 8 * j..at + 8 * j + 8]);
+                f64::from_le_bytes(b)
+            };
+            self.buf[k] = Sample {
+                t_s: v(0),
+                specific_force: [v(1), v(2), v(3)],
+                temp_c: v(4),
+            };
+            self.flags[k] = bytes[at + 40];
+        }
+        Some(())
     }
 }
 

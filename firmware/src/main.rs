@@ -84,12 +84,22 @@ fn crash_test() {
     }
 }
 
+/// Reports where the panic happened, not its message: formatting the message would link the
+/// `Debug`/`Display` code of every value any `unwrap`/`expect`/`panic!` in the image could print
+/// (several KB of `.text`; the budget in `.ci/qemu.sh`). The file and line find the call; the
+/// defmt build logs the full message.
 #[panic_handler]
 fn panic(info: &core::panic::PanicInfo) -> ! {
     cortex_m::interrupt::disable();
     #[cfg(feature = "defmt")]
     defmt::error!("panic: {}", defmt::Display2Format(info));
-    board::fatal(protocol::FaultCode::Panic, format_args!("{info}"))
+    match info.location() {
+        Some(at) => board::fatal(
+            protocol::FaultCode::Panic,
+            format_args!("panic at {}:{}", at.file(), at.line()),
+        ),
+        None => board::fatal(protocol::FaultCode::Panic, format_args!("panic")),
+    }
 }
 
 #[exception]

@@ -205,8 +205,15 @@ pub struct Counters {
     pub samples_out_of_order: u32,
     /// Samples with the same time as the previous one (duplicates).
     pub samples_duplicate: u32,
-    /// Sensor samples rejected because an axis repeated the same reading (stuck sensor).
+    /// Samples rejected because an axis repeated the same reading longer than its noise allows
+    /// (a stuck sensor; estimator-core's screening).
     pub samples_stuck: u32,
+    /// Samples rejected as glitches: outliers against their neighbours (estimator-core's
+    /// screening).
+    pub samples_glitch: u32,
+    /// Samples rejected because every axis read exactly zero (a dropout; estimator-core's
+    /// screening).
+    pub samples_dropout: u32,
     /// Filter updates done.
     pub filter_steps: u32,
     /// Filter updates refused by the estimator.

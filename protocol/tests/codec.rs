@@ -49,7 +49,7 @@ fn config() -> impl Strategy<Value = Config> {
 }
 
 fn counters() -> impl Strategy<Value = Counters> {
-    proptest::collection::vec(any::<u32>(), 18).prop_map(|v| Counters {
+    proptest::collection::vec(any::<u32>(), 20).prop_map(|v| Counters {
         samples_ok: v[0],
         samples_nan: v[1],
         samples_saturated: v[2],
@@ -68,6 +68,8 @@ fn counters() -> impl Strategy<Value = Counters> {
         samples_duplicate: v[15],
         samples_stuck: v[16],
         updates_rejected: v[17],
+        samples_glitch: v[18],
+        samples_dropout: v[19],
     })
 }
 

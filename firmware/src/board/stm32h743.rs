@@ -164,6 +164,7 @@ fn uart_config() -> usart::Config {
 }
 
 /// Brings up clocks, link, sensor and timers.
+#[inline(never)]
 pub fn init() -> Parts {
     let mut config = embassy_stm32::Config::default();
     // HSI 64 MHz everywhere (the reset clock), and SPI1's kernel clock from per_ck = HSI.
