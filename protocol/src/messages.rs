@@ -28,6 +28,42 @@ impl Packet {
     }
 }
 
+/// A packet as the firmware reads it: only a command is decoded. Any other message (which the
+/// host never sends) fails to decode, as a malformed frame — so the firmware links no decoder for
+/// the messages it only sends ([`crate::Decoder::push_as`]).
+#[derive(Clone, Debug, PartialEq, Deserialize)]
+pub struct CommandPacket {
+    /// [`crate::PROTOCOL_VERSION`] of the sender.
+    pub version: u8,
+    /// Link sequence number.
+    pub seq: u32,
+    /// The message, which must be a command.
+    pub msg: Inbound,
+}
+
+/// [`Message`] as the firmware decodes it: the same variants in the same order (the wire
+/// format), every one but [`Message::Command`] refused.
+#[derive(Clone, Debug, PartialEq, Deserialize)]
+#[allow(missing_docs)] // the variants of `Message`
+pub enum Inbound {
+    Hello(NotACommand),
+    Raw(NotACommand),
+    Estimate(NotACommand),
+    Status(NotACommand),
+    Fault(NotACommand),
+    Command(Command),
+}
+
+/// The payload of a message that is not a command: never decodes.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum NotACommand {}
+
+impl<'de> Deserialize<'de> for NotACommand {
+    fn deserialize<D: serde::Deserializer<'de>>(_: D) -> Result<Self, D::Error> {
+        Err(serde::de::Error::custom("not a command"))
+    }
+}
+
 /// Every message of the link, both directions.
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
 pub enum Message {

@@ -237,6 +237,33 @@ proptest! {
         prop_assert_eq!(d.stats().bad(), 0);
     }
 
+    /// The firmware's decoding (commands only): every command decodes to itself, with its
+    /// sequence number; every other message is a malformed frame, counted as such.
+    #[test]
+    fn the_firmware_decodes_commands_only(msg in message(), seq in any::<u32>()) {
+        let p = Packet::new(seq, msg.clone());
+        let mut d = Decoder::new();
+        let mut out = Vec::new();
+        for b in frame_of(&p) {
+            if let Some(r) = d.push_as::<CommandPacket>(b) {
+                out.push(r);
+            }
+        }
+        prop_assert_eq!(out.len(), 1);
+        match (msg, out.pop().unwrap()) {
+            (Message::Command(c), Ok(got)) => {
+                prop_assert_eq!(got.seq, seq);
+                let Inbound::Command(g) = got.msg;
+                prop_assert_eq!(format!("{g:?}"), format!("{c:?}"));
+            }
+            (Message::Command(_), Err(e)) => prop_assert!(false, "command refused: {e:?}"),
+            (_, r) => {
+                prop_assert_eq!(r.err(), Some(DecodeError::Malformed));
+                prop_assert_eq!(d.stats().malformed, 1);
+            }
+        }
+    }
+
     /// A stream of frames, some damaged: the decoder yields exactly the undamaged ones, in order,
     /// bit-exact; sequence gaps equal the lost count; every damaged (not vanished) frame is
     /// counted as bad: once, or twice when the damage created a delimiter inside it.

@@ -15,8 +15,9 @@ use estimator_core::{
     units, Averager, Ekf, Measurement, Model, Propagation, Sample, Site, PAPER_EFFECTS,
 };
 use protocol::{
-    Board, Command, Config, Counters, Decoder, EffectSet, Encoder, Estimate, Fault, FaultCode,
-    Hello, Message, Packet, RawSample, Resume, SeqEvent, SeqTracker, Source, Status, STATE_DIM,
+    Board, Command, CommandPacket, Config, Counters, Decoder, EffectSet, Encoder, Estimate, Fault,
+    FaultCode, Hello, Inbound, Message, RawSample, Resume, SeqEvent, SeqTracker, Source, Status,
+    STATE_DIM,
 };
 
 use crate::accel::Accelerometer;
@@ -486,7 +487,9 @@ where
                 _ => break,
             };
             for &b in &buf[..n] {
-                match self.decoder.push(b) {
+                // Commands only: a message the firmware only sends is a malformed frame here
+                // (and no decoder for it is linked).
+                match self.decoder.push_as::<CommandPacket>(b) {
                     None => {}
                     Some(Ok(p)) => {
                         if self.handle(p) == Event::Shutdown {
@@ -527,14 +530,12 @@ where
     }
 
     #[inline(never)]
-    fn handle(&mut self, p: Packet) -> Event {
+    fn handle(&mut self, p: CommandPacket) -> Event {
         counters::bump(&mut self.counters, Count::FramesRx);
         if let SeqEvent::Gap { missing } = self.rx_seq.observe(p.seq) {
             counters::add(&mut self.counters, Count::FramesRxMissing, missing);
         }
-        let Message::Command(cmd) = p.msg else {
-            return self.refuse(FaultCode::BadCommand, "not a command");
-        };
+        let Inbound::Command(cmd) = p.msg;
         match cmd {
             Command::Configure(c) => {
                 if self.run.is_some() {
@@ -786,13 +787,12 @@ where
 }
 
 /// A filter error for the fault frame, without floating-point formatting (which would link
-/// ~15 KB of `core::fmt::float` into the firmware): times in whole milliseconds.
+/// ~15 KB of `core::fmt::float` into the firmware): times to the millisecond ([`Secs`]).
 struct FilterFault(estimator_core::FilterError);
 
 impl core::fmt::Display for FilterFault {
     fn fmt(&self, f: &mut core::fmt::Formatter<'_>) -> core::fmt::Result {
         use estimator_core::FilterError as E;
-        let ms = |t: f64| (t * 1e3) as i64; // saturating; NaN -> 0
         match self.0 {
             E::TimeNotIncreasing {
                 step,
@@ -800,9 +800,9 @@ impl core::fmt::Display for FilterFault {
                 filter_t_s,
             } => write!(
                 f,
-                "step {step}: measurement at t = {} ms is not after the filter time {} ms",
-                ms(t_s),
-                ms(filter_t_s)
+                "step {step}: measurement at t = {} s is not after the filter time {} s",
+                Secs(t_s),
+                Secs(filter_t_s)
             ),
             // The core's texts, repeated: calling its Display would link its float formatting.
             E::Capacity { needed, capacity } => write!(
@@ -827,6 +827,21 @@ impl core::fmt::Display for FilterFault {
                 "step {step}: {count} consecutive measurements failed the innovation gate"
             ),
         }
+    }
+}
+
+/// A time in seconds to the millisecond, formatted with 32-bit integers only (no float, and no
+/// 64-bit division: both cost flash). Saturates beyond 136 years; NaN prints as 0.000.
+struct Secs(f64);
+
+impl core::fmt::Display for Secs {
+    fn fmt(&self, f: &mut core::fmt::Formatter<'_>) -> core::fmt::Result {
+        let t = self.0;
+        let a = if t < 0.0 { -t } else { t };
+        let whole = a as u32; // saturating; NaN -> 0
+        let ms = ((a - f64::from(whole)) * 1e3) as u32;
+        let sign = if t < 0.0 { "-" } else { "" };
+        write!(f, "{sign}{whole}.{:03}", ms.min(999))
     }
 }
 

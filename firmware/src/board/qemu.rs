@@ -257,7 +257,6 @@ pub fn fatal(code: FaultCode, detail: core::fmt::Arguments<'_>) -> ! {
 #[cfg(feature = "selftest")]
 pub fn selftest() -> ! {
     use estimator_core::{Averager, Sample};
-    use firmware_app::app::filter_for;
     let cp = cortex_m::Peripherals::take().expect("peripherals taken once");
     start_systick(cp.SYST);
     // 2 instructions per iteration: subs + bne.
