@@ -339,9 +339,13 @@ pub const STREAM_WINDOW: usize = 2 * MAX_HALF_WINDOW + 1;
 /// The same screening for a stream of samples (the firmware): each sample comes out
 /// `half_window` samples later with its flags, judged by [`outlier_at`] on the same neighbours
 /// the batch [`screen`] uses. Stuck runs are counted as they grow, with the threshold of
-/// [`min_stuck_run`] for the repeat rate seen so far (at least `expected_samples` samples are
-/// assumed, so an early run is not judged on a tiny record); the first samples of a run longer
-/// than the window are already out when it is recognised, so they pass. A stream cannot see
+/// [`min_stuck_run`] for the repeat rate of the runs before (a run counts towards the rate when
+/// it ends, so a channel stuck early in a stream is judged by the rate before it, not raised past
+/// the quantisation limit by its own repeats; at least `expected_samples` samples are assumed, so
+/// an early run is not judged on a tiny record); the first samples of a run longer than the window
+/// are already out when it is recognised, so they pass. A run that is recognised while its first
+/// samples are still held is rejected whole. The state can be saved and restored exactly
+/// ([`Screener::save`], [`Screener::load`]: the firmware's checkpoints). A stream cannot see
 /// where a run ends, so the batch's test for coarsely quantised outputs (did the signal move
 /// while the run lasted?) is not available: the stream assumes outputs finer than the noise (the
 /// ADXL355's 20-bit LSB, 3.9 µg, is well below its noise) and skips stuck detection on an axis
@@ -750,6 +754,88 @@ mod tests {
             );
         }
         assert_eq!(st.summary.rejected, sum.rejected);
+    }
+
+    /// Stream `s` through a screener, saving and restoring it (into a fresh one) after sample
+    /// `cut`: the flags are those of the uninterrupted stream.
+    fn stream_flags(s: &[Sample], cut: Option<usize>) -> [u8; 2000] {
+        let mk = || Screener::new([7e-4; 3], ScreenConfig::default(), 2000);
+        let mut st = mk();
+        let mut out = [0u8; 2000];
+        let mut k = 0;
+        for (i, x) in s.iter().enumerate() {
+            if let Some((_, f)) = st.push(*x) {
+                out[k] = f;
+                k += 1;
+            }
+            if cut == Some(i) {
+                let mut buf = [0u8; SCREENER_STATE_MAX];
+                let n = st.save(&mut buf).unwrap();
+                assert!(n <= Screener::state_len(&ScreenConfig::default()));
+                let mut fresh = mk();
+                fresh.load(&buf[..n]).unwrap();
+                let bits = |e: Option<(Sample, u8)>| {
+                    e.map(|(s, f)| {
+                        let v = [s.t_s, s.specific_force[0], s.specific_force[1]];
+                        (v.map(f64::to_bits), s.temp_c.to_bits(), f)
+                    })
+                };
+                assert_eq!(bits(fresh.last_emitted()), bits(st.last_emitted()));
+                st = fresh;
+            }
+        }
+        st.flush(|_, f| {
+            out[k] = f;
+            k += 1;
+        });
+        assert_eq!(k, s.len());
+        out
+    }
+
+    #[test]
+    fn a_saved_and_restored_screener_flags_as_the_uninterrupted_one() {
+        let mut s = signal(2000, 7e-4);
+        s[100].specific_force[0] += 0.05;
+        for k in 500..540 {
+            s[k].specific_force[1] = s[500].specific_force[1];
+        }
+        s[700].specific_force = [0.0; 3];
+        let whole = stream_flags(&s, None);
+        assert_ne!(whole[100], 0);
+        for cut in [3, 97, 101, 104, 505, 520, 541, 702, 1999] {
+            assert_eq!(stream_flags(&s, Some(cut)), whole, "cut after {cut}");
+        }
+        // Not a state: refused.
+        let mut st = Screener::new([7e-4; 3], ScreenConfig::default(), 2000);
+        assert!(st.load(&[200, 0]).is_none());
+    }
+
+    #[test]
+    fn a_channel_stuck_early_in_a_stream_is_rejected_whole() {
+        // 20 clean samples, then y frozen for 30: the run is judged by the rate before it.
+        let mut s = signal(50, 7e-4);
+        for k in 20..50 {
+            s[k].specific_force[1] = s[20].specific_force[1];
+        }
+        let mut st = Screener::new([7e-4; 3], ScreenConfig::default(), 86_400);
+        let mut flags = [0u8; 50];
+        let mut k = 0;
+        for x in &s[..50] {
+            if let Some((_, f)) = st.push(*x) {
+                flags[k] = f;
+                k += 1;
+            }
+        }
+        st.flush(|_, f| {
+            flags[k] = f;
+            k += 1;
+        });
+        assert!(flags[..20].iter().all(|&f| f == 0), "{flags:?}");
+        assert!(
+            flags[20..].iter().all(|&f| f & axis_bit(1) != 0),
+            "{flags:?}"
+        );
+        assert_eq!(st.summary.stuck, [0, 30, 0]);
     }
 
     #[test]
