@@ -173,7 +173,10 @@ pub struct Config {
     pub effects: EffectSet,
     /// Samples beyond this magnitude on any axis are saturated and rejected, m/s².
     pub saturation_mps2: f64,
-    /// Send every accepted raw sample back as [`Message::Raw`] (sensor mode).
+    /// Send every raw sample that passed the arrival checks (finite, not saturated, in time
+    /// order) back as [`Message::Raw`] (sensor mode), as it arrives: the recording keeps what
+    /// the firmware's screening later rejects as a glitch or a stuck run, for the host's own
+    /// screening.
     pub echo_raw: bool,
     /// Send a [`Status`] every this many filter updates (0: only on request).
     pub status_every: u32,

@@ -547,37 +547,7 @@ where
                 self.config = c;
                 self.send_hello();
             }
-            Command::Start(source) => {
-                if self.run.is_some() {
-                    return self.refuse(FaultCode::BadCommand, "start while running");
-                }
-                if source == Source::Sensor && !self.accel.present() {
-                    return self.refuse(FaultCode::BadCommand, "no accelerometer on this board");
-                }
-                let ekf = match filter_for(&self.config) {
-                    Ok(f) => f,
-                    Err(why) => return self.refuse(FaultCode::BadConfig, why),
-                };
-                let averager =
-                    Averager::new(self.config.filter_period_s, self.config.raw_sigma_mps2);
-                // A fresh run: no older checkpoint may be resumed from now on.
-                self.save_checkpoint(None);
-                self.resumed = None;
-                self.run = Some(Run {
-                    source,
-                    averager,
-                    ekf,
-                    screen: Screen::new(&self.config, None),
-                    sample_seq: 0,
-                    resync: None,
-                    time_offset_s: 0.0,
-                });
-                self.last_source = source;
-                if source == Source::Sensor {
-                    self.timer.start(self.config.sample_rate_hz);
-                }
-                self.send_status();
-            }
+            Command::Start(source) => return self.start(source),
             Command::Replay(s) => match self.run.as_mut() {
                 Some(run) if run.source == Source::Replay => {
                     if let Some(want) = run.resync {
@@ -625,6 +595,42 @@ where
                 return Event::Shutdown;
             }
         }
+        Event::Continue
+    }
+
+    /// Starts a run. Not inlined: the new run (filter and screening, ~4 KB) is built in this
+    /// frame before it moves into the application's state, and that frame must not stay on the
+    /// stack under every other command (the replayed samples' path to the EKF).
+    #[inline(never)]
+    fn start(&mut self, source: Source) -> Event {
+        if self.run.is_some() {
+            return self.refuse(FaultCode::BadCommand, "start while running");
+        }
+        if source == Source::Sensor && !self.accel.present() {
+            return self.refuse(FaultCode::BadCommand, "no accelerometer on this board");
+        }
+        let ekf = match filter_for(&self.config) {
+            Ok(f) => f,
+            Err(why) => return self.refuse(FaultCode::BadConfig, why),
+        };
+        let averager = Averager::new(self.config.filter_period_s, self.config.raw_sigma_mps2);
+        // A fresh run: no older checkpoint may be resumed from now on.
+        self.save_checkpoint(None);
+        self.resumed = None;
+        self.run = Some(Run {
+            source,
+            averager,
+            ekf,
+            screen: Screen::new(&self.config, None),
+            sample_seq: 0,
+            resync: None,
+            time_offset_s: 0.0,
+        });
+        self.last_source = source;
+        if source == Source::Sensor {
+            self.timer.start(self.config.sample_rate_hz);
+        }
+        self.send_status();
         Event::Continue
     }
 
