@@ -282,17 +282,30 @@ pub fn run(args: &IdentifyArgs) -> anyhow::Result<()> {
 /// The consistency of the converged identification (`None` for a single pass).
 pub fn consistency_of(id: &Identification, prep: &Prepared) -> Option<Consistency> {
     id.refined.as_ref()?;
-    let whitened: Vec<[f64; 3]> = id.innovations.iter().map(|r| r.whitened).collect();
+    Some(fit_consistency(
+        &id.innovations,
+        id.residual_rms_mps2(),
+        prep,
+    ))
+}
+
+/// The consistency ([`crate::consistency`]) of a fit's innovations and residual RMS against the
+/// run's noise floor.
+pub fn fit_consistency(
+    innovations: &[estimator_core::Residual],
+    rms_mps2: [f64; 3],
+    prep: &Prepared,
+) -> Consistency {
+    let whitened: Vec<[f64; 3]> = innovations.iter().map(|r| r.whitened).collect();
     let white =
         crate::diagnose::whiteness(&whitened, crate::diagnose::DiagnoseConfig::default().lags);
-    let rms = id.residual_rms_mps2();
     let floor = prep.floor_mps2();
-    Some(assess(
-        id.nis_mean(),
-        id.innovations.len(),
+    assess(
+        crate::identify::mean_nis(innovations),
+        innovations.len(),
         white.p_value,
-        [0, 1, 2].map(|i| rms[i] / floor[i]),
+        [0, 1, 2].map(|i| rms_mps2[i] / floor[i]),
         prep.floor_rel_sd(),
         &Thresholds::default(),
-    ))
+    )
 }

@@ -9,7 +9,7 @@ use super::common::{build_model, load, print_findings, trusted_or, ModelArgs};
 use super::diagnose::{diagnose_one, DiagnoseArgs};
 use super::identify::IdentifyArgs;
 use crate::catalog;
-use crate::consistency::{assess, Consistency, Thresholds};
+use crate::consistency::Consistency;
 use crate::format::{sci, with_sigma};
 use crate::identify::joint::{identify_joint, joint_bound, JointIdentification, Run, RunFit};
 use crate::identify::{prepare_oriented, Config, Prepared};
@@ -54,19 +54,7 @@ pub fn load_runs(
 /// The consistency of one run under the joint estimate (the one definition in
 /// [`crate::consistency`]).
 pub fn run_consistency(fit: &RunFit, prep: &Prepared) -> Consistency {
-    let whitened: Vec<[f64; 3]> = fit.innovations.iter().map(|r| r.whitened).collect();
-    let white =
-        crate::diagnose::whiteness(&whitened, crate::diagnose::DiagnoseConfig::default().lags);
-    let rms = fit.residual_rms_mps2();
-    let floor = prep.floor_mps2();
-    assess(
-        fit.nis_mean(),
-        fit.innovations.len(),
-        white.p_value,
-        [0, 1, 2].map(|i| rms[i] / floor[i]),
-        prep.floor_rel_sd(),
-        &Thresholds::default(),
-    )
+    super::identify::fit_consistency(&fit.innovations, fit.residual_rms_mps2(), prep)
 }
 
 /// Runs the joint `driftid identify`.

@@ -60,8 +60,7 @@ impl RunFit {
     }
     /// RMS of the run's residual per axis, m/s².
     pub fn residual_rms_mps2(&self) -> [f64; 3] {
-        let n = self.residuals.len().max(1) as f64;
-        [0, 1, 2].map(|i| (self.residuals.iter().map(|r| r[i] * r[i]).sum::<f64>() / n).sqrt())
+        super::rms_per_axis(&self.residuals)
     }
 }
 

@@ -307,15 +307,20 @@ impl Identification {
     }
     /// RMS of the residuals per axis, m/s².
     pub fn residual_rms_mps2(&self) -> [f64; 3] {
-        let n = self.smoothed_residuals.len().max(1) as f64;
-        let mut acc = [0.0; 3];
-        for r in &self.smoothed_residuals {
-            for i in 0..3 {
-                acc[i] += r[i] * r[i];
-            }
-        }
-        acc.map(|v| (v / n).sqrt())
+        rms_per_axis(&self.smoothed_residuals)
     }
+}
+
+/// RMS per axis of residuals, m/s².
+pub fn rms_per_axis(residuals: &[[f64; 3]]) -> [f64; 3] {
+    let n = residuals.len().max(1) as f64;
+    let mut acc = [0.0; 3];
+    for r in residuals {
+        for i in 0..3 {
+            acc[i] += r[i] * r[i];
+        }
+    }
+    acc.map(|v| (v / n).sqrt())
 }
 
 fn params_of(model: &Model<'_>) -> Vec<Param> {
