@@ -15,7 +15,10 @@ ELF=target/$T/firmware/firmware
 # ratchet (it may only go down) and prints the gap to the target. Lower a ratchet when a change
 # wins bytes or instructions; never raise it to make a build pass without saying why.
 TEXT_TARGET=$((64 * 1024))
-TEXT_RATCHET=77000           # STM32H743 .text, bytes: measured 76 652 (Cargo.toml [profile.firmware]:
+TEXT_RATCHET=77500           # STM32H743 .text, bytes: measured 77 300 — raised from 77 000 because
+                             # the per-run chart of the angles (issue 11: gravity and Earth rate as
+                             # vectors in the chart frame, frames.rs) adds 648 B to the model;
+                             # before it 76 652 (Cargo.toml [profile.firmware]:
                              # per-crate levels without LTO; with estimator-core's sample screening,
                              # ~6 KB, in the firmware since issue 8). The gap: the EKF (step_paper
                              # and the model, ~17 KB at opt-level 2), embassy-stm32's RCC/USART/flash

@@ -72,6 +72,9 @@ impl core::fmt::Display for ModelError {
 #[derive(Clone, Copy)]
 pub struct Model<'m> {
     site: Site,
+    /// Gravity and Earth rate in the site's chart frame (computed once: every f and h uses them).
+    gravity_r: Vector3<f64>,
+    earth_rate_r: Vector3<f64>,
     effects: &'m [&'m dyn Effect],
     offsets: [usize; MAX_EFFECTS + 1],
     /// Indices of states with dynamics (angles first, then Gauss–Markov states).
@@ -135,6 +138,8 @@ impl<'m> Model<'m> {
         offsets[effects.len()] = n;
         Ok(Model {
             site,
+            gravity_r: site.gravity_r(),
+            earth_rate_r: site.earth_rate_r(),
             effects,
             offsets,
             dynamic,
@@ -212,7 +217,7 @@ impl<'m> Model<'m> {
     fn context(&self, att: &Attitude, t_s: f64, temp_dev_c: f64) -> Context {
         Context {
             t_s,
-            specific_force: att.specific_force(&self.site.gravity_r()),
+            specific_force: att.specific_force(&self.gravity_r),
             temp_dev_c,
         }
     }
@@ -274,7 +279,7 @@ impl<'m> Model<'m> {
         let ctx = self.context(&att, t_s, temp_dev_c);
         let (drift_degph, d_force) = self.effect_terms(x, &ctx, d_dx, true);
         let k = rate_to_euler(&att);
-        let we0 = self.site.earth_rate_r();
+        let we0 = self.earth_rate_r;
         let w = drift_degph * RADPS_PER_DEGPH - att.c * we0;
         let k_deg = k * RADPS_PER_DEGPH;
         for col in d_dx[ANGLES..n].iter_mut() {
@@ -283,7 +288,7 @@ impl<'m> Model<'m> {
             }
         }
         let dk = d_rate_to_euler(&att, &w);
-        let g = self.site.gravity_r();
+        let g = self.gravity_r;
         for j in 0..ANGLES {
             let dw = d_force * att.d_specific_force(&g, j) * RADPS_PER_DEGPH - att.dc[j] * we0;
             d_dx[j] = dk[j] + k * dw;
@@ -310,9 +315,9 @@ impl<'m> Model<'m> {
         let att = Attitude::new(&Vector3::new(x[0], x[1], x[2]));
         let ctx = self.context(&att, t_s, temp_dev_c);
         let (error, d_force) = self.effect_terms(x, &ctx, d_dx, false);
-        let g = self.site.gravity_r();
+        let g = self.gravity_r;
         let d_total = Matrix3::identity() + d_force;
-        let we0 = self.site.earth_rate_r();
+        let we0 = self.earth_rate_r;
         let curvature_0 = we0.cross(&we0.cross(&g)) * (0.5 * time_var_s2);
         for j in 0..ANGLES {
             d_dx[j] = d_total * att.d_specific_force(&g, j) + att.dc[j] * curvature_0;
