@@ -15,7 +15,9 @@ ELF=target/$T/release/firmware
 # ratchet (it may only go down) and prints the gap to the target. Lower a ratchet when a change
 # wins bytes or instructions; never raise it to make a build pass without saying why.
 TEXT_TARGET=$((64 * 1024))
-TEXT_RATCHET=89500           # STM32H743 .text, bytes: measured 88 916 (embassy-stm32 board,
+TEXT_RATCHET=90500           # STM32H743 .text, bytes: measured 90 364 — raised from 89 500 for the
+                             # per-run chart of the angles (issue 11: gravity and Earth rate as
+                             # vectors in the chart frame, frames.rs; +1 448 B); before it 88 916 (embassy-stm32 board,
                              # opt-level 2 under fat LTO: Cargo.toml)
 STACK_TARGET=$((16 * 1024))
 STACK_RATCHET=18000          # self-test stack high-water (EKF steps + checkpoint round trip,
