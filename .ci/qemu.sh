@@ -59,9 +59,9 @@ bash .ci/size-report.sh "$ELF" 15
 budget "STM32H743 .text bytes" "$(section .text)" "$TEXT_TARGET" "$TEXT_RATCHET"
 
 echo "== firmware: STM32H743 board with defmt logging (defmt-rtt) =="
-cargo build -p firmware --release --target $T --features defmt --target-dir target/defmt
-echo "-- defmt build: target/defmt/$T/release/firmware"
-"$sizetool" -A target/defmt/$T/release/firmware | awk '$1 ~ /^\.(text|rodata|defmt)$/ {print "   " $1, $2, "bytes"}'
+cargo build -p firmware --release --target $T --features defmt --target-dir target/fw-extra
+echo "-- defmt build: target/fw-extra/$T/release/firmware"
+"$sizetool" -A target/fw-extra/$T/release/firmware | awk '$1 ~ /^\.(text|rodata|defmt)$/ {print "   " $1, $2, "bytes"}'
 
 echo "== firmware: QEMU mps2-an500 self-test (instructions per EKF step, stack high-water) =="
 cargo build -p firmware --release --target $T --features board-qemu,selftest
@@ -81,10 +81,10 @@ report "QEMU mps2-an500"
 
 echo "== firmware: a panic, a HardFault and a stack overflow under QEMU end the run with a failure code (no hang) =="
 for crash in panic hardfault stackoverflow; do
-  cargo build -q -p firmware --release --target $T --features board-qemu,crash-$crash --target-dir target/crash-$crash
+  cargo build -q -p firmware --release --target $T --features board-qemu,crash-$crash --target-dir target/fw-extra
   set +e
   timeout 60 qemu-system-arm -M mps2-an500 -display none -monitor none -serial null -semihosting-config enable=on,target=native \
-    -kernel target/crash-$crash/$T/release/firmware > /tmp/driftid-crash-$crash.log 2>&1
+    -kernel target/fw-extra/$T/release/firmware > /tmp/driftid-crash-$crash.log 2>&1
   rc=$?
   set -e
   head -3 /tmp/driftid-crash-$crash.log
