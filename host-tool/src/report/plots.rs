@@ -615,9 +615,8 @@ fn time_panel<DB: DrawingBackend>(
         b.caption(c, (FONT, 14));
     }
     let entries = if p.log_y {
-        let mut chart = b
-            .build_cartesian_2d(x.0..x.1, (y0..y1).log_scale())
-            .map_err(err)?;
+        let y = (y0..y1).log_scale().with_key_points(log_ticks(y0, y1));
+        let mut chart = b.build_cartesian_2d(x.0..x.1, y).map_err(err)?;
         panel_body(&mut chart, x, p)?
     } else {
         let mut chart = b.build_cartesian_2d(x.0..x.1, y0..y1).map_err(err)?;
@@ -627,6 +626,26 @@ fn time_panel<DB: DrawingBackend>(
         legend_strip(&strip, &entries)?;
     }
     Ok(())
+}
+
+/// Ticks of a log axis over `[lo, hi]`: 1, 2, 5 × powers of ten (plotters' own log ticks are
+/// powers of ten only, a single label over one decade).
+fn log_ticks(lo: f64, hi: f64) -> Vec<f64> {
+    let mut out = vec![];
+    if !(lo > 0.0 && hi > lo) {
+        return out;
+    }
+    let mut e = lo.log10().floor() as i32;
+    while 10f64.powi(e) <= hi {
+        for m in [1.0, 2.0, 5.0] {
+            let v = m * 10f64.powi(e);
+            if (lo..=hi).contains(&v) {
+                out.push(v);
+            }
+        }
+        e += 1;
+    }
+    out
 }
 
 /// Draws the mesh and the panel's contents on a linear or logarithmic chart; returns the legend
@@ -1668,9 +1687,21 @@ mod tests {
         }
     }
 
+    /// Where the SVG `<text>` element holding exactly `label` has its text (plotters writes
+    /// `<text …>label` and a newline).
+    fn find_text(svg: &str, label: &str) -> Option<usize> {
+        [
+            format!(">{label}\n"),
+            format!(">\n{label}\n"),
+            format!(">{label}<"),
+        ]
+        .iter()
+        .find_map(|p| svg.find(p.as_str()))
+    }
+
     /// The x coordinate of the SVG `<text>` element that holds `label`.
     fn text_x(svg: &str, label: &str) -> f64 {
-        let at = svg.find(&format!(">{label}<")).expect(label);
+        let at = find_text(svg, label).expect(label);
         let start = svg[..at].rfind("<text").unwrap();
         let attr = &svg[start..at];
         let x = attr.find(" x=\"").unwrap() + 4;
@@ -1738,7 +1769,25 @@ mod tests {
         let fig = figure(Kind::Nis(0), &input);
         let svg = svg(&fig, &input).unwrap();
         assert!(svg.contains("log scale"));
-        assert!(svg.contains(">1<") && (svg.contains(">0.1<") || svg.contains(">10<")));
+        let has = |t: &str| find_text(&svg, t).is_some();
+        let texts: Vec<&str> = svg
+            .split("<text")
+            .skip(1)
+            .filter_map(|t| {
+                t.split_once('>')
+                    .map(|(_, r)| r.split('<').next().unwrap().trim())
+            })
+            .collect();
+        assert!(
+            has("1") && (has("0.1") || has("0.2") || has("10")),
+            "{texts:?}"
+        );
+    }
+
+    #[test]
+    fn log_ticks_are_one_two_five() {
+        assert_eq!(log_ticks(0.05, 3.0), [0.05, 0.1, 0.2, 0.5, 1.0, 2.0]);
+        assert!(log_ticks(0.0, 1.0).is_empty());
     }
 
     #[test]
