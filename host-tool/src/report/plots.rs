@@ -628,17 +628,30 @@ fn time_panel<DB: DrawingBackend>(
     Ok(())
 }
 
-/// Ticks of a log axis over `[lo, hi]`: 1, 2, 5 × powers of ten (plotters' own log ticks are
-/// powers of ten only, a single label over one decade).
+/// Ticks of a log axis over `[lo, hi]`: 1, 2, 5 × powers of ten, or 1…9 × when that gives fewer
+/// than three (plotters' own log ticks are powers of ten only: one label over one decade).
 fn log_ticks(lo: f64, hi: f64) -> Vec<f64> {
+    let ticks = log_ticks_with(lo, hi, &[1.0, 2.0, 5.0]);
+    if ticks.len() >= 3 {
+        return ticks;
+    }
+    log_ticks_with(lo, hi, &[1.0, 2.0, 3.0, 4.0, 5.0, 6.0, 7.0, 8.0, 9.0])
+}
+
+/// `m × 10^e` for every mantissa `m` that falls in `[lo, hi]`.
+fn log_ticks_with(lo: f64, hi: f64, mantissas: &[f64]) -> Vec<f64> {
     let mut out = vec![];
     if !(lo > 0.0 && hi > lo) {
         return out;
     }
     let mut e = lo.log10().floor() as i32;
     while 10f64.powi(e) <= hi {
-        for m in [1.0, 2.0, 5.0] {
-            let v = m * 10f64.powi(e);
+        for &m in mantissas {
+            let v = if e < 0 {
+                m / 10f64.powi(-e)
+            } else {
+                m * 10f64.powi(e)
+            };
             if (lo..=hi).contains(&v) {
                 out.push(v);
             }
@@ -1337,7 +1350,10 @@ fn ladder<DB: DrawingBackend>(area: &DrawingArea<DB, Shift>, input: &ReportInput
         .margin_bottom(4)
         .x_label_area_size(48)
         .y_label_area_size(78)
-        .build_cartesian_2d(-0.5..(n as f64 - 0.5), (lo..hi).log_scale())
+        .build_cartesian_2d(
+            -0.5..(n as f64 - 0.5),
+            (lo..hi).log_scale().with_key_points(log_ticks(lo, hi)),
+        )
         .map_err(err)?;
     chart
         .configure_mesh()
@@ -1788,6 +1804,7 @@ mod tests {
     fn log_ticks_are_one_two_five() {
         assert_eq!(log_ticks(0.05, 3.0), [0.05, 0.1, 0.2, 0.5, 1.0, 2.0]);
         assert!(log_ticks(0.0, 1.0).is_empty());
+        assert_eq!(log_ticks(0.64, 2.1), [0.7, 0.8, 0.9, 1.0, 2.0]);
     }
 
     #[test]
