@@ -144,9 +144,9 @@ mod tests {
     #[test]
     fn band_matches_chi2_reference() {
         // χ²(10800) quantiles at 0.0005 and 0.9995 over 10800 (scipy.stats.chi2.ppf):
-        // 0.955827 and 1.045386. Wilson–Hilferty is good to ~1e-5 at this many dof; 1e-4 is a
-        // tenth of the band's sampling width, so a wrong formula (e.g. a normal approximation
-        // without skew, off by 4e-4) fails.
+        // 0.955827 and 1.045386. statrs inverts the regularised gamma exactly; 1e-4 is a tenth
+        // of the band's sampling width, so a wrong formula (e.g. a normal approximation without
+        // skew, off by 4e-4) fails.
         let b = nis_band(3600, 0.999);
         assert!((b[0] - 0.955827).abs() < 1e-4, "{b:?}");
         assert!((b[1] - 1.045386).abs() < 1e-4, "{b:?}");

@@ -1,4 +1,7 @@
-//! Number formatting for tables: a value printed to the precision its 1σ supports.
+//! Number formatting: a value printed to the precision its 1σ supports, one rule everywhere
+//! ([`decimals_for`]: two significant digits of 1σ, the value to the same decimal). [`pm`] prints
+//! `value ± 1σ` (text, HTML and the plots' annotations); [`with_sigma`] prints the value alone
+//! for tables whose 1σ has its own column.
 
 /// Decimals needed to show two significant digits of `sigma`.
 pub fn decimals_for(sigma: f64) -> usize {
@@ -35,7 +38,7 @@ pub fn pm(value: f64, sigma: f64) -> String {
         last + 1
     };
     if (-3..5).contains(&mag.max(last + 1)) && last >= -12 {
-        let d = (-last).clamp(0, 15) as usize;
+        let d = decimals_for(sigma);
         format!("{value:.d$} ± {sigma:.d$}")
     } else {
         let d = (mag.max(last + 1) - last).clamp(1, 15) as usize;

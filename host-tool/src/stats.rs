@@ -1,49 +1,17 @@
-//! Statistics helpers: χ² quantiles and tail probabilities (statrs), the log tail beyond
-//! underflow, normal quantiles.
+//! Statistics helpers: χ² quantiles and tail probabilities and normal quantiles, all from statrs
+//! (exact: regularised incomplete gamma and its inversion, inverse complementary error function).
+//!
+//! One formula is our own, where statrs cannot answer: the log of a χ² tail beyond f64 underflow
+//! ([`chi2_ln_sf`]; statrs has no log-survival function and its `sf` is 0 there). The noncentral
+//! χ² of the detection limits is approximated in [`crate::diagnose::candidates`] (statrs has
+//! none).
 
-/// Standard normal quantile (Acklam's rational approximation, |error| < 1.2e-9).
+/// Standard normal quantile (statrs: `√2·erfc⁻¹(2(1−p))`, exact to rounding).
 pub fn normal_quantile(p: f64) -> f64 {
-    const A: [f64; 6] = [
-        -3.969683028665376e1,
-        2.209460984245205e2,
-        -2.759285104469687e2,
-        1.383_577_518_672_69e2,
-        -3.066479806614716e1,
-        2.506628277459239,
-    ];
-    const B: [f64; 5] = [
-        -5.447609879822406e1,
-        1.615858368580409e2,
-        -1.556989798598866e2,
-        6.680131188771972e1,
-        -1.328068155288572e1,
-    ];
-    const C: [f64; 6] = [
-        -7.784894002430293e-3,
-        -3.223964580411365e-1,
-        -2.400758277161838,
-        -2.549732539343734,
-        4.374664141464968,
-        2.938163982698783,
-    ];
-    const D: [f64; 4] = [
-        7.784695709041462e-3,
-        3.224671290700398e-1,
-        2.445134137142996,
-        3.754408661907416,
-    ];
-    let pl = 0.02425;
-    if p < pl {
-        let q = (-2.0 * p.ln()).sqrt();
-        (((((C[0] * q + C[1]) * q + C[2]) * q + C[3]) * q + C[4]) * q + C[5])
-            / ((((D[0] * q + D[1]) * q + D[2]) * q + D[3]) * q + 1.0)
-    } else if p <= 1.0 - pl {
-        let q = p - 0.5;
-        let r = q * q;
-        (((((A[0] * r + A[1]) * r + A[2]) * r + A[3]) * r + A[4]) * r + A[5]) * q
-            / (((((B[0] * r + B[1]) * r + B[2]) * r + B[3]) * r + B[4]) * r + 1.0)
-    } else {
-        -normal_quantile(1.0 - p)
+    use statrs::distribution::{ContinuousCDF, Normal};
+    match Normal::new(0.0, 1.0) {
+        Ok(d) if (0.0..=1.0).contains(&p) => d.inverse_cdf(p),
+        _ => f64::NAN,
     }
 }
 
@@ -69,9 +37,14 @@ pub fn chi2_sf(x: f64, k: f64) -> f64 {
 /// Natural log of the χ²(k) upper tail at `x`: a p-value that does not underflow, so statistics
 /// of 1e6 on 3 and on 33 degrees of freedom still rank by evidence, not by a tie at 0.
 ///
-/// Where the tail is representable it is statrs' `sf`; beyond (p < 1e-300) the Legendre
-/// continued fraction of Q(a, x) is evaluated in log form:
-/// `ln Q = −x + a·ln x − lnΓ(a) + ln CF(a, x)`, a = k/2, x = stat/2.
+/// Where the tail is representable it is statrs' `sf` (exact); beyond (p < 1e-300: statrs'
+/// `gamma_ur` returns 0 once its prefactor e^(a ln x − x − lnΓ(a)) underflows) the Legendre
+/// continued fraction of Q(a, x) — the fraction statrs itself evaluates for x > a, Cephes'
+/// `igamc` — is evaluated with its prefactor kept in logs:
+/// `ln Q = −x + a·ln x − lnΓ(a) + ln CF(a, x)`, a = k/2, x = stat/2 (lnΓ from statrs). It is
+/// exact to rounding too, not an asymptotic approximation: the fraction converges fastest
+/// exactly there (x ≫ a). Tested against scipy's `logsf` where both are finite and against the
+/// leading terms of the asymptotic series beyond.
 pub fn chi2_ln_sf(x: f64, k: f64) -> f64 {
     let p = chi2_sf(x, k);
     if p > 1e-300 {
@@ -120,6 +93,9 @@ mod tests {
         assert!((chi2_sf(23.34, 12.0) - 0.025).abs() < 2e-4);
         assert!((chi2_sf(7.815, 3.0) - 0.05).abs() < 2e-4);
         assert!((normal_quantile(0.975) - 1.959964).abs() < 1e-6);
+        // scipy.stats.norm.ppf: 2.5758293035489004 and -6.361340902404056 (far tail).
+        assert!((normal_quantile(0.995) - 2.575_829_303_548_900_4).abs() < 1e-12);
+        assert!((normal_quantile(1e-10) + 6.361_340_902_404_056).abs() < 1e-10);
     }
 
     #[test]

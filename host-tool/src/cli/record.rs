@@ -88,7 +88,8 @@ pub fn run(a: &RecordArgs) -> anyhow::Result<()> {
     }
     if let Some(e) = sum.last_estimate {
         for (i, n) in COEFFICIENT_NAMES.iter().enumerate() {
-            eprintln!("  {n:>4} = {:+.5} ± {:.5}", e.state[3 + i], e.sigma[3 + i]);
+            let (v, s) = (e.state[3 + i], e.sigma[3 + i]);
+            eprintln!("  {n:>4} = {}", crate::format::pm(v, s));
         }
     }
     Ok(())

@@ -192,7 +192,8 @@ pub fn run(a: &ReplayArgs) -> anyhow::Result<()> {
     );
     if let Some(e) = outcome.estimates.last() {
         for (i, n) in COEFFICIENT_NAMES.iter().enumerate() {
-            eprintln!("  {n:>4} = {:+.5} ± {:.5}", e.state[3 + i], e.sigma[3 + i]);
+            let (v, s) = (e.state[3 + i], e.sigma[3 + i]);
+            eprintln!("  {n:>4} = {}", crate::format::pm(v, s));
         }
     }
     Ok(())

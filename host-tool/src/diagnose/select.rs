@@ -18,9 +18,8 @@ use serde::Serialize;
 
 use super::DiagnoseConfig;
 use crate::catalog;
-use crate::cli::common::build_model;
 use crate::consistency::{assess, Thresholds};
-use crate::identify::{identify, Identification, Prepared};
+use crate::identify::{build_model, identify, Identification, Prepared};
 
 /// Evidence gain (in −2 ln units) a candidate must bring to be adopted.
 pub const MIN_EVIDENCE_GAIN: f64 = 10.0;

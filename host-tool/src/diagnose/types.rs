@@ -22,6 +22,8 @@ pub struct Series {
     pub whitened: Vec<[f64; 3]>,
     /// NIS of each update (χ²(3) when the model holds).
     pub nis: Vec<f64>,
+    /// Measured temperature, °C (NaN where the recording has none).
+    pub temp_c: Vec<f64>,
 }
 
 /// Autocorrelation and Ljung–Box test of the whitened innovations.

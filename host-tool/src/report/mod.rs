@@ -13,7 +13,9 @@ use std::path::{Path, PathBuf};
 
 use anyhow::Result;
 
+use crate::consistency::Thresholds;
 use crate::diagnose::types::{Diagnosis, Rung};
+use crate::format::{pm, with_sigma};
 use plots::{Figure, Kind};
 
 /// One identified parameter for the report's coefficient table.
@@ -57,6 +59,12 @@ pub struct ReportInput {
 /// A p-value as HTML text (`< 1e-300` must be escaped).
 fn fmt_p(p: f64) -> String {
     esc(&plots::fmt_p(p))
+}
+
+/// Whether a Ljung–Box p-value passes as white: the threshold of the one definition of
+/// consistent ([`Thresholds::whiteness_alpha`]).
+fn white(p: f64) -> bool {
+    p >= Thresholds::default().whiteness_alpha
 }
 
 /// Escapes text for HTML.
@@ -212,7 +220,7 @@ pub fn render_html(input: &ReportInput) -> Result<String> {
         w.ljung_box_q,
         w.dof,
         fmt_p(w.p_value),
-        if w.p_value < 0.01 { "<span class=\"bad\">(not white: the model misses a systematic effect)</span>" } else { "<span class=\"ok\">(white)</span>" }
+        if white(w.p_value) { "<span class=\"ok\">(white)</span>" } else { "<span class=\"bad\">(not white: the model misses a systematic effect)</span>" }
     );
     if first.failures.is_empty() {
         let _ = writeln!(
@@ -240,7 +248,10 @@ pub fn render_html(input: &ReportInput) -> Result<String> {
         }
         let _ = writeln!(h, "</table>");
     }
-    fig(&[Kind::Acf(0), Kind::Correlations(0)], &mut h);
+    fig(
+        &[Kind::Acf(0), Kind::Correlations(0), Kind::Temperature(0)],
+        &mut h,
+    );
     let mut strong: Vec<_> = first
         .correlations
         .iter()
@@ -330,12 +341,13 @@ fn caption(f: &Figure) -> String {
         Kind::Residual(_) => "Residual along the converged trajectory, m/s², with ±1σ of the noise floor estimated from the raw samples.",
         Kind::Innovations(_) => "Filter innovations, m/s², with ±1σ and ±3σ bands from S.",
         Kind::Whitened(_) => "Whitened innovations (dimensionless): N(0,1) and white when the model holds.",
-        Kind::Nis(_) => "NIS/3: per update and its rolling mean with the 95 % χ² band of that mean.",
+        Kind::Nis(_) => "NIS/3 on a log scale: per update and its rolling mean with the 95 % χ² band of that mean.",
         Kind::Acf(_) => "Autocorrelation of the whitened innovations per axis with the 95 % bound of a white sequence.",
         Kind::Correlations(_) => "Correlation of the residual with candidate regressors (specific-force components, their products, time, temperature) with the 99 % bound.",
-        Kind::Ladder => "Residual RMS / noise floor per axis for each model of the ladder; 1 is the floor.",
+        Kind::Temperature(_) => "The recording's temperature, °C, with the failure windows shaded; where temperature drift stands among the candidates and its estimated size ± 1σ.",
+        Kind::Ladder => "Residual RMS / noise floor per axis for each model of the ladder (log scale); 1 is the floor. Under the chart: the parameters each rung added, ± 1σ.",
         Kind::ResidualBeforeAfter => "Residual of the starting model and of the final model, m/s².",
-        Kind::NisBeforeAfter => "Rolling NIS/3 of the starting and the final model.",
+        Kind::NisBeforeAfter => "Rolling NIS/3 of the starting and the final model (log scale).",
     };
     format!("{} [{}]", what, f.file)
 }
@@ -343,24 +355,29 @@ fn caption(f: &Figure) -> String {
 fn fit_table(h: &mut String, ds: &[Diagnosis]) {
     let _ = writeln!(
         h,
-        "<table><tr><th class=\"l\">model</th><th>RMS/floor x</th><th>y</th><th>z</th><th>mean NIS/3</th><th>95 % band</th><th>Ljung–Box p</th><th>failure windows</th></tr>"
+        "<table><tr><th class=\"l\">model</th><th>RMS/floor x</th><th>y</th><th>z</th><th>mean NIS/3</th><th>{:.1} % band</th><th>Ljung–Box p</th><th>failure windows</th><th>consistent</th></tr>",
+        100.0 * Thresholds::default().nis_band_prob
     );
     for d in ds {
-        let in_band = d.nis_mean >= d.nis_band95[0] && d.nis_mean <= d.nis_band95[1];
+        // Coloured by the one definition of consistent (crate::consistency).
+        let band = d.consistency.nis_band;
+        let in_band = d.nis_mean >= band[0] && d.nis_mean <= band[1];
         let _ = writeln!(
             h,
-            "<tr><td class=\"l\">{}</td><td>{:.3}</td><td>{:.3}</td><td>{:.3}</td><td class=\"{}\">{:.3}</td><td>[{:.3}, {:.3}]</td><td class=\"{}\">{}</td><td>{}</td></tr>",
+            "<tr><td class=\"l\">{}</td><td>{:.3}</td><td>{:.3}</td><td>{:.3}</td><td class=\"{}\">{:.3}</td><td>[{:.3}, {:.3}]</td><td class=\"{}\">{}</td><td>{}</td><td class=\"{}\">{}</td></tr>",
             esc(&model_name(&d.model)),
             d.residual_rms_over_floor[0],
             d.residual_rms_over_floor[1],
             d.residual_rms_over_floor[2],
             if in_band { "ok" } else { "bad" },
             d.nis_mean,
-            d.nis_band95[0],
-            d.nis_band95[1],
-            if d.whiteness.p_value < 0.01 { "bad" } else { "ok" },
+            band[0],
+            band[1],
+            if white(d.whiteness.p_value) { "ok" } else { "bad" },
             fmt_p(d.whiteness.p_value),
-            d.failures.len()
+            d.failures.len(),
+            if d.consistency.is_consistent() { "ok" } else { "bad" },
+            if d.consistency.is_consistent() { "yes" } else { "no" }
         );
     }
     let _ = writeln!(h, "</table>");
@@ -470,7 +487,7 @@ fn movement_table(h: &mut String, rungs: &[Rung]) {
         for r in rungs {
             match r.coefficients.get(k) {
                 Some((_, v, s)) => {
-                    let _ = write!(h, "<td>{} ± {}</td>", num(*v), num(*s));
+                    let _ = write!(h, "<td>{}</td>", esc(&pm(*v, *s)));
                 }
                 None => {
                     let _ = write!(h, "<td>n/a</td>");
@@ -492,7 +509,7 @@ fn movement_table(h: &mut String, rungs: &[Rung]) {
 
 fn coefficient_table(h: &mut String, rows: &[CoefRow]) {
     let truth = rows.iter().any(|r| r.truth.is_some());
-    let _ = write!(h, "<table><tr><th class=\"l\">parameter</th><th class=\"l\">unit</th><th>estimate</th><th>1σ</th><th>bound (CRB 1σ)</th><th>1σ / bound</th>");
+    let _ = write!(h, "<table><tr><th class=\"l\">parameter</th><th class=\"l\">unit</th><th>estimate ± 1σ</th><th>bound (CRB 1σ)</th><th>1σ / bound</th>");
     if truth {
         let _ = write!(h, "<th>truth</th><th>error</th><th>error / 1σ</th>");
     }
@@ -500,12 +517,11 @@ fn coefficient_table(h: &mut String, rows: &[CoefRow]) {
     for r in rows {
         let _ = write!(
             h,
-            "<tr><td class=\"l\">{}</td><td class=\"l\">{}</td><td>{}</td><td>{}</td><td>{}</td><td>{:.2}</td>",
+            "<tr><td class=\"l\">{}</td><td class=\"l\">{}</td><td>{}</td><td>{:.2e}</td><td>{:.2}</td>",
             esc(&r.name),
             esc(&r.unit),
-            num(r.value),
-            num(r.sigma),
-            num(r.bound),
+            esc(&pm(r.value, r.sigma)),
+            r.bound,
             r.sigma / r.bound
         );
         if truth {
@@ -517,7 +533,7 @@ fn coefficient_table(h: &mut String, rows: &[CoefRow]) {
                         h,
                         "<td>{}</td><td>{}</td><td class=\"{}\">{:+.2}</td>",
                         num(t),
-                        num(e),
+                        with_sigma(e, r.sigma),
                         if z.abs() > 3.0 { "bad" } else { "ok" },
                         z
                     );

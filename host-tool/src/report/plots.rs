@@ -10,13 +10,18 @@ use std::path::Path;
 use std::sync::Once;
 
 use anyhow::{anyhow, Result};
+use plotters::coord::ranged1d::{Ranged, ValueFormatter};
+use plotters::coord::types::RangedCoordf64;
 use plotters::coord::Shift;
+use plotters::element::DashedPathElement;
 use plotters::prelude::*;
 
 use super::ReportInput;
 use crate::diagnose::types::{Diagnosis, Series};
 use crate::stats::chi2_quantile;
 
+/// Lowest NIS/3 a log axis shows (values below are drawn at the edge).
+const NIS_LOG_FLOOR: f64 = 1e-3;
 /// Pixel columns a long series is reduced to (min and max per column).
 const COLS: usize = 900;
 /// Figure width, px.
@@ -32,7 +37,6 @@ const AFTER: RGBColor = RGBColor(30, 70, 150);
 const SHADE: RGBColor = RGBColor(255, 170, 170);
 const BAND1: RGBColor = RGBColor(90, 170, 90);
 const BAND3: RGBColor = RGBColor(190, 225, 190);
-const GREY: RGBColor = RGBColor(150, 150, 150);
 const AXIS_COLORS: [RGBColor; 3] = [
     RGBColor(31, 119, 180),
     RGBColor(255, 127, 14),
@@ -56,6 +60,8 @@ pub enum Kind {
     Acf(usize),
     /// Correlation of the residual with candidate regressors.
     Correlations(usize),
+    /// The recording's temperature with the temperature-drift candidate's standing.
+    Temperature(usize),
     /// Residual RMS / floor per rung of the ladder.
     Ladder,
     /// Residual of the first and the last model, per axis.
@@ -137,10 +143,18 @@ pub fn figure(kind: Kind, input: &ReportInput) -> Figure {
             ),
             380,
         ),
+        Kind::Temperature(d) => (
+            "temperature",
+            format!(
+                "Platform temperature and the temperature drift — model {}",
+                name(d)
+            ),
+            330 + notes_height(temperature_notes(input, d).len()),
+        ),
         Kind::Ladder => (
             "ladder",
             "Model ladder: residual RMS / noise floor per rung (watch the error fall)".to_string(),
-            400,
+            400 + notes_height(ladder_estimates(&input.ladder).len()),
         ),
         Kind::ResidualBeforeAfter => (
             "residual-before-after",
@@ -164,7 +178,8 @@ pub fn figure(kind: Kind, input: &ReportInput) -> Figure {
         | Kind::Whitened(d)
         | Kind::Nis(d)
         | Kind::Acf(d)
-        | Kind::Correlations(d) => {
+        | Kind::Correlations(d)
+        | Kind::Temperature(d) => {
             format!("-rung{d}")
         }
         _ => String::new(),
@@ -188,8 +203,11 @@ pub fn figures(input: &ReportInput) -> Vec<Figure> {
         Kind::Nis(0),
         Kind::Acf(0),
         Kind::Correlations(0),
-        Kind::Ladder,
     ];
+    if shows_temperature(&input.diagnoses[0]) {
+        kinds.push(Kind::Temperature(0));
+    }
+    kinds.push(Kind::Ladder);
     if last > 0 {
         kinds.extend([
             Kind::ResidualBeforeAfter,
@@ -263,6 +281,7 @@ fn draw<DB: DrawingBackend>(
         Kind::Nis(d) => nis(&area, &[&input.diagnoses[d]], true),
         Kind::Acf(d) => acf(&area, &input.diagnoses[d]),
         Kind::Correlations(d) => correlations(&area, &input.diagnoses[d]),
+        Kind::Temperature(d) => temperature(&area, input, d),
         Kind::Ladder => ladder(&area, input),
         Kind::ResidualBeforeAfter => {
             residual(&area, &input.diagnoses[0], Some(&input.diagnoses[last]))
@@ -450,6 +469,92 @@ fn tick(v: f64) -> String {
 }
 
 // ---------------------------------------------------------------------------------------------
+// Legends: drawn in a strip reserved to the right of the plotting area, never over the data
+
+/// Width of the legend strip to the right of every chart, px.
+const LEGEND_W: i32 = 200;
+/// Characters per legend line before it wraps.
+const LEGEND_WRAP: usize = 25;
+
+/// How a legend entry is drawn.
+#[derive(Clone, Copy)]
+enum Mark {
+    /// A line in this style (dashed or solid).
+    Line(ShapeStyle, bool),
+    /// A filled swatch.
+    Fill(RGBAColor),
+}
+
+/// One legend entry.
+struct Entry {
+    label: String,
+    mark: Mark,
+}
+
+fn entry(label: impl Into<String>, mark: Mark) -> Entry {
+    Entry {
+        label: label.into(),
+        mark,
+    }
+}
+
+/// Splits `area` into the plotting part and the legend strip on its right.
+fn with_legend_strip<DB: DrawingBackend>(
+    area: &DrawingArea<DB, Shift>,
+) -> (DrawingArea<DB, Shift>, DrawingArea<DB, Shift>) {
+    let w = area.dim_in_pixel().0 as i32;
+    area.split_horizontally((w - LEGEND_W).max(w / 2))
+}
+
+/// `label` broken into lines of at most [`LEGEND_WRAP`] characters at spaces.
+fn wrap(label: &str) -> Vec<String> {
+    let mut lines: Vec<String> = vec![];
+    for word in label.split(' ') {
+        match lines.last_mut() {
+            Some(l) if l.chars().count() + 1 + word.chars().count() <= LEGEND_WRAP => {
+                l.push(' ');
+                l.push_str(word);
+            }
+            _ => lines.push(word.to_string()),
+        }
+    }
+    lines
+}
+
+/// Draws the legend entries top-down in `strip` (the area beside the chart).
+fn legend_strip<DB: DrawingBackend>(
+    strip: &DrawingArea<DB, Shift>,
+    entries: &[Entry],
+) -> Result<()> {
+    let mut y = 10;
+    for e in entries {
+        let (x0, x1, ym) = (6, 26, y + 7);
+        match e.mark {
+            Mark::Line(style, true) => strip.draw(&DashedPathElement::new(
+                vec![(x0, ym), (x1, ym)],
+                5,
+                3,
+                style.stroke_width(2),
+            )),
+            Mark::Line(style, false) => strip.draw(&PathElement::new(
+                vec![(x0, ym), (x1, ym)],
+                style.stroke_width(2),
+            )),
+            Mark::Fill(c) => strip.draw(&Rectangle::new([(x0, ym - 5), (x1, ym + 5)], c.filled())),
+        }
+        .map_err(err)?;
+        for line in wrap(&e.label) {
+            strip
+                .draw(&Text::new(line, (x1 + 6, y), (FONT, 12)))
+                .map_err(err)?;
+            y += 15;
+        }
+        y += 5;
+    }
+    Ok(())
+}
+
+// ---------------------------------------------------------------------------------------------
 // A time panel
 
 struct Line {
@@ -473,6 +578,8 @@ struct Panel {
     x_desc: Option<String>,
     y_desc: String,
     y: (f64, f64),
+    /// A logarithmic y axis (`y` must then be positive).
+    log_y: bool,
     lines: Vec<Line>,
     bands: Vec<Band>,
     /// Constant bands (lo, hi, colour, label).
@@ -488,15 +595,18 @@ fn clamp_pts(p: &[(f64, f64)], y: (f64, f64)) -> Vec<(f64, f64)> {
     p.iter().map(|&(t, v)| (t, v.clamp(y.0, y.1))).collect()
 }
 
+/// One time panel: the chart on the left, its legend (when `p.legend`) in the strip on the right;
+/// every panel keeps the strip so stacked panels share their time axis.
 fn time_panel<DB: DrawingBackend>(
     area: &DrawingArea<DB, Shift>,
     x: (f64, f64),
     p: &Panel,
 ) -> Result<()> {
+    let (plot, strip) = with_legend_strip(area);
     let (y0, y1) = p.y;
-    let mut b = ChartBuilder::on(area);
+    let mut b = ChartBuilder::on(&plot);
     b.margin_left(8)
-        .margin_right(18)
+        .margin_right(8)
         .margin_top(4)
         .margin_bottom(4);
     b.x_label_area_size(if p.x_desc.is_some() { 44 } else { 22 })
@@ -504,11 +614,68 @@ fn time_panel<DB: DrawingBackend>(
     if let Some(c) = &p.caption {
         b.caption(c, (FONT, 14));
     }
-    let mut chart = b.build_cartesian_2d(x.0..x.1, y0..y1).map_err(err)?;
-    let x_desc = p.x_desc.clone().unwrap_or_default();
+    let entries = if p.log_y {
+        let y = (y0..y1).log_scale().with_key_points(log_ticks(y0, y1));
+        let mut chart = b.build_cartesian_2d(x.0..x.1, y).map_err(err)?;
+        panel_body(&mut chart, x, p)?
+    } else {
+        let mut chart = b.build_cartesian_2d(x.0..x.1, y0..y1).map_err(err)?;
+        panel_body(&mut chart, x, p)?
+    };
+    if p.legend {
+        legend_strip(&strip, &entries)?;
+    }
+    Ok(())
+}
+
+/// Ticks of a log axis over `[lo, hi]`: 1, 2, 5 × powers of ten, or 1…9 × when that gives fewer
+/// than three (plotters' own log ticks are powers of ten only: one label over one decade).
+fn log_ticks(lo: f64, hi: f64) -> Vec<f64> {
+    let ticks = log_ticks_with(lo, hi, &[1.0, 2.0, 5.0]);
+    if ticks.len() >= 3 {
+        return ticks;
+    }
+    log_ticks_with(lo, hi, &[1.0, 2.0, 3.0, 4.0, 5.0, 6.0, 7.0, 8.0, 9.0])
+}
+
+/// `m × 10^e` for every mantissa `m` that falls in `[lo, hi]`.
+fn log_ticks_with(lo: f64, hi: f64, mantissas: &[f64]) -> Vec<f64> {
+    let mut out = vec![];
+    if !(lo > 0.0 && hi > lo) {
+        return out;
+    }
+    let mut e = lo.log10().floor() as i32;
+    while 10f64.powi(e) <= hi {
+        for &m in mantissas {
+            let v = if e < 0 {
+                m / 10f64.powi(-e)
+            } else {
+                m * 10f64.powi(e)
+            };
+            if (lo..=hi).contains(&v) {
+                out.push(v);
+            }
+        }
+        e += 1;
+    }
+    out
+}
+
+/// Draws the mesh and the panel's contents on a linear or logarithmic chart; returns the legend
+/// entries in drawing order.
+fn panel_body<DB, Y>(
+    chart: &mut ChartContext<'_, DB, Cartesian2d<RangedCoordf64, Y>>,
+    x: (f64, f64),
+    p: &Panel,
+) -> Result<Vec<Entry>>
+where
+    DB: DrawingBackend,
+    Y: Ranged<ValueType = f64> + ValueFormatter<f64>,
+{
+    let (y0, y1) = p.y;
     chart
         .configure_mesh()
-        .x_desc(x_desc)
+        .x_desc(p.x_desc.clone().unwrap_or_default())
         .y_desc(&p.y_desc)
         .label_style((FONT, 13))
         .axis_desc_style((FONT, 14))
@@ -520,37 +687,33 @@ fn time_panel<DB: DrawingBackend>(
         .y_label_formatter(&|v| tick(*v))
         .draw()
         .map_err(err)?;
+    let mut entries = vec![];
     let mut shaded = false;
     for &(a, b) in &p.shade {
         let (a, b) = (a.max(x.0), b.min(x.1));
         if b <= a {
             continue;
         }
-        let s = chart
+        chart
             .draw_series(std::iter::once(Rectangle::new(
                 [(a, y0), (b, y1)],
                 SHADE.mix(0.35).filled(),
             )))
             .map_err(err)?;
-        if !shaded && p.legend {
-            s.label("failure window").legend(|(x, y)| {
-                Rectangle::new([(x, y - 5), (x + 18, y + 5)], SHADE.mix(0.5).filled())
-            });
+        if !shaded {
+            entries.push(entry("failure window", Mark::Fill(SHADE.mix(0.5))));
         }
         shaded = true;
     }
     for (lo, hi, color, label) in &p.hbands {
-        let s = chart
+        chart
             .draw_series(std::iter::once(Rectangle::new(
                 [(x.0, lo.clamp(y0, y1)), (x.1, hi.clamp(y0, y1))],
                 color.mix(0.45).filled(),
             )))
             .map_err(err)?;
-        if let (Some(l), true) = (label, p.legend) {
-            let c = *color;
-            s.label(l.as_str()).legend(move |(x, y)| {
-                Rectangle::new([(x, y - 5), (x + 18, y + 5)], c.mix(0.6).filled())
-            });
+        if let Some(l) = label {
+            entries.push(entry(l.as_str(), Mark::Fill(color.mix(0.6))));
         }
     }
     for band in &p.bands {
@@ -565,26 +728,19 @@ fn time_panel<DB: DrawingBackend>(
                 .rev()
                 .map(|&(t, u)| (t, (-u).clamp(y0, y1))),
         );
-        let s = chart
+        chart
             .draw_series(std::iter::once(Polygon::new(
                 poly,
                 band.color.mix(0.55).filled(),
             )))
             .map_err(err)?;
-        if let (Some(l), true) = (&band.label, p.legend) {
-            let c = band.color;
-            s.label(l.as_str()).legend(move |(x, y)| {
-                Rectangle::new([(x, y - 5), (x + 18, y + 5)], c.mix(0.7).filled())
-            });
+        if let Some(l) = &band.label {
+            entries.push(entry(l.as_str(), Mark::Fill(band.color.mix(0.7))));
         }
     }
     for (v, color, label) in &p.hlines {
-        let style = ShapeStyle {
-            color: color.to_rgba(),
-            filled: false,
-            stroke_width: 1,
-        };
-        let s = chart
+        let style = color.stroke_width(1);
+        chart
             .draw_series(DashedLineSeries::new(
                 vec![(x.0, *v), (x.1, *v)],
                 6,
@@ -592,44 +748,27 @@ fn time_panel<DB: DrawingBackend>(
                 style,
             ))
             .map_err(err)?;
-        if let (Some(l), true) = (label, p.legend) {
-            s.label(l.as_str())
-                .legend(move |(x, y)| PathElement::new(vec![(x, y), (x + 18, y)], style));
+        if let Some(l) = label {
+            entries.push(entry(l.as_str(), Mark::Line(style, true)));
         }
     }
     for line in &p.lines {
-        let style = ShapeStyle {
-            color: line.color.to_rgba(),
-            filled: false,
-            stroke_width: line.width,
-        };
+        let style = line.color.stroke_width(line.width);
         let pts = clamp_pts(&line.pts, p.y);
-        let s = if line.dashed {
+        if line.dashed {
             chart
                 .draw_series(DashedLineSeries::new(pts, 5, 3, style))
-                .map_err(err)?
+                .map_err(err)?;
         } else {
             chart
                 .draw_series(LineSeries::new(pts, style))
-                .map_err(err)?
-        };
-        if let (Some(l), true) = (&line.label, p.legend) {
-            s.label(l.as_str()).legend(move |(x, y)| {
-                PathElement::new(vec![(x, y), (x + 18, y)], style.stroke_width(2))
-            });
+                .map_err(err)?;
+        }
+        if let Some(l) = &line.label {
+            entries.push(entry(l.as_str(), Mark::Line(style, line.dashed)));
         }
     }
-    if p.legend {
-        chart
-            .configure_series_labels()
-            .position(SeriesLabelPosition::UpperRight)
-            .background_style(WHITE.mix(0.85))
-            .border_style(GREY)
-            .label_font((FONT, 13))
-            .draw()
-            .map_err(err)?;
-    }
-    Ok(())
+    Ok(entries)
 }
 
 fn shade_of(d: &Diagnosis) -> Vec<(f64, f64)> {
@@ -877,15 +1016,23 @@ fn nis<DB: DrawingBackend>(
         .flat_map(|r| r.0.iter().map(|p| p.1))
         .fold(0.0f64, |a, b| if b.is_finite() { a.max(b) } else { a });
     let raw_q = if raw {
-        quantile(s0.nis.iter().map(|v| v / 3.0), 0.98)
+        quantile(s0.nis.iter().map(|v| v / 3.0), 0.995)
     } else {
         0.0
     };
-    let top = (quantile(rolled.iter().flat_map(|r| r.0.iter().map(|p| p.1)), 0.99) * 1.2)
-        .max(band[1] * 1.4)
-        .max(raw_q)
-        .max(2.0)
-        .min(roll_hi.max(band[1] * 1.4) * 1.2);
+    let top = (roll_hi * 1.3).max(band[1] * 1.4).max(raw_q).max(2.0);
+    // A log axis: NIS/3 spans decades (χ²(3)/3 of single updates reaches down to 1e-3, a
+    // missing effect drives it to hundreds), and equal ratios around 1 look equal.
+    let roll_lo = quantile(rolled.iter().flat_map(|r| r.0.iter().map(|p| p.1)), 0.01);
+    let raw_lo = if raw {
+        quantile(s0.nis.iter().map(|v| v / 3.0), 0.02)
+    } else {
+        f64::INFINITY
+    };
+    let bottom = (roll_lo * 0.8)
+        .min(band[0] * 0.8)
+        .min(raw_lo)
+        .clamp(NIS_LOG_FLOOR, 0.5);
     let mut lines = vec![];
     if raw {
         lines.push(Line {
@@ -932,8 +1079,9 @@ fn nis<DB: DrawingBackend>(
             if ds.len() > 1 { format!(" → {:.2}", ds[ds.len() - 1].nis_mean) } else { String::new() }
         )),
         x_desc: Some("time since start, h".into()),
-        y_desc: "NIS / 3 (dimensionless)".into(),
-        y: (0.0, top),
+        y_desc: "NIS / 3 (dimensionless, log scale)".into(),
+        y: (bottom, top),
+        log_y: true,
         lines,
         hbands: vec![(band[0], band[1], BAND1, Some(format!("95 % band of the {} mean", hours_label(window_h))))],
         hlines: vec![(1.0, RGBColor(0, 0, 0), Some("1 (model consistent)".into()))],
@@ -1124,9 +1272,10 @@ fn correlations<DB: DrawingBackend>(area: &DrawingArea<DB, Shift>, d: &Diagnosis
         .max(0.05)
         * 1.1;
     let lim = lim.min(1.05);
-    let mut chart = ChartBuilder::on(area)
+    let (plot, strip) = with_legend_strip(area);
+    let mut chart = ChartBuilder::on(&plot)
         .margin_left(8)
-        .margin_right(18)
+        .margin_right(8)
         .margin_top(8)
         .margin_bottom(4)
         .x_label_area_size(50)
@@ -1152,11 +1301,13 @@ fn correlations<DB: DrawingBackend>(area: &DrawingArea<DB, Shift>, d: &Diagnosis
             [(0.0, -bound), (n as f64, bound)],
             BAND3.mix(0.5).filled(),
         )))
-        .map_err(err)?
-        .label(format!("99 % bound for no correlation (±{bound:.3})"))
-        .legend(|(x, y)| Rectangle::new([(x, y - 5), (x + 18, y + 5)], BAND3.mix(0.7).filled()));
+        .map_err(err)?;
+    let mut entries = vec![entry(
+        format!("99 % bound for no correlation (±{bound:.3})"),
+        Mark::Fill(BAND3.mix(0.7)),
+    )];
     for (i, color) in AXIS_COLORS.iter().enumerate() {
-        let s = chart
+        chart
             .draw_series(c.iter().enumerate().map(|(k, r)| {
                 let x0 = k as f64 + 0.15 + 0.24 * i as f64;
                 let v = if r.corr[i].is_finite() {
@@ -1167,9 +1318,8 @@ fn correlations<DB: DrawingBackend>(area: &DrawingArea<DB, Shift>, d: &Diagnosis
                 Rectangle::new([(x0, 0.0), (x0 + 0.22, v)], color.filled())
             }))
             .map_err(err)?;
-        let color = *color;
-        s.label(format!("{} axis residual", AXES[i]))
-            .legend(move |(x, y)| Rectangle::new([(x, y - 5), (x + 18, y + 5)], color.filled()));
+        let label = format!("{} axis residual", AXES[i]);
+        entries.push(entry(label, Mark::Fill(color.to_rgba())));
     }
     let labels: Vec<(f64, String)> = c
         .iter()
@@ -1177,16 +1327,8 @@ fn correlations<DB: DrawingBackend>(area: &DrawingArea<DB, Shift>, d: &Diagnosis
         .map(|(k, r)| (k as f64 + 0.5, r.regressor.clone()))
         .collect();
     let size = if n > 14 { 10 } else { 13 };
-    category_labels(area, &chart, &labels, -lim, size)?;
-    chart
-        .configure_series_labels()
-        .position(SeriesLabelPosition::UpperRight)
-        .background_style(WHITE.mix(0.85))
-        .border_style(GREY)
-        .label_font((FONT, 13))
-        .draw()
-        .map_err(err)?;
-    Ok(())
+    category_labels(&plot, &chart, &labels, -lim, size)?;
+    legend_strip(&strip, &entries)
 }
 
 fn ladder<DB: DrawingBackend>(area: &DrawingArea<DB, Shift>, input: &ReportInput) -> Result<()> {
@@ -1198,14 +1340,20 @@ fn ladder<DB: DrawingBackend>(area: &DrawingArea<DB, Shift>, input: &ReportInput
         .filter(|v| v.is_finite() && *v > 0.0);
     let hi = vals.clone().fold(1.0f64, f64::max) * 1.5;
     let lo = vals.fold(1.0f64, f64::min).min(0.8) * 0.8;
-    let mut chart = ChartBuilder::on(area)
+    let notes = ladder_estimates(r);
+    let (chart_area, text_area) = split_notes(area, notes.len());
+    let (plot, strip) = with_legend_strip(&chart_area);
+    let mut chart = ChartBuilder::on(&plot)
         .margin_left(8)
-        .margin_right(18)
+        .margin_right(8)
         .margin_top(8)
         .margin_bottom(4)
         .x_label_area_size(48)
         .y_label_area_size(78)
-        .build_cartesian_2d(-0.5..(n as f64 - 0.5), (lo..hi).log_scale())
+        .build_cartesian_2d(
+            -0.5..(n as f64 - 0.5),
+            (lo..hi).log_scale().with_key_points(log_ticks(lo, hi)),
+        )
         .map_err(err)?;
     chart
         .configure_mesh()
@@ -1229,9 +1377,11 @@ fn ladder<DB: DrawingBackend>(area: &DrawingArea<DB, Shift>, input: &ReportInput
             4,
             floor_style,
         ))
-        .map_err(err)?
-        .label("1 = noise floor (model complete)")
-        .legend(move |(x, y)| PathElement::new(vec![(x, y), (x + 18, y)], floor_style));
+        .map_err(err)?;
+    let mut entries = vec![entry(
+        "1 = noise floor (model complete)",
+        Mark::Line(floor_style, true),
+    )];
     for (i, color) in AXIS_COLORS.iter().enumerate() {
         let pts: Vec<(f64, f64)> = r
             .iter()
@@ -1241,9 +1391,8 @@ fn ladder<DB: DrawingBackend>(area: &DrawingArea<DB, Shift>, input: &ReportInput
         let style = color.stroke_width(2);
         chart
             .draw_series(LineSeries::new(pts.clone(), style))
-            .map_err(err)?
-            .label(format!("{} axis", AXES[i]))
-            .legend(move |(x, y)| PathElement::new(vec![(x, y), (x + 18, y)], style));
+            .map_err(err)?;
+        entries.push(entry(format!("{} axis", AXES[i]), Mark::Line(style, false)));
         chart
             .draw_series(pts.iter().map(|&p| Circle::new(p, 4, color.filled())))
             .map_err(err)?;
@@ -1271,14 +1420,399 @@ fn ladder<DB: DrawingBackend>(area: &DrawingArea<DB, Shift>, input: &ReportInput
             (k as f64, format!("{k}: {name}"))
         })
         .collect();
-    category_labels(area, &chart, &labels, lo, 13)?;
-    chart
-        .configure_series_labels()
-        .position(SeriesLabelPosition::UpperRight)
-        .background_style(WHITE.mix(0.85))
-        .border_style(GREY)
-        .label_font((FONT, 13))
-        .draw()
-        .map_err(err)?;
+    category_labels(&plot, &chart, &labels, lo, 13)?;
+    legend_strip(&strip, &entries)?;
+    draw_notes(&text_area, &notes)
+}
+
+/// Height of one line of text under a chart, px.
+const LINE_H: usize = 16;
+
+/// Height of `lines` lines of notes under a chart (with their margin), px.
+fn notes_height(lines: usize) -> u32 {
+    if lines == 0 {
+        0
+    } else {
+        (LINE_H * lines + 8) as u32
+    }
+}
+
+/// Splits off the strip for `lines` lines of notes at the bottom of `area`.
+fn split_notes<DB: DrawingBackend>(
+    area: &DrawingArea<DB, Shift>,
+    lines: usize,
+) -> (DrawingArea<DB, Shift>, DrawingArea<DB, Shift>) {
+    let h = area.dim_in_pixel().1 as i32;
+    area.split_vertically(h - notes_height(lines) as i32)
+}
+
+/// Draws lines of notes top-down in `area`.
+fn draw_notes<DB: DrawingBackend>(area: &DrawingArea<DB, Shift>, notes: &[String]) -> Result<()> {
+    for (k, line) in notes.iter().enumerate() {
+        let y = 4 + (LINE_H * k) as i32;
+        area.draw(&Text::new(line.clone(), (12, y), (FONT, 12)))
+            .map_err(err)?;
+    }
     Ok(())
+}
+
+/// The name of the temperature-drift effect.
+const TEMP_DRIFT: &str = "temp-drift";
+
+/// Whether the report plots the temperature of diagnosis `d`: the recording has temperatures and
+/// either they vary, or temperature drift is a tested candidate or in the model. (A constant
+/// temperature leaves temperature drift untestable: nothing to see.)
+pub fn shows_temperature(d: &Diagnosis) -> bool {
+    let t: Vec<f64> = d
+        .series
+        .temp_c
+        .iter()
+        .copied()
+        .filter(|t| t.is_finite())
+        .collect();
+    let varies = t.iter().any(|v| (v - t[0]).abs() > 1e-6);
+    let named = d.model.iter().any(|m| m == TEMP_DRIFT)
+        || d.ranking
+            .iter()
+            .any(|c| c.effect == TEMP_DRIFT && c.untestable.is_none());
+    !t.is_empty() && (varies || named)
+}
+
+/// Where temperature drift stands in diagnosis `d`: one sentence.
+fn temperature_status(input: &ReportInput, d: usize) -> String {
+    let dg = &input.diagnoses[d];
+    if dg.model.iter().any(|m| m == TEMP_DRIFT) {
+        return format!("{TEMP_DRIFT} is in this model");
+    }
+    let Some((k, c)) = dg
+        .ranking
+        .iter()
+        .enumerate()
+        .find(|(_, c)| c.effect == TEMP_DRIFT)
+    else {
+        return format!("{TEMP_DRIFT} is not in the catalog of this run");
+    };
+    match &c.untestable {
+        Some(why) => format!("{TEMP_DRIFT} could not be tested: {why}"),
+        None => format!(
+            "{TEMP_DRIFT}: candidate #{} of {}, p (Holm) = {}",
+            k + 1,
+            dg.ranking.len(),
+            crate::format::p_or_ln(c.p_adjusted, c.ln_p_adjusted)
+        ),
+    }
+}
+
+/// The temperature-drift estimates, value ± 1σ ([`crate::format::pm`]): the model's when it is
+/// in the model, else the score test's one-step estimates.
+pub fn temperature_notes(input: &ReportInput, d: usize) -> Vec<String> {
+    let dg = &input.diagnoses[d];
+    let one = |name: &str, unit: &str, v: f64, s: f64| {
+        format!("{name} = {} {unit}", crate::format::pm(v, s))
+    };
+    let (what, items): (&str, Vec<String>) = if dg.model.iter().any(|m| m == TEMP_DRIFT) {
+        let names: Vec<&str> = crate::catalog::by_name(TEMP_DRIFT)
+            .map(|e| e.params().iter().map(|p| p.name).collect())
+            .unwrap_or_default();
+        let params = input
+            .ladder
+            .get(d)
+            .map(|r| &r.effect_params[..])
+            .unwrap_or(&[]);
+        let items = params
+            .iter()
+            .filter(|p| names.contains(&p.0.as_str()))
+            .map(|(n, u, v, s)| one(n, u, *v, *s))
+            .collect();
+        ("estimated", items)
+    } else {
+        let items = dg
+            .ranking
+            .iter()
+            .filter(|c| c.effect == TEMP_DRIFT && c.untestable.is_none())
+            .flat_map(|c| c.params.iter())
+            .map(|p| one(&p.name, &p.unit, p.value, p.sigma))
+            .collect();
+        ("score-test size (one step from this model)", items)
+    };
+    if items.is_empty() {
+        return vec![];
+    }
+    vec![format!("{TEMP_DRIFT} {what}: {}", items.join("; "))]
+}
+
+/// The recording's temperature over time, the failure windows shaded; the caption and the notes
+/// say where temperature drift stands.
+fn temperature<DB: DrawingBackend>(
+    area: &DrawingArea<DB, Shift>,
+    input: &ReportInput,
+    d: usize,
+) -> Result<()> {
+    let dg = &input.diagnoses[d];
+    let s = &dg.series;
+    let x = x_range(&s.t_h);
+    let notes = temperature_notes(input, d);
+    let (chart_area, text_area) = split_notes(area, notes.len());
+    let pts = decimate(&s.t_h, |k| s.temp_c[k], x, COLS);
+    let lo = pts.iter().map(|p| p.1).fold(f64::INFINITY, f64::min);
+    let hi = pts.iter().map(|p| p.1).fold(f64::NEG_INFINITY, f64::max);
+    let pad = ((hi - lo) * 0.08).max(0.5);
+    let y = if lo.is_finite() && hi.is_finite() {
+        (lo - pad, hi + pad)
+    } else {
+        (0.0, 1.0)
+    };
+    let p = Panel {
+        caption: Some(temperature_status(input, d)),
+        x_desc: Some("time since start, h".into()),
+        y_desc: "temperature, °C".into(),
+        y,
+        lines: vec![Line {
+            label: Some("temp_c (recording)".into()),
+            color: LINE,
+            width: 2,
+            dashed: false,
+            pts,
+        }],
+        shade: shade_of(dg),
+        legend: true,
+        ..Panel::default()
+    };
+    time_panel(&chart_area, x, &p)?;
+    draw_notes(&text_area, &notes)
+}
+/// Estimates shown per line under the ladder.
+const ESTIMATES_PER_LINE: usize = 4;
+
+/// The estimates of each rung's added effects, value ± 1σ with the digits the 1σ calls for
+/// ([`crate::format::pm`]), a few per line.
+pub fn ladder_estimates(rungs: &[super::Rung]) -> Vec<String> {
+    let mut out = vec![];
+    for (k, r) in rungs.iter().enumerate().skip(1) {
+        let prev = rungs[k - 1].effect_params.len();
+        let added: Vec<String> = r
+            .effect_params
+            .iter()
+            .skip(prev)
+            .map(|(name, unit, v, s)| format!("{name} = {} {unit}", crate::format::pm(*v, *s)))
+            .collect();
+        for (j, chunk) in added.chunks(ESTIMATES_PER_LINE).enumerate() {
+            let head = if j == 0 {
+                format!("rung {k} estimates:")
+            } else {
+                "   ".to_string()
+            };
+            out.push(format!("{head} {}", chunk.join("; ")));
+        }
+    }
+    out
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::consistency::{assess, Thresholds};
+    use crate::diagnose::types::{Candidate, Rung, Whiteness};
+    use crate::report::ReportInput;
+
+    /// A 10-h run at one update a minute: a varying temperature, NIS of a consistent model but
+    /// for a failure window, and a ladder that added temp-drift.
+    fn input() -> ReportInput {
+        let n = 600;
+        let t_h: Vec<f64> = (0..n).map(|j| j as f64 / 60.0).collect();
+        let wave = |j: usize, f: f64| (f * j as f64).sin();
+        let series = Series {
+            t_h: t_h.clone(),
+            measured: (0..n).map(|j| [wave(j, 0.01), 0.1, 9.8]).collect(),
+            predicted: (0..n).map(|j| [wave(j, 0.01), 0.1, 9.8]).collect(),
+            residual: (0..n).map(|j| [1e-4 * wave(j, 1.3); 3]).collect(),
+            innovation: (0..n).map(|j| [1e-4 * wave(j, 1.7); 3]).collect(),
+            innovation_sigma: vec![[1e-4; 3]; n],
+            whitened: (0..n).map(|j| [wave(j, 1.7); 3]).collect(),
+            nis: (0..n).map(|j| 3.0 * (1.0 + 0.9 * wave(j, 2.1))).collect(),
+            temp_c: t_h.iter().map(|t| 20.0 + 0.5 * t).collect(),
+        };
+        let candidate = Candidate {
+            effect: "temp-drift".into(),
+            about: String::new(),
+            statistic: 50.0,
+            dof: 3.0,
+            p_value: 1e-10,
+            p_adjusted: 3e-10,
+            ln_p_value: 1e-10f64.ln(),
+            ln_p_adjusted: 3e-10f64.ln(),
+            params: vec![],
+            refit: None,
+            untestable: None,
+        };
+        let d = |model: Vec<String>| Diagnosis {
+            model,
+            floor_mps2: [1e-4; 3],
+            residual_rms_mps2: [0.7e-4; 3],
+            residual_rms_over_floor: [0.7; 3],
+            nis_mean: 1.0,
+            nis_band95: [0.95, 1.05],
+            whiteness: Whiteness {
+                acf: vec![[0.01; 3]; 5],
+                acf_bound95: 0.08,
+                ljung_box_q: 10.0,
+                dof: 15.0,
+                p_value: 0.8,
+            },
+            failures: vec![crate::diagnose::types::FailureWindow {
+                start_h: 2.0,
+                end_h: 3.0,
+                nis_mean: 2.0,
+                worst_axis: 'x',
+            }],
+            correlations: crate::diagnose::correlations(&series, &[0.0; 600]),
+            ranking: vec![candidate.clone()],
+            confounding: vec![],
+            consistency: assess(1.0, n, 0.8, [0.7; 3], 0.0, &Thresholds::default()),
+            choice: None,
+            verdict: String::new(),
+            series: series.clone(),
+        };
+        let rung = |model: Vec<String>, params: Vec<(String, String, f64, f64)>| Rung {
+            model,
+            residual_rms_over_floor: [1.3, 1.0, 0.9],
+            nis_mean: 1.0,
+            whiteness_p: 0.5,
+            coefficients: vec![],
+            effect_params: params,
+            consistent: true,
+            next: None,
+            next_reason: None,
+        };
+        let k = |n: &str, v: f64| (n.to_string(), "deg/h/degC".to_string(), v, 2.07e-7);
+        ReportInput {
+            title: "t".into(),
+            recording: "r.csv".into(),
+            description: None,
+            diagnoses: vec![d(vec![]), d(vec!["temp-drift".into()])],
+            ladder: vec![
+                rung(vec![], vec![]),
+                rung(
+                    vec!["temp-drift".into()],
+                    vec![k("KX", 5.54e-6), k("KY", -1.0e-6), k("KZ", 3.0e-7)],
+                ),
+            ],
+            coefficients: vec![],
+            findings: vec![],
+            untrusted: vec![],
+        }
+    }
+
+    /// Where the SVG `<text>` element holding exactly `label` has its text (plotters writes
+    /// `<text …>label` and a newline).
+    fn find_text(svg: &str, label: &str) -> Option<usize> {
+        [
+            format!(">{label}\n"),
+            format!(">\n{label}\n"),
+            format!(">{label}<"),
+        ]
+        .iter()
+        .find_map(|p| svg.find(p.as_str()))
+    }
+
+    /// The x coordinate of the SVG `<text>` element that holds `label`.
+    fn text_x(svg: &str, label: &str) -> f64 {
+        let at = find_text(svg, label).expect(label);
+        let start = svg[..at].rfind("<text").unwrap();
+        let attr = &svg[start..at];
+        let x = attr.find(" x=\"").unwrap() + 4;
+        let end = attr[x..].find('"').unwrap();
+        attr[x..x + end].parse().unwrap()
+    }
+
+    #[test]
+    fn a_varying_temperature_is_plotted_with_the_estimates() {
+        let input = input();
+        let figs = figures(&input);
+        assert!(figs.iter().any(|f| f.kind == Kind::Temperature(0)));
+        assert_eq!(
+            temperature_status(&input, 0),
+            "temp-drift: candidate #1 of 1, p (Holm) = 3.00e-10"
+        );
+        // The model's estimates with the digits their 1σ calls for (format::pm).
+        let notes = temperature_notes(&input, 1);
+        assert_eq!(
+            notes,
+            ["temp-drift estimated: KX = 5.54e-6 ± 2.1e-7 deg/h/degC; KY = -1.00e-6 ± 2.1e-7 deg/h/degC; KZ = 3.0e-7 ± 2.1e-7 deg/h/degC"]
+        );
+        assert_eq!(ladder_estimates(&input.ladder).len(), 1);
+        assert!(ladder_estimates(&input.ladder)[0].contains("KX = 5.54e-6 ± 2.1e-7"));
+        // A constant temperature: temp-drift untestable, no temperature plot.
+        let mut flat = input.diagnoses[0].clone();
+        flat.series.temp_c = vec![20.0; 600];
+        flat.ranking[0].untestable = Some("no varying temp_c".into());
+        assert!(!shows_temperature(&flat));
+        // No temperature column at all: nothing to plot.
+        flat.series.temp_c = vec![f64::NAN; 600];
+        assert!(!shows_temperature(&flat));
+    }
+
+    #[test]
+    fn legends_sit_beside_the_plotting_area() {
+        let input = input();
+        let plot_right = (WIDTH as i32 - LEGEND_W) as f64;
+        for fig in figures(&input) {
+            let svg = svg(&fig, &input).unwrap();
+            let labels: &[&str] = match fig.kind {
+                Kind::Residual(_) => &["failure window", "±3 × noise floor", "residual"],
+                Kind::Nis(_) => &["failure window", "1 (model consistent)"],
+                Kind::Temperature(_) => &["failure window", "temp_c (recording)"],
+                Kind::Correlations(_) => &["x axis residual"],
+                Kind::Ladder => &["x axis"],
+                _ => &[],
+            };
+            for l in labels {
+                assert!(
+                    text_x(&svg, l) > plot_right,
+                    "{:?}: legend entry {l} at x = {} inside the plot",
+                    fig.kind,
+                    text_x(&svg, l)
+                );
+            }
+        }
+    }
+
+    #[test]
+    fn nis_is_on_a_log_axis() {
+        // The rolling band and the raw values span decades; a log axis shows ticks like 0.1 and
+        // 10 together with 1.
+        let input = input();
+        let fig = figure(Kind::Nis(0), &input);
+        let svg = svg(&fig, &input).unwrap();
+        assert!(svg.contains("log scale"));
+        let has = |t: &str| find_text(&svg, t).is_some();
+        let texts: Vec<&str> = svg
+            .split("<text")
+            .skip(1)
+            .filter_map(|t| {
+                t.split_once('>')
+                    .map(|(_, r)| r.split('<').next().unwrap().trim())
+            })
+            .collect();
+        assert!(
+            has("1") && (has("0.1") || has("0.2") || has("10")),
+            "{texts:?}"
+        );
+    }
+
+    #[test]
+    fn log_ticks_are_one_two_five() {
+        assert_eq!(log_ticks(0.05, 3.0), [0.05, 0.1, 0.2, 0.5, 1.0, 2.0]);
+        assert!(log_ticks(0.0, 1.0).is_empty());
+        assert_eq!(log_ticks(0.64, 2.1), [0.7, 0.8, 0.9, 1.0, 2.0]);
+    }
+
+    #[test]
+    fn legend_labels_wrap_at_spaces() {
+        assert_eq!(
+            wrap("NIS/3 of each update (χ²(3)/3) and more"),
+            ["NIS/3 of each update", "(χ²(3)/3) and more"]
+        );
+        assert_eq!(wrap("short"), ["short"]);
+    }
 }

@@ -1,0 +1,109 @@
+//! The model ladder: diagnose, add the effect the evidence chooses, diagnose again — until
+//! nothing earns its place or the ladder reaches [`DiagnoseConfig::max_rungs`].
+
+use estimator_core::effects::Effect;
+
+use super::types::{Diagnosis, Rung};
+use super::verdict::is_consistent;
+use super::{diagnose, DiagnoseConfig};
+use crate::catalog;
+use crate::identify::{Identification, Prepared};
+
+/// The 12 drift coefficients of the paper's model come first among the parameters.
+const DRIFT_COEFFICIENTS: usize = 12;
+
+/// What the model ladder produces.
+pub struct Ladder {
+    /// Every rung's diagnosis, the starting model first.
+    pub diagnoses: Vec<Diagnosis>,
+    /// The rung summaries (the same order).
+    pub rungs: Vec<Rung>,
+    /// The final model's identification.
+    pub identification: Identification,
+    /// The final model's effects (the paper's drift first).
+    pub effects: Vec<&'static dyn Effect>,
+}
+
+/// The model ladder: start from `start` effects, diagnose, add the effect the evidence chooses,
+/// repeat until nothing earns its place (or `max_rungs`).
+pub fn ladder(
+    prep: &Prepared,
+    start: &[&'static dyn Effect],
+    cfg: &DiagnoseConfig,
+) -> anyhow::Result<Ladder> {
+    let mut effects = start.to_vec();
+    let mut diagnoses = vec![];
+    let mut rungs: Vec<Rung> = vec![];
+    loop {
+        let (d, id) = diagnose(prep, &effects, cfg)?;
+        rungs.push(rung(&d, &id));
+        let next = if rungs.len() < cfg.max_rungs {
+            next_effect(&d)
+        } else {
+            None
+        };
+        diagnoses.push(d);
+        let Some((e, p, reason)) = next else {
+            return Ok(Ladder {
+                diagnoses,
+                rungs,
+                identification: id,
+                effects,
+            });
+        };
+        if let Some(last) = rungs.last_mut() {
+            last.next = Some((e.name().to_string(), p));
+            last.next_reason = Some(reason);
+        }
+        effects.push(e);
+    }
+}
+
+/// The rung of diagnosis `d` with its identification's estimates (no next step yet).
+pub fn rung(d: &Diagnosis, id: &Identification) -> Rung {
+    let best = id.best();
+    let coefficients = id
+        .params
+        .iter()
+        .take(DRIFT_COEFFICIENTS)
+        .enumerate()
+        .map(|(k, p)| (p.name.to_string(), best.value[k], best.sigma(k)))
+        .collect();
+    let effect_params = id
+        .params
+        .iter()
+        .enumerate()
+        .skip(DRIFT_COEFFICIENTS)
+        .map(|(k, p)| {
+            (
+                p.name.to_string(),
+                p.unit.to_string(),
+                best.value[k],
+                best.sigma(k),
+            )
+        })
+        .collect();
+    Rung {
+        model: d.model.clone(),
+        residual_rms_over_floor: d.residual_rms_over_floor,
+        nis_mean: d.nis_mean,
+        whiteness_p: d.whiteness.p_value,
+        coefficients,
+        effect_params,
+        consistent: is_consistent(d),
+        next: None,
+        next_reason: None,
+    }
+}
+
+/// The effect the evidence chose in `d`, with its Holm-adjusted p-value and the reason.
+fn next_effect(d: &Diagnosis) -> Option<(&'static dyn Effect, f64, String)> {
+    let c = d.choice.as_ref()?;
+    let p = d
+        .ranking
+        .iter()
+        .find(|r| r.effect == c.effect)
+        .map(|r| r.p_adjusted)
+        .unwrap_or(f64::NAN);
+    catalog::by_name(&c.effect).map(|e| (e, p, c.reason.clone()))
+}
