@@ -301,16 +301,25 @@ impl<'m, const CAP: usize> Ekf<'m, CAP> {
         for &d in dynamic {
             is_dyn[d] = true;
         }
-        // B = Φ_D P (rows of Φ P that differ from P).
+        // Φ = [[Φ_D], [0 I]] (the dynamic rows Φ_D, identity elsewhere), so in P⁻ = Φ P Φᵀ + Q
+        // only the dynamic rows/columns change: with B = Φ_D P, P⁻[D, c] = B[·, c] for the
+        // other columns and P⁻[D, D] = B Φ_Dᵀ + Q_D.
+        //
+        // B is accumulated one row of P at a time (P is symmetric: its row j is its stored
+        // column j), each a contiguous sweep over the columns with independent sums: the same
+        // terms added in the same order as a dot product per entry, without a dot product's
+        // chain of dependent additions.
         let mut b = [[0.0; CAP]; MAX_DYNAMIC];
         let data = self.p.as_slice();
-        for c in 0..n {
-            let col = &data[c * CAP..c * CAP + n];
+        for j in 0..n {
+            let pj = &data[j * CAP..j * CAP + n];
             for r in 0..nd {
-                b[r][c] = dot(&tr.rows[r][..n], col);
+                let f = tr.rows[r][j];
+                for (v, &p) in b[r][..n].iter_mut().zip(pj) {
+                    *v += f * p;
+                }
             }
         }
-        // P⁺ = B Φᵀ + Q: only rows/columns of dynamic states change.
         for r in 0..nd {
             let d = dynamic[r];
             for c in 0..n {
@@ -319,8 +328,16 @@ impl<'m, const CAP: usize> Ekf<'m, CAP> {
                     self.p[(c, d)] = b[r][c];
                 }
             }
+            // B Φ_Dᵀ: the dot products with every row side by side (each in its own order, in
+            // registers; rows past nd are zero and unused), of which s ≤ r are kept.
+            let mut acc = [0.0; MAX_DYNAMIC];
+            for (j, &brj) in b[r][..n].iter().enumerate() {
+                for s in 0..MAX_DYNAMIC {
+                    acc[s] += brj * tr.rows[s][j];
+                }
+            }
             for s in 0..=r {
-                let v = dot(&b[r][..n], &tr.rows[s][..n]) + tr.q[r][s];
+                let v = acc[s] + tr.q[r][s];
                 self.p[(d, dynamic[s])] = v;
                 self.p[(dynamic[s], d)] = v;
             }
@@ -348,8 +365,10 @@ impl<'m, const CAP: usize> Ekf<'m, CAP> {
         {
             return Err(FilterError::BadMeasurement { step });
         }
-        let saved = self.clone();
-        let temp_ref = self.temp_ref_c;
+        // What the prediction changes (time, temperature, state, the dynamic rows and columns
+        // of P), kept to undo it if the update is refused; the update itself writes nothing
+        // before it knows it will succeed. Cheaper than a copy of the whole filter.
+        let saved = Undo::<CAP>::of(self);
         let temp_dev = self.temp_dev(m.temp_c);
         self.predict(m.t_s, temp_dev);
         match self.update(m, temp_dev) {
@@ -372,8 +391,7 @@ impl<'m, const CAP: usize> Ekf<'m, CAP> {
                 Ok(r)
             }
             Err(e) => {
-                *self = saved;
-                self.temp_ref_c = temp_ref;
+                saved.restore(self);
                 Err(e)
             }
         }
@@ -449,33 +467,82 @@ impl<'m, const CAP: usize> Ekf<'m, CAP> {
         // Joseph form P⁺ = (I−KH) P (I−KH)ᵀ + K R Kᵀ, multiplied out:
         //   P⁺ = P − K (HP) − (PHᵀ) Kᵀ + K S Kᵀ   (S = HPHᵀ + R),
         // which is the same function of K (valid for any gain, not only the optimal one) and is
-        // symmetric term by term: we evaluate the upper triangle and mirror it.
+        // symmetric term by term: we evaluate the upper triangle and mirror it. Only the
+        // measured columns of H entered PHᵀ and S above; K and P⁺ are dense.
         let mut sk = [Vector3::zeros(); CAP];
         for c in 0..n {
             sk[c] = s * k[c];
         }
+        // The diagonal and the state first: a refused update (unhealthy) writes nothing, and the
+        // caller undoes the prediction.
+        let mut diag = [0.0; CAP];
+        let mut x_new = [0.0; CAP];
+        for i in 0..n {
+            let d = self.p[(i, i)] - k[i].dot(&pht[i]) - pht[i].dot(&k[i]) + k[i].dot(&sk[i]);
+            let x = self.x[i] + k[i].dot(&nu);
+            if !(d.is_finite() && d > 0.0 && x.is_finite()) {
+                return Err(FilterError::Unhealthy { step, index: i });
+            }
+            diag[i] = d;
+            x_new[i] = x;
+        }
         let data = self.p.as_mut_slice();
         for c in 0..n {
             let (kc, phc, skc) = (k[c], pht[c], sk[c]);
-            for i in 0..=c {
+            for i in 0..c {
                 let v = data[c * CAP + i] - k[i].dot(&phc) - pht[i].dot(&kc) + k[i].dot(&skc);
                 data[c * CAP + i] = v;
                 data[i * CAP + c] = v;
             }
+            data[c * CAP + c] = diag[c];
         }
-        for i in 0..n {
-            self.x[i] += k[i].dot(&nu);
-        }
-        for i in 0..n {
-            let d = self.p[(i, i)];
-            if !(d.is_finite() && d > 0.0 && self.x[i].is_finite()) {
-                return Err(FilterError::Unhealthy { step, index: i });
-            }
-        }
+        self.x[..n].copy_from_slice(&x_new[..n]);
         Ok(residual)
     }
 }
 
-fn dot(a: &[f64], b: &[f64]) -> f64 {
-    a.iter().zip(b).map(|(x, y)| x * y).sum()
+/// The part of a filter a prediction changes, to undo a step whose update is refused.
+struct Undo<const CAP: usize> {
+    t_s: f64,
+    temp_ref_c: f64,
+    temp_dev_c: f64,
+    x: [f64; CAP],
+    /// Rows and columns of P of the dynamic states.
+    rows: [[f64; CAP]; MAX_DYNAMIC],
+    cols: [[f64; CAP]; MAX_DYNAMIC],
+}
+
+impl<const CAP: usize> Undo<CAP> {
+    fn of(ekf: &Ekf<'_, CAP>) -> Self {
+        let n = ekf.model.dim();
+        let mut u = Undo {
+            t_s: ekf.t_s,
+            temp_ref_c: ekf.temp_ref_c,
+            temp_dev_c: ekf.temp_dev_c,
+            x: ekf.x,
+            rows: [[0.0; CAP]; MAX_DYNAMIC],
+            cols: [[0.0; CAP]; MAX_DYNAMIC],
+        };
+        for (r, &d) in ekf.model.dynamic_states().iter().enumerate() {
+            for c in 0..n {
+                u.rows[r][c] = ekf.p[(d, c)];
+                u.cols[r][c] = ekf.p[(c, d)];
+            }
+        }
+        u
+    }
+
+    fn restore(&self, ekf: &mut Ekf<'_, CAP>) {
+        let n = ekf.model.dim();
+        ekf.t_s = self.t_s;
+        ekf.temp_ref_c = self.temp_ref_c;
+        ekf.temp_dev_c = self.temp_dev_c;
+        ekf.x = self.x;
+        for (r, &d) in ekf.model.dynamic_states().iter().enumerate() {
+            for c in 0..n {
+                ekf.p[(d, c)] = self.rows[r][c];
+                ekf.p[(c, d)] = self.cols[r][c];
+            }
+        }
+    }
 }
