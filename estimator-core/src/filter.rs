@@ -278,13 +278,19 @@ impl<'m, const CAP: usize> Ekf<'m, CAP> {
     }
 
     /// Propagates state and covariance to `t_s` (paper eqs. 11–12), with the temperature
-    /// deviation moving linearly to `temp_dev_c`.
-    fn predict(&mut self, t_s: f64, temp_dev_c: f64) {
+    /// deviation moving linearly to `temp_dev_c`. What it overwrites goes to `saved`.
+    fn predict(&mut self, t_s: f64, temp_dev_c: f64, saved: &mut Saved<CAP>) {
         let dt = t_s - self.t_s;
         if dt <= 0.0 {
             return;
         }
         let n = self.model.dim();
+        let dynamic = self.model.dynamic_states();
+        let nd = dynamic.len();
+        saved.predicted = true;
+        for (v, &d) in saved.x.iter_mut().zip(dynamic) {
+            *v = self.x[d];
+        }
         let mut tr = Transition::<CAP>::default();
         propagate(
             &self.model,
@@ -295,55 +301,66 @@ impl<'m, const CAP: usize> Ekf<'m, CAP> {
             temp_dev_c,
             &mut tr,
         );
-        let dynamic = self.model.dynamic_states();
-        let nd = dynamic.len();
         let mut is_dyn = [false; CAP];
         for &d in dynamic {
             is_dyn[d] = true;
         }
         // Φ = [[Φ_D], [0 I]] (the dynamic rows Φ_D, identity elsewhere), so in P⁻ = Φ P Φᵀ + Q
         // only the dynamic rows/columns change: with B = Φ_D P, P⁻[D, c] = B[·, c] for the
-        // other columns and P⁻[D, D] = B Φ_Dᵀ + Q_D.
-        //
-        // B is accumulated one row of P at a time (P is symmetric: its row j is its stored
-        // column j), each a contiguous sweep over the columns with independent sums: the same
-        // terms added in the same order as a dot product per entry, without a dot product's
-        // chain of dependent additions.
-        let mut b = [[0.0; CAP]; MAX_DYNAMIC];
+        // other columns and P⁻[D, D] = B Φ_Dᵀ + Q_D. O(nd·n²) instead of O(n³).
+        let b = &mut saved.rows;
         let data = self.p.as_slice();
-        for j in 0..n {
-            let pj = &data[j * CAP..j * CAP + n];
+        for c in 0..n {
+            let col = &data[c * CAP..c * CAP + n];
             for r in 0..nd {
-                let f = tr.rows[r][j];
-                for (v, &p) in b[r][..n].iter_mut().zip(pj) {
-                    *v += f * p;
-                }
+                b[r][c] = dot(&tr.rows[r][..n], col);
+            }
+        }
+        let mut dd = [[0.0; MAX_DYNAMIC]; MAX_DYNAMIC];
+        for r in 0..nd {
+            for s in 0..=r {
+                dd[r][s] = dot(&b[r][..n], &tr.rows[s][..n]) + tr.q[r][s];
+                dd[s][r] = dd[r][s];
             }
         }
         for r in 0..nd {
+            for (s, &e) in dynamic.iter().enumerate() {
+                b[r][e] = dd[r][s];
+            }
+        }
+        // b holds the new dynamic rows: swap them into P (keeping the old rows in b), then
+        // mirror them into the columns.
+        for r in 0..nd {
             let d = dynamic[r];
             for c in 0..n {
+                core::mem::swap(&mut b[r][c], &mut self.p[(d, c)]);
+            }
+            for c in 0..n {
                 if !is_dyn[c] {
-                    self.p[(d, c)] = b[r][c];
-                    self.p[(c, d)] = b[r][c];
+                    self.p[(c, d)] = self.p[(d, c)];
                 }
-            }
-            // B Φ_Dᵀ: the dot products with every row side by side (each in its own order, in
-            // registers; rows past nd are zero and unused), of which s ≤ r are kept.
-            let mut acc = [0.0; MAX_DYNAMIC];
-            for (j, &brj) in b[r][..n].iter().enumerate() {
-                for s in 0..MAX_DYNAMIC {
-                    acc[s] += brj * tr.rows[s][j];
-                }
-            }
-            for s in 0..=r {
-                let v = acc[s] + tr.q[r][s];
-                self.p[(d, dynamic[s])] = v;
-                self.p[(dynamic[s], d)] = v;
             }
         }
         self.t_s = t_s;
         self.temp_dev_c = temp_dev_c;
+    }
+
+    /// Undoes a prediction (and the first measurement's temperature reference).
+    fn undo(&mut self, saved: &Saved<CAP>) {
+        self.t_s = saved.t_s;
+        self.temp_ref_c = saved.temp_ref_c;
+        self.temp_dev_c = saved.temp_dev_c;
+        if !saved.predicted {
+            return;
+        }
+        let n = self.model.dim();
+        for (r, &d) in self.model.dynamic_states().iter().enumerate() {
+            self.x[d] = saved.x[r];
+            for c in 0..n {
+                self.p[(d, c)] = saved.rows[r][c];
+                self.p[(c, d)] = saved.rows[r][c];
+            }
+        }
     }
 
     /// Predicts to the measurement's time and updates with it (paper eqs. 11–20, Joseph form).
@@ -368,9 +385,16 @@ impl<'m, const CAP: usize> Ekf<'m, CAP> {
         // What the prediction changes (time, temperature, state, the dynamic rows and columns
         // of P), kept to undo it if the update is refused; the update itself writes nothing
         // before it knows it will succeed. Cheaper than a copy of the whole filter.
-        let saved = Undo::<CAP>::of(self);
+        let mut saved = Saved {
+            predicted: false,
+            t_s: self.t_s,
+            temp_ref_c: self.temp_ref_c,
+            temp_dev_c: self.temp_dev_c,
+            x: [0.0; MAX_DYNAMIC],
+            rows: [[0.0; CAP]; MAX_DYNAMIC],
+        };
         let temp_dev = self.temp_dev(m.temp_c);
-        self.predict(m.t_s, temp_dev);
+        self.predict(m.t_s, temp_dev, &mut saved);
         match self.update(m, temp_dev) {
             Ok(r) => {
                 self.steps += 1;
@@ -391,7 +415,7 @@ impl<'m, const CAP: usize> Ekf<'m, CAP> {
                 Ok(r)
             }
             Err(e) => {
-                saved.restore(self);
+                self.undo(&saved);
                 Err(e)
             }
         }
@@ -501,48 +525,18 @@ impl<'m, const CAP: usize> Ekf<'m, CAP> {
     }
 }
 
-/// The part of a filter a prediction changes, to undo a step whose update is refused.
-struct Undo<const CAP: usize> {
+fn dot(a: &[f64], b: &[f64]) -> f64 {
+    a.iter().zip(b).map(|(x, y)| x * y).sum()
+}
+
+/// What a prediction overwrote, to undo a step whose update is refused: time, temperature,
+/// the dynamic states and the dynamic rows of P (P is symmetric, so its columns follow).
+struct Saved<const CAP: usize> {
+    predicted: bool,
     t_s: f64,
     temp_ref_c: f64,
     temp_dev_c: f64,
-    x: [f64; CAP],
-    /// Rows and columns of P of the dynamic states.
+    x: [f64; MAX_DYNAMIC],
+    /// The prediction's scratch B = Φ_D P, then the rows of P it replaced.
     rows: [[f64; CAP]; MAX_DYNAMIC],
-    cols: [[f64; CAP]; MAX_DYNAMIC],
-}
-
-impl<const CAP: usize> Undo<CAP> {
-    fn of(ekf: &Ekf<'_, CAP>) -> Self {
-        let n = ekf.model.dim();
-        let mut u = Undo {
-            t_s: ekf.t_s,
-            temp_ref_c: ekf.temp_ref_c,
-            temp_dev_c: ekf.temp_dev_c,
-            x: ekf.x,
-            rows: [[0.0; CAP]; MAX_DYNAMIC],
-            cols: [[0.0; CAP]; MAX_DYNAMIC],
-        };
-        for (r, &d) in ekf.model.dynamic_states().iter().enumerate() {
-            for c in 0..n {
-                u.rows[r][c] = ekf.p[(d, c)];
-                u.cols[r][c] = ekf.p[(c, d)];
-            }
-        }
-        u
-    }
-
-    fn restore(&self, ekf: &mut Ekf<'_, CAP>) {
-        let n = ekf.model.dim();
-        ekf.t_s = self.t_s;
-        ekf.temp_ref_c = self.temp_ref_c;
-        ekf.temp_dev_c = self.temp_dev_c;
-        ekf.x = self.x;
-        for (r, &d) in ekf.model.dynamic_states().iter().enumerate() {
-            for c in 0..n {
-                ekf.p[(d, c)] = self.rows[r][c];
-                ekf.p[(c, d)] = self.cols[r][c];
-            }
-        }
-    }
 }

@@ -223,6 +223,22 @@ fn median(v: &mut [f64]) -> f64 {
     }
 }
 
+/// [`median`] of values that usually come in order (a side's sample times: increasing on the
+/// right, decreasing on the left): the middle without sorting when they are monotone, which
+/// gives the same value (the middle pair's sum does not depend on its order); sorted otherwise.
+fn median_of_ordered(v: &mut [f64]) -> f64 {
+    let m = v.len();
+    let up = v.windows(2).all(|w| w[0] < w[1]);
+    if !(up || v.windows(2).all(|w| w[0] > w[1])) {
+        return median(v);
+    }
+    if m % 2 == 1 {
+        v[m / 2]
+    } else {
+        0.5 * (v[m / 2 - 1] + v[m / 2])
+    }
+}
+
 /// Values and times of one side's neighbours.
 type Window = ([f64; MAX_HALF_WINDOW], [f64; MAX_HALF_WINDOW]);
 
@@ -306,7 +322,7 @@ pub fn outlier_at(
     // Each side's median value and median time (times are increasing: the middle one).
     let (pred, var_factor) = if nl >= 3 && nr >= 3 {
         let (ml, mr) = (median(&mut lv[..nl]), median(&mut rv[..nr]));
-        let (tl, tr) = (median(&mut lt[..nl]), median(&mut rt[..nr]));
+        let (tl, tr) = (median_of_ordered(&mut lt[..nl]), median_of_ordered(&mut rt[..nr]));
         let u = if tr > tl {
             (s[i].t_s - tl) / (tr - tl)
         } else {
