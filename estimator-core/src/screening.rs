@@ -207,14 +207,7 @@ fn flag_stuck(
 
 /// Median of `v[..n]` (sorted in place; n ≥ 1).
 fn median(v: &mut [f64]) -> f64 {
-    // Insertion sort: at most MAX_HALF_WINDOW elements.
-    for i in 1..v.len() {
-        let mut j = i;
-        while j > 0 && v[j - 1] > v[j] {
-            v.swap(j - 1, j);
-            j -= 1;
-        }
-    }
+    sort(v);
     let m = v.len();
     if m % 2 == 1 {
         v[m / 2]
@@ -287,14 +280,96 @@ fn flag_outliers(
     sigma: f64,
     cfg: &ScreenConfig,
 ) -> usize {
+    let h = cfg.half_window.clamp(2, MAX_HALF_WINDOW);
+    let len = s.len();
+    if len == 0 {
+        return 0;
+    }
+    // Where every neighbour within h is accepted (nearly everywhere), the two sides are the h
+    // samples before and after i: their sorted values slide along with i (one value out, one
+    // in) instead of being collected and sorted again. `judge` then sees the same values as
+    // `outlier_at` would, so the verdicts are the same; elsewhere `outlier_at` decides.
+    let mut left = [0.0; MAX_HALF_WINDOW];
+    let mut right = [0.0; MAX_HALF_WINDOW];
+    let mut sorted_for: Option<usize> = None;
+    // Rejected samples in [i − h, i + h] (clipped to the record).
+    let mut bad_near = (0..=h.min(len.saturating_sub(1))).filter(|&k| bad(flags, k)).count();
     let mut count = 0;
-    for i in 0..s.len() {
-        if outlier_at(s, flags, i, a, sigma, cfg) {
+    for i in 0..len {
+        if i > h && bad(flags, i - h - 1) {
+            bad_near -= 1;
+        }
+        if i > 0 && i + h < len && bad(flags, i + h) {
+            bad_near += 1;
+        }
+        let regular = h >= 3 && i >= h && i + h < len && bad_near == usize::from(bad(flags, i));
+        let outlier = if !regular {
+            outlier_at(s, flags, i, a, sigma, cfg)
+        } else if sigma.is_nan() || sigma <= 0.0 || bad(flags, i) {
+            false
+        } else {
+            let v = |k: usize| s[k].specific_force[a];
+            if sorted_for == Some(i - 1) {
+                slide(&mut left[..h], v(i - 1 - h), v(i - 1));
+                slide(&mut right[..h], v(i), v(i + h));
+            } else {
+                for (j, x) in left[..h].iter_mut().enumerate() {
+                    *x = v(i - 1 - j);
+                }
+                for (j, x) in right[..h].iter_mut().enumerate() {
+                    *x = v(i + 1 + j);
+                }
+                sort(&mut left[..h]);
+                sort(&mut right[..h]);
+            }
+            sorted_for = Some(i);
+            let mut l: Window = (left, [0.0; MAX_HALF_WINDOW]);
+            let mut r: Window = (right, [0.0; MAX_HALF_WINDOW]);
+            for j in 0..h {
+                l.1[j] = s[i - 1 - j].t_s;
+                r.1[j] = s[i + 1 + j].t_s;
+            }
+            judge(&s[i], a, sigma, cfg, (&mut l, h), (&mut r, h))
+        };
+        if outlier {
             flags[i] |= flag::OUTLIER | axis_bit(a);
             count += 1;
         }
     }
     count
+}
+
+/// Whether sample `k` is rejected before the outlier test (its neighbours' medians skip it).
+fn bad(flags: &[u8], k: usize) -> bool {
+    flags[k] & (flag::NON_FINITE | flag::ZERO | flag::STUCK) != 0
+}
+
+/// Insertion sort (at most [`MAX_HALF_WINDOW`] values).
+fn sort(v: &mut [f64]) {
+    for i in 1..v.len() {
+        let mut j = i;
+        while j > 0 && v[j - 1] > v[j] {
+            v.swap(j - 1, j);
+            j -= 1;
+        }
+    }
+}
+
+/// Replaces `out` (present, compared bit for bit) by `new` in the sorted `v`, keeping it sorted.
+fn slide(v: &mut [f64], out: f64, new: f64) {
+    let mut j = v
+        .iter()
+        .position(|x| x.to_bits() == out.to_bits())
+        .unwrap_or(v.len() - 1);
+    v[j] = new;
+    while j > 0 && v[j - 1] > v[j] {
+        v.swap(j - 1, j);
+        j -= 1;
+    }
+    while j + 1 < v.len() && v[j] > v[j + 1] {
+        v.swap(j, j + 1);
+        j += 1;
+    }
 }
 
 /// Whether sample `i` of `s` is an outlier on axis `a` against the robust local line through its
@@ -318,13 +393,26 @@ pub fn outlier_at(
     let mut r: Window = ([0.0; MAX_HALF_WINDOW], [0.0; MAX_HALF_WINDOW]);
     let nl = side(s, flags, i, a, h, true, &mut l);
     let nr = side(s, flags, i, a, h, false, &mut r);
-    let ((lv, lt), (rv, rt)) = (&mut l, &mut r);
+    judge(&s[i], a, sigma, cfg, (&mut l, nl), (&mut r, nr))
+}
+
+/// The outlier test of sample `x` on axis `a` against its two sides' neighbours (values and
+/// times, `n` of each; the values are sorted in place).
+fn judge(
+    x: &Sample,
+    a: usize,
+    sigma: f64,
+    cfg: &ScreenConfig,
+    (l, nl): (&mut Window, usize),
+    (r, nr): (&mut Window, usize),
+) -> bool {
+    let ((lv, lt), (rv, rt)) = (l, r);
     // Each side's median value and median time (times are increasing: the middle one).
     let (pred, var_factor) = if nl >= 3 && nr >= 3 {
         let (ml, mr) = (median(&mut lv[..nl]), median(&mut rv[..nr]));
         let (tl, tr) = (median_of_ordered(&mut lt[..nl]), median_of_ordered(&mut rt[..nr]));
         let u = if tr > tl {
-            (s[i].t_s - tl) / (tr - tl)
+            (x.t_s - tl) / (tr - tl)
         } else {
             0.5
         };
@@ -345,7 +433,7 @@ pub fn outlier_at(
     } else {
         return false;
     };
-    let d = libm::fabs(s[i].specific_force[a] - pred);
+    let d = libm::fabs(x.specific_force[a] - pred);
     d > cfg.outlier_k * sigma * libm::sqrt(1.0 + var_factor)
 }
 
@@ -657,5 +745,56 @@ mod tests {
         );
         assert_eq!(sum.rejected, 0, "{sum:?}");
         assert!(sum.repeat_rate[2] > 0.9);
+    }
+
+    /// The batch loop's sliding sorted windows give the verdicts of `outlier_at` sample by
+    /// sample: glitches (some small enough to be borderline), rejected samples of every kind,
+    /// runs of equal values and signed zeros, every window size.
+    #[test]
+    fn sliding_windows_agree_with_outlier_at() {
+        for (seed, sigma) in [(1u64, 7e-4), (2, 3e-3), (3, 1e-5)] {
+            let mut s = signal(2000, sigma);
+            let mut state = 0x2545f4914f6cdd1du64 ^ seed;
+            let mut next = || {
+                state ^= state << 13;
+                state ^= state >> 7;
+                state ^= state << 17;
+                state
+            };
+            let mut flags = [0u8; 2000];
+            for _ in 0..120 {
+                let k = (next() % 2000) as usize;
+                let a = (next() % 3) as usize;
+                match next() % 6 {
+                    0 => flags[k] |= flag::NON_FINITE,
+                    1 => flags[k] |= flag::ZERO,
+                    2 => flags[k] |= flag::STUCK | axis_bit(a),
+                    3 => s[k].specific_force[a] = s[k.saturating_sub(1)].specific_force[a],
+                    4 => s[k].specific_force[a] = if next() % 2 == 0 { 0.0 } else { -0.0 },
+                    _ => s[k].specific_force[a] += sigma * (next() % 40) as f64,
+                }
+            }
+            for half_window in [2, 3, 4, 7, 8, 15] {
+                let cfg = ScreenConfig {
+                    half_window,
+                    ..ScreenConfig::default()
+                };
+                for a in 0..3 {
+                    let mut batch = flags;
+                    let n = flag_outliers(&s, &mut batch, a, sigma, &cfg);
+                    let mut count = 0;
+                    for i in 0..2000 {
+                        let one = outlier_at(&s, &flags, i, a, sigma, &cfg);
+                        count += usize::from(one);
+                        assert_eq!(
+                            batch[i] & flag::OUTLIER != 0,
+                            one,
+                            "sample {i}, axis {a}, half window {half_window}"
+                        );
+                    }
+                    assert_eq!(n, count);
+                }
+            }
+        }
     }
 }
