@@ -293,7 +293,14 @@ fn flag_outliers(
     let mut right = [0.0; MAX_HALF_WINDOW];
     let mut sorted_for: Option<usize> = None;
     // Rejected samples in [i − h, i + h] (clipped to the record).
-    let mut bad_near = (0..=h.min(len.saturating_sub(1))).filter(|&k| bad(flags, k)).count();
+    let mut bad_near = (0..=h.min(len.saturating_sub(1)))
+        .filter(|&k| bad(flags, k))
+        .count();
+    // Times strictly increasing (as a recording's are): each side's median time is its middle.
+    // A non-finite time is a rejected sample, never inside a window taken here.
+    let ordered = s
+        .windows(2)
+        .all(|w| w[0].t_s < w[1].t_s || !(w[0].t_s.is_finite() && w[1].t_s.is_finite()));
     let mut count = 0;
     for i in 0..len {
         if i > h && bad(flags, i - h - 1) {
@@ -302,7 +309,8 @@ fn flag_outliers(
         if i > 0 && i + h < len && bad(flags, i + h) {
             bad_near += 1;
         }
-        let regular = h >= 3 && i >= h && i + h < len && bad_near == usize::from(bad(flags, i));
+        let regular =
+            ordered && h >= 3 && i >= h && i + h < len && bad_near == usize::from(bad(flags, i));
         let outlier = if !regular {
             outlier_at(s, flags, i, a, sigma, cfg)
         } else if sigma.is_nan() || sigma <= 0.0 || bad(flags, i) {
@@ -323,13 +331,26 @@ fn flag_outliers(
                 sort(&mut right[..h]);
             }
             sorted_for = Some(i);
-            let mut l: Window = (left, [0.0; MAX_HALF_WINDOW]);
-            let mut r: Window = (right, [0.0; MAX_HALF_WINDOW]);
-            for j in 0..h {
-                l.1[j] = s[i - 1 - j].t_s;
-                r.1[j] = s[i + 1 + j].t_s;
-            }
-            judge(&s[i], a, sigma, cfg, (&mut l, h), (&mut r, h))
+            // The medians `judge` would take: of the sorted values, and of the times, which
+            // are in order (checked above), so the middle ones — added in the order
+            // `median_of_ordered` adds them (the left side is collected backwards).
+            let t = |k: usize| s[k].t_s;
+            let (ml, mr, tl, tr) = if h % 2 == 1 {
+                (
+                    left[h / 2],
+                    right[h / 2],
+                    t(i - 1 - h / 2),
+                    t(i + 1 + h / 2),
+                )
+            } else {
+                (
+                    0.5 * (left[h / 2 - 1] + left[h / 2]),
+                    0.5 * (right[h / 2 - 1] + right[h / 2]),
+                    0.5 * (t(i - h / 2) + t(i - 1 - h / 2)),
+                    0.5 * (t(i + h / 2) + t(i + 1 + h / 2)),
+                )
+            };
+            two_sided(&s[i], a, sigma, cfg, (ml, tl, h), (mr, tr, h))
         };
         if outlier {
             flags[i] |= flag::OUTLIER | axis_bit(a);
@@ -408,19 +429,15 @@ fn judge(
 ) -> bool {
     let ((lv, lt), (rv, rt)) = (l, r);
     // Each side's median value and median time (times are increasing: the middle one).
-    let (pred, var_factor) = if nl >= 3 && nr >= 3 {
+    if nl >= 3 && nr >= 3 {
         let (ml, mr) = (median(&mut lv[..nl]), median(&mut rv[..nr]));
-        let (tl, tr) = (median_of_ordered(&mut lt[..nl]), median_of_ordered(&mut rt[..nr]));
-        let u = if tr > tl {
-            (x.t_s - tl) / (tr - tl)
-        } else {
-            0.5
-        };
-        // Prediction = (1−u)·ml + u·mr; a median of m samples has variance ≈ (π/2)σ²/m.
-        let v =
-            core::f64::consts::FRAC_PI_2 * ((1.0 - u) * (1.0 - u) / nl as f64 + u * u / nr as f64);
-        ((1.0 - u) * ml + u * mr, v)
-    } else if nl + nr >= 3 {
+        let (tl, tr) = (
+            median_of_ordered(&mut lt[..nl]),
+            median_of_ordered(&mut rt[..nr]),
+        );
+        return two_sided(x, a, sigma, cfg, (ml, tl, nl), (mr, tr, nr));
+    }
+    let (pred, var_factor) = if nl + nr >= 3 {
         // Too few on one side (record edge, long gap): the other side's median, no slope —
         // valid only where the signal is locally flat, so widen the threshold by the spread.
         let (vals, m) = if nl >= nr { (lv, nl) } else { (rv, nr) };
@@ -435,6 +452,28 @@ fn judge(
     };
     let d = libm::fabs(x.specific_force[a] - pred);
     d > cfg.outlier_k * sigma * libm::sqrt(1.0 + var_factor)
+}
+
+/// The outlier test against the line through the two sides' (median value, median time), each
+/// side the median of `n` samples.
+fn two_sided(
+    x: &Sample,
+    a: usize,
+    sigma: f64,
+    cfg: &ScreenConfig,
+    (ml, tl, nl): (f64, f64, usize),
+    (mr, tr, nr): (f64, f64, usize),
+) -> bool {
+    let u = if tr > tl {
+        (x.t_s - tl) / (tr - tl)
+    } else {
+        0.5
+    };
+    // Prediction = (1−u)·ml + u·mr; a median of m samples has variance ≈ (π/2)σ²/m.
+    let v = core::f64::consts::FRAC_PI_2 * ((1.0 - u) * (1.0 - u) / nl as f64 + u * u / nr as f64);
+    let pred = (1.0 - u) * ml + u * mr;
+    let d = libm::fabs(x.specific_force[a] - pred);
+    d > cfg.outlier_k * sigma * libm::sqrt(1.0 + v)
 }
 
 /// Samples a [`Screener`] holds: the sample under test and `MAX_HALF_WINDOW` on each side.
