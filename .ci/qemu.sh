@@ -15,8 +15,11 @@ ELF=target/$T/release/firmware
 # ratchet (it may only go down) and prints the gap to the target. Lower a ratchet when a change
 # wins bytes or instructions; never raise it to make a build pass without saying why.
 TEXT_TARGET=$((64 * 1024))
-TEXT_RATCHET=89500           # STM32H743 .text, bytes: measured 88 916 (embassy-stm32 board,
-                             # opt-level 2 under fat LTO: Cargo.toml)
+TEXT_RATCHET=90600           # STM32H743 .text, bytes: measured 90 068 (embassy-stm32 board,
+                             # opt-level 2 under fat LTO: Cargo.toml). Raised from 89 500
+                             # (88 916) for the structured EKF step (issue 12): +1.1 KB of
+                             # filter code buys 720 fewer instructions per update and no copy of
+                             # the filter per step (the undo record lives in the prediction).
 STACK_TARGET=$((16 * 1024))
 STACK_RATCHET=18000          # self-test stack high-water (EKF steps + checkpoint round trip,
                              # with the self-test's own filter on the stack): measured 17 408

@@ -345,7 +345,10 @@ impl<'m, const CAP: usize> Ekf<'m, CAP> {
         self.temp_dev_c = temp_dev_c;
     }
 
-    /// Undoes a prediction (and the first measurement's temperature reference).
+    /// Undoes a prediction (and the first measurement's temperature reference). Rare: kept out
+    /// of line (firmware size).
+    #[cold]
+    #[inline(never)]
     fn undo(&mut self, saved: &Saved<CAP>) {
         self.t_s = saved.t_s;
         self.temp_ref_c = saved.temp_ref_c;

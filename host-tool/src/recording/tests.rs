@@ -459,7 +459,11 @@ fn fast_and_general_paths_agree() {
             _ => format!("{x:.17e}"),
         };
         let (a, b, c, k) = (next(), next(), next(), next());
-        let temp = if k % 5 == 0 { String::new() } else { fmt(v(k) * 0.1, k >> 8) };
+        let temp = if k % 5 == 0 {
+            String::new()
+        } else {
+            fmt(v(k) * 0.1, k >> 8)
+        };
         let ending = if k % 7 == 0 { "\r\n" } else { "\n" };
         text.push_str(&format!(
             "x{i},{},{},{},{},{temp}{ending}",
@@ -472,14 +476,19 @@ fn fast_and_general_paths_agree() {
             text.push_str("# a comment\n\n");
         }
         if k % 89 == 0 {
-            text.push_str(&format!("\"x\",{}, 0.5 ,\"0.25\",9.8,\n", i as f64 * 0.5 + 0.25));
+            text.push_str(&format!(
+                "\"x\",{}, 0.5 ,\"0.25\",9.8,\n",
+                i as f64 * 0.5 + 0.25
+            ));
         }
     }
-    let slow = |bytes: &[u8]| {
-        read_recording_from(std::io::BufReader::with_capacity(1, bytes), "run.csv")
-    };
+    let slow =
+        |bytes: &[u8]| read_recording_from(std::io::BufReader::with_capacity(1, bytes), "run.csv");
     let fast = |bytes: &[u8]| read_recording_from(bytes, "run.csv");
-    let (s, f) = (slow(text.as_bytes()).unwrap(), fast(text.as_bytes()).unwrap());
+    let (s, f) = (
+        slow(text.as_bytes()).unwrap(),
+        fast(text.as_bytes()).unwrap(),
+    );
     assert_eq!(s.samples.len(), f.samples.len());
     assert!(s.samples.len() > 3000);
     for (x, y) in s.samples.iter().zip(&f.samples) {
@@ -488,9 +497,19 @@ fn fast_and_general_paths_agree() {
     assert_eq!(s.lines, f.lines);
     // Errors: each defect put after some good rows reads the same way on both paths.
     let defects = [
-        "1e9,0,0,9.8,", "nan,0,0,9.8,", "1.0,inf,0,9.8,", "5,0,0,2000,", "5,0,0,9.8,2000",
-        "0.0,0,0,9.8,", "6,0,0,9.8", "6,0,0,9.8,1,2", "6,x,0,9.8,", "6,,0,9.8,", "6,0,0,9.8,1e",
-        "6,0,0,\u{e9},", "6,0,0,9.8,-",
+        "1e9,0,0,9.8,",
+        "nan,0,0,9.8,",
+        "1.0,inf,0,9.8,",
+        "5,0,0,2000,",
+        "5,0,0,9.8,2000",
+        "0.0,0,0,9.8,",
+        "6,0,0,9.8",
+        "6,0,0,9.8,1,2",
+        "6,x,0,9.8,",
+        "6,,0,9.8,",
+        "6,0,0,9.8,1e",
+        "6,0,0,\u{e9},",
+        "6,0,0,9.8,-",
     ];
     for d in defects {
         let text = format!("# latitude_deg: 39.1\nt_s,ax_mps2,ay_mps2,az_mps2,temp_c\n1,0,0,9.8,\n2,0,0,9.8,20\n{d}\n7,0,0,9.8,\n");
@@ -498,6 +517,10 @@ fn fast_and_general_paths_agree() {
             Ok(r) => format!("{:?} {:?}", r.samples, r.lines),
             Err(e) => e.to_string(),
         };
-        assert_eq!(show(slow(text.as_bytes())), show(fast(text.as_bytes())), "{d:?}");
+        assert_eq!(
+            show(slow(text.as_bytes())),
+            show(fast(text.as_bytes())),
+            "{d:?}"
+        );
     }
 }
