@@ -278,13 +278,19 @@ impl<'m, const CAP: usize> Ekf<'m, CAP> {
     }
 
     /// Propagates state and covariance to `t_s` (paper eqs. 11–12), with the temperature
-    /// deviation moving linearly to `temp_dev_c`.
-    fn predict(&mut self, t_s: f64, temp_dev_c: f64) {
+    /// deviation moving linearly to `temp_dev_c`. What it overwrites goes to `saved`.
+    fn predict(&mut self, t_s: f64, temp_dev_c: f64, saved: &mut Saved<CAP>) {
         let dt = t_s - self.t_s;
         if dt <= 0.0 {
             return;
         }
         let n = self.model.dim();
+        let dynamic = self.model.dynamic_states();
+        let nd = dynamic.len();
+        saved.predicted = true;
+        for (v, &d) in saved.x.iter_mut().zip(dynamic) {
+            *v = self.x[d];
+        }
         let mut tr = Transition::<CAP>::default();
         propagate(
             &self.model,
@@ -295,14 +301,14 @@ impl<'m, const CAP: usize> Ekf<'m, CAP> {
             temp_dev_c,
             &mut tr,
         );
-        let dynamic = self.model.dynamic_states();
-        let nd = dynamic.len();
         let mut is_dyn = [false; CAP];
         for &d in dynamic {
             is_dyn[d] = true;
         }
-        // B = Φ_D P (rows of Φ P that differ from P).
-        let mut b = [[0.0; CAP]; MAX_DYNAMIC];
+        // Φ = [[Φ_D], [0 I]] (the dynamic rows Φ_D, identity elsewhere), so in P⁻ = Φ P Φᵀ + Q
+        // only the dynamic rows/columns change: with B = Φ_D P, P⁻[D, c] = B[·, c] for the
+        // other columns and P⁻[D, D] = B Φ_Dᵀ + Q_D. O(nd·n²) instead of O(n³).
+        let b = &mut saved.rows;
         let data = self.p.as_slice();
         for c in 0..n {
             let col = &data[c * CAP..c * CAP + n];
@@ -310,23 +316,54 @@ impl<'m, const CAP: usize> Ekf<'m, CAP> {
                 b[r][c] = dot(&tr.rows[r][..n], col);
             }
         }
-        // P⁺ = B Φᵀ + Q: only rows/columns of dynamic states change.
+        let mut dd = [[0.0; MAX_DYNAMIC]; MAX_DYNAMIC];
+        for r in 0..nd {
+            for s in 0..=r {
+                dd[r][s] = dot(&b[r][..n], &tr.rows[s][..n]) + tr.q[r][s];
+                dd[s][r] = dd[r][s];
+            }
+        }
+        for r in 0..nd {
+            for (s, &e) in dynamic.iter().enumerate() {
+                b[r][e] = dd[r][s];
+            }
+        }
+        // b holds the new dynamic rows: swap them into P (keeping the old rows in b), then
+        // mirror them into the columns.
         for r in 0..nd {
             let d = dynamic[r];
             for c in 0..n {
-                if !is_dyn[c] {
-                    self.p[(d, c)] = b[r][c];
-                    self.p[(c, d)] = b[r][c];
-                }
+                core::mem::swap(&mut b[r][c], &mut self.p[(d, c)]);
             }
-            for s in 0..=r {
-                let v = dot(&b[r][..n], &tr.rows[s][..n]) + tr.q[r][s];
-                self.p[(d, dynamic[s])] = v;
-                self.p[(dynamic[s], d)] = v;
+            for c in 0..n {
+                if !is_dyn[c] {
+                    self.p[(c, d)] = self.p[(d, c)];
+                }
             }
         }
         self.t_s = t_s;
         self.temp_dev_c = temp_dev_c;
+    }
+
+    /// Undoes a prediction (and the first measurement's temperature reference). Rare: kept out
+    /// of line (firmware size).
+    #[cold]
+    #[inline(never)]
+    fn undo(&mut self, saved: &Saved<CAP>) {
+        self.t_s = saved.t_s;
+        self.temp_ref_c = saved.temp_ref_c;
+        self.temp_dev_c = saved.temp_dev_c;
+        if !saved.predicted {
+            return;
+        }
+        let n = self.model.dim();
+        for (r, &d) in self.model.dynamic_states().iter().enumerate() {
+            self.x[d] = saved.x[r];
+            for c in 0..n {
+                self.p[(d, c)] = saved.rows[r][c];
+                self.p[(c, d)] = saved.rows[r][c];
+            }
+        }
     }
 
     /// Predicts to the measurement's time and updates with it (paper eqs. 11–20, Joseph form).
@@ -348,10 +385,19 @@ impl<'m, const CAP: usize> Ekf<'m, CAP> {
         {
             return Err(FilterError::BadMeasurement { step });
         }
-        let saved = self.clone();
-        let temp_ref = self.temp_ref_c;
+        // What the prediction changes (time, temperature, state, the dynamic rows and columns
+        // of P), kept to undo it if the update is refused; the update itself writes nothing
+        // before it knows it will succeed. Cheaper than a copy of the whole filter.
+        let mut saved = Saved {
+            predicted: false,
+            t_s: self.t_s,
+            temp_ref_c: self.temp_ref_c,
+            temp_dev_c: self.temp_dev_c,
+            x: [0.0; MAX_DYNAMIC],
+            rows: [[0.0; CAP]; MAX_DYNAMIC],
+        };
         let temp_dev = self.temp_dev(m.temp_c);
-        self.predict(m.t_s, temp_dev);
+        self.predict(m.t_s, temp_dev, &mut saved);
         match self.update(m, temp_dev) {
             Ok(r) => {
                 self.steps += 1;
@@ -372,8 +418,7 @@ impl<'m, const CAP: usize> Ekf<'m, CAP> {
                 Ok(r)
             }
             Err(e) => {
-                *self = saved;
-                self.temp_ref_c = temp_ref;
+                self.undo(&saved);
                 Err(e)
             }
         }
@@ -449,33 +494,52 @@ impl<'m, const CAP: usize> Ekf<'m, CAP> {
         // Joseph form P⁺ = (I−KH) P (I−KH)ᵀ + K R Kᵀ, multiplied out:
         //   P⁺ = P − K (HP) − (PHᵀ) Kᵀ + K S Kᵀ   (S = HPHᵀ + R),
         // which is the same function of K (valid for any gain, not only the optimal one) and is
-        // symmetric term by term: we evaluate the upper triangle and mirror it.
+        // symmetric term by term: we evaluate the upper triangle and mirror it. Only the
+        // measured columns of H entered PHᵀ and S above; K and P⁺ are dense.
         let mut sk = [Vector3::zeros(); CAP];
         for c in 0..n {
             sk[c] = s * k[c];
         }
+        // The diagonal and the state first: a refused update (unhealthy) writes nothing, and the
+        // caller undoes the prediction.
+        let mut diag = [0.0; CAP];
+        let mut x_new = [0.0; CAP];
+        for i in 0..n {
+            let d = self.p[(i, i)] - k[i].dot(&pht[i]) - pht[i].dot(&k[i]) + k[i].dot(&sk[i]);
+            let x = self.x[i] + k[i].dot(&nu);
+            if !(d.is_finite() && d > 0.0 && x.is_finite()) {
+                return Err(FilterError::Unhealthy { step, index: i });
+            }
+            diag[i] = d;
+            x_new[i] = x;
+        }
         let data = self.p.as_mut_slice();
         for c in 0..n {
             let (kc, phc, skc) = (k[c], pht[c], sk[c]);
-            for i in 0..=c {
+            for i in 0..c {
                 let v = data[c * CAP + i] - k[i].dot(&phc) - pht[i].dot(&kc) + k[i].dot(&skc);
                 data[c * CAP + i] = v;
                 data[i * CAP + c] = v;
             }
+            data[c * CAP + c] = diag[c];
         }
-        for i in 0..n {
-            self.x[i] += k[i].dot(&nu);
-        }
-        for i in 0..n {
-            let d = self.p[(i, i)];
-            if !(d.is_finite() && d > 0.0 && self.x[i].is_finite()) {
-                return Err(FilterError::Unhealthy { step, index: i });
-            }
-        }
+        self.x[..n].copy_from_slice(&x_new[..n]);
         Ok(residual)
     }
 }
 
 fn dot(a: &[f64], b: &[f64]) -> f64 {
     a.iter().zip(b).map(|(x, y)| x * y).sum()
+}
+
+/// What a prediction overwrote, to undo a step whose update is refused: time, temperature,
+/// the dynamic states and the dynamic rows of P (P is symmetric, so its columns follow).
+struct Saved<const CAP: usize> {
+    predicted: bool,
+    t_s: f64,
+    temp_ref_c: f64,
+    temp_dev_c: f64,
+    x: [f64; MAX_DYNAMIC],
+    /// The prediction's scratch B = Φ_D P, then the rows of P it replaced.
+    rows: [[f64; CAP]; MAX_DYNAMIC],
 }

@@ -10,8 +10,11 @@ use crate::frames::Attitude;
 
 /// K(θ) = M(θ)⁻¹: maps a platform angular rate (rad/s) to Euler-angle rates (rad/s).
 pub fn rate_to_euler(att: &Attitude) -> Matrix3<f64> {
-    let (sy, cy) = (att.sin.y, att.cos.y);
-    let (sz, cz) = (att.sin.z, att.cos.z);
+    rate_to_euler_yz((att.sin.y, att.cos.y), (att.sin.z, att.cos.z))
+}
+
+/// [`rate_to_euler`] from (sin, cos) of ty and of tz, which are all K depends on.
+pub fn rate_to_euler_yz((sy, cy): (f64, f64), (sz, cz): (f64, f64)) -> Matrix3<f64> {
     let ty = sy / cy;
     Matrix3::new(cz / cy, -sz / cy, 0.0, sz, cz, 0.0, -ty * cz, ty * sz, 1.0)
 }

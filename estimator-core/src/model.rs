@@ -283,8 +283,14 @@ impl<'m> Model<'m> {
         let w = drift_degph * RADPS_PER_DEGPH - att.c * we0;
         let k_deg = k * RADPS_PER_DEGPH;
         for col in d_dx[ANGLES..n].iter_mut() {
-            if col.x != 0.0 || col.y != 0.0 || col.z != 0.0 {
-                *col = k_deg * *col;
+            // Most parameters drive one gyro axis: K's column times that entry (the full
+            // product adds only zeros to it).
+            match (col.x != 0.0, col.y != 0.0, col.z != 0.0) {
+                (false, false, false) => {}
+                (true, false, false) => *col = k_deg.column(0) * col.x,
+                (false, true, false) => *col = k_deg.column(1) * col.y,
+                (false, false, true) => *col = k_deg.column(2) * col.z,
+                _ => *col = k_deg * *col,
             }
         }
         let dk = d_rate_to_euler(&att, &w);

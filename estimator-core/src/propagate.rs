@@ -7,8 +7,7 @@
 
 use nalgebra::{Matrix3, Vector3};
 
-use crate::frames::Attitude;
-use crate::kinematics::rate_to_euler;
+use crate::kinematics::rate_to_euler_yz;
 use crate::model::{Model, Propagation, ANGLES, MAX_DYNAMIC};
 
 /// Φ and the discrete process noise Q of one period, restricted to the dynamic states.
@@ -58,23 +57,32 @@ fn derivative<const CAP: usize>(
     let n = model.dim();
     let dynamic = model.dynamic_states();
     let rate = model.angle_rate(x, t_s, temp_dev_c, jac);
+    let mut is_dyn = [false; CAP];
+    for &d in dynamic {
+        is_dyn[d] = true;
+    }
     for i in 0..ANGLES {
         out.xdot[i] = rate[i];
-        let row = &mut out.phidot[i][..n];
-        // Columns of non-dynamic states: Φ's row there is the identity → F[i][c].
-        for (c, v) in row.iter_mut().enumerate() {
-            *v = jac[c][i];
-        }
-        for &d in dynamic {
-            row[d] = 0.0;
-        }
+        // Row i of F·Φ, Φ = [[Φ_D], [0 I]]: F[i][c] for a non-dynamic column c (Φ's row there
+        // is the identity's), plus Σ_r F[i][dynamic[r]]·Φ_D[r][c] over the non-zero F entries —
+        // added in r order, each column's sum kept in a register.
+        let mut terms = [(0usize, 0.0f64); MAX_DYNAMIC];
+        let mut nt = 0;
         for (r, &d) in dynamic.iter().enumerate() {
             let f = jac[d][i];
             if f != 0.0 {
-                for (v, p) in row.iter_mut().zip(&phi[r][..n]) {
-                    *v += f * p;
-                }
+                terms[nt] = (r, f);
+                nt += 1;
             }
+        }
+        let terms = &terms[..nt];
+        let row = &mut out.phidot[i][..n];
+        for (c, v) in row.iter_mut().enumerate() {
+            let mut acc = if is_dyn[c] { 0.0 } else { jac[c][i] };
+            for &(r, f) in terms {
+                acc += f * phi[r][c];
+            }
+            *v = acc;
         }
     }
     for r in ANGLES..dynamic.len() {
@@ -188,7 +196,8 @@ pub fn propagate<const CAP: usize>(
         row[..nd].iter_mut().for_each(|v| *v = 0.0);
     }
     let theta_mid = (theta0 + Vector3::new(x[0], x[1], x[2])) * 0.5;
-    let kk = rate_to_euler(&Attitude::new(&theta_mid));
+    // K(θ) depends on ty and tz only: two sines and cosines, not a whole attitude.
+    let kk = rate_to_euler_yz(libm::sincos(theta_mid.y), libm::sincos(theta_mid.z));
     let q: Matrix3<f64> = kk * kk.transpose() * (model.arw_rad2ps() * dt_s);
     for i in 0..ANGLES {
         for j in 0..ANGLES {

@@ -207,15 +207,24 @@ fn flag_stuck(
 
 /// Median of `v[..n]` (sorted in place; n ≥ 1).
 fn median(v: &mut [f64]) -> f64 {
-    // Insertion sort: at most MAX_HALF_WINDOW elements.
-    for i in 1..v.len() {
-        let mut j = i;
-        while j > 0 && v[j - 1] > v[j] {
-            v.swap(j - 1, j);
-            j -= 1;
-        }
-    }
+    sort(v);
     let m = v.len();
+    if m % 2 == 1 {
+        v[m / 2]
+    } else {
+        0.5 * (v[m / 2 - 1] + v[m / 2])
+    }
+}
+
+/// [`median`] of values that usually come in order (a side's sample times: increasing on the
+/// right, decreasing on the left): the middle without sorting when they are monotone, which
+/// gives the same value (the middle pair's sum does not depend on its order); sorted otherwise.
+fn median_of_ordered(v: &mut [f64]) -> f64 {
+    let m = v.len();
+    let up = v.windows(2).all(|w| w[0] < w[1]);
+    if !(up || v.windows(2).all(|w| w[0] > w[1])) {
+        return median(v);
+    }
     if m % 2 == 1 {
         v[m / 2]
     } else {
@@ -271,14 +280,117 @@ fn flag_outliers(
     sigma: f64,
     cfg: &ScreenConfig,
 ) -> usize {
+    let h = cfg.half_window.clamp(2, MAX_HALF_WINDOW);
+    let len = s.len();
+    if len == 0 {
+        return 0;
+    }
+    // Where every neighbour within h is accepted (nearly everywhere), the two sides are the h
+    // samples before and after i: their sorted values slide along with i (one value out, one
+    // in) instead of being collected and sorted again. `judge` then sees the same values as
+    // `outlier_at` would, so the verdicts are the same; elsewhere `outlier_at` decides.
+    let mut left = [0.0; MAX_HALF_WINDOW];
+    let mut right = [0.0; MAX_HALF_WINDOW];
+    let mut sorted_for: Option<usize> = None;
+    // Rejected samples in [i − h, i + h] (clipped to the record).
+    let mut bad_near = (0..=h.min(len.saturating_sub(1)))
+        .filter(|&k| bad(flags, k))
+        .count();
+    // Times strictly increasing (as a recording's are): each side's median time is its middle.
+    // A non-finite time is a rejected sample, never inside a window taken here.
+    let ordered = s
+        .windows(2)
+        .all(|w| w[0].t_s < w[1].t_s || !(w[0].t_s.is_finite() && w[1].t_s.is_finite()));
     let mut count = 0;
-    for i in 0..s.len() {
-        if outlier_at(s, flags, i, a, sigma, cfg) {
+    for i in 0..len {
+        if i > h && bad(flags, i - h - 1) {
+            bad_near -= 1;
+        }
+        if i > 0 && i + h < len && bad(flags, i + h) {
+            bad_near += 1;
+        }
+        let regular =
+            ordered && h >= 3 && i >= h && i + h < len && bad_near == usize::from(bad(flags, i));
+        let outlier = if !regular {
+            outlier_at(s, flags, i, a, sigma, cfg)
+        } else if sigma.is_nan() || sigma <= 0.0 || bad(flags, i) {
+            false
+        } else {
+            let v = |k: usize| s[k].specific_force[a];
+            if sorted_for == Some(i - 1) {
+                slide(&mut left[..h], v(i - 1 - h), v(i - 1));
+                slide(&mut right[..h], v(i), v(i + h));
+            } else {
+                for (j, x) in left[..h].iter_mut().enumerate() {
+                    *x = v(i - 1 - j);
+                }
+                for (j, x) in right[..h].iter_mut().enumerate() {
+                    *x = v(i + 1 + j);
+                }
+                sort(&mut left[..h]);
+                sort(&mut right[..h]);
+            }
+            sorted_for = Some(i);
+            // The medians `judge` would take: of the sorted values, and of the times, which
+            // are in order (checked above), so the middle ones — added in the order
+            // `median_of_ordered` adds them (the left side is collected backwards).
+            let t = |k: usize| s[k].t_s;
+            let (ml, mr, tl, tr) = if h % 2 == 1 {
+                (
+                    left[h / 2],
+                    right[h / 2],
+                    t(i - 1 - h / 2),
+                    t(i + 1 + h / 2),
+                )
+            } else {
+                (
+                    0.5 * (left[h / 2 - 1] + left[h / 2]),
+                    0.5 * (right[h / 2 - 1] + right[h / 2]),
+                    0.5 * (t(i - h / 2) + t(i - 1 - h / 2)),
+                    0.5 * (t(i + h / 2) + t(i + 1 + h / 2)),
+                )
+            };
+            two_sided(&s[i], a, sigma, cfg, (ml, tl, h), (mr, tr, h))
+        };
+        if outlier {
             flags[i] |= flag::OUTLIER | axis_bit(a);
             count += 1;
         }
     }
     count
+}
+
+/// Whether sample `k` is rejected before the outlier test (its neighbours' medians skip it).
+fn bad(flags: &[u8], k: usize) -> bool {
+    flags[k] & (flag::NON_FINITE | flag::ZERO | flag::STUCK) != 0
+}
+
+/// Insertion sort (at most [`MAX_HALF_WINDOW`] values).
+fn sort(v: &mut [f64]) {
+    for i in 1..v.len() {
+        let mut j = i;
+        while j > 0 && v[j - 1] > v[j] {
+            v.swap(j - 1, j);
+            j -= 1;
+        }
+    }
+}
+
+/// Replaces `out` (present, compared bit for bit) by `new` in the sorted `v`, keeping it sorted.
+fn slide(v: &mut [f64], out: f64, new: f64) {
+    let mut j = v
+        .iter()
+        .position(|x| x.to_bits() == out.to_bits())
+        .unwrap_or(v.len() - 1);
+    v[j] = new;
+    while j > 0 && v[j - 1] > v[j] {
+        v.swap(j - 1, j);
+        j -= 1;
+    }
+    while j + 1 < v.len() && v[j] > v[j + 1] {
+        v.swap(j, j + 1);
+        j += 1;
+    }
 }
 
 /// Whether sample `i` of `s` is an outlier on axis `a` against the robust local line through its
@@ -302,21 +414,30 @@ pub fn outlier_at(
     let mut r: Window = ([0.0; MAX_HALF_WINDOW], [0.0; MAX_HALF_WINDOW]);
     let nl = side(s, flags, i, a, h, true, &mut l);
     let nr = side(s, flags, i, a, h, false, &mut r);
-    let ((lv, lt), (rv, rt)) = (&mut l, &mut r);
+    judge(&s[i], a, sigma, cfg, (&mut l, nl), (&mut r, nr))
+}
+
+/// The outlier test of sample `x` on axis `a` against its two sides' neighbours (values and
+/// times, `n` of each; the values are sorted in place).
+fn judge(
+    x: &Sample,
+    a: usize,
+    sigma: f64,
+    cfg: &ScreenConfig,
+    (l, nl): (&mut Window, usize),
+    (r, nr): (&mut Window, usize),
+) -> bool {
+    let ((lv, lt), (rv, rt)) = (l, r);
     // Each side's median value and median time (times are increasing: the middle one).
-    let (pred, var_factor) = if nl >= 3 && nr >= 3 {
+    if nl >= 3 && nr >= 3 {
         let (ml, mr) = (median(&mut lv[..nl]), median(&mut rv[..nr]));
-        let (tl, tr) = (median(&mut lt[..nl]), median(&mut rt[..nr]));
-        let u = if tr > tl {
-            (s[i].t_s - tl) / (tr - tl)
-        } else {
-            0.5
-        };
-        // Prediction = (1−u)·ml + u·mr; a median of m samples has variance ≈ (π/2)σ²/m.
-        let v =
-            core::f64::consts::FRAC_PI_2 * ((1.0 - u) * (1.0 - u) / nl as f64 + u * u / nr as f64);
-        ((1.0 - u) * ml + u * mr, v)
-    } else if nl + nr >= 3 {
+        let (tl, tr) = (
+            median_of_ordered(&mut lt[..nl]),
+            median_of_ordered(&mut rt[..nr]),
+        );
+        return two_sided(x, a, sigma, cfg, (ml, tl, nl), (mr, tr, nr));
+    }
+    let (pred, var_factor) = if nl + nr >= 3 {
         // Too few on one side (record edge, long gap): the other side's median, no slope —
         // valid only where the signal is locally flat, so widen the threshold by the spread.
         let (vals, m) = if nl >= nr { (lv, nl) } else { (rv, nr) };
@@ -329,8 +450,30 @@ pub fn outlier_at(
     } else {
         return false;
     };
-    let d = libm::fabs(s[i].specific_force[a] - pred);
+    let d = libm::fabs(x.specific_force[a] - pred);
     d > cfg.outlier_k * sigma * libm::sqrt(1.0 + var_factor)
+}
+
+/// The outlier test against the line through the two sides' (median value, median time), each
+/// side the median of `n` samples.
+fn two_sided(
+    x: &Sample,
+    a: usize,
+    sigma: f64,
+    cfg: &ScreenConfig,
+    (ml, tl, nl): (f64, f64, usize),
+    (mr, tr, nr): (f64, f64, usize),
+) -> bool {
+    let u = if tr > tl {
+        (x.t_s - tl) / (tr - tl)
+    } else {
+        0.5
+    };
+    // Prediction = (1−u)·ml + u·mr; a median of m samples has variance ≈ (π/2)σ²/m.
+    let v = core::f64::consts::FRAC_PI_2 * ((1.0 - u) * (1.0 - u) / nl as f64 + u * u / nr as f64);
+    let pred = (1.0 - u) * ml + u * mr;
+    let d = libm::fabs(x.specific_force[a] - pred);
+    d > cfg.outlier_k * sigma * libm::sqrt(1.0 + v)
 }
 
 /// Samples a [`Screener`] holds: the sample under test and `MAX_HALF_WINDOW` on each side.
@@ -641,5 +784,56 @@ mod tests {
         );
         assert_eq!(sum.rejected, 0, "{sum:?}");
         assert!(sum.repeat_rate[2] > 0.9);
+    }
+
+    /// The batch loop's sliding sorted windows give the verdicts of `outlier_at` sample by
+    /// sample: glitches (some small enough to be borderline), rejected samples of every kind,
+    /// runs of equal values and signed zeros, every window size.
+    #[test]
+    fn sliding_windows_agree_with_outlier_at() {
+        for (seed, sigma) in [(1u64, 7e-4), (2, 3e-3), (3, 1e-5)] {
+            let mut s = signal(2000, sigma);
+            let mut state = 0x2545f4914f6cdd1du64 ^ seed;
+            let mut next = || {
+                state ^= state << 13;
+                state ^= state >> 7;
+                state ^= state << 17;
+                state
+            };
+            let mut flags = [0u8; 2000];
+            for _ in 0..120 {
+                let k = (next() % 2000) as usize;
+                let a = (next() % 3) as usize;
+                match next() % 6 {
+                    0 => flags[k] |= flag::NON_FINITE,
+                    1 => flags[k] |= flag::ZERO,
+                    2 => flags[k] |= flag::STUCK | axis_bit(a),
+                    3 => s[k].specific_force[a] = s[k.saturating_sub(1)].specific_force[a],
+                    4 => s[k].specific_force[a] = if next() % 2 == 0 { 0.0 } else { -0.0 },
+                    _ => s[k].specific_force[a] += sigma * (next() % 40) as f64,
+                }
+            }
+            for half_window in [2, 3, 4, 7, 8, 15] {
+                let cfg = ScreenConfig {
+                    half_window,
+                    ..ScreenConfig::default()
+                };
+                for a in 0..3 {
+                    let mut batch = flags;
+                    let n = flag_outliers(&s, &mut batch, a, sigma, &cfg);
+                    let mut count = 0;
+                    for i in 0..2000 {
+                        let one = outlier_at(&s, &flags, i, a, sigma, &cfg);
+                        count += usize::from(one);
+                        assert_eq!(
+                            batch[i] & flag::OUTLIER != 0,
+                            one,
+                            "sample {i}, axis {a}, half window {half_window}"
+                        );
+                    }
+                    assert_eq!(n, count);
+                }
+            }
+        }
     }
 }

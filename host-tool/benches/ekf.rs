@@ -1,12 +1,45 @@
-//! Speed of the core: one EKF step of the paper's 15-state model (structured predict + Joseph
-//! update, RK4 over 60 s), and one 60-h identification (2 passes + smoother) from a CSV file.
+//! Speed of the host: one EKF step of the paper's 15-state model as the host runs it
+//! (`MAX_STATES` capacity), reading a 60-h recording at 1 s (11.7 MB), one 60-h identification
+//! from that CSV (converged: 2 passes + smoother; and single pass), and `diagnose` on it (the
+//! ladder, as `driftid diagnose` runs it). The firmware-sized step is benched in estimator-core
+//! (`cargo bench -p estimator-core --bench step`).
 //!
-//! Run: `cargo bench -p host-tool --bench ekf`.
+//! Run: `cargo bench -p host-tool --bench ekf` (one group: `… --bench ekf -- read`).
+//!
+//! The times are the process's CPU time (`CLOCK_PROCESS_CPUTIME_ID`), not wall time: the
+//! machines this runs on are shared, and wall time there measures the neighbours' load. For the
+//! single-threaded work benched here it is the time the work takes on an idle core.
 
-use criterion::{criterion_group, criterion_main, BatchSize, Criterion};
+use std::path::{Path, PathBuf};
+use std::time::Duration;
+
+use criterion::{criterion_group, criterion_main, Criterion, Throughput};
+use estimator_core::model::MAX_STATES;
 use estimator_core::units::arw_deg2ph_to_rad2ps;
 use estimator_core::{Averager, Ekf, Measurement, Model, Propagation, Site, PAPER_EFFECTS};
-use host_tool::identify::{identify, prepare, Config};
+use host_tool::diagnose::{ladder, DiagnoseConfig};
+use host_tool::identify::{identify, prepare, prepare_oriented, Config};
+
+/// CPU time of this process so far.
+fn cpu_time() -> Duration {
+    let mut ts = libc::timespec {
+        tv_sec: 0,
+        tv_nsec: 0,
+    };
+    // SAFETY: clock_gettime writes one timespec through the valid pointer.
+    let rc = unsafe { libc::clock_gettime(libc::CLOCK_PROCESS_CPUTIME_ID, &mut ts) };
+    assert_eq!(rc, 0, "clock_gettime");
+    Duration::new(ts.tv_sec as u64, ts.tv_nsec as u32)
+}
+
+/// Runs `f` `iters` times and returns the CPU time it took (criterion's `iter_custom`).
+fn cpu<O>(iters: u64, mut f: impl FnMut() -> O) -> Duration {
+    let start = cpu_time();
+    for _ in 0..iters {
+        std::hint::black_box(f());
+    }
+    cpu_time() - start
+}
 
 /// 120 h of measurements of the paper's platform (simulated once), so a benchmark never runs
 /// out of input.
@@ -35,57 +68,124 @@ fn ekf_step(c: &mut Criterion) {
     let site = Site::new(39.1, None);
     let meas = measurements(site);
     for (name, prop) in [
-        ("ekf_step_rk4_60s", Propagation::default()),
-        ("ekf_step_euler_60s", Propagation::Euler),
+        ("ekf_step_rk4_60s_host", Propagation::default()),
+        ("ekf_step_euler_60s_host", Propagation::Euler),
     ] {
         let model = Model::new(site, &PAPER_EFFECTS, arw_deg2ph_to_rad2ps(1e-8), prop).unwrap();
-        // Warm the filter up for 30 h so the step runs on a realistic state and covariance.
-        let mut warm = Ekf::<15>::with_default_prior(model).unwrap();
+        // Warm the filter up for 30 h so the step runs on a realistic state and covariance; the
+        // timed loop steps on through the remaining 90 h and starts again from the warm state.
+        let mut warm = Ekf::<MAX_STATES>::with_default_prior(model).unwrap();
         for m in &meas[..1800] {
             warm.step(m).unwrap();
         }
+        let mut ekf = warm.clone();
+        let mut k = 1800;
         c.bench_function(name, |b| {
-            b.iter_batched_ref(
-                || (warm.clone(), 1800usize),
-                |(ekf, k)| {
-                    let r = ekf.step(&meas[*k]).unwrap();
-                    *k += 1;
-                    r
-                },
-                BatchSize::SmallInput,
-            )
+            b.iter_custom(|iters| {
+                cpu(iters, || {
+                    if k == meas.len() {
+                        ekf = warm.clone();
+                        k = 1800;
+                    }
+                    let r = ekf.step(&meas[k]).unwrap();
+                    k += 1;
+                    r.nis
+                })
+            })
         });
     }
 }
 
-fn identify_60h_csv(c: &mut Criterion) {
+/// The paper's 60-h run at 1 s written as a recording (once per bench process).
+fn recording_60h() -> PathBuf {
     let dir = std::env::temp_dir().join(format!("driftid-bench-{}", std::process::id()));
     std::fs::create_dir_all(&dir).unwrap();
     let path = dir.join("paper60h.csv");
-    let mut sc = host_tool::simulate::Scenario::paper();
-    sc.rate_s = 1.0;
-    let sim = host_tool::simulate::simulate(&sc);
-    host_tool::recording::write_recording(&path, &sim.meta, &sim.samples).unwrap();
-    let mut group = c.benchmark_group("identify");
-    group.sample_size(10);
-    group.bench_function("identify_60h_1s_csv", |b| {
-        b.iter(|| {
-            let loaded = host_tool::cli::common::load(&path, None).unwrap();
-            let cfg = Config::default();
-            let model = Model::new(
-                loaded.site,
-                &PAPER_EFFECTS,
-                arw_deg2ph_to_rad2ps(1e-8),
-                Propagation::default(),
-            )
-            .unwrap();
-            let prep = prepare(loaded.site, &loaded.samples, &cfg).unwrap();
-            identify(&model, &prep, &cfg).unwrap()
+    if !path.exists() {
+        let mut sc = host_tool::simulate::Scenario::paper();
+        sc.rate_s = 1.0;
+        let sim = host_tool::simulate::simulate(&sc);
+        host_tool::recording::write_recording(&path, &sim.meta, &sim.samples).unwrap();
+    }
+    path
+}
+
+fn read(c: &mut Criterion) {
+    let path = recording_60h();
+    let bytes = std::fs::metadata(&path).unwrap().len();
+    let mut group = c.benchmark_group("read");
+    group.sample_size(20);
+    group.throughput(Throughput::Bytes(bytes));
+    group.bench_function("read_recording_60h_1s", |b| {
+        b.iter_custom(|iters| {
+            cpu(iters, || {
+                host_tool::recording::read_recording(&path)
+                    .unwrap()
+                    .samples
+                    .len()
+            })
         })
     });
     group.finish();
-    let _ = std::fs::remove_dir_all(&dir);
 }
 
-criterion_group!(benches, ekf_step, identify_60h_csv);
+fn identify_from_csv(path: &Path, smoother_iterations: usize) -> usize {
+    let loaded = host_tool::cli::common::load(path, None).unwrap();
+    let cfg = Config {
+        smoother_iterations,
+        ..Config::default()
+    };
+    let model = Model::new(
+        loaded.site,
+        &PAPER_EFFECTS,
+        arw_deg2ph_to_rad2ps(cfg.arw_deg2_per_h),
+        cfg.propagation,
+    )
+    .unwrap();
+    let prep = prepare(loaded.site, &loaded.samples, &cfg).unwrap();
+    identify(&model, &prep, &cfg).unwrap().trajectory.len()
+}
+
+fn identify_60h_csv(c: &mut Criterion) {
+    let path = recording_60h();
+    let mut group = c.benchmark_group("identify");
+    group.sample_size(10);
+    group.bench_function("identify_60h_1s_csv", |b| {
+        b.iter_custom(|iters| {
+            cpu(iters, || {
+                identify_from_csv(&path, Config::default().smoother_iterations)
+            })
+        })
+    });
+    group.bench_function("identify_60h_1s_csv_single_pass", |b| {
+        b.iter_custom(|iters| cpu(iters, || identify_from_csv(&path, 0)))
+    });
+    group.finish();
+}
+
+fn diagnose_60h_csv(c: &mut Criterion) {
+    let path = recording_60h();
+    let mut group = c.benchmark_group("diagnose");
+    group.sample_size(10);
+    group.bench_function("diagnose_ladder_60h_1s_csv", |b| {
+        b.iter_custom(|iters| {
+            cpu(iters, || {
+                let loaded = host_tool::cli::common::load(&path, None).unwrap();
+                let cfg = DiagnoseConfig::default();
+                let prep = prepare_oriented(
+                    loaded.site,
+                    &loaded.samples,
+                    &cfg.identify,
+                    loaded.initial_orientation_rad,
+                )
+                .unwrap();
+                let effects = host_tool::catalog::model_effects(&[]).unwrap();
+                ladder(&prep, &effects, &cfg).unwrap().rungs.len()
+            })
+        })
+    });
+    group.finish();
+}
+
+criterion_group!(benches, ekf_step, read, identify_60h_csv, diagnose_60h_csv);
 criterion_main!(benches);

@@ -409,7 +409,89 @@ impl<R: BufRead> RecordingReader<R> {
         &self.file
     }
 
+    /// The fast path for the common row: a whole line in the read buffer, ASCII, plain numbers
+    /// (no quotes, blanks, NaN/∞), the right field count, plausible values, time increasing.
+    /// It consumes the line and returns its sample; on anything else it consumes nothing and
+    /// returns `None`, and [`Self::next_sample`]'s general path reads the same line again and
+    /// accepts it or reports exactly what is wrong. Both paths give the same f64 (fast-float2
+    /// and `str::parse` both round correctly; a test checks that they accept the same text).
+    fn fast_sample(&mut self) -> Option<(u32, RawSample)> {
+        let chunk = self.reader.fill_buf().ok()?;
+        let end = memchr::memchr(b'\n', chunk)?;
+        let mut line = &chunk[..end];
+        if let [rest @ .., b'\r'] = line {
+            line = rest;
+        }
+        if line.len() > MAX_LINE_BYTES || !line.is_ascii() {
+            return None;
+        }
+        let fields = self.header.len();
+        let mut vals = [0.0f64; 4];
+        let mut temp = None;
+        let mut pos = 0;
+        for i in 0..fields {
+            let rest = &line[pos..];
+            let wanted = self.idx.iter().position(|&j| j == i);
+            let len = if wanted.is_some() || Some(i) == self.temp_idx {
+                if wanted.is_none() && rest.first().is_none_or(|&b| b == b',') {
+                    0 // an empty temperature: none recorded
+                } else {
+                    // Only text that starts like a number: blanks, quotes, "inf"/"nan" go the
+                    // general way.
+                    if !matches!(rest.first(), Some(b'0'..=b'9' | b'-' | b'+' | b'.')) {
+                        return None;
+                    }
+                    let (v, used) = fast_float2::parse_partial::<f64, _>(rest).ok()?;
+                    if !v.is_finite() {
+                        return None;
+                    }
+                    match wanted {
+                        Some(0) => vals[0] = v,
+                        Some(k) if v.abs() <= MAX_ABS_SPECIFIC_FORCE_MPS2 => vals[k] = v,
+                        Some(_) => return None,
+                        None if (TEMP_RANGE_C.0..=TEMP_RANGE_C.1).contains(&v) => temp = Some(v),
+                        None => return None,
+                    }
+                    used
+                }
+            } else {
+                memchr::memchr(b',', rest).unwrap_or(rest.len())
+            };
+            pos += len;
+            // The field must end here: at a comma, or at the end of the line for the last one.
+            if i + 1 < fields {
+                if line.get(pos) != Some(&b',') {
+                    return None;
+                }
+                pos += 1;
+            } else if pos != line.len() {
+                return None;
+            }
+        }
+        let t = vals[0];
+        if let Some((prev, _)) = self.prev {
+            if t <= prev {
+                return None; // both finite here
+            }
+        }
+        let line_no = self.line_no.checked_add(1)?;
+        self.reader.consume(end + 1);
+        self.line_no = line_no;
+        self.prev = Some((t, line_no));
+        Some((
+            line_no,
+            RawSample {
+                t_s: t,
+                specific_force_mps2: [vals[1], vals[2], vals[3]],
+                temp_c: temp,
+            },
+        ))
+    }
+
     fn next_sample(&mut self) -> Result<Option<(u32, RawSample)>, RecordingError> {
+        if let Some(s) = self.fast_sample() {
+            return Ok(Some(s));
+        }
         loop {
             let Some(had_newline) = read_line(
                 &mut self.reader,

@@ -404,3 +404,123 @@ fn the_writer_refuses_what_the_reader_refuses() {
     let bytes = w.into_inner().unwrap();
     assert_eq!(read(&bytes).unwrap().samples.len(), 1);
 }
+
+/// The reader's fast path (fast-float2) and its general path (`str::parse`) must accept the same
+/// number text and give the same bits: compared over pseudo-random strings of number characters.
+#[test]
+fn fast_float_parsing_agrees_with_std() {
+    let alphabet = b"0123456789.+-eE";
+    let mut state = 0x2545f4914f6cdd1du64;
+    let mut accepted = 0;
+    for i in 0..200_000usize {
+        let len = 1 + i % 14;
+        let mut text = String::with_capacity(len);
+        for _ in 0..len {
+            state ^= state << 13;
+            state ^= state >> 7;
+            state ^= state << 17;
+            text.push(alphabet[(state % alphabet.len() as u64) as usize] as char);
+        }
+        let std = text.parse::<f64>().ok().filter(|v| v.is_finite());
+        let fast = match fast_float2::parse_partial::<f64, _>(&text) {
+            Ok((v, used)) if used == text.len() && v.is_finite() => Some(v),
+            _ => None,
+        };
+        assert_eq!(
+            std.map(f64::to_bits),
+            fast.map(f64::to_bits),
+            "{text:?}: std {std:?}, fast-float2 {fast:?}"
+        );
+        accepted += usize::from(std.is_some());
+    }
+    assert!(accepted > 10_000, "too few valid numbers drawn: {accepted}");
+}
+
+/// A reader with a 1-byte buffer never sees a whole line at once, so it takes the general path
+/// only; with a large buffer nearly every row takes the fast path. Both must read the same
+/// samples and lines, and fail with the same message.
+#[test]
+fn fast_and_general_paths_agree() {
+    let mut state = 0x9e3779b97f4a7c15u64;
+    let mut next = || {
+        state ^= state << 13;
+        state ^= state >> 7;
+        state ^= state << 17;
+        state
+    };
+    let forms = ["{}", "{:e}", "{:.3}", "{:.17e}"];
+    let mut text = String::from("# latitude_deg: 39.1\nfoo,t_s,ax_mps2,ay_mps2,az_mps2,temp_c\n");
+    for i in 0..3000 {
+        let v = |r: u64| (r % 2_000_001) as f64 * 1e-4 - 100.0;
+        let fmt = |x: f64, k: u64| match forms[(k % 4) as usize] {
+            "{}" => format!("{x}"),
+            "{:e}" => format!("{x:e}"),
+            "{:.3}" => format!("{x:.3}"),
+            _ => format!("{x:.17e}"),
+        };
+        let (a, b, c, k) = (next(), next(), next(), next());
+        let temp = if k % 5 == 0 {
+            String::new()
+        } else {
+            fmt(v(k) * 0.1, k >> 8)
+        };
+        let ending = if k % 7 == 0 { "\r\n" } else { "\n" };
+        text.push_str(&format!(
+            "x{i},{},{},{},{},{temp}{ending}",
+            fmt(i as f64 * 0.5, k >> 3),
+            fmt(v(a), k >> 5),
+            fmt(v(b), k >> 9),
+            fmt(v(c) + 9.8, k >> 11),
+        ));
+        if k % 97 == 0 {
+            text.push_str("# a comment\n\n");
+        }
+        if k % 89 == 0 {
+            text.push_str(&format!(
+                "\"x\",{}, 0.5 ,\"0.25\",9.8,\n",
+                i as f64 * 0.5 + 0.25
+            ));
+        }
+    }
+    let slow =
+        |bytes: &[u8]| read_recording_from(std::io::BufReader::with_capacity(1, bytes), "run.csv");
+    let fast = |bytes: &[u8]| read_recording_from(bytes, "run.csv");
+    let (s, f) = (
+        slow(text.as_bytes()).unwrap(),
+        fast(text.as_bytes()).unwrap(),
+    );
+    assert_eq!(s.samples.len(), f.samples.len());
+    assert!(s.samples.len() > 3000);
+    for (x, y) in s.samples.iter().zip(&f.samples) {
+        assert_eq!(format!("{x:?}"), format!("{y:?}"));
+    }
+    assert_eq!(s.lines, f.lines);
+    // Errors: each defect put after some good rows reads the same way on both paths.
+    let defects = [
+        "1e9,0,0,9.8,",
+        "nan,0,0,9.8,",
+        "1.0,inf,0,9.8,",
+        "5,0,0,2000,",
+        "5,0,0,9.8,2000",
+        "0.0,0,0,9.8,",
+        "6,0,0,9.8",
+        "6,0,0,9.8,1,2",
+        "6,x,0,9.8,",
+        "6,,0,9.8,",
+        "6,0,0,9.8,1e",
+        "6,0,0,\u{e9},",
+        "6,0,0,9.8,-",
+    ];
+    for d in defects {
+        let text = format!("# latitude_deg: 39.1\nt_s,ax_mps2,ay_mps2,az_mps2,temp_c\n1,0,0,9.8,\n2,0,0,9.8,20\n{d}\n7,0,0,9.8,\n");
+        let show = |r: Result<Recording, RecordingError>| match r {
+            Ok(r) => format!("{:?} {:?}", r.samples, r.lines),
+            Err(e) => e.to_string(),
+        };
+        assert_eq!(
+            show(slow(text.as_bytes())),
+            show(fast(text.as_bytes())),
+            "{d:?}"
+        );
+    }
+}
