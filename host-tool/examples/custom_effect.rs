@@ -92,8 +92,8 @@ fn main() -> anyhow::Result<()> {
     ] {
         let model = build_model(site, &effects, &cfg)?;
         let id = identify(&model, &prep, &cfg)?;
-        let rms = id.residual_rms_mps2();
-        let floor = prep.measurements[0].variance.map(f64::sqrt);
+        let rms = id.residual_rms_mps2(&prep);
+        let floor = prep.floor_mps2();
         println!(
             "model {:<28} residual RMS / floor = [{:.3}, {:.3}, {:.3}], mean NIS/3 = {:.3}",
             effects

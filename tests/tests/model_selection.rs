@@ -465,8 +465,13 @@ fn acc_k2_at_the_example_size_is_outside_the_catalog_until_the_file_defines_it()
 
 /// A clean run: the ladder adds nothing and the paper's model is consistent.
 fn clean(seed: u64, lat: f64) {
-    let label = format!("clean {lat}° seed {seed}");
-    let sc = scenario(seed, lat, 60.0, &[]);
+    clean_for(seed, lat, 60.0, 10.0);
+}
+
+fn clean_for(seed: u64, lat: f64, hours: f64, rate_s: f64) {
+    let label = format!("clean {lat}° seed {seed} {hours} h at {rate_s} s");
+    let mut sc = scenario(seed, lat, hours, &[]);
+    sc.rate_s = rate_s;
     let (_, prep) = simulate_and_prepare(&sc, None);
     let host_tool::diagnose::Ladder {
         diagnoses, rungs, ..
@@ -489,6 +494,16 @@ fn clean(seed: u64, lat: f64) {
 fn clean_runs_at_other_latitudes_add_nothing() {
     clean(71, -35.0);
     clean(72, 55.0);
+}
+
+/// A run that does not end on a filter period: 26 h at 1 s ends with a period of one sample,
+/// whose mean is √60 times noisier than the floor. Its residual must count on the floor's scale
+/// (`Prepared::residual_rms_mps2`): this run (= `driftid simulate --seed 2 --latitude-deg -24
+/// --hours 26`) was refused at RMS/floor [1.070, 1.018, 1.022] before, its last residual alone
+/// 13.6 floors; scaled, 1.014 on x.
+#[test]
+fn clean_run_with_a_partial_last_period_adds_nothing() {
+    clean_for(2, -24.0, 26.0, 1.0);
 }
 
 #[test]

@@ -53,3 +53,45 @@ fn identification_propagates_across_gaps() {
     // Mean NIS/3 of ~3450 updates: 1σ spread 0.014; ±0.1 flags only an inconsistent filter.
     assert!((id.nis_mean() - 1.0).abs() < 0.1, "NIS/3 {}", id.nis_mean());
 }
+
+/// The time unit is read from the Earth's turn of gravity (`quality::time::time_scale`). At a
+/// high latitude the cone gravity sweeps is narrow (half-angle 90° − L) and the g-sensitive drift
+/// narrows it further, so the sweep turns back before the formula's Ωτ = 2.5; the turned-back
+/// chord once read as a rate 0.43× the Earth's and a clean 54-h run at 68° N was refused as "not
+/// in seconds". In seconds the scale must be 1 within the drift's share of the horizontal Earth
+/// rate (≈ 1 deg/h against 15·cos L deg/h: ≤ 20 % at 68°, 30 % at 75°), and the run accepted.
+#[test]
+fn high_latitude_runs_keep_their_seconds() {
+    for (lat, seed) in [(66.0, 12), (68.0, 6), (75.0, 3)] {
+        let mut sc = Scenario::paper();
+        sc.seed = seed;
+        sc.rate_s = 10.0;
+        sc.hours = 54.0;
+        sc.latitude_deg = lat;
+        let sim = simulate(&sc);
+        let samples: Vec<Sample> = sim
+            .samples
+            .iter()
+            .map(|s| Sample {
+                t_s: s.t_s,
+                specific_force: s.specific_force_mps2,
+                temp_c: f64::NAN,
+            })
+            .collect();
+        let site = Site::new(lat, sc.gravity_mps2);
+        let scale = host_tool::quality::time::time_scale(&site, &samples)
+            .expect("a 54-h run sweeps enough to test the unit");
+        let drift_share = 1.0 / (15.04 * lat.to_radians().cos());
+        assert!(
+            (scale - 1.0).abs() < drift_share,
+            "{lat}°: time scale {scale:.3} (drift share {drift_share:.2})"
+        );
+        let prep = prepare(site, &samples, &Config::default())
+            .unwrap_or_else(|e| panic!("{lat}°: clean run refused: {e:#}"));
+        assert!(
+            prep.findings.iter().all(|f| f.kind != "time-units"),
+            "{lat}°: {:?}",
+            prep.findings
+        );
+    }
+}

@@ -147,17 +147,20 @@ pub fn print_table(rows: &[Row], refined: bool) {
 
 /// Prints the run summary and weak-combination warnings.
 pub fn print_summary(id: &Identification, prep: &Prepared) {
-    let rms = id.residual_rms_mps2();
-    let floor: Vec<f64> = prep
-        .measurements
-        .first()
-        .map(|m| m.variance.map(f64::sqrt).to_vec())
-        .unwrap_or_default();
+    let rms = id.residual_rms_mps2(prep);
+    let floor = prep.floor_mps2();
+    let mut counts: Vec<u32> = prep.measurements.iter().map(|m| m.count).collect();
+    let typical = if counts.is_empty() {
+        0
+    } else {
+        let mid = counts.len() / 2;
+        *counts.select_nth_unstable(mid).1
+    };
     println!(
         "run: {:.2} h, {} updates; noise floor per {}-sample mean {:?} m/s^2; residual RMS [{}, {}, {}] m/s^2; mean NIS/3 {:.3} (1 when consistent)",
         id.final_time_h,
         prep.measurements.len(),
-        prep.measurements.first().map(|m| m.count).unwrap_or(0),
+        typical,
         floor.iter().map(|v| sci(*v)).collect::<Vec<_>>(),
         sci(rms[0]),
         sci(rms[1]),
@@ -192,7 +195,7 @@ pub fn to_json(rows: &[Row], id: &Identification, prep: &Prepared) -> Value {
         "coefficients": coefs,
         "final_time_h": id.final_time_h,
         "updates": prep.measurements.len(),
-        "residual_rms_mps2": id.residual_rms_mps2(),
+        "residual_rms_mps2": id.residual_rms_mps2(prep),
         "nis_mean": id.nis_mean(),
         "raw_noise_sigma_mps2": prep.noise.raw_sigma_mps2,
         "method": if id.refined.is_some() { "two EKF passes + iterated RTS smoother (3 iterations)" } else { "single EKF pass" },
@@ -284,7 +287,7 @@ pub fn consistency_of(id: &Identification, prep: &Prepared) -> Option<Consistenc
     id.refined.as_ref()?;
     Some(fit_consistency(
         &id.innovations,
-        id.residual_rms_mps2(),
+        id.residual_rms_mps2(prep),
         prep,
     ))
 }

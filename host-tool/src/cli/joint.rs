@@ -54,7 +54,7 @@ pub fn load_runs(
 /// The consistency of one run under the joint estimate (the one definition in
 /// [`crate::consistency`]).
 pub fn run_consistency(fit: &RunFit, prep: &Prepared) -> Consistency {
-    super::identify::fit_consistency(&fit.innovations, fit.residual_rms_mps2(), prep)
+    super::identify::fit_consistency(&fit.innovations, fit.residual_rms_mps2(prep), prep)
 }
 
 /// Runs the joint `driftid identify`.
@@ -234,7 +234,7 @@ fn print_text(
 ) {
     for ((r, fit), c) in runs.iter().zip(&joint.runs).zip(checks) {
         print_findings(&r.prep.findings);
-        let rms = fit.residual_rms_mps2();
+        let rms = fit.residual_rms_mps2(&r.prep);
         let floor = r.prep.floor_mps2();
         println!(
             "run {}: {:.2} h, {} updates, initial orientation {:?} deg ({:?} chart); residual/floor [{:.3}, {:.3}, {:.3}]; NIS/3 {:.3}; {}",
@@ -332,7 +332,7 @@ fn to_json(
                 "chart": format!("{:?}", r.prep.site.chart),
                 "final_time_h": fit.alone.final_time_h,
                 "updates": r.prep.measurements.len(),
-                "residual_rms_mps2": fit.residual_rms_mps2(),
+                "residual_rms_mps2": fit.residual_rms_mps2(&r.prep),
                 "floor_mps2": r.prep.floor_mps2(),
                 "nis_mean": fit.nis_mean(),
                 "consistency": c,

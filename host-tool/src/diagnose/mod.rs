@@ -87,7 +87,11 @@ pub fn diagnose(
     let (pass, sigs, _) = replay(prep, &model, effects, &setups, &id, cfg)?;
     // Series and residual statistics.
     let series = series(&model, meas, &id, &pass.innovations);
-    let fit = statistics::fit(&series, prep.floor_mps2());
+    let fit = statistics::fit(
+        &series,
+        prep.floor_mps2(),
+        prep.residual_rms_mps2(&series.residual),
+    );
     let whiteness = whiteness(&series.whitened, cfg.lags);
     let consistency = assess(
         fit.nis_mean,

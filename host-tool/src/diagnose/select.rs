@@ -65,7 +65,7 @@ pub fn neg2_log_evidence(id: &Identification) -> f64 {
 
 /// Fit statistics of a converged identification: RMS/floor, NIS/3, Ljung–Box p.
 pub fn fit_stats(id: &Identification, prep: &Prepared, lags: usize) -> ([f64; 3], f64, f64) {
-    let rms = id.residual_rms_mps2();
+    let rms = id.residual_rms_mps2(prep);
     let floor = prep.floor_mps2();
     let w: Vec<[f64; 3]> = id.innovations.iter().map(|r| r.whitened).collect();
     let p = super::whiteness(&w, lags).p_value;

@@ -40,11 +40,11 @@ pub struct Fit {
     pub nis_band95: [f64; 2],
 }
 
-/// RMS/floor, mean NIS/3 and its display band of a series against the noise floor.
-pub fn fit(s: &Series, floor_mps2: [f64; 3]) -> Fit {
+/// RMS/floor, mean NIS/3 and its display band of a series against the noise floor;
+/// `residual_rms_mps2` is the series' residual RMS on the floor's scale
+/// ([`crate::identify::Prepared::residual_rms_mps2`], the one definition).
+pub fn fit(s: &Series, floor_mps2: [f64; 3], residual_rms_mps2: [f64; 3]) -> Fit {
     let n_upd = s.residual.len();
-    let residual_rms_mps2 =
-        per_axis(|i| (s.residual.iter().map(|r| r[i] * r[i]).sum::<f64>() / n_upd as f64).sqrt());
     let residual_rms_over_floor = per_axis(|i| residual_rms_mps2[i] / floor_mps2[i]);
     let nis_mean = s.nis.iter().sum::<f64>() / (3.0 * n_upd as f64);
     let dof_nis = 3.0 * n_upd as f64;
@@ -343,7 +343,8 @@ mod tests {
             nis: vec![3.3; 30],
             ..Series::default()
         };
-        let f = fit(&s, floor);
+        let rms = crate::identify::rms_per_axis(&s.residual, |_, _| 1.0);
+        let f = fit(&s, floor, rms);
         for (got, want) in f.residual_rms_over_floor.iter().zip([2.0, 1.0, 0.5]) {
             assert!(
                 (got - want).abs() < 1e-12,

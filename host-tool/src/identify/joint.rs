@@ -58,9 +58,9 @@ impl RunFit {
     pub fn nis_mean(&self) -> f64 {
         super::mean_nis(&self.innovations)
     }
-    /// RMS of the run's residual per axis, m/s².
-    pub fn residual_rms_mps2(&self) -> [f64; 3] {
-        super::rms_per_axis(&self.residuals)
+    /// RMS of the run's residual per axis on its floor's scale, m/s² ([`Prepared::residual_rms_mps2`]).
+    pub fn residual_rms_mps2(&self, prep: &Prepared) -> [f64; 3] {
+        prep.residual_rms_mps2(&self.residuals)
     }
 }
 

@@ -105,6 +105,28 @@ impl Prepared {
         })
     }
 
+    /// RMS per axis of `residuals` (one per measurement, in order), m/s², on the floor's scale:
+    /// each residual times floor/σₖ, σₖ its own mean's noise. A period with fewer samples (the
+    /// last, partial one; one with rejected samples) has a noisier mean; unscaled, the one
+    /// sample of a 26-h run's last period (13.6 × the floor) raised a clean run's RMS/floor from
+    /// 1.014 to 1.071. On a consistent fit this is the floor whatever the counts.
+    pub fn residual_rms_mps2(&self, residuals: &[[f64; 3]]) -> [f64; 3] {
+        let floor = self.floor_mps2();
+        let aligned = residuals.len() == self.measurements.len();
+        rms_per_axis(residuals, |k, i| {
+            let sd = if aligned {
+                self.measurements[k].variance[i].sqrt()
+            } else {
+                floor[i]
+            };
+            if sd > 0.0 {
+                floor[i] / sd
+            } else {
+                1.0
+            }
+        })
+    }
+
     /// Relative 1σ of the noise floor estimate: 0 when the floor was given; else from the number
     /// of third differences it rests on, 1.75/√n — the median-based scale estimator's 1.17/√n
     /// for independent samples, times 1.5 for the correlation of overlapping third differences.
@@ -305,19 +327,20 @@ impl Identification {
     pub fn nis_mean(&self) -> f64 {
         self.innovations.iter().map(|r| r.nis).sum::<f64>() / (3.0 * self.innovations.len() as f64)
     }
-    /// RMS of the residuals per axis, m/s².
-    pub fn residual_rms_mps2(&self) -> [f64; 3] {
-        rms_per_axis(&self.smoothed_residuals)
+    /// RMS of the residuals per axis on the floor's scale, m/s² ([`Prepared::residual_rms_mps2`]).
+    pub fn residual_rms_mps2(&self, prep: &Prepared) -> [f64; 3] {
+        prep.residual_rms_mps2(&self.smoothed_residuals)
     }
 }
 
-/// RMS per axis of residuals, m/s².
-pub fn rms_per_axis(residuals: &[[f64; 3]]) -> [f64; 3] {
+/// RMS per axis of residuals, m/s², each residual first multiplied by `scale[k][axis]`.
+pub fn rms_per_axis(residuals: &[[f64; 3]], scale: impl Fn(usize, usize) -> f64) -> [f64; 3] {
     let n = residuals.len().max(1) as f64;
     let mut acc = [0.0; 3];
-    for r in residuals {
+    for (k, r) in residuals.iter().enumerate() {
         for i in 0..3 {
-            acc[i] += r[i] * r[i];
+            let v = r[i] * scale(k, i);
+            acc[i] += v * v;
         }
     }
     acc.map(|v| (v / n).sqrt())
@@ -703,4 +726,40 @@ pub fn canonical_correlation(cov: &DMatrix<f64>, a: &[usize], b: &[usize]) -> Op
     let whitened = lb.solve_lower_triangular(&left.transpose())?;
     let sv = whitened.singular_values();
     Some(sv.iter().copied().fold(0.0, f64::max).min(1.0))
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn mean_of(count: u32, sigma_raw: f64) -> Measurement {
+        Measurement {
+            t_s: 0.0,
+            specific_force: [0.0; 3],
+            temp_c: f64::NAN,
+            count,
+            variance: [sigma_raw * sigma_raw / f64::from(count); 3],
+            time_var_s2: 0.0,
+        }
+    }
+
+    #[test]
+    fn a_partial_period_counts_on_the_floors_scale() {
+        // 99 full 60-sample means and a last one of 1 sample, each residual exactly its own 1σ:
+        // on the floor's scale every residual is the floor, so the RMS is the floor (to
+        // rounding, 1e-12). Unscaled, the last one (√60 = 7.75 floors) would give
+        // √((99 + 60)/100) = 1.261 floors.
+        let sigma_raw = 1e-3;
+        let mut meas: Vec<Measurement> = (0..99).map(|_| mean_of(60, sigma_raw)).collect();
+        meas.push(mean_of(1, sigma_raw));
+        let residuals: Vec<[f64; 3]> = meas.iter().map(|m| m.variance.map(f64::sqrt)).collect();
+        let prep = Prepared::level(Site::new(39.1, Some(9.8)), meas, [sigma_raw; 3]);
+        let floor = prep.floor_mps2();
+        let rms = prep.residual_rms_mps2(&residuals);
+        for i in 0..3 {
+            assert!((rms[i] / floor[i] - 1.0).abs() < 1e-12, "{rms:?} {floor:?}");
+        }
+        let plain = rms_per_axis(&residuals, |_, _| 1.0);
+        assert!((plain[0] / floor[0] - 1.261).abs() < 1e-3, "{plain:?}");
+    }
 }

@@ -23,6 +23,10 @@ pub const UNITS: [(f64, &str); 4] = [
 /// Smallest swept angle that tests the unit, rad (1°; noise of a block mean is ~1e-5 rad).
 pub const MIN_SWEEP_RAD: f64 = 0.0175;
 
+/// A sweep this much narrower than its widest so far has turned back, rad (0.2°; a block mean's
+/// direction is good to ~1e-5 rad).
+pub const TURN_BACK_RAD: f64 = 0.0035;
+
 /// Ratio of the time elapsed according to the Earth's rotation to the file's time difference,
 /// from ≤ 200 block means; `None` when the run sweeps too little (short, or near a pole).
 pub fn time_scale(site: &Site, samples: &[Sample]) -> Option<f64> {
@@ -42,9 +46,18 @@ pub fn time_scale(site: &Site, samples: &[Sample]) -> Option<f64> {
     };
     let (t0, u0) = mean(0);
     let mut scales = vec![];
+    let mut widest = 0.0f64;
     for k in 1..blocks {
         let (t, u) = mean(k);
         let angle = u0.cross(&u).norm().atan2(u0.dot(&u));
+        // Past the widest point of the cone the chord turns back. At a high latitude the drift
+        // (g-sensitive terms of ~1 deg/h against 15·cos L deg/h) narrows the cone, so the sweep
+        // may turn back before Ωτ reaches 2.5 by the formula: a shrinking chord read as Ωτ < π
+        // would give a rate far too low (a clean 54-h run at 68° N read 0.43: refused).
+        widest = widest.max(angle);
+        if angle < widest - TURN_BACK_RAD {
+            break;
+        }
         if angle < MIN_SWEEP_RAD {
             continue;
         }
