@@ -288,6 +288,12 @@ pub fn diagnose_one(
     }
     let last = diagnoses.last().map(|d| d.consistency.clone());
     let mut reasons = faults.clone();
+    reasons.extend(
+        diagnoses
+            .last()
+            .and_then(|d| d.convergence)
+            .and_then(|c| c.untrusted_reason()),
+    );
     if let Some(c) = &last {
         if !c.is_consistent() {
             reasons.push(format!(

@@ -240,6 +240,7 @@ pub fn run(args: &IdentifyArgs) -> anyhow::Result<()> {
         prep.findings.extend(found);
     }
     let mut reasons = prep.untrusted_reasons();
+    reasons.extend(id.convergence.and_then(|c| c.untrusted_reason()));
     let metadata_named = prep.findings.iter().any(|f| f.kind == "latitude");
     match &check {
         Some(c) if !c.is_consistent() && !metadata_named => reasons.push(format!(
@@ -254,6 +255,7 @@ pub fn run(args: &IdentifyArgs) -> anyhow::Result<()> {
     if args.json {
         let mut out = to_json(&rows, &id, &prep);
         out["consistency"] = serde_json::to_value(&check)?;
+        out["convergence"] = serde_json::to_value(id.convergence)?;
         out["trusted"] = json!(reasons.is_empty());
         out["untrusted_reasons"] = json!(reasons);
         println!("{}", serde_json::to_string_pretty(&out)?);

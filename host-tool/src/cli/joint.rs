@@ -196,6 +196,9 @@ pub fn identify_runs(
                 .into_iter()
                 .map(|m| format!("{name}: {m}")),
         );
+        if let Some(why) = fit.alone.convergence.and_then(|c| c.untrusted_reason()) {
+            reasons.push(format!("{name} alone: {why}"));
+        }
         if !c.is_consistent() {
             reasons.push(format!(
                 "{name}: the joint model does not explain this run: {} (alone: NIS/3 {:.3}); run `driftid diagnose` on it",

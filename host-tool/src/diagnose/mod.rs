@@ -121,6 +121,7 @@ pub fn diagnose(
         consistency,
         choice,
         verdict: String::new(),
+        convergence: id.convergence,
         series,
     };
     d.verdict = verdict::verdict(&d, cfg.alpha);

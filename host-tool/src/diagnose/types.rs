@@ -156,6 +156,8 @@ pub struct Diagnosis {
     pub choice: Option<super::select::Choice>,
     /// One-paragraph verdict in plain words.
     pub verdict: String,
+    /// How the model's smoother iterations ended (`None` where no fit ran, e.g. in tests).
+    pub convergence: Option<crate::identify::Convergence>,
     /// The time series (for plots).
     #[serde(skip)]
     pub series: Series,

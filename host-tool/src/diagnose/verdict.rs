@@ -139,6 +139,7 @@ mod tests {
             consistency: assess(nis, 3600, p, [rms; 3], 0.0, &Thresholds::default()),
             choice: None,
             verdict: String::new(),
+            convergence: None,
             series: Series::default(),
         }
     }

@@ -316,6 +316,33 @@ pub struct Identification {
     pub weak: Vec<WeakCombination>,
     /// Smoothed states (node 0 at t = 0, then per measurement), if refined.
     pub trajectory: Vec<DVector<f64>>,
+    /// The smoother's Gauss–Newton iterations, if refined: how many ran, the last one's largest
+    /// move of a state in its 1σ, and whether that met [`GN_TOLERANCE_SIGMA`].
+    pub convergence: Option<Convergence>,
+}
+
+/// How the smoother's Gauss–Newton iterations ended.
+#[derive(Clone, Copy, Debug, serde::Serialize)]
+pub struct Convergence {
+    /// Iterations run.
+    pub iterations: usize,
+    /// The last iteration's largest move of a state at the last node, in its 1σ.
+    pub last_step_sigma: f64,
+    /// Whether the last move was below [`GN_TOLERANCE_SIGMA`].
+    pub converged: bool,
+}
+
+impl Convergence {
+    /// Why the fit is not trusted, if it did not converge.
+    pub fn untrusted_reason(&self) -> Option<String> {
+        (!self.converged).then(|| {
+            format!(
+                "the smoother did not converge: after {} Gauss–Newton iterations the estimate still moves by {:.2}σ per iteration \
+                 (a run too short, or a start too far off, for the linearisation); the numbers are not a fit",
+                self.iterations, self.last_step_sigma
+            )
+        })
+    }
 }
 
 impl Identification {
@@ -474,6 +501,7 @@ pub fn identify(
             final_time_h,
             weak,
             trajectory: vec![],
+            convergence: None,
         });
     }
     let mut x0 = zeros.clone();
@@ -489,7 +517,15 @@ pub fn identify(
     let from_pass2 = ekf_pass(model, meas, &x0, &sigma0)
         .context("second EKF pass")
         .and_then(|(_, _, nominal)| {
-            gauss_newton(model, meas, nominal, &x0w, &p0w, cfg.smoother_iterations)
+            gauss_newton(
+                model,
+                meas,
+                nominal,
+                &x0w,
+                &p0w,
+                cfg.smoother_iterations,
+                cfg.smoother_iterations + GN_EXTRA_ITERATIONS,
+            )
         });
     // A single pass that lost the trajectory (its linearisation far off in the first hours)
     // leaves the smoother a nominal it cannot recover from: NIS/3 of 1e3–1e9 where a missing
@@ -521,6 +557,7 @@ pub fn identify(
         states: nominal,
         final_cov,
         innovations,
+        convergence,
     } = fit;
     let Some(final_state) = nominal.last() else {
         bail!("the smoother returned no states");
@@ -542,6 +579,7 @@ pub fn identify(
         final_time_h,
         weak,
         trajectory: nominal,
+        convergence: Some(convergence),
     })
 }
 
@@ -559,24 +597,59 @@ pub struct GaussNewton {
     pub final_cov: DMatrix<f64>,
     /// Innovations of the last forward pass.
     pub innovations: Vec<Residual>,
+    /// How the iterations ended.
+    pub convergence: Convergence,
 }
 
-/// `iterations` smoother passes, each linearised about the previous one's states.
+/// Gauss–Newton has converged when an iteration moves no state at the last node (the
+/// parameters, the final angles) by more than this fraction of its 1σ: the last pass was then
+/// linearised about the fit it returns, so its innovations are the fit's.
+pub const GN_TOLERANCE_SIGMA: f64 = 0.01;
+/// Iterations allowed beyond the configured ones before a fit is declared unconverged. A 60-h
+/// run converges within the configured 3; a 10-h run at 10 s needed 5 (its 3rd iteration still
+/// moved DX0 by 0.4σ, and the innovations about the 2nd gave NIS/3 1.47 where the fit's own
+/// give 1.01).
+pub const GN_EXTRA_ITERATIONS: usize = 8;
+
+/// Smoother passes, each linearised about the previous one's states: at least `min_iterations`,
+/// then on until an iteration moves the last node by less than [`GN_TOLERANCE_SIGMA`], at most
+/// `max_iterations`.
 pub fn gauss_newton(
     model: &Model<'_>,
     meas: &[Measurement],
     mut nominal: Vec<DVector<f64>>,
     x0: &DVector<f64>,
     p0: &DMatrix<f64>,
-    iterations: usize,
+    min_iterations: usize,
+    max_iterations: usize,
 ) -> anyhow::Result<GaussNewton> {
     let mut last = None;
-    for iteration in 1..=iterations.max(1) {
+    let max_iterations = max_iterations.max(min_iterations).max(1);
+    let mut convergence = Convergence {
+        iterations: 0,
+        last_step_sigma: f64::INFINITY,
+        converged: false,
+    };
+    for iteration in 1..=max_iterations {
         drop(last.take());
         let pass = linearised_pass(model, meas, &nominal, x0, p0, true)
             .with_context(|| format!("smoother iteration {iteration}"))?;
+        let step = match (pass.states.last(), nominal.last()) {
+            (Some(new), Some(old)) => (0..new.len())
+                .map(|i| (new[i] - old[i]).abs() / pass.final_cov[(i, i)].sqrt())
+                .fold(0.0, f64::max),
+            _ => f64::INFINITY,
+        };
         nominal = pass.states;
         last = Some((pass.final_cov, pass.innovations));
+        convergence = Convergence {
+            iterations: iteration,
+            last_step_sigma: step,
+            converged: step < GN_TOLERANCE_SIGMA,
+        };
+        if iteration >= min_iterations && convergence.converged {
+            break;
+        }
     }
     let Some((final_cov, innovations)) = last else {
         bail!("no smoother iteration ran");
@@ -585,6 +658,7 @@ pub fn gauss_newton(
         states: nominal,
         final_cov,
         innovations,
+        convergence,
     })
 }
 
@@ -619,6 +693,11 @@ pub fn continuation(
             x0,
             p0,
             if last_stage { iterations } else { 2 },
+            if last_stage {
+                iterations + GN_EXTRA_ITERATIONS
+            } else {
+                2
+            },
         )
         .with_context(|| {
             format!(

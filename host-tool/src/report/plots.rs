@@ -1671,6 +1671,7 @@ mod tests {
             consistency: assess(1.0, n, 0.8, [0.7; 3], 0.0, &Thresholds::default()),
             choice: None,
             verdict: String::new(),
+            convergence: None,
             series: series.clone(),
         };
         let rung = |model: Vec<String>, params: Vec<(String, String, f64, f64)>| Rung {
