@@ -198,7 +198,7 @@ pub fn to_json(rows: &[Row], id: &Identification, prep: &Prepared) -> Value {
         "residual_rms_mps2": id.residual_rms_mps2(prep),
         "nis_mean": id.nis_mean(),
         "raw_noise_sigma_mps2": prep.noise.raw_sigma_mps2,
-        "method": if id.refined.is_some() { "two EKF passes + iterated RTS smoother (3 iterations)" } else { "single EKF pass" },
+        "method": if id.refined.is_some() { "two EKF passes + iterated RTS smoother (Gauss-Newton to 0.01σ; see convergence)" } else { "single EKF pass" },
         "weak_combinations": id.weak,
         "data_quality": { "findings": prep.findings },
     })
