@@ -10,7 +10,8 @@
 //!   checkpoints and resume after a reset.
 //! - [`checkpoints`]: the append-only checkpoint log over NOR flash (few erases, power-loss safe).
 //! - [`resume`]: the resume block (one documented layout) stored with the filter image.
-//! - [`screen`]: sample screening (NaN/∞, saturation, time order, stuck axes).
+//! - [`screen`]: sample screening: the firmware's arrival checks (NaN/∞, saturation, time
+//!   order), then estimator-core's streaming screener (dropouts, stuck axes, glitches).
 //! - [`counters`]: what the application counts, incremented in one place.
 //! - [`serial`]: the receive ring the UART interrupt fills, so no byte is lost while the loop
 //!   is blocked (flash erase, filter step).

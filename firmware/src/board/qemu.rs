@@ -257,7 +257,6 @@ pub fn fatal(code: FaultCode, detail: core::fmt::Arguments<'_>) -> ! {
 #[cfg(feature = "selftest")]
 pub fn selftest() -> ! {
     use estimator_core::{Averager, Sample};
-    use firmware_app::app::filter_for;
     let cp = cortex_m::Peripherals::take().expect("peripherals taken once");
     start_systick(cp.SYST);
     // 2 instructions per iteration: subs + bne.
@@ -270,7 +269,7 @@ pub fn selftest() -> ! {
     let cal = ticks().wrapping_sub(t0);
     let instr_per_tick = f64::from(2 * ITER) / f64::from(cal.max(1));
     let cfg = protocol::Config::default();
-    let mut ekf = filter_for(&cfg).expect("default config");
+    let ekf = static_filter(&cfg, false);
     let mut avg = Averager::new(cfg.filter_period_s, cfg.raw_sigma_mps2);
     let g = 9.800_898;
     let (mut n, mut sum, mut min, mut max) = (0u32, 0u64, u32::MAX, 0u32);
@@ -284,7 +283,7 @@ pub fn selftest() -> ! {
         };
         if let Some(m) = avg.push(&s) {
             let t0 = ticks();
-            ekf.step(&m).expect("filter step");
+            firmware_app::app::filter_step(ekf, &m).expect("filter step");
             let dt = ticks().wrapping_sub(t0);
             if n > 0 {
                 // the first update has no prediction
@@ -298,7 +297,7 @@ pub fn selftest() -> ! {
     // The checkpoint path the link loop runs (its deepest stack): encode the resume block and
     // the filter image, append it to the log in the board's storage, load it back, restore.
     let storage = init_storage();
-    let ckpt = checkpoint_round_trip(&ekf, storage);
+    let ckpt = checkpoint_round_trip(ekf, storage);
     hprintln!("checkpoint round trip: {}", ckpt);
     let steps = n - 1;
     let mean = sum as f64 / f64::from(steps);
@@ -342,35 +341,60 @@ pub fn selftest() -> ! {
 fn checkpoint_round_trip(ekf: &firmware_app::app::Filter, storage: Storage) -> &'static str {
     use firmware_app::checkpoints::{CheckpointStore, MAX_PAYLOAD};
     use firmware_app::resume;
+    use firmware_app::screen::Screen;
     let Ok(mut store) = CheckpointStore::new(storage) else {
         return "storage geometry refused";
     };
-    let mut buf = [0u8; MAX_PAYLOAD];
+    // The application keeps its checkpoint buffer and screening in its state (a static), not on
+    // the stack: so does the self-test.
+    let Some(buf) = cortex_m::singleton!(: [u8; MAX_PAYLOAD] = [0; MAX_PAYLOAD]) else {
+        return "buffer taken";
+    };
+    let cfg = protocol::Config::default();
+    let Some(screen) = cortex_m::singleton!(: Screen = Screen::new(&cfg, None)) else {
+        return "screening taken";
+    };
     let point = resume::ResumePoint {
         next_seq: 0,
         last_t_s: None,
     };
-    let cfg = protocol::Config::default();
-    let Ok(n) = resume::encode_run(&mut buf, protocol::Source::Replay, point, &cfg, ekf) else {
+    let Ok(n) = resume::encode_run(buf, protocol::Source::Replay, point, &cfg, screen, ekf) else {
         return "encode failed";
     };
     if store.save(&buf[..n]).is_err() {
         return "save failed";
     }
-    match store.load(&mut buf) {
+    match store.load(buf) {
         // As the application restores: decode, a fresh filter, its image loaded in place.
         Ok(Some(f)) => match resume::decode(&buf[..f.len]) {
-            Ok(Some(b)) => match firmware_app::app::filter_for(&b.config) {
-                Ok(mut restored) => match resume::load_filter(&mut restored, b.image) {
+            Ok(Some(b)) if screen.load(b.screen_state).is_none() => "screening state refused",
+            Ok(Some(b)) => {
+                let restored = static_filter(&b.config, true);
+                match resume::load_filter(restored, b.image) {
                     Ok(()) if restored.state() == ekf.state() => "ok",
                     _ => "restore failed",
-                },
-                Err(_) => "filter refused",
-            },
+                }
+            }
             _ => "decode failed",
         },
         _ => "load failed",
     }
+}
+
+/// A filter of `cfg` in a static, as the application keeps its filter (in its state, a
+/// static): the self-test's stack high-water is then the EKF's and the checkpoint path's, not
+/// copies of the filter. Its own frame holds the new filter until it is moved in.
+#[cfg(feature = "selftest")]
+#[inline(never)]
+fn static_filter(cfg: &protocol::Config, second: bool) -> &'static mut firmware_app::app::Filter {
+    use firmware_app::app::Filter;
+    let f = firmware_app::app::filter_for(cfg).expect("default config");
+    let cell = if second {
+        cortex_m::singleton!(: Filter = f)
+    } else {
+        cortex_m::singleton!(: Filter = f)
+    };
+    cell.expect("each filter made once")
 }
 
 #[cfg(feature = "selftest")]
