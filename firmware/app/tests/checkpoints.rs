@@ -483,3 +483,41 @@ fn a_checkpoint_of_another_model_configuration_is_refused() {
     assert!(st.running && st.resumed.is_some());
     let _ = <Flash<'_> as NorFlash>::ERASE_SIZE;
 }
+
+/// A reset after every sample across two checkpoints, with a glitch and a dropout for the
+/// screening to reject near them: the screening hands samples out `half_window` samples late,
+/// so a checkpoint's sample index, the screening state it holds and the averaging window it
+/// reopens must agree wherever the reset lands (each resumed run ends bit-identical to the
+/// uninterrupted one, the rejections counted the same).
+#[test]
+fn a_reset_after_any_sample_resumes_the_screened_run_exactly() {
+    let mut samples = input(400);
+    samples[150].specific_force[0] += 0.05; // a glitch
+    samples[183].specific_force = [0.0; 3]; // a dropout, just before the checkpoint at 187
+    let cfg = config();
+    let mut want = Vec::new();
+    let want_counts = firmware_app::app::single_pass(
+        &cfg,
+        samples.iter().map(|s| Sample {
+            t_s: s.t_s,
+            specific_force: s.specific_force,
+            temp_c: s.temp_c,
+        }),
+        |e| want.push(e),
+    )
+    .unwrap();
+    assert_eq!(
+        (want_counts.samples_glitch, want_counts.samples_dropout),
+        (1, 1)
+    );
+    // The first checkpoint follows update 3 (sample 97 in); the next one update 6 (187).
+    for at in 98..=200 {
+        let (got, resumes, _) = replay_with_resets(&samples, &[at], 7);
+        assert_eq!(resumes.len(), 1);
+        assert_eq!(
+            got, want,
+            "reset after sample {at}: resumed {:?}",
+            resumes[0]
+        );
+    }
+}

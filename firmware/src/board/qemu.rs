@@ -27,6 +27,7 @@ use cortex_m_rt::exception;
 use cortex_m_semihosting::{debug, hprintln};
 use firmware_app::app::{App, NoTimer, Platform};
 use firmware_app::checkpoints::RamFlash;
+use firmware_app::cmsdk_uart::{self, Regs, STATE, STATE_TX_FULL};
 use firmware_app::serial::{RingSerial, RxRing, RX_RING_BYTES};
 use firmware_app::NoSensor;
 use protocol::{Board, Fault, FaultCode};
@@ -38,17 +39,8 @@ pub const RAM_ORIGIN: usize = 0x2000_0000;
 pub const SYSCLK_HZ: u32 = 25_000_000;
 
 const UART0: usize = 0x4000_4000;
-const DATA: usize = 0x00;
-const STATE: usize = 0x04;
-const CTRL: usize = 0x08;
-const BAUDDIV: usize = 0x10;
-const INTCLEAR: usize = 0x0C;
-const STATE_TX_FULL: u32 = 1 << 0;
-const STATE_RX_FULL: u32 = 1 << 1;
-const CTRL_TX_EN: u32 = 1 << 0;
-const CTRL_RX_EN: u32 = 1 << 1;
-const CTRL_RX_INT_EN: u32 = 1 << 3;
-const INT_RX: u32 = 1 << 1;
+/// UART0's baud-rate divider (QEMU ignores the rate; it must be >= 16 to enable the UART).
+const BAUDDIV: u32 = 16;
 
 /// UART0's receive interrupt on mps2-an500 (QEMU `hw/arm/mps2.c`: RX IRQ 0, TX IRQ 1).
 #[derive(Clone, Copy)]
@@ -68,13 +60,8 @@ static RX: RxRing<RX_RING_BYTES> = RxRing::new();
 #[exception]
 unsafe fn DefaultHandler(irqn: i16) {
     if irqn == 0 {
-        // SAFETY: MMIO registers of UART0; the main loop only transmits (TX registers).
-        unsafe {
-            write_volatile((UART0 + INTCLEAR) as *mut u32, INT_RX);
-            while read_volatile((UART0 + STATE) as *const u32) & STATE_RX_FULL != 0 {
-                RX.push(read_volatile((UART0 + DATA) as *const u32) as u8);
-            }
-        }
+        // UART0's registers; the main loop only transmits (TX registers).
+        cmsdk_uart::on_rx_interrupt(&mut Mmio(UART0), &RX);
     } else {
         fatal(
             FaultCode::HardFault,
@@ -83,27 +70,41 @@ unsafe fn DefaultHandler(irqn: i16) {
     }
 }
 
-/// The CMSDK APB UART as an embedded-io port.
+/// A CMSDK APB UART's registers at `.0`, by volatile access.
+struct Mmio(usize);
+
+impl Regs for Mmio {
+    fn read(&mut self, offset: usize) -> u32 {
+        // SAFETY: a register of the UART at `self.0` (UART0: the only one this board uses).
+        unsafe { read_volatile((self.0 + offset) as *const u32) }
+    }
+    fn write(&mut self, offset: usize, value: u32) {
+        // SAFETY: as in `read`.
+        unsafe { write_volatile((self.0 + offset) as *mut u32, value) }
+    }
+}
+
+/// The CMSDK APB UART's transmitter as an embedded-io port.
 pub struct Uart {
-    base: usize,
+    regs: Mmio,
 }
 
 impl Uart {
+    /// Enables the transmitter only ([`cmsdk_uart::init_tx`]); [`init`] enables reception.
+    ///
     /// # Safety
     /// One instance per UART.
     unsafe fn new(base: usize) -> Self {
-        write_volatile((base + BAUDDIV) as *mut u32, 16);
-        write_volatile((base + CTRL) as *mut u32, CTRL_TX_EN | CTRL_RX_EN);
-        Uart { base }
+        let mut regs = Mmio(base);
+        cmsdk_uart::init_tx(&mut regs, BAUDDIV);
+        Uart { regs }
     }
-    fn state(&self) -> u32 {
-        // SAFETY: MMIO register of our UART.
-        unsafe { read_volatile((self.base + STATE) as *const u32) }
+    fn state(&mut self) -> u32 {
+        self.regs.read(STATE)
     }
     fn put(&mut self, b: u8) {
         while self.state() & STATE_TX_FULL != 0 {}
-        // SAFETY: MMIO register of our UART.
-        unsafe { write_volatile((self.base + DATA) as *mut u32, u32::from(b)) }
+        self.regs.write(cmsdk_uart::DATA, u32::from(b));
     }
 }
 
@@ -205,15 +206,12 @@ pub fn init() -> Parts {
     start_systick(cp.SYST);
     // SAFETY: the only UART0 instance.
     let uart = unsafe { Uart::new(UART0) };
-    // Reception by interrupt from here on.
-    // SAFETY: UART0 registers; the interrupt handler is DefaultHandler above.
-    unsafe {
-        write_volatile(
-            (UART0 + CTRL) as *mut u32,
-            CTRL_TX_EN | CTRL_RX_EN | CTRL_RX_INT_EN,
-        );
-        cortex_m::peripheral::NVIC::unmask(Uart0Rx);
-    }
+    // Reception by interrupt from here on: the receiver and its interrupt in one write (a byte
+    // arriving between two writes would wedge QEMU's UART: firmware_app::cmsdk_uart), then the
+    // NVIC line (a byte already received has latched it pending).
+    cmsdk_uart::enable_rx(&mut Mmio(UART0));
+    // SAFETY: UART0's receive interrupt; its handler is DefaultHandler above.
+    unsafe { cortex_m::peripheral::NVIC::unmask(Uart0Rx) };
     Parts {
         serial: RingSerial::new(&RX, uart),
         accel: NoSensor,
