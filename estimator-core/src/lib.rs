@@ -57,3 +57,17 @@ pub use residual::Residual;
 
 /// The paper's model as a ready-made effect list: the 12 drift coefficients.
 pub static PAPER_EFFECTS: [&dyn Effect; 1] = [&PaperDrift];
+
+/// States of the paper's model: 3 angles and the 12 drift coefficients of [`PAPER_EFFECTS`].
+pub const PAPER_STATES: usize = 15;
+
+/// One update of a filter of the paper's model ([`Ekf::step`] for [`PAPER_STATES`] states),
+/// instantiated and optimised in this crate: the firmware, which optimises its own code for
+/// size, calls this so that the EKF update keeps this crate's optimisation level.
+#[inline(never)]
+pub fn step_paper(
+    ekf: &mut Ekf<'_, PAPER_STATES>,
+    m: &Measurement,
+) -> Result<Residual, FilterError> {
+    ekf.step(m)
+}

@@ -482,9 +482,13 @@ pub const STREAM_WINDOW: usize = 2 * MAX_HALF_WINDOW + 1;
 /// The same screening for a stream of samples (the firmware): each sample comes out
 /// `half_window` samples later with its flags, judged by [`outlier_at`] on the same neighbours
 /// the batch [`screen`] uses. Stuck runs are counted as they grow, with the threshold of
-/// [`min_stuck_run`] for the repeat rate seen so far (at least `expected_samples` samples are
-/// assumed, so an early run is not judged on a tiny record); the first samples of a run longer
-/// than the window are already out when it is recognised, so they pass. A stream cannot see
+/// [`min_stuck_run`] for the repeat rate of the runs before (a run counts towards the rate when
+/// it ends, so a channel stuck early in a stream is judged by the rate before it, not raised past
+/// the quantisation limit by its own repeats; at least `expected_samples` samples are assumed, so
+/// an early run is not judged on a tiny record); the first samples of a run longer than the window
+/// are already out when it is recognised, so they pass. A run that is recognised while its first
+/// samples are still held is rejected whole. The state can be saved and restored exactly
+/// ([`Screener::save`], [`Screener::load`]: the firmware's checkpoints). A stream cannot see
 /// where a run ends, so the batch's test for coarsely quantised outputs (did the signal move
 /// while the run lasted?) is not available: the stream assumes outputs finer than the noise (the
 /// ADXL355's 20-bit LSB, 3.9 µg, is well below its noise) and skips stuck detection on an axis
@@ -579,10 +583,15 @@ impl Screener {
             let same = f & flag::NON_FINITE == 0
                 && pf & flag::NON_FINITE == 0
                 && p.specific_force[a] == s.specific_force[a];
-            self.run[a] = if same { self.run[a] + 1 } else { 1 };
-            // Repeats inside a run already suspicious do not raise the rate the run is judged by.
-            if same && self.run[a] < self.cfg.min_stuck_run {
-                self.repeats[a] += 1;
+            if same {
+                self.run[a] += 1;
+            } else {
+                // A run counts towards the repeat rate when it has ended, so that a run is
+                // judged by the rate before it (a stuck channel early in a stream would
+                // otherwise raise the rate past the quantisation limit by its own repeats).
+                // Repeats inside a run already suspicious do not raise the rate.
+                self.repeats[a] += self.run[a].min(self.cfg.min_stuck_run.max(1) - 1).max(1) - 1;
+                self.run[a] = 1;
             }
         }
         let n = self.expected_samples.max(self.steps + 1);
@@ -658,10 +667,133 @@ impl Screener {
 
     /// Emits every sample still held (end of the run), judged with the neighbours there are.
     pub fn flush(&mut self, mut emit: impl FnMut(Sample, u8)) {
-        while self.emitted < self.len {
-            let (s, f) = self.emit_next();
+        while let Some((s, f)) = self.drain() {
             emit(s, f);
         }
+    }
+
+    /// Emits the oldest sample still held (end of the run), judged with the neighbours there
+    /// are; `None` when every sample is out ([`Screener::flush`] one at a time).
+    pub fn drain(&mut self) -> Option<(Sample, u8)> {
+        (self.emitted < self.len).then(|| self.emit_next())
+    }
+}
+/// Bytes of a [`Screener`]'s saved state at most ([`Screener::save`]): the counters and the
+/// samples it holds (at most `2·half_window`, each 5 values and its flags).
+pub const SCREENER_STATE_MAX: usize = STATE_HEAD + 2 * MAX_HALF_WINDOW * STATE_SAMPLE;
+/// Fixed part of the saved state: held and emitted counts (1 byte each), then 16 u32: the run
+/// lengths (3), the steps (1), the repeats (3) and the summary counts (non-finite, zero, stuck
+/// ×3, outliers ×3, rejected).
+const STATE_HEAD: usize = 2 + 16 * 4;
+/// One held sample in the saved state: time, specific force (3), temperature (f64), flags.
+const STATE_SAMPLE: usize = 5 * 8 + 1;
+
+impl Screener {
+    /// Bytes [`Screener::save`] writes for a screener of `cfg` holding as many samples as it
+    /// can (the checkpoint of a run in progress).
+    pub fn state_len(cfg: &ScreenConfig) -> usize {
+        STATE_HEAD + 2 * cfg.half_window.clamp(2, MAX_HALF_WINDOW) * STATE_SAMPLE
+    }
+
+    /// The sample emitted last (it is the newest sample the caller has averaged), if any.
+    pub fn last_emitted(&self) -> Option<(Sample, u8)> {
+        let k = self.emitted.checked_sub(1)?;
+        Some((self.buf[k], self.flags[k]))
+    }
+
+    /// Writes the screening state (little-endian; not the thresholds or σ, which come from the
+    /// caller's configuration) into `buf`; returns its length, or `None` if `buf` is too short.
+    /// With [`Screener::load`] a screener resumes exactly where this one stands.
+    pub fn save(&self, buf: &mut [u8]) -> Option<usize> {
+        let n = STATE_HEAD + self.len * STATE_SAMPLE;
+        let out = buf.get_mut(..n)?;
+        out[0] = self.len as u8;
+        out[1] = self.emitted as u8;
+        let s = &self.summary;
+        let words = [
+            self.run[0],
+            self.run[1],
+            self.run[2],
+            self.steps,
+            self.repeats[0],
+            self.repeats[1],
+            self.repeats[2],
+            s.non_finite,
+            s.zero,
+            s.stuck[0],
+            s.stuck[1],
+            s.stuck[2],
+            s.outliers[0],
+            s.outliers[1],
+            s.outliers[2],
+            s.rejected,
+        ];
+        for (k, w) in words.iter().enumerate() {
+            let w = u32::try_from(*w).unwrap_or(u32::MAX);
+            out[2 + 4 * k..6 + 4 * k].copy_from_slice(&w.to_le_bytes());
+        }
+        for k in 0..self.len {
+            let at = STATE_HEAD + k * STATE_SAMPLE;
+            let x = &self.buf[k];
+            let vals = [
+                x.t_s,
+                x.specific_force[0],
+                x.specific_force[1],
+                x.specific_force[2],
+                x.temp_c,
+            ];
+            for (j, v) in vals.iter().enumerate() {
+                out[at + 8 * j..at + 8 * j + 8].copy_from_slice(&v.to_le_bytes());
+            }
+            out[at + 40] = self.flags[k];
+        }
+        Some(n)
+    }
+
+    /// Restores a state written by [`Screener::save`] into this screener (made with the same
+    /// configuration); `None` (and the screener unchanged) if the bytes are not such a state.
+    pub fn load(&mut self, bytes: &[u8]) -> Option<()> {
+        let (len, emitted) = (usize::from(*bytes.first()?), usize::from(*bytes.get(1)?));
+        let h = self.h();
+        if bytes.len() != STATE_HEAD + len * STATE_SAMPLE
+            || len > 2 * h
+            || emitted > len
+            || emitted > h
+            || len - emitted > h
+        {
+            return None;
+        }
+        let word = |k: usize| {
+            let mut w = [0u8; 4];
+            w.copy_from_slice(&bytes[2 + 4 * k..6 + 4 * k]);
+            u32::from_le_bytes(w) as usize
+        };
+        self.len = len;
+        self.emitted = emitted;
+        self.run = [word(0), word(1), word(2)];
+        self.steps = word(3);
+        self.repeats = [word(4), word(5), word(6)];
+        let s = &mut self.summary;
+        s.non_finite = word(7);
+        s.zero = word(8);
+        s.stuck = [word(9), word(10), word(11)];
+        s.outliers = [word(12), word(13), word(14)];
+        s.rejected = word(15);
+        for k in 0..len {
+            let at = STATE_HEAD + k * STATE_SAMPLE;
+            let v = |j: usize| {
+                let mut b = [0u8; 8];
+                b.copy_from_slice(&bytes[at + 8 * j..at + 8 * j + 8]);
+                f64::from_le_bytes(b)
+            };
+            self.buf[k] = Sample {
+                t_s: v(0),
+                specific_force: [v(1), v(2), v(3)],
+                temp_c: v(4),
+            };
+            self.flags[k] = bytes[at + 40];
+        }
+        Some(())
     }
 }
 
@@ -765,6 +897,88 @@ mod tests {
             );
         }
         assert_eq!(st.summary.rejected, sum.rejected);
+    }
+
+    /// Stream `s` through a screener, saving and restoring it (into a fresh one) after sample
+    /// `cut`: the flags are those of the uninterrupted stream.
+    fn stream_flags(s: &[Sample], cut: Option<usize>) -> [u8; 2000] {
+        let mk = || Screener::new([7e-4; 3], ScreenConfig::default(), 2000);
+        let mut st = mk();
+        let mut out = [0u8; 2000];
+        let mut k = 0;
+        for (i, x) in s.iter().enumerate() {
+            if let Some((_, f)) = st.push(*x) {
+                out[k] = f;
+                k += 1;
+            }
+            if cut == Some(i) {
+                let mut buf = [0u8; SCREENER_STATE_MAX];
+                let n = st.save(&mut buf).unwrap();
+                assert!(n <= Screener::state_len(&ScreenConfig::default()));
+                let mut fresh = mk();
+                fresh.load(&buf[..n]).unwrap();
+                let bits = |e: Option<(Sample, u8)>| {
+                    e.map(|(s, f)| {
+                        let v = [s.t_s, s.specific_force[0], s.specific_force[1]];
+                        (v.map(f64::to_bits), s.temp_c.to_bits(), f)
+                    })
+                };
+                assert_eq!(bits(fresh.last_emitted()), bits(st.last_emitted()));
+                st = fresh;
+            }
+        }
+        st.flush(|_, f| {
+            out[k] = f;
+            k += 1;
+        });
+        assert_eq!(k, s.len());
+        out
+    }
+
+    #[test]
+    fn a_saved_and_restored_screener_flags_as_the_uninterrupted_one() {
+        let mut s = signal(2000, 7e-4);
+        s[100].specific_force[0] += 0.05;
+        for k in 500..540 {
+            s[k].specific_force[1] = s[500].specific_force[1];
+        }
+        s[700].specific_force = [0.0; 3];
+        let whole = stream_flags(&s, None);
+        assert_ne!(whole[100], 0);
+        for cut in [3, 97, 101, 104, 505, 520, 541, 702, 1999] {
+            assert_eq!(stream_flags(&s, Some(cut)), whole, "cut after {cut}");
+        }
+        // Not a state: refused.
+        let mut st = Screener::new([7e-4; 3], ScreenConfig::default(), 2000);
+        assert!(st.load(&[200, 0]).is_none());
+    }
+
+    #[test]
+    fn a_channel_stuck_early_in_a_stream_is_rejected_whole() {
+        // 20 clean samples, then y frozen for 30: the run is judged by the rate before it.
+        let mut s = signal(50, 7e-4);
+        for k in 20..50 {
+            s[k].specific_force[1] = s[20].specific_force[1];
+        }
+        let mut st = Screener::new([7e-4; 3], ScreenConfig::default(), 86_400);
+        let mut flags = [0u8; 50];
+        let mut k = 0;
+        for x in &s[..50] {
+            if let Some((_, f)) = st.push(*x) {
+                flags[k] = f;
+                k += 1;
+            }
+        }
+        st.flush(|_, f| {
+            flags[k] = f;
+            k += 1;
+        });
+        assert!(flags[..20].iter().all(|&f| f == 0), "{flags:?}");
+        assert!(
+            flags[20..].iter().all(|&f| f & axis_bit(1) != 0),
+            "{flags:?}"
+        );
+        assert_eq!(st.summary.stuck, [0, 30, 0]);
     }
 
     #[test]

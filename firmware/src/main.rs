@@ -42,13 +42,12 @@ fn main() -> ! {
     #[allow(unreachable_code)]
     board::selftest();
     #[allow(unreachable_code)]
-    let parts = board::init();
+    let mut parts = board::init();
     crash_test();
-    let app =
-        cortex_m::singleton!(: board::BoardApp = App::with_storage(parts.serial, parts.accel, parts.timer, parts.platform, parts.storage))
-            .expect("main runs once");
+    let boot_fault = parts.boot_fault.take();
+    let app = app_of(parts);
     app.boot();
-    if let Some(fault) = parts.boot_fault {
+    if let Some(fault) = boot_fault {
         app.send(protocol::Message::Fault(fault));
     }
     loop {
@@ -57,6 +56,15 @@ fn main() -> ! {
             board::shutdown();
         }
     }
+}
+
+/// The application in a static. Not inlined: `App::with_storage` builds the application (~5 KB
+/// with its buffers) in this frame before it moves into the static, and `main`'s frame stays on
+/// the stack for the whole run.
+#[inline(never)]
+fn app_of(parts: board::Parts) -> &'static mut board::BoardApp {
+    cortex_m::singleton!(: board::BoardApp = App::with_storage(parts.serial, parts.accel, parts.timer, parts.platform, parts.storage))
+        .expect("main runs once")
 }
 
 /// Crash tests (`--features crash-panic` / `crash-hardfault`, for `.ci/qemu.sh`): prove that a
@@ -84,12 +92,22 @@ fn crash_test() {
     }
 }
 
+/// Reports where the panic happened, not its message: formatting the message would link the
+/// `Debug`/`Display` code of every value any `unwrap`/`expect`/`panic!` in the image could print
+/// (several KB of `.text`; the budget in `.ci/qemu.sh`). The file and line find the call; the
+/// defmt build logs the full message.
 #[panic_handler]
 fn panic(info: &core::panic::PanicInfo) -> ! {
     cortex_m::interrupt::disable();
     #[cfg(feature = "defmt")]
     defmt::error!("panic: {}", defmt::Display2Format(info));
-    board::fatal(protocol::FaultCode::Panic, format_args!("{info}"))
+    match info.location() {
+        Some(at) => board::fatal(
+            protocol::FaultCode::Panic,
+            format_args!("panic at {}:{}", at.file(), at.line()),
+        ),
+        None => board::fatal(protocol::FaultCode::Panic, format_args!("panic")),
+    }
 }
 
 #[exception]

@@ -175,6 +175,15 @@ impl Decoder {
 
     /// Feeds one byte; returns a result when the byte ends a non-empty frame.
     pub fn push(&mut self, byte: u8) -> Option<Result<Packet, DecodeError>> {
+        self.push_as(byte)
+    }
+
+    /// [`Decoder::push`], the packet decoded as `P` (the firmware: [`crate::CommandPacket`]; a
+    /// packet that is not a `P` is [`DecodeError::Malformed`]).
+    pub fn push_as<P: serde::de::DeserializeOwned>(
+        &mut self,
+        byte: u8,
+    ) -> Option<Result<P, DecodeError>> {
         self.stats.bytes += 1;
         if byte == 0 {
             if self.seen == 0 {
@@ -219,7 +228,7 @@ impl Decoder {
         }
     }
 
-    fn finish(&self) -> Result<Packet, DecodeError> {
+    fn finish<P: serde::de::DeserializeOwned>(&self) -> Result<P, DecodeError> {
         if self.overflow {
             return Err(DecodeError::Overflow);
         }
@@ -236,7 +245,7 @@ impl Decoder {
         if body[0] != PROTOCOL_VERSION {
             return Err(DecodeError::Version(body[0]));
         }
-        match postcard::take_from_bytes::<Packet>(body) {
+        match postcard::take_from_bytes::<P>(body) {
             Ok((p, [])) => Ok(p),
             _ => Err(DecodeError::Malformed),
         }

@@ -28,6 +28,42 @@ impl Packet {
     }
 }
 
+/// A packet as the firmware reads it: only a command is decoded. Any other message (which the
+/// host never sends) fails to decode, as a malformed frame — so the firmware links no decoder for
+/// the messages it only sends ([`crate::Decoder::push_as`]).
+#[derive(Clone, Debug, PartialEq, Deserialize)]
+pub struct CommandPacket {
+    /// [`crate::PROTOCOL_VERSION`] of the sender.
+    pub version: u8,
+    /// Link sequence number.
+    pub seq: u32,
+    /// The message, which must be a command.
+    pub msg: Inbound,
+}
+
+/// [`Message`] as the firmware decodes it: the same variants in the same order (the wire
+/// format), every one but [`Message::Command`] refused.
+#[derive(Clone, Debug, PartialEq, Deserialize)]
+#[allow(missing_docs)] // the variants of `Message`
+pub enum Inbound {
+    Hello(NotACommand),
+    Raw(NotACommand),
+    Estimate(NotACommand),
+    Status(NotACommand),
+    Fault(NotACommand),
+    Command(Command),
+}
+
+/// The payload of a message that is not a command: never decodes.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum NotACommand {}
+
+impl<'de> Deserialize<'de> for NotACommand {
+    fn deserialize<D: serde::Deserializer<'de>>(_: D) -> Result<Self, D::Error> {
+        Err(serde::de::Error::custom("not a command"))
+    }
+}
+
 /// Every message of the link, both directions.
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
 pub enum Message {
@@ -137,7 +173,10 @@ pub struct Config {
     pub effects: EffectSet,
     /// Samples beyond this magnitude on any axis are saturated and rejected, m/s².
     pub saturation_mps2: f64,
-    /// Send every accepted raw sample back as [`Message::Raw`] (sensor mode).
+    /// Send every raw sample that passed the arrival checks (finite, not saturated, in time
+    /// order) back as [`Message::Raw`] (sensor mode), as it arrives: the recording keeps what
+    /// the firmware's screening later rejects as a glitch or a stuck run, for the host's own
+    /// screening.
     pub echo_raw: bool,
     /// Send a [`Status`] every this many filter updates (0: only on request).
     pub status_every: u32,
@@ -205,8 +244,15 @@ pub struct Counters {
     pub samples_out_of_order: u32,
     /// Samples with the same time as the previous one (duplicates).
     pub samples_duplicate: u32,
-    /// Sensor samples rejected because an axis repeated the same reading (stuck sensor).
+    /// Samples rejected because an axis repeated the same reading longer than its noise allows
+    /// (a stuck sensor; estimator-core's screening).
     pub samples_stuck: u32,
+    /// Samples rejected as glitches: outliers against their neighbours (estimator-core's
+    /// screening).
+    pub samples_glitch: u32,
+    /// Samples rejected because every axis read exactly zero (a dropout; estimator-core's
+    /// screening).
+    pub samples_dropout: u32,
     /// Filter updates done.
     pub filter_steps: u32,
     /// Filter updates refused by the estimator.

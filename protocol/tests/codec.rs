@@ -49,7 +49,7 @@ fn config() -> impl Strategy<Value = Config> {
 }
 
 fn counters() -> impl Strategy<Value = Counters> {
-    proptest::collection::vec(any::<u32>(), 18).prop_map(|v| Counters {
+    proptest::collection::vec(any::<u32>(), 20).prop_map(|v| Counters {
         samples_ok: v[0],
         samples_nan: v[1],
         samples_saturated: v[2],
@@ -68,6 +68,8 @@ fn counters() -> impl Strategy<Value = Counters> {
         samples_duplicate: v[15],
         samples_stuck: v[16],
         updates_rejected: v[17],
+        samples_glitch: v[18],
+        samples_dropout: v[19],
     })
 }
 
@@ -233,6 +235,33 @@ proptest! {
         prop_assert!(same(&got, &p));
         prop_assert_eq!(d.stats().ok, 1);
         prop_assert_eq!(d.stats().bad(), 0);
+    }
+
+    /// The firmware's decoding (commands only): every command decodes to itself, with its
+    /// sequence number; every other message is a malformed frame, counted as such.
+    #[test]
+    fn the_firmware_decodes_commands_only(msg in message(), seq in any::<u32>()) {
+        let p = Packet::new(seq, msg.clone());
+        let mut d = Decoder::new();
+        let mut out = Vec::new();
+        for b in frame_of(&p) {
+            if let Some(r) = d.push_as::<CommandPacket>(b) {
+                out.push(r);
+            }
+        }
+        prop_assert_eq!(out.len(), 1);
+        match (msg, out.pop().unwrap()) {
+            (Message::Command(c), Ok(got)) => {
+                prop_assert_eq!(got.seq, seq);
+                let Inbound::Command(g) = got.msg;
+                prop_assert_eq!(format!("{g:?}"), format!("{c:?}"));
+            }
+            (Message::Command(_), Err(e)) => prop_assert!(false, "command refused: {e:?}"),
+            (_, r) => {
+                prop_assert_eq!(r.err(), Some(DecodeError::Malformed));
+                prop_assert_eq!(d.stats().malformed, 1);
+            }
+        }
     }
 
     /// A stream of frames, some damaged: the decoder yields exactly the undamaged ones, in order,

@@ -10,7 +10,7 @@ pub mod firmware {
     use std::time::Instant;
 
     use estimator_core::Sample;
-    use protocol::{Config, Estimate, RawSample};
+    use protocol::{Config, Counters, Estimate, RawSample};
 
     /// The workspace root.
     pub fn workspace() -> PathBuf {
@@ -36,7 +36,8 @@ pub mod firmware {
             let t = Instant::now();
             let out = Command::new(cargo)
                 .current_dir(&root)
-                .args(["build", "-p", "firmware", "--release", "--target", "thumbv7em-none-eabihf"])
+                .args(["build", "-p", "firmware", "--profile", "firmware"])
+                .args(["--target", "thumbv7em-none-eabihf"])
                 .args(["--features", "board-qemu", "--target-dir"])
                 .arg(&target_dir)
                 // The firmware's flags come from .cargo/config.toml; host flags must not leak in.
@@ -51,20 +52,29 @@ pub mod firmware {
                 String::from_utf8_lossy(&out.stderr)
             );
             eprintln!("firmware built in {:.1} s", t.elapsed().as_secs_f64());
-            target_dir.join("thumbv7em-none-eabihf/release/firmware")
+            target_dir.join("thumbv7em-none-eabihf/firmware/firmware")
         })
     }
 
-    /// The host core's single pass on `samples` (the same averaging and EKF as the firmware),
-    /// as the estimate messages the firmware sends.
+    /// The host core's single pass on `samples` (the same screening, averaging and EKF as the
+    /// firmware), as the estimate messages the firmware sends.
     pub fn host_single_pass(config: &Config, samples: &[RawSample]) -> Vec<Estimate> {
+        host_single_pass_counted(config, samples).0
+    }
+
+    /// [`host_single_pass`] with the sample and filter counters the firmware reports for the
+    /// same samples (accepted, and rejected by the screening per reason).
+    pub fn host_single_pass_counted(
+        config: &Config,
+        samples: &[RawSample],
+    ) -> (Vec<Estimate>, Counters) {
         let mut out = Vec::new();
         let samples = samples.iter().map(|s| Sample {
             t_s: s.t_s,
             specific_force: s.specific_force,
             temp_c: s.temp_c,
         });
-        firmware_app::app::single_pass(config, samples, |e| out.push(e)).unwrap();
-        out
+        let counters = firmware_app::app::single_pass(config, samples, |e| out.push(e)).unwrap();
+        (out, counters)
     }
 }

@@ -3,9 +3,11 @@
 //!
 //! Per call of [`App::poll`]: drain the received bytes (commands, replayed samples), then, in
 //! sensor mode, take a sample if the timer says one is due. Every sample goes through
-//! [`App::accept`]: NaN/∞, saturation and time order are checked and counted, good samples are
-//! averaged to the filter period with the core's [`Averager`], each full window steps the
-//! real-time EKF, and each update is sent as an [`Estimate`]. No heap; every buffer is fixed.
+//! [`App::accept`]: NaN/∞, saturation and time order are checked on arrival, then the core's
+//! screening ([`crate::screen`]) judges dropouts, stuck axes and glitches; every rejection is
+//! counted. Good samples are averaged to the filter period with the core's [`Averager`], each
+//! full window steps the real-time EKF, and each update is sent as an [`Estimate`]. No heap;
+//! every buffer is fixed.
 
 use embedded_io::{Read, ReadReady, Write};
 use embedded_storage::nor_flash::NorFlash;
@@ -13,16 +15,16 @@ use estimator_core::{
     units, Averager, Ekf, Measurement, Model, Propagation, Sample, Site, PAPER_EFFECTS,
 };
 use protocol::{
-    Board, Command, Config, Counters, Decoder, EffectSet, Encoder, Estimate, Fault, FaultCode,
-    Hello, Message, Packet, RawSample, Resume, SeqEvent, SeqTracker, Source, Status, STATE_DIM,
+    Board, Command, CommandPacket, Config, Counters, Decoder, EffectSet, Encoder, Estimate, Fault,
+    FaultCode, Hello, Inbound, Message, RawSample, Resume, SeqEvent, SeqTracker, Source, Status,
+    STATE_DIM,
 };
 
 use crate::accel::Accelerometer;
 use crate::checkpoints::{CheckpointStore, NoStorage, StoreError, MAX_PAYLOAD};
 use crate::counters::{self, Count};
 use crate::resume::{self, msg, Msg, ResumePoint};
-use crate::screen::Screen;
-pub use crate::screen::STUCK_RUN;
+use crate::screen::{Screen, Screened};
 
 /// Firmware version sent in [`Hello`].
 pub const FIRMWARE_VERSION: [u16; 3] = [0, 1, 0];
@@ -92,11 +94,21 @@ pub enum Event {
 /// The filter of the paper's model, sized exactly.
 pub type Filter = Ekf<'static, STATE_DIM>;
 
+/// One EKF update of the firmware's filter: the core's [`estimator_core::step_paper`], which
+/// is compiled (and optimised for speed) in estimator-core, while the firmware's own crates are
+/// optimised for size (Cargo.toml).
+pub fn filter_step(
+    ekf: &mut Filter,
+    m: &Measurement,
+) -> Result<estimator_core::Residual, estimator_core::FilterError> {
+    estimator_core::step_paper(ekf, m)
+}
+
 struct Run {
     source: Source,
     averager: Averager,
     ekf: Filter,
-    /// Sample screening (last accepted time, stuck-axis runs).
+    /// Sample screening (the firmware's arrival checks, then the core's screener).
     screen: Screen,
     sample_seq: u32,
     /// After a resume (replay): discard samples until the one with this sequence number.
@@ -126,6 +138,9 @@ pub struct App<S, A, T, P, N = NoStorage> {
     store: Option<CheckpointStore<N>>,
     resumed: Option<Resume>,
     boot_status: bool,
+    /// The checkpoint payload being written or read (in the application's state, which the
+    /// boards keep in a static: not on the stack).
+    ckpt_buf: [u8; MAX_PAYLOAD],
 }
 
 /// Checks a configuration; `Err` says why it is refused.
@@ -187,30 +202,51 @@ pub enum SinglePassError {
     Filter(estimator_core::FilterError),
 }
 
-/// The host's reference for the firmware: the same averaging and real-time EKF over `samples`,
-/// each update handed to `out` as the estimate message the firmware would send (no heap).
+/// The host's reference for the firmware: the same screening ([`Screen`]), averaging and
+/// real-time EKF over `samples` (a replay: none flagged saturated by a sensor), each update handed
+/// to `out` as the estimate message the firmware would send (no heap). Returns the sample and
+/// filter counters the firmware would report for the same samples.
 pub fn single_pass(
     config: &Config,
     samples: impl IntoIterator<Item = Sample>,
     mut out: impl FnMut(Estimate),
-) -> Result<(), SinglePassError> {
+) -> Result<Counters, SinglePassError> {
     let mut ekf = filter_for(config).map_err(SinglePassError::Config)?;
     let mut avg = Averager::new(config.filter_period_s, config.raw_sigma_mps2);
-    let mut update = |ekf: &mut Filter, m: &Measurement| -> Result<(), SinglePassError> {
+    let mut screen = Screen::new(config, None);
+    let mut counters = Counters::default();
+    let mut update = |ekf: &mut Filter, m: &Measurement, c: &mut Counters| {
         let step = ekf.steps();
-        let r = ekf.step(m).map_err(SinglePassError::Filter)?;
+        let r = filter_step(ekf, m).map_err(SinglePassError::Filter)?;
+        counters::bump(c, Count::FilterSteps);
         out(estimate_of(ekf, step, m, r.innovation, r.nis));
         Ok(())
     };
+    let mut take = |(s, verdict): Screened, ekf: &mut Filter, c: &mut Counters| {
+        if let Err(why) = verdict {
+            counters::bump(c, Count::Rejected(why));
+            return Ok(());
+        }
+        counters::bump(c, Count::SamplesOk);
+        match avg.push(&s) {
+            Some(m) => update(ekf, &m, c),
+            None => Ok(()),
+        }
+    };
     for s in samples {
-        if let Some(m) = avg.push(&s) {
-            update(&mut ekf, &m)?;
+        match screen.push(&s, false, config.saturation_mps2) {
+            Err(why) => counters::bump(&mut counters, Count::Rejected(why)),
+            Ok(Some(o)) => take(o, &mut ekf, &mut counters)?,
+            Ok(None) => {}
         }
     }
-    if let Some(m) = avg.flush() {
-        update(&mut ekf, &m)?;
+    while let Some(o) = screen.drain() {
+        take(o, &mut ekf, &mut counters)?;
     }
-    Ok(())
+    if let Some(m) = avg.flush() {
+        update(&mut ekf, &m, &mut counters)?;
+    }
+    Ok(counters)
 }
 
 /// The estimate message of one filter update.
@@ -277,6 +313,7 @@ where
             store: CheckpointStore::new(flash).ok(),
             resumed: None,
             boot_status: false,
+            ckpt_buf: [0; MAX_PAYLOAD],
         }
     }
 
@@ -284,13 +321,13 @@ where
     /// announces the firmware (`Hello`, then a `Status` with `boot` set and what was resumed).
     /// A checkpoint that cannot be used (other format or model configuration, damaged contents)
     /// is refused with a [`FaultCode::CheckpointRefused`] fault and the firmware starts idle.
+    #[inline(never)]
     pub fn boot(&mut self) {
         let mut refused: Option<(FaultCode, Msg)> = None;
         if let Some(store) = self.store.as_mut() {
-            let mut buf = [0u8; MAX_PAYLOAD];
-            match store.load(&mut buf) {
+            match store.load(&mut self.ckpt_buf) {
                 Ok(Some(found)) => {
-                    if let Err(why) = self.restore(&buf[..found.len], found.generation) {
+                    if let Err(why) = self.restore(found.len, found.generation) {
                         refused = Some((FaultCode::CheckpointRefused, why));
                     }
                 }
@@ -325,9 +362,11 @@ where
         self.resumed
     }
 
-    /// Restores a run from a checkpoint payload ([`crate::resume`]).
-    fn restore(&mut self, payload: &[u8], generation: u32) -> Result<(), Msg> {
-        let Some(b) = resume::decode(payload)? else {
+    /// Restores a run from the checkpoint payload in the first `len` bytes of the checkpoint
+    /// buffer ([`crate::resume`]).
+    #[inline(never)]
+    fn restore(&mut self, len: usize, generation: u32) -> Result<(), Msg> {
+        let Some(b) = resume::decode(&self.ckpt_buf[..len])? else {
             return Ok(()); // "no run"
         };
         let (config, source, point) = (b.config, b.source, b.point);
@@ -338,13 +377,13 @@ where
             (Source::Sensor, Some(t)) => t + 1.0 / config.sample_rate_hz,
             _ => 0.0,
         };
-        // The run is built first and its filter loaded in place (one filter on the stack, not
-        // several); if the image is refused, no run is left behind.
+        // The run is built first and its filter and screening loaded in place (one filter on
+        // the stack, not several); if the image is refused, no run is left behind.
         self.run = Some(Run {
             source,
             averager: Averager::new(config.filter_period_s, config.raw_sigma_mps2),
             ekf,
-            screen: Screen::new(point.last_t_s),
+            screen: Screen::new(&config, point.last_t_s),
             sample_seq: point.next_seq,
             resync: (source == Source::Replay).then_some(point.next_seq),
             time_offset_s,
@@ -352,9 +391,18 @@ where
         let Some(run) = self.run.as_mut() else {
             return Ok(());
         };
+        if run.screen.load(b.screen_state).is_none() {
+            self.run = None;
+            return Err(msg(format_args!("checkpoint: screening state unreadable")));
+        }
         if let Err(why) = resume::load_filter(&mut run.ekf, b.image) {
             self.run = None;
             return Err(why);
+        }
+        // The checkpoint was taken right after the screening's last sample out opened the
+        // current window: it is the averager's only sample.
+        if let Some(s) = run.screen.last_accepted() {
+            let _ = run.averager.push(&s);
         }
         let (step, t_s) = (run.ekf.steps(), run.ekf.time_s());
         self.config = config;
@@ -377,18 +425,18 @@ where
         let Some(store) = self.store.as_mut() else {
             return;
         };
-        let mut buf = [0u8; MAX_PAYLOAD];
+        let buf = &mut self.ckpt_buf;
         let len = match (point, self.run.as_ref()) {
             (Some(p), Some(run)) => {
-                resume::encode_run(&mut buf, run.source, p, &self.config, &run.ekf)
+                resume::encode_run(buf, run.source, p, &self.config, &run.screen, &run.ekf)
             }
-            _ => resume::encode_no_run(&mut buf),
+            _ => resume::encode_no_run(buf),
         };
         let Ok(len) = len else {
             counters::bump(&mut self.counters, Count::CheckpointErrors);
             return;
         };
-        match store.save(&buf[..len]) {
+        match store.save(&self.ckpt_buf[..len]) {
             Ok(_) => counters::bump(&mut self.counters, Count::CheckpointsWritten),
             Err(e) => {
                 counters::bump(&mut self.counters, Count::CheckpointErrors);
@@ -430,6 +478,7 @@ where
     /// One pass of the loop; never blocks except on serial output.
     // clippy's collapsible_match would move the packet into a guard, which cannot be done.
     #[allow(clippy::collapsible_match)]
+    #[inline(never)]
     pub fn poll(&mut self) -> Event {
         let mut buf = [0u8; 64];
         while let Ok(true) = self.serial.read_ready() {
@@ -438,7 +487,9 @@ where
                 _ => break,
             };
             for &b in &buf[..n] {
-                match self.decoder.push(b) {
+                // Commands only: a message the firmware only sends is a malformed frame here
+                // (and no decoder for it is linked).
+                match self.decoder.push_as::<CommandPacket>(b) {
                     None => {}
                     Some(Ok(p)) => {
                         if self.handle(p) == Event::Shutdown {
@@ -478,14 +529,13 @@ where
         Event::Continue
     }
 
-    fn handle(&mut self, p: Packet) -> Event {
+    #[inline(never)]
+    fn handle(&mut self, p: CommandPacket) -> Event {
         counters::bump(&mut self.counters, Count::FramesRx);
         if let SeqEvent::Gap { missing } = self.rx_seq.observe(p.seq) {
             counters::add(&mut self.counters, Count::FramesRxMissing, missing);
         }
-        let Message::Command(cmd) = p.msg else {
-            return self.refuse(FaultCode::BadCommand, "not a command");
-        };
+        let Inbound::Command(cmd) = p.msg;
         match cmd {
             Command::Configure(c) => {
                 if self.run.is_some() {
@@ -497,37 +547,7 @@ where
                 self.config = c;
                 self.send_hello();
             }
-            Command::Start(source) => {
-                if self.run.is_some() {
-                    return self.refuse(FaultCode::BadCommand, "start while running");
-                }
-                if source == Source::Sensor && !self.accel.present() {
-                    return self.refuse(FaultCode::BadCommand, "no accelerometer on this board");
-                }
-                let ekf = match filter_for(&self.config) {
-                    Ok(f) => f,
-                    Err(why) => return self.refuse(FaultCode::BadConfig, why),
-                };
-                let averager =
-                    Averager::new(self.config.filter_period_s, self.config.raw_sigma_mps2);
-                // A fresh run: no older checkpoint may be resumed from now on.
-                self.save_checkpoint(None);
-                self.resumed = None;
-                self.run = Some(Run {
-                    source,
-                    averager,
-                    ekf,
-                    screen: Screen::new(None),
-                    sample_seq: 0,
-                    resync: None,
-                    time_offset_s: 0.0,
-                });
-                self.last_source = source;
-                if source == Source::Sensor {
-                    self.timer.start(self.config.sample_rate_hz);
-                }
-                self.send_status();
-            }
+            Command::Start(source) => return self.start(source),
             Command::Replay(s) => match self.run.as_mut() {
                 Some(run) if run.source == Source::Replay => {
                     if let Some(want) = run.resync {
@@ -555,6 +575,11 @@ where
                     counters::bump(&mut self.counters, Count::SamplesResync);
                     return Event::Continue;
                 }
+                // The samples the screening still holds, judged with the neighbours there are,
+                // then the last (partial) window.
+                while let Some(o) = self.run.as_mut().and_then(|r| r.screen.drain()) {
+                    self.take(o, None);
+                }
                 if let Some(m) = self.run.as_mut().and_then(|r| r.averager.flush()) {
                     self.step(&m, None);
                 }
@@ -570,6 +595,42 @@ where
                 return Event::Shutdown;
             }
         }
+        Event::Continue
+    }
+
+    /// Starts a run. Not inlined: the new run (filter and screening, ~4 KB) is built in this
+    /// frame before it moves into the application's state, and that frame must not stay on the
+    /// stack under every other command (the replayed samples' path to the EKF).
+    #[inline(never)]
+    fn start(&mut self, source: Source) -> Event {
+        if self.run.is_some() {
+            return self.refuse(FaultCode::BadCommand, "start while running");
+        }
+        if source == Source::Sensor && !self.accel.present() {
+            return self.refuse(FaultCode::BadCommand, "no accelerometer on this board");
+        }
+        let ekf = match filter_for(&self.config) {
+            Ok(f) => f,
+            Err(why) => return self.refuse(FaultCode::BadConfig, why),
+        };
+        let averager = Averager::new(self.config.filter_period_s, self.config.raw_sigma_mps2);
+        // A fresh run: no older checkpoint may be resumed from now on.
+        self.save_checkpoint(None);
+        self.resumed = None;
+        self.run = Some(Run {
+            source,
+            averager,
+            ekf,
+            screen: Screen::new(&self.config, None),
+            sample_seq: 0,
+            resync: None,
+            time_offset_s: 0.0,
+        });
+        self.last_source = source;
+        if source == Source::Sensor {
+            self.timer.start(self.config.sample_rate_hz);
+        }
+        self.send_status();
         Event::Continue
     }
 
@@ -593,8 +654,9 @@ where
         Event::Continue
     }
 
-    /// Validates one sample, averages it and steps the filter when a window is complete.
-    /// Returns whether the sample was accepted.
+    /// Screens one sample; the sample the screening hands back (judged, `half_window` samples
+    /// later) is averaged, and the filter steps when a window is complete. Returns whether the
+    /// sample passed the arrival checks (its verdict from the core's screening comes later).
     pub fn accept(&mut self, s: &Sample, saturated: bool) -> bool {
         self.accept_numbered(s, saturated, None)
     }
@@ -605,17 +667,15 @@ where
         let Some(run) = self.run.as_mut() else {
             return false;
         };
-        let before = run.screen.last_t_s;
-        let live = run.source == Source::Sensor;
-        let limit = self.config.saturation_mps2;
-        if let Err(why) = run.screen.check(s, saturated, limit, live) {
-            counters::bump(&mut self.counters, Count::Rejected(why));
-            return false;
-        }
-        counters::bump(&mut self.counters, Count::SamplesOk);
+        let out = match run.screen.push(s, saturated, self.config.saturation_mps2) {
+            Ok(out) => out,
+            Err(why) => {
+                counters::bump(&mut self.counters, Count::Rejected(why));
+                return false;
+            }
+        };
         let seq = source_seq.unwrap_or(run.sample_seq);
         run.sample_seq = seq.wrapping_add(1);
-        let done = run.averager.push(s);
         if run.source == Source::Sensor && self.config.echo_raw {
             let raw = RawSample {
                 seq,
@@ -625,22 +685,35 @@ where
             };
             self.send(Message::Raw(raw));
         }
-        if let Some(m) = done {
-            // This sample opened the next window: a checkpoint after this update resumes here.
+        if let Some(o) = out {
+            // A checkpoint after the update this may complete resumes with the next sample.
             let point = ResumePoint {
-                next_seq: seq,
-                last_t_s: before,
+                next_seq: seq.wrapping_add(1),
+                last_t_s: Some(s.t_s),
             };
-            self.step(&m, Some(point));
+            self.take(o, Some(point));
         }
         true
+    }
+
+    /// A sample out of the screening: counted, and averaged if accepted; steps the filter when
+    /// it opens the next window.
+    fn take(&mut self, (s, verdict): Screened, point: Option<ResumePoint>) {
+        if let Err(why) = verdict {
+            counters::bump(&mut self.counters, Count::Rejected(why));
+            return;
+        }
+        counters::bump(&mut self.counters, Count::SamplesOk);
+        if let Some(m) = self.run.as_mut().and_then(|r| r.averager.push(&s)) {
+            self.step(&m, point);
+        }
     }
 
     fn step(&mut self, m: &Measurement, point: Option<ResumePoint>) {
         let Some(run) = self.run.as_mut() else { return };
         let step = run.ekf.steps();
         let t0 = self.platform.ticks();
-        let r = run.ekf.step(m);
+        let r = filter_step(&mut run.ekf, m);
         self.last_step_ticks = self.platform.ticks().wrapping_sub(t0);
         match r {
             Ok(res) => {
@@ -690,6 +763,7 @@ where
         }
     }
 
+    #[inline(never)]
     fn send_status(&mut self) {
         // Count this frame in the status it carries.
         self.counters.frames_tx = self.counters.frames_tx.wrapping_add(1);
@@ -698,6 +772,7 @@ where
         self.send(Message::Status(st));
     }
 
+    #[inline(never)]
     fn send_hello(&mut self) {
         let h = Hello {
             board: P::BOARD,
@@ -718,13 +793,12 @@ where
 }
 
 /// A filter error for the fault frame, without floating-point formatting (which would link
-/// ~15 KB of `core::fmt::float` into the firmware): times in whole milliseconds.
+/// ~15 KB of `core::fmt::float` into the firmware): times to the millisecond ([`Secs`]).
 struct FilterFault(estimator_core::FilterError);
 
 impl core::fmt::Display for FilterFault {
     fn fmt(&self, f: &mut core::fmt::Formatter<'_>) -> core::fmt::Result {
         use estimator_core::FilterError as E;
-        let ms = |t: f64| (t * 1e3) as i64; // saturating; NaN -> 0
         match self.0 {
             E::TimeNotIncreasing {
                 step,
@@ -732,9 +806,9 @@ impl core::fmt::Display for FilterFault {
                 filter_t_s,
             } => write!(
                 f,
-                "step {step}: measurement at t = {} ms is not after the filter time {} ms",
-                ms(t_s),
-                ms(filter_t_s)
+                "step {step}: measurement at t = {} s is not after the filter time {} s",
+                Secs(t_s),
+                Secs(filter_t_s)
             ),
             // The core's texts, repeated: calling its Display would link its float formatting.
             E::Capacity { needed, capacity } => write!(
@@ -759,6 +833,21 @@ impl core::fmt::Display for FilterFault {
                 "step {step}: {count} consecutive measurements failed the innovation gate"
             ),
         }
+    }
+}
+
+/// A time in seconds to the millisecond, formatted with 32-bit integers only (no float, and no
+/// 64-bit division: both cost flash). Saturates beyond 136 years; NaN prints as 0.000.
+struct Secs(f64);
+
+impl core::fmt::Display for Secs {
+    fn fmt(&self, f: &mut core::fmt::Formatter<'_>) -> core::fmt::Result {
+        let t = self.0;
+        let a = if t < 0.0 { -t } else { t };
+        let whole = a as u32; // saturating; NaN -> 0
+        let ms = ((a - f64::from(whole)) * 1e3) as u32;
+        let sign = if t < 0.0 { "-" } else { "" };
+        write!(f, "{sign}{whole}.{:03}", ms.min(999))
     }
 }
 

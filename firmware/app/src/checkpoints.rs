@@ -30,11 +30,12 @@
 //! # Wear
 //!
 //! With `R` records per sector, a checkpoint costs `1/R` erases. On the STM32H743 (128-KiB
-//! sectors, 32-byte flash words) the application's 15-state checkpoint payload is 1 225 bytes,
-//! its record 1 280 bytes, `R` = 102; at the default `checkpoint_every: 10` and a 60-s filter
-//! period (144 checkpoints a day) that is 1.41 erases a day shared by two sectors, 0.71 per
-//! sector: 10 000 cycles last ≈ 39 years of continuous running (the old two-slot store erased
-//! a sector per checkpoint: 72 erases a day per sector, ≈ 5 months).
+//! sectors, 32-byte flash words) the application's 15-state checkpoint payload is 1 865 bytes
+//! (with the sample screening's state), its record 1 920 bytes, `R` = 68; at the default
+//! `checkpoint_every: 10` and a 60-s filter period (144 checkpoints a day) that is 2.12 erases a
+//! day shared by two sectors, 1.06 per sector: 10 000 cycles last ≈ 26 years of continuous
+//! running (the old two-slot store erased a sector per checkpoint: 72 erases a day per sector,
+//! ≈ 5 months).
 //! `tests/checkpoints.rs` measures this by counting erases.
 //!
 //! The payload is opaque here (the application puts its resume block and the estimator core's
@@ -49,11 +50,11 @@ pub const MAGIC: u32 = u32::from_le_bytes(*b"DIDS");
 pub const FORMAT: u16 = 2;
 /// Header size, bytes (before padding to the flash's write size).
 pub const HEADER: usize = 24;
-/// Largest payload this store handles, bytes: the application's payload is 1 225 bytes at the
-/// default configuration (resume block 20 + configuration 137 + the 15-state filter image
-/// 1 068) and at most 1 241 for any configuration (`tests/checkpoints.rs`). Callers keep a
-/// buffer of this size on the stack, so it is not larger than needed.
-pub const MAX_PAYLOAD: usize = 1280;
+/// Largest payload this store handles, bytes: the application's payload is 1 865 bytes at the
+/// default configuration (resume block 20 + configuration 137 + screening state 640 + the
+/// 15-state filter image 1 068) and at most 1 881 for any configuration (`tests/checkpoints.rs`).
+/// The application keeps its buffer of this size in its state (static), not on the stack.
+pub const MAX_PAYLOAD: usize = 1920;
 /// Largest flash write granularity supported (the STM32H7 writes 32-byte flash words).
 const MAX_WRITE: usize = 32;
 

@@ -46,6 +46,8 @@ pub fn add(c: &mut Counters, what: Count, n: u32) {
         Count::Rejected(Reject::Duplicate) => &mut c.samples_duplicate,
         Count::Rejected(Reject::OutOfOrder) => &mut c.samples_out_of_order,
         Count::Rejected(Reject::Stuck) => &mut c.samples_stuck,
+        Count::Rejected(Reject::Glitch) => &mut c.samples_glitch,
+        Count::Rejected(Reject::Dropout) => &mut c.samples_dropout,
     };
     *field = field.wrapping_add(n);
 }

@@ -7,22 +7,29 @@
 //! | 0 | 2 | block version, [`VERSION`] |
 //! | 2 | 1 | source: 0 sensor, 1 replay, `0xFF` no run in progress ([`NO_RUN`]) |
 //! | 3 | 1 | reserved, 0 |
-//! | 4 | 4 | sequence number of the sample that opened the current window (u32) |
-//! | 8 | 8 | time of the last sample before it, s (f64; NaN: none) |
+//! | 4 | 4 | sequence number of the next sample to screen (u32) |
+//! | 8 | 8 | time of the last sample screened, s (f64; NaN: none) |
 //! | 16 | 2 | length `c` of the configuration (u16) |
-//! | 18 | 2 | reserved, 0 |
+//! | 18 | 2 | length `s` of the screening state (u16) |
 //! | 20 | `c` | the run's [`Config`], postcard |
-//! | 20 + `c` | rest | the estimator core's checkpoint image ([`estimator_core::checkpoint`]) |
+//! | 20 + `c` | `s` | the sample screening's state ([`Screen::save`]: the samples the core's screener holds) |
+//! | 20 + `c` + `s` | rest | the estimator core's checkpoint image ([`estimator_core::checkpoint`]) |
+//!
+//! The checkpoint is taken after the update that a sample coming out of the screening closed;
+//! that sample opened the next averaging window and is the screening's last sample out, so the
+//! averager is rebuilt from it ([`Screen::last_accepted`]). The sequence number is the next
+//! sample to feed the screening, the time the last one fed.
 //!
 //! A "no run" payload is the 20-byte block with source `0xFF` (written at the start and the end
 //! of runs, so a reset never resumes a finished or abandoned run).
 
 use protocol::{Config, Source, STATE_DIM};
 
-use crate::app::{filter_for, validate, Filter};
+use crate::app::{validate, Filter};
+use crate::screen::Screen;
 
-/// Version of the resume block written by this code.
-pub const VERSION: u16 = 1;
+/// Version of the resume block written by this code (2: with the screening state).
+pub const VERSION: u16 = 2;
 /// Source byte of a payload that says "no run in progress".
 pub const NO_RUN: u8 = 0xFF;
 /// Bytes before the configuration.
@@ -32,37 +39,28 @@ const SOURCE: usize = 2;
 const NEXT_SEQ: usize = 4;
 const LAST_T: usize = 8;
 const CFG_LEN: usize = 16;
+const SCREEN_LEN: usize = 18;
 
-/// Where a run can be resumed from: the sample that opened the current averaging window.
+/// Where a run can be resumed from: the next sample to screen.
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct ResumePoint {
     /// Sequence number of that sample.
     pub next_seq: u32,
-    /// Time of the last sample before it (the resumed run accepts only later samples).
+    /// Time of the last sample screened before it (the resumed run accepts only later samples).
     pub last_t_s: Option<f64>,
-}
-
-/// A decoded resume block with its filter, ready to run.
-pub struct Restored {
-    /// The run's source.
-    pub source: Source,
-    /// Where it resumes.
-    pub point: ResumePoint,
-    /// Its configuration (validated).
-    pub config: Config,
-    /// The filter, restored from the image.
-    pub ekf: Filter,
 }
 
 /// Why a payload could not be encoded or restored (a short text for the fault frame).
 pub type Error = &'static str;
 
-/// Encodes a run's resume block and filter image into `buf`; returns the payload length.
+/// Encodes a run's resume block, screening state and filter image into `buf`; returns the
+/// payload length.
 pub fn encode_run(
     buf: &mut [u8],
     source: Source,
     point: ResumePoint,
     config: &Config,
+    screen: &Screen,
     ekf: &Filter,
 ) -> Result<usize, Error> {
     let head = buf.get_mut(..FIXED).ok_or("buffer too small")?;
@@ -80,11 +78,15 @@ pub fn encode_run(
         .len();
     let c16 = u16::try_from(c).map_err(|_| "configuration too long")?;
     buf[CFG_LEN..CFG_LEN + 2].copy_from_slice(&c16.to_le_bytes());
-    let image = buf.get_mut(FIXED + c..).ok_or("buffer too small")?;
+    let state = buf.get_mut(FIXED + c..).ok_or("buffer too small")?;
+    let s = screen.save(state).ok_or("screening state does not fit")?;
+    let s16 = u16::try_from(s).map_err(|_| "screening state too long")?;
+    buf[SCREEN_LEN..SCREEN_LEN + 2].copy_from_slice(&s16.to_le_bytes());
+    let image = buf.get_mut(FIXED + c + s..).ok_or("buffer too small")?;
     let n = ekf
         .checkpoint(image)
         .map_err(|_| "filter image does not fit")?;
-    Ok(FIXED + c + n)
+    Ok(FIXED + c + s + n)
 }
 
 /// Encodes the "no run" payload into `buf`; returns its length ([`FIXED`]).
@@ -96,11 +98,12 @@ pub fn encode_no_run(buf: &mut [u8]) -> Result<usize, Error> {
     Ok(FIXED)
 }
 
-/// Bytes of a run's payload with configuration `config` (the 15-state filter).
+/// Bytes of a run's payload with configuration `config` (the 15-state filter; the screening
+/// holding as many samples as it does in a run, which is where checkpoints are taken).
 pub fn payload_len(config: &Config) -> Option<usize> {
     let mut buf = [0u8; 128];
     let c = postcard::to_slice(config, &mut buf).ok()?.len();
-    Some(FIXED + c + estimator_core::checkpoint::size(STATE_DIM))
+    Some(FIXED + c + Screen::state_len() + estimator_core::checkpoint::size(STATE_DIM))
 }
 
 /// A fault detail (truncated to the protocol's 80 bytes).
@@ -121,6 +124,8 @@ pub struct Block<'a> {
     pub point: ResumePoint,
     /// Its configuration (validated).
     pub config: Config,
+    /// The screening's state ([`Screen::load`]).
+    pub screen_state: &'a [u8],
     /// The estimator core's checkpoint image.
     pub image: &'a [u8],
 }
@@ -150,6 +155,7 @@ pub fn decode(payload: &[u8]) -> Result<Option<Block<'_>>, Msg> {
     t.copy_from_slice(&head[LAST_T..LAST_T + 8]);
     let last = f64::from_le_bytes(t);
     let c = usize::from(u16::from_le_bytes([head[CFG_LEN], head[CFG_LEN + 1]]));
+    let st = usize::from(u16::from_le_bytes([head[SCREEN_LEN], head[SCREEN_LEN + 1]]));
     let cfg_bytes = payload
         .get(FIXED..FIXED + c)
         .ok_or_else(|| bad("configuration truncated"))?;
@@ -164,7 +170,10 @@ pub fn decode(payload: &[u8]) -> Result<Option<Block<'_>>, Msg> {
             last_t_s: (!last.is_nan()).then_some(last),
         },
         config,
-        image: &payload[FIXED + c..],
+        screen_state: payload
+            .get(FIXED + c..FIXED + c + st)
+            .ok_or_else(|| bad("screening state truncated"))?,
+        image: &payload[FIXED + c + st..],
     }))
 }
 
@@ -172,19 +181,4 @@ pub fn decode(payload: &[u8]) -> Result<Option<Block<'_>>, Msg> {
 /// place: the caller keeps one filter on its stack or in its state, not several).
 pub fn load_filter(ekf: &mut Filter, image: &[u8]) -> Result<(), Msg> {
     ekf.resume(image).map_err(|e| msg(format_args!("{e}")))
-}
-
-/// [`decode`], then a filter of the block's configuration restored from its image.
-pub fn restore(payload: &[u8]) -> Result<Option<Restored>, Msg> {
-    let Some(b) = decode(payload)? else {
-        return Ok(None);
-    };
-    let mut ekf = filter_for(&b.config).map_err(|why| msg(format_args!("checkpoint: {why}")))?;
-    load_filter(&mut ekf, b.image)?;
-    Ok(Some(Restored {
-        source: b.source,
-        point: b.point,
-        config: b.config,
-        ekf,
-    }))
 }

@@ -2,6 +2,7 @@
 //! estimates bit for bit; bad samples and bad frames are rejected and counted; commands in the
 //! wrong state are refused; sensor mode samples at the timer's ticks.
 
+use estimator_core::screening::ScreenConfig;
 use estimator_core::{Averager, Sample};
 use firmware_app::app::{filter_for, App, Event, NoTimer, SampleTimer, Tick};
 use firmware_app::{AccelSample, Accelerometer, NoSensor};
@@ -262,7 +263,7 @@ impl SampleTimer for FakeTimer {
 
 struct FakeAccel {
     reads: u32,
-    /// From this read on, the x axis repeats the same value (a stuck converter).
+    /// From this read on, the converter is frozen: every axis repeats this read's values.
     stuck_from: u32,
 }
 impl Accelerometer for FakeAccel {
@@ -270,11 +271,7 @@ impl Accelerometer for FakeAccel {
     fn sample(&mut self, t_s: f64) -> Result<AccelSample, ()> {
         self.reads += 1;
         // A live sensor's readings differ from sample to sample (noise).
-        let x = if self.reads >= self.stuck_from {
-            0.5
-        } else {
-            1e-6 * f64::from(self.reads)
-        };
+        let x = 1e-6 * f64::from(self.reads.min(self.stuck_from));
         match self.reads {
             3 => Err(()),
             4 => Ok(AccelSample {
@@ -319,6 +316,8 @@ fn sensor_mode_samples_at_the_ticks_and_counts_read_errors() {
     for _ in 0..20 {
         app.poll();
     }
+    // The end of the run: the samples the screening still holds come out and are counted.
+    host.send(&mut app, Command::Finish);
     let msgs = host.receive(&mut app);
     let raws: Vec<f64> = msgs
         .iter()
@@ -341,8 +340,10 @@ fn sensor_mode_samples_at_the_ticks_and_counts_read_errors() {
     assert!(msgs.iter().any(|m| matches!(m, Message::Estimate(_))));
 }
 
-/// A stuck axis (the same reading STUCK_RUN times in a row) is rejected and counted, from the
-/// STUCK_RUN-th identical reading on, until the readings move again.
+/// A stuck sensor (the same reading over and over) is rejected and counted by the core's
+/// screening: a run of identical readings is recognised once it is longer than the noise allows
+/// (`ScreenConfig::min_stuck_run` = 5 readings for a sensor that never repeated a reading before),
+/// while all of it is still held by the screening, so the whole run is rejected.
 #[test]
 fn a_stuck_sensor_is_rejected_and_counted() {
     let mut app = App::new(
@@ -369,15 +370,112 @@ fn a_stuck_sensor_is_rejected_and_counted() {
     for _ in 0..30 {
         app.poll();
     }
+    host.send(&mut app, Command::Finish);
     let c = *app.counters();
-    // Reads 11.. are stuck: 11..=17 still pass (fewer than 8 equal in a row), 18..=31 rejected
-    // (31 reads: the start poll + 30). Reads 3 (error) and 4 (saturated) as in the test above.
-    assert_eq!(c.samples_stuck, 14);
-    // 31 reads: 1 failed, 1 saturated, 14 stuck, the rest good (read_errors also counts the
+    // Reads 11..=31 are stuck (31 reads: the start poll + 30), all 21 rejected. Reads 3 (error)
+    // and 4 (saturated) as in the test above.
+    assert_eq!(ScreenConfig::default().min_stuck_run, 5);
+    assert_eq!(c.samples_stuck, 21);
+    // 31 reads: 1 failed, 1 saturated, 21 stuck, the rest good (read_errors also counts the
     // missed tick 5, which is not a read).
-    assert_eq!(c.samples_ok, 31 - 1 - 1 - 14);
+    assert_eq!(c.samples_ok, 31 - 1 - 1 - 21, "{c:?}");
+    assert_eq!((c.samples_glitch, c.samples_dropout), (0, 0));
     assert_eq!(c.read_errors, 2);
     let _ = host.receive(&mut app);
+}
+
+/// A glitch and a stuck run in a replayed recording are rejected by the firmware's path (the
+/// core's screening) and nothing else is: the estimates are bit for bit the single pass over
+/// the recording without those samples, the counters name them, and they would have changed
+/// the estimates had they been averaged.
+#[test]
+fn a_glitch_and_a_stuck_run_are_rejected_and_nothing_else() {
+    let config = Config {
+        filter_period_s: 30.0,
+        status_every: 0,
+        ..Config::default()
+    };
+    let clean = samples(1200);
+    let mut input = clean.clone();
+    // A glitch: +0.05 m/s² on x for one sample (66σ of the configured raw noise 7.6e-4).
+    input[300].specific_force[0] += 0.05;
+    // y stuck at one reading for 40 samples (its first reading is sample 700's own).
+    for k in 700..740 {
+        input[k].specific_force[1] = input[700].specific_force[1];
+    }
+    let rejected = |k: usize| k == 300 || (700..740).contains(&k);
+
+    let mut app = App::new(Link::default(), NoSensor, NoTimer, HostBoard);
+    let mut host = Host::new();
+    host.send(&mut app, Command::Configure(config));
+    host.send(&mut app, Command::Start(Source::Replay));
+    for (k, s) in input.iter().enumerate() {
+        host.send(&mut app, replay_sample(k as u32, s));
+    }
+    host.send(&mut app, Command::Finish);
+    let got: Vec<Estimate> = host
+        .receive(&mut app)
+        .into_iter()
+        .filter_map(|m| match m {
+            Message::Estimate(e) => Some(e),
+            _ => None,
+        })
+        .collect();
+    let c = *app.counters();
+    assert_eq!(
+        (
+            c.samples_glitch,
+            c.samples_stuck,
+            c.samples_dropout,
+            c.samples_ok
+        ),
+        (1, 40, 0, 1200 - 41),
+        "{c:?}"
+    );
+
+    let single = |samples: Vec<Sample>| {
+        let mut out = Vec::new();
+        let counts = firmware_app::app::single_pass(&config, samples, |e| out.push(e)).unwrap();
+        (out, counts)
+    };
+    // The host's reference on the same input counts the same rejections.
+    let (want, counts) = single(input.clone());
+    assert_eq!(got, want);
+    assert_eq!(
+        (
+            counts.samples_glitch,
+            counts.samples_stuck,
+            counts.samples_ok
+        ),
+        (1, 40, 1200 - 41)
+    );
+    // The recording without the faulty samples gives the same estimates: the screening removed
+    // exactly those.
+    let kept: Vec<Sample> = (0..input.len())
+        .filter(|&k| !rejected(k))
+        .map(|k| input[k])
+        .collect();
+    let (without, counts) = single(kept);
+    assert_eq!(counts.samples_ok, 1200 - 41);
+    assert_eq!(got, without);
+    // Averaged, they would have moved the estimates.
+    let mut ekf = filter_for(&config).unwrap();
+    let mut avg = Averager::new(config.filter_period_s, config.raw_sigma_mps2);
+    let mut ms: Vec<_> = input.iter().filter_map(|s| avg.push(s)).collect();
+    ms.extend(avg.flush());
+    let mut unscreened = Vec::new();
+    for m in ms {
+        let step = ekf.steps();
+        let r = ekf.step(&m).unwrap();
+        unscreened.push(firmware_app::app::estimate_of(
+            &ekf,
+            step,
+            &m,
+            r.innovation,
+            r.nis,
+        ));
+    }
+    assert_ne!(got, unscreened);
 }
 
 /// With the χ² gate on, a window of bad samples (a 0.05 m/s² shock on every axis, ~100σ of a

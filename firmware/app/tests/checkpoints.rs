@@ -143,9 +143,9 @@ fn the_longest_configuration_fits_max_payload() {
     };
     let default = firmware_app::resume::payload_len(&Config::default()).unwrap();
     let max = firmware_app::resume::payload_len(&longest).unwrap();
-    // Default: 20 + 137 + 1 068; longest: +8 (gravity) +4 (status_every: 5 varint bytes, not 1)
-    // +4 (checkpoint_every: 5, not 1).
-    assert_eq!((default, max), (1225, 1241));
+    // Default: 20 + 137 + 640 (screening state: 2 × 7 held samples) + 1 068; longest: +8
+    // (gravity) +4 (status_every: 5 varint bytes, not 1) +4 (checkpoint_every: 5, not 1).
+    assert_eq!((default, max), (1865, 1881));
     assert!(max <= MAX_PAYLOAD);
 }
 
@@ -160,8 +160,8 @@ fn flash_wear_at_the_default_settings_lasts_over_ten_years() {
     // The payload the application writes: resume block + the core's 15-state image.
     let len = firmware_app::resume::payload_len(&cfg).expect("default config encodes");
     let per_sector = CheckpointStore::<H7Flash<'_>>::records_per_sector(len);
-    // 1 225-byte payload -> 32 + 1 248 = 1 280-byte records, 102 per sector.
-    assert_eq!((len, per_sector), (1225, 102), "payload and records/sector");
+    // 1 865-byte payload -> 32 + 1 888 = 1 920-byte records, 68 per sector.
+    assert_eq!((len, per_sector), (1865, 68), "payload and records/sector");
     let mut mem = vec![0xFFu8; 2 * H7_SECTOR];
     let mut store = CheckpointStore::new(H7Flash::new(&mut mem)).unwrap();
     let p = payload(0, len);
@@ -182,10 +182,10 @@ fn flash_wear_at_the_default_settings_lasts_over_ten_years() {
     println!(
         "flash wear: {len}-byte payload, {per_sector} records/sector, {erases} erases for {n} checkpoints; {erases_per_day:.2} erases/day; life {life_years:.1} years at 10 000 cycles"
     );
-    // 144 / 102 = 1.41 erases/day (the extra 1021st record makes it 1.41 x 1020/1021): 38.8
+    // 144 / 68 = 2.12 erases/day (the extra 681st record makes it 2.12 x 680/681): 25.9
     // years; 0.02 covers that rounding. The floor is 10 years; the old two-slot store (an
     // erase per checkpoint, 144/day) gave 0.38 years.
-    assert!((erases_per_day - 1.41).abs() < 0.02, "{erases_per_day}");
+    assert!((erases_per_day - 2.12).abs() < 0.02, "{erases_per_day}");
     assert!(life_years >= 10.0, "{life_years}");
 }
 
@@ -353,7 +353,9 @@ fn resets_at_many_points_end_bit_identical_to_an_uninterrupted_run() {
     let want = single_pass(&config(), &samples);
     assert_eq!(want.len(), 50);
     // Resets right after a checkpoint, in the middle of windows, twice in a row, near the end.
-    let resets = [95, 181, 182, 600, 777, 1001, 1490];
+    // (The first checkpoint follows update 3, when sample 90 opens window 3: it comes out of
+    // the screening, and is averaged, when sample 97 arrives.)
+    let resets = [98, 181, 182, 600, 777, 1001, 1490];
     let (got, resumes, c) = replay_with_resets(&samples, &resets, 40);
     assert_eq!(resumes.len(), resets.len());
     for (r, &at) in resumes.iter().zip(&resets) {
@@ -419,7 +421,9 @@ fn a_checkpoint_of_another_model_configuration_is_refused() {
         last_t_s: None,
     };
     let mut buf = [0u8; MAX_PAYLOAD];
-    let n = firmware_app::resume::encode_run(&mut buf, Source::Replay, point, &cfg, &ekf).unwrap();
+    let screen = firmware_app::screen::Screen::new(&cfg, None);
+    let n = firmware_app::resume::encode_run(&mut buf, Source::Replay, point, &cfg, &screen, &ekf)
+        .unwrap();
     let mut payload = buf[..n].to_vec();
     {
         let mut store = CheckpointStore::new(Flash::new(&mut mem)).unwrap();
@@ -478,4 +482,42 @@ fn a_checkpoint_of_another_model_configuration_is_refused() {
         .unwrap();
     assert!(st.running && st.resumed.is_some());
     let _ = <Flash<'_> as NorFlash>::ERASE_SIZE;
+}
+
+/// A reset after every sample across two checkpoints, with a glitch and a dropout for the
+/// screening to reject near them: the screening hands samples out `half_window` samples late,
+/// so a checkpoint's sample index, the screening state it holds and the averaging window it
+/// reopens must agree wherever the reset lands (each resumed run ends bit-identical to the
+/// uninterrupted one, the rejections counted the same).
+#[test]
+fn a_reset_after_any_sample_resumes_the_screened_run_exactly() {
+    let mut samples = input(400);
+    samples[150].specific_force[0] += 0.05; // a glitch
+    samples[183].specific_force = [0.0; 3]; // a dropout, just before the checkpoint at 187
+    let cfg = config();
+    let mut want = Vec::new();
+    let want_counts = firmware_app::app::single_pass(
+        &cfg,
+        samples.iter().map(|s| Sample {
+            t_s: s.t_s,
+            specific_force: s.specific_force,
+            temp_c: s.temp_c,
+        }),
+        |e| want.push(e),
+    )
+    .unwrap();
+    assert_eq!(
+        (want_counts.samples_glitch, want_counts.samples_dropout),
+        (1, 1)
+    );
+    // The first checkpoint follows update 3 (sample 97 in); the next one update 6 (187).
+    for at in 98..=200 {
+        let (got, resumes, _) = replay_with_resets(&samples, &[at], 7);
+        assert_eq!(resumes.len(), 1);
+        assert_eq!(
+            got, want,
+            "reset after sample {at}: resumed {:?}",
+            resumes[0]
+        );
+    }
 }

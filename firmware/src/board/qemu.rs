@@ -27,6 +27,7 @@ use cortex_m_rt::exception;
 use cortex_m_semihosting::{debug, hprintln};
 use firmware_app::app::{App, NoTimer, Platform};
 use firmware_app::checkpoints::RamFlash;
+use firmware_app::cmsdk_uart::{self, Regs, STATE, STATE_TX_FULL};
 use firmware_app::serial::{RingSerial, RxRing, RX_RING_BYTES};
 use firmware_app::NoSensor;
 use protocol::{Board, Fault, FaultCode};
@@ -38,17 +39,8 @@ pub const RAM_ORIGIN: usize = 0x2000_0000;
 pub const SYSCLK_HZ: u32 = 25_000_000;
 
 const UART0: usize = 0x4000_4000;
-const DATA: usize = 0x00;
-const STATE: usize = 0x04;
-const CTRL: usize = 0x08;
-const BAUDDIV: usize = 0x10;
-const INTCLEAR: usize = 0x0C;
-const STATE_TX_FULL: u32 = 1 << 0;
-const STATE_RX_FULL: u32 = 1 << 1;
-const CTRL_TX_EN: u32 = 1 << 0;
-const CTRL_RX_EN: u32 = 1 << 1;
-const CTRL_RX_INT_EN: u32 = 1 << 3;
-const INT_RX: u32 = 1 << 1;
+/// UART0's baud-rate divider (QEMU ignores the rate; it must be >= 16 to enable the UART).
+const BAUDDIV: u32 = 16;
 
 /// UART0's receive interrupt on mps2-an500 (QEMU `hw/arm/mps2.c`: RX IRQ 0, TX IRQ 1).
 #[derive(Clone, Copy)]
@@ -68,13 +60,8 @@ static RX: RxRing<RX_RING_BYTES> = RxRing::new();
 #[exception]
 unsafe fn DefaultHandler(irqn: i16) {
     if irqn == 0 {
-        // SAFETY: MMIO registers of UART0; the main loop only transmits (TX registers).
-        unsafe {
-            write_volatile((UART0 + INTCLEAR) as *mut u32, INT_RX);
-            while read_volatile((UART0 + STATE) as *const u32) & STATE_RX_FULL != 0 {
-                RX.push(read_volatile((UART0 + DATA) as *const u32) as u8);
-            }
-        }
+        // UART0's registers; the main loop only transmits (TX registers).
+        cmsdk_uart::on_rx_interrupt(&mut Mmio(UART0), &RX);
     } else {
         fatal(
             FaultCode::HardFault,
@@ -83,27 +70,41 @@ unsafe fn DefaultHandler(irqn: i16) {
     }
 }
 
-/// The CMSDK APB UART as an embedded-io port.
+/// A CMSDK APB UART's registers at `.0`, by volatile access.
+struct Mmio(usize);
+
+impl Regs for Mmio {
+    fn read(&mut self, offset: usize) -> u32 {
+        // SAFETY: a register of the UART at `self.0` (UART0: the only one this board uses).
+        unsafe { read_volatile((self.0 + offset) as *const u32) }
+    }
+    fn write(&mut self, offset: usize, value: u32) {
+        // SAFETY: as in `read`.
+        unsafe { write_volatile((self.0 + offset) as *mut u32, value) }
+    }
+}
+
+/// The CMSDK APB UART's transmitter as an embedded-io port.
 pub struct Uart {
-    base: usize,
+    regs: Mmio,
 }
 
 impl Uart {
+    /// Enables the transmitter only ([`cmsdk_uart::init_tx`]); [`init`] enables reception.
+    ///
     /// # Safety
     /// One instance per UART.
     unsafe fn new(base: usize) -> Self {
-        write_volatile((base + BAUDDIV) as *mut u32, 16);
-        write_volatile((base + CTRL) as *mut u32, CTRL_TX_EN | CTRL_RX_EN);
-        Uart { base }
+        let mut regs = Mmio(base);
+        cmsdk_uart::init_tx(&mut regs, BAUDDIV);
+        Uart { regs }
     }
-    fn state(&self) -> u32 {
-        // SAFETY: MMIO register of our UART.
-        unsafe { read_volatile((self.base + STATE) as *const u32) }
+    fn state(&mut self) -> u32 {
+        self.regs.read(STATE)
     }
     fn put(&mut self, b: u8) {
         while self.state() & STATE_TX_FULL != 0 {}
-        // SAFETY: MMIO register of our UART.
-        unsafe { write_volatile((self.base + DATA) as *mut u32, u32::from(b)) }
+        self.regs.write(cmsdk_uart::DATA, u32::from(b));
     }
 }
 
@@ -205,15 +206,12 @@ pub fn init() -> Parts {
     start_systick(cp.SYST);
     // SAFETY: the only UART0 instance.
     let uart = unsafe { Uart::new(UART0) };
-    // Reception by interrupt from here on.
-    // SAFETY: UART0 registers; the interrupt handler is DefaultHandler above.
-    unsafe {
-        write_volatile(
-            (UART0 + CTRL) as *mut u32,
-            CTRL_TX_EN | CTRL_RX_EN | CTRL_RX_INT_EN,
-        );
-        cortex_m::peripheral::NVIC::unmask(Uart0Rx);
-    }
+    // Reception by interrupt from here on: the receiver and its interrupt in one write (a byte
+    // arriving between two writes would wedge QEMU's UART: firmware_app::cmsdk_uart), then the
+    // NVIC line (a byte already received has latched it pending).
+    cmsdk_uart::enable_rx(&mut Mmio(UART0));
+    // SAFETY: UART0's receive interrupt; its handler is DefaultHandler above.
+    unsafe { cortex_m::peripheral::NVIC::unmask(Uart0Rx) };
     Parts {
         serial: RingSerial::new(&RX, uart),
         accel: NoSensor,
@@ -257,7 +255,6 @@ pub fn fatal(code: FaultCode, detail: core::fmt::Arguments<'_>) -> ! {
 #[cfg(feature = "selftest")]
 pub fn selftest() -> ! {
     use estimator_core::{Averager, Sample};
-    use firmware_app::app::filter_for;
     let cp = cortex_m::Peripherals::take().expect("peripherals taken once");
     start_systick(cp.SYST);
     // 2 instructions per iteration: subs + bne.
@@ -270,7 +267,7 @@ pub fn selftest() -> ! {
     let cal = ticks().wrapping_sub(t0);
     let instr_per_tick = f64::from(2 * ITER) / f64::from(cal.max(1));
     let cfg = protocol::Config::default();
-    let mut ekf = filter_for(&cfg).expect("default config");
+    let ekf = static_filter(&cfg, false);
     let mut avg = Averager::new(cfg.filter_period_s, cfg.raw_sigma_mps2);
     let g = 9.800_898;
     let (mut n, mut sum, mut min, mut max) = (0u32, 0u64, u32::MAX, 0u32);
@@ -284,7 +281,7 @@ pub fn selftest() -> ! {
         };
         if let Some(m) = avg.push(&s) {
             let t0 = ticks();
-            ekf.step(&m).expect("filter step");
+            firmware_app::app::filter_step(ekf, &m).expect("filter step");
             let dt = ticks().wrapping_sub(t0);
             if n > 0 {
                 // the first update has no prediction
@@ -298,7 +295,7 @@ pub fn selftest() -> ! {
     // The checkpoint path the link loop runs (its deepest stack): encode the resume block and
     // the filter image, append it to the log in the board's storage, load it back, restore.
     let storage = init_storage();
-    let ckpt = checkpoint_round_trip(&ekf, storage);
+    let ckpt = checkpoint_round_trip(ekf, storage);
     hprintln!("checkpoint round trip: {}", ckpt);
     let steps = n - 1;
     let mean = sum as f64 / f64::from(steps);
@@ -342,35 +339,60 @@ pub fn selftest() -> ! {
 fn checkpoint_round_trip(ekf: &firmware_app::app::Filter, storage: Storage) -> &'static str {
     use firmware_app::checkpoints::{CheckpointStore, MAX_PAYLOAD};
     use firmware_app::resume;
+    use firmware_app::screen::Screen;
     let Ok(mut store) = CheckpointStore::new(storage) else {
         return "storage geometry refused";
     };
-    let mut buf = [0u8; MAX_PAYLOAD];
+    // The application keeps its checkpoint buffer and screening in its state (a static), not on
+    // the stack: so does the self-test.
+    let Some(buf) = cortex_m::singleton!(: [u8; MAX_PAYLOAD] = [0; MAX_PAYLOAD]) else {
+        return "buffer taken";
+    };
+    let cfg = protocol::Config::default();
+    let Some(screen) = cortex_m::singleton!(: Screen = Screen::new(&cfg, None)) else {
+        return "screening taken";
+    };
     let point = resume::ResumePoint {
         next_seq: 0,
         last_t_s: None,
     };
-    let cfg = protocol::Config::default();
-    let Ok(n) = resume::encode_run(&mut buf, protocol::Source::Replay, point, &cfg, ekf) else {
+    let Ok(n) = resume::encode_run(buf, protocol::Source::Replay, point, &cfg, screen, ekf) else {
         return "encode failed";
     };
     if store.save(&buf[..n]).is_err() {
         return "save failed";
     }
-    match store.load(&mut buf) {
+    match store.load(buf) {
         // As the application restores: decode, a fresh filter, its image loaded in place.
         Ok(Some(f)) => match resume::decode(&buf[..f.len]) {
-            Ok(Some(b)) => match firmware_app::app::filter_for(&b.config) {
-                Ok(mut restored) => match resume::load_filter(&mut restored, b.image) {
+            Ok(Some(b)) if screen.load(b.screen_state).is_none() => "screening state refused",
+            Ok(Some(b)) => {
+                let restored = static_filter(&b.config, true);
+                match resume::load_filter(restored, b.image) {
                     Ok(()) if restored.state() == ekf.state() => "ok",
                     _ => "restore failed",
-                },
-                Err(_) => "filter refused",
-            },
+                }
+            }
             _ => "decode failed",
         },
         _ => "load failed",
     }
+}
+
+/// A filter of `cfg` in a static, as the application keeps its filter (in its state, a
+/// static): the self-test's stack high-water is then the EKF's and the checkpoint path's, not
+/// copies of the filter. Its own frame holds the new filter until it is moved in.
+#[cfg(feature = "selftest")]
+#[inline(never)]
+fn static_filter(cfg: &protocol::Config, second: bool) -> &'static mut firmware_app::app::Filter {
+    use firmware_app::app::Filter;
+    let f = firmware_app::app::filter_for(cfg).expect("default config");
+    let cell = if second {
+        cortex_m::singleton!(: Filter = f)
+    } else {
+        cortex_m::singleton!(: Filter = f)
+    };
+    cell.expect("each filter made once")
 }
 
 #[cfg(feature = "selftest")]

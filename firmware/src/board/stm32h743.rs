@@ -60,7 +60,9 @@ pub struct Delay;
 
 impl embedded_hal::delay::DelayNs for Delay {
     fn delay_ns(&mut self, ns: u32) {
-        cortex_m::asm::delay((u64::from(ns) * u64::from(CORE_HZ) / 1_000_000_000) as u32 + 1);
+        // 64 cycles per µs, in 32-bit arithmetic (a 64-bit division costs ~1 KB of flash).
+        const PER_US: u32 = CORE_HZ / 1_000_000;
+        cortex_m::asm::delay(ns / 1000 * PER_US + ns % 1000 * PER_US / 1000 + 1);
     }
 }
 
@@ -164,6 +166,7 @@ fn uart_config() -> usart::Config {
 }
 
 /// Brings up clocks, link, sensor and timers.
+#[inline(never)]
 pub fn init() -> Parts {
     let mut config = embassy_stm32::Config::default();
     // HSI 64 MHz everywhere (the reset clock), and SPI1's kernel clock from per_ck = HSI.
@@ -184,8 +187,9 @@ pub fn init() -> Parts {
     static mut RX_BUF: [u8; RX_RING_BYTES] = [0; RX_RING_BYTES];
     // SAFETY: init runs once; these are the only references to the two buffers.
     let (tx_buf, rx_buf) = unsafe { (&mut *addr_of_mut!(TX_BUF), &mut *addr_of_mut!(RX_BUF)) };
+    // Not `expect`: that would link the error's `Debug` (the panic handler prints no message).
     let serial = BufferedUart::new(p.USART3, p.PD9, p.PD8, tx_buf, rx_buf, Irqs, uart_config())
-        .expect("USART3 configuration");
+        .unwrap_or_else(|_| panic!("USART3 configuration"));
 
     let mut spi_config = spi::Config::default();
     spi_config.frequency = Hertz(4_000_000);
@@ -246,7 +250,7 @@ impl core::fmt::Display for SensorFault<'_> {
             adxl355::Error::SelfTest { axis, response_g } => write!(
                 f,
                 "self-test axis {axis}: response {} mg out of limits",
-                (response_g * 1e3) as i64
+                (response_g * 1e3) as i32
             ),
             adxl355::Error::NotReady => write!(f, "no new data"),
         }

@@ -122,7 +122,7 @@ pub fn describe(msg: &Message) -> String {
         Message::Status(s) => {
             let c = &s.counters;
             format!(
-                "status{} t={} s running={}{} samples ok {} nan {} sat {} stuck {} read-err {} dup {} order {} resync {}; steps {} (errors {}, gated {}); checkpoints {} (errors {}); rx {} bad {} missing {}; refused {}; stack {}/{} B, static {} B",
+                "status{} t={} s running={}{} samples ok {} nan {} sat {} stuck {} glitch {} dropout {} read-err {} dup {} order {} resync {}; steps {} (errors {}, gated {}); checkpoints {} (errors {}); rx {} bad {} missing {}; refused {}; stack {}/{} B, static {} B",
                 if s.boot { " (boot)" } else { "" },
                 s.t_s,
                 s.running,
@@ -134,6 +134,8 @@ pub fn describe(msg: &Message) -> String {
                 c.samples_nan,
                 c.samples_saturated,
                 c.samples_stuck,
+                c.samples_glitch,
+                c.samples_dropout,
                 c.read_errors,
                 c.samples_duplicate,
                 c.samples_out_of_order,
