@@ -279,6 +279,16 @@ fn unrepairable_faults_are_refused_or_not_trusted() {
     let prep = prepare(site, &s, &Config::default()).unwrap();
     assert!(kinds(&prep).contains(&"step"), "{:?}", kinds(&prep));
     assert!(!prep.untrusted_reasons().is_empty());
+    // A step of 2e-2 m/s^2, 26× the raw noise: the samples at the jump depart from their
+    // neighbours' line and are rejected as glitches, which tags the step's window off the
+    // grid; the step must still be named (third divided differences), not hidden by it.
+    let mut s = clean.clone();
+    s[half..]
+        .iter_mut()
+        .for_each(|x| x.specific_force[1] += 2e-2);
+    let prep = prepare(site, &s, &Config::default()).unwrap();
+    assert!(kinds(&prep).contains(&"step"), "{:?}", kinds(&prep));
+    assert!(!prep.untrusted_reasons().is_empty());
 }
 
 #[test]

@@ -14,19 +14,37 @@ pub const STEP_SIGMAS: f64 = 8.0;
 /// The means' scatter must differ from white raw noise by at least this factor to replace it.
 pub const MEAN_NOISE_FACTOR: f64 = 1.5;
 
-/// Third differences of each axis over runs of four evenly spaced means (spacing equal to 1e-3:
-/// the third difference of a line vanishes only on an even grid, and a window cut short by a
-/// gap or rejected samples is tagged off it): (index of the first, value).
+/// Third differences of each axis over runs of four consecutive means: (index of the first,
+/// value). On an even grid of spacing h this is x₃ − 3x₂ + 3x₁ − x₀; on an uneven one (a window
+/// with rejected samples or cut short by a gap is tagged off the grid) it is the third divided
+/// difference times 6h³, h = (t₃ − t₀)/3, which also vanishes on a line or a parabola. Runs with a
+/// spacing outside [h/2, 3h/2] (a gap) are skipped. Skipping every uneven run instead once hid a
+/// 2e-2 m/s² bias step: the samples at the jump are rejected as glitches, which moves exactly
+/// the step's window off the grid.
 fn third_differences(means: &[Measurement], axis: usize) -> Vec<(usize, f64)> {
     let mut out = vec![];
     for k in 0..means.len().saturating_sub(3) {
-        let dt = means[k + 1].t_s - means[k].t_s;
-        let even =
-            (1..3).all(|i| ((means[k + i + 1].t_s - means[k + i].t_s) / dt - 1.0).abs() < 1e-3);
-        if even {
-            let x = |i: usize| means[k + i].specific_force[axis];
-            out.push((k, x(3) - 3.0 * x(2) + 3.0 * x(1) - x(0)));
+        let t = |i: usize| means[k + i].t_s;
+        let h = (t(3) - t(0)) / 3.0;
+        let regular = h > 0.0 && (0..3).all(|i| (t(i + 1) - t(i) - h).abs() <= 0.5 * h);
+        if !regular {
+            continue;
         }
+        let x = |i: usize| means[k + i].specific_force[axis];
+        let even = (0..3).all(|i| ((t(i + 1) - t(i)) / h - 1.0).abs() < 1e-3);
+        let d = if even {
+            x(3) - 3.0 * x(2) + 3.0 * x(1) - x(0)
+        } else {
+            // Σ xᵢ / Πⱼ≠ᵢ (tᵢ − tⱼ), scaled to the even grid's form.
+            let divided: f64 = (0..4)
+                .map(|i| {
+                    let den: f64 = (0..4).filter(|&j| j != i).map(|j| t(i) - t(j)).product();
+                    x(i) / den
+                })
+                .sum();
+            6.0 * h * h * h * divided
+        };
+        out.push((k, d));
     }
     out
 }
