@@ -423,12 +423,15 @@ fn group_flags(samples: &[Sample], flags: &[u8], sum: &ScreenSummary) -> Vec<Fin
     }
     for ax in 0..3 {
         let bit = screening::axis_bit(ax);
+        // A dropout (every axis exactly 0) is reported as a dropout, not also as a stuck run
+        // on each axis.
+        let stuck_here = |f: u8| f & flag::STUCK != 0 && f & bit != 0 && f & flag::ZERO == 0;
         let mut runs = vec![];
         let mut k = 0;
         while k < samples.len() {
-            if flags[k] & flag::STUCK != 0 && flags[k] & bit != 0 {
+            if stuck_here(flags[k]) {
                 let start = k;
-                while k < samples.len() && flags[k] & flag::STUCK != 0 && flags[k] & bit != 0 {
+                while k < samples.len() && stuck_here(flags[k]) {
                     k += 1;
                 }
                 runs.push((start, k));
