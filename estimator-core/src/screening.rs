@@ -612,8 +612,12 @@ impl Screener {
     }
 
     fn drop_front(&mut self) {
-        self.buf.copy_within(1..self.len, 0);
-        self.flags.copy_within(1..self.len, 0);
+        // Shifted by swaps, not `copy_within`: that was the firmware's only memmove (1.5 KB of
+        // compiler_builtins in the image). The front sample ends past `len`, never read.
+        for k in 1..self.len {
+            self.buf.swap(k - 1, k);
+            self.flags.swap(k - 1, k);
+        }
         self.len -= 1;
         self.emitted = self.emitted.saturating_sub(1);
     }
