@@ -106,15 +106,7 @@ fn a_short_run_iterates_until_the_smoother_converges() {
     sc.hours = 10.0;
     sc.rate_s = 10.0;
     let sim = simulate(&sc);
-    let samples: Vec<Sample> = sim
-        .samples
-        .iter()
-        .map(|s| Sample {
-            t_s: s.t_s,
-            specific_force: s.specific_force_mps2,
-            temp_c: f64::NAN,
-        })
-        .collect();
+    let samples: Vec<Sample> = sim.samples.iter().map(Sample::from).collect();
     let site = Site::new(sc.latitude_deg, sc.gravity_mps2);
     let model = Model::new(
         site,

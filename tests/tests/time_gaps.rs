@@ -69,15 +69,7 @@ fn high_latitude_runs_keep_their_seconds() {
         sc.hours = 54.0;
         sc.latitude_deg = lat;
         let sim = simulate(&sc);
-        let samples: Vec<Sample> = sim
-            .samples
-            .iter()
-            .map(|s| Sample {
-                t_s: s.t_s,
-                specific_force: s.specific_force_mps2,
-                temp_c: f64::NAN,
-            })
-            .collect();
+        let samples: Vec<Sample> = sim.samples.iter().map(Sample::from).collect();
         let site = Site::new(lat, sc.gravity_mps2);
         let scale = host_tool::quality::time::time_scale(&site, &samples)
             .expect("a 54-h run sweeps enough to test the unit");
