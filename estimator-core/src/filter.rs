@@ -301,19 +301,25 @@ impl<'m, const CAP: usize> Ekf<'m, CAP> {
             temp_dev_c,
             &mut tr,
         );
-        let mut is_dyn = [false; CAP];
-        for &d in dynamic {
-            is_dyn[d] = true;
-        }
+        let dyn_mask = self.model.dynamic_mask();
         // Φ = [[Φ_D], [0 I]] (the dynamic rows Φ_D, identity elsewhere), so in P⁻ = Φ P Φᵀ + Q
         // only the dynamic rows/columns change: with B = Φ_D P, P⁻[D, c] = B[·, c] for the
         // other columns and P⁻[D, D] = B Φ_Dᵀ + Q_D. O(nd·n²) instead of O(n³).
+        // B's rows are sums of P's rows (P is symmetric: row k = the stored column k) weighted
+        // by Φ_D's non-zero entries — a Gauss–Markov row has one.
         let b = &mut saved.rows;
         let data = self.p.as_slice();
-        for c in 0..n {
-            let col = &data[c * CAP..c * CAP + n];
-            for r in 0..nd {
-                b[r][c] = dot(&tr.rows[r][..n], col);
+        for r in 0..nd {
+            let phi = &tr.rows[r][..n];
+            let row = &mut b[r][..n];
+            row.iter_mut().for_each(|v| *v = 0.0);
+            for (kk, &f) in phi.iter().enumerate() {
+                if f != 0.0 {
+                    let prow = &data[kk * CAP..kk * CAP + n];
+                    for (v, &p) in row.iter_mut().zip(prow) {
+                        *v += f * p;
+                    }
+                }
             }
         }
         let mut dd = [[0.0; MAX_DYNAMIC]; MAX_DYNAMIC];
@@ -336,7 +342,7 @@ impl<'m, const CAP: usize> Ekf<'m, CAP> {
                 core::mem::swap(&mut b[r][c], &mut self.p[(d, c)]);
             }
             for c in 0..n {
-                if !is_dyn[c] {
+                if dyn_mask >> c & 1 == 0 {
                     self.p[(c, d)] = self.p[(d, c)];
                 }
             }
@@ -432,41 +438,40 @@ impl<'m, const CAP: usize> Ekf<'m, CAP> {
             self.model
                 .measurement(&self.x[..n], m.t_s, temp_dev, m.time_var_s2, &mut h);
         let nu = Vector3::from(m.specific_force) - predicted;
-        let mut cols = [0usize; CAP];
-        let mut nm = 0;
-        for j in 0..n {
-            if self.model.is_measured(j) {
-                cols[nm] = j;
-                nm += 1;
-            }
-        }
-        let cols = &cols[..nm];
-        // P Hᵀ (n×3), using only the measured columns of H.
-        let mut pht = [Vector3::zeros(); CAP];
-        {
-            let data = self.p.as_slice();
-            for &j in cols {
-                let hj = h[j];
-                for (acc, &pij) in pht[..n].iter_mut().zip(&data[j * CAP..j * CAP + n]) {
-                    *acc += hj * pij;
+        // The n×3 factors of the update are kept as three columns each (`pht[a][i]` =
+        // (P Hᵀ)[i][a]), contiguous over the state index: the loops over i below are then
+        // plain vector operations.
+        // P Hᵀ, using only the measured columns of H.
+        let mut pht = [[0.0; CAP]; 3];
+        let data = self.p.as_slice();
+        let mut measured = self.model.measured_mask();
+        while measured != 0 {
+            let j = measured.trailing_zeros() as usize;
+            measured &= measured - 1;
+            let hj = h[j];
+            let col = &data[j * CAP..j * CAP + n];
+            for (a, out) in pht.iter_mut().enumerate() {
+                for (acc, &pij) in out[..n].iter_mut().zip(col) {
+                    *acc += hj[a] * pij;
                 }
             }
         }
         let r = Vector3::from(m.variance);
         let mut s = Matrix3::from_diagonal(&r);
-        for &j in cols {
-            s += h[j] * pht[j].transpose();
+        let mut measured = self.model.measured_mask();
+        while measured != 0 {
+            let j = measured.trailing_zeros() as usize;
+            measured &= measured - 1;
+            let pj = Vector3::new(pht[0][j], pht[1][j], pht[2][j]);
+            s += h[j] * pj.transpose();
         }
         s = (s + s.transpose()) * 0.5;
-        let chol = s
-            .cholesky()
-            .ok_or(FilterError::SingularInnovation { step })?;
-        let s_inv = chol.inverse();
-        let whitened = chol
-            .l()
-            .solve_lower_triangular(&nu)
-            .ok_or(FilterError::SingularInnovation { step })?;
-        let nis = nu.dot(&(s_inv * nu));
+        // S = L Lᵀ in closed form (3×3), S⁻¹ = L⁻ᵀ L⁻¹ and the whitened innovation L⁻¹ ν.
+        let l = cholesky3(&s).ok_or(FilterError::SingularInnovation { step })?;
+        let l_inv = lower_inverse3(&l);
+        let s_inv = l_inv.transpose() * l_inv;
+        let whitened = l_inv * nu;
+        let nis = whitened.norm_squared();
         let residual = Residual {
             step,
             t_s: m.t_s,
@@ -487,26 +492,46 @@ impl<'m, const CAP: usize> Ekf<'m, CAP> {
                 });
             }
         }
-        let mut k = [Vector3::zeros(); CAP];
-        for i in 0..n {
-            k[i] = s_inv * pht[i];
+        // Gain K = P Hᵀ S⁻¹, and M = K S − P Hᵀ.
+        let mut k = [[0.0; CAP]; 3];
+        let mut mm = [[0.0; CAP]; 3];
+        {
+            let (p0, p1, p2) = (&pht[0][..n], &pht[1][..n], &pht[2][..n]);
+            let [k0, k1, k2] = &mut k;
+            let (k0, k1, k2) = (&mut k0[..n], &mut k1[..n], &mut k2[..n]);
+            for i in 0..n {
+                k0[i] = s_inv[(0, 0)] * p0[i] + s_inv[(0, 1)] * p1[i] + s_inv[(0, 2)] * p2[i];
+                k1[i] = s_inv[(1, 0)] * p0[i] + s_inv[(1, 1)] * p1[i] + s_inv[(1, 2)] * p2[i];
+                k2[i] = s_inv[(2, 0)] * p0[i] + s_inv[(2, 1)] * p1[i] + s_inv[(2, 2)] * p2[i];
+            }
+            let [m0, m1, m2] = &mut mm;
+            let (m0, m1, m2) = (&mut m0[..n], &mut m1[..n], &mut m2[..n]);
+            for i in 0..n {
+                m0[i] = s[(0, 0)] * k0[i] + s[(0, 1)] * k1[i] + s[(0, 2)] * k2[i] - p0[i];
+                m1[i] = s[(1, 0)] * k0[i] + s[(1, 1)] * k1[i] + s[(1, 2)] * k2[i] - p1[i];
+                m2[i] = s[(2, 0)] * k0[i] + s[(2, 1)] * k1[i] + s[(2, 2)] * k2[i] - p2[i];
+            }
         }
         // Joseph form P⁺ = (I−KH) P (I−KH)ᵀ + K R Kᵀ, multiplied out:
-        //   P⁺ = P − K (HP) − (PHᵀ) Kᵀ + K S Kᵀ   (S = HPHᵀ + R),
-        // which is the same function of K (valid for any gain, not only the optimal one) and is
-        // symmetric term by term: we evaluate the upper triangle and mirror it. Only the
-        // measured columns of H entered PHᵀ and S above; K and P⁺ are dense.
-        let mut sk = [Vector3::zeros(); CAP];
-        for c in 0..n {
-            sk[c] = s * k[c];
-        }
+        //   P⁺ = P − K (HP) − (PHᵀ) Kᵀ + K S Kᵀ   (S = HPHᵀ + R)
+        //      = P − K (PHᵀ)ᵀ + M Kᵀ              (M = K S − PHᵀ),
+        // the same function of K (valid for any gain, not only the optimal one), 6 products
+        // per entry. We evaluate the upper triangle and mirror it. Only the measured columns of
+        // H entered PHᵀ and S above; K and P⁺ are dense.
         // The diagonal and the state first: a refused update (unhealthy) writes nothing, and the
         // caller undoes the prediction.
         let mut diag = [0.0; CAP];
         let mut x_new = [0.0; CAP];
         for i in 0..n {
-            let d = self.p[(i, i)] - k[i].dot(&pht[i]) - pht[i].dot(&k[i]) + k[i].dot(&sk[i]);
-            let x = self.x[i] + k[i].dot(&nu);
+            let ki = [k[0][i], k[1][i], k[2][i]];
+            let d = joseph(
+                self.p[(i, i)],
+                ki,
+                [mm[0][i], mm[1][i], mm[2][i]],
+                [pht[0][i], pht[1][i], pht[2][i]],
+                ki,
+            );
+            let x = self.x[i] + (ki[0] * nu.x + ki[1] * nu.y + ki[2] * nu.z);
             if !(d.is_finite() && d > 0.0 && x.is_finite()) {
                 return Err(FilterError::Unhealthy { step, index: i });
             }
@@ -515,17 +540,72 @@ impl<'m, const CAP: usize> Ekf<'m, CAP> {
         }
         let data = self.p.as_mut_slice();
         for c in 0..n {
-            let (kc, phc, skc) = (k[c], pht[c], sk[c]);
+            let kc = [k[0][c], k[1][c], k[2][c]];
+            let phc = [pht[0][c], pht[1][c], pht[2][c]];
+            let col = &mut data[c * CAP..c * CAP + c];
+            let (k0, k1, k2) = (&k[0][..c], &k[1][..c], &k[2][..c]);
+            let (m0, m1, m2) = (&mm[0][..c], &mm[1][..c], &mm[2][..c]);
             for i in 0..c {
-                let v = data[c * CAP + i] - k[i].dot(&phc) - pht[i].dot(&kc) + k[i].dot(&skc);
-                data[c * CAP + i] = v;
-                data[i * CAP + c] = v;
+                col[i] = joseph(
+                    col[i],
+                    [k0[i], k1[i], k2[i]],
+                    [m0[i], m1[i], m2[i]],
+                    phc,
+                    kc,
+                );
+            }
+        }
+        for c in 0..n {
+            for i in 0..c {
+                data[i * CAP + c] = data[c * CAP + i];
             }
             data[c * CAP + c] = diag[c];
         }
         self.x[..n].copy_from_slice(&x_new[..n]);
         Ok(residual)
     }
+}
+
+/// One entry of the Joseph-form update `P⁺[i][c] = P[i][c] − K[i]·PHᵀ[c] + M[i]·K[c]`.
+#[inline(always)]
+fn joseph(p: f64, ki: [f64; 3], mi: [f64; 3], phc: [f64; 3], kc: [f64; 3]) -> f64 {
+    p - (ki[0] * phc[0] + ki[1] * phc[1] + ki[2] * phc[2])
+        + (mi[0] * kc[0] + mi[1] * kc[1] + mi[2] * kc[2])
+}
+
+/// Lower Cholesky factor L of a symmetric 3×3 `S = L Lᵀ`, or `None` if S is not positive
+/// definite (a pivot ≤ 0 or NaN).
+fn cholesky3(s: &Matrix3<f64>) -> Option<Matrix3<f64>> {
+    let d0 = s[(0, 0)];
+    if !(d0 > 0.0) {
+        return None;
+    }
+    let l00 = libm::sqrt(d0);
+    let l10 = s[(1, 0)] / l00;
+    let l20 = s[(2, 0)] / l00;
+    let d1 = s[(1, 1)] - l10 * l10;
+    if !(d1 > 0.0) {
+        return None;
+    }
+    let l11 = libm::sqrt(d1);
+    let l21 = (s[(2, 1)] - l20 * l10) / l11;
+    let d2 = s[(2, 2)] - l20 * l20 - l21 * l21;
+    if !(d2 > 0.0) {
+        return None;
+    }
+    let l22 = libm::sqrt(d2);
+    Some(Matrix3::new(l00, 0.0, 0.0, l10, l11, 0.0, l20, l21, l22))
+}
+
+/// Inverse of a lower-triangular 3×3 with a non-zero diagonal (lower-triangular too).
+fn lower_inverse3(l: &Matrix3<f64>) -> Matrix3<f64> {
+    let i00 = 1.0 / l[(0, 0)];
+    let i11 = 1.0 / l[(1, 1)];
+    let i22 = 1.0 / l[(2, 2)];
+    let i10 = -l[(1, 0)] * i00 * i11;
+    let i21 = -l[(2, 1)] * i11 * i22;
+    let i20 = -(l[(2, 0)] * i00 + l[(2, 1)] * i10) * i22;
+    Matrix3::new(i00, 0.0, 0.0, i10, i11, 0.0, i20, i21, i22)
 }
 
 fn dot(a: &[f64], b: &[f64]) -> f64 {

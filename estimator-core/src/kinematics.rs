@@ -15,8 +15,19 @@ pub fn rate_to_euler(att: &Attitude) -> Matrix3<f64> {
 
 /// [`rate_to_euler`] from (sin, cos) of ty and of tz, which are all K depends on.
 pub fn rate_to_euler_yz((sy, cy): (f64, f64), (sz, cz): (f64, f64)) -> Matrix3<f64> {
-    let ty = sy / cy;
-    Matrix3::new(cz / cy, -sz / cy, 0.0, sz, cz, 0.0, -ty * cz, ty * sz, 1.0)
+    let inv_cy = 1.0 / cy; // one division, not three
+    let ty = sy * inv_cy;
+    Matrix3::new(
+        cz * inv_cy,
+        -sz * inv_cy,
+        0.0,
+        sz,
+        cz,
+        0.0,
+        -ty * cz,
+        ty * sz,
+        1.0,
+    )
 }
 
 /// ∂(K(θ)·w)/∂θ_j at fixed `w`, as the three columns j = x, y, z.
@@ -25,10 +36,11 @@ pub fn d_rate_to_euler(att: &Attitude, w: &Vector3<f64>) -> [Vector3<f64>; 3] {
     let (sz, cz) = (att.sin.z, att.cos.z);
     let a = cz * w.x - sz * w.y;
     let b = sz * w.x + cz * w.y;
-    let cy2 = cy * cy;
+    let inv_cy = 1.0 / cy; // one division, not four
+    let a_cy2 = a * inv_cy * inv_cy;
     [
         Vector3::zeros(),
-        Vector3::new(a * sy / cy2, 0.0, -a / cy2),
-        Vector3::new(-b / cy, a, sy / cy * b),
+        Vector3::new(a_cy2 * sy, 0.0, -a_cy2),
+        Vector3::new(-b * inv_cy, a, sy * inv_cy * b),
     ]
 }

@@ -80,6 +80,8 @@ pub struct Model<'m> {
     /// Indices of states with dynamics (angles first, then Gauss–Markov states).
     dynamic: [usize; MAX_DYNAMIC],
     n_dynamic: usize,
+    /// The same dynamic states as a bit set (bit i: state i has dynamics).
+    dynamic_mask: u64,
     /// Gauss–Markov parameters of each dynamic state (unused for the angles).
     markov: [Markov; MAX_DYNAMIC],
     /// States that enter the measurement (angles + accelerometer-effect parameters), as a bit set.
@@ -136,6 +138,7 @@ impl<'m> Model<'m> {
             n += dim;
         }
         offsets[effects.len()] = n;
+        let dynamic_mask = dynamic[..n_dynamic].iter().fold(0, |m, &d| m | 1u64 << d);
         Ok(Model {
             site,
             gravity_r: site.gravity_r(),
@@ -144,6 +147,7 @@ impl<'m> Model<'m> {
             offsets,
             dynamic,
             n_dynamic,
+            dynamic_mask,
             markov,
             measured,
             arw_rad2ps,
@@ -179,6 +183,10 @@ impl<'m> Model<'m> {
     pub fn dynamic_states(&self) -> &[usize] {
         &self.dynamic[..self.n_dynamic]
     }
+    /// The dynamic states as a bit set: bit i is set when state i has dynamics.
+    pub fn dynamic_mask(&self) -> u64 {
+        self.dynamic_mask
+    }
     /// Gauss–Markov dynamics of the `r`-th dynamic state (`r ≥ 3`).
     pub fn markov(&self, r: usize) -> Markov {
         self.markov[r]
@@ -186,6 +194,11 @@ impl<'m> Model<'m> {
     /// Whether state `i` enters the measurement directly (H column may be non-zero).
     pub fn is_measured(&self, i: usize) -> bool {
         self.measured >> i & 1 == 1
+    }
+    /// The states that enter the measurement directly as a bit set (bit i: H column i may be
+    /// non-zero): the angles and the accelerometer-effect parameters.
+    pub fn measured_mask(&self) -> u64 {
+        self.measured
     }
     /// The effect owning state `i ≥ 3` and the parameter's index within it.
     pub fn owner(&self, i: usize) -> Option<(usize, usize)> {

@@ -57,33 +57,32 @@ fn derivative<const CAP: usize>(
     let n = model.dim();
     let dynamic = model.dynamic_states();
     let rate = model.angle_rate(x, t_s, temp_dev_c, jac);
-    let mut is_dyn = [false; CAP];
-    for &d in dynamic {
-        is_dyn[d] = true;
+    let dyn_mask = model.dynamic_mask();
+    out.xdot[..ANGLES].copy_from_slice(rate.as_slice());
+    // F[0..3][dynamic[r]], the angle rows' entries in the dynamic columns.
+    let nd = dynamic.len();
+    let mut f_dd = [Vector3::zeros(); MAX_DYNAMIC];
+    for (f, &d) in f_dd.iter_mut().zip(dynamic) {
+        *f = jac[d];
     }
-    for i in 0..ANGLES {
-        out.xdot[i] = rate[i];
-        // Row i of F·Φ, Φ = [[Φ_D], [0 I]]: F[i][c] for a non-dynamic column c (Φ's row there
-        // is the identity's), plus Σ_r F[i][dynamic[r]]·Φ_D[r][c] over the non-zero F entries —
-        // added in r order, each column's sum kept in a register.
-        let mut terms = [(0usize, 0.0f64); MAX_DYNAMIC];
-        let mut nt = 0;
-        for (r, &d) in dynamic.iter().enumerate() {
-            let f = jac[d][i];
-            if f != 0.0 {
-                terms[nt] = (r, f);
-                nt += 1;
-            }
+    let f_dd = &f_dd[..nd];
+    // Column c of rows 0..3 of F·Φ, Φ = [[Φ_D], [0 I]]: F[·][c] for a non-dynamic column c
+    // (Φ's row there is the identity's), plus Σ_r F[·][dynamic[r]]·Φ_D[r][c], in r order.
+    // One pass over the columns, the three rows' sums in registers.
+    let [p0, p1, p2, ..] = &mut out.phidot;
+    let (p0, p1, p2) = (&mut p0[..n], &mut p1[..n], &mut p2[..n]);
+    for c in 0..n {
+        let mut acc = if dyn_mask >> c & 1 == 1 {
+            Vector3::zeros()
+        } else {
+            jac[c]
+        };
+        for (f, phi_r) in f_dd.iter().zip(phi) {
+            acc += f * phi_r[c];
         }
-        let terms = &terms[..nt];
-        let row = &mut out.phidot[i][..n];
-        for (c, v) in row.iter_mut().enumerate() {
-            let mut acc = if is_dyn[c] { 0.0 } else { jac[c][i] };
-            for &(r, f) in terms {
-                acc += f * phi[r][c];
-            }
-            *v = acc;
-        }
+        p0[c] = acc.x;
+        p1[c] = acc.y;
+        p2[c] = acc.z;
     }
     for r in ANGLES..dynamic.len() {
         let inv_tau = 1.0 / model.markov(r).tau_s;
@@ -153,20 +152,23 @@ pub fn propagate<const CAP: usize>(
             const W: [f64; 4] = [1.0, 2.0, 2.0, 1.0];
             for s in 0..steps {
                 let t = t0_s + s as f64 * h;
+                xs[..n].copy_from_slice(&x[..n]);
                 for stage in 0..4 {
-                    xs[..n].copy_from_slice(&x[..n]);
-                    phis[..nd].copy_from_slice(&tr.rows[..nd]);
-                    if stage > 0 {
+                    let ts = t + C[stage] * h;
+                    if stage == 0 {
+                        derivative(model, &x[..n], ts, temp_at(ts), &tr.rows, &mut jac, &mut k);
+                    } else {
+                        // Only the dynamic states and rows differ from the step's start.
                         let a = C[stage] * h;
                         for r in 0..nd {
-                            xs[dynamic[r]] += a * k.xdot[r];
-                            for (v, d) in phis[r][..n].iter_mut().zip(&k.phidot[r][..n]) {
-                                *v += a * d;
+                            xs[dynamic[r]] = x[dynamic[r]] + a * k.xdot[r];
+                            let (out, d) = (&mut phis[r][..n], &k.phidot[r][..n]);
+                            for ((v, &p), &d) in out.iter_mut().zip(&tr.rows[r][..n]).zip(d) {
+                                *v = p + a * d;
                             }
                         }
+                        derivative(model, &xs[..n], ts, temp_at(ts), &phis, &mut jac, &mut k);
                     }
-                    let ts = t + C[stage] * h;
-                    derivative(model, &xs[..n], ts, temp_at(ts), &phis, &mut jac, &mut k);
                     let w = W[stage];
                     for r in 0..nd {
                         if stage == 0 {
