@@ -305,21 +305,29 @@ impl<'m, const CAP: usize> Ekf<'m, CAP> {
         // Φ = [[Φ_D], [0 I]] (the dynamic rows Φ_D, identity elsewhere), so in P⁻ = Φ P Φᵀ + Q
         // only the dynamic rows/columns change: with B = Φ_D P, P⁻[D, c] = B[·, c] for the
         // other columns and P⁻[D, D] = B Φ_Dᵀ + Q_D. O(nd·n²) instead of O(n³).
-        // B's rows are sums of P's rows (P is symmetric: row k = the stored column k) weighted
-        // by Φ_D's non-zero entries — a Gauss–Markov row has one.
+        // B[r][c] = Φ_D[r]·P[·][c], P's columns being contiguous; three rows of Φ_D at a time,
+        // their sums in registers (rows from nd on are zero in `tr`: their sums are unused).
+        const _: () = assert!(MAX_DYNAMIC % 3 == 0);
         let b = &mut saved.rows;
         let data = self.p.as_slice();
-        for r in 0..nd {
-            let phi = &tr.rows[r][..n];
-            let row = &mut b[r][..n];
-            row.iter_mut().for_each(|v| *v = 0.0);
-            for (kk, &f) in phi.iter().enumerate() {
-                if f != 0.0 {
-                    let prow = &data[kk * CAP..kk * CAP + n];
-                    for (v, &p) in row.iter_mut().zip(prow) {
-                        *v += f * p;
-                    }
+        for r0 in (0..nd).step_by(3) {
+            let (f0, f1, f2) = (
+                &tr.rows[r0][..n],
+                &tr.rows[r0 + 1][..n],
+                &tr.rows[r0 + 2][..n],
+            );
+            for c in 0..n {
+                let col = &data[c * CAP..c * CAP + n];
+                let (mut a0, mut a1, mut a2) = (0.0, 0.0, 0.0);
+                for k in 0..n {
+                    let p = col[k];
+                    a0 += f0[k] * p;
+                    a1 += f1[k] * p;
+                    a2 += f2[k] * p;
                 }
+                b[r0][c] = a0;
+                b[r0 + 1][c] = a1;
+                b[r0 + 2][c] = a2;
             }
         }
         let mut dd = [[0.0; MAX_DYNAMIC]; MAX_DYNAMIC];

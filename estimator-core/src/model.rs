@@ -293,7 +293,8 @@ impl<'m> Model<'m> {
         let (drift_degph, d_force) = self.effect_terms(x, &ctx, d_dx, true);
         let k = rate_to_euler(&att);
         let we0 = self.earth_rate_r;
-        let w = drift_degph * RADPS_PER_DEGPH - att.c * we0;
+        let c_we0 = att.c * we0;
+        let w = drift_degph * RADPS_PER_DEGPH - c_we0;
         let k_deg = k * RADPS_PER_DEGPH;
         for col in d_dx[ANGLES..n].iter_mut() {
             // Most parameters drive one gyro axis: K's column times that entry (the full
@@ -308,8 +309,12 @@ impl<'m> Model<'m> {
         }
         let dk = d_rate_to_euler(&att, &w);
         let g = self.gravity_r;
+        // ∂A/∂θ_j and ∂(C·w_e0)/∂θ_j from A = C·g and C·w_e0 (see `d_rotated`).
+        let da = d_rotated(&att, &ctx.specific_force, &g);
+        let dwe = d_rotated(&att, &c_we0, &we0);
+        let d_force_rad = d_force * RADPS_PER_DEGPH;
         for j in 0..ANGLES {
-            let dw = d_force * att.d_specific_force(&g, j) * RADPS_PER_DEGPH - att.dc[j] * we0;
+            let dw = d_force_rad * da[j] - dwe[j];
             d_dx[j] = dk[j] + k * dw;
         }
         k * w
@@ -338,9 +343,27 @@ impl<'m> Model<'m> {
         let d_total = Matrix3::identity() + d_force;
         let we0 = self.earth_rate_r;
         let curvature_0 = we0.cross(&we0.cross(&g)) * (0.5 * time_var_s2);
+        let c_curv = att.c * curvature_0;
+        let da = d_rotated(&att, &ctx.specific_force, &g);
+        let dcurv = d_rotated(&att, &c_curv, &curvature_0);
         for j in 0..ANGLES {
-            d_dx[j] = d_total * att.d_specific_force(&g, j) + att.dc[j] * curvature_0;
+            d_dx[j] = d_total * da[j] + dcurv[j];
         }
-        ctx.specific_force + error + att.c * curvature_0
+        ctx.specific_force + error + c_curv
     }
+}
+
+/// `∂(C·v)/∂θ_j` for j = x, y, z (v fixed), from `cv = C·v`: with `C = Rz·Ry·Rx` (passive
+/// elementary rotations, [`Attitude`]), ∂C/∂tx = −C·[e_x]×, ∂C/∂ty = −[u]×·C with
+/// u = Rz·e_y = (sin tz, cos tz, 0), and ∂C/∂tz = −[e_z]×·C. So only ∂/∂tx needs a product
+/// with C (of v × e_x = (0, v_z, −v_y)); the others are cross products with `cv`. Cheaper than
+/// the three matrices ∂C/∂θ_j times v; checked against finite differences by the model's
+/// Jacobian tests.
+fn d_rotated(att: &Attitude, cv: &Vector3<f64>, v: &Vector3<f64>) -> [Vector3<f64>; 3] {
+    let (sz, cz) = (att.sin.z, att.cos.z);
+    [
+        att.c.column(1) * v.z - att.c.column(2) * v.y,
+        Vector3::new(-cz * cv.z, sz * cv.z, cz * cv.x - sz * cv.y),
+        Vector3::new(cv.y, -cv.x, 0.0),
+    ]
 }
