@@ -301,7 +301,6 @@ impl<'m, const CAP: usize> Ekf<'m, CAP> {
             temp_dev_c,
             &mut tr,
         );
-        let dyn_mask = self.model.dynamic_mask();
         // Φ = [[Φ_D], [0 I]] (the dynamic rows Φ_D, identity elsewhere), so in P⁻ = Φ P Φᵀ + Q
         // only the dynamic rows/columns change: with B = Φ_D P, P⁻[D, c] = B[·, c] for the
         // other columns and P⁻[D, D] = B Φ_Dᵀ + Q_D. O(nd·n²) instead of O(n³).
@@ -343,16 +342,16 @@ impl<'m, const CAP: usize> Ekf<'m, CAP> {
             }
         }
         // b holds the new dynamic rows: swap them into P (keeping the old rows in b), then
-        // mirror them into the columns.
+        // mirror them into the columns (where two dynamic rows cross, both hold dd's entry).
         for r in 0..nd {
             let d = dynamic[r];
             for c in 0..n {
                 core::mem::swap(&mut b[r][c], &mut self.p[(d, c)]);
             }
+        }
+        for &d in dynamic {
             for c in 0..n {
-                if dyn_mask >> c & 1 == 0 {
-                    self.p[(c, d)] = self.p[(d, c)];
-                }
+                self.p[(c, d)] = self.p[(d, c)];
             }
         }
         self.t_s = t_s;
@@ -540,7 +539,8 @@ impl<'m, const CAP: usize> Ekf<'m, CAP> {
                 ki,
             );
             let x = self.x[i] + (ki[0] * nu.x + ki[1] * nu.y + ki[2] * nu.z);
-            if !(d.is_finite() && d > 0.0 && x.is_finite()) {
+            // Finite and positive, finite (comparisons: cheaper than `is_finite` on the target).
+            if !(d > 0.0 && d < f64::INFINITY && x.abs() < f64::INFINITY) {
                 return Err(FilterError::Unhealthy { step, index: i });
             }
             diag[i] = d;

@@ -80,8 +80,6 @@ pub struct Model<'m> {
     /// Indices of states with dynamics (angles first, then Gauss–Markov states).
     dynamic: [usize; MAX_DYNAMIC],
     n_dynamic: usize,
-    /// The same dynamic states as a bit set (bit i: state i has dynamics).
-    dynamic_mask: u64,
     /// Gauss–Markov parameters of each dynamic state (unused for the angles).
     markov: [Markov; MAX_DYNAMIC],
     /// States that enter the measurement (angles + accelerometer-effect parameters), as a bit set.
@@ -138,7 +136,6 @@ impl<'m> Model<'m> {
             n += dim;
         }
         offsets[effects.len()] = n;
-        let dynamic_mask = dynamic[..n_dynamic].iter().fold(0, |m, &d| m | 1u64 << d);
         Ok(Model {
             site,
             gravity_r: site.gravity_r(),
@@ -147,7 +144,6 @@ impl<'m> Model<'m> {
             offsets,
             dynamic,
             n_dynamic,
-            dynamic_mask,
             markov,
             measured,
             arw_rad2ps,
@@ -182,10 +178,6 @@ impl<'m> Model<'m> {
     /// Indices of the states with dynamics (the angles, then Gauss–Markov states).
     pub fn dynamic_states(&self) -> &[usize] {
         &self.dynamic[..self.n_dynamic]
-    }
-    /// The dynamic states as a bit set: bit i is set when state i has dynamics.
-    pub fn dynamic_mask(&self) -> u64 {
-        self.dynamic_mask
     }
     /// Gauss–Markov dynamics of the `r`-th dynamic state (`r ≥ 3`).
     pub fn markov(&self, r: usize) -> Markov {

@@ -57,13 +57,13 @@ fn derivative<const CAP: usize>(
     let n = model.dim();
     let dynamic = model.dynamic_states();
     let rate = model.angle_rate(x, t_s, temp_dev_c, jac);
-    let dyn_mask = model.dynamic_mask();
     out.xdot[..ANGLES].copy_from_slice(rate.as_slice());
-    // F[0..3][dynamic[r]], the angle rows' entries in the dynamic columns.
+    // F[0..3][dynamic[r]], the angle rows' entries in the dynamic columns, moved out of `jac`
+    // (which keeps F[0..3][c] for the other columns c, zero in the dynamic ones).
     let nd = dynamic.len();
     let mut f_dd = [Vector3::zeros(); MAX_DYNAMIC];
     for (f, &d) in f_dd.iter_mut().zip(dynamic) {
-        *f = jac[d];
+        *f = core::mem::replace(&mut jac[d], Vector3::zeros());
     }
     let f_dd = &f_dd[..nd];
     // Column c of rows 0..3 of F·Φ, Φ = [[Φ_D], [0 I]]: F[·][c] for a non-dynamic column c
@@ -72,11 +72,7 @@ fn derivative<const CAP: usize>(
     let [p0, p1, p2, ..] = &mut out.phidot;
     let (p0, p1, p2) = (&mut p0[..n], &mut p1[..n], &mut p2[..n]);
     for c in 0..n {
-        let mut acc = if dyn_mask >> c & 1 == 1 {
-            Vector3::zeros()
-        } else {
-            jac[c]
-        };
+        let mut acc = jac[c];
         for (f, phi_r) in f_dd.iter().zip(phi) {
             acc += f * phi_r[c];
         }
