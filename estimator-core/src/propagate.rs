@@ -65,20 +65,29 @@ fn derivative<const CAP: usize>(
     for (f, &d) in f_dd.iter_mut().zip(dynamic) {
         *f = core::mem::replace(&mut jac[d], Vector3::zeros());
     }
-    let f_dd = &f_dd[..nd];
     // Column c of rows 0..3 of F·Φ, Φ = [[Φ_D], [0 I]]: F[·][c] for a non-dynamic column c
     // (Φ's row there is the identity's), plus Σ_r F[·][dynamic[r]]·Φ_D[r][c], in r order.
-    // One pass over the columns, the three rows' sums in registers.
+    // One pass over the columns per three dynamic rows, the sums in registers (F is zero in
+    // `f_dd` from nd on, so the rows of `phi` from nd on only add zeros).
+    const _: () = assert!(MAX_DYNAMIC % 3 == 0);
     let [p0, p1, p2, ..] = &mut out.phidot;
     let (p0, p1, p2) = (&mut p0[..n], &mut p1[..n], &mut p2[..n]);
-    for c in 0..n {
-        let mut acc = jac[c];
-        for (f, phi_r) in f_dd.iter().zip(phi) {
-            acc += f * phi_r[c];
+    for r0 in (0..nd).step_by(3) {
+        let (f0, f1, f2) = (f_dd[r0], f_dd[r0 + 1], f_dd[r0 + 2]);
+        let (q0, q1, q2) = (&phi[r0][..n], &phi[r0 + 1][..n], &phi[r0 + 2][..n]);
+        for c in 0..n {
+            let mut acc = if r0 == 0 {
+                jac[c]
+            } else {
+                Vector3::new(p0[c], p1[c], p2[c])
+            };
+            acc += f0 * q0[c];
+            acc += f1 * q1[c];
+            acc += f2 * q2[c];
+            p0[c] = acc.x;
+            p1[c] = acc.y;
+            p2[c] = acc.z;
         }
-        p0[c] = acc.x;
-        p1[c] = acc.y;
-        p2[c] = acc.z;
     }
     for r in ANGLES..dynamic.len() {
         let inv_tau = 1.0 / model.markov(r).tau_s;
