@@ -304,8 +304,9 @@ impl<'m, const CAP: usize> Ekf<'m, CAP> {
         // Φ = [[Φ_D], [0 I]] (the dynamic rows Φ_D, identity elsewhere), so in P⁻ = Φ P Φᵀ + Q
         // only the dynamic rows/columns change: with B = Φ_D P, P⁻[D, c] = B[·, c] for the
         // other columns and P⁻[D, D] = B Φ_Dᵀ + Q_D. O(nd·n²) instead of O(n³).
-        // B[r][c] = Φ_D[r]·P[·][c], P's columns being contiguous; three rows of Φ_D at a time,
-        // their sums in registers (rows from nd on are zero in `tr`: their sums are unused).
+        // B[r][c] = Σ_k Φ_D[r][k]·P[k][c], with P[k][c] = P[c][k] read along the stored column
+        // k; three rows of Φ_D and two columns at a time, the six sums in registers (rows from
+        // nd on are zero in `tr`: their sums are unused).
         const _: () = assert!(MAX_DYNAMIC % 3 == 0);
         let b = &mut saved.rows;
         let data = self.p.as_slice();
@@ -315,11 +316,28 @@ impl<'m, const CAP: usize> Ekf<'m, CAP> {
                 &tr.rows[r0 + 1][..n],
                 &tr.rows[r0 + 2][..n],
             );
-            for c in 0..n {
-                let col = &data[c * CAP..c * CAP + n];
+            let mut c = 0;
+            while c + 1 < n {
+                let mut a = [[0.0; 2]; 3];
+                for k in 0..n {
+                    let p = &data[k * CAP + c..k * CAP + c + 2];
+                    let (p0, p1) = (p[0], p[1]);
+                    a[0][0] += f0[k] * p0;
+                    a[0][1] += f0[k] * p1;
+                    a[1][0] += f1[k] * p0;
+                    a[1][1] += f1[k] * p1;
+                    a[2][0] += f2[k] * p0;
+                    a[2][1] += f2[k] * p1;
+                }
+                for (row, a) in b[r0..r0 + 3].iter_mut().zip(a) {
+                    row[c..c + 2].copy_from_slice(&a);
+                }
+                c += 2;
+            }
+            if c < n {
                 let (mut a0, mut a1, mut a2) = (0.0, 0.0, 0.0);
                 for k in 0..n {
-                    let p = col[k];
+                    let p = data[k * CAP + c];
                     a0 += f0[k] * p;
                     a1 += f1[k] * p;
                     a2 += f2[k] * p;
