@@ -411,8 +411,9 @@ impl<'m, const CAP: usize> Ekf<'m, CAP> {
                 filter_t_s: self.t_s,
             });
         }
-        if m.specific_force.iter().any(|v| !v.is_finite())
-            || m.variance.iter().any(|v| !(v.is_finite() && *v > 0.0))
+        // (Comparisons rather than `is_finite`: the same test, less code on the target.)
+        if m.specific_force.iter().any(|v| !(v.abs() < f64::INFINITY))
+            || m.variance.iter().any(|v| !(*v > 0.0 && *v < f64::INFINITY))
         {
             return Err(FilterError::BadMeasurement { step });
         }
@@ -475,10 +476,13 @@ impl<'m, const CAP: usize> Ekf<'m, CAP> {
             measured &= measured - 1;
             let hj = h[j];
             let col = &data[j * CAP..j * CAP + n];
-            for (a, out) in pht.iter_mut().enumerate() {
-                for (acc, &pij) in out[..n].iter_mut().zip(col) {
-                    *acc += hj[a] * pij;
-                }
+            let [p0, p1, p2] = &mut pht;
+            let (p0, p1, p2) = (&mut p0[..n], &mut p1[..n], &mut p2[..n]);
+            for i in 0..n {
+                let pij = col[i];
+                p0[i] += hj.x * pij;
+                p1[i] += hj.y * pij;
+                p2[i] += hj.z * pij;
             }
         }
         let r = Vector3::from(m.variance);
@@ -524,17 +528,14 @@ impl<'m, const CAP: usize> Ekf<'m, CAP> {
             let (p0, p1, p2) = (&pht[0][..n], &pht[1][..n], &pht[2][..n]);
             let [k0, k1, k2] = &mut k;
             let (k0, k1, k2) = (&mut k0[..n], &mut k1[..n], &mut k2[..n]);
-            for i in 0..n {
-                k0[i] = s_inv[(0, 0)] * p0[i] + s_inv[(0, 1)] * p1[i] + s_inv[(0, 2)] * p2[i];
-                k1[i] = s_inv[(1, 0)] * p0[i] + s_inv[(1, 1)] * p1[i] + s_inv[(1, 2)] * p2[i];
-                k2[i] = s_inv[(2, 0)] * p0[i] + s_inv[(2, 1)] * p1[i] + s_inv[(2, 2)] * p2[i];
-            }
             let [m0, m1, m2] = &mut mm;
             let (m0, m1, m2) = (&mut m0[..n], &mut m1[..n], &mut m2[..n]);
             for i in 0..n {
-                m0[i] = s[(0, 0)] * k0[i] + s[(0, 1)] * k1[i] + s[(0, 2)] * k2[i] - p0[i];
-                m1[i] = s[(1, 0)] * k0[i] + s[(1, 1)] * k1[i] + s[(1, 2)] * k2[i] - p1[i];
-                m2[i] = s[(2, 0)] * k0[i] + s[(2, 1)] * k1[i] + s[(2, 2)] * k2[i] - p2[i];
+                let p = Vector3::new(p0[i], p1[i], p2[i]);
+                let ki = s_inv * p;
+                let mi = s * ki - p;
+                (k0[i], k1[i], k2[i]) = (ki.x, ki.y, ki.z);
+                (m0[i], m1[i], m2[i]) = (mi.x, mi.y, mi.z);
             }
         }
         // Joseph form P⁺ = (I−KH) P (I−KH)ᵀ + K R Kᵀ, multiplied out:
