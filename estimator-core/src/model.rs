@@ -242,7 +242,8 @@ impl<'m> Model<'m> {
     }
 
     /// Sum of drift (`drift = true`, deg/h) or accelerometer (m/s²) terms of all effects, their
-    /// ∂/∂A, and their ∂/∂parameters written into `d_dx` (all other columns zero).
+    /// ∂/∂A, and their ∂/∂parameters written into `d_dx[3..dim()]` (zero for the effects that do
+    /// not contribute; the angle columns 0..3 are left to the caller).
     fn effect_terms(
         &self,
         x: &[f64],
@@ -250,8 +251,6 @@ impl<'m> Model<'m> {
         d_dx: &mut [Vector3<f64>],
         drift: bool,
     ) -> (Vector3<f64>, Matrix3<f64>) {
-        let n = self.dim();
-        d_dx[..n].iter_mut().for_each(|c| *c = Vector3::zeros());
         let mut value = Vector3::zeros();
         let mut d_force = Matrix3::zeros();
         for (e, effect) in self.effects.iter().enumerate() {
@@ -261,10 +260,14 @@ impl<'m> Model<'m> {
                 d_params: &mut d_dx[a..b],
                 d_force: &mut d_force,
             };
+            // An effect sets all its columns (the `Partials` contract, tested for the catalog);
+            // only the blocks of effects not called here are cleared.
             if drift && effect.touches_drift() {
                 effect.drift(&x[a..b], ctx, out);
             } else if !drift && effect.touches_accel() {
                 effect.accel_error(&x[a..b], ctx, out);
+            } else {
+                out.d_params.iter_mut().for_each(|c| *c = Vector3::zeros());
             }
         }
         (value, d_force)

@@ -67,7 +67,8 @@ pub struct Markov {
 pub struct Partials<'a> {
     /// Value: deg/h for a drift contribution, m/s² for an accelerometer contribution. Add to it.
     pub value: &'a mut Vector3<f64>,
-    /// ∂value/∂(own parameter k), one column per parameter (length = `params().len()`). Set them.
+    /// ∂value/∂(own parameter k), one column per parameter (length = `params().len()`). Set
+    /// every one of them (zeros included): the model does not clear them beforehand.
     pub d_params: &'a mut [Vector3<f64>],
     /// ∂value/∂A (specific force), per (m/s²). Add to it.
     pub d_force: &'a mut Matrix3<f64>,
@@ -100,5 +101,60 @@ pub trait Effect: Sync {
     /// Dynamics of parameter `k`: `None` (constant, the default) or first-order Gauss–Markov.
     fn markov(&self, _k: usize) -> Option<Markov> {
         None
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// Every effect of the catalog sets all its parameter columns in each contribution it makes
+    /// (the model reuses the columns without clearing them): columns pre-filled with NaN must
+    /// all be overwritten.
+    #[test]
+    fn effects_set_every_parameter_column() {
+        let effects: [&dyn Effect; 8] = [
+            &PaperDrift,
+            &AccBias,
+            &AccMisalign,
+            &AccScale,
+            &DriftMarkov::default(),
+            &DriftTrend,
+            &G2Drift,
+            &TempDrift,
+        ];
+        let ctx = Context {
+            t_s: 7200.0,
+            specific_force: Vector3::new(0.3, -0.2, 9.8),
+            temp_dev_c: 1.5,
+        };
+        for effect in effects {
+            let n = effect.params().len();
+            let p = [0.01; 32];
+            for accel in [false, true] {
+                if (accel && !effect.touches_accel()) || (!accel && !effect.touches_drift()) {
+                    continue;
+                }
+                let mut cols = [Vector3::repeat(f64::NAN); 32];
+                let (mut value, mut d_force) = (Vector3::zeros(), Matrix3::zeros());
+                let out = Partials {
+                    value: &mut value,
+                    d_params: &mut cols[..n],
+                    d_force: &mut d_force,
+                };
+                if accel {
+                    effect.accel_error(&p[..n], &ctx, out);
+                } else {
+                    effect.drift(&p[..n], &ctx, out);
+                }
+                for (k, c) in cols[..n].iter().enumerate() {
+                    assert!(
+                        !c.iter().any(|v| v.is_nan()),
+                        "{} column {k}",
+                        effect.name()
+                    );
+                }
+            }
+        }
     }
 }
