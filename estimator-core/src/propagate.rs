@@ -44,56 +44,73 @@ struct Stage<const CAP: usize> {
     phidot: [[f64; CAP]; MAX_DYNAMIC],
 }
 
-/// Evaluates the dynamic part of f and `F_D·Φ` at state `x` (full length) and `phi`.
+/// Evaluates the dynamic part of f and `F_D·Φ` at state `x` (full length) and the stage input
+/// `Φ_D = y0 + a·k.phidot` (formed column by column from the previous slope), into `k`.
+#[allow(clippy::too_many_arguments)]
 fn derivative<const CAP: usize>(
     model: &Model<'_>,
     x: &[f64],
     t_s: f64,
     temp_dev_c: f64,
-    phi: &[[f64; CAP]; MAX_DYNAMIC],
+    y0: &[[f64; CAP]; MAX_DYNAMIC],
+    a: f64,
     jac: &mut [Vector3<f64>; CAP],
-    out: &mut Stage<CAP>,
+    k: &mut Stage<CAP>,
 ) {
     let n = model.dim();
     let dynamic = model.dynamic_states();
-    let rate = model.angle_rate(x, t_s, temp_dev_c, jac);
-    out.xdot[..ANGLES].copy_from_slice(rate.as_slice());
-    // F[0..3][dynamic[r]], the angle rows' entries in the dynamic columns, moved out of `jac`
-    // (which keeps F[0..3][c] for the other columns c, zero in the dynamic ones).
     let nd = dynamic.len();
+    let rate = model.angle_rate(x, t_s, temp_dev_c, jac);
+    k.xdot[..ANGLES].copy_from_slice(rate.as_slice());
+    // F[0..3][dynamic[r]], the angle rows' entries in the dynamic columns, moved out of `jac`
+    // (which keeps F[0..3][c] for the other columns c, zero in the dynamic ones); zero from
+    // nd on. And 1/τ of the Gauss–Markov rows (zero for the angles and from nd on).
     let mut f_dd = [Vector3::zeros(); MAX_DYNAMIC];
     for (f, &d) in f_dd.iter_mut().zip(dynamic) {
         *f = core::mem::replace(&mut jac[d], Vector3::zeros());
     }
-    // Column c of rows 0..3 of F·Φ, Φ = [[Φ_D], [0 I]]: F[·][c] for a non-dynamic column c
-    // (Φ's row there is the identity's), plus Σ_r F[·][dynamic[r]]·Φ_D[r][c], in r order.
-    // One pass over the columns per three dynamic rows, the sums in registers (F is zero in
-    // `f_dd` from nd on, so the rows of `phi` from nd on only add zeros).
-    const _: () = assert!(MAX_DYNAMIC % 3 == 0);
-    let [p0, p1, p2, ..] = &mut out.phidot;
-    let (p0, p1, p2) = (&mut p0[..n], &mut p1[..n], &mut p2[..n]);
-    for r0 in (0..nd).step_by(3) {
-        let (f0, f1, f2) = (f_dd[r0], f_dd[r0 + 1], f_dd[r0 + 2]);
-        let (q0, q1, q2) = (&phi[r0][..n], &phi[r0 + 1][..n], &phi[r0 + 2][..n]);
-        for c in 0..n {
-            let mut acc = if r0 == 0 {
-                jac[c]
-            } else {
-                Vector3::new(p0[c], p1[c], p2[c])
-            };
-            acc += f0 * q0[c];
-            acc += f1 * q1[c];
-            acc += f2 * q2[c];
-            p0[c] = acc.x;
-            p1[c] = acc.y;
-            p2[c] = acc.z;
-        }
+    let mut inv_tau = [0.0; MAX_DYNAMIC];
+    for r in ANGLES..nd {
+        inv_tau[r] = 1.0 / model.markov(r).tau_s;
+        k.xdot[r] = -x[dynamic[r]] * inv_tau[r];
     }
-    for r in ANGLES..dynamic.len() {
-        let inv_tau = 1.0 / model.markov(r).tau_s;
-        out.xdot[r] = -x[dynamic[r]] * inv_tau;
-        for (v, p) in out.phidot[r][..n].iter_mut().zip(&phi[r][..n]) {
-            *v = -p * inv_tau;
+    // Column c of rows 0..3 of F·Φ, Φ = [[Φ_D], [0 I]]: F[·][c] for a non-dynamic column c
+    // (Φ's row there is the identity's), plus Σ_r F[·][dynamic[r]]·Φ_D[r][c], in r order; a
+    // Gauss–Markov row r is −Φ_D[r]/τ. One pass over the columns per three dynamic rows (the
+    // angles, then the Gauss–Markov rows if any), the sums in registers; each column of the
+    // stage input is read before the slope's column overwrites it. The rows from nd on only
+    // add zeros (F and 1/τ are zero there).
+    const _: () = assert!(MAX_DYNAMIC == 2 * ANGLES);
+    let [k0, k1, k2, k3, k4, k5] = &mut k.phidot;
+    let (k0, k1, k2) = (&mut k0[..n], &mut k1[..n], &mut k2[..n]);
+    let (y_0, y_1, y_2) = (&y0[0][..n], &y0[1][..n], &y0[2][..n]);
+    let (f0, f1, f2) = (f_dd[0], f_dd[1], f_dd[2]);
+    for c in 0..n {
+        let q = [y_0[c] + a * k0[c], y_1[c] + a * k1[c], y_2[c] + a * k2[c]];
+        let mut acc = jac[c];
+        acc += f0 * q[0];
+        acc += f1 * q[1];
+        acc += f2 * q[2];
+        k0[c] = acc.x;
+        k1[c] = acc.y;
+        k2[c] = acc.z;
+    }
+    if nd > ANGLES {
+        let (k3, k4, k5) = (&mut k3[..n], &mut k4[..n], &mut k5[..n]);
+        let (y_3, y_4, y_5) = (&y0[3][..n], &y0[4][..n], &y0[5][..n]);
+        let (f3, f4, f5) = (f_dd[3], f_dd[4], f_dd[5]);
+        for c in 0..n {
+            let q = [y_3[c] + a * k3[c], y_4[c] + a * k4[c], y_5[c] + a * k5[c]];
+            let mut acc = Vector3::new(k0[c], k1[c], k2[c]);
+            acc += f3 * q[0];
+            acc += f4 * q[1];
+            acc += f5 * q[2];
+            k0[c] = acc.x;
+            k1[c] = acc.y;
+            k2[c] = acc.z;
+            k3[c] = -q[0] * inv_tau[3];
+            k4[c] = -q[1] * inv_tau[4];
+            k5[c] = -q[2] * inv_tau[5];
         }
     }
 }
@@ -131,7 +148,7 @@ pub fn propagate<const CAP: usize>(
     };
     match model.propagation() {
         Propagation::Euler => {
-            derivative(model, x, t0_s, temp0, &tr.rows, &mut jac, &mut k);
+            derivative(model, x, t0_s, temp0, &tr.rows, 0.0, &mut jac, &mut k);
             for r in 0..nd {
                 x[dynamic[r]] += k.xdot[r] * dt_s;
                 for c in 0..n {
@@ -146,9 +163,9 @@ pub fn propagate<const CAP: usize>(
                 1
             };
             let h = dt_s / steps as f64;
-            // Stage input (xs, phis), the current stage's slope k, and the weighted sum of slopes.
+            // Stage input xs (Φ's is formed in `derivative`), the current stage's slope k, and
+            // the weighted sum of slopes.
             let mut xs = [0.0; CAP];
-            let mut phis = [[0.0; CAP]; MAX_DYNAMIC];
             let mut sum = Stage {
                 xdot: [0.0; MAX_DYNAMIC],
                 phidot: [[0.0; CAP]; MAX_DYNAMIC],
@@ -160,20 +177,23 @@ pub fn propagate<const CAP: usize>(
                 xs[..n].copy_from_slice(&x[..n]);
                 for stage in 0..4 {
                     let ts = t + C[stage] * h;
-                    if stage == 0 {
-                        derivative(model, &x[..n], ts, temp_at(ts), &tr.rows, &mut jac, &mut k);
-                    } else {
-                        // Only the dynamic states and rows differ from the step's start.
-                        let a = C[stage] * h;
+                    // Only the dynamic states and rows differ from the step's start.
+                    let a = C[stage] * h;
+                    if stage > 0 {
                         for r in 0..nd {
                             xs[dynamic[r]] = x[dynamic[r]] + a * k.xdot[r];
-                            let (out, d) = (&mut phis[r][..n], &k.phidot[r][..n]);
-                            for ((v, &p), &d) in out.iter_mut().zip(&tr.rows[r][..n]).zip(d) {
-                                *v = p + a * d;
-                            }
                         }
-                        derivative(model, &xs[..n], ts, temp_at(ts), &phis, &mut jac, &mut k);
                     }
+                    derivative(
+                        model,
+                        &xs[..n],
+                        ts,
+                        temp_at(ts),
+                        &tr.rows,
+                        a,
+                        &mut jac,
+                        &mut k,
+                    );
                     let w = W[stage];
                     for r in 0..nd {
                         if stage == 0 {
