@@ -307,7 +307,7 @@ impl<'m, const CAP: usize> Ekf<'m, CAP> {
         // B[r][c] = Σ_k Φ_D[r][k]·P[k][c], with P[k][c] = P[c][k] read along the stored column
         // k; three rows of Φ_D and two columns at a time, the six sums in registers (rows from
         // nd on are zero in `tr`: their sums are unused).
-        const _: () = assert!(MAX_DYNAMIC % 3 == 0);
+        const _: () = assert!(MAX_DYNAMIC.is_multiple_of(3));
         let b = &mut saved.rows;
         let data = self.p.as_slice();
         for r0 in (0..nd).step_by(3) {
@@ -411,8 +411,7 @@ impl<'m, const CAP: usize> Ekf<'m, CAP> {
                 filter_t_s: self.t_s,
             });
         }
-        // (Comparisons rather than `is_finite`: the same test, less code on the target.)
-        if m.specific_force.iter().any(|v| !(v.abs() < f64::INFINITY))
+        if m.specific_force.iter().any(|v| !v.is_finite())
             || m.variance.iter().any(|v| !(*v > 0.0 && *v < f64::INFINITY))
         {
             return Err(FilterError::BadMeasurement { step });
@@ -603,25 +602,22 @@ fn joseph(p: f64, ki: [f64; 3], mi: [f64; 3], phc: [f64; 3], kc: [f64; 3]) -> f6
 /// Lower Cholesky factor L of a symmetric 3×3 `S = L Lᵀ`, or `None` if S is not positive
 /// definite (a pivot ≤ 0 or NaN).
 fn cholesky3(s: &Matrix3<f64>) -> Option<Matrix3<f64>> {
-    let d0 = s[(0, 0)];
-    if !(d0 > 0.0) {
-        return None;
-    }
-    let l00 = libm::sqrt(d0);
+    let l00 = sqrt_positive(s[(0, 0)])?;
     let l10 = s[(1, 0)] / l00;
     let l20 = s[(2, 0)] / l00;
-    let d1 = s[(1, 1)] - l10 * l10;
-    if !(d1 > 0.0) {
-        return None;
-    }
-    let l11 = libm::sqrt(d1);
+    let l11 = sqrt_positive(s[(1, 1)] - l10 * l10)?;
     let l21 = (s[(2, 1)] - l20 * l10) / l11;
-    let d2 = s[(2, 2)] - l20 * l20 - l21 * l21;
-    if !(d2 > 0.0) {
-        return None;
-    }
-    let l22 = libm::sqrt(d2);
+    let l22 = sqrt_positive(s[(2, 2)] - l20 * l20 - l21 * l21)?;
     Some(Matrix3::new(l00, 0.0, 0.0, l10, l11, 0.0, l20, l21, l22))
+}
+
+/// √v for v > 0; `None` for v ≤ 0 or NaN (a Cholesky pivot).
+fn sqrt_positive(v: f64) -> Option<f64> {
+    if v > 0.0 {
+        Some(libm::sqrt(v))
+    } else {
+        None
+    }
 }
 
 /// Inverse of a lower-triangular 3×3 with a non-zero diagonal (lower-triangular too).
