@@ -174,7 +174,10 @@ pub fn init() -> Parts {
     config.rcc.mux.spi123sel = embassy_stm32::rcc::mux::Saisel::PER;
     let p = embassy_stm32::init(config);
 
-    let mut cp = cortex_m::Peripherals::take().expect("core peripherals taken once");
+    // Not `expect`: its message is formatted through `Display` (the panic handler prints the
+    // location only); `panic!` with a literal links no formatting code.
+    let mut cp = cortex_m::Peripherals::take()
+        .unwrap_or_else(|| panic!("core peripherals taken once"));
     cp.DCB.enable_trace();
     cp.DWT.enable_cycle_counter();
     cp.SYST.set_clock_source(SystClkSource::Core);
