@@ -176,8 +176,8 @@ pub fn init() -> Parts {
 
     // Not `expect`: its message is formatted through `Display` (the panic handler prints the
     // location only); `panic!` with a literal links no formatting code.
-    let mut cp = cortex_m::Peripherals::take()
-        .unwrap_or_else(|| panic!("core peripherals taken once"));
+    let mut cp =
+        cortex_m::Peripherals::take().unwrap_or_else(|| panic!("core peripherals taken once"));
     cp.DCB.enable_trace();
     cp.DWT.enable_cycle_counter();
     cp.SYST.set_clock_source(SystClkSource::Core);
