@@ -464,6 +464,24 @@ fn two_sided(
     (ml, tl, nl): (f64, f64, usize),
     (mr, tr, nr): (f64, f64, usize),
 ) -> bool {
+    // Nearly every sample lies within k·σ of both medians. When x's time is between the two
+    // sides' (0 ≤ u ≤ 1, rounding is monotone), the prediction is a convex combination of ml
+    // and mr up to a few ulps, and the threshold below is at least fl(k·σ) (√(1 + v) ≥ 1): such
+    // a sample is no outlier, decided without the divisions and the square root. The margin
+    // (1e-12 of the magnitudes, against ~1e-15 of rounding) keeps the verdict the same bits.
+    let x_a = x.specific_force[a];
+    let inside = if tr > tl {
+        tl <= x.t_s && x.t_s <= tr
+    } else {
+        true
+    };
+    if inside {
+        let far = libm::fmax(libm::fabs(x_a - ml), libm::fabs(x_a - mr));
+        let scale = libm::fabs(ml) + libm::fabs(mr) + libm::fabs(x_a);
+        if far + 1e-12 * (far + scale) <= cfg.outlier_k * sigma {
+            return false;
+        }
+    }
     let u = if tr > tl {
         (x.t_s - tl) / (tr - tl)
     } else {
