@@ -92,7 +92,7 @@ fn refit_one(
     prep: &Prepared,
     effects: &[&'static dyn Effect],
     base_evidence: f64,
-    name: &String,
+    name: &str,
     cfg: &DiagnoseConfig,
 ) -> Option<Refit> {
     let e = catalog::by_name(name)?;
@@ -113,7 +113,7 @@ fn refit_one(
     let offset = id.params.len() - e.params().len();
     let best = id.best();
     Some(Refit {
-        effect: name.clone(),
+        effect: name.to_string(),
         neg2_log_evidence: ev,
         evidence_gain: base_evidence - ev,
         rms_over_floor: rms,

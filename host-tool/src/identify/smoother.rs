@@ -443,23 +443,31 @@ impl Nodes {
         Nodes {
             n,
             nd,
-            m: vec![0.0; len * n],
-            p: vec![0.0; len * n * n],
-            m_pred: vec![0.0; len * n],
-            p_pred_rows: vec![0.0; len * nd * n],
-            phi: vec![0.0; len * nd * n],
+            m: Vec::with_capacity(len * n),
+            p: Vec::with_capacity(len * n * n),
+            m_pred: Vec::with_capacity(len * n),
+            p_pred_rows: Vec::with_capacity(len * nd * n),
+            phi: Vec::with_capacity(len * nd * n),
         }
     }
-    fn store(&mut self, at: usize, m: &[f64], p: &[f64], st: &Step, dynamic: &[usize]) {
-        let (n, nd) = (self.n, self.nd);
-        self.m[at * n..(at + 1) * n].copy_from_slice(m);
-        self.p[at * n * n..(at + 1) * n * n].copy_from_slice(p);
-        self.m_pred[at * n..(at + 1) * n].copy_from_slice(&st.m_pred);
-        for (r, &d) in dynamic.iter().enumerate() {
-            self.p_pred_rows[(at * nd + r) * n..(at * nd + r + 1) * n]
-                .copy_from_slice(&st.p_pred[d * n..(d + 1) * n]);
+    fn clear(&mut self) {
+        self.m.clear();
+        self.p.clear();
+        self.m_pred.clear();
+        self.p_pred_rows.clear();
+        self.phi.clear();
+    }
+    /// Appends the next node (nodes are stored in order from the segment's start).
+    fn push(&mut self, m: &[f64], p: &[f64], st: &Step, dynamic: &[usize]) {
+        let n = self.n;
+        self.m.extend_from_slice(m);
+        self.p.extend_from_slice(p);
+        self.m_pred.extend_from_slice(&st.m_pred);
+        for &d in dynamic {
+            self.p_pred_rows
+                .extend_from_slice(&st.p_pred[d * n..(d + 1) * n]);
         }
-        self.phi[at * nd * n..(at + 1) * nd * n].copy_from_slice(&st.phi);
+        self.phi.extend_from_slice(&st.phi);
     }
     /// P⁻ of node `at` into `out` (row-major n×n, symmetric).
     fn p_pred(&self, at: usize, dynamic: &[usize], out: &mut [f64]) {
@@ -720,7 +728,7 @@ fn run(
             });
         }
         if keep_all {
-            nodes.store(j, &m, &p, &st, dynamic);
+            nodes.push(&m, &p, &st, dynamic);
         }
         std::mem::swap(&mut m, &mut st.m);
         std::mem::swap(&mut p, &mut st.p);
@@ -733,8 +741,9 @@ fn run(
         }
     }
     if mode == Mode::Smooth {
-        states = vec![DVector::zeros(n); updates + 1];
-        states[updates] = DVector::from_column_slice(&m);
+        // Built from the last node back, reversed at the end.
+        states.reserve_exact(updates + 1);
+        states.push(DVector::from_column_slice(&m));
         let mut ms = m.clone();
         let mut l = vec![0.0; n * n];
         let mut v = vec![0.0; n];
@@ -748,9 +757,10 @@ fn run(
                 let (cm, cp) = checkpoints.pop().unwrap_or_default();
                 mc.copy_from_slice(&cm);
                 pc.copy_from_slice(&cp);
+                nodes.clear();
                 for j in start..end {
                     fwd.step(j, &mc, &pc, &mut st)?;
-                    nodes.store(j - start, &mc, &pc, &st, dynamic);
+                    nodes.push(&mc, &pc, &st, dynamic);
                     std::mem::swap(&mut mc, &mut st.m);
                     std::mem::swap(&mut pc, &mut st.p);
                 }
@@ -776,9 +786,7 @@ fn run(
                     v.copy_from_slice(x.as_slice());
                 }
                 // w = Φᵀ v: identity rows give v itself, dynamic rows their row times v_d.
-                for c in 0..n {
-                    w[c] = v[c];
-                }
+                w.copy_from_slice(&v);
                 for &d in dynamic {
                     w[d] = 0.0;
                 }
@@ -793,9 +801,10 @@ fn run(
                 for i in 0..n {
                     ms[i] = nodes.m[at * n + i] + dot(&pj[i * n..(i + 1) * n], &w);
                 }
-                states[j] = DVector::from_column_slice(&ms);
+                states.push(DVector::from_column_slice(&ms));
             }
         }
+        states.reverse();
     }
     Ok(Smoothed {
         states,
