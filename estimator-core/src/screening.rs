@@ -383,6 +383,7 @@ fn sort(v: &mut [f64]) {
 /// Replaces `out` (present, compared bit for bit) by `new` in the sorted `v`, keeping it sorted:
 /// the values between the two places shift by one and `new` goes where it belongs (the
 /// placement of swapping it there pairwise, with half the writes).
+#[inline(always)]
 fn slide(v: &mut [f64], out: f64, new: f64) {
     let len = v.len();
     let mut j = v
