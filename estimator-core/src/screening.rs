@@ -354,7 +354,8 @@ fn flag_outliers(
                     0.5 * (t(i + h / 2) + t(i + 1 + h / 2)),
                 )
             };
-            two_sided(&s[i], a, sigma, cfg, (ml, tl, h), (mr, tr, h))
+            !surely_inlier(&s[i], a, sigma, cfg, ml, tl, mr, tr)
+                && two_sided(&s[i], a, sigma, cfg, (ml, tl, h), (mr, tr, h))
         };
         if outlier {
             flags[i] |= flag::OUTLIER | axis_bit(a);
@@ -465,6 +466,38 @@ fn judge(
     d > cfg.outlier_k * sigma * libm::sqrt(1.0 + var_factor)
 }
 
+/// Whether [`two_sided`] certainly says "no outlier", decided without its divisions and square
+/// root (the batch screening's fast path; the stream's code stays as it is). Nearly every sample
+/// lies within k·σ of both medians: when x's time is between the two sides' (0 ≤ u ≤ 1, rounding
+/// is monotone), the prediction is a convex combination of ml and mr up to a few ulps, and the
+/// threshold is at least fl(k·σ) (√(1 + v) ≥ 1). The margin (1e-12 of the magnitudes, against
+/// ~1e-15 of rounding) keeps the verdict the same.
+#[inline(always)]
+#[allow(clippy::too_many_arguments)]
+fn surely_inlier(
+    x: &Sample,
+    a: usize,
+    sigma: f64,
+    cfg: &ScreenConfig,
+    ml: f64,
+    tl: f64,
+    mr: f64,
+    tr: f64,
+) -> bool {
+    let x_a = x.specific_force[a];
+    let inside = if tr > tl {
+        tl <= x.t_s && x.t_s <= tr
+    } else {
+        true
+    };
+    if !inside {
+        return false;
+    }
+    let far = libm::fmax(libm::fabs(x_a - ml), libm::fabs(x_a - mr));
+    let scale = libm::fabs(ml) + libm::fabs(mr) + libm::fabs(x_a);
+    far + 1e-12 * (far + scale) <= cfg.outlier_k * sigma
+}
+
 /// The outlier test against the line through the two sides' (median value, median time), each
 /// side the median of `n` samples.
 fn two_sided(
@@ -475,24 +508,6 @@ fn two_sided(
     (ml, tl, nl): (f64, f64, usize),
     (mr, tr, nr): (f64, f64, usize),
 ) -> bool {
-    // Nearly every sample lies within k·σ of both medians. When x's time is between the two
-    // sides' (0 ≤ u ≤ 1, rounding is monotone), the prediction is a convex combination of ml
-    // and mr up to a few ulps, and the threshold below is at least fl(k·σ) (√(1 + v) ≥ 1): such
-    // a sample is no outlier, decided without the divisions and the square root. The margin
-    // (1e-12 of the magnitudes, against ~1e-15 of rounding) keeps the verdict the same bits.
-    let x_a = x.specific_force[a];
-    let inside = if tr > tl {
-        tl <= x.t_s && x.t_s <= tr
-    } else {
-        true
-    };
-    if inside {
-        let far = libm::fmax(libm::fabs(x_a - ml), libm::fabs(x_a - mr));
-        let scale = libm::fabs(ml) + libm::fabs(mr) + libm::fabs(x_a);
-        if far + 1e-12 * (far + scale) <= cfg.outlier_k * sigma {
-            return false;
-        }
-    }
     let u = if tr > tl {
         (x.t_s - tl) / (tr - tl)
     } else {
