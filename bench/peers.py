@@ -46,7 +46,8 @@ def ensure_venv():
     py = VENV / "bin" / "python"
     if not py.exists():
         print(f"peers: creating {VENV} and installing {' '.join(DEPS)}", file=sys.stderr)
-        venv.create(VENV, with_pip=True)
+        # The system's numpy (if any) is reused; pip adds only what is missing.
+        venv.create(VENV, with_pip=True, system_site_packages=True)
         subprocess.run([str(py), "-m", "pip", "install", "--quiet", *DEPS], check=True)
     os.execv(str(py), [str(py), __file__, *sys.argv[1:]])
 

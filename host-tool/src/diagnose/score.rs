@@ -131,6 +131,7 @@ pub fn signatures(
     let mut nu_whitened = Vec::with_capacity(3 * meas.len());
     let mut tr = Transition::<MAX_STATES>::default();
     let mut cols = [Vector3::zeros(); MAX_STATES];
+    let dynamic = model.dynamic_states();
     let pass = linearised_pass_observed(model, meas, nominal, x0, p0, false, |v: &StepView<'_>| {
         let l = v.chol_l;
         let nu_w = l.solve_lower_triangular(&v.nu).unwrap_or(v.nu);
@@ -164,8 +165,41 @@ pub fn signatures(
             tk.model
                 .measurement(&xj, v.t_s, v.temp, v.time_var_s2, &mut cols);
             let h_beta = DMatrix::from_fn(3, q, |i, b| cols[n + b][i]);
-            let psi_pred = v.phi * &tk.psi + &gamma * &tk.t;
-            tk.t = &a * &tk.t;
+            // Ψ⁻ = Φ Ψ + Γ T: Φ is the identity outside the current model's dynamic rows and Γ zero
+            // outside the extended model's (below n): only those rows change.
+            let mut psi_pred = tk.psi.clone();
+            let ext_rows = tk.model.dynamic_states().iter().filter(|&&d| d < n);
+            let mut rows: Vec<usize> = dynamic.iter().chain(ext_rows).copied().collect();
+            rows.sort_unstable();
+            rows.dedup();
+            for &d in &rows {
+                for b in 0..q {
+                    let mut acc = 0.0;
+                    for k in 0..n {
+                        acc += v.phi[(d, k)] * tk.psi[(k, b)];
+                    }
+                    for c in 0..q {
+                        acc += gamma[(d, c)] * tk.t[(c, b)];
+                    }
+                    psi_pred[(d, b)] = acc;
+                }
+            }
+            // T ← A T: A is the identity outside the candidate's Gauss–Markov rows.
+            let markov_rows = tk.model.dynamic_states().iter().filter(|&&d| d >= n);
+            let new_rows: Vec<(usize, Vec<f64>)> = markov_rows
+                .map(|&d| {
+                    let r = d - n;
+                    let row = (0..q)
+                        .map(|b| (0..q).fold(0.0, |acc, c| acc + a[(r, c)] * tk.t[(c, b)]))
+                        .collect();
+                    (r, row)
+                })
+                .collect();
+            for (r, row) in new_rows {
+                for (b, x) in row.into_iter().enumerate() {
+                    tk.t[(r, b)] = x;
+                }
+            }
             let d = v.h * &psi_pred + h_beta * &tk.t;
             tk.psi = psi_pred - v.k * &d;
             // Whiten: D̃ = L⁻¹ D column by column (L is 3×3 lower triangular).

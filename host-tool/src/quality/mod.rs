@@ -193,9 +193,17 @@ pub fn screen_oriented(
                 .into(),
         );
     };
-    screening::screen(samples, &sigma0, &cfg, &mut flags);
-    let sigma = robust_sigma(samples, &flags).unwrap_or(sigma0);
-    let summary = screening::screen(samples, &sigma, &cfg, &mut flags);
+    let first = screening::screen(samples, &sigma0, &cfg, &mut flags);
+    // The screening is a function of the samples and the noise alone (it rewrites every flag):
+    // when the first pass rejected nothing, the noise of the accepted samples is sigma0 itself
+    // and the second pass would repeat the first bit for bit (half of `prepare` on clean data).
+    let (sigma, summary) = if first.rejected == 0 {
+        (sigma0, first)
+    } else {
+        let sigma = robust_sigma(samples, &flags).unwrap_or(sigma0);
+        let summary = screening::screen(samples, &sigma, &cfg, &mut flags);
+        (sigma, summary)
+    };
     if let Some(f) = dead_axis(samples, &flags) {
         return refuse(findings, "dead-axis", f);
     }
@@ -228,11 +236,13 @@ pub fn screen_oriented(
         Ok(f) => f,
         Err(f) => return refuse(findings, f.0, f.1),
     };
-    let times: Vec<f64> = samples
-        .iter()
-        .map(|s| s.t_s * factor)
-        .filter(|t| t.is_finite())
-        .collect();
+    let mut times: Vec<f64> = Vec::with_capacity(samples.len());
+    times.extend(
+        samples
+            .iter()
+            .map(|s| s.t_s * factor)
+            .filter(|t| t.is_finite()),
+    );
     time::check_spacing(&times, &mut findings);
     let initial_tilt =
         match physics::check_start(&site, &accepted, period_s, &sigma, theta0, &mut findings) {
@@ -324,7 +334,10 @@ fn lsb(samples: &[Sample], a: usize) -> Option<f64> {
 
 /// Robust raw noise per axis from third differences of accepted, equally spaced samples.
 fn robust_sigma(samples: &[Sample], flags: &[u8]) -> Option<[f64; 3]> {
-    let (mut t, mut a) = (vec![], vec![]);
+    let (mut t, mut a) = (
+        Vec::with_capacity(samples.len()),
+        Vec::with_capacity(samples.len()),
+    );
     for (s, f) in samples.iter().zip(flags) {
         if *f == 0 && s.specific_force.iter().all(|v| v.is_finite()) && s.t_s.is_finite() {
             t.push(s.t_s);
