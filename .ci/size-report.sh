@@ -11,6 +11,9 @@ for n in llvm-nm nm; do command -v "$n" >/dev/null 2>&1 && { nmtool=$n; break; }
 demangle() { sed -e 's/\$LT\$/</g; s/\$GT\$/>/g; s/\$RF\$/\&/g; s/\$u20\$/ /g; s/\$C\$/,/g; s/\$u27\$/'"'"'/g; s/\$BP\$/*/g; s/\.\./::/g; s/ _</ </g; s/::h[0-9a-f]\{16\}$//'; }
 "$nmtool" -C -S --size-sort --radix=d "$elf" | demangle | awk '
   NF >= 4 && ($3 ~ /^[tTrR]$/) {
+    # The linker folds identical functions (--icf=all, firmware/build.rs): one copy under
+    # several names at one address, counted once (for the first name listed).
+    if (at[$1 " " $2]++) next;
     size = $2 + 0; kind = ($3 ~ /[tT]/) ? "text" : "rodata";
     name = $4; for (i = 5; i <= NF; i++) name = name " " $i;
     # The crate: the first path segment, after "<", "&", "impl " and "dyn " (trait impls name

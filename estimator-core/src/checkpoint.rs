@@ -66,10 +66,12 @@ impl core::fmt::Display for CheckpointError {
 pub const CRC32: crc::Crc<u32> = crc::Crc::<u32>::new(&crc::CRC_32_ISO_HDLC);
 
 /// CRC-32 of `bytes` ([`CRC32`]).
+#[inline]
 pub fn crc32(bytes: &[u8]) -> u32 {
     CRC32.checksum(bytes)
 }
 
+#[inline]
 fn fnv(h: &mut u32, bytes: &[u8]) {
     for &b in bytes {
         *h ^= u32::from(b);
@@ -79,6 +81,7 @@ fn fnv(h: &mut u32, bytes: &[u8]) {
 
 /// A fingerprint of everything that defines the model: effect names and sizes, site, noise and
 /// propagation. Two models with the same fingerprint lay out and propagate their state alike.
+#[inline]
 pub fn fingerprint(model: &Model<'_>) -> u32 {
     let mut h = 0x811C_9DC5u32;
     for e in model.effects() {
@@ -108,6 +111,7 @@ struct Writer<'a> {
     at: usize,
 }
 impl Writer<'_> {
+    #[inline]
     fn put(&mut self, b: &[u8]) {
         self.buf[self.at..self.at + b.len()].copy_from_slice(b);
         self.at += b.len();
@@ -125,9 +129,11 @@ impl Reader<'_> {
         self.at += N;
         out
     }
+    #[inline]
     fn f64(&mut self) -> f64 {
         f64::from_le_bytes(self.take())
     }
+    #[inline]
     fn u32(&mut self) -> u32 {
         u32::from_le_bytes(self.take())
     }

@@ -36,7 +36,6 @@ extern crate alloc;
 #[cfg(feature = "std")]
 extern crate std;
 
-pub mod averaging;
 pub mod checkpoint;
 pub mod effects;
 pub mod filter;
@@ -45,8 +44,11 @@ pub mod kinematics;
 pub mod model;
 pub mod propagate;
 pub mod residual;
-pub mod screening;
 pub mod units;
+
+// Screening and averaging of raw samples live in the `sampling` crate (the firmware optimises
+// them for size, the EKF here for speed); re-exported under their former paths.
+pub use sampling::{averaging, screening};
 
 pub use averaging::{Averager, Measurement, Sample};
 pub use effects::{Effect, PaperDrift};

@@ -64,7 +64,7 @@ fn main() -> ! {
 #[inline(never)]
 fn app_of(parts: board::Parts) -> &'static mut board::BoardApp {
     cortex_m::singleton!(: board::BoardApp = App::with_storage(parts.serial, parts.accel, parts.timer, parts.platform, parts.storage))
-        .expect("main runs once")
+        .unwrap_or_else(|| panic!("main runs once")) // not `expect`: see board::init
 }
 
 /// Crash tests (`--features crash-panic` / `crash-hardfault`, for `.ci/qemu.sh`): prove that a
@@ -101,21 +101,18 @@ fn panic(info: &core::panic::PanicInfo) -> ! {
     cortex_m::interrupt::disable();
     #[cfg(feature = "defmt")]
     defmt::error!("panic: {}", defmt::Display2Format(info));
-    match info.location() {
-        Some(at) => board::fatal(
-            protocol::FaultCode::Panic,
-            format_args!("panic at {}:{}", at.file(), at.line()),
-        ),
-        None => board::fatal(protocol::FaultCode::Panic, format_args!("panic")),
+    let mut m = protocol::Detail::from("panic");
+    if let Some(at) = info.location() {
+        m.text(" at ").text(at.file()).text(":").dec(at.line());
     }
+    board::fatal(protocol::FaultCode::Panic, m)
 }
 
 #[exception]
 unsafe fn HardFault(ef: &ExceptionFrame) -> ! {
     #[cfg(feature = "defmt")]
     defmt::error!("HardFault at pc {=u32:#x}", ef.pc());
-    board::fatal(
-        protocol::FaultCode::HardFault,
-        format_args!("HardFault pc={:#010x} lr={:#010x}", ef.pc(), ef.lr()),
-    )
+    let mut m = protocol::Detail::from("HardFault pc=0x");
+    m.hex(ef.pc(), 8).text(" lr=0x").hex(ef.lr(), 8);
+    board::fatal(protocol::FaultCode::HardFault, m)
 }

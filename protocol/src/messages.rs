@@ -357,27 +357,114 @@ pub struct Fault {
 }
 
 impl Fault {
-    /// A fault with `detail` formatted and truncated to fit.
+    /// A fault with `detail` formatted and truncated to fit (the host's way; the firmware
+    /// writes its details with [`Detail`]'s methods, without `core::fmt`).
     pub fn new(code: FaultCode, step: u32, detail: core::fmt::Arguments<'_>) -> Self {
-        let mut w = Truncating(heapless::String::new());
-        let _ = core::fmt::write(&mut w, detail);
+        let mut d = Detail::new();
+        let _ = core::fmt::write(&mut d, detail);
+        Fault::with_detail(code, step, d)
+    }
+
+    /// A fault with a detail written with [`Detail`].
+    pub fn with_detail(code: FaultCode, step: u32, detail: Detail) -> Self {
         Fault {
             code,
             step,
-            detail: w.0,
+            detail: detail.0,
         }
     }
 }
 
-struct Truncating(heapless::String<80>);
+/// A fault's detail being written: text, decimal and hexadecimal numbers appended in turn,
+/// truncated to [`Fault::detail`]'s 80 bytes (at a character boundary). The firmware writes
+/// its details with these methods instead of `core::fmt` (`format_args!` and `Display`), whose
+/// machinery costs ~3.5 KB of its flash (issue 10); `core::fmt::Write` is implemented for the
+/// host's [`Fault::new`].
+#[derive(Clone, Debug, Default, PartialEq, Eq)]
+pub struct Detail(heapless::String<80>);
 
-impl core::fmt::Write for Truncating {
-    fn write_str(&mut self, s: &str) -> core::fmt::Result {
-        for c in s.chars() {
-            if self.0.push(c).is_err() {
+impl Detail {
+    /// An empty detail.
+    pub const fn new() -> Self {
+        Detail(heapless::String::new())
+    }
+
+    /// Appends `s`, or as much of it as fits.
+    pub fn text(&mut self, s: &str) -> &mut Self {
+        let mut n = s.len().min(self.0.capacity() - self.0.len());
+        while !s.is_char_boundary(n) {
+            n -= 1;
+        }
+        // `get`, not `&s[..n]`: a slice's panic path links ~2.5 KB of `core` (Unicode tables).
+        if let Some(head) = s.get(..n) {
+            let _ = self.0.push_str(head);
+        }
+        self
+    }
+
+    /// Appends `v` in decimal.
+    pub fn dec(&mut self, v: u32) -> &mut Self {
+        let mut buf = [0u8; 10];
+        let mut i = buf.len();
+        let mut v = v;
+        loop {
+            i -= 1;
+            buf[i] = (v % 10) as u8;
+            v /= 10;
+            if v == 0 {
                 break;
             }
         }
+        self.digits(&buf[i..])
+    }
+
+    /// Appends `v` in decimal with its sign.
+    pub fn signed(&mut self, v: i32) -> &mut Self {
+        if v < 0 {
+            self.text("-");
+        }
+        self.dec(v.unsigned_abs())
+    }
+
+    /// Appends the `digits` lowest hexadecimal digits of `v` (lower case, zero-padded, at most 8).
+    pub fn hex(&mut self, v: u32, digits: u32) -> &mut Self {
+        let mut buf = [0u8; 8];
+        let n = digits.min(8) as usize;
+        for (k, b) in buf[..n].iter_mut().enumerate() {
+            *b = ((v >> (4 * (n - 1 - k))) & 0xf) as u8;
+        }
+        self.digits(&buf[..n])
+    }
+
+    /// Appends digits given by value (0..16). Through a table of one-digit strings: no
+    /// `str::from_utf8` (~550 B of flash) and no `unsafe`.
+    fn digits(&mut self, d: &[u8]) -> &mut Self {
+        const DIGITS: [&str; 16] = [
+            "0", "1", "2", "3", "4", "5", "6", "7", "8", "9", "a", "b", "c", "d", "e", "f",
+        ];
+        for &x in d {
+            self.text(DIGITS[usize::from(x & 0xf)]);
+        }
+        self
+    }
+
+    /// The text so far.
+    pub fn as_str(&self) -> &str {
+        self.0.as_str()
+    }
+}
+
+impl From<&str> for Detail {
+    fn from(s: &str) -> Self {
+        let mut d = Detail::new();
+        d.text(s);
+        d
+    }
+}
+
+impl core::fmt::Write for Detail {
+    fn write_str(&mut self, s: &str) -> core::fmt::Result {
+        self.text(s);
         Ok(())
     }
 }

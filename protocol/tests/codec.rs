@@ -389,3 +389,36 @@ fn encoder_numbers_frames() {
     }
     assert_eq!(seqs, vec![0, 1, 2]);
 }
+
+/// The firmware's fault details (`Detail`, no `core::fmt`): numbers as `format!` writes them,
+/// and truncation to the 80 bytes of `Fault::detail` at a character boundary.
+#[test]
+fn details_write_numbers_and_truncate_like_format() {
+    for v in [0, 7, 10, 99, 100, 65_535, 1_000_000_007, u32::MAX] {
+        let mut d = Detail::new();
+        d.dec(v);
+        assert_eq!(d.as_str(), format!("{v}"));
+        let mut d = Detail::new();
+        d.hex(v, 8);
+        assert_eq!(d.as_str(), format!("{v:08x}"));
+    }
+    for v in [0, -1, 42, i32::MIN, i32::MAX] {
+        let mut d = Detail::new();
+        d.signed(v);
+        assert_eq!(d.as_str(), format!("{v}"));
+    }
+    let mut d = Detail::from("id ");
+    d.hex(0xad, 2).text(" ").hex(0x1d, 2).text(" ").hex(0x5, 2);
+    assert_eq!(d.as_str(), "id ad 1d 05");
+    // 79 bytes, then a 2-byte character that does not fit: dropped whole; ASCII still fits.
+    let mut d = Detail::from("x".repeat(79).as_str());
+    d.text("é").text("yz");
+    assert_eq!(d.as_str(), format!("{}y", "x".repeat(79)));
+    // The same text through `Fault::new` (core::fmt) and `Fault::with_detail`.
+    let mut d = Detail::from("step ");
+    d.dec(39).text(": gate");
+    assert_eq!(
+        Fault::with_detail(FaultCode::Filter, 1, d),
+        Fault::new(FaultCode::Filter, 1, format_args!("step {}: gate", 39))
+    );
+}

@@ -333,13 +333,14 @@ where
                 }
                 Ok(None) => {}
                 Err(e @ StoreError::Format { .. }) => {
-                    refused = Some((FaultCode::CheckpointRefused, msg(format_args!("{e}"))))
+                    let mut m = Msg::new();
+                    e.describe(&mut m);
+                    refused = Some((FaultCode::CheckpointRefused, m))
                 }
                 Err(e) => {
-                    refused = Some((
-                        FaultCode::Storage,
-                        msg(format_args!("loading checkpoint: {e}")),
-                    ))
+                    let mut m = Msg::from("loading checkpoint: ");
+                    e.describe(&mut m);
+                    refused = Some((FaultCode::Storage, m))
                 }
             }
         }
@@ -349,11 +350,7 @@ where
         self.boot_status = false;
         if let Some((code, why)) = refused {
             let step = self.counters.filter_steps;
-            self.send(Message::Fault(Fault::new(
-                code,
-                step,
-                format_args!("{}", why.as_str()),
-            )));
+            self.send(Message::Fault(Fault::with_detail(code, step, why)));
         }
     }
 
@@ -370,7 +367,7 @@ where
             return Ok(()); // "no run"
         };
         let (config, source, point) = (b.config, b.source, b.point);
-        let ekf = filter_for(&config).map_err(|why| msg(format_args!("checkpoint: {why}")))?;
+        let ekf = filter_for(&config).map_err(|why| msg("checkpoint: ", why))?;
         let time_offset_s = match (source, point.last_t_s) {
             // The sensor's clock restarts at 0 after a reset; without a real-time clock the
             // outage is unknown, so time continues from the last sample (documented limitation).
@@ -393,7 +390,7 @@ where
         };
         if run.screen.load(b.screen_state).is_none() {
             self.run = None;
-            return Err(msg(format_args!("checkpoint: screening state unreadable")));
+            return Err(Msg::from("checkpoint: screening state unreadable"));
         }
         if let Err(why) = resume::load_filter(&mut run.ekf, b.image) {
             self.run = None;
@@ -441,10 +438,12 @@ where
             Err(e) => {
                 counters::bump(&mut self.counters, Count::CheckpointErrors);
                 let step = self.counters.filter_steps;
-                self.send(Message::Fault(Fault::new(
+                let mut m = Msg::from("saving checkpoint: ");
+                e.describe(&mut m);
+                self.send(Message::Fault(Fault::with_detail(
                     FaultCode::Storage,
                     step,
-                    format_args!("saving checkpoint: {e}"),
+                    m,
                 )));
             }
         }
@@ -646,10 +645,10 @@ where
     fn refuse(&mut self, code: FaultCode, why: &str) -> Event {
         counters::bump(&mut self.counters, Count::CommandsRefused);
         let step = self.counters.filter_steps;
-        self.send(Message::Fault(Fault::new(
+        self.send(Message::Fault(Fault::with_detail(
             code,
             step,
-            format_args!("{why}"),
+            Msg::from(why),
         )));
         Event::Continue
     }
@@ -736,10 +735,12 @@ where
             }
             Err(e) => {
                 counters::bump(&mut self.counters, Count::FilterErrors);
-                self.send(Message::Fault(Fault::new(
+                let mut m = Msg::new();
+                describe_filter_error(&e, &mut m);
+                self.send(Message::Fault(Fault::with_detail(
                     FaultCode::Filter,
                     step,
-                    format_args!("{}", FilterFault(e)),
+                    m,
                 )));
             }
         }
@@ -792,63 +793,71 @@ where
     }
 }
 
-/// A filter error for the fault frame, without floating-point formatting (which would link
-/// ~15 KB of `core::fmt::float` into the firmware): times to the millisecond ([`Secs`]).
-struct FilterFault(estimator_core::FilterError);
-
-impl core::fmt::Display for FilterFault {
-    fn fmt(&self, f: &mut core::fmt::Formatter<'_>) -> core::fmt::Result {
-        use estimator_core::FilterError as E;
-        match self.0 {
-            E::TimeNotIncreasing {
-                step,
-                t_s,
-                filter_t_s,
-            } => write!(
-                f,
-                "step {step}: measurement at t = {} s is not after the filter time {} s",
-                Secs(t_s),
-                Secs(filter_t_s)
-            ),
-            // The core's texts, repeated: calling its Display would link its float formatting.
-            E::Capacity { needed, capacity } => write!(
-                f,
-                "model needs {needed} states, filter capacity is {capacity}"
-            ),
-            E::Dimension { expected, got } => write!(f, "expected {expected} values, got {got}"),
-            E::BadMeasurement { step } => write!(
-                f,
-                "step {step}: measurement or its variance is not finite and positive"
-            ),
-            E::SingularInnovation { step } => write!(
-                f,
-                "step {step}: innovation covariance is not positive definite"
-            ),
-            E::Unhealthy { step, index } => write!(
-                f,
-                "step {step}: covariance or state unhealthy at state {index}"
-            ),
-            E::RejectionRun { step, count } => write!(
-                f,
-                "step {step}: {count} consecutive measurements failed the innovation gate"
-            ),
+/// A filter error's text for the fault frame, without `core::fmt` (its float formatting alone
+/// would link ~15 KB into the firmware): times to the millisecond ([`secs`]). The core's texts,
+/// repeated: calling its `Display` would link its float formatting.
+pub fn describe_filter_error(e: &estimator_core::FilterError, m: &mut Msg) {
+    use estimator_core::FilterError as E;
+    let n = |v: usize| u32::try_from(v).unwrap_or(u32::MAX);
+    match *e {
+        E::TimeNotIncreasing {
+            step,
+            t_s,
+            filter_t_s,
+        } => {
+            m.text("step ").dec(step).text(": measurement at t = ");
+            secs(m, t_s);
+            m.text(" s is not after the filter time ");
+            secs(m, filter_t_s);
+            m.text(" s")
         }
-    }
+        E::Capacity { needed, capacity } => m
+            .text("model needs ")
+            .dec(n(needed))
+            .text(" states, filter capacity is ")
+            .dec(n(capacity)),
+        E::Dimension { expected, got } => m
+            .text("expected ")
+            .dec(n(expected))
+            .text(" values, got ")
+            .dec(n(got)),
+        E::BadMeasurement { step } => m
+            .text("step ")
+            .dec(step)
+            .text(": measurement or its variance is not finite and positive"),
+        E::SingularInnovation { step } => m
+            .text("step ")
+            .dec(step)
+            .text(": innovation covariance is not positive definite"),
+        E::Unhealthy { step, index } => m
+            .text("step ")
+            .dec(step)
+            .text(": covariance or state unhealthy at state ")
+            .dec(n(index)),
+        E::RejectionRun { step, count } => m
+            .text("step ")
+            .dec(step)
+            .text(": ")
+            .dec(count)
+            .text(" consecutive measurements failed the innovation gate"),
+    };
 }
 
-/// A time in seconds to the millisecond, formatted with 32-bit integers only (no float, and no
-/// 64-bit division: both cost flash). Saturates beyond 136 years; NaN prints as 0.000.
-struct Secs(f64);
-
-impl core::fmt::Display for Secs {
-    fn fmt(&self, f: &mut core::fmt::Formatter<'_>) -> core::fmt::Result {
-        let t = self.0;
-        let a = if t < 0.0 { -t } else { t };
-        let whole = a as u32; // saturating; NaN -> 0
-        let ms = ((a - f64::from(whole)) * 1e3) as u32;
-        let sign = if t < 0.0 { "-" } else { "" };
-        write!(f, "{sign}{whole}.{:03}", ms.min(999))
+/// Appends a time in seconds to the millisecond, with 32-bit integers only (no float
+/// formatting, and no 64-bit division: both cost flash). Saturates beyond 136 years; NaN
+/// prints as 0.000.
+fn secs(m: &mut Msg, t: f64) {
+    let a = if t < 0.0 { -t } else { t };
+    let whole = a as u32; // saturating; NaN -> 0
+    let ms = (((a - f64::from(whole)) * 1e3) as u32).min(999);
+    if t < 0.0 {
+        m.text("-");
     }
+    m.dec(whole).text(".");
+    if ms < 100 {
+        m.text(if ms < 10 { "00" } else { "0" });
+    }
+    m.dec(ms);
 }
 
 fn run_steps(run: &Option<Run>) -> u32 {

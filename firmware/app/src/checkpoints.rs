@@ -74,17 +74,32 @@ pub enum StoreError {
     },
 }
 
+impl StoreError {
+    /// Appends the error's text to a fault detail (without `core::fmt`: the firmware's flash;
+    /// `Display` writes the same).
+    pub fn describe(&self, m: &mut protocol::Detail) {
+        match *self {
+            StoreError::Flash(k) => m.text("flash error ").text(match k {
+                NorFlashErrorKind::NotAligned => "NotAligned",
+                NorFlashErrorKind::OutOfBounds => "OutOfBounds",
+                _ => "Other",
+            }),
+            StoreError::TooLarge => m.text("checkpoint larger than a sector"),
+            StoreError::Geometry => m.text("flash too small for two checkpoint sectors"),
+            StoreError::Format { found } => m
+                .text("checkpoint record format ")
+                .dec(found.into())
+                .text(", this firmware reads ")
+                .dec(FORMAT.into()),
+        };
+    }
+}
+
 impl core::fmt::Display for StoreError {
     fn fmt(&self, f: &mut core::fmt::Formatter<'_>) -> core::fmt::Result {
-        match self {
-            StoreError::Flash(k) => write!(f, "flash error {k:?}"),
-            StoreError::TooLarge => write!(f, "checkpoint larger than a sector"),
-            StoreError::Geometry => write!(f, "flash too small for two checkpoint sectors"),
-            StoreError::Format { found } => write!(
-                f,
-                "checkpoint record format {found}, this firmware reads {FORMAT}"
-            ),
-        }
+        let mut m = protocol::Detail::new();
+        self.describe(&mut m);
+        f.write_str(m.as_str())
     }
 }
 

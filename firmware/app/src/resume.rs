@@ -23,6 +23,7 @@
 //! A "no run" payload is the 20-byte block with source `0xFF` (written at the start and the end
 //! of runs, so a reset never resumes a finished or abandoned run).
 
+use estimator_core::checkpoint::CheckpointError;
 use protocol::{Config, Source, STATE_DIM};
 
 use crate::app::{validate, Filter};
@@ -106,14 +107,40 @@ pub fn payload_len(config: &Config) -> Option<usize> {
     Some(FIXED + c + Screen::state_len() + estimator_core::checkpoint::size(STATE_DIM))
 }
 
-/// A fault detail (truncated to the protocol's 80 bytes).
-pub type Msg = heapless::String<80>;
+/// A fault detail (truncated to the protocol's 80 bytes; written without `core::fmt`).
+pub type Msg = protocol::Detail;
 
-/// Formats into a [`Msg`], truncating what does not fit.
-pub fn msg(args: core::fmt::Arguments<'_>) -> Msg {
-    let mut s = Msg::new();
-    let _ = core::fmt::write(&mut s, args);
-    s
+/// `prefix` followed by `what`.
+pub fn msg(prefix: &str, what: &str) -> Msg {
+    let mut m = Msg::from(prefix);
+    m.text(what);
+    m
+}
+
+/// A checkpoint error's text, as [`CheckpointError`]'s `Display` writes it (a test checks
+/// they agree), without `core::fmt`.
+pub fn describe_checkpoint_error(e: &CheckpointError, m: &mut Msg) {
+    match *e {
+        CheckpointError::BufferTooSmall { needed } => m
+            .text("checkpoint needs ")
+            .dec(u32::try_from(needed).unwrap_or(u32::MAX))
+            .text(" bytes"),
+        CheckpointError::Truncated => m.text("checkpoint truncated"),
+        CheckpointError::BadMagic => m.text("not a checkpoint"),
+        CheckpointError::Version { found, expected } => m
+            .text("checkpoint format version ")
+            .dec(found.into())
+            .text(", this filter reads ")
+            .dec(expected.into()),
+        CheckpointError::ModelMismatch { found, expected } => m
+            .text("checkpoint of another model configuration (fingerprint ")
+            .hex(found, 8)
+            .text(", this model ")
+            .hex(expected, 8)
+            .text(")"),
+        CheckpointError::Crc => m.text("checkpoint damaged (CRC mismatch)"),
+        CheckpointError::Invalid => m.text("checkpoint holds non-finite values"),
+    };
 }
 
 /// A decoded resume block; the filter image is not loaded yet ([`load_filter`]).
@@ -133,15 +160,17 @@ pub struct Block<'a> {
 /// Decodes a payload: `Ok(None)` for "no run", the block otherwise. `Err` says what is wrong
 /// (another block version, a truncated block, a configuration refused).
 pub fn decode(payload: &[u8]) -> Result<Option<Block<'_>>, Msg> {
-    let bad = |what: &str| msg(format_args!("checkpoint: {what}"));
+    let bad = |what: &str| msg("checkpoint: ", what);
     let head = payload
         .get(..FIXED)
         .ok_or_else(|| bad("resume block truncated"))?;
     let version = u16::from_le_bytes([head[0], head[1]]);
     if version != VERSION {
-        return Err(msg(format_args!(
-            "checkpoint resume block v{version}, firmware reads v{VERSION}"
-        )));
+        let mut m = msg("checkpoint resume block v", "");
+        m.dec(version.into())
+            .text(", firmware reads v")
+            .dec(VERSION.into());
+        return Err(m);
     }
     let source = match head[SOURCE] {
         NO_RUN => return Ok(None),
@@ -161,8 +190,7 @@ pub fn decode(payload: &[u8]) -> Result<Option<Block<'_>>, Msg> {
         .ok_or_else(|| bad("configuration truncated"))?;
     let config: Config =
         postcard::from_bytes(cfg_bytes).map_err(|_| bad("configuration unreadable"))?;
-    validate(&config)
-        .map_err(|why| msg(format_args!("checkpoint configuration refused: {why}")))?;
+    validate(&config).map_err(|why| msg("checkpoint configuration refused: ", why))?;
     Ok(Some(Block {
         source,
         point: ResumePoint {
@@ -180,5 +208,9 @@ pub fn decode(payload: &[u8]) -> Result<Option<Block<'_>>, Msg> {
 /// Loads a block's filter image into `ekf`, a fresh filter of the block's configuration (in
 /// place: the caller keeps one filter on its stack or in its state, not several).
 pub fn load_filter(ekf: &mut Filter, image: &[u8]) -> Result<(), Msg> {
-    ekf.resume(image).map_err(|e| msg(format_args!("{e}")))
+    ekf.resume(image).map_err(|e| {
+        let mut m = Msg::new();
+        describe_checkpoint_error(&e, &mut m);
+        m
+    })
 }

@@ -30,7 +30,7 @@ use firmware_app::checkpoints::RamFlash;
 use firmware_app::cmsdk_uart::{self, Regs, STATE, STATE_TX_FULL};
 use firmware_app::serial::{RingSerial, RxRing, RX_RING_BYTES};
 use firmware_app::NoSensor;
-use protocol::{Board, Fault, FaultCode};
+use protocol::{Board, Detail, Fault, FaultCode};
 
 /// Start of RAM (memory-qemu.x): the bottom of the stack under flip-link.
 pub const RAM_ORIGIN: usize = 0x2000_0000;
@@ -63,10 +63,9 @@ unsafe fn DefaultHandler(irqn: i16) {
         // UART0's registers; the main loop only transmits (TX registers).
         cmsdk_uart::on_rx_interrupt(&mut Mmio(UART0), &RX);
     } else {
-        fatal(
-            FaultCode::HardFault,
-            format_args!("unexpected interrupt {irqn}"),
-        );
+        let mut m = Detail::from("unexpected interrupt ");
+        m.signed(irqn.into());
+        fatal(FaultCode::HardFault, m);
     }
 }
 
@@ -231,11 +230,11 @@ pub fn shutdown() -> ! {
 }
 
 /// Reports a fatal error on the semihosting console and the link, then exits with failure.
-pub fn fatal(code: FaultCode, detail: core::fmt::Arguments<'_>) -> ! {
-    hprintln!("firmware fatal {:?}: {}", code, detail);
+pub fn fatal(code: FaultCode, detail: Detail) -> ! {
+    hprintln!("firmware fatal {:?}: {}", code, detail.as_str());
     // SAFETY: we are going down; the main loop no longer runs.
     let mut uart = unsafe { Uart::new(UART0) };
-    let fault = Fault::new(code, 0, detail);
+    let fault = Fault::with_detail(code, 0, detail);
     let mut buf = [0u8; protocol::MAX_FRAME];
     if let Ok(f) = protocol::encode(
         &protocol::Packet::new(u32::MAX, protocol::Message::Fault(fault)),

@@ -36,7 +36,7 @@ use firmware_app::adxl355::{self, Adxl355};
 use firmware_app::app::{App, Platform, SampleTimer, Tick};
 use firmware_app::serial::RX_RING_BYTES;
 use firmware_app::{AccelSample, Accelerometer};
-use protocol::{Board, Fault, FaultCode};
+use protocol::{Board, Detail, Fault, FaultCode};
 
 const CORE_HZ: u32 = 64_000_000;
 const BAUD: u32 = 115_200;
@@ -174,7 +174,10 @@ pub fn init() -> Parts {
     config.rcc.mux.spi123sel = embassy_stm32::rcc::mux::Saisel::PER;
     let p = embassy_stm32::init(config);
 
-    let mut cp = cortex_m::Peripherals::take().expect("core peripherals taken once");
+    // Not `expect`: its message is formatted through `Display` (the panic handler prints the
+    // location only); `panic!` with a literal links no formatting code.
+    let mut cp =
+        cortex_m::Peripherals::take().unwrap_or_else(|| panic!("core peripherals taken once"));
     cp.DCB.enable_trace();
     cp.DWT.enable_cycle_counter();
     cp.SYST.set_clock_source(SystClkSource::Core);
@@ -206,17 +209,19 @@ pub fn init() -> Parts {
                         adxl355::Error::SelfTest { .. } => FaultCode::SensorSelfTest,
                         _ => FaultCode::SensorRead,
                     };
-                    let fault = Fault::new(code, 0, format_args!("ADXL355: {}", SensorFault(&e)));
+                    let mut m = Detail::from("ADXL355: ");
+                    describe_sensor_error(&e, &mut m);
+                    let fault = Fault::with_detail(code, 0, m);
                     (Sensor(None), Some(fault))
                 }
             }
         }
         Err(_) => (
             Sensor(None),
-            Some(Fault::new(
+            Some(Fault::with_detail(
                 FaultCode::SensorRead,
                 0,
-                format_args!("ADXL355: chip select"),
+                Detail::from("ADXL355: chip select"),
             )),
         ),
     };
@@ -236,25 +241,26 @@ pub fn init() -> Parts {
     }
 }
 
-/// A sensor error for the boot fault, without floating-point formatting (~15 KB of
-/// `core::fmt::float` otherwise): the self-test response in milli-g.
-struct SensorFault<'a>(&'a adxl355::Error<SpiError>);
-
-impl core::fmt::Display for SensorFault<'_> {
-    fn fmt(&self, f: &mut core::fmt::Formatter<'_>) -> core::fmt::Result {
-        match self.0 {
-            adxl355::Error::Spi(_) => write!(f, "SPI error"),
-            adxl355::Error::BadId(id) => {
-                write!(f, "bad id {:02x} {:02x} {:02x}", id[0], id[1], id[2])
-            }
-            adxl355::Error::SelfTest { axis, response_g } => write!(
-                f,
-                "self-test axis {axis}: response {} mg out of limits",
-                (response_g * 1e3) as i32
-            ),
-            adxl355::Error::NotReady => write!(f, "no new data"),
-        }
-    }
+/// A sensor error's text for the boot fault, without `core::fmt` (its float formatting alone
+/// is ~15 KB): the self-test response in milli-g.
+fn describe_sensor_error(e: &adxl355::Error<SpiError>, m: &mut Detail) {
+    match e {
+        adxl355::Error::Spi(_) => m.text("SPI error"),
+        adxl355::Error::BadId(id) => m
+            .text("bad id ")
+            .hex(id[0].into(), 2)
+            .text(" ")
+            .hex(id[1].into(), 2)
+            .text(" ")
+            .hex(id[2].into(), 2),
+        adxl355::Error::SelfTest { axis, response_g } => m
+            .text("self-test axis ")
+            .dec(u32::from(*axis))
+            .text(": response ")
+            .signed((response_g * 1e3) as i32)
+            .text(" mg out of limits"),
+        adxl355::Error::NotReady => m.text("no new data"),
+    };
 }
 
 /// The host asked to end: reset.
@@ -264,8 +270,8 @@ pub fn shutdown() -> ! {
 
 /// Reports a fatal error on the link (a fault frame, through a blocking transmitter taken over
 /// from the application) and halts.
-pub fn fatal(code: FaultCode, detail: core::fmt::Arguments<'_>) -> ! {
-    let fault = Fault::new(code, 0, detail);
+pub fn fatal(code: FaultCode, detail: Detail) -> ! {
+    let fault = Fault::with_detail(code, 0, detail);
     let mut buf = [0u8; protocol::MAX_FRAME];
     if let Ok(f) = protocol::encode(
         &protocol::Packet::new(u32::MAX, protocol::Message::Fault(fault)),
