@@ -1,21 +1,28 @@
-//! The checkpointed smoother (`identify::smoother`) against a private copy of the dense RTS
-//! smoother it replaced (every node's m⁻, P⁻, m, P, Φ kept for the backward pass), and its errors
-//! on bad data.
+//! The smoother (`identify::smoother`: structured algebra, nodes kept or checkpointed) against a
+//! private copy of the dense RTS smoother it replaced (every node's m⁻, P⁻, m, P, Φ kept for the
+//! backward pass, dense n×n products), and its errors on bad data.
 //!
-//! The checkpointed pass recomputes each segment's nodes with the same operations on the same
-//! inputs as the forward pass, so it should reproduce the dense smoother bit for bit. The tests
-//! allow a relative difference of 1e-9 (the brief's "identical to rounding"): far above any
-//! rounding reordering (~1e-15 per operation, a few hundred operations per node) and far below
-//! any real change (a wrong Φ row, a node off by one or a stale segment moves the states by
-//! percents). `max_rel_diff` scales each difference by the largest magnitude of its quantity
-//! across the record, so that states that cross zero do not blow the ratio up.
+//! The structured pass does the same algebra with fewer products (Φ is the identity outside its
+//! dynamic rows, H zero outside its measured columns, one vector solve per node in the backward
+//! pass), so it rounds differently, and the filter amplifies rounding: its covariance is nearly
+//! singular at the start (angles known to 1e-6 rad, coefficients to their wide priors). How much,
+//! measured on the 60-h paper run: merely re-associating two of the dense reference's own
+//! products (Φ·(P·Φᵀ) and (I−KH)·(P⁻·(I−KH)ᵀ)) moves its states by up to 6e-5 σ, its final
+//! covariance by 1.3e-5 of σᵢσⱼ (4e-4 relative on entries near zero) and its innovations by
+//! 1.3e-6 of their largest value; the structured pass is closer to the reference than that
+//! (1.7e-5 σ, 2.2e-5 σᵢσⱼ, 9e-7). So the comparison is in the quantities' own scale — states in
+//! the final 1σ, the covariance in σᵢσⱼ — with tolerances 15–50× that rounding noise, and still
+//! far below any real change (a wrong Φ row, a node off by one or a stale segment moves the
+//! states by percents, thousands of σ). Keeping every node and checkpointing must agree bit for
+//! bit (the same operations on the same inputs).
 
 use estimator_core::filter::ANGLE_PRIOR_SIGMA_RAD;
 use estimator_core::units::arw_deg2ph_to_rad2ps;
 use estimator_core::{Measurement, Model, Propagation, Residual, Sample, Site, PAPER_EFFECTS};
 use host_tool::catalog;
 use host_tool::identify::smoother::{
-    final_covariance, linearised_pass, linearised_pass_observed, temp_devs, Smoothed, SmootherError,
+    final_covariance, linearised_pass, linearised_pass_checkpointed, linearised_pass_observed,
+    temp_devs, Smoothed, SmootherError,
 };
 use host_tool::identify::{ekf_pass, identify, prepare, wide_prior, Config, Prepared};
 use host_tool::simulate::{simulate, Scenario};
@@ -188,19 +195,69 @@ fn max_rel_diff<'a>(
     worst
 }
 
+/// Largest difference of the states in their 1σ (the reference's final covariance) and of the
+/// final covariance in σᵢσⱼ.
+fn sigma_diffs(new: &Smoothed, old: &Smoothed, filtered: bool) -> (f64, f64) {
+    let c = &old.final_cov;
+    let n = c.nrows();
+    let sd = |i: usize| c[(i, i)].sqrt().max(1e-300);
+    let mut d_states = 0.0f64;
+    // A filtered state is in the final 1σ only at the last node (earlier, the filter still
+    // carries the wide prior: thousands of final σ); the innovations check the nodes before.
+    let skip = if filtered {
+        new.states.len().saturating_sub(1)
+    } else {
+        0
+    };
+    for (u, v) in new.states.iter().zip(&old.states).skip(skip) {
+        for i in 0..n {
+            d_states = d_states.max((u[i] - v[i]).abs() / sd(i));
+        }
+    }
+    (d_states, cov_diff(&new.final_cov, c))
+}
+
+/// Largest |a − b| of two covariances in σᵢσⱼ of `b`.
+fn cov_diff(a: &DMatrix<f64>, b: &DMatrix<f64>) -> f64 {
+    let n = b.nrows();
+    let mut d = 0.0f64;
+    for i in 0..n {
+        for j in 0..n {
+            let s = (b[(i, i)] * b[(j, j)]).sqrt().max(1e-300);
+            d = d.max((a[(i, j)] - b[(i, j)]).abs() / s);
+        }
+    }
+    d
+}
+
+/// Keeping every node and checkpointing: the same operations on the same inputs, the same bits.
+fn same_bits(a: &Smoothed, b: &Smoothed, what: &str) {
+    let bits = |v: &[f64]| v.iter().map(|x| x.to_bits()).collect::<Vec<_>>();
+    assert_eq!(a.states.len(), b.states.len(), "{what}");
+    for (u, v) in a.states.iter().zip(&b.states) {
+        assert_eq!(bits(u.as_slice()), bits(v.as_slice()), "{what}: states");
+    }
+    assert_eq!(
+        bits(a.final_cov.as_slice()),
+        bits(b.final_cov.as_slice()),
+        "{what}: covariance"
+    );
+    assert_eq!(a.innovations, b.innovations, "{what}: innovations");
+}
+
+/// Tolerances (see the module docs: 15–50× the reference's own rounding noise).
+const TOL_STATES_SIGMA: f64 = 1e-3;
+const TOL_COV: f64 = 2e-4;
+const TOL_INNOVATIONS: f64 = 2e-5;
+
 fn compare(new: &Smoothed, old: &Smoothed, what: &str) {
-    const TOL: f64 = 1e-9;
     assert_eq!(new.states.len(), old.states.len(), "{what}: state count");
     assert_eq!(
         new.innovations.len(),
         old.innovations.len(),
         "{what}: innovation count"
     );
-    let d_states = max_rel_diff(
-        new.states.iter().map(|v| v.as_slice()),
-        old.states.iter().map(|v| v.as_slice()),
-    );
-    let d_cov = max_rel_diff([new.final_cov.as_slice()], [old.final_cov.as_slice()]);
+    let (d_states, d_cov) = sigma_diffs(new, old, what == "filtered");
     let flat = |r: &Residual| -> Vec<f64> {
         let mut v = Vec::with_capacity(22);
         v.extend(r.predicted);
@@ -221,13 +278,19 @@ fn compare(new: &Smoothed, old: &Smoothed, what: &str) {
             fb.iter().map(|v| v.as_slice()),
         )
     };
-    eprintln!("{what}: max relative difference states {d_states:.3e}, final covariance {d_cov:.3e}, innovations {d_innov:.3e}");
-    assert!(d_states <= TOL, "{what}: states differ by {d_states:e}");
+    eprintln!("{what}: largest difference states {d_states:.3e} σ, final covariance {d_cov:.3e} σᵢσⱼ, innovations {d_innov:.3e} relative");
     assert!(
-        d_cov <= TOL,
-        "{what}: final covariance differs by {d_cov:e}"
+        d_states <= TOL_STATES_SIGMA,
+        "{what}: states differ by {d_states:e} σ"
     );
-    assert!(d_innov <= TOL, "{what}: innovations differ by {d_innov:e}");
+    assert!(
+        d_cov <= TOL_COV,
+        "{what}: final covariance differs by {d_cov:e} σᵢσⱼ"
+    );
+    assert!(
+        d_innov <= TOL_INNOVATIONS,
+        "{what}: innovations differ by {d_innov:e}"
+    );
 }
 
 fn paper_model(site: Site, effects: &'static [&'static dyn Effect]) -> Model<'static> {
@@ -283,6 +346,8 @@ fn checkpointed_smoother_matches_the_dense_one_on_the_paper_run() {
     let mut nominal = pass2_nominal(&model, meas);
     for it in 0..3 {
         let new = linearised_pass(&model, meas, &nominal, &x0, &p0, true).unwrap();
+        let checkpointed = linearised_pass_checkpointed(&model, meas, &nominal, &x0, &p0).unwrap();
+        same_bits(&checkpointed, &new, &format!("iteration {it}"));
         let old = dense_reference(&model, meas, &nominal, &x0, &p0, true);
         compare(&new, &old, &format!("smoothed, iteration {it}"));
         nominal = old.states;
@@ -299,14 +364,14 @@ fn checkpointed_smoother_matches_the_dense_one_on_the_paper_run() {
     .unwrap();
     assert_eq!(steps, meas.len(), "observer called once per update");
     let cov = final_covariance(&model, meas, &nominal, &x0, &p0).unwrap();
-    let d = max_rel_diff([cov.as_slice()], [old.final_cov.as_slice()]);
-    assert!(d <= 1e-9, "covariance-only pass differs by {d:e}");
+    let d = cov_diff(&cov, &old.final_cov);
+    assert!(d <= TOL_COV, "covariance-only pass differs by {d:e} σᵢσⱼ");
 }
 
 #[test]
 fn identify_is_unchanged_by_checkpointing() {
     // identify() now moves states instead of cloning them and drops passes early: its result must
-    // be the dense smoother iterated from pass 2's nominal (same 1e-9 tolerance as above).
+    // be the dense smoother iterated from pass 2's nominal (the same tolerances as above).
     let prep = paper_run(30.0);
     let model = paper_model(prep.site, &PAPER_EFFECTS);
     let cfg = Config::default();
@@ -334,21 +399,30 @@ fn identify_is_unchanged_by_checkpointing() {
         old = Some(pass);
     }
     let old = old.unwrap();
-    let d = max_rel_diff(
-        id.trajectory.iter().map(|v| v.as_slice()),
-        old.states.iter().map(|v| v.as_slice()),
-    );
-    assert!(d <= 1e-9, "trajectory differs by {d:e}");
+    let sd: Vec<f64> = (0..n).map(|i| old.final_cov[(i, i)].sqrt()).collect();
+    let mut d = 0.0f64;
+    assert_eq!(id.trajectory.len(), old.states.len());
+    for (u, v) in id.trajectory.iter().zip(&old.states) {
+        for i in 0..n {
+            d = d.max((u[i] - v[i]).abs() / sd[i]);
+        }
+    }
+    assert!(d <= TOL_STATES_SIGMA, "trajectory differs by {d:e} σ");
     let refined = id.refined.as_ref().unwrap();
     let old_cov = old
         .final_cov
         .view((ANGLES, ANGLES), (n - ANGLES, n - ANGLES))
         .into_owned();
-    let d = max_rel_diff([refined.cov.as_slice()], [old_cov.as_slice()]);
-    assert!(d <= 1e-9, "refined covariance differs by {d:e}");
+    let d = cov_diff(&refined.cov, &old_cov);
+    assert!(d <= TOL_COV, "refined covariance differs by {d:e} σᵢσⱼ");
     assert_eq!(id.innovations.len(), old.innovations.len());
     for (a, b) in id.innovations.iter().zip(&old.innovations) {
-        assert!((a.nis - b.nis).abs() <= 1e-9 * b.nis.abs().max(1.0));
+        assert!(
+            (a.nis - b.nis).abs() <= TOL_INNOVATIONS * b.nis.abs().max(1.0),
+            "NIS {} against {}",
+            a.nis,
+            b.nis
+        );
     }
 }
 
@@ -378,6 +452,13 @@ fn segment_boundaries_and_gauss_markov_rows_match_the_dense_smoother() {
                 pass2_nominal(&model, meas)
             };
             let new = linearised_pass(&model, meas, &nominal, &x0, &p0, true).unwrap();
+            let checkpointed =
+                linearised_pass_checkpointed(&model, meas, &nominal, &x0, &p0).unwrap();
+            same_bits(
+                &checkpointed,
+                &new,
+                &format!("{} states, {len} updates", model.dim()),
+            );
             let old = dense_reference(&model, meas, &nominal, &x0, &p0, true);
             compare(
                 &new,

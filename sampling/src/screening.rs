@@ -115,11 +115,19 @@ pub fn screen(
             cfg,
         );
     }
+    let ordered = times_ordered(&samples[..n]);
     for a in 0..3 {
-        sum.outliers[a] = flag_outliers(&samples[..n], &mut flags[..n], a, sigma[a], cfg);
+        sum.outliers[a] = flag_outliers(&samples[..n], &mut flags[..n], a, sigma[a], cfg, ordered);
     }
     sum.rejected = flags[..n].iter().filter(|f| **f != 0).count();
     sum
+}
+
+/// Times strictly increasing (as a recording's are): each side's median time is then its
+/// middle. A non-finite time is a rejected sample, never inside a window the outlier test takes.
+fn times_ordered(s: &[Sample]) -> bool {
+    s.windows(2)
+        .all(|w| w[0].t_s < w[1].t_s || !(w[0].t_s.is_finite() && w[1].t_s.is_finite()))
 }
 
 /// Fraction of steps whose reading repeats the previous one exactly (accepted samples only).
@@ -279,6 +287,7 @@ fn flag_outliers(
     a: usize,
     sigma: f64,
     cfg: &ScreenConfig,
+    ordered: bool,
 ) -> usize {
     let h = cfg.half_window.clamp(2, MAX_HALF_WINDOW);
     let len = s.len();
@@ -296,11 +305,6 @@ fn flag_outliers(
     let mut bad_near = (0..=h.min(len.saturating_sub(1)))
         .filter(|&k| bad(flags, k))
         .count();
-    // Times strictly increasing (as a recording's are): each side's median time is its middle.
-    // A non-finite time is a rejected sample, never inside a window taken here.
-    let ordered = s
-        .windows(2)
-        .all(|w| w[0].t_s < w[1].t_s || !(w[0].t_s.is_finite() && w[1].t_s.is_finite()));
     let mut count = 0;
     for i in 0..len {
         if i > h && bad(flags, i - h - 1) {
@@ -376,21 +380,28 @@ fn sort(v: &mut [f64]) {
     }
 }
 
-/// Replaces `out` (present, compared bit for bit) by `new` in the sorted `v`, keeping it sorted.
+/// Replaces `out` (present, compared bit for bit) by `new` in the sorted `v`, keeping it sorted:
+/// the values between the two places shift by one and `new` goes where it belongs (the
+/// placement of swapping it there pairwise, with half the writes).
+#[inline(always)]
 fn slide(v: &mut [f64], out: f64, new: f64) {
+    let len = v.len();
     let mut j = v
         .iter()
         .position(|x| x.to_bits() == out.to_bits())
-        .unwrap_or(v.len() - 1);
+        .unwrap_or(len - 1);
+    if j > 0 && v[j - 1] > new {
+        while j > 0 && v[j - 1] > new {
+            v[j] = v[j - 1];
+            j -= 1;
+        }
+    } else {
+        while j + 1 < len && new > v[j + 1] {
+            v[j] = v[j + 1];
+            j += 1;
+        }
+    }
     v[j] = new;
-    while j > 0 && v[j - 1] > v[j] {
-        v.swap(j - 1, j);
-        j -= 1;
-    }
-    while j + 1 < v.len() && v[j] > v[j + 1] {
-        v.swap(j, j + 1);
-        j += 1;
-    }
 }
 
 /// Whether sample `i` of `s` is an outlier on axis `a` against the robust local line through its
@@ -464,6 +475,24 @@ fn two_sided(
     (ml, tl, nl): (f64, f64, usize),
     (mr, tr, nr): (f64, f64, usize),
 ) -> bool {
+    // Nearly every sample lies within k·σ of both medians. When x's time is between the two
+    // sides' (0 ≤ u ≤ 1, rounding is monotone), the prediction is a convex combination of ml
+    // and mr up to a few ulps, and the threshold below is at least fl(k·σ) (√(1 + v) ≥ 1): such
+    // a sample is no outlier, decided without the divisions and the square root. The margin
+    // (1e-12 of the magnitudes, against ~1e-15 of rounding) keeps the verdict the same bits.
+    let x_a = x.specific_force[a];
+    let inside = if tr > tl {
+        tl <= x.t_s && x.t_s <= tr
+    } else {
+        true
+    };
+    if inside {
+        let far = libm::fmax(libm::fabs(x_a - ml), libm::fabs(x_a - mr));
+        let scale = libm::fabs(ml) + libm::fabs(mr) + libm::fabs(x_a);
+        if far + 1e-12 * (far + scale) <= cfg.outlier_k * sigma {
+            return false;
+        }
+    }
     let u = if tr > tl {
         (x.t_s - tl) / (tr - tl)
     } else {
@@ -1038,7 +1067,7 @@ mod tests {
                 };
                 for a in 0..3 {
                     let mut batch = flags;
-                    let n = flag_outliers(&s, &mut batch, a, sigma, &cfg);
+                    let n = flag_outliers(&s, &mut batch, a, sigma, &cfg, times_ordered(&s));
                     let mut count = 0;
                     for i in 0..2000 {
                         let one = outlier_at(&s, &flags, i, a, sigma, &cfg);

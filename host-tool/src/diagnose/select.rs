@@ -14,6 +14,7 @@
 //!   [`MIN_EVIDENCE_GAIN`] of the catch-all, wins.
 
 use estimator_core::effects::Effect;
+use rayon::prelude::*;
 use serde::Serialize;
 
 use super::DiagnoseConfig;
@@ -72,7 +73,8 @@ pub fn fit_stats(id: &Identification, prep: &Prepared, lags: usize) -> ([f64; 3]
     ([0, 1, 2].map(|i| rms[i] / floor[i]), id.nis_mean(), p)
 }
 
-/// Refits the current model plus each named candidate.
+/// Refits the current model plus each named candidate. The refits are independent fits: they
+/// run in parallel (rayon), in the order of `names`.
 pub fn refit(
     prep: &Prepared,
     effects: &[&'static dyn Effect],
@@ -80,55 +82,58 @@ pub fn refit(
     names: &[String],
     cfg: &DiagnoseConfig,
 ) -> Vec<Refit> {
-    let mut out = vec![];
-    for name in names {
-        let Some(e) = catalog::by_name(name) else {
-            continue;
-        };
-        let mut list = effects.to_vec();
-        list.push(e);
-        let Ok(model) = build_model(prep.site, &list, &cfg.identify) else {
-            continue;
-        };
-        let Ok(id) = identify(&model, prep, &cfg.identify) else {
-            continue;
-        };
-        let (rms, nis, white) = fit_stats(&id, prep, cfg.lags);
-        let c = assess(
-            nis,
-            id.innovations.len(),
-            white,
-            rms,
-            prep.floor_rel_sd(),
-            &Thresholds::default(),
-        );
-        let ev = neg2_log_evidence(&id);
-        let offset = id.params.len() - e.params().len();
-        let best = id.best();
-        out.push(Refit {
-            effect: name.clone(),
-            neg2_log_evidence: ev,
-            evidence_gain: base_evidence - ev,
-            rms_over_floor: rms,
-            nis_mean: nis,
-            whiteness_p: white,
-            consistent: c.is_consistent(),
-            params: e
-                .params()
-                .iter()
-                .enumerate()
-                .map(|(k, p)| {
-                    (
-                        p.name.to_string(),
-                        p.unit.to_string(),
-                        best.value[offset + k],
-                        best.sigma(offset + k),
-                    )
-                })
-                .collect(),
-        });
-    }
-    out
+    names
+        .par_iter()
+        .filter_map(|name| refit_one(prep, effects, base_evidence, name, cfg))
+        .collect()
+}
+
+fn refit_one(
+    prep: &Prepared,
+    effects: &[&'static dyn Effect],
+    base_evidence: f64,
+    name: &str,
+    cfg: &DiagnoseConfig,
+) -> Option<Refit> {
+    let e = catalog::by_name(name)?;
+    let mut list = effects.to_vec();
+    list.push(e);
+    let model = build_model(prep.site, &list, &cfg.identify).ok()?;
+    let id = identify(&model, prep, &cfg.identify).ok()?;
+    let (rms, nis, white) = fit_stats(&id, prep, cfg.lags);
+    let c = assess(
+        nis,
+        id.innovations.len(),
+        white,
+        rms,
+        prep.floor_rel_sd(),
+        &Thresholds::default(),
+    );
+    let ev = neg2_log_evidence(&id);
+    let offset = id.params.len() - e.params().len();
+    let best = id.best();
+    Some(Refit {
+        effect: name.to_string(),
+        neg2_log_evidence: ev,
+        evidence_gain: base_evidence - ev,
+        rms_over_floor: rms,
+        nis_mean: nis,
+        whiteness_p: white,
+        consistent: c.is_consistent(),
+        params: e
+            .params()
+            .iter()
+            .enumerate()
+            .map(|(k, p)| {
+                (
+                    p.name.to_string(),
+                    p.unit.to_string(),
+                    best.value[offset + k],
+                    best.sigma(offset + k),
+                )
+            })
+            .collect(),
+    })
 }
 
 /// Chooses the next effect among refits (see the module docs); `None`: nothing earns its place.

@@ -13,11 +13,18 @@
 //! make S = H P⁻ Hᵀ + R or P⁻ singular: a pass then returns a [`SmootherError`] naming the
 //! update and its time, never panics.
 //!
-//! Memory: the backward pass is checkpointed. The forward pass keeps the filter's (m, P) only
-//! every ⌈√N⌉ updates; the backward pass recomputes one segment's nodes at a time from its
-//! checkpoint, with the same operations on the same inputs, so the results are bit-identical to
-//! keeping every node. Node memory is O(√N) (about 15 MB at 2 M updates) for one more forward
-//! pass of work; what grows with N is the output (states and innovations).
+//! Memory: a record whose nodes fit in [`KEEP_NODES_BYTES`] (a 60-h run at the 60-s period)
+//! keeps them from the forward pass for the backward one. A longer one is checkpointed: the
+//! forward pass keeps the filter's (m, P) only every ⌈√N⌉ updates; the backward pass recomputes
+//! one segment's nodes at a time from its checkpoint, with the same operations on the same
+//! inputs, so the results are bit-identical to keeping every node. Node memory is then O(√N)
+//! (about 15 MB at 2 M updates) for one more forward pass of work; what grows with N is the
+//! output (states and innovations).
+//!
+//! The algebra is structured, in flat buffers allocated once per pass: Φ is the identity outside
+//! the dynamic rows (the angles, Gauss–Markov states), H is zero outside the measured columns,
+//! and P is kept exactly symmetric, so a step costs O(nd·n²) instead of dense O(n³) products, and
+//! the backward pass solves one vector against P⁻ per node instead of n.
 
 use estimator_core::model::{Model, MAX_STATES};
 use estimator_core::propagate::{propagate, Transition};
@@ -134,26 +141,63 @@ pub enum SmootherError {
     },
 }
 
-/// Filter quantities of one node, as the backward pass needs them.
-struct Node {
-    m_pred: DVector<f64>,
-    p_pred: DMatrix<f64>,
-    m: DVector<f64>,
-    p: DMatrix<f64>,
-    phi: DMatrix<f64>,
-}
-
-/// Everything one forward step computes.
+/// Everything one forward step computes, in buffers allocated once per pass (a step allocates
+/// nothing). Matrices are row-major n×n slices; P and P⁻ are kept exactly symmetric.
 struct Step {
-    node: Node,
-    h: DMatrix<f64>,
-    k: DMatrix<f64>,
+    /// Φ's dynamic rows (`dynamic_states()[r]`, row r at `r·n`); every other row of Φ is the
+    /// identity's.
+    phi: Vec<f64>,
+    /// The nominal propagated over the interval (n), then scratch.
+    f: Vec<f64>,
+    /// m − x̄ at the previous node (n).
+    dm: Vec<f64>,
+    /// Rows `dynamic` of Φ·P (nd × n).
+    a: Vec<f64>,
+    m_pred: Vec<f64>,
+    p_pred: Vec<f64>,
+    m: Vec<f64>,
+    p: Vec<f64>,
+    /// Columns of H that are not zero.
+    cols: Vec<usize>,
+    /// Rows of P⁻Hᵀ, of K = P⁻HᵀS⁻¹ and of K·S (n each).
+    u: Vec<Vector3<f64>>,
+    k: Vec<Vector3<f64>>,
+    w: Vec<Vector3<f64>>,
     nu: Vector3<f64>,
     chol_l: Matrix3<f64>,
     s: Matrix3<f64>,
     s_inv: Matrix3<f64>,
     whitened: Vector3<f64>,
     predicted: [f64; 3],
+}
+
+impl Step {
+    fn new(n: usize, nd: usize) -> Self {
+        Step {
+            phi: vec![0.0; nd * n],
+            f: vec![0.0; n],
+            dm: vec![0.0; n],
+            a: vec![0.0; nd * n],
+            m_pred: vec![0.0; n],
+            p_pred: vec![0.0; n * n],
+            m: vec![0.0; n],
+            p: vec![0.0; n * n],
+            cols: Vec::with_capacity(n),
+            u: vec![Vector3::zeros(); n],
+            k: vec![Vector3::zeros(); n],
+            w: vec![Vector3::zeros(); n],
+            nu: Vector3::zeros(),
+            chol_l: Matrix3::zeros(),
+            s: Matrix3::zeros(),
+            s_inv: Matrix3::zeros(),
+            whitened: Vector3::zeros(),
+            predicted: [0.0; 3],
+        }
+    }
+}
+
+fn dot(a: &[f64], b: &[f64]) -> f64 {
+    a.iter().zip(b).fold(0.0, |acc, (x, y)| acc + x * y)
 }
 
 /// The fixed inputs of a pass and the forward step.
@@ -200,55 +244,95 @@ impl<'a, 'm> Forward<'a, 'm> {
         }
     }
 
-    /// Update `j` from the filter's `(m, p)` at node `j` to node `j + 1`. Deterministic: the
-    /// backward pass recomputes segments with it and gets the same bits.
+    /// Update `j` from the filter's `(m, p)` at node `j` to node `j + 1`, into `st`.
+    /// Deterministic: the backward pass recomputes segments with it and gets the same bits.
+    ///
+    /// Structured: Φ differs from I only in the dynamic rows and H is zero outside a few
+    /// columns, so Φ P Φᵀ costs nd·n² and the Joseph update 9 products per entry of one
+    /// triangle, instead of dense n³ products.
     fn step(
         &mut self,
         j: usize,
-        m_prev: &DVector<f64>,
-        p_prev: &DMatrix<f64>,
-    ) -> Result<Step, SmootherError> {
+        m_prev: &[f64],
+        p_prev: &[f64],
+        st: &mut Step,
+    ) -> Result<(), SmootherError> {
         let model = self.model;
         let n = model.dim();
+        let dynamic = model.dynamic_states();
+        let nd = dynamic.len();
         let z = &self.meas[j];
         let (t_prev, temp_prev) = self.before(j);
-        let xbar_prev = &self.nominal[j];
-        let mut f = xbar_prev.as_slice().to_vec();
+        let xbar_prev = self.nominal[j].as_slice();
+        st.f.copy_from_slice(xbar_prev);
         propagate(
             model,
-            &mut f,
+            &mut st.f,
             t_prev,
             z.t_s - t_prev,
             temp_prev,
             self.temps[j],
             &mut self.tr,
         );
-        let mut phi = DMatrix::identity(n, n);
-        let mut q = DMatrix::zeros(n, n);
-        let dynamic = model.dynamic_states();
+        for r in 0..nd {
+            st.phi[r * n..(r + 1) * n].copy_from_slice(&self.tr.rows[r][..n]);
+        }
+        // m⁻ = f(x̄) + Φ (m − x̄).
+        for i in 0..n {
+            st.dm[i] = m_prev[i] - xbar_prev[i];
+        }
+        for i in 0..n {
+            st.m_pred[i] = st.f[i] + st.dm[i];
+        }
+        for (r, &d) in dynamic.iter().enumerate() {
+            st.m_pred[d] = st.f[d] + dot(&st.phi[r * n..(r + 1) * n], &st.dm);
+        }
+        // P⁻ = Φ P Φᵀ + Q. With A = rows `dynamic` of Φ P (= columns of P Φᵀ, P symmetric):
+        // P⁻ is P outside the dynamic rows and columns, A there, and A Φ_Dᵀ + Q where both are
+        // dynamic (symmetrised).
+        for r in 0..nd {
+            let a = &mut st.a[r * n..(r + 1) * n];
+            a.fill(0.0);
+            for kk in 0..n {
+                let c = st.phi[r * n + kk];
+                if c != 0.0 {
+                    for (x, y) in a.iter_mut().zip(&p_prev[kk * n..(kk + 1) * n]) {
+                        *x += c * y;
+                    }
+                }
+            }
+        }
+        st.p_pred.copy_from_slice(&p_prev[..n * n]);
         for (r, &d) in dynamic.iter().enumerate() {
             for c in 0..n {
-                phi[(d, c)] = self.tr.rows[r][c];
-            }
-            for (s, &e) in dynamic.iter().enumerate() {
-                q[(d, e)] = self.tr.q[r][s];
+                let v = st.a[r * n + c];
+                st.p_pred[d * n + c] = v;
+                st.p_pred[c * n + d] = v;
             }
         }
-        let m_pred = DVector::from_vec(f) + &phi * (m_prev - xbar_prev);
-        let p_pred = &phi * p_prev * phi.transpose() + q;
-        let xbar = &self.nominal[j + 1];
-        let predicted_at_nominal = model.measurement(
-            xbar.as_slice(),
-            z.t_s,
-            self.temps[j],
-            z.time_var_s2,
-            &mut self.hcols,
-        );
-        let mut h = DMatrix::zeros(3, n);
-        for c in 0..n {
-            h.set_column(c, &self.hcols[c]);
+        for (r, &d) in dynamic.iter().enumerate() {
+            for (s, &e) in dynamic.iter().enumerate().skip(r) {
+                let ar = &st.a[r * n..(r + 1) * n];
+                let as_ = &st.a[s * n..(s + 1) * n];
+                let v = 0.5
+                    * (dot(ar, &st.phi[s * n..(s + 1) * n])
+                        + dot(as_, &st.phi[r * n..(r + 1) * n]))
+                    + 0.5 * (self.tr.q[r][s] + self.tr.q[s][r]);
+                st.p_pred[d * n + e] = v;
+                st.p_pred[e * n + d] = v;
+            }
         }
-        let predicted = predicted_at_nominal + &h * (&m_pred - xbar);
+        let xbar = self.nominal[j + 1].as_slice();
+        let predicted_at_nominal =
+            model.measurement(xbar, z.t_s, self.temps[j], z.time_var_s2, &mut self.hcols);
+        st.cols.clear();
+        st.cols
+            .extend((0..n).filter(|&c| self.hcols[c] != Vector3::zeros()));
+        let mut hdx = Vector3::zeros();
+        for &c in &st.cols {
+            hdx += self.hcols[c] * (st.m_pred[c] - xbar[c]);
+        }
+        let predicted = predicted_at_nominal + hdx;
         let predicted = [predicted[0], predicted[1], predicted[2]];
         let nu = Vector3::from(z.specific_force) - Vector3::from(predicted);
         if !nu.iter().all(|v| v.is_finite()) {
@@ -259,8 +343,19 @@ impl<'a, 'm> Forward<'a, 'm> {
                 predicted,
             });
         }
-        let pht = &p_pred * h.transpose();
-        let s_dyn = &h * &pht + DMatrix::from_diagonal(&DVector::from_row_slice(&z.variance));
+        // U = P⁻ Hᵀ (row i: Σ_c P⁻[i, c] h_c), S = H U + R.
+        for i in 0..n {
+            let row = &st.p_pred[i * n..(i + 1) * n];
+            let mut acc = Vector3::zeros();
+            for &c in &st.cols {
+                acc += self.hcols[c] * row[c];
+            }
+            st.u[i] = acc;
+        }
+        let mut s_dyn = Matrix3::from_diagonal(&Vector3::from(z.variance));
+        for &c in &st.cols {
+            s_dyn += self.hcols[c] * st.u[c].transpose();
+        }
         let s = Matrix3::from_fn(|a, b| 0.5 * (s_dyn[(a, b)] + s_dyn[(b, a)]));
         let chol = s
             .iter()
@@ -274,31 +369,29 @@ impl<'a, 'm> Forward<'a, 'm> {
             })?;
         let s_inv = chol.inverse();
         let chol_l = chol.l();
-        let whitened = chol_l.solve_lower_triangular(&nu).unwrap_or(nu);
-        let k = &pht * DMatrix::from_fn(3, 3, |a, b| s_inv[(a, b)]);
-        let nu_d = DVector::from_row_slice(nu.as_slice());
-        let m = &m_pred + &k * &nu_d;
-        let ikh = DMatrix::identity(n, n) - &k * &h;
-        let r = DMatrix::from_diagonal(&DVector::from_row_slice(&z.variance));
-        let mut p = &ikh * &p_pred * ikh.transpose() + &k * r * k.transpose();
-        p = (&p + p.transpose()) * 0.5;
-        Ok(Step {
-            node: Node {
-                m_pred,
-                p_pred,
-                m,
-                p,
-                phi,
-            },
-            h,
-            k,
-            nu,
-            chol_l,
-            s,
-            s_inv,
-            whitened,
-            predicted,
-        })
+        let s_inv_t = s_inv.transpose();
+        for i in 0..n {
+            st.k[i] = s_inv_t * st.u[i];
+            st.w[i] = s * st.k[i];
+            st.m[i] = st.m_pred[i] + st.k[i].dot(&nu);
+        }
+        // Joseph: P = (I − KH) P⁻ (I − KH)ᵀ + K R Kᵀ = P⁻ − K Uᵀ − U Kᵀ + K S Kᵀ (S = H U + R).
+        for i in 0..n {
+            let (ki, ui) = (st.k[i], st.u[i]);
+            for jj in i..n {
+                let v = st.p_pred[i * n + jj] - ki.dot(&st.u[jj]) - ui.dot(&st.k[jj])
+                    + ki.dot(&st.w[jj]);
+                st.p[i * n + jj] = v;
+                st.p[jj * n + i] = v;
+            }
+        }
+        st.nu = nu;
+        st.whitened = chol_l.solve_lower_triangular(&nu).unwrap_or(nu);
+        st.chol_l = chol_l;
+        st.s = s;
+        st.s_inv = s_inv;
+        st.predicted = predicted;
+        Ok(())
     }
 }
 
@@ -324,12 +417,118 @@ fn segment_len(updates: usize) -> usize {
     k.max(1)
 }
 
+/// Node memory below which the forward pass keeps every node for the backward pass instead of
+/// checkpointing (no recomputation; the same bits either way). A 60-h run at the 60-s period
+/// with the paper's 15 states needs 10 MB (2.8 kB per update).
+pub const KEEP_NODES_BYTES: usize = 32 << 20;
+
+/// The nodes of one segment as the backward pass needs them: the filter's (m, P) at node j and
+/// step j's m⁻, Φ rows and P⁻'s dynamic rows (P⁻ is P elsewhere), j local to the segment.
+struct Nodes {
+    n: usize,
+    nd: usize,
+    m: Vec<f64>,
+    p: Vec<f64>,
+    m_pred: Vec<f64>,
+    /// Rows `dynamic` of P⁻ (nd × n).
+    p_pred_rows: Vec<f64>,
+    phi: Vec<f64>,
+}
+
+impl Nodes {
+    fn bytes_per_node(n: usize, nd: usize) -> usize {
+        (2 * n + n * n + 2 * nd * n) * std::mem::size_of::<f64>()
+    }
+    fn new(n: usize, nd: usize, len: usize) -> Self {
+        Nodes {
+            n,
+            nd,
+            m: Vec::with_capacity(len * n),
+            p: Vec::with_capacity(len * n * n),
+            m_pred: Vec::with_capacity(len * n),
+            p_pred_rows: Vec::with_capacity(len * nd * n),
+            phi: Vec::with_capacity(len * nd * n),
+        }
+    }
+    fn clear(&mut self) {
+        self.m.clear();
+        self.p.clear();
+        self.m_pred.clear();
+        self.p_pred_rows.clear();
+        self.phi.clear();
+    }
+    /// Appends the next node (nodes are stored in order from the segment's start).
+    fn push(&mut self, m: &[f64], p: &[f64], st: &Step, dynamic: &[usize]) {
+        let n = self.n;
+        self.m.extend_from_slice(m);
+        self.p.extend_from_slice(p);
+        self.m_pred.extend_from_slice(&st.m_pred);
+        for &d in dynamic {
+            self.p_pred_rows
+                .extend_from_slice(&st.p_pred[d * n..(d + 1) * n]);
+        }
+        self.phi.extend_from_slice(&st.phi);
+    }
+    /// P⁻ of node `at` into `out` (row-major n×n, symmetric).
+    fn p_pred(&self, at: usize, dynamic: &[usize], out: &mut [f64]) {
+        let (n, nd) = (self.n, self.nd);
+        out.copy_from_slice(&self.p[at * n * n..(at + 1) * n * n]);
+        for (r, &d) in dynamic.iter().enumerate() {
+            let row = &self.p_pred_rows[(at * nd + r) * n..(at * nd + r + 1) * n];
+            for c in 0..n {
+                out[d * n + c] = row[c];
+                out[c * n + d] = row[c];
+            }
+        }
+    }
+}
+
+/// In-place Cholesky factor of the symmetric n×n `a` (row-major; the lower triangle becomes L).
+/// `None` when `a` is not positive definite.
+fn cholesky_in_place(a: &mut [f64], n: usize) -> Option<()> {
+    for j in 0..n {
+        let mut d = a[j * n + j];
+        for k in 0..j {
+            d -= a[j * n + k] * a[j * n + k];
+        }
+        if !(d > 0.0 && d.is_finite()) {
+            return None;
+        }
+        let d = d.sqrt();
+        a[j * n + j] = d;
+        for i in j + 1..n {
+            let mut v = a[i * n + j];
+            for k in 0..j {
+                v -= a[i * n + k] * a[j * n + k];
+            }
+            a[i * n + j] = v / d;
+        }
+    }
+    Some(())
+}
+
+/// Solves L Lᵀ x = b in place (L from [`cholesky_in_place`]).
+fn cholesky_solve(l: &[f64], n: usize, b: &mut [f64]) {
+    for i in 0..n {
+        let v = b[i] - dot(&l[i * n..i * n + i], &b[..i]);
+        b[i] = v / l[i * n + i];
+    }
+    for i in (0..n).rev() {
+        let mut v = b[i];
+        for k in i + 1..n {
+            v -= l[k * n + i] * b[k];
+        }
+        b[i] = v / l[i * n + i];
+    }
+}
+
 /// Runs the forward filter linearised about `nominal` (node 0 at t = 0, then one per measurement),
 /// from prior `x0`, `p0`, and the RTS smoother back. With `smooth = false` only the forward pass
 /// (filter covariance at the end = the smoothed covariance of the constant parameters).
 ///
-/// Memory: the backward pass is checkpointed. The forward pass keeps the filter's (m, P) every
-/// ⌈√N⌉ updates; the backward pass recomputes one segment's nodes at a time from its checkpoint
+/// Memory: when every node fits in [`KEEP_NODES_BYTES`] the forward pass keeps them; otherwise
+/// the backward pass is checkpointed: the forward pass keeps the filter's (m, P) every ⌈√N⌉
+/// updates and the backward pass recomputes one segment's nodes at a time from its checkpoint
 /// (the same operations on the same inputs, so the same bits) — O(√N) node memory for about
 /// twice the forward work. What grows with N is the output: the states and the innovations.
 pub fn linearised_pass(
@@ -340,7 +539,17 @@ pub fn linearised_pass(
     p0: &DMatrix<f64>,
     smooth: bool,
 ) -> Result<Smoothed, SmootherError> {
-    linearised_pass_observed(model, meas, nominal, x0, p0, smooth, |_| {})
+    let mode = if smooth { Mode::Smooth } else { Mode::Filter };
+    run(
+        model,
+        meas,
+        nominal,
+        x0,
+        p0,
+        mode,
+        KEEP_NODES_BYTES,
+        None::<fn(&StepView<'_>)>,
+    )
 }
 
 /// [`linearised_pass`] calling `observer` at every forward step.
@@ -354,7 +563,38 @@ pub fn linearised_pass_observed(
     observer: impl FnMut(&StepView<'_>),
 ) -> Result<Smoothed, SmootherError> {
     let mode = if smooth { Mode::Smooth } else { Mode::Filter };
-    run(model, meas, nominal, x0, p0, mode, observer)
+    run(
+        model,
+        meas,
+        nominal,
+        x0,
+        p0,
+        mode,
+        KEEP_NODES_BYTES,
+        Some(observer),
+    )
+}
+
+/// [`linearised_pass`] with the checkpointed backward pass whatever the record's length (tests:
+/// it must give the same bits as keeping every node).
+#[doc(hidden)]
+pub fn linearised_pass_checkpointed(
+    model: &Model<'_>,
+    meas: &[Measurement],
+    nominal: &[DVector<f64>],
+    x0: &DVector<f64>,
+    p0: &DMatrix<f64>,
+) -> Result<Smoothed, SmootherError> {
+    run(
+        model,
+        meas,
+        nominal,
+        x0,
+        p0,
+        Mode::Smooth,
+        0,
+        None::<fn(&StepView<'_>)>,
+    )
 }
 
 /// The filter covariance after the last update of the forward pass linearised about `nominal`
@@ -367,9 +607,20 @@ pub fn final_covariance(
     x0: &DVector<f64>,
     p0: &DMatrix<f64>,
 ) -> Result<DMatrix<f64>, SmootherError> {
-    run(model, meas, nominal, x0, p0, Mode::CovarianceOnly, |_| {}).map(|s| s.final_cov)
+    run(
+        model,
+        meas,
+        nominal,
+        x0,
+        p0,
+        Mode::CovarianceOnly,
+        KEEP_NODES_BYTES,
+        None::<fn(&StepView<'_>)>,
+    )
+    .map(|s| s.final_cov)
 }
 
+#[allow(clippy::too_many_arguments)]
 fn run(
     model: &Model<'_>,
     meas: &[Measurement],
@@ -377,12 +628,21 @@ fn run(
     x0: &DVector<f64>,
     p0: &DMatrix<f64>,
     mode: Mode,
-    mut observer: impl FnMut(&StepView<'_>),
+    keep_nodes_bytes: usize,
+    mut observer: Option<impl FnMut(&StepView<'_>)>,
 ) -> Result<Smoothed, SmootherError> {
     let n = model.dim();
     let mut fwd = Forward::new(model, meas, nominal)?;
+    let dynamic = model.dynamic_states();
+    let nd = dynamic.len();
     let updates = meas.len();
-    let seg = segment_len(updates);
+    let keep_all = mode == Mode::Smooth
+        && updates.saturating_mul(Nodes::bytes_per_node(n, nd)) <= keep_nodes_bytes;
+    let seg = if keep_all {
+        updates.max(1)
+    } else {
+        segment_len(updates)
+    };
     let keep_innovations = mode != Mode::CovarianceOnly;
     let mut innovations = Vec::with_capacity(if keep_innovations { updates } else { 0 });
     let mut states = Vec::new();
@@ -390,34 +650,70 @@ fn run(
         states.reserve_exact(updates + 1);
         states.push(x0.clone());
     }
-    // Filter (m, P) at nodes 0, seg, 2·seg, … (smoothing only).
-    let mut checkpoints: Vec<(DVector<f64>, DMatrix<f64>)> = Vec::new();
-    if mode == Mode::Smooth {
+    // Row-major (m, P) of the filter; P exactly symmetric.
+    let mut m = x0.as_slice().to_vec();
+    let mut p: Vec<f64> = (0..n * n)
+        .map(|k| {
+            let (i, j) = (k / n, k % n);
+            0.5 * (p0[(i, j)] + p0[(j, i)])
+        })
+        .collect();
+    // Filter (m, P) at nodes 0, seg, 2·seg, … (checkpointed smoothing only).
+    let mut checkpoints: Vec<(Vec<f64>, Vec<f64>)> = Vec::new();
+    if mode == Mode::Smooth && !keep_all {
         checkpoints.reserve_exact(updates.div_ceil(seg).max(1));
-        checkpoints.push((x0.clone(), p0.clone()));
+        checkpoints.push((m.clone(), p.clone()));
     }
-    let mut m = x0.clone();
-    let mut p = p0.clone();
+    let mut nodes = if mode == Mode::Smooth {
+        Nodes::new(n, nd, seg.min(updates))
+    } else {
+        Nodes::new(n, nd, 0)
+    };
+    let mut st = Step::new(n, nd);
+    // Dense Φ, H and K for an observer (the score tests), built only when there is one.
+    let mut view_mats = observer.as_ref().map(|_| {
+        (
+            DMatrix::identity(n, n),
+            DMatrix::zeros(3, n),
+            DMatrix::zeros(n, 3),
+        )
+    });
     for j in 0..updates {
-        let st = fwd.step(j, &m, &p)?;
+        fwd.step(j, &m, &p, &mut st)?;
         let z = &meas[j];
-        let (t_prev, temp_prev) = fwd.before(j);
-        observer(&StepView {
-            j,
-            t_prev_s: t_prev,
-            t_s: z.t_s,
-            temp_prev,
-            temp: fwd.temps[j],
-            time_var_s2: z.time_var_s2,
-            nominal_prev: &nominal[j],
-            nominal: &nominal[j + 1],
-            phi: &st.node.phi,
-            h: &st.h,
-            k: &st.k,
-            nu: st.nu,
-            chol_l: st.chol_l,
-            s_inv: st.s_inv,
-        });
+        if let (Some(obs), Some((phi, h, k))) = (observer.as_mut(), view_mats.as_mut()) {
+            for (r, &d) in dynamic.iter().enumerate() {
+                for c in 0..n {
+                    phi[(d, c)] = st.phi[r * n + c];
+                }
+            }
+            h.fill(0.0);
+            for &c in &st.cols {
+                h.set_column(c, &fwd.hcols[c]);
+            }
+            for i in 0..n {
+                for a in 0..3 {
+                    k[(i, a)] = st.k[i][a];
+                }
+            }
+            let (t_prev, temp_prev) = fwd.before(j);
+            obs(&StepView {
+                j,
+                t_prev_s: t_prev,
+                t_s: z.t_s,
+                temp_prev,
+                temp: fwd.temps[j],
+                time_var_s2: z.time_var_s2,
+                nominal_prev: &nominal[j],
+                nominal: &nominal[j + 1],
+                phi,
+                h,
+                k,
+                nu: st.nu,
+                chol_l: st.chol_l,
+                s_inv: st.s_inv,
+            });
+        }
         if keep_innovations {
             innovations.push(Residual {
                 step: j as u32,
@@ -431,59 +727,88 @@ fn run(
                 rejected: false,
             });
         }
-        m = st.node.m;
-        p = st.node.p;
+        if keep_all {
+            nodes.push(&m, &p, &st, dynamic);
+        }
+        std::mem::swap(&mut m, &mut st.m);
+        std::mem::swap(&mut p, &mut st.p);
         match mode {
-            Mode::Filter => states.push(m.clone()),
-            Mode::Smooth if (j + 1) % seg == 0 && j + 1 < updates => {
+            Mode::Filter => states.push(DVector::from_column_slice(&m)),
+            Mode::Smooth if !keep_all && (j + 1) % seg == 0 && j + 1 < updates => {
                 checkpoints.push((m.clone(), p.clone()));
             }
             _ => {}
         }
     }
     if mode == Mode::Smooth {
-        states = vec![DVector::zeros(n); updates + 1];
-        states[updates] = m.clone();
+        // Built from the last node back, reversed at the end.
+        states.reserve_exact(updates + 1);
+        states.push(DVector::from_column_slice(&m));
         let mut ms = m.clone();
-        // Per segment: filter (m, P) at its nodes start..end−1, and (m⁻, P⁻, Φ) at start+1..end.
-        let mut filtered: Vec<(DVector<f64>, DMatrix<f64>)> = Vec::with_capacity(seg);
-        let mut predicted: Vec<Node> = Vec::with_capacity(seg);
-        while let Some(checkpoint) = checkpoints.pop() {
-            let start = checkpoints.len() * seg;
+        let mut l = vec![0.0; n * n];
+        let mut v = vec![0.0; n];
+        let mut w = vec![0.0; n];
+        let (mut mc, mut pc) = (vec![0.0; n], vec![0.0; n * n]);
+        let segments = if keep_all { 1 } else { checkpoints.len() };
+        for sgi in (0..segments).rev() {
+            let start = sgi * seg;
             let end = (start + seg).min(updates);
-            filtered.clear();
-            predicted.clear();
-            filtered.push(checkpoint);
-            for j in start..end {
-                let (mj, pj) = &filtered[j - start];
-                let st = fwd.step(j, mj, pj)?;
-                if j + 1 < end {
-                    filtered.push((st.node.m.clone(), st.node.p.clone()));
+            if !keep_all {
+                let (cm, cp) = checkpoints.pop().unwrap_or_default();
+                mc.copy_from_slice(&cm);
+                pc.copy_from_slice(&cp);
+                nodes.clear();
+                for j in start..end {
+                    fwd.step(j, &mc, &pc, &mut st)?;
+                    nodes.push(&mc, &pc, &st, dynamic);
+                    std::mem::swap(&mut mc, &mut st.m);
+                    std::mem::swap(&mut pc, &mut st.p);
                 }
-                predicted.push(st.node);
             }
             for j in (start..end).rev() {
-                let (mj, pj) = &filtered[j - start];
-                let next = &predicted[j - start];
-                // G = P_j Φᵀ (P⁻_{j+1})⁻¹, via a Cholesky solve of P⁻ Gᵀ = Φ P_j.
-                let rhs = &next.phi * pj;
-                let gt = match next.p_pred.clone().cholesky() {
-                    Some(c) => c.solve(&rhs),
-                    None => next.p_pred.clone().lu().solve(&rhs).ok_or(
-                        SmootherError::PredictedCovariance {
-                            update: j,
-                            t_s: meas[j].t_s,
-                        },
-                    )?,
-                };
-                ms = mj + gt.transpose() * (&ms - &next.m_pred);
-                states[j] = ms.clone();
+                let at = j - start;
+                // ms_j = m_j + G (ms_{j+1} − m⁻_{j+1}), G = P_j Φᵀ (P⁻)⁻¹: one Cholesky solve
+                // of P⁻ v = ms − m⁻, then m_j + P_j (Φᵀ v).
+                for i in 0..n {
+                    v[i] = ms[i] - nodes.m_pred[at * n + i];
+                }
+                nodes.p_pred(at, dynamic, &mut l);
+                if cholesky_in_place(&mut l, n).is_some() {
+                    cholesky_solve(&l, n, &mut v);
+                } else {
+                    nodes.p_pred(at, dynamic, &mut l);
+                    let a = DMatrix::from_row_slice(n, n, &l);
+                    let b = DVector::from_column_slice(&v);
+                    let x = a.lu().solve(&b).ok_or(SmootherError::PredictedCovariance {
+                        update: j,
+                        t_s: meas[j].t_s,
+                    })?;
+                    v.copy_from_slice(x.as_slice());
+                }
+                // w = Φᵀ v: identity rows give v itself, dynamic rows their row times v_d.
+                w.copy_from_slice(&v);
+                for &d in dynamic {
+                    w[d] = 0.0;
+                }
+                let phi = &nodes.phi[at * nd * n..(at + 1) * nd * n];
+                for (r, &d) in dynamic.iter().enumerate() {
+                    let vd = v[d];
+                    for c in 0..n {
+                        w[c] += phi[r * n + c] * vd;
+                    }
+                }
+                let pj = &nodes.p[at * n * n..(at + 1) * n * n];
+                for i in 0..n {
+                    ms[i] = nodes.m[at * n + i] + dot(&pj[i * n..(i + 1) * n], &w);
+                }
+                states.push(DVector::from_column_slice(&ms));
             }
         }
+        states.reverse();
     }
     Ok(Smoothed {
         states,
-        final_cov: p,
+        final_cov: DMatrix::from_row_slice(n, n, &p),
         innovations,
     })
 }

@@ -193,9 +193,17 @@ pub fn screen_oriented(
                 .into(),
         );
     };
-    screening::screen(samples, &sigma0, &cfg, &mut flags);
-    let sigma = robust_sigma(samples, &flags).unwrap_or(sigma0);
-    let summary = screening::screen(samples, &sigma, &cfg, &mut flags);
+    let first = screening::screen(samples, &sigma0, &cfg, &mut flags);
+    // The screening is a function of the samples and the noise alone (it rewrites every flag):
+    // when the first pass rejected nothing, the noise of the accepted samples is sigma0 itself
+    // and the second pass would repeat the first bit for bit (half of `prepare` on clean data).
+    let (sigma, summary) = if first.rejected == 0 {
+        (sigma0, first)
+    } else {
+        let sigma = robust_sigma(samples, &flags).unwrap_or(sigma0);
+        let summary = screening::screen(samples, &sigma, &cfg, &mut flags);
+        (sigma, summary)
+    };
     if let Some(f) = dead_axis(samples, &flags) {
         return refuse(findings, "dead-axis", f);
     }
