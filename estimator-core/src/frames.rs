@@ -85,7 +85,7 @@ impl Site {
         let c0 = Attitude::new(&Vector3::from(*theta0_enu)).c;
         let z_p = c0.row(2).transpose();
         let cos_beta = z_p.dot(&self.polar_axis_0()).clamp(-1.0, 1.0);
-        let sin_beta = libm::sqrt(1.0 - cos_beta * cos_beta);
+        let sin_beta = sampling::sqrt(1.0 - cos_beta * cos_beta);
         let max_ty = libm::asin(sin_beta.min(1.0));
         if max_ty <= ENU_CHART_MAX_TY_DEG * crate::units::RAD_PER_DEG {
             Chart::Enu
@@ -145,7 +145,7 @@ pub fn normal_gravity(latitude_rad: f64) -> f64 {
     let s = libm::sin(latitude_rad);
     let s2 = s * s;
     9.780_325_335_9 * (1.0 + 0.001_931_852_652_41 * s2)
-        / libm::sqrt(1.0 - 0.006_694_379_990_13 * s2)
+        / sampling::sqrt(1.0 - 0.006_694_379_990_13 * s2)
 }
 
 /// Euler angles (rad) of a rotation matrix `C = Rz(tz)·Ry(ty)·Rx(tx)` (passive): ty in

@@ -462,7 +462,7 @@ fn judge(
         return false;
     };
     let d = libm::fabs(x.specific_force[a] - pred);
-    d > cfg.outlier_k * sigma * libm::sqrt(1.0 + var_factor)
+    d > cfg.outlier_k * sigma * crate::sqrt(1.0 + var_factor)
 }
 
 /// The outlier test against the line through the two sides' (median value, median time), each
@@ -502,7 +502,7 @@ fn two_sided(
     let v = core::f64::consts::FRAC_PI_2 * ((1.0 - u) * (1.0 - u) / nl as f64 + u * u / nr as f64);
     let pred = (1.0 - u) * ml + u * mr;
     let d = libm::fabs(x.specific_force[a] - pred);
-    d > cfg.outlier_k * sigma * libm::sqrt(1.0 + v)
+    d > cfg.outlier_k * sigma * crate::sqrt(1.0 + v)
 }
 
 /// Samples a [`Screener`] holds: the sample under test and `MAX_HALF_WINDOW` on each side.
@@ -1025,7 +1025,7 @@ mod tests {
         let mut f = [0u8; 2000];
         let sum = screen(
             &s,
-            &[0.01 / libm::sqrt(12.0); 3],
+            &[0.01 / crate::sqrt(12.0); 3],
             &ScreenConfig::default(),
             &mut f,
         );
