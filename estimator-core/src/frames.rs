@@ -47,6 +47,7 @@ pub struct Site {
 
 impl Site {
     /// A site at `latitude_deg`, with `gravity_mps2` or, if `None`, WGS-84 normal gravity there.
+    #[inline] // cold set-up: compiled in its (opt-level "z") caller in the firmware, issue 10
     pub fn new(latitude_deg: f64, gravity_mps2: Option<f64>) -> Self {
         let latitude_rad = latitude_deg * crate::units::RAD_PER_DEG;
         Site {
@@ -113,6 +114,7 @@ impl Site {
     }
 
     /// Earth rate in the chart frame r, rad/s: `R·w_e0`.
+    #[inline] // cold set-up: compiled in its (opt-level "z") caller in the firmware, issue 10
     pub fn earth_rate_r(&self) -> Vector3<f64> {
         match self.chart {
             Chart::Enu => self.earth_rate_0(),
