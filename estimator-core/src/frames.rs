@@ -144,7 +144,9 @@ impl Site {
 
 /// WGS-84 normal gravity on the ellipsoid (Somigliana), m/s². 9.800898 m/s² at 39.1° N.
 pub fn normal_gravity(latitude_rad: f64) -> f64 {
-    let s = libm::sin(latitude_rad);
+    // sincos, not sin: the same value (both libm's k_sin after the same reduction), and sincos
+    // is linked anyway; -172 B of libm's `sin` in the firmware image (issue 10).
+    let s = libm::sincos(latitude_rad).0;
     let s2 = s * s;
     9.780_325_335_9 * (1.0 + 0.001_931_852_652_41 * s2)
         / sampling::sqrt(1.0 - 0.006_694_379_990_13 * s2)

@@ -152,8 +152,8 @@ fn repeat_rate(s: &[Sample], flags: &[u8], a: usize) -> f64 {
 pub fn min_stuck_run(n: usize, repeat_rate: f64, cfg: &ScreenConfig) -> usize {
     let p = repeat_rate.clamp(1e-12, 1.0 - 1e-9);
     let l = 1.0 + libm::log(cfg.stuck_false_alarm / (n.max(1) as f64)) / libm::log(p);
-    let l = if l.is_finite() { libm::ceil(l) } else { 1e18 };
-    (l.min(1e18) as usize).max(cfg.min_stuck_run)
+    let l = if l.is_finite() { l.min(1e18) } else { 1e18 };
+    crate::ceil_usize(l).max(cfg.min_stuck_run)
 }
 
 /// Repeat rate above which the outputs are quantised coarsely against the noise: runs then follow
