@@ -63,3 +63,46 @@ pub fn ceil_usize(x: f64) -> usize {
         n
     }
 }
+
+#[cfg(test)]
+mod tests {
+    /// `ceil_usize` is `ceil(x) as usize` bit for bit, at the edges (fractions, negatives, NaN,
+    /// infinities, saturation, the last fractional doubles) and on a spread of values.
+    #[test]
+    fn ceil_usize_is_ceil_as_usize() {
+        let edges = [
+            0.0,
+            -0.0,
+            0.5,
+            -0.5,
+            1.0,
+            2.0,
+            1e-300,
+            -1e-300,
+            4_294_967_295.5,
+            4_503_599_627_370_495.5,
+            1.8e19,
+            1e300,
+            -1e300,
+            f64::INFINITY,
+            f64::NEG_INFINITY,
+            f64::NAN,
+        ];
+        let spread = (0..10_000).map(|i| (i as f64 - 5_000.0) * 0.013_7);
+        for x in edges.into_iter().chain(spread) {
+            assert_eq!(super::ceil_usize(x), libm::ceil(x) as usize, "x = {x:e}");
+        }
+    }
+
+    /// The firmware's `VSQRT.F64` is checked against this on QEMU (bit-identical estimates);
+    /// on the host `sqrt` is libm's, exact on perfect squares and correctly rounded.
+    #[test]
+    fn sqrt_is_correctly_rounded() {
+        for i in 0..1000u32 {
+            let r = f64::from(i) * 0.25;
+            assert_eq!(super::sqrt(r * r), r);
+        }
+        assert_eq!(super::sqrt(2.0), core::f64::consts::SQRT_2);
+        assert!(super::sqrt(-1.0).is_nan());
+    }
+}
