@@ -15,7 +15,15 @@ ELF=target/$T/firmware/firmware
 # ratchet (it may only go down) and prints the gap to the target. Lower a ratchet when a change
 # wins bytes or instructions; never raise it to make a build pass without saying why.
 TEXT_TARGET=$((64 * 1024))
-TEXT_RATCHET=68900           # STM32H743 .text, bytes: measured 68 688 (issue 10, fwsize,
+TEXT_RATCHET=67500           # STM32H743 .text, bytes: measured 67 296 (issue 10, fwsize2,
+                             # 2026-11-23), from 68 604: square roots through sampling::sqrt,
+                             # the FPU's VSQRT.F64 on the M7 (no libm::sqrt: -344); estimator-
+                             # core's cold set-up (Model::new/owner/param, Site::new,
+                             # earth_rate_r) #[inline], so compiled in the "z" application
+                             # (-668); no libm sin/ceil (normal_gravity through sincos,
+                             # sampling::ceil_usize: -296). Still over 64 KiB by 1 760 B: what is
+                             # left is listed below.
+                             # Before: 68 688 (issue 10, fwsize,
                              # 2026-11-23), from 74 516: the sample screening and averaging in
                              # a crate of their own (`sampling`) at opt-level "z" instead of
                              # estimator-core's 2 (-3 464); fault texts written with

@@ -252,7 +252,7 @@ impl<'m, const CAP: usize> Ekf<'m, CAP> {
     }
     /// 1σ of state `i`.
     pub fn sigma(&self, i: usize) -> f64 {
-        libm::sqrt(self.p[(i, i)])
+        sampling::sqrt(self.p[(i, i)])
     }
     /// Filter time, s.
     pub fn time_s(&self) -> f64 {
@@ -614,7 +614,7 @@ fn cholesky3(s: &Matrix3<f64>) -> Option<Matrix3<f64>> {
 /// √v for v > 0; `None` for v ≤ 0 or NaN (a Cholesky pivot).
 fn sqrt_positive(v: f64) -> Option<f64> {
     if v > 0.0 {
-        Some(libm::sqrt(v))
+        Some(sampling::sqrt(v))
     } else {
         None
     }

@@ -47,6 +47,7 @@ pub struct Site {
 
 impl Site {
     /// A site at `latitude_deg`, with `gravity_mps2` or, if `None`, WGS-84 normal gravity there.
+    #[inline] // cold set-up: compiled in its (opt-level "z") caller in the firmware, issue 10
     pub fn new(latitude_deg: f64, gravity_mps2: Option<f64>) -> Self {
         let latitude_rad = latitude_deg * crate::units::RAD_PER_DEG;
         Site {
@@ -85,7 +86,7 @@ impl Site {
         let c0 = Attitude::new(&Vector3::from(*theta0_enu)).c;
         let z_p = c0.row(2).transpose();
         let cos_beta = z_p.dot(&self.polar_axis_0()).clamp(-1.0, 1.0);
-        let sin_beta = libm::sqrt(1.0 - cos_beta * cos_beta);
+        let sin_beta = sampling::sqrt(1.0 - cos_beta * cos_beta);
         let max_ty = libm::asin(sin_beta.min(1.0));
         if max_ty <= ENU_CHART_MAX_TY_DEG * crate::units::RAD_PER_DEG {
             Chart::Enu
@@ -113,6 +114,7 @@ impl Site {
     }
 
     /// Earth rate in the chart frame r, rad/s: `R·w_e0`.
+    #[inline] // cold set-up: compiled in its (opt-level "z") caller in the firmware, issue 10
     pub fn earth_rate_r(&self) -> Vector3<f64> {
         match self.chart {
             Chart::Enu => self.earth_rate_0(),
@@ -142,10 +144,12 @@ impl Site {
 
 /// WGS-84 normal gravity on the ellipsoid (Somigliana), m/s². 9.800898 m/s² at 39.1° N.
 pub fn normal_gravity(latitude_rad: f64) -> f64 {
-    let s = libm::sin(latitude_rad);
+    // sincos, not sin: the same value (both libm's k_sin after the same reduction), and sincos
+    // is linked anyway; -172 B of libm's `sin` in the firmware image (issue 10).
+    let s = libm::sincos(latitude_rad).0;
     let s2 = s * s;
     9.780_325_335_9 * (1.0 + 0.001_931_852_652_41 * s2)
-        / libm::sqrt(1.0 - 0.006_694_379_990_13 * s2)
+        / sampling::sqrt(1.0 - 0.006_694_379_990_13 * s2)
 }
 
 /// Euler angles (rad) of a rotation matrix `C = Rz(tz)·Ry(ty)·Rx(tx)` (passive): ty in

@@ -92,6 +92,7 @@ impl<'m> Model<'m> {
     /// A model of the platform at `site` with the given effects (the paper's drift first, as a
     /// rule), gyro rate-noise density `arw_rad2ps` (rad²/s per axis; see
     /// [`crate::units::arw_deg2ph_to_rad2ps`]) and propagation method.
+    #[inline] // cold set-up: compiled in its (opt-level "z") caller in the firmware, issue 10
     pub fn new(
         site: Site,
         effects: &'m [&'m dyn Effect],
@@ -193,12 +194,14 @@ impl<'m> Model<'m> {
         self.measured
     }
     /// The effect owning state `i ≥ 3` and the parameter's index within it.
+    #[inline] // cold set-up: compiled in its (opt-level "z") caller in the firmware, issue 10
     pub fn owner(&self, i: usize) -> Option<(usize, usize)> {
         (0..self.effects.len())
             .find(|&e| i >= self.offsets[e] && i < self.offsets[e + 1])
             .map(|e| (e, i - self.offsets[e]))
     }
     /// Name, unit and prior of state `i` (angles are reported as `tx`, `ty`, `tz` in rad).
+    #[inline] // cold set-up: compiled in its (opt-level "z") caller in the firmware, issue 10
     pub fn param(&self, i: usize) -> Param {
         const ANG: [&str; 3] = ["tx", "ty", "tz"];
         match self.owner(i) {

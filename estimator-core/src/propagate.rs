@@ -158,7 +158,7 @@ pub fn propagate<const CAP: usize>(
         }
         Propagation::Rk4 { max_step_s } => {
             let steps = if dt_s > max_step_s {
-                libm::ceil(dt_s / max_step_s) as usize
+                sampling::ceil_usize(dt_s / max_step_s)
             } else {
                 1
             };

@@ -152,8 +152,8 @@ fn repeat_rate(s: &[Sample], flags: &[u8], a: usize) -> f64 {
 pub fn min_stuck_run(n: usize, repeat_rate: f64, cfg: &ScreenConfig) -> usize {
     let p = repeat_rate.clamp(1e-12, 1.0 - 1e-9);
     let l = 1.0 + libm::log(cfg.stuck_false_alarm / (n.max(1) as f64)) / libm::log(p);
-    let l = if l.is_finite() { libm::ceil(l) } else { 1e18 };
-    (l.min(1e18) as usize).max(cfg.min_stuck_run)
+    let l = if l.is_finite() { l.min(1e18) } else { 1e18 };
+    crate::ceil_usize(l).max(cfg.min_stuck_run)
 }
 
 /// Repeat rate above which the outputs are quantised coarsely against the noise: runs then follow
@@ -463,7 +463,7 @@ fn judge(
         return false;
     };
     let d = libm::fabs(x.specific_force[a] - pred);
-    d > cfg.outlier_k * sigma * libm::sqrt(1.0 + var_factor)
+    d > cfg.outlier_k * sigma * crate::sqrt(1.0 + var_factor)
 }
 
 /// Whether [`two_sided`] certainly says "no outlier", decided without its divisions and square
@@ -517,7 +517,7 @@ fn two_sided(
     let v = core::f64::consts::FRAC_PI_2 * ((1.0 - u) * (1.0 - u) / nl as f64 + u * u / nr as f64);
     let pred = (1.0 - u) * ml + u * mr;
     let d = libm::fabs(x.specific_force[a] - pred);
-    d > cfg.outlier_k * sigma * libm::sqrt(1.0 + v)
+    d > cfg.outlier_k * sigma * crate::sqrt(1.0 + v)
 }
 
 /// Samples a [`Screener`] holds: the sample under test and `MAX_HALF_WINDOW` on each side.
@@ -1040,7 +1040,7 @@ mod tests {
         let mut f = [0u8; 2000];
         let sum = screen(
             &s,
-            &[0.01 / libm::sqrt(12.0); 3],
+            &[0.01 / crate::sqrt(12.0); 3],
             &ScreenConfig::default(),
             &mut f,
         );
