@@ -59,7 +59,7 @@ impl Site {
 
     /// The polar axis in frame 0 (unit): `[0, cos L, sin L]`.
     pub fn polar_axis_0(&self) -> Vector3<f64> {
-        let (s, c) = libm::sincos(self.latitude_rad);
+        let (s, c) = crate::trig::sincos(self.latitude_rad);
         Vector3::new(0.0, c, s)
     }
 
@@ -132,7 +132,7 @@ impl Site {
 
     /// Earth rate in frame 0 (ENU), rad/s: `[0, Ω cos L, Ω sin L]`.
     pub fn earth_rate_0(&self) -> Vector3<f64> {
-        let (s, c) = libm::sincos(self.latitude_rad);
+        let (s, c) = crate::trig::sincos(self.latitude_rad);
         Vector3::new(0.0, EARTH_RATE_RADPS * c, EARTH_RATE_RADPS * s)
     }
 
@@ -144,9 +144,8 @@ impl Site {
 
 /// WGS-84 normal gravity on the ellipsoid (Somigliana), m/s². 9.800898 m/s² at 39.1° N.
 pub fn normal_gravity(latitude_rad: f64) -> f64 {
-    // sincos, not sin: the same value (both libm's k_sin after the same reduction), and sincos
-    // is linked anyway; -172 B of libm's `sin` in the firmware image (issue 10).
-    let s = libm::sincos(latitude_rad).0;
+    // The crate's one sine (trig.rs): no libm `sin` in the firmware image (issue 10).
+    let s = crate::trig::sincos(latitude_rad).0;
     let s2 = s * s;
     9.780_325_335_9 * (1.0 + 0.001_931_852_652_41 * s2)
         / sampling::sqrt(1.0 - 0.006_694_379_990_13 * s2)
@@ -178,9 +177,9 @@ pub struct Attitude {
 impl Attitude {
     /// Attitude at Euler angles θ = (tx, ty, tz), rad.
     pub fn new(theta: &Vector3<f64>) -> Self {
-        let (sx, cx) = libm::sincos(theta.x);
-        let (sy, cy) = libm::sincos(theta.y);
-        let (sz, cz) = libm::sincos(theta.z);
+        let (sx, cx) = crate::trig::sincos(theta.x);
+        let (sy, cy) = crate::trig::sincos(theta.y);
+        let (sz, cz) = crate::trig::sincos(theta.z);
         // C = Rz·Ry·Rx multiplied out (Rx = [[1,0,0],[0,c,s],[0,-s,c]], …), and its partials.
         let (sxsy, cxsy) = (sx * sy, cx * sy);
         let row0 = Vector3::new(cy * cz, cx * sz + sxsy * cz, sx * sz - cxsy * cz);

@@ -44,6 +44,7 @@ pub mod kinematics;
 pub mod model;
 pub mod propagate;
 pub mod residual;
+pub mod trig;
 pub mod units;
 
 // Screening and averaging of raw samples live in the `sampling` crate (the firmware optimises

@@ -224,7 +224,10 @@ pub fn propagate<const CAP: usize>(
     }
     let theta_mid = (theta0 + Vector3::new(x[0], x[1], x[2])) * 0.5;
     // K(θ) depends on ty and tz only: two sines and cosines, not a whole attitude.
-    let kk = rate_to_euler_yz(libm::sincos(theta_mid.y), libm::sincos(theta_mid.z));
+    let kk = rate_to_euler_yz(
+        crate::trig::sincos(theta_mid.y),
+        crate::trig::sincos(theta_mid.z),
+    );
     let q: Matrix3<f64> = kk * kk.transpose() * (model.arw_rad2ps() * dt_s);
     for i in 0..ANGLES {
         for j in 0..ANGLES {
