@@ -16,26 +16,26 @@
 //! business. Permission to use, copy, modify, and distribute this software is freely granted,
 //! provided that this notice is preserved.").
 
-/// 53 bits of 2/π.
-const INV_PIO2: f64 = 6.366_197_723_675_813_824_33e-1;
+/// 2/π rounded to 53 bits. The constants are given as their bits, as in fdlibm's sources.
+const INV_PIO2: f64 = f64::from_bits(0x3FE4_5F30_6DC9_C883);
 /// 1.5·2⁵²: adding and subtracting it rounds to the nearest integer.
 const TO_INT: f64 = 1.5 / f64::EPSILON;
 /// π/2 in three 33-bit parts, each with the tail of π/2 left after it, and the loss of
 /// exponent (cancellation) beyond which the next part is needed.
 const PIO2_PARTS: [(f64, f64, i32); 3] = [
     (
-        1.570_796_326_734_125_614_17,
-        6.077_100_506_506_192_249_32e-11,
+        f64::from_bits(0x3FF9_21FB_5440_0000),
+        f64::from_bits(0x3DD0_B461_1A62_6331),
         16,
     ),
     (
-        6.077_100_506_303_965_976_60e-11,
-        2.022_266_248_795_950_631_54e-21,
+        f64::from_bits(0x3DD0_B461_1A60_0000),
+        f64::from_bits(0x3BA3_198A_2E03_7073),
         49,
     ),
     (
-        2.022_266_248_711_166_455_80e-21,
-        8.478_427_660_368_899_569_97e-32,
+        f64::from_bits(0x3BA3_198A_2E00_0000),
+        f64::from_bits(0x397B_839A_2520_49C1),
         i32::MAX,
     ),
 ];
@@ -101,12 +101,12 @@ fn reduced(x: f64, high: u32) -> (f64, f64) {
 #[inline]
 fn k_sin(x: f64, y: f64, tail: bool) -> f64 {
     const S: [f64; 6] = [
-        -1.666_666_666_666_663_243_48e-1,
-        8.333_333_333_322_489_461_24e-3,
-        -1.984_126_982_985_794_931_34e-4,
-        2.755_731_370_707_006_767_89e-6,
-        -2.505_076_025_340_686_341_95e-8,
-        1.589_690_995_211_550_102_21e-10,
+        f64::from_bits(0xBFC5_5555_5555_5549),
+        f64::from_bits(0x3F81_1111_1110_F8A6),
+        f64::from_bits(0xBF2A_01A0_19C1_61D5),
+        f64::from_bits(0x3EC7_1DE3_57B1_FE7D),
+        f64::from_bits(0xBE5A_E5E6_8A2B_9CEB),
+        f64::from_bits(0x3DE5_D93A_5ACF_D57C),
     ];
     let z = x * x;
     let w = z * z;
@@ -124,12 +124,12 @@ fn k_sin(x: f64, y: f64, tail: bool) -> f64 {
 #[inline]
 fn k_cos(x: f64, y: f64) -> f64 {
     const C: [f64; 6] = [
-        4.166_666_666_666_660_190_37e-2,
-        -1.388_888_888_887_410_957_49e-3,
-        2.480_158_728_947_672_941_78e-5,
-        -2.755_731_435_139_066_330_35e-7,
-        2.087_572_321_298_174_827_90e-9,
-        -1.135_964_755_778_819_482_65e-11,
+        f64::from_bits(0x3FA5_5555_5555_554C),
+        f64::from_bits(0xBF56_C16C_16C1_5177),
+        f64::from_bits(0x3EFA_01A0_19CB_1590),
+        f64::from_bits(0xBE92_7E4F_809C_52AD),
+        f64::from_bits(0x3E21_EE9E_BDB4_B1C4),
+        f64::from_bits(0xBDA8_FAE9_BE88_38D4),
     ];
     let z = x * x;
     let w = z * z;
