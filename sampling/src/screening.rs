@@ -321,6 +321,10 @@ fn flag_outliers(
             false
         } else {
             let v = |k: usize| s[k].specific_force[a];
+            if within_range_of_window(s, i, a, h, cfg.outlier_k * sigma) {
+                // Certainly no outlier: the sorted sides are not needed (rebuilt when next used).
+                continue;
+            }
             if sorted_for == Some(i - 1) {
                 slide(&mut left[..h], v(i - 1 - h), v(i - 1));
                 slide(&mut right[..h], v(i), v(i + h));
@@ -363,6 +367,27 @@ fn flag_outliers(
         }
     }
     count
+}
+
+/// The batch screening's quickest accept, before any median: whether sample `i` lies within
+/// `k_sigma` of every value of its window `[i − h, i + h]`, with [`surely_inlier`]'s margin.
+/// Both sides' medians lie within the window's range [lo, hi] (a median is a window value or the
+/// mean of two, and rounding is monotone), so `surely_inlier`'s distance to them is at most
+/// max(x − lo, hi − x) and its scale at most 2·max(|lo|, |hi|) + |x|: when this holds, that
+/// holds, and the verdict ("no outlier") is the same. Only for a regular window (all accepted,
+/// times increasing: x's time is between the sides'), as `flag_outliers` calls it.
+#[inline(always)]
+fn within_range_of_window(s: &[Sample], i: usize, a: usize, h: usize, k_sigma: f64) -> bool {
+    let x = s[i].specific_force[a];
+    let (mut lo, mut hi) = (x, x);
+    for n in &s[i - h..=i + h] {
+        let v = n.specific_force[a];
+        lo = if v < lo { v } else { lo };
+        hi = if v > hi { v } else { hi };
+    }
+    let far = (x - lo).max(hi - x);
+    let scale = 2.0 * libm::fabs(lo).max(libm::fabs(hi)) + libm::fabs(x);
+    far + 1e-12 * (far + scale) <= k_sigma
 }
 
 /// Whether sample `k` is rejected before the outlier test (its neighbours' medians skip it).
