@@ -1,9 +1,10 @@
-//! Sine and cosine of the model's angles (platform angles, latitude), for `|x| < 2²⁰·π/2`.
+//! Sine and cosine of the model's angles (platform attitude, latitude), for `|x| < 2²⁰·π/2`.
 //!
 //! Why not `libm::sincos`: libm reduces any argument, and its reduction for `|x| ≥ 2²⁰·π/2`
 //! (Payne–Hanek, `rem_pio2_large`) plus its dispatch cost 2.3 KB of the firmware's 64-KiB
 //! budget (issue 10), for arguments this filter never passes: its angles are the platform's
-//! small misalignments and the site's latitude. Here the argument is reduced by Cody–Waite in
+//! attitude angles (some leave [−π/4, π/4] as the Earth turns under the platform, a few
+//! radians over a run) and the site's latitude. Here the argument is reduced by Cody–Waite in
 //! up to three parts of π/2 (good to 151 bits, enough for every `|x| < 2²⁰·π/2`), then the same
 //! minimax polynomials as fdlibm's `__kernel_sin`/`__kernel_cos` are evaluated. For
 //! `|x| ≤ π/4` the result is libm's bit for bit; beyond, it is within 1 ulp of it (tests below).
@@ -63,7 +64,7 @@ pub fn sincos(x: f64) -> (f64, f64) {
 }
 
 /// `sincos` of `x` beyond π/4: reduce to `n·π/2 + (y0 + y1)`, `|y0 + y1| ≤ π/4`, and rotate
-/// by the quadrant `n`. Out of line: the filter's angles stay below π/4.
+/// by the quadrant `n`. Out of line, so the common small-angle path stays short.
 #[inline(never)]
 fn reduced(x: f64, high: u32) -> (f64, f64) {
     let f_n = (x * INV_PIO2 + TO_INT) - TO_INT;
