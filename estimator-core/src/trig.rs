@@ -3,8 +3,8 @@
 //! Why not `libm::sincos`: libm reduces any argument, and its reduction for `|x| ≥ 2²⁰·π/2`
 //! (Payne–Hanek, `rem_pio2_large`) plus its dispatch cost 2.3 KB of the firmware's 64-KiB
 //! budget (issue 10), for arguments this filter never passes: its angles are the platform's
-//! attitude angles (some leave [−π/4, π/4] as the Earth turns under the platform, a few
-//! radians over a run) and the site's latitude. Here the argument is reduced by Cody–Waite in
+//! attitude angles (one grows with the Earth's turn under the platform: to 15.4 rad over the
+//! paper's 60-h run, still 10⁵ times below the limit) and the site's latitude. Here the argument is reduced by Cody–Waite in
 //! up to three parts of π/2 (good to 151 bits, enough for every `|x| < 2²⁰·π/2`), then the same
 //! minimax polynomials as fdlibm's `__kernel_sin`/`__kernel_cos` are evaluated. For
 //! `|x| ≤ π/4` the result is libm's bit for bit; beyond, it is within 1 ulp of it (tests below).
