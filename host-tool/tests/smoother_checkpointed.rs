@@ -580,27 +580,39 @@ fn a_non_finite_measurement_is_an_error_naming_the_update() {
 }
 
 #[test]
-fn a_singular_predicted_covariance_is_an_error_not_a_panic() {
+fn a_parameter_pinned_by_a_zero_prior_variance_stays_put() {
     // A prior with zero variance on one constant coefficient: its row and column of P⁻ stay zero
-    // (no process noise on constants), Cholesky fails and the LU solve finds the zero pivot. The
-    // backward pass meets it first at the last update.
+    // (no process noise on constants), so P⁻ is singular at every update. The RTS form inverted
+    // P⁻ and failed here; the Bryson–Frazier backward pass never inverts it. The coefficient is
+    // held: K's row for it is zero, so the filter mean keeps the prior value, and P_j λ̂ adds
+    // exactly zero to it, so every smoothed node keeps it bit for bit; its covariance row stays
+    // exactly zero. The other states are smoothed as usual (finite).
     let (prep, model) = short_run();
     let meas = &prep.measurements;
-    let (x0, mut p0) = wide_prior(&model, &vec![0.0; model.dim()], &[ANGLE_PRIOR_SIGMA_RAD; 3]);
-    let last = model.dim() - 1;
+    let n = model.dim();
+    let last = n - 1;
+    let mut start = vec![0.0; n];
+    start[last] = 0.0123;
+    let (x0, mut p0) = wide_prior(&model, &start, &[ANGLE_PRIOR_SIGMA_RAD; 3]);
     p0[(last, last)] = 0.0;
     let nominal = pass2_nominal(&model, meas);
-    let err = linearised_pass(&model, meas, &nominal, &x0, &p0, true).unwrap_err();
-    let upd = meas.len() - 1;
-    assert!(
-        matches!(err, SmootherError::PredictedCovariance { update, .. } if update == upd),
-        "{err:?}"
-    );
-    assert!(err
-        .to_string()
-        .contains("predicted covariance not invertible"));
-    // The forward pass alone does not need P⁻'s inverse and completes.
-    assert!(linearised_pass(&model, meas, &nominal, &x0, &p0, false).is_ok());
+    let pass = linearised_pass(&model, meas, &nominal, &x0, &p0, true).unwrap();
+    assert_eq!(pass.states.len(), meas.len() + 1);
+    for (j, s) in pass.states.iter().enumerate() {
+        assert!(
+            (s[last] - 0.0123).abs() <= 1e-12 * 0.0123,
+            "node {j}: {}",
+            s[last]
+        );
+        assert!(s.iter().all(|v| v.is_finite()), "node {j}: {s}");
+    }
+    for i in 0..n {
+        assert_eq!(pass.final_cov[(last, i)], 0.0);
+        assert_eq!(pass.final_cov[(i, last)], 0.0);
+    }
+    // Checkpointed, the same bits.
+    let checkpointed = linearised_pass_checkpointed(&model, meas, &nominal, &x0, &p0).unwrap();
+    same_bits(&checkpointed, &pass, "pinned coefficient");
 }
 
 #[test]

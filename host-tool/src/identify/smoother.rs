@@ -10,8 +10,9 @@
 //! All model evaluations (propagation, Φ, Q, h, H) are the core's: the math lives in one place.
 //!
 //! Bad data (swapped or mis-scaled columns, a start far from level, a stuck axis, spikes) can
-//! make S = H P⁻ Hᵀ + R or P⁻ singular: a pass then returns a [`SmootherError`] naming the
-//! update and its time, never panics.
+//! make S = H P⁻ Hᵀ + R singular: a pass then returns a [`SmootherError`] naming the update and
+//! its time, never panics. P⁻ itself is never inverted (a parameter held by a zero prior
+//! variance is fine).
 //!
 //! Memory: a record whose nodes fit in [`KEEP_NODES_BYTES`] (a 60-h run at the 60-s period)
 //! keeps them from the forward pass for the backward one. A longer one is checkpointed: the
@@ -23,8 +24,10 @@
 //!
 //! The algebra is structured, in flat buffers allocated once per pass: Φ is the identity outside
 //! the dynamic rows (the angles, Gauss–Markov states), H is zero outside the measured columns,
-//! and P is kept exactly symmetric, so a step costs O(nd·n²) instead of dense O(n³) products, and
-//! the backward pass solves one vector against P⁻ per node instead of n.
+//! and P is kept exactly symmetric, so a step costs O(nd·n²) instead of dense O(n³) products. The
+//! backward pass is the modified Bryson–Frazier form of the RTS smoother (an adjoint vector
+//! carried back, see [`run`]): O(n²) per node, no factorisation. Each node's covariance is
+//! written once, by its step, where the backward pass reads it (no copies).
 
 use estimator_core::model::{Model, MAX_STATES};
 use estimator_core::propagate::{propagate, Transition};
@@ -131,18 +134,10 @@ pub enum SmootherError {
         /// Diagonal of S, (m/s²)².
         diagonal: [f64; 3],
     },
-    /// The predicted covariance P⁻ of an update is singular (backward pass).
-    #[error("update {update} at t = {t_s} s: predicted covariance not invertible in the backward (smoothing) pass; check the recording for swapped or mis-scaled columns, a start far from level, a stuck axis or spikes")]
-    PredictedCovariance {
-        /// Update index.
-        update: usize,
-        /// Measurement time, s.
-        t_s: f64,
-    },
 }
 
 /// Everything one forward step computes, in buffers allocated once per pass (a step allocates
-/// nothing). Matrices are row-major n×n slices; P and P⁻ are kept exactly symmetric.
+/// nothing). Matrices are row-major n×n slices; P⁻ and P (in the caller's buffer) are kept exactly symmetric.
 struct Step {
     /// Φ's dynamic rows (`dynamic_states()[r]`, row r at `r·n`); every other row of Φ is the
     /// identity's.
@@ -154,9 +149,8 @@ struct Step {
     /// Rows `dynamic` of Φ·P (nd × n).
     a: Vec<f64>,
     m_pred: Vec<f64>,
-    p_pred: Vec<f64>,
+    /// The filter mean after the update (n); its covariance goes to the caller's buffer.
     m: Vec<f64>,
-    p: Vec<f64>,
     /// Columns of H that are not zero.
     cols: Vec<usize>,
     /// Rows of P⁻Hᵀ, of K = P⁻HᵀS⁻¹ and of K·S (n each).
@@ -168,6 +162,8 @@ struct Step {
     s: Matrix3<f64>,
     s_inv: Matrix3<f64>,
     whitened: Vector3<f64>,
+    /// S⁻¹ν, the update's term of the backward pass's adjoint.
+    s_inv_nu: Vector3<f64>,
     predicted: [f64; 3],
 }
 
@@ -179,9 +175,7 @@ impl Step {
             dm: vec![0.0; n],
             a: vec![0.0; nd * n],
             m_pred: vec![0.0; n],
-            p_pred: vec![0.0; n * n],
             m: vec![0.0; n],
-            p: vec![0.0; n * n],
             cols: Vec::with_capacity(n),
             u: vec![Vector3::zeros(); n],
             k: vec![Vector3::zeros(); n],
@@ -191,6 +185,7 @@ impl Step {
             s: Matrix3::zeros(),
             s_inv: Matrix3::zeros(),
             whitened: Vector3::zeros(),
+            s_inv_nu: Vector3::zeros(),
             predicted: [0.0; 3],
         }
     }
@@ -244,8 +239,10 @@ impl<'a, 'm> Forward<'a, 'm> {
         }
     }
 
-    /// Update `j` from the filter's `(m, p)` at node `j` to node `j + 1`, into `st`.
-    /// Deterministic: the backward pass recomputes segments with it and gets the same bits.
+    /// Update `j` from the filter's `(m, p)` at node `j` to node `j + 1`: the mean and the
+    /// update's factors into `st`, the covariance into `p_out` (n×n, row-major, written whole:
+    /// first P⁻, then P⁺ over it in place). Deterministic: the backward pass recomputes segments
+    /// with it and gets the same bits.
     ///
     /// Structured: Φ differs from I only in the dynamic rows and H is zero outside a few
     /// columns, so Φ P Φᵀ costs nd·n² and the Joseph update 9 products per entry of one
@@ -256,6 +253,7 @@ impl<'a, 'm> Forward<'a, 'm> {
         m_prev: &[f64],
         p_prev: &[f64],
         st: &mut Step,
+        p_out: &mut [f64],
     ) -> Result<(), SmootherError> {
         let model = self.model;
         let n = model.dim();
@@ -302,12 +300,13 @@ impl<'a, 'm> Forward<'a, 'm> {
                 }
             }
         }
-        st.p_pred.copy_from_slice(&p_prev[..n * n]);
+        let p_pred = p_out;
+        p_pred.copy_from_slice(&p_prev[..n * n]);
         for (r, &d) in dynamic.iter().enumerate() {
             for c in 0..n {
                 let v = st.a[r * n + c];
-                st.p_pred[d * n + c] = v;
-                st.p_pred[c * n + d] = v;
+                p_pred[d * n + c] = v;
+                p_pred[c * n + d] = v;
             }
         }
         for (r, &d) in dynamic.iter().enumerate() {
@@ -318,8 +317,8 @@ impl<'a, 'm> Forward<'a, 'm> {
                     * (dot(ar, &st.phi[s * n..(s + 1) * n])
                         + dot(as_, &st.phi[r * n..(r + 1) * n]))
                     + 0.5 * (self.tr.q[r][s] + self.tr.q[s][r]);
-                st.p_pred[d * n + e] = v;
-                st.p_pred[e * n + d] = v;
+                p_pred[d * n + e] = v;
+                p_pred[e * n + d] = v;
             }
         }
         let xbar = self.nominal[j + 1].as_slice();
@@ -345,7 +344,7 @@ impl<'a, 'm> Forward<'a, 'm> {
         }
         // U = P⁻ Hᵀ (row i: Σ_c P⁻[i, c] h_c), S = H U + R.
         for i in 0..n {
-            let row = &st.p_pred[i * n..(i + 1) * n];
+            let row = &p_pred[i * n..(i + 1) * n];
             let mut acc = Vector3::zeros();
             for &c in &st.cols {
                 acc += self.hcols[c] * row[c];
@@ -376,16 +375,19 @@ impl<'a, 'm> Forward<'a, 'm> {
             st.m[i] = st.m_pred[i] + st.k[i].dot(&nu);
         }
         // Joseph: P = (I − KH) P⁻ (I − KH)ᵀ + K R Kᵀ = P⁻ − K Uᵀ − U Kᵀ + K S Kᵀ (S = H U + R).
+        // In place over P⁻: entry (i, jj ≥ i) reads only the upper triangle, which no earlier
+        // entry has written (they write (i', jj') with i' < i, or the lower triangle).
+        let p = p_pred;
         for i in 0..n {
             let (ki, ui) = (st.k[i], st.u[i]);
             for jj in i..n {
-                let v = st.p_pred[i * n + jj] - ki.dot(&st.u[jj]) - ui.dot(&st.k[jj])
-                    + ki.dot(&st.w[jj]);
-                st.p[i * n + jj] = v;
-                st.p[jj * n + i] = v;
+                let v = p[i * n + jj] - ki.dot(&st.u[jj]) - ui.dot(&st.k[jj]) + ki.dot(&st.w[jj]);
+                p[i * n + jj] = v;
+                p[jj * n + i] = v;
             }
         }
         st.nu = nu;
+        st.s_inv_nu = s_inv * nu;
         st.whitened = chol_l.solve_lower_triangular(&nu).unwrap_or(nu);
         st.chol_l = chol_l;
         st.s = s;
@@ -419,106 +421,127 @@ fn segment_len(updates: usize) -> usize {
 
 /// Node memory below which the forward pass keeps every node for the backward pass instead of
 /// checkpointing (no recomputation; the same bits either way). A 60-h run at the 60-s period
-/// with the paper's 15 states needs 10 MB (2.8 kB per update).
+/// with the paper's 15 states needs 11 MB (3.0 kB per update).
 pub const KEEP_NODES_BYTES: usize = 32 << 20;
 
-/// The nodes of one segment as the backward pass needs them: the filter's (m, P) at node j and
-/// step j's m⁻, Φ rows and P⁻'s dynamic rows (P⁻ is P elsewhere), j local to the segment.
+/// Covariances of consecutive nodes in one flat buffer: every node's (`keep`, the backward
+/// pass reads them) or two slots used in turn. A step reads node j's slot and writes node j+1's:
+/// P is never copied.
+struct CovSlots {
+    buf: Vec<f64>,
+    nn: usize,
+    keep: bool,
+}
+
+impl CovSlots {
+    /// `nodes` slots when `keep`, else two.
+    fn new(n: usize, nodes: usize, keep: bool) -> Self {
+        let slots = if keep { nodes } else { 2 };
+        CovSlots {
+            buf: vec![0.0; slots * n * n],
+            nn: n * n,
+            keep,
+        }
+    }
+    fn slot(&self, j: usize) -> usize {
+        if self.keep {
+            j
+        } else {
+            j % 2
+        }
+    }
+    fn get(&self, j: usize) -> &[f64] {
+        let s = self.slot(j);
+        &self.buf[s * self.nn..(s + 1) * self.nn]
+    }
+    fn get_mut(&mut self, j: usize) -> &mut [f64] {
+        let s = self.slot(j);
+        &mut self.buf[s * self.nn..(s + 1) * self.nn]
+    }
+    /// Node j's covariance to read and node j+1's to write.
+    fn pair(&mut self, j: usize) -> (&[f64], &mut [f64]) {
+        let (a, b) = (self.slot(j), self.slot(j + 1));
+        let nn = self.nn;
+        if a < b {
+            let (lo, hi) = self.buf.split_at_mut(b * nn);
+            (&lo[a * nn..(a + 1) * nn], &mut hi[..nn])
+        } else {
+            let (lo, hi) = self.buf.split_at_mut(a * nn);
+            (&hi[..nn], &mut lo[b * nn..(b + 1) * nn])
+        }
+    }
+}
+
+/// What the backward pass needs of each update j of a segment (j local to it): the filter's
+/// mean at node j (its covariance is in the pass's [`CovSlots`]), Φ's dynamic rows, H's
+/// columns, K's rows and S⁻¹ν.
 struct Nodes {
     n: usize,
     nd: usize,
     m: Vec<f64>,
-    p: Vec<f64>,
-    m_pred: Vec<f64>,
-    /// Rows `dynamic` of P⁻ (nd × n).
-    p_pred_rows: Vec<f64>,
     phi: Vec<f64>,
+    h: Vec<Vector3<f64>>,
+    k: Vec<Vector3<f64>>,
+    s_inv_nu: Vec<Vector3<f64>>,
 }
 
 impl Nodes {
     fn bytes_per_node(n: usize, nd: usize) -> usize {
-        (2 * n + n * n + 2 * nd * n) * std::mem::size_of::<f64>()
+        (n + n * n + nd * n + 6 * n + 3) * std::mem::size_of::<f64>()
     }
     fn new(n: usize, nd: usize, len: usize) -> Self {
         Nodes {
             n,
             nd,
             m: Vec::with_capacity(len * n),
-            p: Vec::with_capacity(len * n * n),
-            m_pred: Vec::with_capacity(len * n),
-            p_pred_rows: Vec::with_capacity(len * nd * n),
             phi: Vec::with_capacity(len * nd * n),
+            h: Vec::with_capacity(len * n),
+            k: Vec::with_capacity(len * n),
+            s_inv_nu: Vec::with_capacity(len),
         }
     }
     fn clear(&mut self) {
         self.m.clear();
-        self.p.clear();
-        self.m_pred.clear();
-        self.p_pred_rows.clear();
         self.phi.clear();
+        self.h.clear();
+        self.k.clear();
+        self.s_inv_nu.clear();
     }
-    /// Appends the next node (nodes are stored in order from the segment's start).
-    fn push(&mut self, m: &[f64], p: &[f64], st: &Step, dynamic: &[usize]) {
-        let n = self.n;
+    /// Appends update `st` from mean `m` (updates are stored in order from the segment's start).
+    fn push(&mut self, m: &[f64], st: &Step, h: &[Vector3<f64>]) {
         self.m.extend_from_slice(m);
-        self.p.extend_from_slice(p);
-        self.m_pred.extend_from_slice(&st.m_pred);
-        for &d in dynamic {
-            self.p_pred_rows
-                .extend_from_slice(&st.p_pred[d * n..(d + 1) * n]);
-        }
         self.phi.extend_from_slice(&st.phi);
+        self.h.extend_from_slice(&h[..self.n]);
+        self.k.extend_from_slice(&st.k);
+        self.s_inv_nu.push(st.s_inv_nu);
     }
-    /// P⁻ of node `at` into `out` (row-major n×n, symmetric).
-    fn p_pred(&self, at: usize, dynamic: &[usize], out: &mut [f64]) {
+    /// One step of the backward pass through update `at`: the adjoint λ̂ at node at+1 becomes
+    /// λ̂ at node at (modified Bryson–Frazier, see [`run`]), with `w` as scratch.
+    fn adjoint_back(&self, at: usize, dynamic: &[usize], lam: &mut [f64], w: &mut [f64]) {
         let (n, nd) = (self.n, self.nd);
-        out.copy_from_slice(&self.p[at * n * n..(at + 1) * n * n]);
+        let (h, k) = (&self.h[at * n..(at + 1) * n], &self.k[at * n..(at + 1) * n]);
+        // λ̃ = λ̂ + Hᵀ (S⁻¹ν − Kᵀ λ̂).
+        let kt_lam = k
+            .iter()
+            .zip(lam.iter())
+            .fold(Vector3::zeros(), |acc, (ki, l)| acc + ki * *l);
+        let y = self.s_inv_nu[at] - kt_lam;
+        for (l, hc) in lam.iter_mut().zip(h) {
+            *l += hc.dot(&y);
+        }
+        // λ̂ = Φᵀ λ̃: identity rows give λ̃ itself, dynamic rows their row times λ̃_d.
+        w.copy_from_slice(lam);
+        for &d in dynamic {
+            w[d] = 0.0;
+        }
+        let phi = &self.phi[at * nd * n..(at + 1) * nd * n];
         for (r, &d) in dynamic.iter().enumerate() {
-            let row = &self.p_pred_rows[(at * nd + r) * n..(at * nd + r + 1) * n];
-            for c in 0..n {
-                out[d * n + c] = row[c];
-                out[c * n + d] = row[c];
+            let ld = lam[d];
+            for (wc, f) in w.iter_mut().zip(&phi[r * n..(r + 1) * n]) {
+                *wc += f * ld;
             }
         }
-    }
-}
-
-/// In-place Cholesky factor of the symmetric n×n `a` (row-major; the lower triangle becomes L).
-/// `None` when `a` is not positive definite.
-fn cholesky_in_place(a: &mut [f64], n: usize) -> Option<()> {
-    for j in 0..n {
-        let mut d = a[j * n + j];
-        for k in 0..j {
-            d -= a[j * n + k] * a[j * n + k];
-        }
-        if !(d > 0.0 && d.is_finite()) {
-            return None;
-        }
-        let d = d.sqrt();
-        a[j * n + j] = d;
-        for i in j + 1..n {
-            let mut v = a[i * n + j];
-            for k in 0..j {
-                v -= a[i * n + k] * a[j * n + k];
-            }
-            a[i * n + j] = v / d;
-        }
-    }
-    Some(())
-}
-
-/// Solves L Lᵀ x = b in place (L from [`cholesky_in_place`]).
-fn cholesky_solve(l: &[f64], n: usize, b: &mut [f64]) {
-    for i in 0..n {
-        let v = b[i] - dot(&l[i * n..i * n + i], &b[..i]);
-        b[i] = v / l[i * n + i];
-    }
-    for i in (0..n).rev() {
-        let mut v = b[i];
-        for k in i + 1..n {
-            v -= l[k * n + i] * b[k];
-        }
-        b[i] = v / l[i * n + i];
+        lam.copy_from_slice(w);
     }
 }
 
@@ -620,6 +643,15 @@ pub fn final_covariance(
     .map(|s| s.final_cov)
 }
 
+/// The forward pass, then for [`Mode::Smooth`] the backward pass as the modified
+/// Bryson–Frazier smoother (Bierman 1977): with the adjoint λ̂ = 0 at the last node and, back
+/// through update j (node j → j+1),
+///
+///   λ̃ = λ̂ + Hᵀ (S⁻¹ν − Kᵀ λ̂),   λ̂ ← Φᵀ λ̃,   x̂ˢ_j = m_j + P_j λ̂,
+///
+/// the RTS smoother's result (λ̃ = (P⁻)⁻¹ (x̂ˢ − m⁻) at node j+1, since (P⁻)⁻¹ P⁺ = (I − KH)ᵀ)
+/// without inverting P⁻: O(n²) per node and no failure where P⁻ is singular (a parameter
+/// held fixed by a zero prior variance).
 #[allow(clippy::too_many_arguments)]
 fn run(
     model: &Model<'_>,
@@ -650,19 +682,18 @@ fn run(
         states.reserve_exact(updates + 1);
         states.push(x0.clone());
     }
-    // Row-major (m, P) of the filter; P exactly symmetric.
+    // The filter's mean, and its covariance (exactly symmetric) at every node or in turn.
     let mut m = x0.as_slice().to_vec();
-    let mut p: Vec<f64> = (0..n * n)
-        .map(|k| {
-            let (i, j) = (k / n, k % n);
-            0.5 * (p0[(i, j)] + p0[(j, i)])
-        })
-        .collect();
+    let mut cov = CovSlots::new(n, updates + 1, keep_all);
+    for (k, v) in cov.get_mut(0).iter_mut().enumerate() {
+        let (i, j) = (k / n, k % n);
+        *v = 0.5 * (p0[(i, j)] + p0[(j, i)]);
+    }
     // Filter (m, P) at nodes 0, seg, 2·seg, … (checkpointed smoothing only).
     let mut checkpoints: Vec<(Vec<f64>, Vec<f64>)> = Vec::new();
     if mode == Mode::Smooth && !keep_all {
         checkpoints.reserve_exact(updates.div_ceil(seg).max(1));
-        checkpoints.push((m.clone(), p.clone()));
+        checkpoints.push((m.clone(), cov.get(0).to_vec()));
     }
     let mut nodes = if mode == Mode::Smooth {
         Nodes::new(n, nd, seg.min(updates))
@@ -679,7 +710,8 @@ fn run(
         )
     });
     for j in 0..updates {
-        fwd.step(j, &m, &p, &mut st)?;
+        let (p_prev, p_next) = cov.pair(j);
+        fwd.step(j, &m, p_prev, &mut st, p_next)?;
         let z = &meas[j];
         if let (Some(obs), Some((phi, h, k))) = (observer.as_mut(), view_mats.as_mut()) {
             for (r, &d) in dynamic.iter().enumerate() {
@@ -728,78 +760,54 @@ fn run(
             });
         }
         if keep_all {
-            nodes.push(&m, &p, &st, dynamic);
+            nodes.push(&m, &st, &fwd.hcols);
         }
         std::mem::swap(&mut m, &mut st.m);
-        std::mem::swap(&mut p, &mut st.p);
         match mode {
             Mode::Filter => states.push(DVector::from_column_slice(&m)),
             Mode::Smooth if !keep_all && (j + 1) % seg == 0 && j + 1 < updates => {
-                checkpoints.push((m.clone(), p.clone()));
+                checkpoints.push((m.clone(), cov.get(j + 1).to_vec()));
             }
             _ => {}
         }
     }
+    let final_cov = DMatrix::from_row_slice(n, n, cov.get(updates));
     if mode == Mode::Smooth {
         // Built from the last node back, reversed at the end.
         states.reserve_exact(updates + 1);
         states.push(DVector::from_column_slice(&m));
-        let mut ms = m.clone();
-        let mut l = vec![0.0; n * n];
-        let mut v = vec![0.0; n];
+        let mut lam = vec![0.0; n];
         let mut w = vec![0.0; n];
-        let (mut mc, mut pc) = (vec![0.0; n], vec![0.0; n * n]);
+        let mut ms = vec![0.0; n];
         let segments = if keep_all { 1 } else { checkpoints.len() };
+        // A checkpointed segment's covariances, recomputed from its checkpoint.
+        let mut seg_cov = CovSlots::new(n, if keep_all { 0 } else { seg + 1 }, true);
+        let mut mc = vec![0.0; n];
         for sgi in (0..segments).rev() {
             let start = sgi * seg;
             let end = (start + seg).min(updates);
-            if !keep_all {
+            let (covs, base) = if keep_all {
+                (&cov, 0)
+            } else {
                 let (cm, cp) = checkpoints.pop().unwrap_or_default();
                 mc.copy_from_slice(&cm);
-                pc.copy_from_slice(&cp);
+                seg_cov.get_mut(0).copy_from_slice(&cp);
                 nodes.clear();
                 for j in start..end {
-                    fwd.step(j, &mc, &pc, &mut st)?;
-                    nodes.push(&mc, &pc, &st, dynamic);
+                    let (p_prev, p_next) = seg_cov.pair(j - start);
+                    fwd.step(j, &mc, p_prev, &mut st, p_next)?;
+                    nodes.push(&mc, &st, &fwd.hcols);
                     std::mem::swap(&mut mc, &mut st.m);
-                    std::mem::swap(&mut pc, &mut st.p);
                 }
-            }
+                (&seg_cov, start)
+            };
             for j in (start..end).rev() {
                 let at = j - start;
-                // ms_j = m_j + G (ms_{j+1} − m⁻_{j+1}), G = P_j Φᵀ (P⁻)⁻¹: one Cholesky solve
-                // of P⁻ v = ms − m⁻, then m_j + P_j (Φᵀ v).
+                nodes.adjoint_back(at, dynamic, &mut lam, &mut w);
+                let pj = covs.get(j - base);
+                let mj = &nodes.m[at * n..(at + 1) * n];
                 for i in 0..n {
-                    v[i] = ms[i] - nodes.m_pred[at * n + i];
-                }
-                nodes.p_pred(at, dynamic, &mut l);
-                if cholesky_in_place(&mut l, n).is_some() {
-                    cholesky_solve(&l, n, &mut v);
-                } else {
-                    nodes.p_pred(at, dynamic, &mut l);
-                    let a = DMatrix::from_row_slice(n, n, &l);
-                    let b = DVector::from_column_slice(&v);
-                    let x = a.lu().solve(&b).ok_or(SmootherError::PredictedCovariance {
-                        update: j,
-                        t_s: meas[j].t_s,
-                    })?;
-                    v.copy_from_slice(x.as_slice());
-                }
-                // w = Φᵀ v: identity rows give v itself, dynamic rows their row times v_d.
-                w.copy_from_slice(&v);
-                for &d in dynamic {
-                    w[d] = 0.0;
-                }
-                let phi = &nodes.phi[at * nd * n..(at + 1) * nd * n];
-                for (r, &d) in dynamic.iter().enumerate() {
-                    let vd = v[d];
-                    for c in 0..n {
-                        w[c] += phi[r * n + c] * vd;
-                    }
-                }
-                let pj = &nodes.p[at * n * n..(at + 1) * n * n];
-                for i in 0..n {
-                    ms[i] = nodes.m[at * n + i] + dot(&pj[i * n..(i + 1) * n], &w);
+                    ms[i] = mj[i] + dot(&pj[i * n..(i + 1) * n], &lam);
                 }
                 states.push(DVector::from_column_slice(&ms));
             }
@@ -808,7 +816,7 @@ fn run(
     }
     Ok(Smoothed {
         states,
-        final_cov: DMatrix::from_row_slice(n, n, &p),
+        final_cov,
         innovations,
     })
 }
