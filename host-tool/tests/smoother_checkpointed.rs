@@ -22,9 +22,11 @@ use estimator_core::{Measurement, Model, Propagation, Residual, Sample, Site, PA
 use host_tool::catalog;
 use host_tool::identify::smoother::{
     final_covariance, linearised_pass, linearised_pass_checkpointed, linearised_pass_observed,
-    temp_devs, Smoothed, SmootherError,
+    noise_free_covariance, temp_devs, Smoothed, SmootherError,
 };
-use host_tool::identify::{ekf_pass, identify, prepare, wide_prior, Config, Prepared};
+use host_tool::identify::{
+    ekf_pass, identify, nominal_trajectory, prepare, wide_prior, Config, Prepared,
+};
 use host_tool::simulate::{simulate, Scenario};
 use nalgebra::{DMatrix, DVector, Matrix3, Vector3};
 
@@ -613,6 +615,36 @@ fn a_parameter_pinned_by_a_zero_prior_variance_stays_put() {
     // Checkpointed, the same bits.
     let checkpointed = linearised_pass_checkpointed(&model, meas, &nominal, &x0, &p0).unwrap();
     same_bits(&checkpointed, &pass, "pinned coefficient");
+}
+
+#[test]
+fn the_noise_free_covariance_propagates_the_nominal_it_is_linearised_about() {
+    // The Cramér–Rao bound's pass propagates its noise-free nominal in its own steps instead of
+    // taking it stored: the same calls on the same inputs, so the same bits as the covariance
+    // along `nominal_trajectory` (a node off by one, a stale state or another temperature would
+    // change them). Coefficients away from zero and a tilted start, so every column matters.
+    let (prep, model) = short_run();
+    let meas = &prep.measurements;
+    let n = model.dim();
+    let angles0 = [2e-4, -1e-4, 3e-3];
+    let params: Vec<f64> = (ANGLES..n).map(|i| 0.01 * (i as f64 - 8.0)).collect();
+    let mut start = angles0.to_vec();
+    start.extend_from_slice(&params);
+    let (x0, p0) = wide_prior(&model, &start, &[ANGLE_PRIOR_SIGMA_RAD; 3]);
+    let nominal = nominal_trajectory(&model, meas, &angles0, &params);
+    let stored = final_covariance(&model, meas, &nominal, &x0, &p0).unwrap();
+    let propagated = noise_free_covariance(&model, meas, &start, &x0, &p0).unwrap();
+    for (a, b) in stored.iter().zip(propagated.iter()) {
+        assert_eq!(a.to_bits(), b.to_bits(), "{a:e} against {b:e}");
+    }
+    let err = noise_free_covariance(&model, meas, &start[1..], &x0, &p0).unwrap_err();
+    assert_eq!(
+        err,
+        SmootherError::StartLength {
+            got: n - 1,
+            need: n
+        }
+    );
 }
 
 #[test]

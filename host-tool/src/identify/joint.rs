@@ -258,9 +258,10 @@ pub fn run_bound_cov(
 ) -> anyhow::Result<DMatrix<f64>> {
     let (model, meas) = (run.model, &run.prep.measurements);
     let n = model.dim();
-    let nominal = nominal_trajectory(model, meas, angles0, params);
-    let (x0, p0) = wide_prior(model, nominal[0].as_slice(), &run.prep.initial_angle_sigma);
-    let cov = super::smoother::final_covariance(model, meas, &nominal, &x0, &p0)?;
+    let mut start = angles0.to_vec();
+    start.extend_from_slice(params);
+    let (x0, p0) = wide_prior(model, &start, &run.prep.initial_angle_sigma);
+    let cov = super::smoother::noise_free_covariance(model, meas, &start, &x0, &p0)?;
     Ok(cov
         .view((ANGLES, ANGLES), (n - ANGLES, n - ANGLES))
         .into_owned())

@@ -24,7 +24,7 @@ use estimator_core::{Ekf, Measurement, Propagation, Residual, Sample, Site};
 use nalgebra::{DMatrix, DVector, SymmetricEigen};
 
 use self::noise::NoiseFloor;
-use self::smoother::{final_covariance, linearised_pass};
+use self::smoother::{linearised_pass, noise_free_covariance};
 use crate::quality::{self, Action, Finding};
 
 /// Settings of an identification.
@@ -457,9 +457,10 @@ pub fn try_cramer_rao_bound(
     params: &[f64],
 ) -> anyhow::Result<Vec<f64>> {
     let meas = &prep.measurements;
-    let nominal = nominal_trajectory(model, meas, &prep.initial_angles, params);
-    let (x0, p0) = wide_prior(model, nominal[0].as_slice(), &prep.initial_angle_sigma);
-    let cov = final_covariance(model, meas, &nominal, &x0, &p0).context("Cramér–Rao bound")?;
+    let mut start = prep.initial_angles.to_vec();
+    start.extend_from_slice(params);
+    let (x0, p0) = wide_prior(model, &start, &prep.initial_angle_sigma);
+    let cov = noise_free_covariance(model, meas, &start, &x0, &p0).context("Cramér–Rao bound")?;
     Ok((ANGLES..model.dim()).map(|i| cov[(i, i)].sqrt()).collect())
 }
 

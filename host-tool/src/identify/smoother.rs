@@ -112,6 +112,14 @@ pub enum SmootherError {
         /// Nodes needed.
         need: usize,
     },
+    /// The start of a noise-free nominal does not have one value per state.
+    #[error("the start state has {got} values, the model has {need} states")]
+    StartLength {
+        /// Values given.
+        got: usize,
+        /// The model's states.
+        need: usize,
+    },
     /// The innovation is NaN or infinite.
     #[error("update {update} at t = {t_s} s: innovation not finite (measured {measured:?} m/s², predicted {predicted:?} m/s²); a missing or corrupt value in the recording, or a diverged nominal trajectory")]
     InnovationNotFinite {
@@ -195,11 +203,20 @@ fn dot(a: &[f64], b: &[f64]) -> f64 {
     a.iter().zip(b).fold(0.0, |acc, (x, y)| acc + x * y)
 }
 
+/// The trajectory a pass is linearised about.
+enum Nominal<'a> {
+    /// Given: one state per node.
+    Given(&'a [DVector<f64>]),
+    /// The model's own noise-free trajectory from a start, propagated by the steps themselves
+    /// (the propagation a step does anyway gives the next node): the current node's state.
+    NoiseFree(Vec<f64>),
+}
+
 /// The fixed inputs of a pass and the forward step.
 struct Forward<'a, 'm> {
     model: &'a Model<'m>,
     meas: &'a [Measurement],
-    nominal: &'a [DVector<f64>],
+    nominal: Nominal<'a>,
     temps: Vec<f64>,
     tr: Transition<MAX_STATES>,
     hcols: [Vector3<f64>; MAX_STATES],
@@ -209,15 +226,19 @@ impl<'a, 'm> Forward<'a, 'm> {
     fn new(
         model: &'a Model<'m>,
         meas: &'a [Measurement],
-        nominal: &'a [DVector<f64>],
+        nominal: Nominal<'a>,
     ) -> Result<Self, SmootherError> {
         let n = model.dim();
         if n > MAX_STATES {
             return Err(SmootherError::TooManyStates { n });
         }
-        if nominal.len() != meas.len() + 1 {
+        let nodes = match &nominal {
+            Nominal::Given(v) => v.len(),
+            Nominal::NoiseFree(_) => meas.len() + 1,
+        };
+        if nodes != meas.len() + 1 {
             return Err(SmootherError::NominalLength {
-                got: nominal.len(),
+                got: nodes,
                 need: meas.len() + 1,
             });
         }
@@ -261,7 +282,10 @@ impl<'a, 'm> Forward<'a, 'm> {
         let nd = dynamic.len();
         let z = &self.meas[j];
         let (t_prev, temp_prev) = self.before(j);
-        let xbar_prev = self.nominal[j].as_slice();
+        let xbar_prev = match &self.nominal {
+            Nominal::Given(v) => v[j].as_slice(),
+            Nominal::NoiseFree(at) => at,
+        };
         st.f.copy_from_slice(xbar_prev);
         propagate(
             model,
@@ -321,7 +345,10 @@ impl<'a, 'm> Forward<'a, 'm> {
                 p_pred[e * n + d] = v;
             }
         }
-        let xbar = self.nominal[j + 1].as_slice();
+        let xbar = match &self.nominal {
+            Nominal::Given(v) => v[j + 1].as_slice(),
+            Nominal::NoiseFree(_) => &st.f[..],
+        };
         let predicted_at_nominal =
             model.measurement(xbar, z.t_s, self.temps[j], z.time_var_s2, &mut self.hcols);
         st.cols.clear();
@@ -393,6 +420,9 @@ impl<'a, 'm> Forward<'a, 'm> {
         st.s = s;
         st.s_inv = s_inv;
         st.predicted = predicted;
+        if let Nominal::NoiseFree(at) = &mut self.nominal {
+            at.copy_from_slice(&st.f);
+        }
         Ok(())
     }
 }
@@ -566,7 +596,7 @@ pub fn linearised_pass(
     run(
         model,
         meas,
-        nominal,
+        Nominal::Given(nominal),
         x0,
         p0,
         mode,
@@ -589,7 +619,7 @@ pub fn linearised_pass_observed(
     run(
         model,
         meas,
-        nominal,
+        Nominal::Given(nominal),
         x0,
         p0,
         mode,
@@ -611,7 +641,7 @@ pub fn linearised_pass_checkpointed(
     run(
         model,
         meas,
-        nominal,
+        Nominal::Given(nominal),
         x0,
         p0,
         Mode::Smooth,
@@ -633,7 +663,37 @@ pub fn final_covariance(
     run(
         model,
         meas,
-        nominal,
+        Nominal::Given(nominal),
+        x0,
+        p0,
+        Mode::CovarianceOnly,
+        KEEP_NODES_BYTES,
+        None::<fn(&StepView<'_>)>,
+    )
+    .map(|s| s.final_cov)
+}
+
+/// [`final_covariance`] along the model's noise-free trajectory from `start` (node 0, t = 0):
+/// the trajectory is propagated by the pass's own steps, with the same calls and so the same
+/// bits as [`crate::identify::nominal_trajectory`] gives, without storing it or propagating it
+/// twice. Memory independent of the record's length.
+pub fn noise_free_covariance(
+    model: &Model<'_>,
+    meas: &[Measurement],
+    start: &[f64],
+    x0: &DVector<f64>,
+    p0: &DMatrix<f64>,
+) -> Result<DMatrix<f64>, SmootherError> {
+    if start.len() != model.dim() {
+        return Err(SmootherError::StartLength {
+            got: start.len(),
+            need: model.dim(),
+        });
+    }
+    run(
+        model,
+        meas,
+        Nominal::NoiseFree(start.to_vec()),
         x0,
         p0,
         Mode::CovarianceOnly,
@@ -656,7 +716,7 @@ pub fn final_covariance(
 fn run(
     model: &Model<'_>,
     meas: &[Measurement],
-    nominal: &[DVector<f64>],
+    nominal: Nominal<'_>,
     x0: &DVector<f64>,
     p0: &DMatrix<f64>,
     mode: Mode,
@@ -664,6 +724,13 @@ fn run(
     mut observer: Option<impl FnMut(&StepView<'_>)>,
 ) -> Result<Smoothed, SmootherError> {
     let n = model.dim();
+    // Only a given nominal has nodes an observer can be shown; the noise-free one is only
+    // propagated for the covariance.
+    let given: &[DVector<f64>] = match &nominal {
+        Nominal::Given(v) => v,
+        Nominal::NoiseFree(_) => &[],
+    };
+    debug_assert!(observer.is_none() || !given.is_empty());
     let mut fwd = Forward::new(model, meas, nominal)?;
     let dynamic = model.dynamic_states();
     let nd = dynamic.len();
@@ -736,8 +803,8 @@ fn run(
                 temp_prev,
                 temp: fwd.temps[j],
                 time_var_s2: z.time_var_s2,
-                nominal_prev: &nominal[j],
-                nominal: &nominal[j + 1],
+                nominal_prev: &given[j],
+                nominal: &given[j + 1],
                 phi,
                 h,
                 k,
