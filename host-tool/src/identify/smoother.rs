@@ -161,7 +161,7 @@ struct Step {
     m: Vec<f64>,
     /// Columns of H that are not zero.
     cols: Vec<usize>,
-    /// Rows of P⁻Hᵀ, of K = P⁻HᵀS⁻¹ and of K·S (n each).
+    /// Rows of U = P⁻Hᵀ, of K = P⁻HᵀS⁻¹ and of U − K·S (n each).
     u: Vec<Vector3<f64>>,
     k: Vec<Vector3<f64>>,
     w: Vec<Vector3<f64>>,
@@ -398,19 +398,24 @@ impl<'a, 'm> Forward<'a, 'm> {
         let s_inv_t = s_inv.transpose();
         for i in 0..n {
             st.k[i] = s_inv_t * st.u[i];
-            st.w[i] = s * st.k[i];
+            st.w[i] = st.u[i] - s * st.k[i];
             st.m[i] = st.m_pred[i] + st.k[i].dot(&nu);
         }
-        // Joseph: P = (I − KH) P⁻ (I − KH)ᵀ + K R Kᵀ = P⁻ − K Uᵀ − U Kᵀ + K S Kᵀ (S = H U + R).
-        // In place over P⁻: entry (i, jj ≥ i) reads only the upper triangle, which no earlier
-        // entry has written (they write (i', jj') with i' < i, or the lower triangle).
+        // Joseph: P = (I − KH) P⁻ (I − KH)ᵀ + K R Kᵀ = P⁻ − K Uᵀ − U Kᵀ + K S Kᵀ (S = H U + R)
+        //          = P⁻ − K Wᵀ − U Kᵀ with W = U − K S (valid for any gain, as the Joseph form is).
+        // In place over P⁻: the upper triangle row by row (entry (i, jj ≥ i) reads only itself),
+        // then mirrored into the lower one.
         let p = p_pred;
         for i in 0..n {
             let (ki, ui) = (st.k[i], st.u[i]);
-            for jj in i..n {
-                let v = p[i * n + jj] - ki.dot(&st.u[jj]) - ui.dot(&st.k[jj]) + ki.dot(&st.w[jj]);
-                p[i * n + jj] = v;
-                p[jj * n + i] = v;
+            let row = &mut p[i * n + i..(i + 1) * n];
+            for (v, (wj, kj)) in row.iter_mut().zip(st.w[i..].iter().zip(&st.k[i..])) {
+                *v -= ki.dot(wj) + ui.dot(kj);
+            }
+        }
+        for i in 0..n {
+            for jj in i + 1..n {
+                p[jj * n + i] = p[i * n + jj];
             }
         }
         st.nu = nu;
