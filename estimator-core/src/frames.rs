@@ -161,13 +161,12 @@ pub fn euler_zyx(c: &Matrix3<f64>) -> [f64; 3] {
     [tx, ty, tz]
 }
 
-/// The platform attitude C_r^p at θ with its partial derivatives ∂C/∂θ_j.
+/// The platform attitude C_r^p at θ, with the sines and cosines of θ (its partial derivatives
+/// ∂C/∂θ_j on demand: [`Attitude::dc`]; the filter's Jacobians take cheaper routes).
 #[derive(Clone, Copy, Debug)]
 pub struct Attitude {
     /// C_0^p: frame-0 vectors to platform axes.
     pub c: Matrix3<f64>,
-    /// ∂C/∂tx, ∂C/∂ty, ∂C/∂tz.
-    pub dc: [Matrix3<f64>; 3],
     /// sin and cos of (tx, ty, tz).
     pub sin: Vector3<f64>,
     /// cos of (tx, ty, tz).
@@ -180,12 +179,24 @@ impl Attitude {
         let (sx, cx) = crate::trig::sincos(theta.x);
         let (sy, cy) = crate::trig::sincos(theta.y);
         let (sz, cz) = crate::trig::sincos(theta.z);
-        // C = Rz·Ry·Rx multiplied out (Rx = [[1,0,0],[0,c,s],[0,-s,c]], …), and its partials.
+        // C = Rz·Ry·Rx multiplied out (Rx = [[1,0,0],[0,c,s],[0,-s,c]], …).
         let (sxsy, cxsy) = (sx * sy, cx * sy);
         let row0 = Vector3::new(cy * cz, cx * sz + sxsy * cz, sx * sz - cxsy * cz);
         let row1 = Vector3::new(-cy * sz, cx * cz - sxsy * sz, sx * cz + cxsy * sz);
         let row2 = Vector3::new(sy, -sx * cy, cx * cy);
         let c = Matrix3::from_rows(&[row0.transpose(), row1.transpose(), row2.transpose()]);
+        Attitude {
+            c,
+            sin: Vector3::new(sx, sy, sz),
+            cos: Vector3::new(cx, cy, cz),
+        }
+    }
+
+    /// ∂C/∂tx, ∂C/∂ty, ∂C/∂tz (C multiplied out, differentiated term by term).
+    pub fn dc(&self) -> [Matrix3<f64>; 3] {
+        let (sx, sy, sz) = (self.sin.x, self.sin.y, self.sin.z);
+        let (cx, cy, cz) = (self.cos.x, self.cos.y, self.cos.z);
+        let (sxsy, cxsy) = (sx * sy, cx * sy);
         let d_tx = Matrix3::new(
             0.0,
             -sx * sz + cxsy * cz,
@@ -210,16 +221,11 @@ impl Attitude {
         );
         // ∂/∂tz turns row 0 into row 1 and row 1 into −row 0.
         let d_tz = Matrix3::from_rows(&[
-            row1.transpose(),
-            -row0.transpose(),
+            self.c.row(1).into_owned(),
+            -self.c.row(0),
             Vector3::zeros().transpose(),
         ]);
-        Attitude {
-            c,
-            dc: [d_tx, d_ty, d_tz],
-            sin: Vector3::new(sx, sy, sz),
-            cos: Vector3::new(cx, cy, cz),
-        }
+        [d_tx, d_ty, d_tz]
     }
 
     /// Specific force along the platform axes when the base is at rest, `A = C·g_r`, m/s²
@@ -230,7 +236,7 @@ impl Attitude {
 
     /// ∂A/∂θ_j, m/s² per rad.
     pub fn d_specific_force(&self, g_r: &Vector3<f64>, j: usize) -> Vector3<f64> {
-        self.dc[j] * g_r
+        self.dc()[j] * g_r
     }
 }
 

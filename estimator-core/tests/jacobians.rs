@@ -217,7 +217,7 @@ fn attitude_is_rz_ry_rx() {
             tm[j] -= h;
             let num = (Attitude::new(&tp).c - Attitude::new(&tm).c) / (2.0 * h);
             // Central-difference truncation h²/6 ≈ 2e-13, rounding ε/h ≈ 2e-10.
-            assert!((att.dc[j] - num).amax() < 1e-9, "∂C/∂θ{j}");
+            assert!((att.dc()[j] - num).amax() < 1e-9, "∂C/∂θ{j}");
         }
     }
 }
