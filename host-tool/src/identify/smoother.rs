@@ -212,24 +212,25 @@ enum Nominal<'a> {
     NoiseFree(Vec<f64>),
 }
 
-/// The fixed inputs of a pass and the forward step.
-struct Forward<'a, 'm> {
+/// The fixed inputs of a pass and the forward step, with the core's scratch sized `CAP` (≥ the
+/// model's states; [`run`] picks the smallest of a few sizes: the core clears its scratch whole).
+struct Forward<'a, 'm, const CAP: usize> {
     model: &'a Model<'m>,
     meas: &'a [Measurement],
     nominal: Nominal<'a>,
     temps: Vec<f64>,
-    tr: Transition<MAX_STATES>,
-    hcols: [Vector3<f64>; MAX_STATES],
+    tr: Transition<CAP>,
+    hcols: [Vector3<f64>; CAP],
 }
 
-impl<'a, 'm> Forward<'a, 'm> {
+impl<'a, 'm, const CAP: usize> Forward<'a, 'm, CAP> {
     fn new(
         model: &'a Model<'m>,
         meas: &'a [Measurement],
         nominal: Nominal<'a>,
     ) -> Result<Self, SmootherError> {
         let n = model.dim();
-        if n > MAX_STATES {
+        if n > CAP {
             return Err(SmootherError::TooManyStates { n });
         }
         let nodes = match &nominal {
@@ -248,7 +249,7 @@ impl<'a, 'm> Forward<'a, 'm> {
             nominal,
             temps: temp_devs(meas),
             tr: Transition::default(),
-            hcols: [Vector3::zeros(); MAX_STATES],
+            hcols: [Vector3::zeros(); CAP],
         })
     }
 
@@ -726,6 +727,52 @@ fn run(
     p0: &DMatrix<f64>,
     mode: Mode,
     keep_nodes_bytes: usize,
+    observer: Option<impl FnMut(&StepView<'_>)>,
+) -> Result<Smoothed, SmootherError> {
+    // The same operations on the first n entries whatever the capacity, so the same bits.
+    match model.dim() {
+        0..=16 => run_cap::<16>(
+            model,
+            meas,
+            nominal,
+            x0,
+            p0,
+            mode,
+            keep_nodes_bytes,
+            observer,
+        ),
+        17..=32 => run_cap::<32>(
+            model,
+            meas,
+            nominal,
+            x0,
+            p0,
+            mode,
+            keep_nodes_bytes,
+            observer,
+        ),
+        _ => run_cap::<MAX_STATES>(
+            model,
+            meas,
+            nominal,
+            x0,
+            p0,
+            mode,
+            keep_nodes_bytes,
+            observer,
+        ),
+    }
+}
+
+#[allow(clippy::too_many_arguments)]
+fn run_cap<const CAP: usize>(
+    model: &Model<'_>,
+    meas: &[Measurement],
+    nominal: Nominal<'_>,
+    x0: &DVector<f64>,
+    p0: &DMatrix<f64>,
+    mode: Mode,
+    keep_nodes_bytes: usize,
     mut observer: Option<impl FnMut(&StepView<'_>)>,
 ) -> Result<Smoothed, SmootherError> {
     let n = model.dim();
@@ -736,7 +783,7 @@ fn run(
         Nominal::NoiseFree(_) => &[],
     };
     debug_assert!(observer.is_none() || !given.is_empty());
-    let mut fwd = Forward::new(model, meas, nominal)?;
+    let mut fwd = Forward::<CAP>::new(model, meas, nominal)?;
     let dynamic = model.dynamic_states();
     let nd = dynamic.len();
     let updates = meas.len();
