@@ -51,7 +51,7 @@ fn main() {
     unsafe {
         libc::signal(libc::SIGPIPE, libc::SIG_DFL);
     }
-    keep_freed_memory();
+    cli::common::keep_freed_memory();
     let cli = Cli::parse();
     let result = match &cli.command {
         Command::Demo(a) => cli::demo::run(a),
@@ -81,20 +81,4 @@ fn exit_status(e: &anyhow::Error) -> i32 {
     }
     eprintln!("driftid: error: {e:#}");
     2
-}
-
-/// glibc serves a block above its mmap threshold (128 kB, raised at most to the size of the
-/// largest block freed so far) with a fresh mapping and unmaps it on free. `identify` allocates
-/// the same ~10 MB of smoother buffers for each Gauss–Newton pass, so every pass faulted them in
-/// anew: about 10 % of the process's time was in the kernel for it (perf, 60-h recording).
-/// Blocks up to 256 MB now come from the heap, and freed memory is kept for the next pass
-/// instead of being trimmed; the peak is unchanged (the same blocks, reused).
-fn keep_freed_memory() {
-    #[cfg(all(target_os = "linux", target_env = "gnu"))]
-    // SAFETY: mallopt only sets allocator parameters; called at the start of main, before any
-    // thread exists and before the allocations it concerns.
-    unsafe {
-        libc::mallopt(libc::M_MMAP_THRESHOLD, 256 << 20);
-        libc::mallopt(libc::M_TRIM_THRESHOLD, 512 << 20);
-    }
 }
