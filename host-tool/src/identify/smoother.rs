@@ -600,13 +600,7 @@ pub fn linearised_pass(
 ) -> Result<Smoothed, SmootherError> {
     let mode = if smooth { Mode::Smooth } else { Mode::Filter };
     run(
-        model,
-        meas,
-        Nominal::Given(nominal),
-        x0,
-        p0,
-        mode,
-        KEEP_NODES_BYTES,
+        Pass::new(model, meas, Nominal::Given(nominal), x0, p0, mode),
         None::<fn(&StepView<'_>)>,
     )
 }
@@ -623,13 +617,7 @@ pub fn linearised_pass_observed(
 ) -> Result<Smoothed, SmootherError> {
     let mode = if smooth { Mode::Smooth } else { Mode::Filter };
     run(
-        model,
-        meas,
-        Nominal::Given(nominal),
-        x0,
-        p0,
-        mode,
-        KEEP_NODES_BYTES,
+        Pass::new(model, meas, Nominal::Given(nominal), x0, p0, mode),
         Some(observer),
     )
 }
@@ -645,13 +633,10 @@ pub fn linearised_pass_checkpointed(
     p0: &DMatrix<f64>,
 ) -> Result<Smoothed, SmootherError> {
     run(
-        model,
-        meas,
-        Nominal::Given(nominal),
-        x0,
-        p0,
-        Mode::Smooth,
-        0,
+        Pass {
+            keep_nodes_bytes: 0,
+            ..Pass::new(model, meas, Nominal::Given(nominal), x0, p0, Mode::Smooth)
+        },
         None::<fn(&StepView<'_>)>,
     )
 }
@@ -667,13 +652,14 @@ pub fn final_covariance(
     p0: &DMatrix<f64>,
 ) -> Result<DMatrix<f64>, SmootherError> {
     run(
-        model,
-        meas,
-        Nominal::Given(nominal),
-        x0,
-        p0,
-        Mode::CovarianceOnly,
-        KEEP_NODES_BYTES,
+        Pass::new(
+            model,
+            meas,
+            Nominal::Given(nominal),
+            x0,
+            p0,
+            Mode::CovarianceOnly,
+        ),
         None::<fn(&StepView<'_>)>,
     )
     .map(|s| s.final_cov)
@@ -697,16 +683,51 @@ pub fn noise_free_covariance(
         });
     }
     run(
-        model,
-        meas,
-        Nominal::NoiseFree(start.to_vec()),
-        x0,
-        p0,
-        Mode::CovarianceOnly,
-        KEEP_NODES_BYTES,
+        Pass::new(
+            model,
+            meas,
+            Nominal::NoiseFree(start.to_vec()),
+            x0,
+            p0,
+            Mode::CovarianceOnly,
+        ),
         None::<fn(&StepView<'_>)>,
     )
     .map(|s| s.final_cov)
+}
+
+/// One pass's inputs.
+struct Pass<'a, 'm> {
+    model: &'a Model<'m>,
+    meas: &'a [Measurement],
+    nominal: Nominal<'a>,
+    x0: &'a DVector<f64>,
+    p0: &'a DMatrix<f64>,
+    mode: Mode,
+    /// Node memory up to which every node is kept (else the backward pass is checkpointed).
+    keep_nodes_bytes: usize,
+}
+
+impl<'a, 'm> Pass<'a, 'm> {
+    /// A pass keeping its nodes up to [`KEEP_NODES_BYTES`].
+    fn new(
+        model: &'a Model<'m>,
+        meas: &'a [Measurement],
+        nominal: Nominal<'a>,
+        x0: &'a DVector<f64>,
+        p0: &'a DMatrix<f64>,
+        mode: Mode,
+    ) -> Self {
+        Pass {
+            model,
+            meas,
+            nominal,
+            x0,
+            p0,
+            mode,
+            keep_nodes_bytes: KEEP_NODES_BYTES,
+        }
+    }
 }
 
 /// The forward pass, then for [`Mode::Smooth`] the backward pass as the modified
@@ -718,63 +739,31 @@ pub fn noise_free_covariance(
 /// the RTS smoother's result (λ̃ = (P⁻)⁻¹ (x̂ˢ − m⁻) at node j+1, since (P⁻)⁻¹ P⁺ = (I − KH)ᵀ)
 /// without inverting P⁻: O(n²) per node and no failure where P⁻ is singular (a parameter
 /// held fixed by a zero prior variance).
-#[allow(clippy::too_many_arguments)]
 fn run(
-    model: &Model<'_>,
-    meas: &[Measurement],
-    nominal: Nominal<'_>,
-    x0: &DVector<f64>,
-    p0: &DMatrix<f64>,
-    mode: Mode,
-    keep_nodes_bytes: usize,
+    pass: Pass<'_, '_>,
     observer: Option<impl FnMut(&StepView<'_>)>,
 ) -> Result<Smoothed, SmootherError> {
     // The same operations on the first n entries whatever the capacity, so the same bits.
-    match model.dim() {
-        0..=16 => run_cap::<16>(
-            model,
-            meas,
-            nominal,
-            x0,
-            p0,
-            mode,
-            keep_nodes_bytes,
-            observer,
-        ),
-        17..=32 => run_cap::<32>(
-            model,
-            meas,
-            nominal,
-            x0,
-            p0,
-            mode,
-            keep_nodes_bytes,
-            observer,
-        ),
-        _ => run_cap::<MAX_STATES>(
-            model,
-            meas,
-            nominal,
-            x0,
-            p0,
-            mode,
-            keep_nodes_bytes,
-            observer,
-        ),
+    match pass.model.dim() {
+        0..=16 => run_cap::<16>(pass, observer),
+        17..=32 => run_cap::<32>(pass, observer),
+        _ => run_cap::<MAX_STATES>(pass, observer),
     }
 }
 
-#[allow(clippy::too_many_arguments)]
 fn run_cap<const CAP: usize>(
-    model: &Model<'_>,
-    meas: &[Measurement],
-    nominal: Nominal<'_>,
-    x0: &DVector<f64>,
-    p0: &DMatrix<f64>,
-    mode: Mode,
-    keep_nodes_bytes: usize,
+    pass: Pass<'_, '_>,
     mut observer: Option<impl FnMut(&StepView<'_>)>,
 ) -> Result<Smoothed, SmootherError> {
+    let Pass {
+        model,
+        meas,
+        nominal,
+        x0,
+        p0,
+        mode,
+        keep_nodes_bytes,
+    } = pass;
     let n = model.dim();
     // Only a given nominal has nodes an observer can be shown; the noise-free one is only
     // propagated for the covariance.
