@@ -145,7 +145,8 @@ pub enum SmootherError {
 }
 
 /// Everything one forward step computes, in buffers allocated once per pass (a step allocates
-/// nothing). Matrices are row-major n×n slices; P⁻ and P (in the caller's buffer) are kept exactly symmetric.
+/// nothing). Matrices are row-major n×n slices; P⁻ and P (in the caller's buffer) are kept
+/// exactly symmetric.
 struct Step {
     /// Φ's dynamic rows (`dynamic_states()[r]`, row r at `r·n`); every other row of Φ is the
     /// identity's.
