@@ -4,7 +4,7 @@
 //!
 //! Layout (little-endian): magic `DIDC`, format version u16, state size n u16, model
 //! fingerprint u32, update count u32, time f64, temperature reference f64, temperature deviation
-//! f64, rejected count u32, x[n] f64, P upper triangle row by row f64, CRC-32 (IEEE) u32 of all
+//! f64, rejected count u32, x\[n\] f64, P upper triangle row by row f64, CRC-32 (IEEE) u32 of all
 //! the bytes before it. A checkpoint from another model configuration (effects, site, noise,
 //! propagation) or another format version is refused, never loaded.
 

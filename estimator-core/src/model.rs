@@ -23,8 +23,9 @@ pub const MAX_DYNAMIC: usize = 6;
 /// How the state and its transition matrix are carried over one filter period.
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub enum Propagation {
-    /// Classic 4th-order Runge–Kutta on the state and on Φ together, in sub-steps of at most
-    /// `max_step_s` (default 60 s: one step of 60 s is exact to ~2.5e-10 m/s²).
+    /// Classic 4th-order Runge–Kutta on the state, in sub-steps of at most `max_step_s`
+    /// (default 60 s: one step of 60 s is exact to ~2.5e-10 m/s²); Φ of each sub-step is the
+    /// exponential of F at its midpoint ([`crate::propagate::propagate`]).
     Rk4 {
         /// Largest integration sub-step, s.
         max_step_s: f64,
@@ -285,6 +286,32 @@ impl<'m> Model<'m> {
         temp_dev_c: f64,
         d_dx: &mut [Vector3<f64>],
     ) -> Vector3<f64> {
+        self.rate(x, t_s, temp_dev_c, d_dx, true)
+    }
+
+    /// Platform angle rate θ̇ (rad/s) at state `x` without its Jacobian (the Runge–Kutta
+    /// stages that need only f); `scratch` (≥ `dim()` long) receives the effects' partials.
+    pub fn angle_rate_value(
+        &self,
+        x: &[f64],
+        t_s: f64,
+        temp_dev_c: f64,
+        scratch: &mut [Vector3<f64>],
+    ) -> Vector3<f64> {
+        self.rate(x, t_s, temp_dev_c, scratch, false)
+    }
+
+    /// θ̇, and F's angle rows into `d_dx` when `jacobian` (otherwise `d_dx[3..]` receives the
+    /// effects' partials only). One body for both: the firmware's flash.
+    #[inline(never)]
+    fn rate(
+        &self,
+        x: &[f64],
+        t_s: f64,
+        temp_dev_c: f64,
+        d_dx: &mut [Vector3<f64>],
+        jacobian: bool,
+    ) -> Vector3<f64> {
         let n = self.dim();
         let att = Attitude::new(&Vector3::new(x[0], x[1], x[2]));
         let ctx = self.context(&att, t_s, temp_dev_c);
@@ -293,6 +320,10 @@ impl<'m> Model<'m> {
         let we0 = self.earth_rate_r;
         let c_we0 = att.c * we0;
         let w = drift_degph * RADPS_PER_DEGPH - c_we0;
+        let rate = k * w;
+        if !jacobian {
+            return rate;
+        }
         let k_deg = k * RADPS_PER_DEGPH;
         for col in d_dx[ANGLES..n].iter_mut() {
             // Most parameters drive one gyro axis: K's column times that entry (the full
@@ -315,7 +346,7 @@ impl<'m> Model<'m> {
             let dw = d_force_rad * da[j] - dwe[j];
             d_dx[j] = dk[j] + k * dw;
         }
-        k * w
+        rate
     }
 
     /// Predicted accelerometer output h(x) (m/s², platform axes) and its Jacobian

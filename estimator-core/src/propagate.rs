@@ -1,9 +1,10 @@
 //! Carrying the state and its transition matrix Φ over one filter period.
 //!
 //! Only the dynamic states (the platform angles and any Gauss–Markov states) move; every other
-//! parameter is constant, so Φ differs from the identity only in the dynamic rows. We integrate
-//! just those rows: `dΦ_D/dt = F_D·Φ` with the non-dynamic rows of Φ equal to the identity. For
-//! the paper's model that is 3 rows of 15 instead of 15×15, which is what makes a step cheap.
+//! parameter is constant, so Φ differs from the identity only in the dynamic rows: for the
+//! paper's model 3 rows of 15 instead of 15×15. The state is carried by RK4; Φ of each sub-step
+//! is exp(h·F) with F at the sub-step's midpoint (one Jacobian per sub-step, f alone at the
+//! other three stages), formed by blocks from a 3×3 series ([`propagate`]'s doc has the error).
 
 use nalgebra::{Matrix3, Vector3};
 
@@ -38,85 +39,154 @@ impl<const CAP: usize> Transition<CAP> {
     }
 }
 
-/// Scratch space for one derivative evaluation.
-struct Stage<const CAP: usize> {
-    xdot: [f64; MAX_DYNAMIC],
-    phidot: [[f64; CAP]; MAX_DYNAMIC],
-}
-
-/// Evaluates the dynamic part of f and `F_D·Φ` at state `x` (full length) and the stage input
-/// `Φ_D = y0 + a·k.phidot` (formed column by column from the previous slope), into `k`.
-#[allow(clippy::too_many_arguments)]
-fn derivative<const CAP: usize>(
+/// The dynamic rows of f at `x`: the angle rates, then −x/τ of the Gauss–Markov states
+/// (`scratch` receives the effects' partials, unused). Out of line: three stages call it.
+#[inline(never)]
+fn rate<const CAP: usize>(
     model: &Model<'_>,
     x: &[f64],
     t_s: f64,
     temp_dev_c: f64,
-    y0: &[[f64; CAP]; MAX_DYNAMIC],
-    a: f64,
-    jac: &mut [Vector3<f64>; CAP],
-    k: &mut Stage<CAP>,
-) {
-    let n = model.dim();
+    scratch: &mut [Vector3<f64>; CAP],
+) -> [f64; MAX_DYNAMIC] {
+    let mut xdot = [0.0; MAX_DYNAMIC];
+    let rate = model.angle_rate_value(x, t_s, temp_dev_c, scratch);
+    xdot[..ANGLES].copy_from_slice(rate.as_slice());
     let dynamic = model.dynamic_states();
-    let nd = dynamic.len();
-    let rate = model.angle_rate(x, t_s, temp_dev_c, jac);
-    k.xdot[..ANGLES].copy_from_slice(rate.as_slice());
-    // F[0..3][dynamic[r]], the angle rows' entries in the dynamic columns, moved out of `jac`
-    // (which keeps F[0..3][c] for the other columns c, zero in the dynamic ones); zero from
-    // nd on. And 1/τ of the Gauss–Markov rows (zero for the angles and from nd on).
-    let mut f_dd = [Vector3::zeros(); MAX_DYNAMIC];
-    for (f, &d) in f_dd.iter_mut().zip(dynamic) {
-        *f = core::mem::replace(&mut jac[d], Vector3::zeros());
+    for r in ANGLES..dynamic.len() {
+        xdot[r] = -x[dynamic[r]] / model.markov(r).tau_s;
     }
-    let mut inv_tau = [0.0; MAX_DYNAMIC];
-    for r in ANGLES..nd {
-        inv_tau[r] = 1.0 / model.markov(r).tau_s;
-        k.xdot[r] = -x[dynamic[r]] * inv_tau[r];
+    xdot
+}
+
+/// Gauss–Markov states at most (the dynamic states after the three angles).
+const MARKOV: usize = MAX_DYNAMIC - ANGLES;
+
+/// One sub-step's transition over the dynamic states D = (θ, M) (angles, Gauss–Markov
+/// states) with F taken at one point (the sub-step's midpoint for RK4): E = exp(h·F_DD) by
+/// blocks, and Ψ_θθ = h·φ₁(h·A) = h·Σ_{k≥0} (h·A)^k/(k+1)! (A = F_θθ), which maps F's angle
+/// rows in the other columns into Φ (Φ_s = [[E, Ψ·F_DN], [0, I]], and only the angle rows of
+/// F_DN are non-zero: a Gauss–Markov rate depends on its own state only).
+///
+/// A Gauss–Markov state decays as e^{dᵢ·s} within the sub-step (dᵢ = −1/τᵢ; its row of E:
+/// e^{dᵢ·h} on the diagonal, exact). Its column in the angle rows, ∫₀ʰ e^{A(h−s)}·bᵢ·e^{dᵢ·s} ds
+/// (bᵢ = F_θMᵢ), is taken as the other columns are, with the state at the midpoint:
+/// Ψ_θθ·bᵢ·e^{dᵢ·h/2}; relative error (dᵢh)²/24 + |dᵢh|·‖Ah‖/12, second order like the midpoint
+/// F itself (|dᵢh| ≤ 1/8: the sub-steps, [`propagate`]).
+struct StepExp {
+    psi_aa: Matrix3<f64>,
+    e_aa: Matrix3<f64>,
+    /// E_θMᵢ and E_MᵢMᵢ.
+    e_am: [Vector3<f64>; MARKOV],
+    e_mm: [f64; MARKOV],
+}
+
+impl StepExp {
+    /// The dynamic rows of f at `x` and the sub-step's transition from F there. F's angle rows
+    /// are left in `jac` (`jac[c]` = F[0..3][c]), zero in the dynamic columns. Ψ_θθ by Horner,
+    /// P = I + (h·A/(k+1))·P for k = terms … 1 from P = I, Ψ_θθ = h·P, E_θθ = I + Ψ_θθ·A, with
+    /// the terms [`series_terms`] asks for; without `series`, the Euler step: Ψ = h·I,
+    /// E = I + h·F.
+    #[allow(clippy::too_many_arguments)]
+    fn at<const CAP: usize>(
+        model: &Model<'_>,
+        x: &[f64],
+        t_s: f64,
+        temp_dev_c: f64,
+        jac: &mut [Vector3<f64>; CAP],
+        h: f64,
+        series: bool,
+    ) -> ([f64; MAX_DYNAMIC], Self) {
+        let mut xdot = [0.0; MAX_DYNAMIC];
+        let rate = model.angle_rate(x, t_s, temp_dev_c, jac);
+        xdot[..ANGLES].copy_from_slice(rate.as_slice());
+        let a = Matrix3::from_columns(&jac[..ANGLES]);
+        jac[..ANGLES].fill(Vector3::zeros());
+        let terms = if series { series_terms(&a, h) } else { 0 };
+        let mut p = Matrix3::identity();
+        for k in (1..=terms).rev() {
+            p = horner_step(&a, &p, h / (k + 1) as f64);
+        }
+        let psi_aa = p * h;
+        let mut out = StepExp {
+            psi_aa,
+            e_aa: Matrix3::identity() + psi_aa * a,
+            e_am: [Vector3::zeros(); MARKOV],
+            e_mm: [0.0; MARKOV],
+        };
+        let dynamic = model.dynamic_states();
+        for (i, &s) in dynamic[ANGLES..].iter().enumerate() {
+            let d = -1.0 / model.markov(ANGLES + i).tau_s;
+            xdot[ANGLES + i] = x[s] * d;
+            let (mid, end) = if series {
+                let mid = libm::exp(0.5 * d * h);
+                (mid, mid * mid)
+            } else {
+                (1.0, 1.0 + d * h)
+            };
+            out.e_am[i] = psi_aa * core::mem::replace(&mut jac[s], Vector3::zeros()) * mid;
+            out.e_mm[i] = end;
+        }
+        (xdot, out)
     }
-    // Column c of rows 0..3 of F·Φ, Φ = [[Φ_D], [0 I]]: F[·][c] for a non-dynamic column c
-    // (Φ's row there is the identity's), plus Σ_r F[·][dynamic[r]]·Φ_D[r][c], in r order; a
-    // Gauss–Markov row r is −Φ_D[r]/τ. One pass over the columns per three dynamic rows (the
-    // angles, then the Gauss–Markov rows if any), the sums in registers; each column of the
-    // stage input is read before the slope's column overwrites it. The rows from nd on only
-    // add zeros (F and 1/τ are zero there).
-    const _: () = assert!(MAX_DYNAMIC == 2 * ANGLES);
-    let [k0, k1, k2, k3, k4, k5] = &mut k.phidot;
-    let (k0, k1, k2) = (&mut k0[..n], &mut k1[..n], &mut k2[..n]);
-    let (y_0, y_1, y_2) = (&y0[0][..n], &y0[1][..n], &y0[2][..n]);
-    let (f0, f1, f2) = (f_dd[0], f_dd[1], f_dd[2]);
-    for c in 0..n {
-        let q = [y_0[c] + a * k0[c], y_1[c] + a * k1[c], y_2[c] + a * k2[c]];
-        let mut acc = jac[c];
-        acc += f0 * q[0];
-        acc += f1 * q[1];
-        acc += f2 * q[2];
-        k0[c] = acc.x;
-        k1[c] = acc.y;
-        k2[c] = acc.z;
-    }
-    if nd > ANGLES {
-        let (k3, k4, k5) = (&mut k3[..n], &mut k4[..n], &mut k5[..n]);
-        let (y_3, y_4, y_5) = (&y0[3][..n], &y0[4][..n], &y0[5][..n]);
-        let (f3, f4, f5) = (f_dd[3], f_dd[4], f_dd[5]);
+
+    /// Φ ← Φ_s·Φ over the dynamic rows. Φ's other rows are the identity's, so its column c
+    /// gains Ψ_θθ·F[0..3][c] directly (`jac`, zero in the dynamic columns).
+    fn apply<const CAP: usize>(
+        &self,
+        tr: &mut Transition<CAP>,
+        m: usize,
+        n: usize,
+        jac: &[Vector3<f64>; CAP],
+    ) {
+        let [r0, r1, r2, gm @ ..] = &mut tr.rows;
         for c in 0..n {
-            let q = [y_3[c] + a * k3[c], y_4[c] + a * k4[c], y_5[c] + a * k5[c]];
-            let mut acc = Vector3::new(k0[c], k1[c], k2[c]);
-            acc += f3 * q[0];
-            acc += f4 * q[1];
-            acc += f5 * q[2];
-            k0[c] = acc.x;
-            k1[c] = acc.y;
-            k2[c] = acc.z;
-            k3[c] = -q[0] * inv_tau[3];
-            k4[c] = -q[1] * inv_tau[4];
-            k5[c] = -q[2] * inv_tau[5];
+            let mut v = self.psi_aa * jac[c] + self.e_aa * Vector3::new(r0[c], r1[c], r2[c]);
+            for i in 0..m {
+                v += self.e_am[i] * gm[i][c];
+                gm[i][c] *= self.e_mm[i];
+            }
+            (r0[c], r1[c], r2[c]) = (v.x, v.y, v.z);
         }
     }
 }
 
+/// Terms of the φ₁ series for a remainder below ε/4 relative, from a bound of ρ = ‖h·A‖∞ (at
+/// most [`PSI_TERMS`]; six for the paper's 60-s step, where ρ ≈ 4.4e-3 is the Earth's turn in
+/// a step).
+fn series_terms(a: &Matrix3<f64>, h: f64) -> usize {
+    // The sum of all |entries| bounds the largest row sum.
+    let rho = h.abs() * a.iter().map(|v| v.abs()).sum::<f64>();
+    let mut terms = 0;
+    let mut bound = 1.0;
+    while terms < PSI_TERMS && bound > f64::EPSILON / 4.0 {
+        terms += 1;
+        bound *= rho / (terms + 1) as f64;
+    }
+    terms
+}
+
+/// One Horner step of φ₁: I + α·A·P.
+fn horner_step(a: &Matrix3<f64>, p: &Matrix3<f64>, alpha: f64) -> Matrix3<f64> {
+    Matrix3::identity() + a * p * alpha
+}
+
+/// Most terms of the φ₁ series ([`series_terms`]): enough for ρ up to about 3.5.
+const PSI_TERMS: usize = 30;
+
 /// Propagates `x` (length `model.dim()`) from `t0_s` over `dt_s` and returns Φ and Q of the
 /// interval. Temperature deviation is interpolated linearly from `temp0` to `temp1` (°C).
+///
+/// RK4 carries the state; Φ of each sub-step is the exponential of F at the sub-step's
+/// midpoint (Magnus' first term: the second stage's state and time), so F is evaluated once per
+/// sub-step and f alone at the other three stages. Φ then differs from the derivative of the
+/// Runge–Kutta map by the Magnus truncation: (h·ν)²/24 + h²·‖[Ḟ, F]‖/12 relative to a column,
+/// where ν is the rate at which F changes (for the paper's model the Earth's turn, 7.3e-5
+/// rad/s: about 1e-5 at 60 s; a regressor that changes by a fraction ν·h within the sub-step,
+/// such as a fast temperature ramp, adds ρ·ν·h/12 with ρ = ‖h·F_DD‖). Second order in h
+/// (tests/jacobians.rs). Only the gain and the covariance see it: the state, and with it the
+/// predicted measurement and the residuals, keeps RK4's accuracy; a Gauss–Newton fit converges
+/// to the same point up to that relative error times its (noise-sized) gradient.
 pub fn propagate<const CAP: usize>(
     model: &Model<'_>,
     x: &mut [f64],
@@ -135,10 +205,6 @@ pub fn propagate<const CAP: usize>(
     }
     let theta0 = Vector3::new(x[0], x[1], x[2]);
     let mut jac = [Vector3::zeros(); CAP];
-    let mut k = Stage {
-        xdot: [0.0; MAX_DYNAMIC],
-        phidot: [[0.0; CAP]; MAX_DYNAMIC],
-    };
     let temp_at = |t: f64| {
         if dt_s > 0.0 {
             temp0 + (temp1 - temp0) * (t - t0_s) / dt_s
@@ -148,80 +214,54 @@ pub fn propagate<const CAP: usize>(
     };
     match model.propagation() {
         Propagation::Euler => {
-            derivative(model, x, t0_s, temp0, &tr.rows, 0.0, &mut jac, &mut k);
+            let (xdot, step) = StepExp::at(model, x, t0_s, temp0, &mut jac, dt_s, false);
             for r in 0..nd {
-                x[dynamic[r]] += k.xdot[r] * dt_s;
-                for c in 0..n {
-                    tr.rows[r][c] += k.phidot[r][c] * dt_s;
-                }
+                x[dynamic[r]] += xdot[r] * dt_s;
             }
+            step.apply(tr, nd - ANGLES, n, &jac);
         }
         Propagation::Rk4 { max_step_s } => {
-            let steps = if dt_s > max_step_s {
-                sampling::ceil_usize(dt_s / max_step_s)
+            // Sub-steps of at most `max_step_s`, and of at most τ/8 of the fastest Gauss–Markov
+            // state (RK4's accuracy there: 2.5e-7 relative per sub-step; and Φ's, StepExp).
+            let mut steps = 1.0_f64.max(dt_s / max_step_s);
+            for r in ANGLES..nd {
+                steps = steps.max(8.0 * dt_s / model.markov(r).tau_s);
+            }
+            let steps = if steps > 1.0 {
+                sampling::ceil_usize(steps)
             } else {
                 1
             };
             let h = dt_s / steps as f64;
-            // Stage input xs (Φ's is formed in `derivative`), the current stage's slope k, and
-            // the weighted sum of slopes.
             let mut xs = [0.0; CAP];
-            let mut sum = Stage {
-                xdot: [0.0; MAX_DYNAMIC],
-                phidot: [[0.0; CAP]; MAX_DYNAMIC],
-            };
-            const C: [f64; 4] = [0.0, 0.5, 0.5, 1.0];
-            const W: [f64; 4] = [1.0, 2.0, 2.0, 1.0];
+            xs[..n].copy_from_slice(&x[..n]);
             for s in 0..steps {
                 let t = t0_s + s as f64 * h;
-                xs[..n].copy_from_slice(&x[..n]);
-                for stage in 0..4 {
-                    let ts = t + C[stage] * h;
-                    // Only the dynamic states and rows differ from the step's start.
-                    let a = C[stage] * h;
-                    if stage > 0 {
-                        for r in 0..nd {
-                            xs[dynamic[r]] = x[dynamic[r]] + a * k.xdot[r];
-                        }
-                    }
-                    derivative(
-                        model,
-                        &xs[..n],
-                        ts,
-                        temp_at(ts),
-                        &tr.rows,
-                        a,
-                        &mut jac,
-                        &mut k,
-                    );
-                    let w = W[stage];
-                    for r in 0..nd {
-                        if stage == 0 {
-                            sum.xdot[r] = k.xdot[r];
-                            sum.phidot[r][..n].copy_from_slice(&k.phidot[r][..n]);
-                        } else {
-                            sum.xdot[r] += w * k.xdot[r];
-                            for (v, d) in sum.phidot[r][..n].iter_mut().zip(&k.phidot[r][..n]) {
-                                *v += w * d;
-                            }
-                        }
-                    }
-                }
-                let w = h / 6.0;
+                let mid = t + 0.5 * h;
+                let k1 = rate(model, &x[..n], t, temp_at(t), &mut jac);
                 for r in 0..nd {
-                    x[dynamic[r]] += w * sum.xdot[r];
-                    for (v, d) in tr.rows[r][..n].iter_mut().zip(&sum.phidot[r][..n]) {
-                        *v += w * d;
-                    }
+                    xs[dynamic[r]] = x[dynamic[r]] + 0.5 * h * k1[r];
+                }
+                let temp_mid = temp_at(mid);
+                let (k2, step) = StepExp::at(model, &xs[..n], mid, temp_mid, &mut jac, h, true);
+                step.apply(tr, nd - ANGLES, n, &jac);
+                for r in 0..nd {
+                    xs[dynamic[r]] = x[dynamic[r]] + 0.5 * h * k2[r];
+                }
+                let k3 = rate(model, &xs[..n], mid, temp_mid, &mut jac);
+                for r in 0..nd {
+                    xs[dynamic[r]] = x[dynamic[r]] + h * k3[r];
+                }
+                let k4 = rate(model, &xs[..n], t + h, temp_at(t + h), &mut jac);
+                for r in 0..nd {
+                    x[dynamic[r]] += h / 6.0 * (k1[r] + 2.0 * (k2[r] + k3[r]) + k4[r]);
                 }
             }
         }
     }
     // Process noise: gyro rate noise mapped to Euler rates through K(θ) at mid-interval; exact
     // discrete variance for the Gauss–Markov states.
-    for row in tr.q[..nd].iter_mut() {
-        row[..nd].iter_mut().for_each(|v| *v = 0.0);
-    }
+    tr.q = [[0.0; MAX_DYNAMIC]; MAX_DYNAMIC];
     let theta_mid = (theta0 + Vector3::new(x[0], x[1], x[2])) * 0.5;
     // K(θ) depends on ty and tz only: two sines and cosines, not a whole attitude.
     let kk = rate_to_euler_yz(
@@ -237,5 +277,43 @@ pub fn propagate<const CAP: usize>(
     for r in ANGLES..nd {
         let m = model.markov(r);
         tr.q[r][r] = 0.5 * m.q * m.tau_s * (1.0 - libm::exp(-2.0 * dt_s / m.tau_s));
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::effects::{DriftMarkov, Effect, PaperDrift};
+    use crate::frames::Site;
+
+    /// A Gauss–Markov state faster than the filter period (τ = 10 s, period 60 s) is carried in
+    /// sub-steps of at most τ/8 (48 here): its state decays as exp(−t/τ) (RK4 with h/τ = 1/8
+    /// errs by 2.5e-7 per sub-step, 1.2e-5 over the period: tolerance 1e-4; one 60-s step,
+    /// h/τ = 6, would multiply it by RK4's R(−6) = +31), and Φ's entry for it is the exact
+    /// exponential exp(−6) to rounding (1e-14 relative: e^{−h/τ} per sub-step, 48 products).
+    #[test]
+    fn a_fast_gauss_markov_state_decays_and_its_transition_is_exact() {
+        static FAST: DriftMarkov = DriftMarkov {
+            sigma_degph: 0.01,
+            tau_h: 10.0 / 3600.0,
+        };
+        static EFFECTS: [&dyn Effect; 2] = [&PaperDrift, &FAST];
+        let model =
+            Model::new(Site::new(39.1, None), &EFFECTS, 0.0, Propagation::default()).unwrap();
+        let mut x = [0.0; 18];
+        x[15..18].copy_from_slice(&[0.01, -0.02, 0.03]);
+        let x0 = x;
+        let mut tr = Transition::<18>::default();
+        propagate(&model, &mut x, 0.0, 60.0, 0.0, 0.0, &mut tr);
+        let decay = libm::exp(-6.0);
+        for i in 15..18 {
+            assert!(
+                (x[i] / x0[i] / decay - 1.0).abs() < 1e-2,
+                "x[{i}] = {}",
+                x[i]
+            );
+            let phi = tr.phi_entry(&model, i, i);
+            assert!((phi / decay - 1.0).abs() < 1e-14, "Φ[{i}][{i}] = {phi}");
+        }
     }
 }
