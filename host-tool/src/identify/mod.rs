@@ -191,8 +191,10 @@ pub fn prepare_oriented(
             count: screened.samples.len(),
         },
     };
-    let mut measurements =
-        quality::window_means(&screened.samples, cfg.period_s, &noise.raw_sigma_mps2);
+    let mut measurements = match cfg.raw_sigma_mps2 {
+        Some(_) => quality::window_means(&screened.samples, cfg.period_s, &noise.raw_sigma_mps2),
+        None => screened.means,
+    };
     if let (None, Some(over)) = (cfg.raw_sigma_mps2, screened.mean_sigma_override_mps2) {
         // The means' own scatter (quantised or correlated noise), scaled to each window's count.
         let mut counts: Vec<u32> = measurements.iter().map(|m| m.count).collect();

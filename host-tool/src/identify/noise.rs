@@ -19,7 +19,10 @@ pub const MIN_RAW_SIGMA_MPS2: f64 = 1e-8;
 /// Estimates the raw-sample noise from `(t_s, specific force)` pairs. Returns `None` when fewer
 /// than 8 runs of 4 equally spaced samples exist.
 pub fn estimate(t_s: &[f64], force: &[[f64; 3]]) -> Option<NoiseFloor> {
-    let mut d3: [Vec<f64>; 3] = Default::default();
+    // |Δ³| as the bits of a non-negative f64: for finite values ≥ +0 (`abs` gives +0 for −0)
+    // the integer order is the numeric order, and selecting the median among integers is about
+    // twice as fast as with `f64::total_cmp` (the median is the same value).
+    let mut d3: [Vec<u64>; 3] = Default::default();
     for k in 0..t_s.len().saturating_sub(3) {
         let dt = t_s[k + 1] - t_s[k];
         let regular =
@@ -29,7 +32,7 @@ pub fn estimate(t_s: &[f64], force: &[[f64; 3]]) -> Option<NoiseFloor> {
         }
         for (a, d) in d3.iter_mut().enumerate() {
             let x = |i: usize| force[k + i][a];
-            d.push((x(3) - 3.0 * x(2) + 3.0 * x(1) - x(0)).abs());
+            d.push((x(3) - 3.0 * x(2) + 3.0 * x(1) - x(0)).abs().to_bits());
         }
     }
     if d3[0].len() < 8 {
@@ -38,8 +41,8 @@ pub fn estimate(t_s: &[f64], force: &[[f64; 3]]) -> Option<NoiseFloor> {
     let count = d3[0].len();
     let raw_sigma_mps2 = d3.map(|mut d| {
         let mid = d.len() / 2;
-        let (_, median, _) = d.select_nth_unstable_by(mid, |a, b| a.total_cmp(b));
-        (1.4826 * *median / 20f64.sqrt()).max(MIN_RAW_SIGMA_MPS2)
+        let median = f64::from_bits(*d.select_nth_unstable(mid).1);
+        (1.4826 * median / 20f64.sqrt()).max(MIN_RAW_SIGMA_MPS2)
     });
     Some(NoiseFloor {
         raw_sigma_mps2,

@@ -132,6 +132,10 @@ pub struct Screened {
     pub findings: Vec<Finding>,
     /// The screening's counts.
     pub summary: ScreenSummary,
+    /// The accepted samples' filter-period means with `raw_sigma_mps2` ([`window_means`]):
+    /// the steps check needs them, and `prepare` uses them as they are unless told another
+    /// noise (the same means, not computed twice).
+    pub means: Vec<estimator_core::Measurement>,
 }
 
 impl Screened {
@@ -277,6 +281,7 @@ pub fn screen_oriented(
         initial_tilt,
         findings,
         summary,
+        means,
     })
 }
 
