@@ -7,8 +7,11 @@
 //! Run: `cargo bench -p host-tool --bench ekf` (one group: `… --bench ekf -- read`).
 //!
 //! The times are the process's CPU time (`CLOCK_PROCESS_CPUTIME_ID`), not wall time: the
-//! machines this runs on are shared, and wall time there measures the neighbours' load. For the
-//! single-threaded work benched here it is the time the work takes on an idle core.
+//! machines this runs on are shared, and wall time there measures the neighbours' load. For
+//! single-threaded work it is the time the work takes on an idle core. Reading a recording uses
+//! every core ([`host_tool::recording::read_recording`]: blocks on threads), so its CPU time is
+//! the sum over them; the `_wall` benches give the elapsed time of the read and of the whole
+//! identification (meaningful on an otherwise idle machine).
 
 use std::path::{Path, PathBuf};
 use std::time::Duration;
@@ -126,6 +129,14 @@ fn read(c: &mut Criterion) {
             })
         })
     });
+    group.bench_function("read_recording_60h_1s_wall", |b| {
+        b.iter(|| {
+            host_tool::recording::read_recording(&path)
+                .unwrap()
+                .samples
+                .len()
+        })
+    });
     group.finish();
 }
 
@@ -161,6 +172,9 @@ fn identify_60h_csv(c: &mut Criterion) {
     });
     group.bench_function("identify_60h_1s_csv_single_pass", |b| {
         b.iter_custom(|iters| cpu(iters, || identify_from_csv(&path, 0)))
+    });
+    group.bench_function("identify_60h_1s_csv_wall", |b| {
+        b.iter(|| identify_from_csv(&path, Config::default().smoother_iterations))
     });
     group.finish();
 }

@@ -17,6 +17,7 @@
 //! invalid UTF-8, a line longer than [`MAX_LINE_BYTES`], no samples. An error quotes at most
 //! [`ERROR_EXCERPT_CHARS`] characters of the file's text.
 
+mod blocks;
 mod error;
 mod reader;
 mod writer;
@@ -86,8 +87,19 @@ pub struct Recording {
     pub repairs: Vec<String>,
 }
 
-/// Reads a whole recording. Fails if it holds no samples.
+/// Reads a whole recording. Fails if it holds no samples. A file of more than two blocks is
+/// read on all cores ([`blocks`]), with the same samples, lines, errors and repairs.
 pub fn read_recording(path: &Path) -> Result<Recording, RecordingError> {
+    read_recording_in_blocks(path, blocks::read_threads(), blocks::BLOCK_BYTES)
+}
+
+/// [`read_recording`] with `threads` threads and blocks of `block_bytes` (tests: small blocks
+/// put every kind of line at a seam).
+fn read_recording_in_blocks(
+    path: &Path,
+    threads: usize,
+    block_bytes: usize,
+) -> Result<Recording, RecordingError> {
     let name = path.display().to_string();
     let f = File::open(path).map_err(|source| RecordingError::Open {
         file: name.clone(),
@@ -95,11 +107,16 @@ pub fn read_recording(path: &Path) -> Result<Recording, RecordingError> {
     })?;
     // Room for every row up front (rows of a plain recording are 40–70 bytes): growing the
     // vectors by doubling moved and page-faulted them again, 10 % of reading a 60-h recording.
-    let rows_hint = f
-        .metadata()
-        .map_or(0, |m| (m.len() / 40).min(1 << 26) as usize);
+    let bytes = f.metadata().map_or(0, |m| m.len());
+    let rows_hint = (bytes / 40).min(1 << 26) as usize;
     let reader = RecordingReader::new(BufReader::with_capacity(1 << 16, f), name)?;
-    collect(reader, path, rows_hint)
+    let parallel = threads > 1 && bytes > 2 * block_bytes as u64;
+    collect(
+        reader,
+        path,
+        rows_hint,
+        parallel.then_some((threads, block_bytes)),
+    )
 }
 
 /// Reads a whole recording from any buffered reader; `display_name` is used in errors.
@@ -108,48 +125,43 @@ pub fn read_recording_from<R: std::io::BufRead>(
     display_name: &str,
 ) -> Result<Recording, RecordingError> {
     let reader = RecordingReader::new(reader, display_name)?;
-    collect(reader, Path::new(display_name), 0)
+    collect(reader, Path::new(display_name), 0, None)
 }
 
+/// Reads the rows after the header, on one thread or (`Some((threads, block_bytes))`) in blocks.
 fn collect<R: std::io::BufRead>(
     mut reader: RecordingReader<R>,
     path: &Path,
     rows_hint: usize,
+    blocks: Option<(usize, usize)>,
 ) -> Result<Recording, RecordingError> {
     let meta = reader.metadata().clone();
     let has_temp = reader.has_temp();
-    let mut samples = Vec::with_capacity(rows_hint);
-    let mut lines = Vec::with_capacity(rows_hint);
-    let mut repairs = Vec::new();
-    for item in &mut reader {
-        match item {
-            Ok((line, s)) => {
-                lines.push(line);
-                samples.push(s);
-            }
-            // Only ever the last line (no newline follows it): keep everything before it.
-            Err(e @ RecordingError::Truncated { .. }) if !samples.is_empty() => {
-                repairs.push(format!(
-                    "{e}; ignored that line, kept the {} samples before it",
-                    samples.len()
-                ));
-            }
-            Err(e) => return Err(e),
+    let file = reader.display_name().to_string();
+    let mut rows = blocks::Rows {
+        samples: Vec::with_capacity(rows_hint),
+        lines: Vec::with_capacity(rows_hint),
+        repairs: Vec::new(),
+    };
+    match blocks {
+        Some((threads, block_bytes)) => {
+            blocks::read_rows_parallel(reader, &mut rows, threads, block_bytes)?
         }
+        None => blocks::read_rows(&mut reader, &mut rows)?,
     }
-    if samples.is_empty() {
+    if rows.samples.is_empty() {
         return Err(RecordingError::NoSamples {
-            file: reader.display_name().to_string(),
+            file,
             reason: "header only",
         });
     }
     Ok(Recording {
         path: path.to_path_buf(),
         meta,
-        samples,
-        lines,
+        samples: rows.samples,
+        lines: rows.lines,
         has_temp,
-        repairs,
+        repairs: rows.repairs,
     })
 }
 

@@ -409,6 +409,41 @@ impl<R: BufRead> RecordingReader<R> {
         &self.file
     }
 
+    /// Where the reader stands: the last line it read, and the last finite time with its line
+    /// (the next row's time must exceed it).
+    pub(crate) fn position(&self) -> (u32, Option<(f64, u32)>) {
+        (self.line_no, self.prev)
+    }
+
+    /// This reader (file name, metadata, header) going on over `bytes`, standing at line
+    /// `line_no` after the finite time `prev`: the rows of `bytes` are read exactly as this
+    /// reader would read them there ([`super::read_recording`] reads blocks of a file so).
+    pub(crate) fn resume_over<S: BufRead>(
+        &self,
+        bytes: S,
+        line_no: u32,
+        prev: Option<(f64, u32)>,
+    ) -> RecordingReader<S> {
+        RecordingReader {
+            reader: bytes,
+            file: self.file.clone(),
+            meta: self.meta.clone(),
+            header: self.header.clone(),
+            header_line: self.header_line,
+            idx: self.idx,
+            temp_idx: self.temp_idx,
+            line_no,
+            buf: Vec::new(),
+            prev,
+            done: false,
+        }
+    }
+
+    /// The underlying reader, standing after the last line read.
+    pub(crate) fn into_inner(self) -> R {
+        self.reader
+    }
+
     /// The fast path for the common row: a whole line in the read buffer, ASCII, plain numbers
     /// (no quotes, blanks, NaN/∞), the right field count, plausible values, time increasing.
     /// It consumes the line and returns its sample; on anything else it consumes nothing and

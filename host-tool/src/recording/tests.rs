@@ -524,3 +524,89 @@ fn fast_and_general_paths_agree() {
         );
     }
 }
+
+/// The block reader's result is the one-thread reader's: the same samples, lines and repairs,
+/// or the same error on the same line, whatever the blocks. Rows of every kind (CRLF, blank,
+/// comments, quoted fields, NaN kept for the screening) and each defect at five places land at
+/// the seams of blocks of 40 to 4096 bytes read by 2 to 4 threads; a line longer than the cap
+/// and more than a block leaves the rest to the one-thread reader.
+#[test]
+fn blocks_read_as_one_thread_reads() {
+    let mut rows: Vec<Vec<u8>> = Vec::new();
+    for k in 0..400 {
+        let t = k as f64 * 0.5;
+        let row = match k % 9 {
+            0 => format!("{t},0.1,-0.2,9.8\r\n"),
+            1 => "\n".to_string(),
+            2 => "# a comment, with commas, é\n".to_string(),
+            3 => format!("\"{t}\", 0.25 ,-0.125,9.75\n"),
+            4 => format!("{t},NaN,0.0,9.8\n"),
+            _ => format!(
+                "{t},{:.9},{:.9},9.80{}\n",
+                k as f64 * 1e-4,
+                -(k as f64) * 2e-5,
+                k % 10
+            ),
+        };
+        rows.push(row.into_bytes());
+    }
+    let long = format!("1e8,{}0,0,9.8\n", " ".repeat(MAX_LINE_BYTES)).into_bytes();
+    let defects: Vec<Vec<u8>> = vec![
+        b"1.0e9x,0,0,9.8\n".to_vec(),
+        b"-5,0,0,9.8\n".to_vec(),
+        b"1e8,0,0\n".to_vec(),
+        b"\xff\xfe,0,0,9.8\n".to_vec(),
+        b"NaN,0,0,9.8\n".to_vec(),
+        b"1e8,,0,9.8\n".to_vec(),
+        b"1e8,2000,0,9.8\n".to_vec(),
+        long,
+    ];
+    let mut cases = vec![rows.concat()];
+    for at in [0, 1, 57, 200, 399] {
+        for d in &defects {
+            let mut r = rows.clone();
+            r[at] = d.clone();
+            cases.push(r.concat());
+        }
+        // A repeated time (the row before, when it is a data row).
+        let mut r = rows.clone();
+        r[at] = rows[at.saturating_sub(1)].clone();
+        cases.push(r.concat());
+    }
+    let mut truncated = rows.concat();
+    truncated.extend_from_slice(b"1e9,0,0");
+    cases.push(truncated);
+    for body in cases {
+        let text = [HDR.as_bytes(), &body].concat();
+        let one = read(&text);
+        for threads in [2, 3, 4] {
+            for block in [40, 64, 300, 4096] {
+                let reader = RecordingReader::new(&text[..], "run.csv");
+                let many = reader
+                    .and_then(|r| collect(r, Path::new("run.csv"), 0, Some((threads, block))));
+                match (&one, &many) {
+                    // Compared as text: NaN values (kept for the screening) are not equal
+                    // to themselves.
+                    (Ok(a), Ok(b)) => assert!(
+                        format!("{a:?}") == format!("{b:?}"),
+                        "{threads} threads, blocks of {block}: {} and {} samples, repairs {:?} and {:?}",
+                        a.samples.len(),
+                        b.samples.len(),
+                        a.repairs,
+                        b.repairs
+                    ),
+                    (Err(a), Err(b)) => assert_eq!(
+                        a.to_string(),
+                        b.to_string(),
+                        "{threads} threads, blocks of {block}"
+                    ),
+                    _ => panic!(
+                        "{threads} threads, blocks of {block}: one thread {:?}, blocks {:?}",
+                        one.as_ref().map(|r| r.samples.len()),
+                        many.as_ref().map(|r| r.samples.len())
+                    ),
+                }
+            }
+        }
+    }
+}

@@ -1,0 +1,238 @@
+//! Reading a recording's rows on several cores, with the one-thread reader's results.
+//!
+//! After the header, the file is read in blocks cut at line ends. In each round, the first block
+//! is read on this thread by the reader standing where the last block ended
+//! ([`RecordingReader::resume_over`]), the others each on a thread of its own by a reader that
+//! does not yet know where it stands: its lines are numbered from the block's start and its
+//! first time is not compared with the time before it. Joining them in file order shifts the
+//! line numbers and makes that comparison at the seam. A block that fails either way (an error
+//! in it, a time out of order at the seam) is read again on this thread from where it starts,
+//! so every error and repair is the one the one-thread reader gives, on the same line.
+//! Memory stays bounded: one round of blocks at a time.
+
+use std::io::{BufRead, Cursor, Read};
+
+use super::{RawSample, RecordingError, RecordingReader};
+
+/// Bytes per block (cut at the last line end within): a round of blocks on two cores takes
+/// about a millisecond, against ~40 µs to start a thread.
+pub(super) const BLOCK_BYTES: usize = 1 << 20;
+
+/// Threads that read blocks at once: the cores there are, at most 8.
+pub(super) fn read_threads() -> usize {
+    std::thread::available_parallelism().map_or(1, |n| n.get().min(8))
+}
+
+/// The rows read so far, their 1-based file lines, and the repairs made.
+#[derive(Default)]
+pub(super) struct Rows {
+    pub samples: Vec<RawSample>,
+    pub lines: Vec<u32>,
+    pub repairs: Vec<String>,
+}
+
+/// Reads the rest of `reader` into `rows`, as the one-thread reader does: the error that ends it,
+/// except a truncated last line after samples, which is dropped and reported as a repair.
+pub(super) fn read_rows<R: BufRead>(
+    reader: &mut RecordingReader<R>,
+    rows: &mut Rows,
+) -> Result<(), RecordingError> {
+    for item in reader {
+        match item {
+            Ok((line, s)) => {
+                rows.lines.push(line);
+                rows.samples.push(s);
+            }
+            // Only ever the last line (no newline follows it): keep everything before it.
+            Err(e @ RecordingError::Truncated { .. }) if !rows.samples.is_empty() => {
+                rows.repairs.push(format!(
+                    "{e}; ignored that line, kept the {} samples before it",
+                    rows.samples.len()
+                ));
+            }
+            Err(e) => return Err(e),
+        }
+    }
+    Ok(())
+}
+
+/// One block read on a thread of its own: lines numbered from the block's start.
+struct Detached {
+    rows: Rows,
+    /// Lines in the block.
+    lines: u32,
+    /// The last finite time and its line (block-relative).
+    last: Option<(f64, u32)>,
+    /// Whether the reader stopped at an error (the block is then read again in place).
+    failed: bool,
+}
+
+fn read_detached(proto: &RecordingReader<&[u8]>, block: &[u8]) -> Detached {
+    let mut reader = proto.resume_over(block, 0, None);
+    // Room for the block's rows (40 bytes or more each): no regrowth.
+    let rows_hint = block.len() / 40 + 1;
+    let mut rows = Rows {
+        samples: Vec::with_capacity(rows_hint),
+        lines: Vec::with_capacity(rows_hint),
+        repairs: Vec::new(),
+    };
+    let mut failed = false;
+    for item in &mut reader {
+        match item {
+            Ok((line, s)) => {
+                rows.lines.push(line);
+                rows.samples.push(s);
+            }
+            Err(_) => failed = true,
+        }
+    }
+    let (lines, last) = reader.position();
+    Detached {
+        rows,
+        lines,
+        last,
+        failed,
+    }
+}
+
+/// What reading the next block found.
+enum Next {
+    /// Whole lines (the last one without its line end only at the end of the file).
+    Block(Vec<u8>),
+    /// The end of the file.
+    End,
+    /// More than a block without a line end: left to the one-thread reader, which stops such
+    /// a line at [`super::MAX_LINE_BYTES`].
+    NoLineEnd(Vec<u8>),
+}
+
+/// Reads the next block from `inner`: `carry` (the part line left by the last block) and then
+/// at least `block_bytes` more, cut after the last line end.
+fn next_block(
+    inner: &mut impl Read,
+    carry: &mut Vec<u8>,
+    block_bytes: usize,
+) -> std::io::Result<Next> {
+    let mut buf = std::mem::take(carry);
+    let want = buf.len() + block_bytes;
+    let mut at_end = false;
+    while buf.len() < want {
+        let got = inner
+            .by_ref()
+            .take((want - buf.len()) as u64)
+            .read_to_end(&mut buf)?;
+        if got == 0 {
+            at_end = true;
+            break;
+        }
+    }
+    if at_end {
+        return Ok(if buf.is_empty() {
+            Next::End
+        } else {
+            Next::Block(buf)
+        });
+    }
+    match memchr::memrchr(b'\n', &buf) {
+        Some(i) => {
+            carry.extend_from_slice(&buf[i + 1..]);
+            buf.truncate(i + 1);
+            Ok(Next::Block(buf))
+        }
+        None => Ok(Next::NoLineEnd(buf)),
+    }
+}
+
+/// Reads the rows after the header (`head` stands there) into `rows` with `threads` threads,
+/// in blocks of `block_bytes`; the results are the one-thread reader's ([`read_rows`]).
+pub(super) fn read_rows_parallel<R: BufRead>(
+    head: RecordingReader<R>,
+    rows: &mut Rows,
+    threads: usize,
+    block_bytes: usize,
+) -> Result<(), RecordingError> {
+    let (mut line_no, mut prev) = head.position();
+    let proto = head.resume_over(&b""[..], 0, None);
+    let mut inner = head.into_inner();
+    let mut carry = Vec::new();
+    loop {
+        let mut blocks = Vec::with_capacity(threads);
+        let mut stop = None;
+        while blocks.len() < threads.max(1) && stop.is_none() {
+            match next_block(&mut inner, &mut carry, block_bytes) {
+                Ok(Next::Block(b)) => blocks.push(b),
+                Ok(next) => stop = Some(Ok(next)),
+                Err(e) => stop = Some(Err(e)),
+            }
+        }
+        if let Some((first, rest)) = blocks.split_first() {
+            read_round(&proto, first, rest, rows, &mut line_no, &mut prev)?;
+        }
+        match stop {
+            None => {}
+            Some(Ok(Next::NoLineEnd(b))) => {
+                let mut reader = proto.resume_over(Cursor::new(b).chain(inner), line_no, prev);
+                return read_rows(&mut reader, rows);
+            }
+            Some(Ok(_)) => break,
+            Some(Err(source)) => {
+                return Err(RecordingError::Read {
+                    file: proto.display_name().to_string(),
+                    line: line_no.saturating_add(1),
+                    source,
+                })
+            }
+        }
+    }
+    Ok(())
+}
+
+/// Reads one round of blocks: `first` here from where the file stands (`line_no`, `prev`), the
+/// `rest` each on a thread of its own, joined in order (and read again here when they fail).
+fn read_round(
+    proto: &RecordingReader<&[u8]>,
+    first: &[u8],
+    rest: &[Vec<u8>],
+    rows: &mut Rows,
+    line_no: &mut u32,
+    prev: &mut Option<(f64, u32)>,
+) -> Result<(), RecordingError> {
+    let detached: Vec<Option<Detached>> = std::thread::scope(|scope| {
+        let handles: Vec<_> = rest
+            .iter()
+            .map(|b| scope.spawn(|| read_detached(proto, b)))
+            .collect();
+        let mut reader = proto.resume_over(first, *line_no, *prev);
+        let first_result = read_rows(&mut reader, rows);
+        (*line_no, *prev) = reader.position();
+        let joined = handles.into_iter().map(|h| h.join().ok()).collect();
+        first_result.map(|()| joined)
+    })?;
+    for (block, d) in rest.iter().zip(detached) {
+        match d.filter(|d| !d.failed && fits(d, *line_no, *prev)) {
+            Some(d) => {
+                rows.samples.extend_from_slice(&d.rows.samples);
+                rows.lines.extend(d.rows.lines.iter().map(|l| l + *line_no));
+                *prev = d.last.map(|(t, l)| (t, l + *line_no)).or(*prev);
+                *line_no += d.lines;
+            }
+            None => {
+                let mut reader = proto.resume_over(&block[..], *line_no, *prev);
+                read_rows(&mut reader, rows)?;
+                (*line_no, *prev) = reader.position();
+            }
+        }
+    }
+    Ok(())
+}
+
+/// Whether a detached block continues the file at `line_no` after the finite time `prev`: its
+/// first finite time is later, and its line numbers stay within u32.
+fn fits(d: &Detached, line_no: u32, prev: Option<(f64, u32)>) -> bool {
+    let first = d.rows.samples.iter().map(|s| s.t_s).find(|t| t.is_finite());
+    let in_order = match (first, prev) {
+        (Some(t), Some((p, _))) => t > p,
+        _ => true,
+    };
+    in_order && line_no.checked_add(d.lines).is_some()
+}
