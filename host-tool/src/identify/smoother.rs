@@ -151,8 +151,6 @@ struct Step {
     /// Φ's dynamic rows (`dynamic_states()[r]`, row r at `r·n`); every other row of Φ is the
     /// identity's.
     phi: Vec<f64>,
-    /// The nominal propagated over the interval (n), then scratch.
-    f: Vec<f64>,
     /// m − x̄ at the previous node (n).
     dm: Vec<f64>,
     /// Rows `dynamic` of Φ·P (nd × n).
@@ -180,7 +178,6 @@ impl Step {
     fn new(n: usize, nd: usize) -> Self {
         Step {
             phi: vec![0.0; nd * n],
-            f: vec![0.0; n],
             dm: vec![0.0; n],
             a: vec![0.0; nd * n],
             m_pred: vec![0.0; n],
@@ -213,31 +210,59 @@ enum Nominal<'a> {
     NoiseFree(Vec<f64>),
 }
 
+/// What update j takes from the model about the nominal: the nominal propagated over the
+/// interval (`f`), Φ's dynamic rows and Q (`tr`), and H's columns and h at the next node. None
+/// of it depends on the filter, so for a given nominal [`run_cap`] computes it ahead, on another
+/// core, while the filter steps (the same calls on the same inputs: the same bits).
+struct Linearisation<const CAP: usize> {
+    f: [f64; CAP],
+    tr: Transition<CAP>,
+    hcols: [Vector3<f64>; CAP],
+    h_at_nominal: Vector3<f64>,
+}
+
+impl<const CAP: usize> Default for Linearisation<CAP> {
+    fn default() -> Self {
+        Linearisation {
+            f: [0.0; CAP],
+            tr: Transition::default(),
+            hcols: [Vector3::zeros(); CAP],
+            h_at_nominal: Vector3::zeros(),
+        }
+    }
+}
+
+/// Updates per chunk that the linearising thread hands to the filter (~100 KB each).
+const LINEARISE_CHUNK: usize = 64;
+/// Fewest updates for which the linearisation runs on a thread of its own.
+const LINEARISE_AHEAD_MIN: usize = 4 * LINEARISE_CHUNK;
+
 /// The fixed inputs of a pass and the forward step, with the core's scratch sized `CAP` (≥ the
 /// model's states; [`run`] picks the smallest of a few sizes: the core clears its scratch whole).
 struct Forward<'a, 'm, const CAP: usize> {
     model: &'a Model<'m>,
     meas: &'a [Measurement],
-    nominal: Nominal<'a>,
+    /// The given nominal (one node per measurement and one at t = 0); `None`: the noise-free
+    /// trajectory, which the caller carries from node to node (`Linearisation::f`).
+    given: Option<&'a [DVector<f64>]>,
     temps: Vec<f64>,
-    tr: Transition<CAP>,
-    hcols: [Vector3<f64>; CAP],
 }
 
 impl<'a, 'm, const CAP: usize> Forward<'a, 'm, CAP> {
     fn new(
         model: &'a Model<'m>,
         meas: &'a [Measurement],
-        nominal: Nominal<'a>,
+        nominal: &Nominal<'a>,
     ) -> Result<Self, SmootherError> {
         let n = model.dim();
         if n > CAP {
             return Err(SmootherError::TooManyStates { n });
         }
-        let nodes = match &nominal {
-            Nominal::Given(v) => v.len(),
-            Nominal::NoiseFree(_) => meas.len() + 1,
+        let given = match nominal {
+            Nominal::Given(v) => Some(*v),
+            Nominal::NoiseFree(_) => None,
         };
+        let nodes = given.map_or(meas.len() + 1, <[_]>::len);
         if nodes != meas.len() + 1 {
             return Err(SmootherError::NominalLength {
                 got: nodes,
@@ -247,10 +272,8 @@ impl<'a, 'm, const CAP: usize> Forward<'a, 'm, CAP> {
         Ok(Forward {
             model,
             meas,
-            nominal,
+            given,
             temps: temp_devs(meas),
-            tr: Transition::default(),
-            hcols: [Vector3::zeros(); CAP],
         })
     }
 
@@ -262,17 +285,45 @@ impl<'a, 'm, const CAP: usize> Forward<'a, 'm, CAP> {
         }
     }
 
-    /// Update `j` from the filter's `(m, p)` at node `j` to node `j + 1`: the mean and the
-    /// update's factors into `st`, the covariance into `p_out` (n×n, row-major, written whole:
-    /// first P⁻, then P⁺ over it in place). Deterministic: the backward pass recomputes segments
-    /// with it and gets the same bits.
+    /// The model about the nominal for update `j`, from the nominal `xbar_prev` at node `j`.
+    fn linearise(&self, j: usize, xbar_prev: &[f64], lin: &mut Linearisation<CAP>) {
+        let model = self.model;
+        let n = model.dim();
+        let z = &self.meas[j];
+        let (t_prev, temp_prev) = self.before(j);
+        lin.f[..n].copy_from_slice(xbar_prev);
+        propagate(
+            model,
+            &mut lin.f[..n],
+            t_prev,
+            z.t_s - t_prev,
+            temp_prev,
+            self.temps[j],
+            &mut lin.tr,
+        );
+        let xbar = match self.given {
+            Some(v) => v[j + 1].as_slice(),
+            None => &lin.f[..n],
+        };
+        lin.h_at_nominal =
+            model.measurement(xbar, z.t_s, self.temps[j], z.time_var_s2, &mut lin.hcols);
+    }
+
+    /// Update `j` from the filter's `(m, p)` at node `j` (nominal `xbar_prev` there) to node
+    /// `j + 1`, with the model linearised by [`Forward::linearise`]: the mean and the update's
+    /// factors into `st`, the covariance into `p_out` (n×n, row-major, written whole: first P⁻,
+    /// then P⁺ over it in place). Deterministic: the backward pass recomputes segments with it
+    /// and gets the same bits.
     ///
     /// Structured: Φ differs from I only in the dynamic rows and H is zero outside a few
     /// columns, so Φ P Φᵀ costs nd·n² and the Joseph update 9 products per entry of one
     /// triangle, instead of dense n³ products.
+    #[allow(clippy::too_many_arguments)]
     fn step(
-        &mut self,
+        &self,
         j: usize,
+        xbar_prev: &[f64],
+        lin: &Linearisation<CAP>,
         m_prev: &[f64],
         p_prev: &[f64],
         st: &mut Step,
@@ -283,33 +334,18 @@ impl<'a, 'm, const CAP: usize> Forward<'a, 'm, CAP> {
         let dynamic = model.dynamic_states();
         let nd = dynamic.len();
         let z = &self.meas[j];
-        let (t_prev, temp_prev) = self.before(j);
-        let xbar_prev = match &self.nominal {
-            Nominal::Given(v) => v[j].as_slice(),
-            Nominal::NoiseFree(at) => at,
-        };
-        st.f.copy_from_slice(xbar_prev);
-        propagate(
-            model,
-            &mut st.f,
-            t_prev,
-            z.t_s - t_prev,
-            temp_prev,
-            self.temps[j],
-            &mut self.tr,
-        );
         for r in 0..nd {
-            st.phi[r * n..(r + 1) * n].copy_from_slice(&self.tr.rows[r][..n]);
+            st.phi[r * n..(r + 1) * n].copy_from_slice(&lin.tr.rows[r][..n]);
         }
         // m⁻ = f(x̄) + Φ (m − x̄).
         for i in 0..n {
             st.dm[i] = m_prev[i] - xbar_prev[i];
         }
         for i in 0..n {
-            st.m_pred[i] = st.f[i] + st.dm[i];
+            st.m_pred[i] = lin.f[i] + st.dm[i];
         }
         for (r, &d) in dynamic.iter().enumerate() {
-            st.m_pred[d] = st.f[d] + dot(&st.phi[r * n..(r + 1) * n], &st.dm);
+            st.m_pred[d] = lin.f[d] + dot(&st.phi[r * n..(r + 1) * n], &st.dm);
         }
         // P⁻ = Φ P Φᵀ + Q. With A = rows `dynamic` of Φ P (= columns of P Φᵀ, P symmetric):
         // P⁻ is P outside the dynamic rows and columns, A there, and A Φ_Dᵀ + Q where both are
@@ -342,23 +378,22 @@ impl<'a, 'm, const CAP: usize> Forward<'a, 'm, CAP> {
                 let v = 0.5
                     * (dot(ar, &st.phi[s * n..(s + 1) * n])
                         + dot(as_, &st.phi[r * n..(r + 1) * n]))
-                    + 0.5 * (self.tr.q[r][s] + self.tr.q[s][r]);
+                    + 0.5 * (lin.tr.q[r][s] + lin.tr.q[s][r]);
                 p_pred[d * n + e] = v;
                 p_pred[e * n + d] = v;
             }
         }
-        let xbar = match &self.nominal {
-            Nominal::Given(v) => v[j + 1].as_slice(),
-            Nominal::NoiseFree(_) => &st.f[..],
+        let xbar = match self.given {
+            Some(v) => v[j + 1].as_slice(),
+            None => &lin.f[..n],
         };
-        let predicted_at_nominal =
-            model.measurement(xbar, z.t_s, self.temps[j], z.time_var_s2, &mut self.hcols);
+        let predicted_at_nominal = lin.h_at_nominal;
         st.cols.clear();
         st.cols
-            .extend((0..n).filter(|&c| self.hcols[c] != Vector3::zeros()));
+            .extend((0..n).filter(|&c| lin.hcols[c] != Vector3::zeros()));
         let mut hdx = Vector3::zeros();
         for &c in &st.cols {
-            hdx += self.hcols[c] * (st.m_pred[c] - xbar[c]);
+            hdx += lin.hcols[c] * (st.m_pred[c] - xbar[c]);
         }
         let predicted = predicted_at_nominal + hdx;
         let predicted = [predicted[0], predicted[1], predicted[2]];
@@ -376,13 +411,13 @@ impl<'a, 'm, const CAP: usize> Forward<'a, 'm, CAP> {
             let row = &p_pred[i * n..(i + 1) * n];
             let mut acc = Vector3::zeros();
             for &c in &st.cols {
-                acc += self.hcols[c] * row[c];
+                acc += lin.hcols[c] * row[c];
             }
             st.u[i] = acc;
         }
         let mut s_dyn = Matrix3::from_diagonal(&Vector3::from(z.variance));
         for &c in &st.cols {
-            s_dyn += self.hcols[c] * st.u[c].transpose();
+            s_dyn += lin.hcols[c] * st.u[c].transpose();
         }
         let s = Matrix3::from_fn(|a, b| 0.5 * (s_dyn[(a, b)] + s_dyn[(b, a)]));
         let chol = s
@@ -427,9 +462,6 @@ impl<'a, 'm, const CAP: usize> Forward<'a, 'm, CAP> {
         st.s = s;
         st.s_inv = s_inv;
         st.predicted = predicted;
-        if let Nominal::NoiseFree(at) = &mut self.nominal {
-            at.copy_from_slice(&st.f);
-        }
         Ok(())
     }
 }
@@ -623,8 +655,9 @@ pub fn linearised_pass_observed(
     )
 }
 
-/// [`linearised_pass`] with the checkpointed backward pass whatever the record's length (tests:
-/// it must give the same bits as keeping every node).
+/// [`linearised_pass`] with the checkpointed backward pass whatever the record's length, and the
+/// model linearised on the filter's own thread, not ahead on another (tests: it must give the
+/// same bits as keeping every node with the linearisation computed ahead).
 #[doc(hidden)]
 pub fn linearised_pass_checkpointed(
     model: &Model<'_>,
@@ -636,6 +669,7 @@ pub fn linearised_pass_checkpointed(
     run(
         Pass {
             keep_nodes_bytes: 0,
+            linearise_ahead: false,
             ..Pass::new(model, meas, Nominal::Given(nominal), x0, p0, Mode::Smooth)
         },
         None::<fn(&StepView<'_>)>,
@@ -707,6 +741,8 @@ struct Pass<'a, 'm> {
     mode: Mode,
     /// Node memory up to which every node is kept (else the backward pass is checkpointed).
     keep_nodes_bytes: usize,
+    /// Whether a long pass over a given nominal linearises ahead on another core.
+    linearise_ahead: bool,
 }
 
 impl<'a, 'm> Pass<'a, 'm> {
@@ -727,6 +763,7 @@ impl<'a, 'm> Pass<'a, 'm> {
             p0,
             mode,
             keep_nodes_bytes: KEEP_NODES_BYTES,
+            linearise_ahead: true,
         }
     }
 }
@@ -764,6 +801,7 @@ fn run_cap<const CAP: usize>(
         p0,
         mode,
         keep_nodes_bytes,
+        linearise_ahead,
     } = pass;
     let n = model.dim();
     // Only a given nominal has nodes an observer can be shown; the noise-free one is only
@@ -773,7 +811,7 @@ fn run_cap<const CAP: usize>(
         Nominal::NoiseFree(_) => &[],
     };
     debug_assert!(observer.is_none() || !given.is_empty());
-    let mut fwd = Forward::<CAP>::new(model, meas, nominal)?;
+    let fwd = Forward::<CAP>::new(model, meas, &nominal)?;
     let dynamic = model.dynamic_states();
     let nd = dynamic.len();
     let updates = meas.len();
@@ -818,66 +856,121 @@ fn run_cap<const CAP: usize>(
             DMatrix::zeros(n, 3),
         )
     });
-    for j in 0..updates {
-        let (p_prev, p_next) = cov.pair(j);
-        fwd.step(j, &m, p_prev, &mut st, p_next)?;
-        let z = &meas[j];
-        if let (Some(obs), Some((phi, h, k))) = (observer.as_mut(), view_mats.as_mut()) {
-            for (r, &d) in dynamic.iter().enumerate() {
-                for c in 0..n {
-                    phi[(d, c)] = st.phi[r * n + c];
+    {
+        // One update: the filter step, the observer, what the pass keeps.
+        let mut visit =
+            |j: usize, xbar_prev: &[f64], lin: &Linearisation<CAP>| -> Result<(), SmootherError> {
+                let (p_prev, p_next) = cov.pair(j);
+                fwd.step(j, xbar_prev, lin, &m, p_prev, &mut st, p_next)?;
+                let z = &meas[j];
+                if let (Some(obs), Some((phi, h, k))) = (observer.as_mut(), view_mats.as_mut()) {
+                    for (r, &d) in dynamic.iter().enumerate() {
+                        for c in 0..n {
+                            phi[(d, c)] = st.phi[r * n + c];
+                        }
+                    }
+                    h.fill(0.0);
+                    for &c in &st.cols {
+                        h.set_column(c, &lin.hcols[c]);
+                    }
+                    for i in 0..n {
+                        for a in 0..3 {
+                            k[(i, a)] = st.k[i][a];
+                        }
+                    }
+                    let (t_prev, temp_prev) = fwd.before(j);
+                    obs(&StepView {
+                        j,
+                        t_prev_s: t_prev,
+                        t_s: z.t_s,
+                        temp_prev,
+                        temp: fwd.temps[j],
+                        time_var_s2: z.time_var_s2,
+                        nominal_prev: &given[j],
+                        nominal: &given[j + 1],
+                        phi,
+                        h,
+                        k,
+                        nu: st.nu,
+                        chol_l: st.chol_l,
+                        s_inv: st.s_inv,
+                    });
+                }
+                if keep_innovations {
+                    innovations.push(Residual {
+                        step: j as u32,
+                        t_s: z.t_s,
+                        measured: z.specific_force,
+                        predicted: st.predicted,
+                        innovation: st.nu.into(),
+                        s: st.s.transpose().into(),
+                        whitened: st.whitened.into(),
+                        nis: st.nu.dot(&(st.s_inv * st.nu)),
+                        rejected: false,
+                    });
+                }
+                if keep_all {
+                    nodes.push(&m, &st, &lin.hcols);
+                }
+                std::mem::swap(&mut m, &mut st.m);
+                match mode {
+                    Mode::Filter => states.push(DVector::from_column_slice(&m)),
+                    Mode::Smooth if !keep_all && (j + 1).is_multiple_of(seg) && j + 1 < updates => {
+                        checkpoints.push((m.clone(), cov.get(j + 1).to_vec()));
+                    }
+                    _ => {}
+                }
+                Ok(())
+            };
+        match fwd.given {
+            // The linearisation about a given nominal does not depend on the filter: another
+            // core computes it a chunk ahead while this one steps the filter.
+            Some(v) if linearise_ahead && updates >= LINEARISE_AHEAD_MIN => {
+                let fwd = &fwd;
+                std::thread::scope(|scope| {
+                    let (tx, rx) = std::sync::mpsc::sync_channel::<Vec<Linearisation<CAP>>>(2);
+                    scope.spawn(move || {
+                        for start in (0..updates).step_by(LINEARISE_CHUNK) {
+                            let chunk = (start..(start + LINEARISE_CHUNK).min(updates))
+                                .map(|j| {
+                                    let mut lin = Linearisation::default();
+                                    fwd.linearise(j, v[j].as_slice(), &mut lin);
+                                    lin
+                                })
+                                .collect();
+                            if tx.send(chunk).is_err() {
+                                return; // the filter stopped at an error
+                            }
+                        }
+                    });
+                    let mut j = 0;
+                    for chunk in rx {
+                        for lin in &chunk {
+                            visit(j, v[j].as_slice(), lin)?;
+                            j += 1;
+                        }
+                    }
+                    Ok::<(), SmootherError>(())
+                })?;
+            }
+            _ => {
+                let mut lin = Box::<Linearisation<CAP>>::default();
+                let mut noise_free = match &nominal {
+                    Nominal::NoiseFree(start) => start.clone(),
+                    Nominal::Given(_) => Vec::new(),
+                };
+                for j in 0..updates {
+                    let xbar_prev = match fwd.given {
+                        Some(v) => v[j].as_slice(),
+                        None => &noise_free[..],
+                    };
+                    fwd.linearise(j, xbar_prev, &mut lin);
+                    visit(j, xbar_prev, &lin)?;
+                    if fwd.given.is_none() {
+                        noise_free.copy_from_slice(&lin.f[..n]);
+                    }
                 }
             }
-            h.fill(0.0);
-            for &c in &st.cols {
-                h.set_column(c, &fwd.hcols[c]);
-            }
-            for i in 0..n {
-                for a in 0..3 {
-                    k[(i, a)] = st.k[i][a];
-                }
-            }
-            let (t_prev, temp_prev) = fwd.before(j);
-            obs(&StepView {
-                j,
-                t_prev_s: t_prev,
-                t_s: z.t_s,
-                temp_prev,
-                temp: fwd.temps[j],
-                time_var_s2: z.time_var_s2,
-                nominal_prev: &given[j],
-                nominal: &given[j + 1],
-                phi,
-                h,
-                k,
-                nu: st.nu,
-                chol_l: st.chol_l,
-                s_inv: st.s_inv,
-            });
-        }
-        if keep_innovations {
-            innovations.push(Residual {
-                step: j as u32,
-                t_s: z.t_s,
-                measured: z.specific_force,
-                predicted: st.predicted,
-                innovation: st.nu.into(),
-                s: st.s.transpose().into(),
-                whitened: st.whitened.into(),
-                nis: st.nu.dot(&(st.s_inv * st.nu)),
-                rejected: false,
-            });
-        }
-        if keep_all {
-            nodes.push(&m, &st, &fwd.hcols);
-        }
-        std::mem::swap(&mut m, &mut st.m);
-        match mode {
-            Mode::Filter => states.push(DVector::from_column_slice(&m)),
-            Mode::Smooth if !keep_all && (j + 1) % seg == 0 && j + 1 < updates => {
-                checkpoints.push((m.clone(), cov.get(j + 1).to_vec()));
-            }
-            _ => {}
         }
     }
     let final_cov = DMatrix::from_row_slice(n, n, cov.get(updates));
@@ -892,6 +985,7 @@ fn run_cap<const CAP: usize>(
         // A checkpointed segment's covariances, recomputed from its checkpoint.
         let mut seg_cov = CovSlots::new(n, if keep_all { 0 } else { seg + 1 }, true);
         let mut mc = vec![0.0; n];
+        let mut lin_back = Box::<Linearisation<CAP>>::default();
         for sgi in (0..segments).rev() {
             let start = sgi * seg;
             let end = (start + seg).min(updates);
@@ -904,8 +998,24 @@ fn run_cap<const CAP: usize>(
                 nodes.clear();
                 for j in start..end {
                     let (p_prev, p_next) = seg_cov.pair(j - start);
-                    fwd.step(j, &mc, p_prev, &mut st, p_next)?;
-                    nodes.push(&mc, &st, &fwd.hcols);
+                    // Smoothing is over a given nominal (the public passes).
+                    let Some(xbar_prev) = given.get(j) else {
+                        return Err(SmootherError::NominalLength {
+                            got: given.len(),
+                            need: updates + 1,
+                        });
+                    };
+                    fwd.linearise(j, xbar_prev.as_slice(), &mut lin_back);
+                    fwd.step(
+                        j,
+                        xbar_prev.as_slice(),
+                        &lin_back,
+                        &mc,
+                        p_prev,
+                        &mut st,
+                        p_next,
+                    )?;
+                    nodes.push(&mc, &st, &lin_back.hcols);
                     std::mem::swap(&mut mc, &mut st.m);
                 }
                 (&seg_cov, start)
@@ -915,8 +1025,17 @@ fn run_cap<const CAP: usize>(
                 nodes.adjoint_back(at, dynamic, &mut lam, &mut w);
                 let pj = covs.get(j - base);
                 let mj = &nodes.m[at * n..(at + 1) * n];
-                for i in 0..n {
-                    ms[i] = mj[i] + dot(&pj[i * n..(i + 1) * n], &lam);
+                // m + P λ, as P's rows times λ's entries: P is exactly symmetric, so these are
+                // the sums of row i · λ in the same order (the same bits), without a chain of
+                // dependent additions per entry.
+                ms.fill(0.0);
+                for (k, &l) in lam.iter().enumerate() {
+                    for (acc, p) in ms.iter_mut().zip(&pj[k * n..(k + 1) * n]) {
+                        *acc += p * l;
+                    }
+                }
+                for (acc, x) in ms.iter_mut().zip(mj) {
+                    *acc += x; // addition commutes exactly
                 }
                 states.push(DVector::from_column_slice(&ms));
             }
