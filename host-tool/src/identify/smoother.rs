@@ -215,6 +215,8 @@ enum Nominal<'a> {
 /// of it depends on the filter, so for a given nominal [`run_cap`] computes it ahead, on another
 /// core, while the filter steps (the same calls on the same inputs: the same bits).
 struct Linearisation<const CAP: usize> {
+    /// The nominal at node j, where the interval starts.
+    xbar_prev: [f64; CAP],
     f: [f64; CAP],
     tr: Transition<CAP>,
     hcols: [Vector3<f64>; CAP],
@@ -224,6 +226,7 @@ struct Linearisation<const CAP: usize> {
 impl<const CAP: usize> Default for Linearisation<CAP> {
     fn default() -> Self {
         Linearisation {
+            xbar_prev: [0.0; CAP],
             f: [0.0; CAP],
             tr: Transition::default(),
             hcols: [Vector3::zeros(); CAP],
@@ -285,13 +288,13 @@ impl<'a, 'm, const CAP: usize> Forward<'a, 'm, CAP> {
         }
     }
 
-    /// The model about the nominal for update `j`, from the nominal `xbar_prev` at node `j`.
-    fn linearise(&self, j: usize, xbar_prev: &[f64], lin: &mut Linearisation<CAP>) {
+    /// The model about the nominal for update `j`, from the nominal at node `j` (`lin.xbar_prev`).
+    fn linearise(&self, j: usize, lin: &mut Linearisation<CAP>) {
         let model = self.model;
         let n = model.dim();
         let z = &self.meas[j];
         let (t_prev, temp_prev) = self.before(j);
-        lin.f[..n].copy_from_slice(xbar_prev);
+        lin.f[..n].copy_from_slice(&lin.xbar_prev[..n]);
         propagate(
             model,
             &mut lin.f[..n],
@@ -309,8 +312,8 @@ impl<'a, 'm, const CAP: usize> Forward<'a, 'm, CAP> {
             model.measurement(xbar, z.t_s, self.temps[j], z.time_var_s2, &mut lin.hcols);
     }
 
-    /// Update `j` from the filter's `(m, p)` at node `j` (nominal `xbar_prev` there) to node
-    /// `j + 1`, with the model linearised by [`Forward::linearise`]: the mean and the update's
+    /// Update `j` from the filter's `(m, p)` at node `j` to node `j + 1`, with the model
+    /// linearised about the nominal by [`Forward::linearise`]: the mean and the update's
     /// factors into `st`, the covariance into `p_out` (n×n, row-major, written whole: first P⁻,
     /// then P⁺ over it in place). Deterministic: the backward pass recomputes segments with it
     /// and gets the same bits.
@@ -322,7 +325,6 @@ impl<'a, 'm, const CAP: usize> Forward<'a, 'm, CAP> {
     fn step(
         &self,
         j: usize,
-        xbar_prev: &[f64],
         lin: &Linearisation<CAP>,
         m_prev: &[f64],
         p_prev: &[f64],
@@ -334,6 +336,7 @@ impl<'a, 'm, const CAP: usize> Forward<'a, 'm, CAP> {
         let dynamic = model.dynamic_states();
         let nd = dynamic.len();
         let z = &self.meas[j];
+        let xbar_prev = &lin.xbar_prev[..n];
         for r in 0..nd {
             st.phi[r * n..(r + 1) * n].copy_from_slice(&lin.tr.rows[r][..n]);
         }
@@ -463,6 +466,48 @@ impl<'a, 'm, const CAP: usize> Forward<'a, 'm, CAP> {
         st.s_inv = s_inv;
         st.predicted = predicted;
         Ok(())
+    }
+}
+
+/// The linearisations of a pass in update order: about the given nominal, or along the
+/// noise-free trajectory from its start (each interval's propagation gives the next node).
+struct Linearisations<'f, 'a, 'm, const CAP: usize> {
+    fwd: &'f Forward<'a, 'm, CAP>,
+    next: usize,
+    /// The noise-free trajectory's node before the next update.
+    carried: Vec<f64>,
+}
+
+impl<'f, 'a, 'm, const CAP: usize> Linearisations<'f, 'a, 'm, CAP> {
+    fn new(fwd: &'f Forward<'a, 'm, CAP>, nominal: &Nominal<'_>) -> Self {
+        let carried = match nominal {
+            Nominal::NoiseFree(start) => start.clone(),
+            Nominal::Given(_) => Vec::new(),
+        };
+        Linearisations {
+            fwd,
+            next: 0,
+            carried,
+        }
+    }
+
+    /// The next update's linearisation into `lin`; `false` after the last update.
+    fn next_into(&mut self, lin: &mut Linearisation<CAP>) -> bool {
+        let (j, fwd) = (self.next, self.fwd);
+        if j == fwd.meas.len() {
+            return false;
+        }
+        let n = fwd.model.dim();
+        match fwd.given {
+            Some(v) => lin.xbar_prev[..n].copy_from_slice(v[j].as_slice()),
+            None => lin.xbar_prev[..n].copy_from_slice(&self.carried),
+        }
+        fwd.linearise(j, lin);
+        if fwd.given.is_none() {
+            self.carried.copy_from_slice(&lin.f[..n]);
+        }
+        self.next += 1;
+        true
     }
 }
 
@@ -858,118 +903,99 @@ fn run_cap<const CAP: usize>(
     });
     {
         // One update: the filter step, the observer, what the pass keeps.
-        let mut visit =
-            |j: usize, xbar_prev: &[f64], lin: &Linearisation<CAP>| -> Result<(), SmootherError> {
-                let (p_prev, p_next) = cov.pair(j);
-                fwd.step(j, xbar_prev, lin, &m, p_prev, &mut st, p_next)?;
-                let z = &meas[j];
-                if let (Some(obs), Some((phi, h, k))) = (observer.as_mut(), view_mats.as_mut()) {
-                    for (r, &d) in dynamic.iter().enumerate() {
-                        for c in 0..n {
-                            phi[(d, c)] = st.phi[r * n + c];
-                        }
+        let mut visit = |j: usize, lin: &Linearisation<CAP>| -> Result<(), SmootherError> {
+            let (p_prev, p_next) = cov.pair(j);
+            fwd.step(j, lin, &m, p_prev, &mut st, p_next)?;
+            let z = &meas[j];
+            if let (Some(obs), Some((phi, h, k))) = (observer.as_mut(), view_mats.as_mut()) {
+                for (r, &d) in dynamic.iter().enumerate() {
+                    for c in 0..n {
+                        phi[(d, c)] = st.phi[r * n + c];
                     }
-                    h.fill(0.0);
-                    for &c in &st.cols {
-                        h.set_column(c, &lin.hcols[c]);
-                    }
-                    for i in 0..n {
-                        for a in 0..3 {
-                            k[(i, a)] = st.k[i][a];
-                        }
-                    }
-                    let (t_prev, temp_prev) = fwd.before(j);
-                    obs(&StepView {
-                        j,
-                        t_prev_s: t_prev,
-                        t_s: z.t_s,
-                        temp_prev,
-                        temp: fwd.temps[j],
-                        time_var_s2: z.time_var_s2,
-                        nominal_prev: &given[j],
-                        nominal: &given[j + 1],
-                        phi,
-                        h,
-                        k,
-                        nu: st.nu,
-                        chol_l: st.chol_l,
-                        s_inv: st.s_inv,
-                    });
                 }
-                if keep_innovations {
-                    innovations.push(Residual {
-                        step: j as u32,
-                        t_s: z.t_s,
-                        measured: z.specific_force,
-                        predicted: st.predicted,
-                        innovation: st.nu.into(),
-                        s: st.s.transpose().into(),
-                        whitened: st.whitened.into(),
-                        nis: st.nu.dot(&(st.s_inv * st.nu)),
-                        rejected: false,
-                    });
+                h.fill(0.0);
+                for &c in &st.cols {
+                    h.set_column(c, &lin.hcols[c]);
                 }
-                if keep_all {
-                    nodes.push(&m, &st, &lin.hcols);
-                }
-                std::mem::swap(&mut m, &mut st.m);
-                match mode {
-                    Mode::Filter => states.push(DVector::from_column_slice(&m)),
-                    Mode::Smooth if !keep_all && (j + 1).is_multiple_of(seg) && j + 1 < updates => {
-                        checkpoints.push((m.clone(), cov.get(j + 1).to_vec()));
+                for i in 0..n {
+                    for a in 0..3 {
+                        k[(i, a)] = st.k[i][a];
                     }
-                    _ => {}
                 }
-                Ok(())
-            };
-        match fwd.given {
-            // The linearisation about a given nominal does not depend on the filter: another
-            // core computes it a chunk ahead while this one steps the filter.
-            Some(v) if linearise_ahead && updates >= LINEARISE_AHEAD_MIN => {
-                let fwd = &fwd;
-                std::thread::scope(|scope| {
-                    let (tx, rx) = std::sync::mpsc::sync_channel::<Vec<Linearisation<CAP>>>(2);
-                    scope.spawn(move || {
-                        for start in (0..updates).step_by(LINEARISE_CHUNK) {
-                            let chunk = (start..(start + LINEARISE_CHUNK).min(updates))
-                                .map(|j| {
-                                    let mut lin = Linearisation::default();
-                                    fwd.linearise(j, v[j].as_slice(), &mut lin);
-                                    lin
-                                })
-                                .collect();
-                            if tx.send(chunk).is_err() {
-                                return; // the filter stopped at an error
-                            }
-                        }
-                    });
-                    let mut j = 0;
-                    for chunk in rx {
-                        for lin in &chunk {
-                            visit(j, v[j].as_slice(), lin)?;
-                            j += 1;
-                        }
-                    }
-                    Ok::<(), SmootherError>(())
-                })?;
+                let (t_prev, temp_prev) = fwd.before(j);
+                obs(&StepView {
+                    j,
+                    t_prev_s: t_prev,
+                    t_s: z.t_s,
+                    temp_prev,
+                    temp: fwd.temps[j],
+                    time_var_s2: z.time_var_s2,
+                    nominal_prev: &given[j],
+                    nominal: &given[j + 1],
+                    phi,
+                    h,
+                    k,
+                    nu: st.nu,
+                    chol_l: st.chol_l,
+                    s_inv: st.s_inv,
+                });
             }
-            _ => {
-                let mut lin = Box::<Linearisation<CAP>>::default();
-                let mut noise_free = match &nominal {
-                    Nominal::NoiseFree(start) => start.clone(),
-                    Nominal::Given(_) => Vec::new(),
-                };
-                for j in 0..updates {
-                    let xbar_prev = match fwd.given {
-                        Some(v) => v[j].as_slice(),
-                        None => &noise_free[..],
-                    };
-                    fwd.linearise(j, xbar_prev, &mut lin);
-                    visit(j, xbar_prev, &lin)?;
-                    if fwd.given.is_none() {
-                        noise_free.copy_from_slice(&lin.f[..n]);
-                    }
+            if keep_innovations {
+                innovations.push(Residual {
+                    step: j as u32,
+                    t_s: z.t_s,
+                    measured: z.specific_force,
+                    predicted: st.predicted,
+                    innovation: st.nu.into(),
+                    s: st.s.transpose().into(),
+                    whitened: st.whitened.into(),
+                    nis: st.nu.dot(&(st.s_inv * st.nu)),
+                    rejected: false,
+                });
+            }
+            if keep_all {
+                nodes.push(&m, &st, &lin.hcols);
+            }
+            std::mem::swap(&mut m, &mut st.m);
+            match mode {
+                Mode::Filter => states.push(DVector::from_column_slice(&m)),
+                Mode::Smooth if !keep_all && (j + 1).is_multiple_of(seg) && j + 1 < updates => {
+                    checkpoints.push((m.clone(), cov.get(j + 1).to_vec()));
                 }
+                _ => {}
+            }
+            Ok(())
+        };
+        let mut lins = Linearisations::new(&fwd, &nominal);
+        if linearise_ahead && updates >= LINEARISE_AHEAD_MIN {
+            // The linearisation does not depend on the filter: another core computes it a
+            // chunk ahead while this one steps the filter.
+            std::thread::scope(|scope| {
+                let (tx, rx) = std::sync::mpsc::sync_channel::<Vec<Linearisation<CAP>>>(2);
+                scope.spawn(move || loop {
+                    let mut chunk = Vec::with_capacity(LINEARISE_CHUNK);
+                    for _ in 0..LINEARISE_CHUNK {
+                        let mut lin = Linearisation::default();
+                        if !lins.next_into(&mut lin) {
+                            break;
+                        }
+                        chunk.push(lin);
+                    }
+                    if chunk.is_empty() || tx.send(chunk).is_err() {
+                        return; // the end, or the filter stopped at an error
+                    }
+                });
+                for (j, lin) in rx.iter().flatten().enumerate() {
+                    visit(j, &lin)?;
+                }
+                Ok::<(), SmootherError>(())
+            })?;
+        } else {
+            let mut lin = Box::<Linearisation<CAP>>::default();
+            let mut j = 0;
+            while lins.next_into(&mut lin) {
+                visit(j, &lin)?;
+                j += 1;
             }
         }
     }
@@ -1005,16 +1031,9 @@ fn run_cap<const CAP: usize>(
                             need: updates + 1,
                         });
                     };
-                    fwd.linearise(j, xbar_prev.as_slice(), &mut lin_back);
-                    fwd.step(
-                        j,
-                        xbar_prev.as_slice(),
-                        &lin_back,
-                        &mc,
-                        p_prev,
-                        &mut st,
-                        p_next,
-                    )?;
+                    lin_back.xbar_prev[..n].copy_from_slice(xbar_prev.as_slice());
+                    fwd.linearise(j, &mut lin_back);
+                    fwd.step(j, &lin_back, &mc, p_prev, &mut st, p_next)?;
                     nodes.push(&mc, &st, &lin_back.hcols);
                     std::mem::swap(&mut mc, &mut st.m);
                 }
