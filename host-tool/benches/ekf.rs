@@ -200,6 +200,21 @@ fn diagnose_60h_csv(c: &mut Criterion) {
             })
         })
     });
+    group.bench_function("diagnose_ladder_60h_1s_csv_wall", |b| {
+        b.iter(|| {
+            let loaded = host_tool::cli::common::load(&path, None).unwrap();
+            let cfg = DiagnoseConfig::default();
+            let prep = prepare_oriented(
+                loaded.site,
+                &loaded.samples,
+                &cfg.identify,
+                loaded.initial_orientation_rad,
+            )
+            .unwrap();
+            let effects = host_tool::catalog::model_effects(&[]).unwrap();
+            ladder(&prep, &effects, &cfg).unwrap().rungs.len()
+        })
+    });
     group.finish();
 }
 

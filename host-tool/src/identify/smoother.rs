@@ -967,7 +967,12 @@ fn run_cap<const CAP: usize>(
             Ok(())
         };
         let mut lins = Linearisations::new(&fwd, &nominal);
-        if linearise_ahead && updates >= LINEARISE_AHEAD_MIN {
+        // Not inside a rayon pool (Monte Carlo, the model ladder, the plan): its tasks already
+        // use every core, and a thread more per pass would only contend with them.
+        let ahead = linearise_ahead
+            && updates >= LINEARISE_AHEAD_MIN
+            && rayon::current_thread_index().is_none();
+        if ahead {
             // The linearisation does not depend on the filter: another core computes it a
             // chunk ahead while this one steps the filter.
             std::thread::scope(|scope| {

@@ -18,8 +18,12 @@ use super::{RawSample, RecordingError, RecordingReader};
 /// about a millisecond, against ~40 µs to start a thread.
 pub(super) const BLOCK_BYTES: usize = 1 << 20;
 
-/// Threads that read blocks at once: the cores there are, at most 8.
+/// Threads that read blocks at once: the cores there are, at most 8; one inside a rayon pool
+/// (recordings read in parallel already use every core).
 pub(super) fn read_threads() -> usize {
+    if rayon::current_thread_index().is_some() {
+        return 1;
+    }
     std::thread::available_parallelism().map_or(1, |n| n.get().min(8))
 }
 
