@@ -164,6 +164,9 @@ struct Step {
     u: Vec<Vector3<f64>>,
     k: Vec<Vector3<f64>>,
     w: Vec<Vector3<f64>>,
+    /// K's and W's three columns as contiguous vectors (the Joseph update runs along them).
+    k_cols: [Vec<f64>; 3],
+    w_cols: [Vec<f64>; 3],
     nu: Vector3<f64>,
     chol_l: Matrix3<f64>,
     s: Matrix3<f64>,
@@ -186,6 +189,8 @@ impl Step {
             u: vec![Vector3::zeros(); n],
             k: vec![Vector3::zeros(); n],
             w: vec![Vector3::zeros(); n],
+            k_cols: [vec![0.0; n], vec![0.0; n], vec![0.0; n]],
+            w_cols: [vec![0.0; n], vec![0.0; n], vec![0.0; n]],
             nu: Vector3::zeros(),
             chol_l: Matrix3::zeros(),
             s: Matrix3::zeros(),
@@ -440,17 +445,28 @@ impl<'a, 'm, const CAP: usize> Forward<'a, 'm, CAP> {
             st.k[i] = s_inv_t * st.u[i];
             st.w[i] = st.u[i] - s * st.k[i];
             st.m[i] = st.m_pred[i] + st.k[i].dot(&nu);
+            for a in 0..3 {
+                st.k_cols[a][i] = st.k[i][a];
+                st.w_cols[a][i] = st.w[i][a];
+            }
         }
         // Joseph: P = (I − KH) P⁻ (I − KH)ᵀ + K R Kᵀ = P⁻ − K Uᵀ − U Kᵀ + K S Kᵀ (S = H U + R)
         //          = P⁻ − K Wᵀ − U Kᵀ with W = U − K S (valid for any gain, as the Joseph form is).
         // In place over P⁻: the upper triangle row by row (entry (i, jj ≥ i) reads only itself),
         // then mirrored into the lower one.
+        // Along a row the entries are Kᵢ·Wⱼ + Uᵢ·Kⱼ over contiguous columns of K and W (the
+        // products and sums of the two 3-vector dot products, in their order).
         let p = p_pred;
+        let ([kx, ky, kz], [wx, wy, wz]) = (&st.k_cols, &st.w_cols);
         for i in 0..n {
             let (ki, ui) = (st.k[i], st.u[i]);
             let row = &mut p[i * n + i..(i + 1) * n];
-            for (v, (wj, kj)) in row.iter_mut().zip(st.w[i..].iter().zip(&st.k[i..])) {
-                *v -= ki.dot(wj) + ui.dot(kj);
+            let len = row.len();
+            let (kx, ky, kz) = (&kx[i..i + len], &ky[i..i + len], &kz[i..i + len]);
+            let (wx, wy, wz) = (&wx[i..i + len], &wy[i..i + len], &wz[i..i + len]);
+            for t in 0..len {
+                row[t] -= (ki.x * wx[t] + ki.y * wy[t] + ki.z * wz[t])
+                    + (ui.x * kx[t] + ui.y * ky[t] + ui.z * kz[t]);
             }
         }
         for i in 0..n {
