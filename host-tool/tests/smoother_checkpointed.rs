@@ -581,6 +581,44 @@ fn a_non_finite_measurement_is_an_error_naming_the_update() {
     );
 }
 
+/// The same errors from a pass long enough to be linearised ahead on another core (30 h: 1 800
+/// updates, chunks of 64): the filter stops at the bad update, names it, and the linearising
+/// thread is let go (the pass returns instead of hanging); the noise-free pass of the
+/// Cramér–Rao bound too.
+#[test]
+fn a_long_pass_linearised_ahead_stops_at_the_bad_update() {
+    let prep = paper_run(30.0);
+    let model = paper_model(prep.site, &PAPER_EFFECTS);
+    let (x0, p0) = wide_prior(&model, &vec![0.0; model.dim()], &[ANGLE_PRIOR_SIGMA_RAD; 3]);
+    let nominal = pass2_nominal(&model, &prep.measurements);
+    let mut meas = prep.measurements.clone();
+    meas[1000].specific_force[2] = f64::NAN;
+    let err = linearised_pass(&model, &meas, &nominal, &x0, &p0, true).unwrap_err();
+    assert!(
+        matches!(err, SmootherError::InnovationNotFinite { update: 1000, .. }),
+        "{err:?}"
+    );
+    let mut meas = prep.measurements.clone();
+    meas[1501].variance = [-1.0; 3];
+    let err = linearised_pass(&model, &meas, &nominal, &x0, &p0, false).unwrap_err();
+    assert!(
+        matches!(
+            err,
+            SmootherError::InnovationCovariance { update: 1501, .. }
+        ),
+        "{err:?}"
+    );
+    let start = vec![0.0; model.dim()];
+    let err = noise_free_covariance(&model, &meas, &start, &x0, &p0).unwrap_err();
+    assert!(
+        matches!(
+            err,
+            SmootherError::InnovationCovariance { update: 1501, .. }
+        ),
+        "{err:?}"
+    );
+}
+
 #[test]
 fn a_parameter_pinned_by_a_zero_prior_variance_stays_put() {
     // A prior with zero variance on one constant coefficient: its row and column of P⁻ stay zero
