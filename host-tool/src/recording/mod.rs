@@ -90,16 +90,6 @@ pub struct Recording {
 /// Reads a whole recording. Fails if it holds no samples. A file of more than two blocks is
 /// read on all cores ([`blocks`]), with the same samples, lines, errors and repairs.
 pub fn read_recording(path: &Path) -> Result<Recording, RecordingError> {
-    read_recording_in_blocks(path, blocks::read_threads(), blocks::BLOCK_BYTES)
-}
-
-/// [`read_recording`] with `threads` threads and blocks of `block_bytes` (tests: small blocks
-/// put every kind of line at a seam).
-fn read_recording_in_blocks(
-    path: &Path,
-    threads: usize,
-    block_bytes: usize,
-) -> Result<Recording, RecordingError> {
     let name = path.display().to_string();
     let f = File::open(path).map_err(|source| RecordingError::Open {
         file: name.clone(),
@@ -110,6 +100,7 @@ fn read_recording_in_blocks(
     let bytes = f.metadata().map_or(0, |m| m.len());
     let rows_hint = (bytes / 40).min(1 << 26) as usize;
     let reader = RecordingReader::new(BufReader::with_capacity(1 << 16, f), name)?;
+    let (threads, block_bytes) = (blocks::read_threads(), blocks::BLOCK_BYTES);
     let parallel = threads > 1 && bytes > 2 * block_bytes as u64;
     collect(
         reader,
