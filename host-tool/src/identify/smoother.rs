@@ -251,7 +251,7 @@ struct Forward<'a, 'm, const CAP: usize> {
     model: &'a Model<'m>,
     meas: &'a [Measurement],
     /// The given nominal (one node per measurement and one at t = 0); `None`: the noise-free
-    /// trajectory, which the caller carries from node to node (`Linearisation::f`).
+    /// trajectory, which [`Linearisations`] carries from node to node.
     given: Option<&'a [DVector<f64>]>,
     temps: Vec<f64>,
 }
