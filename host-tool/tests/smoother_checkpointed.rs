@@ -582,7 +582,7 @@ fn a_non_finite_measurement_is_an_error_naming_the_update() {
 }
 
 /// The same errors from a pass long enough to be linearised ahead on another core (30 h: 1 800
-/// updates, chunks of 64): the filter stops at the bad update, names it, and the linearising
+/// updates, chunks of 112): the filter stops at the bad update, names it, and the linearising
 /// thread is let go (the pass returns instead of hanging); the noise-free pass of the
 /// Cramér–Rao bound too.
 #[test]
