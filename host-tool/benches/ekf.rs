@@ -179,41 +179,30 @@ fn identify_60h_csv(c: &mut Criterion) {
     group.finish();
 }
 
+/// `diagnose`'s ladder on the recording at `path`, from the CSV: the number of rungs.
+fn diagnose_from_csv(path: &Path) -> usize {
+    let loaded = host_tool::cli::common::load(path, None).unwrap();
+    let cfg = DiagnoseConfig::default();
+    let prep = prepare_oriented(
+        loaded.site,
+        &loaded.samples,
+        &cfg.identify,
+        loaded.initial_orientation_rad,
+    )
+    .unwrap();
+    let effects = host_tool::catalog::model_effects(&[]).unwrap();
+    ladder(&prep, &effects, &cfg).unwrap().rungs.len()
+}
+
 fn diagnose_60h_csv(c: &mut Criterion) {
     let path = recording_60h();
     let mut group = c.benchmark_group("diagnose");
     group.sample_size(10);
     group.bench_function("diagnose_ladder_60h_1s_csv", |b| {
-        b.iter_custom(|iters| {
-            cpu(iters, || {
-                let loaded = host_tool::cli::common::load(&path, None).unwrap();
-                let cfg = DiagnoseConfig::default();
-                let prep = prepare_oriented(
-                    loaded.site,
-                    &loaded.samples,
-                    &cfg.identify,
-                    loaded.initial_orientation_rad,
-                )
-                .unwrap();
-                let effects = host_tool::catalog::model_effects(&[]).unwrap();
-                ladder(&prep, &effects, &cfg).unwrap().rungs.len()
-            })
-        })
+        b.iter_custom(|iters| cpu(iters, || diagnose_from_csv(&path)))
     });
     group.bench_function("diagnose_ladder_60h_1s_csv_wall", |b| {
-        b.iter(|| {
-            let loaded = host_tool::cli::common::load(&path, None).unwrap();
-            let cfg = DiagnoseConfig::default();
-            let prep = prepare_oriented(
-                loaded.site,
-                &loaded.samples,
-                &cfg.identify,
-                loaded.initial_orientation_rad,
-            )
-            .unwrap();
-            let effects = host_tool::catalog::model_effects(&[]).unwrap();
-            ladder(&prep, &effects, &cfg).unwrap().rungs.len()
-        })
+        b.iter(|| diagnose_from_csv(&path))
     });
     group.finish();
 }
