@@ -12,6 +12,8 @@
 //! - [`link`]: the host end of the telemetry link (record, HIL replay).
 //! - [`output`]: atomic writes of every output file; an output never overwrites an input.
 //! - [`cli`]: one module per `driftid` subcommand.
+#[cfg(all(target_os = "linux", target_env = "gnu"))]
+pub mod alloc;
 pub mod catalog;
 pub mod consistency;
 pub mod diagnose;

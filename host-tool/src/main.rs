@@ -39,6 +39,11 @@ enum Command {
     Bench(cli::bench::BenchArgs),
 }
 
+/// Huge pages for the large blocks ([`host_tool::alloc`]).
+#[cfg(all(target_os = "linux", target_env = "gnu"))]
+#[global_allocator]
+static ALLOC: host_tool::alloc::HugePages = host_tool::alloc::HugePages;
+
 fn main() {
     // A closed stdout (`driftid identify … | head`) ends the process quietly, as for any Unix
     // filter: Rust ignores SIGPIPE, so a write to a closed pipe would fail and `println!` panic;

@@ -108,7 +108,9 @@ pub fn load(path: &Path, latitude_override: Option<f64>) -> anyhow::Result<Loade
         );
     }
     let site = Site::new(latitude_deg, rec.meta.gravity_mps2);
-    let samples = rec.samples.iter().map(Sample::from).collect();
+    // In place: a `Sample` is no larger than a `RawSample`, so the conversion reuses the
+    // recording's buffer instead of faulting in a second one (~9 MB for a 60-h run at 1 s).
+    let samples = rec.samples.into_iter().map(|s| Sample::from(&s)).collect();
     let initial_orientation_rad = match rec
         .meta
         .extra

@@ -1,0 +1,173 @@
+//! `driftid`'s global allocator on Linux with glibc: glibc's, asking for transparent huge pages
+//! for the large blocks (the samples of a recording, the smoother's nodes and covariances).
+//!
+//! A 60-h recording at 1 s fills ~25 MB of fresh memory, and each 4-KiB page of it costs a
+//! page fault on first touch: ~7 000 faults, a fifth of reading the file (perf). In a block
+//! marked `MADV_HUGEPAGE` the kernel maps 2-MiB pages instead, one fault each. Machines whose
+//! transparent huge pages are set to `never` refuse the advice; the block is then served as
+//! before. glibc's own switch for this (`GLIBC_TUNABLES=glibc.malloc.hugetlb=1`) is read from
+//! the environment at process start, which a program cannot set for itself; allocator crates
+//! that do it (jemalloc, mimalloc) would replace glibc's allocator and its tuning
+//! ([`crate::cli::common::keep_freed_memory`]) for this one effect.
+
+use std::alloc::{GlobalAlloc, Layout};
+
+/// glibc's allocator, blocks of [`LARGE_BYTES`] or more placed on whole huge pages (aligned to
+/// one, their size rounded up to one: ≤ 2 MiB more per block) and advised to use them.
+/// Unaligned, the part of a block before its first and after its last whole huge page still
+/// faulted page by page: half the faults of the 60-h run were left. It calls glibc directly
+/// (as `std::alloc::System` does) so that every block, of either kind, is freed by `free`: a
+/// large block shrinks in place and a block can change kind in `realloc`.
+pub struct HugePages;
+
+/// Size of a transparent huge page on x86-64 and aarch64 (4-KiB base pages).
+const HUGE_PAGE_BYTES: usize = 2 << 20;
+/// Blocks from this size are placed on huge pages.
+pub const LARGE_BYTES: usize = 2 * HUGE_PAGE_BYTES;
+/// The alignment `malloc` guarantees (glibc: twice a pointer's size).
+const MALLOC_ALIGN: usize = 2 * std::mem::size_of::<usize>();
+
+/// `size` bytes aligned to `align` (a power of two), or null.
+fn aligned(align: usize, size: usize) -> *mut u8 {
+    let mut ptr = std::ptr::null_mut();
+    // SAFETY: posix_memalign writes the block's address through the valid pointer; `align` is
+    // a power of two and a multiple of a pointer's size.
+    let rc =
+        unsafe { libc::posix_memalign(&mut ptr, align.max(std::mem::size_of::<usize>()), size) };
+    if rc == 0 {
+        ptr.cast()
+    } else {
+        std::ptr::null_mut()
+    }
+}
+
+/// A large block: on whole huge pages, advised to use them.
+fn large(layout: Layout) -> *mut u8 {
+    let size = layout.size().next_multiple_of(HUGE_PAGE_BYTES);
+    let ptr = aligned(layout.align().max(HUGE_PAGE_BYTES), size);
+    if !ptr.is_null() {
+        // SAFETY: the range is the block just allocated; MADV_HUGEPAGE changes only how the
+        // kernel backs it, never its contents. A refusal (huge pages off) changes nothing.
+        unsafe {
+            libc::madvise(ptr.cast(), size, libc::MADV_HUGEPAGE);
+        }
+    }
+    ptr
+}
+
+// SAFETY: every block comes from malloc, calloc, realloc or posix_memalign with at least the
+// size and alignment asked for, and is freed by `free`, which takes any of them.
+unsafe impl GlobalAlloc for HugePages {
+    unsafe fn alloc(&self, layout: Layout) -> *mut u8 {
+        if layout.size() >= LARGE_BYTES {
+            large(layout)
+        } else if layout.align() <= MALLOC_ALIGN && layout.align() <= layout.size() {
+            // SAFETY: malloc of a non-zero size (GlobalAlloc's contract).
+            unsafe { libc::malloc(layout.size()).cast() }
+        } else {
+            aligned(layout.align(), layout.size())
+        }
+    }
+
+    unsafe fn alloc_zeroed(&self, layout: Layout) -> *mut u8 {
+        if layout.size() < LARGE_BYTES
+            && layout.align() <= MALLOC_ALIGN
+            && layout.align() <= layout.size()
+        {
+            // SAFETY: calloc of a non-zero size; it skips clearing memory fresh from the kernel.
+            return unsafe { libc::calloc(layout.size(), 1).cast() };
+        }
+        // SAFETY: `alloc` with the caller's layout; the block it returns holds `size` bytes.
+        unsafe {
+            let ptr = self.alloc(layout);
+            if !ptr.is_null() {
+                std::ptr::write_bytes(ptr, 0, layout.size());
+            }
+            ptr
+        }
+    }
+
+    unsafe fn dealloc(&self, ptr: *mut u8, _layout: Layout) {
+        // SAFETY: `ptr` came from this allocator, so from glibc (see the impl's SAFETY).
+        unsafe { libc::free(ptr.cast()) }
+    }
+
+    unsafe fn realloc(&self, ptr: *mut u8, layout: Layout, new_size: usize) -> *mut u8 {
+        let small = |size: usize| size < LARGE_BYTES;
+        if small(layout.size()) && small(new_size) && layout.align() <= MALLOC_ALIGN {
+            if layout.align() <= new_size {
+                // SAFETY: `ptr` is a malloc'd block (the caller's contract), `new_size` > 0.
+                return unsafe { libc::realloc(ptr.cast(), new_size).cast() };
+            }
+        } else if !small(layout.size()) && new_size <= layout.size() {
+            return ptr; // a large block shrinks in place: `free` does not ask its size
+        }
+        // SAFETY: the caller's contract for `realloc` makes the new layout valid; the old block
+        // holds `layout.size()` bytes and the new one `new_size`.
+        unsafe {
+            let new = self.alloc(Layout::from_size_align_unchecked(new_size, layout.align()));
+            if !new.is_null() {
+                std::ptr::copy_nonoverlapping(ptr, new, layout.size().min(new_size));
+                libc::free(ptr.cast());
+            }
+            new
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn layout(size: usize, align: usize) -> Layout {
+        Layout::from_size_align(size, align).unwrap()
+    }
+
+    /// A large block starts on a huge page; what is written survives growth, a shrink in place
+    /// (the same address), and a change of kind either way; zeroed blocks read zero.
+    #[test]
+    fn blocks_keep_their_contents_across_kinds() {
+        let a = HugePages;
+        // SAFETY: each block is used within its size and freed once, with its layout.
+        unsafe {
+            let big = layout(LARGE_BYTES + 123, 8);
+            let p = a.alloc(big);
+            assert!(!p.is_null());
+            assert_eq!(
+                p as usize % HUGE_PAGE_BYTES,
+                0,
+                "large block on a huge page"
+            );
+            for k in 0..big.size() {
+                *p.add(k) = (k % 251) as u8;
+            }
+            // Shrink within the large kind: in place.
+            let q = a.realloc(p, big, LARGE_BYTES);
+            assert_eq!(q, p, "a large block shrinks in place");
+            // Grow: moved, contents kept.
+            let grown = a.realloc(q, layout(LARGE_BYTES, 8), 3 * LARGE_BYTES);
+            for k in 0..LARGE_BYTES {
+                assert_eq!(*grown.add(k), (k % 251) as u8, "byte {k} after growth");
+            }
+            // Large to small: in place; small to large: moved; contents kept.
+            let small = a.realloc(grown, layout(3 * LARGE_BYTES, 8), 1000);
+            let again = a.realloc(small, layout(1000, 8), LARGE_BYTES + 1);
+            for k in 0..1000 {
+                assert_eq!(
+                    *again.add(k),
+                    (k % 251) as u8,
+                    "byte {k} after the kind changed"
+                );
+            }
+            a.dealloc(again, layout(LARGE_BYTES + 1, 8));
+            // Zeroed, both kinds, and an alignment above malloc's.
+            for (size, align) in [(100, 8), (LARGE_BYTES, 8), (4096, 4096)] {
+                let l = layout(size, align);
+                let z = a.alloc_zeroed(l);
+                assert_eq!(z as usize % align, 0);
+                assert!((0..size).all(|k| *z.add(k) == 0), "{size} bytes zeroed");
+                a.dealloc(z, l);
+            }
+        }
+    }
+}
