@@ -93,6 +93,24 @@ pub fn screen(
     flags: &mut [u8],
 ) -> ScreenSummary {
     let n = samples.len().min(flags.len());
+    let mut sum = screen_runs(samples, sigma, cfg, flags);
+    let ordered = times_ordered(&samples[..n]);
+    for a in 0..3 {
+        sum.outliers[a] = flag_outliers(&samples[..n], &mut flags[..n], a, sigma[a], cfg, ordered);
+    }
+    sum.rejected = flags[..n].iter().filter(|f| **f != 0).count();
+    sum
+}
+
+/// Steps 1 and 2 of [`screen`]: clears `flags` and flags non-finite, all-zero and stuck samples
+/// (the summary's outlier and rejected counts are left 0). Step 3 is [`flag_outliers`] per axis.
+pub fn screen_runs(
+    samples: &[Sample],
+    sigma: &[f64; 3],
+    cfg: &ScreenConfig,
+    flags: &mut [u8],
+) -> ScreenSummary {
+    let n = samples.len().min(flags.len());
     let mut sum = ScreenSummary::default();
     for (f, s) in flags.iter_mut().zip(samples) {
         *f = 0;
@@ -115,17 +133,12 @@ pub fn screen(
             cfg,
         );
     }
-    let ordered = times_ordered(&samples[..n]);
-    for a in 0..3 {
-        sum.outliers[a] = flag_outliers(&samples[..n], &mut flags[..n], a, sigma[a], cfg, ordered);
-    }
-    sum.rejected = flags[..n].iter().filter(|f| **f != 0).count();
     sum
 }
 
 /// Times strictly increasing (as a recording's are): each side's median time is then its
 /// middle. A non-finite time is a rejected sample, never inside a window the outlier test takes.
-fn times_ordered(s: &[Sample]) -> bool {
+pub fn times_ordered(s: &[Sample]) -> bool {
     s.windows(2)
         .all(|w| w[0].t_s < w[1].t_s || !(w[0].t_s.is_finite() && w[1].t_s.is_finite()))
 }
@@ -281,7 +294,20 @@ fn side(
     m
 }
 
-fn flag_outliers(
+/// Samples on each side that decide a sample's outlier verdict: [`outlier_at`] looks at most
+/// 4·h neighbours away (h the half window) and reads nothing farther. So the verdicts on a
+/// stretch of a record are those [`flag_outliers`] gives on the stretch with this many samples
+/// (and their flags) either side, or up to the record's ends: the host screens long records
+/// in such pieces on all its cores.
+pub fn outlier_reach(cfg: &ScreenConfig) -> usize {
+    4 * cfg.half_window.clamp(2, MAX_HALF_WINDOW)
+}
+
+/// Step 3 of [`screen`] on axis `a`: flags the outliers of `s` (ORs `OUTLIER | axis_bit(a)`
+/// into `flags`) and returns their number. Each verdict is [`outlier_at`]'s with the flags of
+/// steps 1–2 (the outlier bits of any axis do not enter it); `ordered` is
+/// [`times_ordered`] of the whole record.
+pub fn flag_outliers(
     s: &[Sample],
     flags: &mut [u8],
     a: usize,

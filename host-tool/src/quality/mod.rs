@@ -17,6 +17,7 @@
 pub mod attitude;
 pub mod latitude;
 pub mod physics;
+mod pieces;
 pub mod steps;
 pub mod time;
 
@@ -197,7 +198,7 @@ pub fn screen_oriented(
                 .into(),
         );
     };
-    let first = screening::screen(samples, &sigma0, &cfg, &mut flags);
+    let first = pieces::screen(samples, &sigma0, &cfg, &mut flags);
     // The screening is a function of the samples and the noise alone (it rewrites every flag):
     // when the first pass rejected nothing, the noise of the accepted samples is sigma0 itself
     // and the second pass would repeat the first bit for bit (half of `prepare` on clean data).
@@ -205,7 +206,7 @@ pub fn screen_oriented(
         (sigma0, first)
     } else {
         let sigma = robust_sigma(samples, &flags).unwrap_or(sigma0);
-        let summary = screening::screen(samples, &sigma, &cfg, &mut flags);
+        let summary = pieces::screen(samples, &sigma, &cfg, &mut flags);
         (sigma, summary)
     };
     if let Some(f) = dead_axis(samples, &flags) {
