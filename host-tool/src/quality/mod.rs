@@ -24,6 +24,7 @@ pub mod time;
 use estimator_core::screening::{self, flag, ScreenConfig, ScreenSummary};
 use estimator_core::{Averager, Sample, Site};
 use serde::Serialize;
+use std::borrow::Cow;
 
 use crate::identify::noise;
 
@@ -116,11 +117,12 @@ impl std::error::Error for Refusal {}
 
 /// The screened recording: accepted (and repaired) samples, the site, the findings.
 #[derive(Clone, Debug)]
-pub struct Screened {
+pub struct Screened<'s> {
     /// Site after repairs (gravity from the data when the metadata is wrong).
     pub site: Site,
-    /// Accepted samples, in time order, repaired where a repair applies.
-    pub samples: Vec<Sample>,
+    /// Accepted samples, in time order, repaired where a repair applies: the recording's own
+    /// when every sample is accepted and none repaired (no copy of a long recording).
+    pub samples: Cow<'s, [Sample]>,
     /// Raw-sample noise 1σ per axis, m/s² (robust, from accepted samples).
     pub raw_sigma_mps2: [f64; 3],
     /// Noise 1σ of one filter-period mean to use instead of raw/√n, when the means scatter more
@@ -139,7 +141,7 @@ pub struct Screened {
     pub means: Vec<estimator_core::Measurement>,
 }
 
-impl Screened {
+impl Screened<'_> {
     /// Whether any finding makes the estimate untrusted.
     pub fn untrusted_reasons(&self) -> Vec<String> {
         self.findings
@@ -154,7 +156,7 @@ impl Screened {
 pub const MAX_REJECTED_FRACTION: f64 = 0.5;
 
 /// Screens samples in the core's form for a run at `site` analysed at `period_s`.
-pub fn screen(site: Site, samples: &[Sample], period_s: f64) -> Result<Screened, Refusal> {
+pub fn screen(site: Site, samples: &[Sample], period_s: f64) -> Result<Screened<'_>, Refusal> {
     screen_oriented(site, samples, period_s, [0.0; 3])
 }
 
@@ -166,7 +168,7 @@ pub fn screen_oriented(
     samples: &[Sample],
     period_s: f64,
     theta0: [f64; 3],
-) -> Result<Screened, Refusal> {
+) -> Result<Screened<'_>, Refusal> {
     let mut findings = vec![];
     let refuse = |mut findings: Vec<Finding>, kind, message: String| {
         findings.push(Finding {
@@ -225,12 +227,16 @@ pub fn screen_oriented(
             ),
         );
     }
-    let mut accepted: Vec<Sample> = samples
-        .iter()
-        .zip(&flags)
-        .filter(|(_, f)| **f == 0)
-        .map(|(s, _)| *s)
-        .collect();
+    let mut accepted: Cow<'_, [Sample]> = if summary.rejected == 0 {
+        Cow::Borrowed(samples)
+    } else {
+        samples
+            .iter()
+            .zip(&flags)
+            .filter(|(_, f)| **f == 0)
+            .map(|(s, _)| *s)
+            .collect()
+    };
     // 2. Physics: gravity magnitude and units, the time axis, the start.
     let mut site = site;
     let mut sigma = sigma;

@@ -6,6 +6,7 @@ use estimator_core::propagate::{propagate, Transition};
 use estimator_core::units::RAD_PER_DEG;
 use estimator_core::{Model, Propagation, Sample, Site, PAPER_EFFECTS};
 use nalgebra::Vector3;
+use std::borrow::Cow;
 
 use super::{Action, Finding};
 use crate::recording::GRAVITY_RANGE_MPS2;
@@ -37,14 +38,14 @@ fn mean_magnitude(samples: &[Sample]) -> f64 {
 /// replaced by the measured one, anything else is refused.
 pub fn check_gravity(
     site: &mut Site,
-    samples: &mut [Sample],
+    samples: &mut Cow<'_, [Sample]>,
     sigma: &mut [f64; 3],
     findings: &mut Vec<Finding>,
 ) -> Result<(), Refuse> {
     let mut m = mean_magnitude(samples);
     let g = site.gravity_mps2;
     if (m / STANDARD_GRAVITY - 1.0).abs() > 0.5 && (m - 1.0).abs() < 0.05 {
-        for s in samples.iter_mut() {
+        for s in samples.to_mut().iter_mut() {
             for v in s.specific_force.iter_mut() {
                 *v *= STANDARD_GRAVITY;
             }

@@ -6,6 +6,7 @@
 use estimator_core::units::EARTH_RATE_RADPS;
 use estimator_core::{Sample, Site};
 use nalgebra::Vector3;
+use std::borrow::Cow;
 
 use super::physics::Refuse;
 use super::{Action, Finding};
@@ -83,7 +84,7 @@ pub fn time_scale(site: &Site, samples: &[Sample]) -> Option<f64> {
 /// factor applied to the file's times (1 when they are seconds).
 pub fn check_units(
     site: &Site,
-    samples: &mut [Sample],
+    samples: &mut Cow<'_, [Sample]>,
     findings: &mut Vec<Finding>,
 ) -> Result<f64, Refuse> {
     let mut applied = 1.0;
@@ -94,7 +95,7 @@ pub fn check_units(
                 .find(|(f, _)| (1.0 / RATE_TOLERANCE..=RATE_TOLERANCE).contains(&(s / f)));
             match unit {
                 Some(&(factor, name)) => {
-                    for x in samples.iter_mut() {
+                    for x in samples.to_mut().iter_mut() {
                         x.t_s *= factor;
                     }
                     applied = factor;
