@@ -62,7 +62,10 @@ STACK_RATCHET=$STACK_TARGET  # self-test stack high-water (EKF steps + checkpoin
                              # the opt-level "z" crates (issue 10); before, 14 364
                              # (fw2's own tip, before main's chart work: 14 060)
 INSTR_TARGET=30000
-INSTR_RATCHET=22000          # max instructions per EKF update: measured 20 880 (issue 12,
+INSTR_RATCHET=22000          # max instructions per EKF update: measured 21 000 (issue 12,
+                             # 2026-11-24): Phi_D*P through filter::three_rows_times, the one
+                             # kernel the host's smoother calls too (+120 instructions, -288 B
+                             # of .text). Before: 20 880 (issue 12,
                              # 2026-11-24): Φ of a step as exp(h·F) at the step's midpoint, one
                              # Jacobian per step instead of four RK4 derivative stages
                              # (estimator-core/src/propagate.rs); .text 65 304 B with it.

@@ -304,47 +304,19 @@ impl<'m, const CAP: usize> Ekf<'m, CAP> {
         // Φ = [[Φ_D], [0 I]] (the dynamic rows Φ_D, identity elsewhere), so in P⁻ = Φ P Φᵀ + Q
         // only the dynamic rows/columns change: with B = Φ_D P, P⁻[D, c] = B[·, c] for the
         // other columns and P⁻[D, D] = B Φ_Dᵀ + Q_D. O(nd·n²) instead of O(n³).
-        // B[r][c] = Σ_k Φ_D[r][k]·P[k][c], with P[k][c] = P[c][k] read along the stored column
-        // k; three rows of Φ_D and two columns at a time, the six sums in registers (rows from
-        // nd on are zero in `tr`: their sums are unused).
+        // B = Φ_D P three rows at a time, P's row k read along its stored column k (P is
+        // symmetric; rows from nd on are zero in `tr`: their sums are unused).
         const _: () = assert!(MAX_DYNAMIC.is_multiple_of(3));
         let b = &mut saved.rows;
         let data = self.p.as_slice();
         for r0 in (0..nd).step_by(3) {
-            let (f0, f1, f2) = (
-                &tr.rows[r0][..n],
-                &tr.rows[r0 + 1][..n],
-                &tr.rows[r0 + 2][..n],
-            );
-            let mut c = 0;
-            while c + 1 < n {
-                let mut a = [[0.0; 2]; 3];
-                for k in 0..n {
-                    let p = &data[k * CAP + c..k * CAP + c + 2];
-                    let (p0, p1) = (p[0], p[1]);
-                    a[0][0] += f0[k] * p0;
-                    a[0][1] += f0[k] * p1;
-                    a[1][0] += f1[k] * p0;
-                    a[1][1] += f1[k] * p1;
-                    a[2][0] += f2[k] * p0;
-                    a[2][1] += f2[k] * p1;
-                }
-                for (row, a) in b[r0..r0 + 3].iter_mut().zip(a) {
-                    row[c..c + 2].copy_from_slice(&a);
-                }
-                c += 2;
-            }
-            if c < n {
-                let (mut a0, mut a1, mut a2) = (0.0, 0.0, 0.0);
-                for k in 0..n {
-                    let p = data[k * CAP + c];
-                    a0 += f0[k] * p;
-                    a1 += f1[k] * p;
-                    a2 += f2[k] * p;
-                }
-                b[r0][c] = a0;
-                b[r0 + 1][c] = a1;
-                b[r0 + 2][c] = a2;
+            if let [b0, b1, b2, ..] = &mut b[r0..] {
+                let f = [
+                    &tr.rows[r0][..n],
+                    &tr.rows[r0 + 1][..n],
+                    &tr.rows[r0 + 2][..n],
+                ];
+                three_rows_times(f, data, CAP, [&mut b0[..n], &mut b1[..n], &mut b2[..n]]);
             }
         }
         let mut dd = [[0.0; MAX_DYNAMIC]; MAX_DYNAMIC];
@@ -631,6 +603,46 @@ fn lower_inverse3(l: &Matrix3<f64>) -> Matrix3<f64> {
     Matrix3::new(i00, 0.0, 0.0, i10, i11, 0.0, i20, i21, i22)
 }
 
+/// Three rows of B = F·P for a symmetric P: `out[r][c] = Σ_k f[r][k]·P[k][c]` over the first
+/// `n = out[r].len()` columns and `k < f[r].len()`, P's row k starting at `p[k * stride]`. Two
+/// columns at a time, the six sums in registers, each over k in order: the prediction's
+/// Φ_D·P here and in the host's smoother (the same bits in both).
+#[inline]
+pub fn three_rows_times(f: [&[f64]; 3], p: &[f64], stride: usize, out: [&mut [f64]; 3]) {
+    let (n, kn) = (out[0].len(), f[0].len());
+    // All three of a length the compiler knows (no bounds check in the loops).
+    let [f0, f1, f2] = f.map(|r| &r[..kn]);
+    let [o0, o1, o2] = out.map(|r| &mut r[..n]);
+    let mut c = 0;
+    while c + 1 < n {
+        let mut a = [[0.0; 2]; 3];
+        for k in 0..kn {
+            let p = &p[k * stride + c..k * stride + c + 2];
+            let (p0, p1) = (p[0], p[1]);
+            a[0][0] += f0[k] * p0;
+            a[0][1] += f0[k] * p1;
+            a[1][0] += f1[k] * p0;
+            a[1][1] += f1[k] * p1;
+            a[2][0] += f2[k] * p0;
+            a[2][1] += f2[k] * p1;
+        }
+        o0[c..c + 2].copy_from_slice(&a[0]);
+        o1[c..c + 2].copy_from_slice(&a[1]);
+        o2[c..c + 2].copy_from_slice(&a[2]);
+        c += 2;
+    }
+    if c < n {
+        let (mut a0, mut a1, mut a2) = (0.0, 0.0, 0.0);
+        for k in 0..kn {
+            let p = p[k * stride + c];
+            a0 += f0[k] * p;
+            a1 += f1[k] * p;
+            a2 += f2[k] * p;
+        }
+        (o0[c], o1[c], o2[c]) = (a0, a1, a2);
+    }
+}
+
 fn dot(a: &[f64], b: &[f64]) -> f64 {
     a.iter().zip(b).map(|(x, y)| x * y).sum()
 }
@@ -650,6 +662,45 @@ struct Saved<const CAP: usize> {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    /// The kernel's sums are the plain ones, in the same order (so the same bits), for odd and
+    /// even widths, fewer terms than columns, and rows of P padded to a longer stride.
+    #[test]
+    fn three_rows_times_is_the_plain_product() {
+        let stride = 9;
+        let v = |i: usize, j: usize| ((i * 31 + j * 17) % 23) as f64 * 0.37 - 4.0;
+        let mut p = [0.0; 9 * 9];
+        for i in 0..9 {
+            for j in 0..9 {
+                p[i * stride + j] = v(i.min(j), i.max(j)); // symmetric
+            }
+        }
+        for (kn, n) in [(9, 9), (8, 8), (7, 9), (9, 1), (1, 2)] {
+            let f: [[f64; 9]; 3] = core::array::from_fn(|r| core::array::from_fn(|k| v(r + 5, k)));
+            let mut out = [[f64::NAN; 9]; 3];
+            let [o0, o1, o2] = &mut out;
+            three_rows_times(
+                [&f[0][..kn], &f[1][..kn], &f[2][..kn]],
+                &p,
+                stride,
+                [&mut o0[..n], &mut o1[..n], &mut o2[..n]],
+            );
+            for r in 0..3 {
+                for c in 0..n {
+                    let plain = (0..kn).fold(0.0f64, |acc, k| acc + f[r][k] * p[k * stride + c]);
+                    assert_eq!(
+                        out[r][c].to_bits(),
+                        plain.to_bits(),
+                        "row {r}, column {c}, {kn}x{n}"
+                    );
+                }
+                assert!(
+                    out[r][n..].iter().all(|x| x.is_nan()),
+                    "wrote past column {n}"
+                );
+            }
+        }
+    }
 
     /// The closed-form factor reproduces S = L·Lᵀ and its inverse S⁻¹ = L⁻ᵀ·L⁻¹ to rounding
     /// (1e-12 relative on an S with entries of order 1 and a condition number ≈ 20), and refuses

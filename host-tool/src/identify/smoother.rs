@@ -29,6 +29,7 @@
 //! carried back, see [`run`]): O(n²) per node, no factorisation. Each node's covariance is
 //! written once, by its step, where the backward pass reads it (no copies).
 
+use estimator_core::filter::three_rows_times;
 use estimator_core::model::{Model, MAX_STATES};
 use estimator_core::propagate::{propagate, Transition};
 use estimator_core::{Measurement, Residual};
@@ -365,42 +366,13 @@ impl<'a, 'm, const CAP: usize> Forward<'a, 'm, CAP> {
         // P⁻ = Φ P Φᵀ + Q. With A = rows `dynamic` of Φ P (= columns of P Φᵀ, P symmetric):
         // P⁻ is P outside the dynamic rows and columns, A there, and A Φ_Dᵀ + Q where both are
         // dynamic (symmetrised).
-        // A[r][c] = Σ_k Φ[r][k]·P[k][c]: three rows of Φ_D and two columns at a time, the six
-        // sums in registers, each over k in order (an axpy per row and k took a third of the
-        // step in loop overhead).
-        for r0 in (0..nd).step_by(3) {
-            let rows = &st.phi[r0 * n..(r0 + 3) * n];
-            let (f0, f1, f2) = (&rows[..n], &rows[n..2 * n], &rows[2 * n..]);
-            let out = &mut st.a[r0 * n..(r0 + 3) * n];
-            let mut c = 0;
-            while c + 1 < n {
-                let mut acc = [[0.0; 2]; 3];
-                for k in 0..n {
-                    let (p0, p1) = (p_prev[k * n + c], p_prev[k * n + c + 1]);
-                    acc[0][0] += f0[k] * p0;
-                    acc[0][1] += f0[k] * p1;
-                    acc[1][0] += f1[k] * p0;
-                    acc[1][1] += f1[k] * p1;
-                    acc[2][0] += f2[k] * p0;
-                    acc[2][1] += f2[k] * p1;
-                }
-                for (r, acc) in acc.iter().enumerate() {
-                    out[r * n + c..r * n + c + 2].copy_from_slice(acc);
-                }
-                c += 2;
-            }
-            if c < n {
-                let mut acc = [0.0; 3];
-                for k in 0..n {
-                    let p = p_prev[k * n + c];
-                    acc[0] += f0[k] * p;
-                    acc[1] += f1[k] * p;
-                    acc[2] += f2[k] * p;
-                }
-                for (r, v) in acc.into_iter().enumerate() {
-                    out[r * n + c] = v;
-                }
-            }
+        // A = Φ_D P three rows at a time (the core's kernel: the six sums of two columns in
+        // registers; an axpy per row and state was a third of this step in loop overhead).
+        for (f, a) in st.phi.chunks_exact(3 * n).zip(st.a.chunks_exact_mut(3 * n)) {
+            let (a0, rest) = a.split_at_mut(n);
+            let (a1, a2) = rest.split_at_mut(n);
+            let f = [&f[..n], &f[n..2 * n], &f[2 * n..]];
+            three_rows_times(f, p_prev, n, [a0, a1, a2]);
         }
         let p_pred = p_out;
         p_pred.copy_from_slice(&p_prev[..n * n]);
