@@ -996,7 +996,7 @@ fn run_cap<const CAP: usize>(
             // The linearisation does not depend on the filter: another core computes it a
             // chunk ahead while this one steps the filter.
             // Chunks go back to be filled again: no clearing, moving or faulting in of ~1 MB
-            // per chunk (they were 12 % of the process's time). A linearisation overwrites
+            // per chunk (that was ~8 % of the process's CPU time). A linearisation overwrites
             // every entry the filter reads.
             std::thread::scope(|scope| {
                 type Chunk<const CAP: usize> = Vec<Linearisation<CAP>>;
