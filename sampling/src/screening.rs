@@ -269,8 +269,9 @@ fn side(
     let (val, tim) = (&mut buf.0, &mut buf.1);
     let mut m = 0;
     let mut k = i;
-    // Look at most 4h samples away, so a long rejected stretch does not pull in distant data.
-    for _ in 0..4 * h {
+    // Look at most REACH_WINDOWS·h samples away, so a long rejected stretch does not pull in
+    // distant data.
+    for _ in 0..REACH_WINDOWS * h {
         if left {
             if k == 0 {
                 break;
@@ -300,8 +301,12 @@ fn side(
 /// (and their flags) either side, or up to the record's ends: the host screens long records
 /// in such pieces on all its cores.
 pub fn outlier_reach(cfg: &ScreenConfig) -> usize {
-    4 * cfg.half_window.clamp(2, MAX_HALF_WINDOW)
+    REACH_WINDOWS * cfg.half_window.clamp(2, MAX_HALF_WINDOW)
 }
+
+/// How many half windows away a side of the outlier test collects its neighbours at most (one
+/// constant for [`side`] and [`outlier_reach`], so the host's pieces always cover the reach).
+const REACH_WINDOWS: usize = 4;
 
 /// Step 3 of [`screen`] on axis `a`: flags the outliers of `s` (ORs `OUTLIER | axis_bit(a)`
 /// into `flags`) and returns their number. Each verdict is [`outlier_at`]'s with the flags of
