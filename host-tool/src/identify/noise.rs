@@ -5,7 +5,6 @@
 //! 20σ². A median-based estimate (1.4826·median|Δ³|/√20) ignores the occasional outlier.
 
 use estimator_core::Sample;
-use rayon::prelude::*;
 
 /// Raw-sample 1σ per axis (m/s²) and how many third differences it rests on.
 #[derive(Clone, Copy, Debug, PartialEq)]
@@ -45,15 +44,11 @@ pub fn estimate(samples: &[Sample]) -> Option<NoiseFloor> {
         return None;
     }
     let count = d3[0].len();
-    // The three medians on all cores.
-    let mut raw_sigma_mps2 = [0.0; 3];
-    d3.par_iter_mut()
-        .zip(raw_sigma_mps2.par_iter_mut())
-        .for_each(|(d, s)| {
-            let mid = d.len() / 2;
-            let median = f64::from_bits(*d.select_nth_unstable(mid).1);
-            *s = (1.4826 * median / 20f64.sqrt()).max(MIN_RAW_SIGMA_MPS2);
-        });
+    let raw_sigma_mps2 = d3.map(|mut d| {
+        let mid = d.len() / 2;
+        let median = f64::from_bits(*d.select_nth_unstable(mid).1);
+        (1.4826 * median / 20f64.sqrt()).max(MIN_RAW_SIGMA_MPS2)
+    });
     Some(NoiseFloor {
         raw_sigma_mps2,
         count,
