@@ -332,7 +332,6 @@ pub fn flag_outliers(
     let mut left = [0.0; MAX_HALF_WINDOW];
     let mut right = [0.0; MAX_HALF_WINDOW];
     let mut sorted_for: Option<usize> = None;
-    let mut extremes = WindowExtremes::new(h);
     // Rejected samples in [i − h, i + h] (clipped to the record).
     let mut bad_near = (0..=h.min(len.saturating_sub(1)))
         .filter(|&k| bad(flags, k))
@@ -353,7 +352,7 @@ pub fn flag_outliers(
             false
         } else {
             let v = |k: usize| s[k].specific_force[a];
-            if extremes.within_range(s, i, a, cfg.outlier_k * sigma) {
+            if within_range_of_window(s, i, a, h, cfg.outlier_k * sigma) {
                 // Certainly no outlier: the sorted sides are not needed (rebuilt when next used).
                 continue;
             }
@@ -408,102 +407,29 @@ pub fn flag_outliers(
 /// max(x − lo, hi − x) and its scale at most 2·max(|lo|, |hi|) + |x|: when this holds, that
 /// holds, and the verdict ("no outlier") is the same. Only for a regular window (all accepted,
 /// times increasing: x's time is between the sides'), as `flag_outliers` calls it.
-///
-/// The window's extremes come by blocks of w = 2h + 1 samples (van Herk / Gil–Werman): a window
-/// is the end of one block from i − h and the start of the next up to i + h, so its extremes are
-/// those of that block's suffix and the next one's prefix, each computed once per block. That
-/// is about six comparisons per sample and axis where a scan of the window took 2·(2h + 1), most
-/// of the batch screening's time. The extremes of a set of finite values do not depend on the
-/// order they are taken in (a signed zero may come out with either sign; `x − lo` and `|lo|`
-/// do not see it), so the verdicts are those of the scan.
-struct WindowExtremes {
-    h: usize,
-    /// The first sample of the block whose prefix extremes are held (`None`: none yet); the
-    /// suffix extremes held are those of the block before it when `suffix_valid`.
-    block: Option<usize>,
-    suffix_valid: bool,
-    /// (min, max) of the block's samples from its start to each one.
-    prefix: [(f64, f64); STREAM_WINDOW],
-    /// (min, max) of the previous block's samples from each one to its end.
-    suffix: [(f64, f64); STREAM_WINDOW],
-}
-
-impl WindowExtremes {
-    fn new(h: usize) -> Self {
-        WindowExtremes {
-            h,
-            block: None,
-            suffix_valid: false,
-            prefix: [(0.0, 0.0); STREAM_WINDOW],
-            suffix: [(0.0, 0.0); STREAM_WINDOW],
-        }
+#[inline(always)]
+fn within_range_of_window(s: &[Sample], i: usize, a: usize, h: usize, k_sigma: f64) -> bool {
+    let x = s[i].specific_force[a];
+    // Two running minima and maxima, merged at the end: one chain of comparisons through the
+    // window's 2h + 1 values was most of the batch screening's time (each waits for the last);
+    // the extremes of a set do not depend on the order they are taken in.
+    let min = |a: f64, b: f64| if b < a { b } else { a };
+    let max = |a: f64, b: f64| if b > a { b } else { a };
+    let (mut lo0, mut hi0, mut lo1, mut hi1) = (x, x, x, x);
+    let mut pairs = s[i - h..=i + h].chunks_exact(2);
+    for p in &mut pairs {
+        let (u, v) = (p[0].specific_force[a], p[1].specific_force[a]);
+        (lo0, hi0) = (min(lo0, u), max(hi0, u));
+        (lo1, hi1) = (min(lo1, v), max(hi1, v));
     }
-
-    /// See the type's doc; `h ≤ i`, `i + h < s.len()`.
-    #[inline(always)]
-    fn within_range(&mut self, s: &[Sample], i: usize, a: usize, k_sigma: f64) -> bool {
-        let x = s[i].specific_force[a];
-        let (lo, hi) = self.range(s, a, i - self.h, i + self.h);
-        let far = (x - lo).max(hi - x);
-        let scale = 2.0 * libm::fabs(lo).max(libm::fabs(hi)) + libm::fabs(x);
-        far + 1e-12 * (far + scale) <= k_sigma
+    for n in pairs.remainder() {
+        let v = n.specific_force[a];
+        (lo0, hi0) = (min(lo0, v), max(hi0, v));
     }
-
-    /// (min, max) of axis `a` over `s[l..=r]`, `r − l = 2h`. Blocks start at multiples of w.
-    #[inline(always)]
-    fn range(&mut self, s: &[Sample], a: usize, l: usize, r: usize) -> (f64, f64) {
-        let w = 2 * self.h + 1;
-        let v = |k: usize| s[k].specific_force[a];
-        // The block of r: unchanged for w − 1 of every w windows (one division per block).
-        let start = match self.block {
-            Some(b) if r >= b && r - b < w => b,
-            _ => {
-                let b = r - r % w;
-                // The whole block, or up to the record's end.
-                let end = (b + w).min(s.len());
-                let mut acc = (v(b), v(b));
-                for (k, e) in self.prefix[..end - b].iter_mut().enumerate() {
-                    acc = (min(acc.0, v(b + k)), max(acc.1, v(b + k)));
-                    *e = acc;
-                }
-                self.suffix_valid = false;
-                self.block = Some(b);
-                b
-            }
-        };
-        let p = self.prefix[r - start];
-        if l >= start {
-            return p; // the window is the block
-        }
-        // l is in the block before (r − l = w − 1).
-        let prev = start - w;
-        if !self.suffix_valid {
-            let mut acc = (v(start - 1), v(start - 1));
-            for k in (0..w).rev() {
-                acc = (min(acc.0, v(prev + k)), max(acc.1, v(prev + k)));
-                self.suffix[k] = acc;
-            }
-            self.suffix_valid = true;
-        }
-        let q = self.suffix[l - prev];
-        (min(q.0, p.0), max(q.1, p.1))
-    }
-}
-
-fn min(a: f64, b: f64) -> f64 {
-    if b < a {
-        b
-    } else {
-        a
-    }
-}
-
-fn max(a: f64, b: f64) -> f64 {
-    if b > a {
-        b
-    } else {
-        a
-    }
+    let (lo, hi) = (min(lo0, lo1), max(hi0, hi1));
+    let far = (x - lo).max(hi - x);
+    let scale = 2.0 * libm::fabs(lo).max(libm::fabs(hi)) + libm::fabs(x);
+    far + 1e-12 * (far + scale) <= k_sigma
 }
 
 /// Whether sample `k` is rejected before the outlier test (its neighbours' medians skip it).
@@ -1192,49 +1118,6 @@ mod tests {
     /// The batch loop's sliding sorted windows give the verdicts of `outlier_at` sample by
     /// sample: glitches (some small enough to be borderline), rejected samples of every kind,
     /// runs of equal values and signed zeros, every window size.
-    #[test]
-    fn window_extremes_are_those_of_a_scan() {
-        // Every window of every half window, in order and skipping about (the filter asks only
-        // where the window is regular), on records that end mid-block and on a whole block.
-        let mut state = 0x9e37_79b9_7f4a_7c15u64;
-        let mut next = move || {
-            state ^= state << 13;
-            state ^= state >> 7;
-            state ^= state << 17;
-            state
-        };
-        for len in [7, 31, 62, 200, 201] {
-            let mut all = [Sample {
-                t_s: 0.0,
-                specific_force: [0.0; 3],
-                temp_c: f64::NAN,
-            }; 201];
-            for (k, x) in all.iter_mut().enumerate() {
-                x.t_s = k as f64;
-                x.specific_force = [0, 1, 2].map(|_| (next() % 2001) as f64 - 1000.0);
-            }
-            let s = &all[..len];
-            for h in 2..=MAX_HALF_WINDOW {
-                if 2 * h + 1 > len {
-                    continue;
-                }
-                for a in 0..3 {
-                    let mut ext = WindowExtremes::new(h);
-                    let mut i = h;
-                    while i + h < len {
-                        let window = s[i - h..=i + h].iter().map(|x| x.specific_force[a]);
-                        let lo = window.clone().fold(f64::INFINITY, f64::min);
-                        let hi = window.fold(f64::NEG_INFINITY, f64::max);
-                        let got = ext.range(s, a, i - h, i + h);
-                        assert_eq!(got, (lo, hi), "len {len}, h {h}, axis {a}, sample {i}");
-                        i +=
-                            1 + (next() % 3 == 0) as usize * (next() % (2 * h as u64 + 3)) as usize;
-                    }
-                }
-            }
-        }
-    }
-
     #[test]
     fn sliding_windows_agree_with_outlier_at() {
         for (seed, sigma) in [(1u64, 7e-4), (2, 3e-3), (3, 1e-5)] {
