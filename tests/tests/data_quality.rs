@@ -294,12 +294,18 @@ fn unrepairable_faults_are_refused_or_not_trusted() {
 #[test]
 fn a_wrong_metadata_latitude_is_named_with_the_datas_latitude() {
     let (sc, samples) = run(5, 39.1, 30.0, 10.0, [0.0; 3]);
-    let wrong = Site::new(45.0, sc.gravity_mps2);
+    // 30°: its round trip through radians is 29.999999999999996, which the message once quoted.
+    let wrong = Site::new(30.0, sc.gravity_mps2);
     let prep = prepare(wrong, &samples, &Config::default()).unwrap();
     let f = host_tool::quality::latitude::check(&prep, &[catalog::paper()], &Config::default())
         .expect("the latitude is named");
     assert_eq!(f.kind, "latitude");
     eprintln!("{}", f.message);
+    assert!(
+        f.message.contains("the metadata says 30 deg"),
+        "the metadata's latitude as given: {}",
+        f.message
+    );
     // The estimate in the message must be within 0.05° of the truth (its 1σ is ~0.002° on 30 h).
     let est: f64 = f
         .message

@@ -134,10 +134,12 @@ pub fn check(prep: &Prepared, effects: &[&'static dyn Effect], cfg: &Config) -> 
     {
         return None;
     }
+    // As the metadata gave it: the site keeps radians, and 30° came back as 29.999999999999996.
+    let given = (l0 * 1e9).round() / 1e9;
     Some(Finding {
         kind: "latitude",
         message: format!(
-            "the data put the site at latitude {} deg; the metadata says {l0} deg. At the data's latitude the same model explains the measurements \
+            "the data put the site at latitude {} deg; the metadata says {given} deg. At the data's latitude the same model explains the measurements \
              (−2 ln p(y) lower by {:.1}); at the metadata's it does not. The metadata latitude is wrong: rerun with --latitude-deg {:.4}",
             crate::format::pm(fit.latitude_deg, fit.sigma_deg),
             fit.gain,

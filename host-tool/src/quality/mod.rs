@@ -351,7 +351,8 @@ fn robust_sigma(samples: &[Sample], flags: &[u8]) -> Option<[f64; 3]> {
     };
     // In place when every sample counts (a clean record, the first pass): a copy was ~7 MB to
     // fault in on a 60-h recording.
-    let accepted: Cow<'_, [Sample]> = if samples.iter().zip(flags).all(|(s, f)| ok(s, *f)) {
+    let all = samples.len() == flags.len() && samples.iter().zip(flags).all(|(s, f)| ok(s, *f));
+    let accepted: Cow<'_, [Sample]> = if all {
         Cow::Borrowed(samples)
     } else {
         samples
@@ -364,8 +365,8 @@ fn robust_sigma(samples: &[Sample], flags: &[u8]) -> Option<[f64; 3]> {
     let mut sigma = noise::estimate(&accepted)?.raw_sigma_mps2;
     // Quantised outputs: when many steps repeat the reading, third differences are often 0 and
     // their median collapses; the rounding error of one LSB q is then the floor, q/√12.
+    let steps = accepted.len().saturating_sub(1);
     for (ax, s) in sigma.iter_mut().enumerate() {
-        let steps = accepted.len().saturating_sub(1);
         let repeats = accepted
             .windows(2)
             .filter(|w| w[1].specific_force[ax] == w[0].specific_force[ax])
