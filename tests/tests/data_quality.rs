@@ -327,6 +327,35 @@ fn a_wrong_metadata_latitude_is_named_with_the_datas_latitude() {
 }
 
 #[test]
+fn a_metadata_latitude_with_the_wrong_sign_is_named() {
+    // South for north: 78° from the truth, far outside the ±12° around the metadata, but the
+    // profile also searches around the mirrored latitude.
+    let (sc, samples) = run(6, 39.1, 30.0, 10.0, [0.0; 3]);
+    let wrong = Site::new(-39.1, sc.gravity_mps2);
+    let prep = prepare(wrong, &samples, &Config::default()).unwrap();
+    let f = host_tool::quality::latitude::check(&prep, &[catalog::paper()], &Config::default())
+        .expect("the latitude is named");
+    assert_eq!(f.kind, "latitude");
+    assert!(
+        f.message.contains("the metadata says -39.1 deg"),
+        "{}",
+        f.message
+    );
+    // The estimate within 0.05° of the truth (its 1σ is ~0.003° on 30 h at 10 s).
+    let est: f64 = f
+        .message
+        .split("latitude ")
+        .nth(1)
+        .unwrap()
+        .split(' ')
+        .next()
+        .unwrap()
+        .parse()
+        .unwrap();
+    assert!((est - 39.1).abs() < 0.05, "{est}");
+}
+
+#[test]
 fn a_stated_initial_orientation_is_the_models_start() {
     // The platform set at (30°, −20°, 45°) before the run, as the recording's metadata states:
     // identified from there, every coefficient within 3σ of the truth, no finding.

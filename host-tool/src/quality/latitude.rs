@@ -15,7 +15,7 @@ use crate::consistency::{assess, Thresholds};
 use crate::diagnose::select::{fit_stats, neg2_log_evidence};
 use crate::identify::{identify, Config, Prepared};
 
-/// Half-width of the searched interval around the metadata latitude, deg.
+/// Half-width of the searched intervals around the metadata latitude and its mirror, deg.
 pub const SEARCH_HALF_WIDTH_DEG: f64 = 12.0;
 /// Evidence gain (−2 ln units) a latitude must bring to be reported.
 pub const MIN_GAIN: f64 = 100.0;
@@ -54,26 +54,42 @@ fn evidence_at(
     Some(neg2_log_evidence(&id))
 }
 
-/// Profiles the evidence over latitude: a grid of 2° then a golden-section refinement.
+/// The coarse grid of the profile, 2° apart: [`SEARCH_HALF_WIDTH_DEG`] either side of the
+/// metadata latitude `l0`, and as far either side of −`l0` (a latitude written with the wrong
+/// sign, south for north, lies there: no drift model mimics the vertical Earth rate reversed),
+/// within ±89°, in increasing order.
+fn search_grid(l0: f64) -> Vec<f64> {
+    let mut grid: Vec<f64> = Vec::new();
+    for centre in [l0, -l0] {
+        let lo = (centre - SEARCH_HALF_WIDTH_DEG).max(-89.0);
+        let hi = (centre + SEARCH_HALF_WIDTH_DEG).min(89.0);
+        grid.extend((0..=((hi - lo) / 2.0).floor() as usize).map(|k| lo + 2.0 * k as f64));
+    }
+    grid.sort_by(f64::total_cmp);
+    // The two windows overlap near the equator: one point where two lie within 1°.
+    grid.dedup_by(|b, a| (*b - *a).abs() < 1.0);
+    grid
+}
+
+/// Profiles the evidence over latitude: a grid of 2° ([`search_grid`]) then a golden-section
+/// refinement.
 pub fn profile(
     prep: &Prepared,
     effects: &[&'static dyn Effect],
     cfg: &Config,
 ) -> Option<LatitudeFit> {
     let l0 = prep.site.latitude_rad.to_degrees();
-    let f0 = evidence_at(prep, effects, cfg, l0)?;
+    // A model that cannot even be fitted at the metadata latitude (the smoother fails) leaves
+    // any latitude where it fits, and fits consistently, the better one.
+    let f0 = evidence_at(prep, effects, cfg, l0).unwrap_or(f64::INFINITY);
     let f = |l: f64| evidence_at(prep, effects, cfg, l).unwrap_or(f64::INFINITY);
-    let lo = (l0 - SEARCH_HALF_WIDTH_DEG).max(-89.0);
-    let hi = (l0 + SEARCH_HALF_WIDTH_DEG).min(89.0);
-    let grid: Vec<f64> = (0..=((hi - lo) / 2.0).floor() as usize)
-        .map(|k| lo + 2.0 * k as f64)
-        .collect();
+    let grid = search_grid(l0);
     let vals: Vec<f64> = grid
         .iter()
         .map(|&l| if (l - l0).abs() < 1e-9 { f0 } else { f(l) })
         .collect();
     let k = (0..grid.len()).min_by(|&a, &b| vals[a].total_cmp(&vals[b]))?;
-    let (mut a, mut b) = ((grid[k] - 2.0).max(lo), (grid[k] + 2.0).min(hi));
+    let (mut a, mut b) = ((grid[k] - 2.0).max(-89.0), (grid[k] + 2.0).min(89.0));
     let r = (5f64.sqrt() - 1.0) / 2.0;
     let (mut c, mut d) = (b - r * (b - a), a + r * (b - a));
     let (mut fc, mut fd) = (f(c), f(d));
@@ -139,10 +155,14 @@ pub fn check(prep: &Prepared, effects: &[&'static dyn Effect], cfg: &Config) -> 
     Some(Finding {
         kind: "latitude",
         message: format!(
-            "the data put the site at latitude {} deg; the metadata says {given} deg. At the data's latitude the same model explains the measurements \
-             (−2 ln p(y) lower by {:.1}); at the metadata's it does not. The metadata latitude is wrong: rerun with --latitude-deg {:.4}",
+            "the data put the site at latitude {} deg; the metadata says {given} deg. At the data's latitude the same model explains the measurements\
+             {}. The metadata latitude is wrong: rerun with --latitude-deg {:.4}",
             crate::format::pm(fit.latitude_deg, fit.sigma_deg),
-            fit.gain,
+            if fit.gain.is_finite() {
+                format!(" (−2 ln p(y) lower by {:.1}); at the metadata's it does not", fit.gain)
+            } else {
+                "; at the metadata's it cannot even be fitted".to_string()
+            },
             fit.latitude_deg
         ),
         start_s: None,
