@@ -356,6 +356,38 @@ fn a_metadata_latitude_with_the_wrong_sign_is_named() {
 }
 
 #[test]
+fn a_wrong_latitude_is_named_from_a_start_in_the_polar_chart() {
+    // A stated start whose daily turn calls for the polar chart, whose angles depend on the
+    // latitude: the profile must move the start's attitude, not its angles, to each latitude it
+    // tries (it once refitted every other latitude from another attitude, and named none). 33° is
+    // within the window around the metadata; 20° only in the one around gravity's latitude.
+    let deg = [0.0, 60.0, 0.0];
+    let (sc, samples) = run(7, 39.1, 30.0, 10.0, deg);
+    let theta0 = deg.map(f64::to_radians);
+    for wrong in [33.0, 20.0] {
+        let site = Site::new(wrong, sc.gravity_mps2);
+        let prep =
+            host_tool::identify::prepare_oriented(site, &samples, &Config::default(), theta0)
+                .unwrap();
+        assert_eq!(prep.site.chart, estimator_core::frames::Chart::Polar);
+        let f = host_tool::quality::latitude::check(&prep, &[catalog::paper()], &Config::default())
+            .unwrap_or_else(|| panic!("metadata {wrong}: the latitude is named"));
+        let est: f64 = f
+            .message
+            .split("latitude ")
+            .nth(1)
+            .unwrap()
+            .split(' ')
+            .next()
+            .unwrap()
+            .parse()
+            .unwrap();
+        // Within 0.05° of the truth (its 1σ is ~0.003° on 30 h at 10 s).
+        assert!((est - 39.1).abs() < 0.05, "metadata {wrong}: {est}");
+    }
+}
+
+#[test]
 fn a_stated_initial_orientation_is_the_models_start() {
     // The platform set at (30°, −20°, 45°) before the run, as the recording's metadata states:
     // identified from there, every coefficient within 3σ of the truth, no finding.

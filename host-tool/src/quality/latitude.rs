@@ -15,7 +15,7 @@ use crate::consistency::{assess, Thresholds};
 use crate::diagnose::select::{fit_stats, neg2_log_evidence};
 use crate::identify::{identify, Config, Prepared};
 
-/// Half-width of the searched intervals around the metadata latitude and its mirror, deg.
+/// Half-width of each searched interval ([`search_grid`]), deg.
 pub const SEARCH_HALF_WIDTH_DEG: f64 = 12.0;
 /// Evidence gain (−2 ln units) a latitude must bring to be reported.
 pub const MIN_GAIN: f64 = 100.0;
@@ -41,34 +41,69 @@ fn site_at(prep: &Prepared, lat: f64) -> Site {
     Site::new(lat, (!derived).then_some(prep.site.gravity_mps2))
 }
 
+/// `prep` at another latitude: the site moved ([`site_at`]) and the start's attitude kept,
+/// re-expressed in the chart that start calls for there. A chart's angles depend on the
+/// latitude: the angles of a start prepared in the polar chart, read at another latitude in the
+/// ENU chart, are another attitude (every latitude but the metadata's then failed to fit).
+fn at_latitude(prep: &Prepared, lat: f64) -> Prepared {
+    let enu = prep.site.angles_to_enu(&prep.initial_angles);
+    let mut site = site_at(prep, lat);
+    site.chart = site.chart_for_start(&enu);
+    let mut p = prep.clone();
+    p.initial_angles = site.angles_to_chart(&enu);
+    p.site = site;
+    p
+}
+
 fn evidence_at(
     prep: &Prepared,
     effects: &[&'static dyn Effect],
     cfg: &Config,
     lat: f64,
 ) -> Option<f64> {
-    let mut p = prep.clone();
-    p.site = site_at(prep, lat);
+    let p = at_latitude(prep, lat);
     let model = build_model(p.site, effects, cfg).ok()?;
     let id = identify(&model, &p, cfg).ok()?;
     Some(neg2_log_evidence(&id))
 }
 
-/// The coarse grid of the profile, 2° apart: [`SEARCH_HALF_WIDTH_DEG`] either side of the
-/// metadata latitude `l0`, and as far either side of −`l0` (a latitude written with the wrong
-/// sign, south for north, lies there: no drift model mimics the vertical Earth rate reversed),
-/// within ±89°, in increasing order.
-fn search_grid(l0: f64) -> Vec<f64> {
+/// The coarse grid of the profile, 2° apart, within ±89°, in increasing order: windows of
+/// ±[`SEARCH_HALF_WIDTH_DEG`] around the metadata latitude `l0`, around −`l0` (a latitude written
+/// with the wrong sign, south for north: no drift model mimics the vertical Earth rate reversed),
+/// and, when they lie outside those, around ±`lg`, the latitude whose normal gravity is the
+/// site's (measured, or the metadata's when the data agree with it): gravity puts a site within
+/// a few degrees of its latitude (a 1e-4 scale error, 300 m of altitude or a gravity anomaly
+/// moves it by ~1°), whatever the metadata says.
+fn search_grid(l0: f64, lg: f64) -> Vec<f64> {
+    let mut centres = vec![l0, -l0];
+    if (lg.abs() - l0.abs()).abs() > SEARCH_HALF_WIDTH_DEG {
+        centres.extend([lg, -lg]);
+    }
     let mut grid: Vec<f64> = Vec::new();
-    for centre in [l0, -l0] {
+    for centre in centres {
         let lo = (centre - SEARCH_HALF_WIDTH_DEG).max(-89.0);
         let hi = (centre + SEARCH_HALF_WIDTH_DEG).min(89.0);
         grid.extend((0..=((hi - lo) / 2.0).floor() as usize).map(|k| lo + 2.0 * k as f64));
     }
     grid.sort_by(f64::total_cmp);
-    // The two windows overlap near the equator: one point where two lie within 1°.
+    // Overlapping windows: one point where two lie within 1°.
     grid.dedup_by(|b, a| (*b - *a).abs() < 1.0);
     grid
+}
+
+/// The latitude in [0°, 90°] whose WGS-84 normal gravity is `g` (clamped to the equator's and
+/// the pole's), deg: bisection, normal gravity grows monotonically with |latitude|.
+fn latitude_of_gravity(g: f64) -> f64 {
+    let (mut lo, mut hi) = (0.0_f64, 90.0_f64);
+    for _ in 0..60 {
+        let mid = 0.5 * (lo + hi);
+        if normal_gravity(mid.to_radians()) < g {
+            lo = mid;
+        } else {
+            hi = mid;
+        }
+    }
+    0.5 * (lo + hi)
 }
 
 /// Profiles the evidence over latitude: a grid of 2° ([`search_grid`]) then a golden-section
@@ -83,7 +118,7 @@ pub fn profile(
     // any latitude where it fits, and fits consistently, the better one.
     let f0 = evidence_at(prep, effects, cfg, l0).unwrap_or(f64::INFINITY);
     let f = |l: f64| evidence_at(prep, effects, cfg, l).unwrap_or(f64::INFINITY);
-    let grid = search_grid(l0);
+    let grid = search_grid(l0, latitude_of_gravity(prep.site.gravity_mps2));
     let vals: Vec<f64> = grid
         .iter()
         .map(|&l| if (l - l0).abs() < 1e-9 { f0 } else { f(l) })
@@ -118,8 +153,7 @@ pub fn profile(
     } else {
         f64::INFINITY
     };
-    let mut p = prep.clone();
-    p.site = site_at(prep, best);
+    let p = at_latitude(prep, best);
     let model = build_model(p.site, effects, cfg).ok()?;
     let id = identify(&model, &p, cfg).ok()?;
     let (rms, nis, white) = fit_stats(&id, &p, 20);
