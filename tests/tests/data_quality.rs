@@ -291,6 +291,16 @@ fn unrepairable_faults_are_refused_or_not_trusted() {
     assert!(!prep.untrusted_reasons().is_empty());
 }
 
+/// The latitude a `latitude` finding names (the number after "latitude "), deg.
+fn named_latitude(f: &host_tool::quality::Finding) -> f64 {
+    f.message
+        .split("latitude ")
+        .nth(1)
+        .and_then(|rest| rest.split(' ').next())
+        .and_then(|v| v.parse().ok())
+        .unwrap_or_else(|| panic!("no latitude in: {}", f.message))
+}
+
 #[test]
 fn a_wrong_metadata_latitude_is_named_with_the_datas_latitude() {
     let (sc, samples) = run(5, 39.1, 30.0, 10.0, [0.0; 3]);
@@ -307,16 +317,7 @@ fn a_wrong_metadata_latitude_is_named_with_the_datas_latitude() {
         f.message
     );
     // The estimate in the message must be within 0.05° of the truth (its 1σ is ~0.002° on 30 h).
-    let est: f64 = f
-        .message
-        .split("latitude ")
-        .nth(1)
-        .unwrap()
-        .split(' ')
-        .next()
-        .unwrap()
-        .parse()
-        .unwrap();
+    let est = named_latitude(&f);
     assert!((est - 39.1).abs() < 0.05, "{est}");
     // And the right latitude gives no such finding.
     let right = prepare(site_of(&sc), &samples, &Config::default()).unwrap();
@@ -342,16 +343,7 @@ fn a_metadata_latitude_with_the_wrong_sign_is_named() {
         f.message
     );
     // The estimate within 0.05° of the truth (its 1σ is ~0.003° on 30 h at 10 s).
-    let est: f64 = f
-        .message
-        .split("latitude ")
-        .nth(1)
-        .unwrap()
-        .split(' ')
-        .next()
-        .unwrap()
-        .parse()
-        .unwrap();
+    let est = named_latitude(&f);
     assert!((est - 39.1).abs() < 0.05, "{est}");
 }
 
@@ -372,16 +364,7 @@ fn a_wrong_latitude_is_named_from_a_start_in_the_polar_chart() {
         assert_eq!(prep.site.chart, estimator_core::frames::Chart::Polar);
         let f = host_tool::quality::latitude::check(&prep, &[catalog::paper()], &Config::default())
             .unwrap_or_else(|| panic!("metadata {wrong}: the latitude is named"));
-        let est: f64 = f
-            .message
-            .split("latitude ")
-            .nth(1)
-            .unwrap()
-            .split(' ')
-            .next()
-            .unwrap()
-            .parse()
-            .unwrap();
+        let est = named_latitude(&f);
         // Within 0.05° of the truth (its 1σ is ~0.003° on 30 h at 10 s).
         assert!((est - 39.1).abs() < 0.05, "metadata {wrong}: {est}");
     }
