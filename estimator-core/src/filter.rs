@@ -319,10 +319,10 @@ impl<'m, const CAP: usize> Ekf<'m, CAP> {
                 three_rows_times(f, data, CAP, [&mut b0[..n], &mut b1[..n], &mut b2[..n]]);
             }
         }
-        let mut dd = [[0.0; MAX_DYNAMIC]; MAX_DYNAMIC];
+        let mut dd = block_row_products(b, &tr.rows, nd, n);
         for r in 0..nd {
             for s in 0..=r {
-                dd[r][s] = dot(&b[r][..n], &tr.rows[s][..n]) + tr.q[r][s];
+                dd[r][s] += tr.q[r][s];
                 dd[s][r] = dd[r][s];
             }
         }
@@ -528,13 +528,15 @@ impl<'m, const CAP: usize> Ekf<'m, CAP> {
                 [pht[0][i], pht[1][i], pht[2][i]],
                 ki,
             );
-            let x = self.x[i] + (ki[0] * nu.x + ki[1] * nu.y + ki[2] * nu.z);
-            // Finite and positive, finite (comparisons: cheaper than `is_finite` on the target).
-            if !(d > 0.0 && d < f64::INFINITY && x.abs() < f64::INFINITY) {
-                return Err(FilterError::Unhealthy { step, index: i });
-            }
             diag[i] = d;
-            x_new[i] = x;
+            x_new[i] = self.x[i] + (ki[0] * nu.x + ki[1] * nu.y + ki[2] * nu.z);
+        }
+        // Variances finite and positive, states finite: one branch-free pass, the index only
+        // when one fails (comparisons: cheaper than `is_finite` on the target).
+        let healthy = |i: usize| diag[i] > 0.0 && diag[i] * 0.0 == 0.0 && x_new[i] * 0.0 == 0.0;
+        if !(0..n).fold(true, |ok, i| ok & healthy(i)) {
+            let index = (0..n).find(|&i| !healthy(i)).unwrap_or(0);
+            return Err(FilterError::Unhealthy { step, index });
         }
         let data = self.p.as_mut_slice();
         for c in 0..n {
@@ -615,37 +617,86 @@ pub fn three_rows_times(f: [&[f64]; 3], p: &[f64], stride: usize, out: [&mut [f6
     let [f0, f1, f2] = f.map(|r| &r[..kn]);
     let [o0, o1, o2] = out.map(|r| &mut r[..n]);
     let mut c = 0;
-    while c + 1 < n {
-        let mut a = [[0.0; 2]; 3];
-        for k in 0..kn {
-            let p = &p[k * stride + c..k * stride + c + 2];
-            let (p0, p1) = (p[0], p[1]);
-            a[0][0] += f0[k] * p0;
-            a[0][1] += f0[k] * p1;
-            a[1][0] += f1[k] * p0;
-            a[1][1] += f1[k] * p1;
-            a[2][0] += f2[k] * p0;
-            a[2][1] += f2[k] * p1;
-        }
+    while c + WIDE <= n {
+        let a = column_block::<WIDE>([f0, f1, f2], p, stride, c);
+        o0[c..c + WIDE].copy_from_slice(&a[0]);
+        o1[c..c + WIDE].copy_from_slice(&a[1]);
+        o2[c..c + WIDE].copy_from_slice(&a[2]);
+        c += WIDE;
+    }
+    while c + 2 <= n {
+        let a = column_block::<2>([f0, f1, f2], p, stride, c);
         o0[c..c + 2].copy_from_slice(&a[0]);
         o1[c..c + 2].copy_from_slice(&a[1]);
         o2[c..c + 2].copy_from_slice(&a[2]);
         c += 2;
     }
     if c < n {
-        let (mut a0, mut a1, mut a2) = (0.0, 0.0, 0.0);
-        for k in 0..kn {
-            let p = p[k * stride + c];
-            a0 += f0[k] * p;
-            a1 += f1[k] * p;
-            a2 += f2[k] * p;
-        }
-        (o0[c], o1[c], o2[c]) = (a0, a1, a2);
+        let a = column_block::<1>([f0, f1, f2], p, stride, c);
+        (o0[c], o1[c], o2[c]) = (a[0][0], a[1][0], a[2][0]);
     }
 }
 
-fn dot(a: &[f64], b: &[f64]) -> f64 {
-    a.iter().zip(b).map(|(x, y)| x * y).sum()
+/// Columns of [`three_rows_times`] per block where the registers allow: 16 double registers on
+/// the Cortex-M7 (2 columns: 6 sums, 3 factors, 2 entries of P), 16 two-lane ones on x86-64.
+const WIDE: usize = if cfg!(target_arch = "arm") { 2 } else { 4 };
+
+/// `W` columns from `c` of three rows of F·P: the 3·W sums in registers, each over k in order.
+#[inline(always)]
+fn column_block<const W: usize>(
+    f: [&[f64]; 3],
+    p: &[f64],
+    stride: usize,
+    c: usize,
+) -> [[f64; W]; 3] {
+    let kn = f[0].len();
+    let [f0, f1, f2] = f.map(|r| &r[..kn]);
+    let mut a = [[0.0; W]; 3];
+    for k in 0..kn {
+        let p = &p[k * stride + c..k * stride + c + W];
+        for j in 0..W {
+            a[0][j] += f0[k] * p[j];
+            a[1][j] += f1[k] * p[j];
+            a[2][j] += f2[k] * p[j];
+        }
+    }
+    a
+}
+
+/// `out[r][s] = Σ_c b[r][c]·f[s][c]` over the first `n` columns, for `s ≤ r < nd` (the lower
+/// triangle; the rest of `out` is zero or unused): the prediction's B·Φ_Dᵀ. By 3×3 blocks, the
+/// nine sums in registers over c in order, so each entry is the plain dot product to the bit;
+/// one dot at a time is a chain of dependent additions (four times slower on the host).
+fn block_row_products<const CAP: usize>(
+    b: &[[f64; CAP]; MAX_DYNAMIC],
+    f: &[[f64; CAP]; MAX_DYNAMIC],
+    nd: usize,
+    n: usize,
+) -> [[f64; MAX_DYNAMIC]; MAX_DYNAMIC] {
+    let mut out = [[0.0; MAX_DYNAMIC]; MAX_DYNAMIC];
+    for r0 in (0..nd).step_by(3) {
+        for s0 in (0..=r0).step_by(3) {
+            let mut a = [[0.0; 3]; 3];
+            let (b0, b1, b2) = (&b[r0][..n], &b[r0 + 1][..n], &b[r0 + 2][..n]);
+            let (f0, f1, f2) = (&f[s0][..n], &f[s0 + 1][..n], &f[s0 + 2][..n]);
+            for c in 0..n {
+                let (x, y, z) = (f0[c], f1[c], f2[c]);
+                a[0][0] += b0[c] * x;
+                a[0][1] += b0[c] * y;
+                a[0][2] += b0[c] * z;
+                a[1][0] += b1[c] * x;
+                a[1][1] += b1[c] * y;
+                a[1][2] += b1[c] * z;
+                a[2][0] += b2[c] * x;
+                a[2][1] += b2[c] * y;
+                a[2][2] += b2[c] * z;
+            }
+            for (i, row) in a.iter().enumerate() {
+                out[r0 + i][s0..s0 + 3].copy_from_slice(row);
+            }
+        }
+    }
+    out
 }
 
 /// What a prediction overwrote, to undo a step whose update is refused: time, temperature,
@@ -665,7 +716,8 @@ mod tests {
     use super::*;
 
     /// The kernel's sums are the plain ones, in the same order (so the same bits), for odd and
-    /// even widths, fewer terms than columns, and rows of P padded to a longer stride.
+    /// even widths (every mix of its wide, two- and one-column blocks), fewer terms than
+    /// columns, and rows of P padded to a longer stride.
     #[test]
     fn three_rows_times_is_the_plain_product() {
         let stride = 9;
@@ -676,7 +728,7 @@ mod tests {
                 p[i * stride + j] = v(i.min(j), i.max(j)); // symmetric
             }
         }
-        for (kn, n) in [(9, 9), (8, 8), (7, 9), (9, 1), (1, 2)] {
+        for (kn, n) in [(9, 9), (8, 8), (7, 9), (9, 7), (9, 6), (9, 1), (1, 2)] {
             let f: [[f64; 9]; 3] = core::array::from_fn(|r| core::array::from_fn(|k| v(r + 5, k)));
             let mut out = [[f64::NAN; 9]; 3];
             let [o0, o1, o2] = &mut out;
@@ -698,6 +750,79 @@ mod tests {
                 assert!(
                     out[r][n..].iter().all(|x| x.is_nan()),
                     "wrote past column {n}"
+                );
+            }
+        }
+    }
+
+    /// B·Φ_Dᵀ by blocks is the plain dot product of each pair of rows, to the bit, for one and
+    /// two blocks of rows (the angles alone; with Gauss–Markov states) and odd widths.
+    #[test]
+    fn block_row_products_are_the_plain_dots() {
+        let v = |i: usize, j: usize| ((i * 29 + j * 13) % 19) as f64 * 0.41 - 3.0;
+        let b: [[f64; 11]; MAX_DYNAMIC] =
+            core::array::from_fn(|r| core::array::from_fn(|c| v(r, c)));
+        let f: [[f64; 11]; MAX_DYNAMIC] =
+            core::array::from_fn(|r| core::array::from_fn(|c| v(c + 7, r)));
+        for (nd, n) in [(3, 11), (3, 4), (5, 11), (6, 9)] {
+            let out = block_row_products(&b, &f, nd, n);
+            for r in 0..nd {
+                for s in 0..=r {
+                    let plain = (0..n).fold(0.0f64, |acc, c| acc + b[r][c] * f[s][c]);
+                    assert_eq!(
+                        out[r][s].to_bits(),
+                        plain.to_bits(),
+                        "({r}, {s}), nd {nd}, n {n}"
+                    );
+                }
+            }
+        }
+    }
+
+    /// An update that would leave a variance that is not positive is refused: the error names
+    /// the state, and the filter is as it was before the step (the prediction undone). The
+    /// covariance is restored with P[7][7] = −1e-6 (a state the measurement does not see, so
+    /// nothing else in the step changes it).
+    #[test]
+    fn an_unhealthy_update_names_the_state_and_changes_nothing() {
+        use crate::frames::Site;
+        use crate::model::Propagation;
+        let model = Model::new(
+            Site::new(39.1, None),
+            &crate::PAPER_EFFECTS,
+            0.0,
+            Propagation::default(),
+        )
+        .unwrap();
+        let mut ekf = Ekf::<15>::with_default_prior(model).unwrap();
+        let mut p = [0.0; 15 * 15];
+        for i in 0..15 {
+            p[i * 15 + i] = ekf.cov(i, i);
+        }
+        p[7 * 15 + 7] = -1e-6;
+        ekf.restore(&[0.0; 15], &p, 0.0, 0, f64::NAN).unwrap();
+        let before = ekf.clone();
+        let g = model.site().gravity_mps2;
+        let m = Measurement {
+            t_s: 60.0,
+            specific_force: [0.0, 0.0, g],
+            temp_c: f64::NAN,
+            count: 60,
+            variance: [1e-8; 3],
+            time_var_s2: 0.0,
+        };
+        assert_eq!(
+            ekf.step(&m).unwrap_err(),
+            FilterError::Unhealthy { step: 0, index: 7 }
+        );
+        assert_eq!(ekf.time_s(), before.time_s());
+        assert_eq!(ekf.state(), before.state());
+        for i in 0..15 {
+            for j in 0..15 {
+                assert_eq!(
+                    ekf.cov(i, j).to_bits(),
+                    before.cov(i, j).to_bits(),
+                    "P[{i}][{j}]"
                 );
             }
         }
