@@ -132,6 +132,7 @@ impl StepExp {
 
     /// Φ ← Φ_s·Φ over the dynamic rows. Φ's other rows are the identity's, so its column c
     /// gains Ψ_θθ·F[0..3][c] directly (`jac`, zero in the dynamic columns).
+    #[inline(always)] // into both builds of `Ekf::step`
     fn apply<const CAP: usize>(
         &self,
         tr: &mut Transition<CAP>,
@@ -187,6 +188,7 @@ const PSI_TERMS: usize = 30;
 /// (tests/jacobians.rs). Only the gain and the covariance see it: the state, and with it the
 /// predicted measurement and the residuals, keeps RK4's accuracy; a Gauss–Newton fit converges
 /// to the same point up to that relative error times its (noise-sized) gradient.
+#[inline(always)] // into both builds of `Ekf::step`
 pub fn propagate<const CAP: usize>(
     model: &Model<'_>,
     x: &mut [f64],
