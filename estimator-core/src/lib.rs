@@ -28,6 +28,7 @@
 //! - [`averaging`]: raw samples → filter-period means tagged at the mean sample time.
 //! - [`screening`]: raw-sample screening (glitches, stuck/dead channels, non-finite) before averaging.
 //! - [`checkpoint`]: the filter's complete state as a versioned, CRC-checked image (resets).
+//! - [`cpu`]: whether the CPU has AVX2, for the hot loops' builds that use it (x86-64).
 #![no_std]
 #![warn(missing_docs)]
 
@@ -37,6 +38,7 @@ extern crate alloc;
 extern crate std;
 
 pub mod checkpoint;
+pub mod cpu;
 pub mod effects;
 pub mod filter;
 pub mod frames;

@@ -370,6 +370,30 @@ fn checkpointed_smoother_matches_the_dense_one_on_the_paper_run() {
     assert!(d <= TOL_COV, "covariance-only pass differs by {d:e} σᵢσⱼ");
 }
 
+/// The smoother's AVX2 build (`estimator_core::cpu`) gives the bits of its portable build:
+/// the smoothed states, final covariance and innovations of a 10-h paper run. Without AVX2 on
+/// this CPU both passes take the portable build, and the test says so.
+#[test]
+fn both_builds_of_the_smoother_give_the_same_bits() {
+    let prep = paper_run(10.0);
+    let model = paper_model(prep.site, &PAPER_EFFECTS);
+    let meas = &prep.measurements;
+    let (x0, p0) = wide_prior(&model, &vec![0.0; model.dim()], &[ANGLE_PRIOR_SIGMA_RAD; 3]);
+    let nominal = pass2_nominal(&model, meas);
+    if !estimator_core::cpu::has_avx2() {
+        eprintln!("no AVX2 on this CPU: the portable build is compared with itself");
+    }
+    let fast = linearised_pass(&model, meas, &nominal, &x0, &p0, true).unwrap();
+    estimator_core::cpu::force_portable(true);
+    let portable = linearised_pass(&model, meas, &nominal, &x0, &p0, true);
+    estimator_core::cpu::force_portable(false);
+    same_bits(
+        &fast,
+        &portable.unwrap(),
+        "AVX2 build against the portable one",
+    );
+}
+
 #[test]
 fn identify_is_unchanged_by_checkpointing() {
     // identify() now moves states instead of cloning them and drops passes early: its result must
