@@ -688,6 +688,23 @@ impl Nodes {
     /// One step of the backward pass through update `at`: the adjoint λ̂ at node at+1 becomes
     /// λ̂ at node at (modified Bryson–Frazier, see [`run`]), with `w` as scratch.
     fn adjoint_back(&self, at: usize, dynamic: &[usize], lam: &mut [f64], w: &mut [f64]) {
+        #[cfg(target_arch = "x86_64")]
+        if estimator_core::cpu::has_avx2() {
+            // SAFETY: `adjoint_back_avx2` needs AVX2, which the CPU was just found to have.
+            return unsafe { self.adjoint_back_avx2(at, dynamic, lam, w) };
+        }
+        self.adjoint_back_body(at, dynamic, lam, w)
+    }
+
+    /// [`Nodes::adjoint_back`] compiled for AVX2 ([`estimator_core::cpu`]): the same bits.
+    #[cfg(target_arch = "x86_64")]
+    #[target_feature(enable = "avx2")]
+    fn adjoint_back_avx2(&self, at: usize, dynamic: &[usize], lam: &mut [f64], w: &mut [f64]) {
+        self.adjoint_back_body(at, dynamic, lam, w)
+    }
+
+    #[inline(always)] // into both builds of `adjoint_back`
+    fn adjoint_back_body(&self, at: usize, dynamic: &[usize], lam: &mut [f64], w: &mut [f64]) {
         let (n, nd) = (self.n, self.nd);
         let (h, k) = (&self.h[at * n..(at + 1) * n], &self.k[at * n..(at + 1) * n]);
         // λ̃ = λ̂ + Hᵀ (S⁻¹ν − Kᵀ λ̂).
