@@ -402,8 +402,8 @@ impl<'a, 'm, const CAP: usize> Forward<'a, 'm, CAP> {
         // P⁻ = Φ P Φᵀ + Q. With A = rows `dynamic` of Φ P (= columns of P Φᵀ, P symmetric):
         // P⁻ is P outside the dynamic rows and columns, A there, and A Φ_Dᵀ + Q where both are
         // dynamic (symmetrised).
-        // A = Φ_D P three rows at a time (the core's kernel: the six sums of two columns in
-        // registers; an axpy per row and state was a third of this step in loop overhead).
+        // A = Φ_D P three rows at a time (the core's kernel: the sums of a block of columns
+        // in registers; an axpy per row and state was a third of this step in loop overhead).
         for (f, a) in st.phi.chunks_exact(3 * n).zip(st.a.chunks_exact_mut(3 * n)) {
             let (a0, rest) = a.split_at_mut(n);
             let (a1, a2) = rest.split_at_mut(n);
