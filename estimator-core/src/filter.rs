@@ -627,9 +627,9 @@ fn lower_inverse3(l: &Matrix3<f64>) -> Matrix3<f64> {
 }
 
 /// Three rows of B = F·P for a symmetric P: `out[r][c] = Σ_k f[r][k]·P[k][c]` over the first
-/// `n = out[r].len()` columns and `k < f[r].len()`, P's row k starting at `p[k * stride]`. `WIDE`
-/// columns at a time (then two, then one), their sums in registers, each over k in order: the prediction's
-/// Φ_D·P here and in the host's smoother (the same bits in both). Inlined: out of line, its
+/// `n = out[r].len()` columns and `k < f[r].len()`, P's row k starting at `p[k * stride]`.
+/// `WIDE` columns at a time (then two, then one), their sums in registers, each over k in
+/// order: the prediction's Φ_D·P here and in the host's smoother (the same bits in both). Inlined: out of line, its
 /// stride and widths are no longer constants of the filter's step (5 % slower on the host).
 #[inline(always)]
 pub fn three_rows_times(f: [&[f64]; 3], p: &[f64], stride: usize, out: [&mut [f64]; 3]) {
