@@ -2,7 +2,7 @@
 //!
 //! After the header, the file is read in blocks cut at line ends. In each round, the first block
 //! is read on this thread by the reader standing where the last block ended
-//! ([`RecordingReader::resume_over`]), the others each on a thread of its own by a reader that
+//! ([`RecordingReader::resume_over`]), the others each on rayon's pool by a reader that
 //! does not yet know where it stands: its lines are numbered from the block's start and its
 //! first time is not compared with the time before it. Joining them in file order shifts the
 //! line numbers and makes that comparison at the seam. A block that fails either way (an error
@@ -18,8 +18,8 @@ use super::{RawSample, RecordingError, RecordingReader};
 /// about a millisecond, against ~40 µs to start a thread.
 pub(super) const BLOCK_BYTES: usize = 1 << 20;
 
-/// Threads that read blocks at once: the cores there are, at most 8; one inside a rayon pool
-/// (recordings read in parallel already use every core).
+/// Blocks read at once (this thread's and the pool's): the cores there are, at most 8; one
+/// inside a rayon pool (recordings read in parallel already use every core).
 pub(super) fn read_threads() -> usize {
     if rayon::current_thread_index().is_some() {
         return 1;
@@ -60,7 +60,7 @@ pub(super) fn read_rows<R: BufRead>(
     Ok(())
 }
 
-/// One block read on a thread of its own: lines numbered from the block's start.
+/// One block read on the pool: lines numbered from the block's start.
 struct Detached {
     rows: Rows,
     /// Lines in the block.
@@ -194,7 +194,7 @@ pub(super) fn read_rows_parallel<R: BufRead>(
 }
 
 /// Reads one round of blocks: `first` here from where the file stands (`line_no`, `prev`), the
-/// `rest` each on a thread of its own, joined in order (and read again here when they fail).
+/// `rest` each on rayon's pool, joined in order (and read again here when they fail).
 fn read_round(
     proto: &RecordingReader<&[u8]>,
     first: &[u8],
@@ -203,17 +203,24 @@ fn read_round(
     line_no: &mut u32,
     prev: &mut Option<(f64, u32)>,
 ) -> Result<(), RecordingError> {
-    let detached: Vec<Option<Detached>> = std::thread::scope(|scope| {
-        let handles: Vec<_> = rest
-            .iter()
-            .map(|b| scope.spawn(|| read_detached(proto, b)))
-            .collect();
+    // The other blocks go to rayon's pool, whose workers are woken where a core is idle: a
+    // thread spawned per round was placed on this thread's core by the scheduler and, on the
+    // 2-core VM, started in most rounds only once this thread waited for it (the blocks read
+    // one after the other). A block whose job panicked is read again here.
+    let mut detached: Vec<Option<Detached>> = Vec::with_capacity(rest.len());
+    detached.resize_with(rest.len(), || None);
+    let mut first_result = Ok(());
+    rayon::in_place_scope(|scope| {
+        for (b, out) in rest.iter().zip(detached.iter_mut()) {
+            scope.spawn(move |_| {
+                *out = std::panic::catch_unwind(|| read_detached(proto, b)).ok();
+            });
+        }
         let mut reader = proto.resume_over(first, *line_no, *prev);
-        let first_result = read_rows(&mut reader, rows);
+        first_result = read_rows(&mut reader, rows);
         (*line_no, *prev) = reader.position();
-        let joined = handles.into_iter().map(|h| h.join().ok()).collect();
-        first_result.map(|()| joined)
-    })?;
+    });
+    first_result?;
     for (block, d) in rest.iter().zip(detached) {
         match d.filter(|d| !d.failed && fits(d, *line_no, *prev)) {
             Some(d) => {
