@@ -102,12 +102,14 @@ pub fn read_recording(path: &Path) -> Result<Recording, RecordingError> {
     let reader = RecordingReader::new(BufReader::with_capacity(1 << 16, f), name)?;
     let (threads, block_bytes) = (blocks::read_threads(), blocks::BLOCK_BYTES);
     let parallel = threads > 1 && bytes > 2 * block_bytes as u64;
-    collect(
-        reader,
-        path,
-        rows_hint,
-        parallel.then_some((threads, block_bytes)),
-    )
+    collect(reader, path, rows_hint, |reader, rows| {
+        if parallel {
+            blocks::read_file_parallel(reader, rows, threads, block_bytes)
+        } else {
+            let mut reader = reader;
+            blocks::read_rows(&mut reader, rows)
+        }
+    })
 }
 
 /// Reads a whole recording from any buffered reader; `display_name` is used in errors.
@@ -116,15 +118,17 @@ pub fn read_recording_from<R: std::io::BufRead>(
     display_name: &str,
 ) -> Result<Recording, RecordingError> {
     let reader = RecordingReader::new(reader, display_name)?;
-    collect(reader, Path::new(display_name), 0, None)
+    collect(reader, Path::new(display_name), 0, |mut reader, rows| {
+        blocks::read_rows(&mut reader, rows)
+    })
 }
 
-/// Reads the rows after the header, on one thread or (`Some((threads, block_bytes))`) in blocks.
+/// Reads the rows after the header with `read` (on one thread or in blocks).
 fn collect<R: std::io::BufRead>(
-    mut reader: RecordingReader<R>,
+    reader: RecordingReader<R>,
     path: &Path,
     rows_hint: usize,
-    blocks: Option<(usize, usize)>,
+    read: impl FnOnce(RecordingReader<R>, &mut blocks::Rows) -> Result<(), RecordingError>,
 ) -> Result<Recording, RecordingError> {
     let meta = reader.metadata().clone();
     let has_temp = reader.has_temp();
@@ -134,12 +138,7 @@ fn collect<R: std::io::BufRead>(
         lines: Vec::with_capacity(rows_hint),
         repairs: Vec::new(),
     };
-    match blocks {
-        Some((threads, block_bytes)) => {
-            blocks::read_rows_parallel(reader, &mut rows, threads, block_bytes)?
-        }
-        None => blocks::read_rows(&mut reader, &mut rows)?,
-    }
+    read(reader, &mut rows)?;
     if rows.samples.is_empty() {
         return Err(RecordingError::NoSamples {
             file,

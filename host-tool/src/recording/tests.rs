@@ -528,8 +528,9 @@ fn fast_and_general_paths_agree() {
 /// The block reader's result is the one-thread reader's: the same samples, lines and repairs,
 /// or the same error on the same line, whatever the blocks. Rows of every kind (CRLF, blank,
 /// comments, quoted fields, NaN kept for the screening) and each defect at five places land at
-/// the seams of blocks of 40 to 4096 bytes read by 2 to 4 threads; a line longer than the cap
-/// and more than a block leaves the rest to the one-thread reader.
+/// the seams of blocks of 40 to 4096 bytes read by 2 to 4 threads, from a stream and from bytes
+/// in memory (as a mapped file is read); a line longer than the cap and more than a block leaves
+/// the rest to the one-thread reader.
 #[test]
 fn blocks_read_as_one_thread_reads() {
     let mut rows: Vec<Vec<u8>> = Vec::new();
@@ -580,10 +581,21 @@ fn blocks_read_as_one_thread_reads() {
         let text = [HDR.as_bytes(), &body].concat();
         let one = read(&text);
         for threads in [2, 3, 4] {
-            for block in [40, 64, 300, 4096] {
+            for (block, mapped) in [40, 64, 300, 4096]
+                .into_iter()
+                .flat_map(|b| [(b, false), (b, true)])
+            {
                 let reader = RecordingReader::new(&text[..], "run.csv");
-                let many = reader
-                    .and_then(|r| collect(r, Path::new("run.csv"), 0, Some((threads, block))));
+                let many = reader.and_then(|r| {
+                    collect(r, Path::new("run.csv"), 0, |r, rows| {
+                        if mapped {
+                            blocks::read_slice_parallel(r, rows, threads, block)
+                        } else {
+                            blocks::read_rows_parallel(r, rows, threads, block)
+                        }
+                    })
+                });
+                let threads = format!("{threads} threads{}", if mapped { ", mapped" } else { "" });
                 match (&one, &many) {
                     // Compared as text: NaN values (kept for the screening) are not equal
                     // to themselves.
