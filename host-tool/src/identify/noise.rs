@@ -58,7 +58,10 @@ fn axis_sigma(samples: &[Sample], a: usize) -> Option<(usize, f64)> {
     }
     let mid = d.len() / 2;
     let median = f64::from_bits(*d.select_nth_unstable(mid).1);
-    Some((d.len(), (1.4826 * median / 20f64.sqrt()).max(MIN_RAW_SIGMA_MPS2)))
+    Some((
+        d.len(),
+        (1.4826 * median / 20f64.sqrt()).max(MIN_RAW_SIGMA_MPS2),
+    ))
 }
 
 /// Whether four samples are equally spaced in time (to 1e-6 of their interval).
