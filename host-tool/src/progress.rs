@@ -21,6 +21,10 @@ pub fn spinner(msg: &str) -> ProgressBar {
     let pb = ProgressBar::with_draw_target(None, ProgressDrawTarget::stderr());
     pb.set_style(ProgressStyle::with_template("{spinner} {msg} ({elapsed})").unwrap());
     pb.set_message(msg.to_string());
-    pb.enable_steady_tick(Duration::from_millis(120));
+    // indicatif's steady tick is a thread of its own, started (and joined when the spinner
+    // finishes) even for a hidden spinner: only on a terminal.
+    if !pb.is_hidden() {
+        pb.enable_steady_tick(Duration::from_millis(120));
+    }
     pb
 }
