@@ -197,13 +197,16 @@ pub(super) fn read_rows_parallel<R: BufRead>(
     threads: usize,
     block_bytes: usize,
 ) -> Result<(), RecordingError> {
-    let at = head.position();
-    let proto = head.resume_over(&b""[..], 0, None);
-    let source = Source::Stream {
-        inner: head.into_inner(),
-        carry: Vec::new(),
-    };
-    read_blocks(&proto, source, at, rows, threads, block_bytes)
+    let (proto, at, inner) = split_head(head);
+    let carry = Vec::new();
+    read_blocks(
+        &proto,
+        Source::Stream { inner, carry },
+        at,
+        rows,
+        threads,
+        block_bytes,
+    )
 }
 
 /// [`read_rows_parallel`] over a file: its rows mapped in memory when the system allows, so
@@ -215,9 +218,7 @@ pub(super) fn read_file_parallel(
     threads: usize,
     block_bytes: usize,
 ) -> Result<(), RecordingError> {
-    let at = head.position();
-    let proto = head.resume_over(&b""[..], 0, None);
-    let mut inner = head.into_inner();
+    let (proto, at, mut inner) = split_head(head);
     let mapped = inner.stream_position().ok().and_then(|offset| {
         let file = inner.get_ref();
         let regular = file.metadata().is_ok_and(|m| m.is_file());
@@ -259,13 +260,18 @@ pub(super) fn read_slice_parallel(
     threads: usize,
     block_bytes: usize,
 ) -> Result<(), RecordingError> {
-    let at = head.position();
-    let proto = head.resume_over(&b""[..], 0, None);
-    let source: Source<'_, &[u8]> = Source::Mapped {
-        bytes: head.into_inner(),
-        pos: 0,
-    };
+    let (proto, at, bytes) = split_head(head);
+    let source: Source<'_, &[u8]> = Source::Mapped { bytes, pos: 0 };
     read_blocks(&proto, source, at, rows, threads, block_bytes)
+}
+
+/// What the block readers start from: a reader like `head` over no bytes yet (to be resumed
+/// over each block), where `head` stands (its line, its last time), and the rest of its input.
+fn split_head<R: BufRead>(
+    head: RecordingReader<R>,
+) -> (RecordingReader<&'static [u8]>, (u32, Option<(f64, u32)>), R) {
+    let proto = head.resume_over(&b""[..], 0, None);
+    (proto, head.position(), head.into_inner())
 }
 
 /// The rounds of blocks from `source`, the reader standing at `at` (its line, its last time).
