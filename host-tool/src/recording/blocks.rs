@@ -265,11 +265,14 @@ pub(super) fn read_slice_parallel(
     read_blocks(&proto, source, at, rows, threads, block_bytes)
 }
 
+/// Where a reader stands: its last line, and the last finite time with its line.
+type Position = (u32, Option<(f64, u32)>);
+
 /// What the block readers start from: a reader like `head` over no bytes yet (to be resumed
 /// over each block), where `head` stands (its line, its last time), and the rest of its input.
 fn split_head<R: BufRead>(
     head: RecordingReader<R>,
-) -> (RecordingReader<&'static [u8]>, (u32, Option<(f64, u32)>), R) {
+) -> (RecordingReader<&'static [u8]>, Position, R) {
     let proto = head.resume_over(&b""[..], 0, None);
     (proto, head.position(), head.into_inner())
 }
@@ -278,7 +281,7 @@ fn split_head<R: BufRead>(
 fn read_blocks<R: BufRead>(
     proto: &RecordingReader<&[u8]>,
     mut source: Source<'_, R>,
-    at: (u32, Option<(f64, u32)>),
+    at: Position,
     rows: &mut Rows,
     threads: usize,
     block_bytes: usize,
