@@ -21,15 +21,12 @@ pub const MIN_RAW_SIGMA_MPS2: f64 = 1e-8;
 /// Estimates the raw-sample noise from samples in time order (their times and specific forces;
 /// finite). Returns `None` when fewer than 8 runs of 4 equally spaced samples exist.
 pub fn estimate(samples: &[Sample]) -> Option<NoiseFloor> {
-    // Each axis on its own (the first here, the others on rayon's pool: the differences and
-    // their median are most of the screening's noise estimate, ~2 ms of a 60-h recording).
+    // Each axis on its own, the first here and the others on the pool (`crate::beside`): the
+    // differences and their median are most of the screening's noise estimate, ~2 ms of a 60-h
+    // recording.
     let mut axes: [Option<(usize, f64)>; 3] = [None; 3];
-    let (first, others) = axes.split_at_mut(1);
-    rayon::in_place_scope(|scope| {
-        for (a, out) in others.iter_mut().enumerate() {
-            scope.spawn(move |_| *out = axis_sigma(samples, a + 1));
-        }
-        first[0] = axis_sigma(samples, 0);
+    crate::beside::first_here(axes.iter_mut().enumerate(), |(a, out)| {
+        *out = axis_sigma(samples, a);
     });
     let [Some((count, x)), Some((_, y)), Some((_, z))] = axes else {
         return None;

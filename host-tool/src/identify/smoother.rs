@@ -1051,9 +1051,8 @@ fn run_cap<const CAP: usize>(
             // Chunks go back to be filled again: no clearing, moving or faulting in of ~1 MB
             // per chunk (that was ~8 % of the process's CPU time). A linearisation overwrites
             // every entry the filter reads.
-            // On rayon's pool (this thread is outside it, see `ahead`): its workers are woken
-            // where a core is idle, where a thread spawned here started, on the 2-core VM, only
-            // once this one waited for it.
+            // On rayon's pool (this thread is outside it, see `ahead`), not on a thread of its
+            // own: see `crate::beside`.
             rayon::in_place_scope(|scope| {
                 type Chunk<const CAP: usize> = Vec<Linearisation<CAP>>;
                 let (tx, rx) = std::sync::mpsc::sync_channel::<(Chunk<CAP>, usize)>(2);

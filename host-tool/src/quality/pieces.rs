@@ -57,21 +57,9 @@ fn screen_in_pieces(
         })
     };
     let mut counts = vec![[0usize; 3]; n.div_ceil(piece)];
-    // The first piece on this thread, the others on the pool. Handing every piece to the pool
-    // (`par_chunks_mut`) left this thread waiting for a worker to wake and the other to be
-    // woken in turn: on the 2-core VM both pieces ran one after the other on one worker in
-    // most runs (6.3 ms for 2 × 3.1 ms on the 60-h run).
-    let screen_piece = &screen_piece;
-    rayon::in_place_scope(|scope| {
-        let mut pieces = flags.chunks_mut(piece).zip(counts.iter_mut()).enumerate();
-        let first = pieces.next();
-        for (k, (out, c)) in pieces {
-            scope.spawn(move |_| *c = screen_piece(k, out));
-        }
-        if let Some((k, (out, c))) = first {
-            *c = screen_piece(k, out);
-        }
-    });
+    // The first piece on this thread, the others on the pool (see `crate::beside`).
+    let pieces = flags.chunks_mut(piece).zip(counts.iter_mut()).enumerate();
+    crate::beside::first_here(pieces, |(k, (out, c))| *c = screen_piece(k, out));
     for c in counts {
         for a in 0..3 {
             sum.outliers[a] += c[a];

@@ -336,10 +336,8 @@ fn read_round(
     line_no: &mut u32,
     prev: &mut Option<(f64, u32)>,
 ) -> Result<(), RecordingError> {
-    // The other blocks go to rayon's pool, whose workers are woken where a core is idle: a
-    // thread spawned per round was placed on this thread's core by the scheduler and, on the
-    // 2-core VM, started in most rounds only once this thread waited for it (the blocks read
-    // one after the other). A block whose job panicked is read again here.
+    // The other blocks go to rayon's pool while this thread reads the first (why the pool, not
+    // a thread per round: `crate::beside`). A block whose job panicked is read again here.
     let mut detached: Vec<Option<Detached>> = Vec::with_capacity(rest.len());
     detached.resize_with(rest.len(), || None);
     let mut first_result = Ok(());
