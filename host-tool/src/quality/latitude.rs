@@ -13,7 +13,8 @@ use super::{Action, Finding};
 use crate::cli::common::build_model;
 use crate::consistency::{assess, Thresholds};
 use crate::diagnose::select::{fit_stats, neg2_log_evidence};
-use crate::identify::{identify, Config, Prepared};
+use crate::identify::{identify, Config, Identification, Prepared};
+use rayon::prelude::*;
 
 /// Half-width of each searched interval ([`search_grid`]), deg.
 pub const SEARCH_HALF_WIDTH_DEG: f64 = 12.0;
@@ -55,16 +56,23 @@ fn at_latitude(prep: &Prepared, lat: f64) -> Prepared {
     p
 }
 
-fn evidence_at(
+/// The model fitted at latitude `lat`: −2 ln p(y) and the identification (`None` when it
+/// cannot be fitted there).
+fn fit_at(
     prep: &Prepared,
     effects: &[&'static dyn Effect],
     cfg: &Config,
     lat: f64,
-) -> Option<f64> {
+) -> Option<(f64, Identification, Prepared)> {
     let p = at_latitude(prep, lat);
     let model = build_model(p.site, effects, cfg).ok()?;
     let id = identify(&model, &p, cfg).ok()?;
-    Some(neg2_log_evidence(&id))
+    Some((neg2_log_evidence(&id), id, p))
+}
+
+/// −2 ln p(y) at latitude `lat`, +∞ where the model cannot be fitted.
+fn evidence_at(prep: &Prepared, effects: &[&'static dyn Effect], cfg: &Config, lat: f64) -> f64 {
+    fit_at(prep, effects, cfg, lat).map_or(f64::INFINITY, |(e, _, _)| e)
 }
 
 /// The coarse grid of the profile, 2° apart, within ±89°, in increasing order: windows of
@@ -116,18 +124,29 @@ pub fn profile(
     let l0 = prep.site.latitude_rad.to_degrees();
     // A model that cannot even be fitted at the metadata latitude (the smoother fails) leaves
     // any latitude where it fits, and fits consistently, the better one.
-    let f0 = evidence_at(prep, effects, cfg, l0).unwrap_or(f64::INFINITY);
-    let f = |l: f64| evidence_at(prep, effects, cfg, l).unwrap_or(f64::INFINITY);
+    let f = |l: f64| evidence_at(prep, effects, cfg, l);
+    // The fits are independent: the metadata latitude's and the grid's run on all cores (each
+    // fit then on one; the values are the same, see `identify`), in the grid's order.
     let grid = search_grid(l0, latitude_of_gravity(prep.site.gravity_mps2));
+    let at_l0 = |l: f64| (l - l0).abs() < 1e-9;
+    let (f0, off_l0) = rayon::join(
+        || f(l0),
+        || {
+            grid.par_iter()
+                .map(|&l| if at_l0(l) { f64::NAN } else { f(l) })
+                .collect::<Vec<f64>>()
+        },
+    );
     let vals: Vec<f64> = grid
         .iter()
-        .map(|&l| if (l - l0).abs() < 1e-9 { f0 } else { f(l) })
+        .zip(off_l0)
+        .map(|(&l, v)| if at_l0(l) { f0 } else { v })
         .collect();
     let k = (0..grid.len()).min_by(|&a, &b| vals[a].total_cmp(&vals[b]))?;
     let (mut a, mut b) = ((grid[k] - 2.0).max(-89.0), (grid[k] + 2.0).min(89.0));
     let r = (5f64.sqrt() - 1.0) / 2.0;
     let (mut c, mut d) = (b - r * (b - a), a + r * (b - a));
-    let (mut fc, mut fd) = (f(c), f(d));
+    let (mut fc, mut fd) = rayon::join(|| f(c), || f(d));
     for _ in 0..14 {
         if fc < fd {
             b = d;
@@ -144,18 +163,20 @@ pub fn profile(
         }
     }
     let best = 0.5 * (a + b);
-    // Curvature from a symmetric three-point stencil: −2 ln p ≈ const + (L − L̂)²/σ².
+    // Curvature from a symmetric three-point stencil: −2 ln p ≈ const + (L − L̂)²/σ²; the fit at
+    // the best latitude also says whether the model is consistent there.
     let h = (b - a).clamp(1e-3, 0.05);
-    let (fm, fb, fp) = (f(best - h), f(best), f(best + h));
+    let ((fm, fp), at_best) = rayon::join(
+        || rayon::join(|| f(best - h), || f(best + h)),
+        || fit_at(prep, effects, cfg, best),
+    );
+    let (fb, id, p) = at_best?;
     let curv = (fp - 2.0 * fb + fm) / (h * h);
     let sigma_deg = if curv > 0.0 {
         (2.0 / curv).sqrt()
     } else {
         f64::INFINITY
     };
-    let p = at_latitude(prep, best);
-    let model = build_model(p.site, effects, cfg).ok()?;
-    let id = identify(&model, &p, cfg).ok()?;
     let (rms, nis, white) = fit_stats(&id, &p, 20);
     let consistent = assess(
         nis,
