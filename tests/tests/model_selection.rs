@@ -53,9 +53,11 @@ use std::process::Command;
 
 use estimator_core::{Sample, Site};
 use host_tool::catalog;
-use host_tool::diagnose::{diagnose, is_consistent, ladder, DiagnoseConfig, Diagnosis, Rung};
+use host_tool::diagnose::{
+    diagnose, is_consistent, ladder, ladder_from, DiagnoseConfig, Diagnosis, Rung,
+};
 use host_tool::effects_file::load_and_register;
-use host_tool::identify::{prepare, Identification, Prepared};
+use host_tool::identify::{identify, prepare, Identification, Prepared};
 use host_tool::simulate::{simulate, InjectedEffect, Scenario, Simulation};
 
 /// Paper scenario at 10-s samples with the given effects (`NAME=spec`).
@@ -263,6 +265,33 @@ fn two_large_effects_at_once_are_both_added() {
         [5e-4, -3e-4, 2e-4],
         [0.002, -0.001, 0.0015],
     );
+}
+
+#[test]
+fn a_ladder_from_the_starting_fit_is_the_ladder() {
+    // `driftid diagnose` fits the starting model first (to decide whether to profile the
+    // latitude) and hands that fit to the ladder's first rung instead of fitting it again: the
+    // ladder must come out the same, rung for rung, as when it fits the start itself.
+    let sc = scenario(
+        41,
+        Scenario::paper().latitude_deg,
+        12.0,
+        &["acc-bias=3e-4,-2e-4,2e-4"],
+    );
+    let (_, prep) = simulate_and_prepare(&sc, None);
+    let cfg = DiagnoseConfig::default();
+    let effects = [catalog::paper()];
+    let own = ladder(&prep, &effects, &cfg).unwrap();
+    let model = host_tool::identify::build_model(prep.site, &effects, &cfg.identify).unwrap();
+    let first = identify(&model, &prep, &cfg.identify).unwrap();
+    let handed = ladder_from(&prep, &effects, &cfg, Some(first)).unwrap();
+    assert!(
+        own.rungs.len() >= 2,
+        "a ladder that climbs: {} rung(s)",
+        own.rungs.len()
+    );
+    let json = |l: &host_tool::diagnose::Ladder| serde_json::to_string(&l.rungs).unwrap();
+    assert_eq!(json(&own), json(&handed));
 }
 
 /// One rung from the paper's model: the effect the evidence names, and the ranking behind it.

@@ -9,7 +9,7 @@ use anyhow::Context as _;
 
 use super::common::{load, print_findings, trusted_or, ModelArgs};
 use crate::catalog;
-use crate::diagnose::{ladder, DiagnoseConfig, Diagnosis, Ladder, Rung};
+use crate::diagnose::{ladder_from, DiagnoseConfig, Diagnosis, Ladder, Rung};
 use crate::format::{p_or_ln, pm, sci};
 use crate::identify::prepare_oriented;
 
@@ -264,14 +264,17 @@ pub fn diagnose_one(
     .with_context(|| format!("{}", recording.display()))?;
     let mut cfg = cfg;
     let mut prep = prep;
+    // The starting model's fit: if it does not fit, is the metadata latitude the culprit? The
+    // ladder's first rung starts from it (the same fit; the findings do not enter it).
+    let mut first = None;
     if prep.untrusted_reasons().is_empty() {
-        // If the starting model does not fit, is the metadata latitude the culprit?
         let model = super::common::build_model(prep.site, &effects, &cfg.identify)?;
         let id = crate::identify::identify(&model, &prep, &cfg.identify)?;
         if super::identify::consistency_of(&id, &prep).is_some_and(|c| !c.is_consistent()) {
             let found = crate::quality::latitude::check(&prep, &effects, &cfg.identify);
             prep.findings.extend(found);
         }
+        first = Some(id);
     }
     let faults = prep.untrusted_reasons();
     if !faults.is_empty() {
@@ -281,7 +284,7 @@ pub fn diagnose_one(
     let spin = crate::progress::spinner("identifying, diagnosing and climbing the model ladder");
     let Ladder {
         diagnoses, rungs, ..
-    } = ladder(&prep, &effects, &cfg)?;
+    } = ladder_from(&prep, &effects, &cfg, first)?;
     spin.finish_and_clear();
     if let Some(dir) = export_dir {
         export(dir, &diagnoses)?;

@@ -5,7 +5,7 @@ use estimator_core::effects::Effect;
 
 use super::types::{Diagnosis, Rung};
 use super::verdict::is_consistent;
-use super::{diagnose, DiagnoseConfig};
+use super::{diagnose, diagnose_identified, DiagnoseConfig};
 use crate::catalog;
 use crate::identify::{Identification, Prepared};
 
@@ -31,11 +31,26 @@ pub fn ladder(
     start: &[&'static dyn Effect],
     cfg: &DiagnoseConfig,
 ) -> anyhow::Result<Ladder> {
+    ladder_from(prep, start, cfg, None)
+}
+
+/// [`ladder`], its first rung from `first`, the identification of the `start` model on `prep`
+/// with `cfg.identify` when it was made already (else fitted here).
+pub fn ladder_from(
+    prep: &Prepared,
+    start: &[&'static dyn Effect],
+    cfg: &DiagnoseConfig,
+    first: Option<Identification>,
+) -> anyhow::Result<Ladder> {
     let mut effects = start.to_vec();
     let mut diagnoses = vec![];
     let mut rungs: Vec<Rung> = vec![];
+    let mut first = first;
     loop {
-        let (d, id) = diagnose(prep, &effects, cfg)?;
+        let (d, id) = match first.take() {
+            Some(id) => diagnose_identified(prep, &effects, cfg, id)?,
+            None => diagnose(prep, &effects, cfg)?,
+        };
         rungs.push(rung(&d, &id));
         let next = if rungs.len() < cfg.max_rungs {
             next_effect(&d)

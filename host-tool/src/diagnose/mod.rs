@@ -29,7 +29,7 @@ use estimator_core::units::S_PER_H;
 use estimator_core::{Measurement, Model};
 
 pub use self::candidates::{noncentrality_for_power, SEPARATION_GAP};
-pub use self::ladder::{ladder, Ladder};
+pub use self::ladder::{ladder, ladder_from, Ladder};
 use self::score::signatures;
 use self::statistics::per_axis;
 pub use self::statistics::{correlations, failure_windows, whiteness};
@@ -76,6 +76,18 @@ pub fn diagnose(
 ) -> anyhow::Result<(Diagnosis, Identification)> {
     let model = build_model(prep.site, effects, &cfg.identify)?;
     let id = identify(&model, prep, &cfg.identify)?;
+    diagnose_identified(prep, effects, cfg, id)
+}
+
+/// [`diagnose`] from the model's identification on `prep` with `cfg.identify`, made already
+/// (`driftid diagnose` fits the starting model first to decide whether to profile the latitude).
+pub fn diagnose_identified(
+    prep: &Prepared,
+    effects: &[&'static dyn Effect],
+    cfg: &DiagnoseConfig,
+    id: Identification,
+) -> anyhow::Result<(Diagnosis, Identification)> {
+    let model = build_model(prep.site, effects, &cfg.identify)?;
     anyhow::ensure!(
         !id.trajectory.is_empty(),
         "diagnosis needs the converged identification (smoother iterations > 0)"
