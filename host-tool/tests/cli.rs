@@ -353,3 +353,78 @@ fn several_runs_are_identified_diagnosed_and_planned_together() {
     assert!(after < now / 3.0, "{now} -> {after}");
     let _ = std::fs::remove_dir_all(&dir);
 }
+
+/// A recording whose metadata latitude is wrong (45° for a run at 39.1°, with no gravity line,
+/// so gravity follows the stated latitude): every command that fits a model names the metadata
+/// as the fault and exits 3 (numbers computed, not trusted). `report` once said "no finding",
+/// explained the misfit by an accelerometer scale factor and exited 0 — a confident wrong
+/// answer from the same data `diagnose` got right.
+#[test]
+fn a_wrong_latitude_is_named_by_identify_diagnose_and_report() {
+    let dir = temp_dir("wrong-latitude");
+    let csv = dir.join("run.csv");
+    let out = driftid()
+        .args([
+            "simulate", "--hours", "10", "--rate-s", "10", "--seed", "2", "--out",
+        ])
+        .arg(&csv)
+        .output()
+        .unwrap();
+    assert!(
+        out.status.success(),
+        "{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    let text = std::fs::read_to_string(&csv).unwrap();
+    let wrong: String = text
+        .lines()
+        .filter(|l| !l.starts_with("# gravity_mps2"))
+        .map(|l| {
+            if l.starts_with("# latitude_deg") {
+                "# latitude_deg: 45.0\n".to_string()
+            } else {
+                format!("{l}\n")
+            }
+        })
+        .collect();
+    let bad = dir.join("wrong.csv");
+    std::fs::write(&bad, &wrong).unwrap();
+    let html = dir.join("wrong.html");
+    let runs: [(&str, Vec<std::ffi::OsString>); 3] = [
+        ("identify", vec!["identify".into(), bad.clone().into()]),
+        ("diagnose", vec!["diagnose".into(), bad.clone().into()]),
+        (
+            "report",
+            vec![
+                "report".into(),
+                bad.clone().into(),
+                "-o".into(),
+                html.clone().into(),
+            ],
+        ),
+    ];
+    for (name, args) in runs {
+        let out = driftid().args(&args).output().unwrap();
+        let all = format!(
+            "{}{}",
+            String::from_utf8_lossy(&out.stdout),
+            String::from_utf8_lossy(&out.stderr)
+        );
+        assert_eq!(
+            out.status.code(),
+            Some(3),
+            "{name}: exit 3 expected:\n{all}"
+        );
+        assert!(
+            all.contains("the data put the site at latitude 39.1"),
+            "{name}: the latitude named:\n{all}"
+        );
+    }
+    let page = std::fs::read_to_string(&html).unwrap();
+    assert!(
+        page.contains("the data put the site at latitude 39.1"),
+        "the page names it"
+    );
+    // The input is untouched.
+    assert_eq!(std::fs::read_to_string(&bad).unwrap(), wrong);
+}

@@ -5,7 +5,7 @@ use std::path::Path;
 use anyhow::Context as _;
 use estimator_core::{Propagation, Sample, Site};
 
-use crate::identify::Config;
+use crate::identify::{Config, Prepared};
 use crate::recording::read_recording;
 
 /// Options of the model and the filter, common to identify/diagnose/report.
@@ -142,6 +142,39 @@ pub fn load(path: &Path, latitude_override: Option<f64>) -> anyhow::Result<Loade
 
 /// The model with the paper's drift and the chosen effects (lives in [`crate::identify`]).
 pub use crate::identify::build_model;
+
+/// Asks whether the metadata latitude is why a model does not fit ([`crate::quality::latitude`]):
+/// the profile's finding, if any, joins `prep.findings`, where it is a fault (the result is not
+/// trusted, and no physical effect is added to explain it). Call it once a fit is inconsistent.
+pub fn name_a_wrong_latitude(
+    prep: &mut Prepared,
+    effects: &[&'static dyn estimator_core::effects::Effect],
+    cfg: &Config,
+) {
+    let spin = crate::progress::spinner("the model does not fit: profiling the latitude");
+    let found = crate::quality::latitude::check(prep, effects, cfg);
+    spin.finish_and_clear();
+    prep.findings.extend(found);
+}
+
+/// The starting model fitted on `prep` when its data are trusted (else `None`), a misfit first
+/// checked against the latitude ([`name_a_wrong_latitude`]). `diagnose` and `report` start their
+/// ladder from this fit ([`crate::diagnose::ladder_from`]).
+pub fn starting_fit(
+    prep: &mut Prepared,
+    effects: &[&'static dyn estimator_core::effects::Effect],
+    cfg: &Config,
+) -> anyhow::Result<Option<crate::identify::Identification>> {
+    if !prep.untrusted_reasons().is_empty() {
+        return Ok(None);
+    }
+    let model = build_model(prep.site, effects, cfg)?;
+    let id = crate::identify::identify(&model, prep, cfg)?;
+    if super::identify::consistency_of(&id, prep).is_some_and(|c| !c.is_consistent()) {
+        name_a_wrong_latitude(prep, effects, cfg);
+    }
+    Ok(Some(id))
+}
 
 /// The numbers were computed but the tool does not trust them (exit status 3); the reasons say
 /// why. The numbers have been printed already, flagged.

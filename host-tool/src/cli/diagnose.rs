@@ -264,18 +264,7 @@ pub fn diagnose_one(
     .with_context(|| format!("{}", recording.display()))?;
     let mut cfg = cfg;
     let mut prep = prep;
-    // The starting model's fit: if it does not fit, is the metadata latitude the culprit? The
-    // ladder's first rung starts from it (the same fit; the findings do not enter it).
-    let mut first = None;
-    if prep.untrusted_reasons().is_empty() {
-        let model = super::common::build_model(prep.site, &effects, &cfg.identify)?;
-        let id = crate::identify::identify(&model, &prep, &cfg.identify)?;
-        if super::identify::consistency_of(&id, &prep).is_some_and(|c| !c.is_consistent()) {
-            let found = crate::quality::latitude::check(&prep, &effects, &cfg.identify);
-            prep.findings.extend(found);
-        }
-        first = Some(id);
-    }
+    let first = super::common::starting_fit(&mut prep, &effects, &cfg.identify)?;
     let faults = prep.untrusted_reasons();
     if !faults.is_empty() {
         // A data fault is named as a fault, never explained by a physical effect: no ladder.

@@ -237,10 +237,7 @@ pub fn run(args: &IdentifyArgs) -> anyhow::Result<()> {
     let mut prep = prep;
     if check.as_ref().is_some_and(|c| !c.is_consistent()) {
         // A model that does not fit: first ask whether the metadata latitude is the culprit.
-        let spin = crate::progress::spinner("the model does not fit: profiling the latitude");
-        let found = crate::quality::latitude::check(&prep, &effects, &cfg);
-        spin.finish_and_clear();
-        prep.findings.extend(found);
+        super::common::name_a_wrong_latitude(&mut prep, &effects, &cfg);
     }
     let mut reasons = prep.untrusted_reasons();
     reasons.extend(id.convergence.and_then(|c| c.untrusted_reason()));

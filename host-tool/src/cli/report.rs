@@ -5,7 +5,7 @@ use std::path::PathBuf;
 use super::common::{load, ModelArgs};
 use super::identify::rows;
 use crate::catalog;
-use crate::diagnose::{ladder, DiagnoseConfig, Ladder};
+use crate::diagnose::{ladder_from, DiagnoseConfig, Ladder};
 use crate::identify::prepare_oriented;
 use crate::output;
 use crate::report::{render_html, write_pngs, CoefRow, ReportInput};
@@ -52,6 +52,8 @@ pub fn run(args: &ReportArgs) -> anyhow::Result<()> {
         &cfg.identify,
         loaded.initial_orientation_rad,
     )?;
+    let mut prep = prep;
+    let first = super::common::starting_fit(&mut prep, &effects, &cfg.identify)?;
     super::common::print_findings(&prep.findings);
     let faults = prep.untrusted_reasons();
     let mut cfg = cfg;
@@ -65,7 +67,7 @@ pub fn run(args: &ReportArgs) -> anyhow::Result<()> {
         rungs,
         identification: id,
         effects: final_effects,
-    } = ladder(&prep, &effects, &cfg)?;
+    } = ladder_from(&prep, &effects, &cfg, first)?;
     spin.finish_and_clear();
     let model = super::common::build_model(prep.site, &final_effects, &cfg.identify)?;
     let mut untrusted = faults;
