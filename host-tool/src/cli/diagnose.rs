@@ -238,6 +238,22 @@ pub struct OneDiagnosis {
     pub final_model: Vec<String>,
 }
 
+/// Why a ladder's result is not trusted (empty when it is): the data's faults, then its final
+/// model's fit — not converged, or not explaining the measurements. `diagnose` and `report` both.
+pub fn ladder_untrusted(faults: &[String], diagnoses: &[Diagnosis]) -> Vec<String> {
+    let mut reasons = faults.to_vec();
+    if let Some(d) = diagnoses.last() {
+        reasons.extend(d.convergence.and_then(|c| c.untrusted_reason()));
+        if !d.consistency.is_consistent() {
+            reasons.push(format!(
+                "the final model does not explain the measurements: {}",
+                d.consistency.failures.join("; ")
+            ));
+        }
+    }
+    reasons
+}
+
 /// Diagnoses one recording: prints the text unless `--json`, returns the JSON and the reasons.
 pub fn diagnose_one(
     recording: &std::path::Path,
@@ -279,21 +295,7 @@ pub fn diagnose_one(
         export(dir, &diagnoses)?;
     }
     let last = diagnoses.last().map(|d| d.consistency.clone());
-    let mut reasons = faults.clone();
-    reasons.extend(
-        diagnoses
-            .last()
-            .and_then(|d| d.convergence)
-            .and_then(|c| c.untrusted_reason()),
-    );
-    if let Some(c) = &last {
-        if !c.is_consistent() {
-            reasons.push(format!(
-                "the final model does not explain the measurements: {}",
-                c.failures.join("; ")
-            ));
-        }
-    }
+    let reasons = ladder_untrusted(&faults, &diagnoses);
     let d = &diagnoses[0];
     let final_model = diagnoses
         .last()

@@ -70,15 +70,7 @@ pub fn run(args: &ReportArgs) -> anyhow::Result<()> {
     } = ladder_from(&prep, &effects, &cfg, first)?;
     spin.finish_and_clear();
     let model = super::common::build_model(prep.site, &final_effects, &cfg.identify)?;
-    let mut untrusted = faults;
-    if let Some(d) = diagnoses.last() {
-        if !d.consistency.is_consistent() {
-            untrusted.push(format!(
-                "the final model does not explain the measurements: {}",
-                d.consistency.failures.join("; ")
-            ));
-        }
-    }
+    let untrusted = super::diagnose::ladder_untrusted(&faults, &diagnoses);
     let truth = match &args.truth {
         Some(p) => Some(super::identify::truth_of(&read_truth(p)?, &id)),
         None => None,
