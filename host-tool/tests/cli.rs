@@ -356,11 +356,13 @@ fn several_runs_are_identified_diagnosed_and_planned_together() {
 
 /// A recording whose metadata latitude is wrong (45° for a run at 39.1°, with no gravity line,
 /// so gravity follows the stated latitude): every command that fits a model names the metadata
-/// as the fault and exits 3 (numbers computed, not trusted). `report` once said "no finding",
-/// explained the misfit by an accelerometer scale factor and exited 0 — a confident wrong
-/// answer from the same data `diagnose` got right.
+/// as the fault. On one run it exits 3 (numbers computed, not trusted); a joint fit or a plan
+/// with that run refuses it, exit 2 (the runs cannot be fitted together on a wrong site).
+/// `report` once said "no finding", explained the misfit by an accelerometer scale factor and
+/// exited 0, and `plan` planned the next run from it, exit 0; a joint fit failed with "innovation
+/// covariance not positive definite" — all from the same data `diagnose` got right.
 #[test]
-fn a_wrong_latitude_is_named_by_identify_diagnose_and_report() {
+fn a_wrong_latitude_is_named_by_every_command() {
     let dir = temp_dir("wrong-latitude");
     let csv = dir.join("run.csv");
     let out = driftid()
@@ -390,9 +392,9 @@ fn a_wrong_latitude_is_named_by_identify_diagnose_and_report() {
     let bad = dir.join("wrong.csv");
     std::fs::write(&bad, &wrong).unwrap();
     let html = dir.join("wrong.html");
-    let runs: [(&str, Vec<std::ffi::OsString>); 3] = [
-        ("identify", vec!["identify".into(), bad.clone().into()]),
-        ("diagnose", vec!["diagnose".into(), bad.clone().into()]),
+    let runs: [(&str, Vec<std::ffi::OsString>, i32); 5] = [
+        ("identify", vec!["identify".into(), bad.clone().into()], 3),
+        ("diagnose", vec!["diagnose".into(), bad.clone().into()], 3),
         (
             "report",
             vec![
@@ -401,9 +403,16 @@ fn a_wrong_latitude_is_named_by_identify_diagnose_and_report() {
                 "-o".into(),
                 html.clone().into(),
             ],
+            3,
         ),
+        (
+            "identify, two runs",
+            vec!["identify".into(), csv.clone().into(), bad.clone().into()],
+            2,
+        ),
+        ("plan", vec!["plan".into(), bad.clone().into()], 2),
     ];
-    for (name, args) in runs {
+    for (name, args, code) in runs {
         let out = driftid().args(&args).output().unwrap();
         let all = format!(
             "{}{}",
@@ -412,8 +421,8 @@ fn a_wrong_latitude_is_named_by_identify_diagnose_and_report() {
         );
         assert_eq!(
             out.status.code(),
-            Some(3),
-            "{name}: exit 3 expected:\n{all}"
+            Some(code),
+            "{name}: exit {code} expected:\n{all}"
         );
         assert!(
             all.contains("the data put the site at latitude 39.1"),

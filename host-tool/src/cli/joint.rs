@@ -11,7 +11,9 @@ use super::identify::IdentifyArgs;
 use crate::catalog;
 use crate::consistency::Consistency;
 use crate::format::{sci, with_sigma};
-use crate::identify::joint::{identify_joint, joint_bound, JointIdentification, Run, RunFit};
+use crate::identify::joint::{
+    fit_alone, identify_joint_from, joint_bound, JointIdentification, Run, RunFit,
+};
 use crate::identify::{prepare_oriented, Config, Prepared};
 use crate::simulate::read_truth;
 
@@ -133,6 +135,77 @@ pub fn diagnose(args: &DiagnoseArgs) -> anyhow::Result<()> {
     trusted_or(reasons)
 }
 
+/// The runs identified jointly ([`crate::identify::joint`]), each first alone; a run whose
+/// metadata latitude the data contradict is refused ([`refuse_wrong_latitudes`]). `models[r]` is
+/// run r's model; `label` is what the spinner says meanwhile.
+pub fn fit_jointly(
+    runs: &mut [LoadedRun],
+    models: &[estimator_core::model::Model<'_>],
+    effects: &[&'static dyn estimator_core::effects::Effect],
+    cfg: &crate::identify::Config,
+    label: &str,
+) -> anyhow::Result<JointIdentification> {
+    let spin = crate::progress::spinner(label);
+    let alone = fit_alone(&as_runs(models, runs), cfg);
+    spin.finish_and_clear();
+    refuse_wrong_latitudes(runs, &alone, effects, cfg)?;
+    let spin = crate::progress::spinner(label);
+    let joint = identify_joint_from(&as_runs(models, runs), alone);
+    spin.finish_and_clear();
+    joint
+}
+
+/// The runs as the joint fit takes them: each with its model.
+fn as_runs<'a, 'm>(
+    models: &'a [estimator_core::model::Model<'m>],
+    runs: &'a [LoadedRun],
+) -> Vec<Run<'a, 'm>> {
+    models
+        .iter()
+        .zip(runs)
+        .map(|(model, r)| Run {
+            model,
+            prep: &r.prep,
+        })
+        .collect()
+}
+
+/// A run its own model does not fit (`alone`, [`fit_alone`]) is first asked whether its metadata
+/// latitude is the culprit ([`super::common::name_a_wrong_latitude`]). A run whose site is wrong
+/// cannot join the others: refused, naming each such file and the data's latitude.
+fn refuse_wrong_latitudes(
+    runs: &mut [LoadedRun],
+    alone: &[anyhow::Result<crate::identify::Identification>],
+    effects: &[&'static dyn estimator_core::effects::Effect],
+    cfg: &crate::identify::Config,
+) -> anyhow::Result<()> {
+    let mut named = vec![];
+    for (r, id) in runs.iter_mut().zip(alone) {
+        let misfit = id
+            .as_ref()
+            .ok()
+            .and_then(|id| super::identify::consistency_of(id, &r.prep))
+            .is_some_and(|c| !c.is_consistent());
+        if misfit {
+            super::common::name_a_wrong_latitude(&mut r.prep, effects, cfg);
+        }
+        named.extend(
+            r.prep
+                .findings
+                .iter()
+                .filter(|f| f.kind == "latitude")
+                .map(|f| format!("{}: {}", r.path.display(), f.message)),
+        );
+    }
+    if !named.is_empty() {
+        anyhow::bail!(
+            "{}; the runs are fitted together only when every run's site is right (`--latitude-deg` sets it for every run; a run made elsewhere needs its own `# latitude_deg:` corrected)",
+            named.join("; ")
+        );
+    }
+    Ok(())
+}
+
 /// Identifies `paths` jointly with the paper's model plus `with`; prints the text unless `json`
 /// and returns the JSON object and the reasons not to trust it.
 pub fn identify_runs(
@@ -144,23 +217,14 @@ pub fn identify_runs(
 ) -> anyhow::Result<(Value, Vec<String>)> {
     let cfg = model_args.config()?;
     let effects = catalog::model_effects(with)?;
-    let runs = load_runs(paths, model_args.latitude_deg, &cfg)?;
+    let mut runs = load_runs(paths, model_args.latitude_deg, &cfg)?;
     let models = runs
         .iter()
         .map(|r| build_model(r.prep.site, &effects, &cfg))
         .collect::<anyhow::Result<Vec<_>>>()?;
-    let joint_runs: Vec<Run> = models
-        .iter()
-        .zip(&runs)
-        .map(|(model, r)| Run {
-            model,
-            prep: &r.prep,
-        })
-        .collect();
-    let spin = crate::progress::spinner(&format!("identifying {} runs jointly", runs.len()));
-    let joint = identify_joint(&joint_runs, &cfg);
-    spin.finish_and_clear();
-    let joint = joint?;
+    let label = format!("identifying {} runs jointly", runs.len());
+    let joint = fit_jointly(&mut runs, &models, &effects, &cfg, &label)?;
+    let joint_runs = as_runs(&models, &runs);
     let truth: Option<Vec<f64>> = match truth_path {
         Some(p) => {
             let values = read_truth(p)?.parameter_values();

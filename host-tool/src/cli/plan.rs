@@ -6,10 +6,9 @@ use std::path::PathBuf;
 use serde_json::json;
 
 use super::common::{build_model, ModelArgs};
-use super::joint::load_runs;
+use super::joint::{fit_jointly, load_runs};
 use crate::catalog;
 use crate::format::sci;
-use crate::identify::joint::{identify_joint, Run};
 use crate::identify::{Estimate, Prepared};
 use crate::plan::{rank, Criterion, Design};
 use crate::simulate::Scenario;
@@ -57,7 +56,7 @@ pub fn run(args: &PlanArgs) -> anyhow::Result<()> {
         }
     }
     let effects = catalog::model_effects(&with)?;
-    let runs = load_runs(&args.recordings, args.model.latitude_deg, &cfg)?;
+    let mut runs = load_runs(&args.recordings, args.model.latitude_deg, &cfg)?;
     let defaults = Scenario::paper();
     let (site, template, before, params) = if runs.is_empty() {
         let lat = args.model.latitude_deg.unwrap_or(defaults.latitude_deg);
@@ -78,18 +77,13 @@ pub fn run(args: &PlanArgs) -> anyhow::Result<()> {
             .iter()
             .map(|r| build_model(r.prep.site, &effects, &cfg))
             .collect::<anyhow::Result<Vec<_>>>()?;
-        let joint_runs: Vec<Run> = models
-            .iter()
-            .zip(&runs)
-            .map(|(model, r)| Run {
-                model,
-                prep: &r.prep,
-            })
-            .collect();
-        let spin = crate::progress::spinner("identifying the runs so far");
-        let joint = identify_joint(&joint_runs, &cfg);
-        spin.finish_and_clear();
-        let joint = joint?;
+        let joint = fit_jointly(
+            &mut runs,
+            &models,
+            &effects,
+            &cfg,
+            "identifying the runs so far",
+        )?;
         let last = &runs[runs.len() - 1].prep;
         let mean_hours = runs
             .iter()

@@ -177,6 +177,25 @@ fn fit_under(
 
 /// Identifies one set of parameters from several runs (see the module docs).
 pub fn identify_joint(runs: &[Run<'_, '_>], cfg: &Config) -> anyhow::Result<JointIdentification> {
+    identify_joint_from(runs, fit_alone(runs, cfg))
+}
+
+/// Each run identified alone ([`identify`], with its fall-backs), on all cores: the joint fit's
+/// start. An error names its run.
+pub fn fit_alone(runs: &[Run<'_, '_>], cfg: &Config) -> Vec<anyhow::Result<Identification>> {
+    runs.par_iter()
+        .enumerate()
+        .map(|(r, run)| {
+            identify(run.model, run.prep, cfg).with_context(|| format!("run {}", r + 1))
+        })
+        .collect()
+}
+
+/// [`identify_joint`] from the runs' own fits, made already ([`fit_alone`]).
+pub fn identify_joint_from(
+    runs: &[Run<'_, '_>],
+    fits: Vec<anyhow::Result<Identification>>,
+) -> anyhow::Result<JointIdentification> {
     let Some(first) = runs.first() else {
         bail!("no runs to identify from");
     };
@@ -187,14 +206,6 @@ pub fn identify_joint(runs: &[Run<'_, '_>], cfg: &Config) -> anyhow::Result<Join
     let mut alone = Vec::with_capacity(runs.len());
     let mut posteriors = Vec::with_capacity(runs.len());
     let mut angles = Vec::with_capacity(runs.len());
-    // The runs' own fits are independent: on all cores.
-    let fits: Vec<anyhow::Result<Identification>> = runs
-        .par_iter()
-        .enumerate()
-        .map(|(r, run)| {
-            identify(run.model, run.prep, cfg).with_context(|| format!("run {}", r + 1))
-        })
-        .collect();
     for (run, id) in runs.iter().zip(fits) {
         let id = id?;
         posteriors.push(id.best().clone());
