@@ -53,6 +53,33 @@ pub fn load_runs(
         .collect()
 }
 
+/// Why a joint fit is not trusted, run by run (empty when it is): each run's data faults, its
+/// own fit not converged, the joint model not explaining it (`checks`, [`run_consistency`]).
+/// `identify` with several runs and `plan` both.
+pub fn runs_untrusted(runs: &[LoadedRun], fits: &[RunFit], checks: &[Consistency]) -> Vec<String> {
+    let mut reasons = vec![];
+    for ((r, c), fit) in runs.iter().zip(checks).zip(fits) {
+        let name = r.path.display();
+        reasons.extend(
+            r.prep
+                .untrusted_reasons()
+                .into_iter()
+                .map(|m| format!("{name}: {m}")),
+        );
+        if let Some(why) = fit.alone.convergence.and_then(|c| c.untrusted_reason()) {
+            reasons.push(format!("{name} alone: {why}"));
+        }
+        if !c.is_consistent() {
+            reasons.push(format!(
+                "{name}: the joint model does not explain this run: {} (alone: NIS/3 {:.3}); run `driftid diagnose` on it",
+                c.failures.join("; "),
+                fit.alone.nis_mean()
+            ));
+        }
+    }
+    reasons
+}
+
 /// The consistency of one run under the joint estimate (the one definition in
 /// [`crate::consistency`]).
 pub fn run_consistency(fit: &RunFit, prep: &Prepared) -> Consistency {
@@ -251,26 +278,7 @@ pub fn identify_runs(
         .zip(&runs)
         .map(|(fit, r)| run_consistency(fit, &r.prep))
         .collect();
-    let mut reasons = vec![];
-    for ((r, c), fit) in runs.iter().zip(&checks).zip(&joint.runs) {
-        let name = r.path.display();
-        reasons.extend(
-            r.prep
-                .untrusted_reasons()
-                .into_iter()
-                .map(|m| format!("{name}: {m}")),
-        );
-        if let Some(why) = fit.alone.convergence.and_then(|c| c.untrusted_reason()) {
-            reasons.push(format!("{name} alone: {why}"));
-        }
-        if !c.is_consistent() {
-            reasons.push(format!(
-                "{name}: the joint model does not explain this run: {} (alone: NIS/3 {:.3}); run `driftid diagnose` on it",
-                c.failures.join("; "),
-                fit.alone.nis_mean()
-            ));
-        }
-    }
+    let reasons = runs_untrusted(&runs, &joint.runs, &checks);
     let mut out = to_json(&joint, &runs, &checks, &bound, truth.as_deref());
     out["trusted"] = json!(reasons.is_empty());
     out["untrusted_reasons"] = json!(reasons);

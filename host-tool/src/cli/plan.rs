@@ -5,8 +5,8 @@ use std::path::PathBuf;
 
 use serde_json::json;
 
-use super::common::{build_model, ModelArgs};
-use super::joint::{fit_jointly, load_runs};
+use super::common::{build_model, trusted_or, ModelArgs};
+use super::joint::{fit_jointly, load_runs, run_consistency, runs_untrusted};
 use crate::catalog;
 use crate::format::sci;
 use crate::identify::{Estimate, Prepared};
@@ -58,6 +58,8 @@ pub fn run(args: &PlanArgs) -> anyhow::Result<()> {
     let effects = catalog::model_effects(&with)?;
     let mut runs = load_runs(&args.recordings, args.model.latitude_deg, &cfg)?;
     let defaults = Scenario::paper();
+    // Why the runs so far do not support a trusted plan (their faults, a misfit): exit 3.
+    let mut reasons = vec![];
     let (site, template, before, params) = if runs.is_empty() {
         let lat = args.model.latitude_deg.unwrap_or(defaults.latitude_deg);
         let site = estimator_core::Site::new(lat, None);
@@ -84,6 +86,13 @@ pub fn run(args: &PlanArgs) -> anyhow::Result<()> {
             &cfg,
             "identifying the runs so far",
         )?;
+        let checks: Vec<_> = joint
+            .runs
+            .iter()
+            .zip(&runs)
+            .map(|(fit, r)| run_consistency(fit, &r.prep))
+            .collect();
+        reasons = runs_untrusted(&runs, &joint.runs, &checks);
         let last = &runs[runs.len() - 1].prep;
         let mean_hours = runs
             .iter()
@@ -146,9 +155,11 @@ pub fn run(args: &PlanArgs) -> anyhow::Result<()> {
             "sigma_after": sig(&best.cov),
             "alternatives": ranked.iter().skip(1).take(args.alternatives)
                 .map(|c| json!({ "designs": c.designs, "score": c.score })).collect::<Vec<_>>(),
+            "trusted": reasons.is_empty(),
+            "untrusted_reasons": reasons,
         });
         println!("{}", serde_json::to_string_pretty(&out)?);
-        return Ok(());
+        return trusted_or(reasons);
     }
     print_plan(
         &names,
@@ -159,7 +170,7 @@ pub fn run(args: &PlanArgs) -> anyhow::Result<()> {
         &ranked,
         args.alternatives,
     );
-    Ok(())
+    trusted_or(reasons)
 }
 
 /// Mean sample interval of a prepared run, s (from the samples per filter period).
