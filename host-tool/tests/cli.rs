@@ -254,6 +254,24 @@ fn report_is_one_self_contained_page_that_tells_the_story() {
     let _ = std::fs::remove_dir_all(&dir);
 }
 
+/// `driftid simulate ARGS --out DIR/NAME`, which must succeed: the recording's path.
+fn simulate_to(dir: &std::path::Path, name: &str, args: &[&str]) -> PathBuf {
+    let csv = dir.join(name);
+    let out = driftid()
+        .arg("simulate")
+        .args(args)
+        .arg("--out")
+        .arg(&csv)
+        .output()
+        .unwrap();
+    assert!(
+        out.status.success(),
+        "simulate {args:?}: {}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    csv
+}
+
 fn simulate_run(
     dir: &std::path::Path,
     name: &str,
@@ -261,23 +279,10 @@ fn simulate_run(
     orientation: &str,
     extra: &[&str],
 ) -> PathBuf {
-    let csv = dir.join(name);
-    let out = driftid()
-        .args([
-            "simulate", "--hours", "36", "--rate-s", "30", "--seed", seed,
-        ])
-        .args(["--initial-orientation-deg", orientation])
-        .args(extra)
-        .arg("--out")
-        .arg(&csv)
-        .output()
-        .unwrap();
-    assert!(
-        out.status.success(),
-        "{}",
-        String::from_utf8_lossy(&out.stderr)
-    );
-    csv
+    let mut args = vec!["--hours", "36", "--rate-s", "30", "--seed", seed];
+    args.extend(["--initial-orientation-deg", orientation]);
+    args.extend(extra);
+    simulate_to(dir, name, &args)
 }
 
 #[test]
@@ -364,18 +369,10 @@ fn several_runs_are_identified_diagnosed_and_planned_together() {
 #[test]
 fn a_wrong_latitude_is_named_by_every_command() {
     let dir = temp_dir("wrong-latitude");
-    let csv = dir.join("run.csv");
-    let out = driftid()
-        .args([
-            "simulate", "--hours", "10", "--rate-s", "10", "--seed", "2", "--out",
-        ])
-        .arg(&csv)
-        .output()
-        .unwrap();
-    assert!(
-        out.status.success(),
-        "{}",
-        String::from_utf8_lossy(&out.stderr)
+    let csv = simulate_to(
+        &dir,
+        "run.csv",
+        &["--hours", "10", "--rate-s", "10", "--seed", "2"],
     );
     let text = std::fs::read_to_string(&csv).unwrap();
     let wrong: String = text
@@ -444,10 +441,10 @@ fn a_wrong_latitude_is_named_by_every_command() {
 #[test]
 fn a_plan_from_a_run_the_model_does_not_explain_is_not_trusted() {
     let dir = temp_dir("plan-misfit");
-    let csv = dir.join("run.csv");
-    let out = driftid()
-        .args([
-            "simulate",
+    let csv = simulate_to(
+        &dir,
+        "run.csv",
+        &[
             "--hours",
             "12",
             "--rate-s",
@@ -456,15 +453,7 @@ fn a_plan_from_a_run_the_model_does_not_explain_is_not_trusted() {
             "4",
             "--effect",
             "acc-bias=4e-4,-3e-4,2e-4",
-            "--out",
-        ])
-        .arg(&csv)
-        .output()
-        .unwrap();
-    assert!(
-        out.status.success(),
-        "{}",
-        String::from_utf8_lossy(&out.stderr)
+        ],
     );
     for (with, code) in [(None, 3), (Some("acc-bias"), 0)] {
         let mut cmd = driftid();
