@@ -32,6 +32,22 @@ pub struct ModelArgs {
     /// Effects added to the paper's model, comma-separated (e.g. `acc-bias,drift-markov`).
     #[arg(long = "with", value_delimiter = ',')]
     pub with: Vec<String>,
+    /// Start attitude prior 1σ, arcsec: TILT (each level axis) and AZIMUTH. The start is
+    /// estimated with it; default 5,30 (docs/model.md, "Set-up parameters").
+    #[arg(long, value_delimiter = ',', num_args = 2, value_names = ["TILT", "AZIMUTH"], value_parser = super::args::nonneg_f64)]
+    pub alignment_arcsec: Option<Vec<f64>>,
+    /// Latitude 1σ, deg; default: half the last written digit of the latitude (/√3), at least 1e-4.
+    #[arg(long, value_parser = super::args::nonneg_f64)]
+    pub latitude_sigma_deg: Option<f64>,
+    /// Recorder clock rate 1σ, ppm (default 20: a quartz crystal; 1 for a disciplined clock).
+    #[arg(long, value_parser = super::args::nonneg_f64)]
+    pub clock_sigma_ppm: Option<f64>,
+    /// Gravity 1σ, ppm of g (default 30: normal gravity or a map value, altitude and anomaly).
+    #[arg(long, value_parser = super::args::nonneg_f64)]
+    pub gravity_sigma_ppm: Option<f64>,
+    /// Daily tilt of the apparent vertical, 1σ per component, arcsec (default 1).
+    #[arg(long, value_parser = super::args::nonneg_f64)]
+    pub vertical_tilt_arcsec: Option<f64>,
     /// TOML file of effects defined by the user, added to the catalog for this run (repeatable);
     /// see the README, "Effects defined in a file".
     #[arg(long = "effects", value_name = "FILE")]
@@ -56,7 +72,23 @@ impl ModelArgs {
                 self.period_s
             );
         }
+        let mut setup = crate::identify::setup::SetupPriors::default();
+        if let Some(v) = self.alignment_arcsec.as_deref() {
+            if let [tilt, azimuth] = v {
+                setup.tilt_arcsec = *tilt;
+                setup.azimuth_arcsec = *azimuth;
+            } else {
+                anyhow::bail!("--alignment-arcsec takes TILT,AZIMUTH, got {} values", v.len());
+            }
+        }
+        setup.latitude_sigma_deg = self.latitude_sigma_deg.or(setup.latitude_sigma_deg);
+        setup.clock_sigma_ppm = self.clock_sigma_ppm.unwrap_or(setup.clock_sigma_ppm);
+        setup.gravity_sigma_ppm = self.gravity_sigma_ppm.unwrap_or(setup.gravity_sigma_ppm);
+        setup.vertical_tilt_arcsec = self
+            .vertical_tilt_arcsec
+            .unwrap_or(setup.vertical_tilt_arcsec);
         Ok(Config {
+            setup,
             period_s: self.period_s,
             arw_deg2_per_h: self.arw,
             propagation: if self.euler {

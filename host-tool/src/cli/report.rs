@@ -75,7 +75,8 @@ pub fn run(args: &ReportArgs) -> anyhow::Result<()> {
         Some(p) => Some(super::identify::truth_of(&read_truth(p)?, &id)),
         None => None,
     };
-    let table = rows(&id, &model, &prep, truth.as_deref());
+    let unc = crate::identify::setup::uncertainty(&final_effects, &prep, &cfg.identify, &id)?;
+    let table = rows(&id, &unc, &model, &prep, truth.as_deref());
     let coefficients = table
         .iter()
         .enumerate()
@@ -84,6 +85,8 @@ pub fn run(args: &ReportArgs) -> anyhow::Result<()> {
             unit: r.unit.to_string(),
             value: r.value,
             sigma: r.sigma,
+            sigma_total: r.sigma_total,
+            dominant: r.dominant.to_string(),
             bound: r.bound,
             truth: truth
                 .as_ref()

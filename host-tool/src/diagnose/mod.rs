@@ -160,7 +160,7 @@ fn replay(
         .collect();
     let mut x0 = vec![0.0; model.dim()];
     x0[..3].copy_from_slice(&prep.initial_angles);
-    let (x0, p0) = wide_prior(model, &x0, &prep.initial_angle_sigma);
+    let (x0, p0) = wide_prior(model, &x0, &prep.start_sigma());
     let meas = &prep.measurements;
     Ok(signatures(
         model,

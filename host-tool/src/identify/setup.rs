@@ -1,0 +1,477 @@
+//! The run's set-up as uncertain parameters: what the 1σ of a coefficient must carry besides the
+//! noise (docs/model.md, "Set-up parameters").
+//!
+//! A recording states its set-up — the platform's start attitude (level and north), the latitude,
+//! the recorder's time scale, gravity — as if exactly known. None is:
+//! - **start attitude**: levelling leaves arcseconds of tilt, a gyrocompass alignment tens of
+//!   arcseconds of azimuth. The angles are states of the filter, so this prior is *estimated*
+//!   with the data (`Prepared::alignment_sigma`); [`Uncertainty`] reports what it adds against
+//!   a start known to 0.2″ (the noise-only 1σ, the one the Cramér–Rao bound is compared with).
+//! - **latitude, clock rate, gravity**: not states of the filter. Each is marginalised to first
+//!   order: the model is refitted at ±h (warm-started, a few Gauss–Newton passes), which gives the
+//!   coefficients' sensitivity `S = ∂ĉ/∂φ` and the data's own information about φ from the
+//!   curvature of −2 ln p(y); the posterior variance `v = 1/(1/σ_prior² + c/2)` (c the
+//!   curvature) then adds `S v Sᵀ` to the covariance — a Schmidt (consider) term where the data
+//!   say nothing, shrunk where they do.
+//! - **daily tilt of the apparent vertical** (a building's thermal tilt): a 24-h rotation of
+//!   the measured gravity direction, too small to detect at this noise; a pure consider term,
+//!   `S σ² Sᵀ`, S from the linearised smoother's response to the tilt's signature.
+//!
+//! The total covariance is the fit's (start attitude estimated) plus these terms.
+
+use anyhow::Context as _;
+use estimator_core::effects::Effect;
+use estimator_core::frames::Attitude;
+use estimator_core::model::{Model, ANGLES};
+use estimator_core::Site;
+use nalgebra::{DMatrix, DVector, Vector3};
+use rayon::prelude::*;
+use serde::Serialize;
+
+use super::smoother::linearised_pass;
+use super::{
+    build_model, gauss_newton, neg2_log_evidence, wide_prior, Config, Identification, Prepared,
+};
+
+/// Radians per arcsecond.
+pub const RAD_PER_ARCSEC: f64 = std::f64::consts::PI / (180.0 * 3600.0);
+
+/// Priors of the set-up (1σ each); `driftid` options `--alignment-arcsec`,
+/// `--latitude-sigma-deg`, `--clock-sigma-ppm`, `--gravity-sigma-ppm`, `--vertical-tilt-arcsec`.
+#[derive(Clone, Copy, Debug, PartialEq, Serialize)]
+pub struct SetupPriors {
+    /// Start tilt about each level axis, arcsec: a platform levelled on its accelerometers is
+    /// level to their bias over g (1e-4 m/s² / g ≈ 2″); 5″ allows for the levelling loop.
+    pub tilt_arcsec: f64,
+    /// Start azimuth, arcsec: a gyrocompass alignment's error is the east drift over the
+    /// horizontal Earth rate (1e-3 deg/h over 11.7 deg/h at 39° ≈ 18″); 30″ ("tens of arcseconds").
+    pub azimuth_arcsec: f64,
+    /// Latitude 1σ, deg; `None`: from the digits the latitude is written with (a uniform error
+    /// of half the last digit, unit/√12), at least [`MIN_LATITUDE_SIGMA_DEG`].
+    pub latitude_sigma_deg: Option<f64>,
+    /// Clock rate 1σ, ppm: a logger stamping from an ordinary quartz crystal (±20 ppm at 25 °C,
+    /// a few ppm of ageing and temperature in a laboratory). A disciplined clock: 1.
+    pub clock_sigma_ppm: f64,
+    /// Gravity 1σ, ppm of g: normal gravity or a value from a map misses altitude (0.3 ppm/m) and
+    /// the local anomaly (tens of ppm).
+    pub gravity_sigma_ppm: f64,
+    /// Daily tilt of the apparent vertical, 1σ of each of its four components (east and north,
+    /// in phase and in quadrature with the day), arcsec: a building's thermal tilt.
+    pub vertical_tilt_arcsec: f64,
+    /// Period of that tilt, h (a solar day).
+    pub vertical_tilt_period_h: f64,
+}
+
+/// Smallest default latitude 1σ, deg (≈ 10 m: a site's position is known at least that well).
+pub const MIN_LATITUDE_SIGMA_DEG: f64 = 1e-4;
+
+impl Default for SetupPriors {
+    fn default() -> Self {
+        SetupPriors {
+            tilt_arcsec: 5.0,
+            azimuth_arcsec: 30.0,
+            latitude_sigma_deg: None,
+            clock_sigma_ppm: 20.0,
+            gravity_sigma_ppm: 30.0,
+            vertical_tilt_arcsec: 1.0,
+            vertical_tilt_period_h: 24.0,
+        }
+    }
+}
+
+impl SetupPriors {
+    /// The start attitude prior in the run's chart, rad: two tilts and the azimuth for a level
+    /// start in the ENU chart; from any other start the small rotation mixes the three Euler
+    /// angles, so each gets the larger.
+    pub fn alignment_sigma(&self, level_enu: bool) -> [f64; 3] {
+        let (t, a) = (
+            self.tilt_arcsec * RAD_PER_ARCSEC,
+            self.azimuth_arcsec * RAD_PER_ARCSEC,
+        );
+        if level_enu {
+            [t, t, a]
+        } else {
+            [t.max(a); 3]
+        }
+    }
+
+    /// The latitude 1σ for a latitude written as `latitude_deg`, deg.
+    pub fn latitude_sigma(&self, latitude_deg: f64) -> f64 {
+        self.latitude_sigma_deg
+            .unwrap_or_else(|| written_precision(latitude_deg).max(MIN_LATITUDE_SIGMA_DEG))
+    }
+}
+
+/// 1σ of a uniform rounding error of the last digit of `x` as Rust writes it shortest
+/// (39.1 → 0.1/√12).
+pub fn written_precision(x: f64) -> f64 {
+    let s = format!("{x}");
+    let decimals = s.split_once('.').map_or(0, |(_, f)| f.len()) as i32;
+    10f64.powi(-decimals) / 12f64.sqrt()
+}
+
+/// What one set-up parameter adds to the coefficients' uncertainty.
+#[derive(Clone, Debug, Serialize)]
+pub struct Contribution {
+    /// `start attitude`, `latitude`, `clock rate`, `gravity` or `vertical tilt`.
+    pub source: &'static str,
+    /// The prior, in words with its unit.
+    pub prior: String,
+    /// 1σ the data alone give the parameter, in the prior's unit (`None`: not estimated, or the
+    /// data say nothing).
+    pub data_sigma: Option<f64>,
+    /// Posterior 1σ used, in the prior's unit.
+    pub posterior_sigma: f64,
+    /// Where the data put the parameter against the stated value, in the prior's unit
+    /// (`None` where not estimated).
+    pub data_offset: Option<f64>,
+    /// 1σ this source adds to each parameter of the model (state order after the angles).
+    pub sigma: Vec<f64>,
+    /// The covariance it adds.
+    #[serde(skip)]
+    pub cov: DMatrix<f64>,
+}
+
+impl Contribution {
+    fn new(
+        source: &'static str,
+        prior: String,
+        cov: DMatrix<f64>,
+    ) -> Self {
+        Contribution {
+            source,
+            prior,
+            data_sigma: None,
+            posterior_sigma: f64::NAN,
+            data_offset: None,
+            sigma: (0..cov.nrows()).map(|k| cov[(k, k)].max(0.0).sqrt()).collect(),
+            cov,
+        }
+    }
+}
+
+/// The coefficients' uncertainty with the set-up's.
+#[derive(Clone, Debug, Serialize)]
+pub struct Uncertainty {
+    /// 1σ with the set-up exactly as stated (start attitude to 0.2″): noise only.
+    pub noise_sigma: Vec<f64>,
+    /// 1σ with every set-up prior: the headline.
+    pub total_sigma: Vec<f64>,
+    /// Each source's share.
+    pub contributions: Vec<Contribution>,
+    /// The total covariance of the parameters.
+    #[serde(skip)]
+    pub total_cov: DMatrix<f64>,
+}
+
+impl Uncertainty {
+    /// The source that adds most to parameter `k` (`noise` when none adds as much as the noise).
+    pub fn dominant(&self, k: usize) -> &'static str {
+        let best = self
+            .contributions
+            .iter()
+            .max_by(|a, b| a.sigma[k].total_cmp(&b.sigma[k]));
+        match best {
+            Some(c) if c.sigma[k] > self.noise_sigma[k] => c.source,
+            _ => "noise",
+        }
+    }
+
+    /// Total over noise-only 1σ of parameter `k`.
+    pub fn ratio(&self, k: usize) -> f64 {
+        self.total_sigma[k] / self.noise_sigma[k]
+    }
+
+    /// No set-up uncertainty: the fit's own covariance (the single pass, or `--setup exact`).
+    pub fn exact(cov: &DMatrix<f64>) -> Self {
+        let s: Vec<f64> = (0..cov.nrows()).map(|k| cov[(k, k)].sqrt()).collect();
+        Uncertainty {
+            noise_sigma: s.clone(),
+            total_sigma: s,
+            contributions: vec![],
+            total_cov: cov.clone(),
+        }
+    }
+}
+
+/// `prep` at another latitude: the site moved (gravity moves with it when it was normal
+/// gravity, and stays when given or measured) and the start's attitude kept, re-expressed in the
+/// chart that start calls for there (a chart's angles depend on the latitude).
+pub fn at_latitude(prep: &Prepared, lat_deg: f64) -> Prepared {
+    let derived = (prep.site.gravity_mps2
+        - estimator_core::frames::normal_gravity(prep.site.latitude_rad))
+    .abs()
+        < 1e-12;
+    let enu = prep.site.angles_to_enu(&prep.initial_angles);
+    let mut site = Site::new(lat_deg, (!derived).then_some(prep.site.gravity_mps2));
+    site.chart = site.chart_for_start(&enu);
+    let mut p = prep.clone();
+    p.initial_angles = site.angles_to_chart(&enu);
+    p.site = site;
+    p
+}
+
+/// `prep` as recorded by a clock running fast by `ppm` (its stamps divided by 1 + ppm·1e-6).
+fn with_clock(prep: &Prepared, ppm: f64) -> Prepared {
+    let k = 1.0 / (1.0 + ppm * 1e-6);
+    let mut p = prep.clone();
+    for m in &mut p.measurements {
+        m.t_s *= k;
+        m.time_var_s2 *= k * k;
+    }
+    p
+}
+
+/// `prep` with gravity scaled by 1 + `ppm`·1e-6.
+fn with_gravity(prep: &Prepared, ppm: f64) -> Prepared {
+    let mut p = prep.clone();
+    p.site.gravity_mps2 *= 1.0 + ppm * 1e-6;
+    p
+}
+
+/// A warm-started refit of `effects` on `p`: −2 ln p(y) and the parameters (after the angles).
+fn refit(
+    p: &Prepared,
+    effects: &[&'static dyn Effect],
+    cfg: &Config,
+    id: &Identification,
+) -> anyhow::Result<(f64, DVector<f64>)> {
+    let model = build_model(p.site, effects, cfg)?;
+    let mut x0 = vec![0.0; model.dim()];
+    x0[..ANGLES].copy_from_slice(&p.initial_angles);
+    let (x0, p0) = wide_prior(&model, &x0, &p.start_sigma());
+    let fit = gauss_newton(
+        &model,
+        &p.measurements,
+        id.trajectory.clone(),
+        &x0,
+        &p0,
+        2,
+        6,
+    )?;
+    let last = fit.states.last().context("no states")?;
+    Ok((
+        neg2_log_evidence(&fit.innovations),
+        last.rows(ANGLES, model.dim() - ANGLES).into_owned(),
+    ))
+}
+
+/// A set-up parameter marginalised by refits at ±h (see the module docs).
+fn marginalised(
+    source: &'static str,
+    prior: String,
+    sigma_prior: f64,
+    f0: f64,
+    perturbed: impl Fn(f64) -> Prepared + Sync,
+    effects: &[&'static dyn Effect],
+    cfg: &Config,
+    id: &Identification,
+) -> anyhow::Result<Contribution> {
+    let h = sigma_prior;
+    if !(h > 0.0) {
+        let n = id.best().value.len();
+        return Ok(Contribution::new(source, prior, DMatrix::zeros(n, n)));
+    }
+    let (plus, minus) = rayon::join(
+        || refit(&perturbed(h), effects, cfg, id),
+        || refit(&perturbed(-h), effects, cfg, id),
+    );
+    let ((fp, cp), (fm, cm)) = (plus?, minus?);
+    let curvature = ((fp - 2.0 * f0 + fm) / (h * h)).max(0.0);
+    let gradient = (fp - fm) / (2.0 * h);
+    let precision = 1.0 / (sigma_prior * sigma_prior) + curvature / 2.0;
+    let v = 1.0 / precision;
+    let s = (&cp - &cm) / (2.0 * h);
+    let mut c = Contribution::new(source, prior, &s * s.transpose() * v);
+    c.data_sigma = (curvature > 0.0).then(|| (2.0 / curvature).sqrt());
+    c.posterior_sigma = v.sqrt();
+    c.data_offset = (curvature > 0.0).then(|| -gradient / curvature);
+    Ok(c)
+}
+
+/// The sensitivity of the parameters to an additive perturbation of the measurements, by one
+/// linearised smoother pass about the fit (linear in the measurements).
+fn response(
+    model: &Model<'_>,
+    prep: &Prepared,
+    id: &Identification,
+    base: &DVector<f64>,
+    delta: impl Fn(usize) -> Vector3<f64>,
+) -> anyhow::Result<DVector<f64>> {
+    let mut meas = prep.measurements.clone();
+    for (j, m) in meas.iter_mut().enumerate() {
+        let d = delta(j);
+        for i in 0..3 {
+            m.specific_force[i] += d[i];
+        }
+    }
+    let mut x0 = vec![0.0; model.dim()];
+    x0[..ANGLES].copy_from_slice(&prep.initial_angles);
+    let (x0, p0) = wide_prior(model, &x0, &prep.start_sigma());
+    let pass = linearised_pass(model, &meas, &id.trajectory, &x0, &p0, true)?;
+    let last = pass.states.last().context("no states")?;
+    Ok(last.rows(ANGLES, model.dim() - ANGLES).into_owned() - base)
+}
+
+/// The daily tilt of the apparent vertical as a consider parameter (four components).
+fn vertical_tilt(
+    model: &Model<'_>,
+    prep: &Prepared,
+    id: &Identification,
+    priors: &SetupPriors,
+) -> anyhow::Result<Contribution> {
+    let sigma = priors.vertical_tilt_arcsec * RAD_PER_ARCSEC;
+    let n = model.dim() - ANGLES;
+    if !(sigma > 0.0) {
+        return Ok(Contribution::new("vertical tilt", "0".into(), DMatrix::zeros(n, n)));
+    }
+    let omega = 2.0 * std::f64::consts::PI / (priors.vertical_tilt_period_h * 3600.0);
+    let g = prep.site.gravity_mps2;
+    let r = prep.site.chart_rotation();
+    let mut x0 = vec![0.0; model.dim()];
+    x0[..ANGLES].copy_from_slice(&prep.initial_angles);
+    let (x0v, p0) = wide_prior(model, &x0, &prep.start_sigma());
+    let base_pass = linearised_pass(model, &prep.measurements, &id.trajectory, &x0v, &p0, true)?;
+    let base = base_pass
+        .states
+        .last()
+        .context("no states")?
+        .rows(ANGLES, model.dim() - ANGLES)
+        .into_owned();
+    // Components: (axis east or north, cos or sin of the day); δ × g0 for a rotation δ of the
+    // vertical about the east axis is (0, −δ g, 0)… about north (δ g, 0, 0) in ENU.
+    let columns: Vec<anyhow::Result<DVector<f64>>> = (0..4)
+        .into_par_iter()
+        .map(|c| {
+            response(model, prep, id, &base, |j| {
+                let t = prep.measurements[j].t_s;
+                let phase = if c % 2 == 0 {
+                    (omega * t).cos()
+                } else {
+                    (omega * t).sin()
+                };
+                let d = sigma * phase * g;
+                let v0 = if c < 2 {
+                    Vector3::new(0.0, -d, 0.0)
+                } else {
+                    Vector3::new(d, 0.0, 0.0)
+                };
+                let th = &id.trajectory[j + 1];
+                Attitude::new(&Vector3::new(th[0], th[1], th[2])).specific_force(&(r * v0))
+            })
+        })
+        .collect();
+    let mut cov = DMatrix::zeros(n, n);
+    for col in columns {
+        let col = col?;
+        cov += &col * col.transpose();
+    }
+    let mut c = Contribution::new(
+        "vertical tilt",
+        format!(
+            "{}″ per component, {} h period",
+            priors.vertical_tilt_arcsec, priors.vertical_tilt_period_h
+        ),
+        cov,
+    );
+    c.posterior_sigma = priors.vertical_tilt_arcsec;
+    Ok(c)
+}
+
+/// The coefficients' uncertainty with the set-up priors of `cfg` (see the module docs). `id` is
+/// the converged fit of `effects` on `prep`.
+pub fn uncertainty(
+    effects: &[&'static dyn Effect],
+    prep: &Prepared,
+    cfg: &Config,
+    id: &Identification,
+) -> anyhow::Result<Uncertainty> {
+    let est = id.best();
+    let Some(_) = id.refined.as_ref() else {
+        return Ok(Uncertainty::exact(&est.cov));
+    };
+    let priors = cfg.setup;
+    let model = build_model(prep.site, effects, cfg)?;
+    let n = model.dim() - ANGLES;
+    let f0 = neg2_log_evidence(&id.innovations);
+    // Noise only: the same pass with the start attitude known to 0.2″.
+    let noise_cov = {
+        let mut x0 = vec![0.0; model.dim()];
+        x0[..ANGLES].copy_from_slice(&prep.initial_angles);
+        let (x0, p0) = wide_prior(&model, &x0, &prep.initial_angle_sigma);
+        let pass = linearised_pass(&model, &prep.measurements, &id.trajectory, &x0, &p0, true)?;
+        pass.final_cov
+            .view((ANGLES, ANGLES), (n, n))
+            .into_owned()
+    };
+    let lat_deg = prep.site.latitude_rad.to_degrees();
+    let lat_sigma = priors.latitude_sigma(lat_deg);
+    let ((lat, clock), (gravity, tilt)) = rayon::join(
+        || {
+            rayon::join(
+                || {
+                    marginalised(
+                        "latitude",
+                        format!("{lat_sigma:.2e} deg"),
+                        lat_sigma,
+                        f0,
+                        |h| at_latitude(prep, lat_deg + h),
+                        effects,
+                        cfg,
+                        id,
+                    )
+                },
+                || {
+                    marginalised(
+                        "clock rate",
+                        format!("{} ppm", priors.clock_sigma_ppm),
+                        priors.clock_sigma_ppm,
+                        f0,
+                        |h| with_clock(prep, h),
+                        effects,
+                        cfg,
+                        id,
+                    )
+                },
+            )
+        },
+        || {
+            rayon::join(
+                || {
+                    marginalised(
+                        "gravity",
+                        format!("{} ppm", priors.gravity_sigma_ppm),
+                        priors.gravity_sigma_ppm,
+                        f0,
+                        |h| with_gravity(prep, h),
+                        effects,
+                        cfg,
+                        id,
+                    )
+                },
+                || vertical_tilt(&model, prep, id, &priors),
+            )
+        },
+    );
+    // The start attitude is estimated in the fit: what it adds is the fit's covariance less the
+    // noise-only one.
+    let start = Contribution::new(
+        "start attitude",
+        format!(
+            "tilt {}″, azimuth {}″",
+            priors.tilt_arcsec, priors.azimuth_arcsec
+        ),
+        &est.cov - &noise_cov,
+    );
+    let contributions = vec![start, lat?, clock?, gravity?, tilt?];
+    let mut total_cov = noise_cov.clone();
+    for c in &contributions {
+        total_cov += &c.cov;
+    }
+    Ok(Uncertainty {
+        noise_sigma: (0..n).map(|k| noise_cov[(k, k)].sqrt()).collect(),
+        total_sigma: (0..n).map(|k| total_cov[(k, k)].sqrt()).collect(),
+        contributions,
+        total_cov,
+    })
+}
