@@ -78,7 +78,10 @@ impl ModelArgs {
                 setup.tilt_arcsec = *tilt;
                 setup.azimuth_arcsec = *azimuth;
             } else {
-                anyhow::bail!("--alignment-arcsec takes TILT,AZIMUTH, got {} values", v.len());
+                anyhow::bail!(
+                    "--alignment-arcsec takes TILT,AZIMUTH, got {} values",
+                    v.len()
+                );
             }
         }
         setup.latitude_sigma_deg = self.latitude_sigma_deg.or(setup.latitude_sigma_deg);
@@ -175,18 +178,41 @@ pub fn load(path: &Path, latitude_override: Option<f64>) -> anyhow::Result<Loade
 /// The model with the paper's drift and the chosen effects (lives in [`crate::identify`]).
 pub use crate::identify::build_model;
 
-/// Asks whether the metadata latitude is why a model does not fit ([`crate::quality::latitude`]):
-/// the profile's finding, if any, joins `prep.findings`, where it is a fault (the result is not
-/// trusted, and no physical effect is added to explain it). Call it once a fit is inconsistent.
+/// Asks whether the metadata latitude is why a model does not fit ([`crate::quality::latitude`]),
+/// against `rivals` (the catalog effects' evidence gains on the same scale): the profile's
+/// finding, if any, joins `prep.findings`, where it is a fault (the result is not trusted, and no
+/// physical effect is added to explain it). Call it once a fit is inconsistent.
 pub fn name_a_wrong_latitude(
     prep: &mut Prepared,
     effects: &[&'static dyn estimator_core::effects::Effect],
     cfg: &Config,
+    rivals: &[(String, f64)],
 ) {
     let spin = crate::progress::spinner("the model does not fit: profiling the latitude");
-    let found = crate::quality::latitude::check(prep, effects, cfg);
+    let found = crate::quality::latitude::check(prep, effects, cfg, rivals);
     spin.finish_and_clear();
     prep.findings.extend(found);
+}
+
+/// The catalog effects' evidence gains for the model `effects` fitted as `id` on `prep`
+/// ([`crate::diagnose::alternatives`]): the rivals of a wrong latitude.
+pub fn rivals(
+    prep: &Prepared,
+    effects: &[&'static dyn estimator_core::effects::Effect],
+    cfg: &Config,
+    id: &crate::identify::Identification,
+) -> Vec<(String, f64)> {
+    let dcfg = crate::diagnose::DiagnoseConfig {
+        identify: cfg.clone(),
+        ..Default::default()
+    };
+    crate::diagnose::alternatives::weigh(prep, effects, &dcfg, id)
+        .map(|alts| {
+            alts.into_iter()
+                .map(|a| (a.effect, a.evidence_gain))
+                .collect()
+        })
+        .unwrap_or_default()
 }
 
 /// The starting model fitted on `prep` when its data are trusted (else `None`), a misfit first
@@ -203,7 +229,8 @@ pub fn starting_fit(
     let model = build_model(prep.site, effects, cfg)?;
     let id = crate::identify::identify(&model, prep, cfg)?;
     if super::identify::consistency_of(&id, prep).is_some_and(|c| !c.is_consistent()) {
-        name_a_wrong_latitude(prep, effects, cfg);
+        let rivals = rivals(prep, effects, cfg, &id);
+        name_a_wrong_latitude(prep, effects, cfg, &rivals);
     }
     Ok(Some(id))
 }

@@ -197,12 +197,85 @@ pub fn print_summary(id: &Identification, prep: &Prepared) {
     }
 }
 
+/// Why the alternatives make the result untrusted: one the data prefer, or a plausible one that
+/// moves a coefficient beyond its total 1σ.
+pub fn alternatives_untrusted(
+    alts: &[crate::diagnose::alternatives::Alternative],
+    unc: &Uncertainty,
+    id: &Identification,
+) -> Vec<String> {
+    use crate::diagnose::alternatives::PLAUSIBLE_MARGIN;
+    use crate::diagnose::select::MIN_EVIDENCE_GAIN;
+    let best = alts.iter().map(|a| a.evidence_gain).fold(0.0, f64::max);
+    let mut out = vec![];
+    for a in alts.iter().filter(|a| a.plausible(best)) {
+        let worst = (0..a.shift.len())
+            .map(|k| (k, a.shift[k] / unc.total_sigma[k]))
+            .max_by(|x, y| x.1.abs().total_cmp(&y.1.abs()));
+        let Some((k, z)) = worst else { continue };
+        if a.evidence_gain > MIN_EVIDENCE_GAIN {
+            out.push(format!(
+                "the data prefer adding `{}` (evidence gain {:.1}, −2 ln units); with it {} would move by {:+.1}σ — run `driftid diagnose`",
+                a.effect, a.evidence_gain, id.params[k].name, z
+            ));
+        } else if z.abs() > 1.0 {
+            out.push(format!(
+                "`{}` explains the data almost as well (evidence gain {:.1}, within {PLAUSIBLE_MARGIN} of the best) and would move {} by {:+.1}σ: this run cannot tell them apart — a second run from another orientation (`driftid plan`) or a bench value of `{}` would",
+                a.effect, a.evidence_gain, id.params[k].name, z, a.effect
+            ));
+        }
+    }
+    out
+}
+
+/// Prints the alternative explanations: evidence, weight, and the coefficients each could move
+/// beyond their total 1σ at a size the run cannot rule out.
+pub fn print_alternatives(
+    alts: &[crate::diagnose::alternatives::Alternative],
+    unc: &Uncertainty,
+    id: &Identification,
+) {
+    if alts.is_empty() {
+        return;
+    }
+    println!("alternative explanations (catalog effects not in the model; evidence gain in −2 ln units, > 0: the data prefer it):");
+    for a in alts {
+        let conditional: Vec<String> = (0..a.reach.len().min(id.params.len()))
+            .filter(|&k| a.reach[k] > unc.total_sigma[k])
+            .map(|k| {
+                format!(
+                    "{} ({:.1}σ)",
+                    id.params[k].name,
+                    a.reach[k] / unc.total_sigma[k]
+                )
+            })
+            .collect();
+        println!(
+            "  {:<14} evidence gain {:>10.1}  weight {:.3}  {}",
+            a.effect,
+            a.evidence_gain,
+            a.weight,
+            if conditional.is_empty() {
+                "moves no coefficient beyond its total 1σ at any size this run cannot rule out"
+                    .to_string()
+            } else {
+                format!(
+                    "could move, at a size this run cannot rule out: {}",
+                    conditional.join(", ")
+                )
+            }
+        );
+    }
+}
+
 /// Prints what each set-up prior adds (the largest share over the coefficients).
 pub fn print_setup(unc: &Uncertainty, id: &Identification) {
     if unc.contributions.is_empty() {
         return;
     }
-    println!("set-up uncertainty (1σ total = noise ⊕ these; docs/model.md, \"Set-up parameters\"):");
+    println!(
+        "set-up uncertainty (1σ total = noise ⊕ these; docs/model.md, \"Set-up parameters\"):"
+    );
     for c in &unc.contributions {
         let (k, worst) = c
             .sigma
@@ -211,8 +284,15 @@ pub fn print_setup(unc: &Uncertainty, id: &Identification) {
             .map(|(k, s)| (k, s / unc.noise_sigma[k]))
             .max_by(|a, b| a.1.total_cmp(&b.1))
             .unwrap_or((0, 0.0));
-        let data = match (c.data_sigma, c.data_offset) {
-            (Some(s), Some(o)) => format!("; the data alone: offset {} ± {}", sci(o), sci(s)),
+        let data = match (c.offset, c.stated) {
+            (Some(o), Some((v, unit))) => format!(
+                "; estimated {} {unit} (stated {}{})",
+                crate::format::pm(v + o, c.posterior_sigma),
+                crate::format::sig(v, 9),
+                c.data_sigma
+                    .map(|s| format!("; the data alone ± {}", sci(s)))
+                    .unwrap_or_default()
+            ),
             _ => String::new(),
         };
         println!(
@@ -279,18 +359,46 @@ pub fn run(args: &IdentifyArgs) -> anyhow::Result<()> {
         Some(p) => Some(truth_of(&read_truth(p)?, &id)),
         None => None,
     };
-    let spin = crate::progress::spinner("the set-up's uncertainty (start attitude, latitude, clock, gravity, vertical tilt)");
-    let unc = crate::identify::setup::uncertainty(&effects, &prep, &cfg, &id)?;
+    let spin = crate::progress::spinner(
+        "the set-up's uncertainty (start attitude, latitude, clock, gravity, vertical tilt)",
+    );
+    let settled = crate::identify::setup::settle(&effects, prep, &cfg, id)?;
     spin.finish_and_clear();
+    let crate::identify::setup::Settled { prep, id, mut unc } = settled;
+    let model = build_model(prep.site, &effects, &cfg)?;
+    // Every catalog effect not in the model as an alternative explanation, on the same evidence
+    // scale; the plausible ones' spread joins the total 1σ.
+    let alts = if id.refined.is_some() {
+        let dcfg = crate::diagnose::DiagnoseConfig {
+            identify: cfg.clone(),
+            ..Default::default()
+        };
+        let spin = crate::progress::spinner("weighing the alternative explanations");
+        let alts = crate::diagnose::alternatives::weigh(&prep, &effects, &dcfg, &id)?;
+        spin.finish_and_clear();
+        unc.add_model_spread(&crate::diagnose::alternatives::averaging_spread(
+            &alts,
+            id.params.len(),
+        ));
+        alts
+    } else {
+        vec![]
+    };
     let rows = rows(&id, &unc, &model, &prep, truth.as_deref());
     let check = consistency_of(&id, &prep);
     let mut prep = prep;
     if check.as_ref().is_some_and(|c| !c.is_consistent()) {
         // A model that does not fit: first ask whether the metadata latitude is the culprit.
-        super::common::name_a_wrong_latitude(&mut prep, &effects, &cfg);
+        let rivals: Vec<(String, f64)> = alts
+            .iter()
+            .map(|a| (a.effect.clone(), a.evidence_gain))
+            .collect();
+        super::common::name_a_wrong_latitude(&mut prep, &effects, &cfg, &rivals);
     }
     let mut reasons = prep.untrusted_reasons();
     reasons.extend(id.convergence.and_then(|c| c.untrusted_reason()));
+    reasons.extend(unc.untrusted_reasons());
+    reasons.extend(alternatives_untrusted(&alts, &unc, &id));
     let metadata_named = prep.findings.iter().any(|f| f.kind == "latitude");
     match &check {
         Some(c) if !c.is_consistent() && !metadata_named => reasons.push(format!(
@@ -306,6 +414,7 @@ pub fn run(args: &IdentifyArgs) -> anyhow::Result<()> {
         let mut out = to_json(&rows, &id, &prep);
         out["consistency"] = serde_json::to_value(&check)?;
         out["setup_uncertainty"] = serde_json::to_value(&unc.contributions)?;
+        out["alternatives"] = serde_json::to_value(&alts)?;
         out["convergence"] = serde_json::to_value(id.convergence)?;
         out["trusted"] = json!(reasons.is_empty());
         out["untrusted_reasons"] = json!(reasons);
@@ -324,6 +433,7 @@ pub fn run(args: &IdentifyArgs) -> anyhow::Result<()> {
         print_table(&rows, id.refined.is_some());
         print_summary(&id, &prep);
         print_setup(&unc, &id);
+        print_alternatives(&alts, &unc, &id);
         if !reasons.is_empty() {
             println!(
                 "NOT TRUSTED: the numbers above are computed but the tool does not trust them:"

@@ -122,7 +122,9 @@ impl SimulateArgs {
         if let Some(v) = &self.vertical_tilt_arcsec {
             match v.as_slice() {
                 [a, b] => e.vertical_tilt_arcsec = [*a, *b],
-                _ => anyhow::bail!("--vertical-tilt-arcsec takes two amplitudes EAST,NORTH in arcsec"),
+                _ => anyhow::bail!(
+                    "--vertical-tilt-arcsec takes two amplitudes EAST,NORTH in arcsec"
+                ),
             }
         }
         e.clock_ppm = self.clock_error_ppm.unwrap_or(e.clock_ppm);

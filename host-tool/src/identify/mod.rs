@@ -589,6 +589,18 @@ pub fn identify(
     } else {
         from_pass2?
     };
+    converged(model, meas, single_pass, fit)
+}
+
+/// The identification a converged Gauss–Newton fit gives (`single_pass`: the paper's pass, kept
+/// for comparison).
+fn converged(
+    model: &Model<'_>,
+    meas: &[Measurement],
+    single_pass: Estimate,
+    fit: GaussNewton,
+) -> anyhow::Result<Identification> {
+    let n = model.dim();
     let GaussNewton {
         states: nominal,
         final_cov,
@@ -607,16 +619,40 @@ pub fn identify(
     let smoothed_residuals = smoothed_residuals(model, meas, &nominal);
     let weak = weak_combinations(model, &refined);
     Ok(Identification {
-        params,
+        params: params_of(model),
         single_pass,
         refined: Some(refined),
         innovations,
         smoothed_residuals,
-        final_time_h,
+        final_time_h: meas.last().map_or(0.0, |m| m.t_s) / 3600.0,
         weak,
         trajectory: nominal,
         convergence: Some(convergence),
     })
+}
+
+/// The model refitted on `prep` by Gauss–Newton from `start`'s trajectory (a fit of the same
+/// model on measurements alike: another latitude, clock or gravity), converged as [`identify`]
+/// converges.
+pub fn identify_from(
+    model: &Model<'_>,
+    prep: &Prepared,
+    cfg: &Config,
+    start: &Identification,
+) -> anyhow::Result<Identification> {
+    let mut x0 = vec![0.0; model.dim()];
+    x0[..ANGLES].copy_from_slice(&prep.initial_angles);
+    let (x0, p0) = wide_prior(model, &x0, &prep.start_sigma());
+    let fit = gauss_newton(
+        model,
+        &prep.measurements,
+        start.trajectory.clone(),
+        &x0,
+        &p0,
+        2,
+        cfg.smoother_iterations + GN_EXTRA_ITERATIONS,
+    )?;
+    converged(model, &prep.measurements, start.single_pass.clone(), fit)
 }
 
 /// Mean NIS/3 beyond which a converged fit is checked against the continuation fit.

@@ -122,9 +122,11 @@ pub struct Contribution {
     pub data_sigma: Option<f64>,
     /// Posterior 1σ used, in the prior's unit.
     pub posterior_sigma: f64,
-    /// Where the data put the parameter against the stated value, in the prior's unit
-    /// (`None` where not estimated).
-    pub data_offset: Option<f64>,
+    /// Where prior and data together put the parameter against the stated value, in the prior's
+    /// unit (`None` where not estimated).
+    pub offset: Option<f64>,
+    /// The stated value and its unit (`latitude` 39.1 deg, …), where there is one.
+    pub stated: Option<(f64, &'static str)>,
     /// 1σ this source adds to each parameter of the model (state order after the angles).
     pub sigma: Vec<f64>,
     /// The covariance it adds.
@@ -133,18 +135,17 @@ pub struct Contribution {
 }
 
 impl Contribution {
-    fn new(
-        source: &'static str,
-        prior: String,
-        cov: DMatrix<f64>,
-    ) -> Self {
+    fn new(source: &'static str, prior: String, cov: DMatrix<f64>) -> Self {
         Contribution {
             source,
             prior,
             data_sigma: None,
             posterior_sigma: f64::NAN,
-            data_offset: None,
-            sigma: (0..cov.nrows()).map(|k| cov[(k, k)].max(0.0).sqrt()).collect(),
+            offset: None,
+            stated: None,
+            sigma: (0..cov.nrows())
+                .map(|k| cov[(k, k)].max(0.0).sqrt())
+                .collect(),
             cov,
         }
     }
@@ -162,6 +163,13 @@ pub struct Uncertainty {
     /// The total covariance of the parameters.
     #[serde(skip)]
     pub total_cov: DMatrix<f64>,
+    /// Where prior and data put the latitude (deg), clock rate (ppm) and gravity (ppm) against
+    /// the stated values: [`settle`] refits there.
+    pub setup_shift: [f64; 3],
+    /// The data against the stated set-up (`None` for a single pass).
+    pub setup_check: Option<SetupCheck>,
+    /// 1σ from averaging over the plausible explanations (empty until added).
+    pub model_spread: Vec<f64>,
 }
 
 impl Uncertainty {
@@ -171,10 +179,51 @@ impl Uncertainty {
             .contributions
             .iter()
             .max_by(|a, b| a.sigma[k].total_cmp(&b.sigma[k]));
+        let spread = self.model_spread.get(k).copied().unwrap_or(0.0);
         match best {
+            _ if spread > self.noise_sigma[k] && best.is_none_or(|c| spread > c.sigma[k]) => {
+                "other models"
+            }
             Some(c) if c.sigma[k] > self.noise_sigma[k] => c.source,
             _ => "noise",
         }
+    }
+
+    /// Why the result is not trusted on the set-up's account: the data contradict the stated
+    /// set-up ([`SetupCheck`]).
+    pub fn untrusted_reasons(&self) -> Vec<String> {
+        let Some(c) = self.setup_check.filter(|c| c.p_value < CONTRADICTION_P) else {
+            return vec![];
+        };
+        let moved: Vec<String> = self.contributions[1..4]
+            .iter()
+            .filter_map(|k| {
+                let (v, unit) = k.stated?;
+                Some(format!(
+                    "{} {} {unit} (stated {})",
+                    k.source,
+                    crate::format::pm(v + k.offset?, k.posterior_sigma),
+                    crate::format::sig(v, 9)
+                ))
+            })
+            .collect();
+        vec![format!(
+            "the data contradict the stated set-up and its priors (χ² = {:.1} on {} dof, p = {}): prior and data together put it at {}; \
+             either the set-up is wrong or an effect with a similar signature is present — `driftid diagnose` weighs the explanations",
+            c.chi2,
+            c.dof,
+            crate::format::sci(c.p_value),
+            moved.join(", ")
+        )]
+    }
+
+    /// Adds the model-averaging spread ([`crate::diagnose::alternatives`]) to the total.
+    pub fn add_model_spread(&mut self, spread: &[f64]) {
+        for (k, s) in spread.iter().enumerate() {
+            self.total_cov[(k, k)] += s * s;
+            self.total_sigma[k] = self.total_cov[(k, k)].max(0.0).sqrt();
+        }
+        self.model_spread = spread.to_vec();
     }
 
     /// Total over noise-only 1σ of parameter `k`.
@@ -190,6 +239,9 @@ impl Uncertainty {
             total_sigma: s,
             contributions: vec![],
             total_cov: cov.clone(),
+            setup_shift: [0.0; 3],
+            setup_check: None,
+            model_spread: vec![],
         }
     }
 }
@@ -256,37 +308,179 @@ fn refit(
     ))
 }
 
-/// A set-up parameter marginalised by refits at ±h (see the module docs).
-fn marginalised(
+/// p-value below which the data contradict the stated set-up: a clean run crosses it once in
+/// ~16 000 (a normal deviate beyond 4σ).
+pub const CONTRADICTION_P: f64 = 6.3e-5;
+
+/// How well the data agree with the stated set-up and its priors: the score of the knobs at the
+/// stated values against its spread, `χ² = gᵀ [H (H + 2)]⁺ g` in units of the priors (g, H: the
+/// gradient and Hessian of −2 ln p(y); under the priors Var g = H² + 2H), on rank(H) dof.
+#[derive(Clone, Copy, Debug, Serialize)]
+pub struct SetupCheck {
+    /// The statistic.
+    pub chi2: f64,
+    /// Its degrees of freedom.
+    pub dof: usize,
+    /// Its p-value.
+    pub p_value: f64,
+}
+
+/// One set-up parameter that is not a state of the filter.
+struct Knob {
     source: &'static str,
+    unit: &'static str,
     prior: String,
     sigma_prior: f64,
+    stated: f64,
+}
+
+/// `prep` with the set-up moved by `d` (latitude deg, clock ppm, gravity ppm).
+fn moved(prep: &Prepared, d: [f64; 3]) -> Prepared {
+    let lat_deg = prep.site.latitude_rad.to_degrees();
+    let mut p = if d[0] != 0.0 {
+        at_latitude(prep, lat_deg + d[0])
+    } else {
+        prep.clone()
+    };
+    if d[1] != 0.0 {
+        p = with_clock(&p, d[1]);
+    }
+    if d[2] != 0.0 {
+        p = with_gravity(&p, d[2]);
+    }
+    p
+}
+
+/// The knobs marginalised together (see the module docs): refits at ±h on each axis and at
+/// (+h, +h) on each pair give the gradient and Hessian of −2 ln p(y) and the coefficients'
+/// sensitivities; with the prior, the posterior of the knobs is Gaussian to second order, and
+/// its covariance V adds `S V Sᵀ` to the coefficients'. In units of each knob's prior 1σ.
+struct Marginal {
+    /// Per knob its contribution (the marginal share `S_k V_kk S_kᵀ`; the total uses all of V).
+    contributions: Vec<Contribution>,
+    /// The covariance the knobs add together.
+    cov: DMatrix<f64>,
+    /// The knobs' posterior offset from the stated values, in their units.
+    shift: [f64; 3],
+    /// The data against the stated set-up.
+    check: SetupCheck,
+}
+
+fn marginalise(
+    knobs: &[Knob; 3],
     f0: f64,
-    perturbed: impl Fn(f64) -> Prepared + Sync,
+    prep: &Prepared,
     effects: &[&'static dyn Effect],
     cfg: &Config,
     id: &Identification,
-) -> anyhow::Result<Contribution> {
-    let h = sigma_prior;
-    if !(h > 0.0) {
-        let n = id.best().value.len();
-        return Ok(Contribution::new(source, prior, DMatrix::zeros(n, n)));
+) -> anyhow::Result<Marginal> {
+    let h: Vec<f64> = knobs.iter().map(|k| k.sigma_prior).collect();
+    let live: Vec<usize> = (0..3).filter(|&k| h[k] > 0.0).collect();
+    let mut points: Vec<[f64; 3]> = vec![];
+    for &k in &live {
+        for sign in [1.0, -1.0] {
+            let mut d = [0.0; 3];
+            d[k] = sign * h[k];
+            points.push(d);
+        }
     }
-    let (plus, minus) = rayon::join(
-        || refit(&perturbed(h), effects, cfg, id),
-        || refit(&perturbed(-h), effects, cfg, id),
-    );
-    let ((fp, cp), (fm, cm)) = (plus?, minus?);
-    let curvature = ((fp - 2.0 * f0 + fm) / (h * h)).max(0.0);
-    let gradient = (fp - fm) / (2.0 * h);
-    let precision = 1.0 / (sigma_prior * sigma_prior) + curvature / 2.0;
-    let v = 1.0 / precision;
-    let s = (&cp - &cm) / (2.0 * h);
-    let mut c = Contribution::new(source, prior, &s * s.transpose() * v);
-    c.data_sigma = (curvature > 0.0).then(|| (2.0 / curvature).sqrt());
-    c.posterior_sigma = v.sqrt();
-    c.data_offset = (curvature > 0.0).then(|| -gradient / curvature);
-    Ok(c)
+    for (a, &i) in live.iter().enumerate() {
+        for &j in &live[a + 1..] {
+            let mut d = [0.0; 3];
+            d[i] = h[i];
+            d[j] = h[j];
+            points.push(d);
+        }
+    }
+    let fits: Vec<anyhow::Result<(f64, DVector<f64>)>> = points
+        .par_iter()
+        .map(|d| refit(&moved(prep, *d), effects, cfg, id))
+        .collect();
+    let fits = fits.into_iter().collect::<anyhow::Result<Vec<_>>>()?;
+    let at = |d: [f64; 3]| points.iter().position(|p| *p == d).map(|k| &fits[k]);
+    let n = id.best().value.len();
+    let unit = |k: usize, s: f64| {
+        let mut d = [0.0; 3];
+        d[k] = s * h[k];
+        d
+    };
+    // Scaled units u = δ/σ_prior: the prior adds uᵀu to −2 ln p.
+    let mut grad = DVector::zeros(3);
+    let mut hess = DMatrix::zeros(3, 3);
+    let mut sens = DMatrix::zeros(n, 3);
+    for &k in &live {
+        let (Some((fp, cp)), Some((fm, cm))) = (at(unit(k, 1.0)), at(unit(k, -1.0))) else {
+            continue;
+        };
+        grad[k] = (fp - fm) / 2.0;
+        hess[(k, k)] = fp - 2.0 * f0 + fm;
+        sens.set_column(k, &((cp - cm) / 2.0));
+    }
+    for (a, &i) in live.iter().enumerate() {
+        for &j in &live[a + 1..] {
+            let mut d = [0.0; 3];
+            d[i] = h[i];
+            d[j] = h[j];
+            if let (Some((fij, _)), Some((fi, _)), Some((fj, _))) =
+                (at(d), at(unit(i, 1.0)), at(unit(j, 1.0)))
+            {
+                hess[(i, j)] = fij - fi - fj + f0;
+                hess[(j, i)] = hess[(i, j)];
+            }
+        }
+    }
+    // The data's curvature is a Gauss–Newton Hessian, positive semi-definite: clamp what the
+    // finite differences leave below zero.
+    let eig = nalgebra::SymmetricEigen::new(hess.clone());
+    let hess_psd = &eig.eigenvectors
+        * DMatrix::from_diagonal(&eig.eigenvalues.map(|l| l.max(0.0)))
+        * eig.eigenvectors.transpose();
+    let a = &hess_psd + DMatrix::identity(3, 3) * 2.0;
+    let a_inv = a.try_inverse().context("set-up posterior")?;
+    let v = &a_inv * 2.0;
+    let shift_u = -(&a_inv * &grad);
+    let cov = &sens * &v * sens.transpose();
+    let lmax = eig.eigenvalues.iter().cloned().fold(0.0, f64::max);
+    let (mut chi2, mut dof) = (0.0, 0);
+    for (k, &l) in eig.eigenvalues.iter().enumerate() {
+        if l > 1e-6 * lmax.max(1e-6) {
+            let gl = eig.eigenvectors.column(k).dot(&grad);
+            chi2 += gl * gl / (l * (l + 2.0));
+            dof += 1;
+        }
+    }
+    let p_value = if dof > 0 {
+        crate::stats::chi2_sf(chi2, dof as f64)
+    } else {
+        1.0
+    };
+    let contributions = (0..3)
+        .map(|k| {
+            let kn = &knobs[k];
+            let col = sens.column(k).into_owned();
+            let mut c = Contribution::new(
+                kn.source,
+                kn.prior.clone(),
+                &col * col.transpose() * v[(k, k)],
+            );
+            c.stated = Some((kn.stated, kn.unit));
+            c.posterior_sigma = v[(k, k)].sqrt() * h[k];
+            let curv = hess_psd[(k, k)];
+            if curv > 0.0 && h[k] > 0.0 {
+                c.data_sigma = Some((2.0 / curv).sqrt() * h[k]);
+            }
+            if h[k] > 0.0 {
+                c.offset = Some(shift_u[k] * h[k]);
+            }
+            c
+        })
+        .collect();
+    Ok(Marginal {
+        contributions,
+        cov,
+        shift: [0, 1, 2].map(|k| shift_u[k] * h[k]),
+        check: SetupCheck { chi2, dof, p_value },
+    })
 }
 
 /// The sensitivity of the parameters to an additive perturbation of the measurements, by one
@@ -323,7 +517,11 @@ fn vertical_tilt(
     let sigma = priors.vertical_tilt_arcsec * RAD_PER_ARCSEC;
     let n = model.dim() - ANGLES;
     if !(sigma > 0.0) {
-        return Ok(Contribution::new("vertical tilt", "0".into(), DMatrix::zeros(n, n)));
+        return Ok(Contribution::new(
+            "vertical tilt",
+            "0".into(),
+            DMatrix::zeros(n, n),
+        ));
     }
     let omega = 2.0 * std::f64::consts::PI / (priors.vertical_tilt_period_h * 3600.0);
     let g = prep.site.gravity_mps2;
@@ -400,59 +598,42 @@ pub fn uncertainty(
         x0[..ANGLES].copy_from_slice(&prep.initial_angles);
         let (x0, p0) = wide_prior(&model, &x0, &prep.initial_angle_sigma);
         let pass = linearised_pass(&model, &prep.measurements, &id.trajectory, &x0, &p0, true)?;
-        pass.final_cov
-            .view((ANGLES, ANGLES), (n, n))
-            .into_owned()
+        pass.final_cov.view((ANGLES, ANGLES), (n, n)).into_owned()
     };
     let lat_deg = prep.site.latitude_rad.to_degrees();
     let lat_sigma = priors.latitude_sigma(lat_deg);
-    let ((lat, clock), (gravity, tilt)) = rayon::join(
-        || {
-            rayon::join(
-                || {
-                    marginalised(
-                        "latitude",
-                        format!("{lat_sigma:.2e} deg"),
-                        lat_sigma,
-                        f0,
-                        |h| at_latitude(prep, lat_deg + h),
-                        effects,
-                        cfg,
-                        id,
-                    )
-                },
-                || {
-                    marginalised(
-                        "clock rate",
-                        format!("{} ppm", priors.clock_sigma_ppm),
-                        priors.clock_sigma_ppm,
-                        f0,
-                        |h| with_clock(prep, h),
-                        effects,
-                        cfg,
-                        id,
-                    )
-                },
-            )
+    let knobs = [
+        Knob {
+            source: "latitude",
+            unit: "deg",
+            prior: format!("{} deg", crate::format::sig(lat_sigma, 2)),
+            sigma_prior: lat_sigma,
+            stated: (lat_deg * 1e9).round() / 1e9,
         },
-        || {
-            rayon::join(
-                || {
-                    marginalised(
-                        "gravity",
-                        format!("{} ppm", priors.gravity_sigma_ppm),
-                        priors.gravity_sigma_ppm,
-                        f0,
-                        |h| with_gravity(prep, h),
-                        effects,
-                        cfg,
-                        id,
-                    )
-                },
-                || vertical_tilt(&model, prep, id, &priors),
-            )
+        Knob {
+            source: "clock rate",
+            unit: "ppm",
+            prior: format!("{} ppm", priors.clock_sigma_ppm),
+            sigma_prior: priors.clock_sigma_ppm,
+            stated: 0.0,
         },
+        Knob {
+            source: "gravity",
+            unit: "ppm",
+            prior: format!(
+                "{} ppm of {} m/s^2",
+                priors.gravity_sigma_ppm,
+                crate::format::sig(prep.site.gravity_mps2, 7)
+            ),
+            sigma_prior: priors.gravity_sigma_ppm,
+            stated: 0.0,
+        },
+    ];
+    let (marginal, tilt) = rayon::join(
+        || marginalise(&knobs, f0, prep, effects, cfg, id),
+        || vertical_tilt(&model, prep, id, &priors),
     );
+    let marginal = marginal?;
     // The start attitude is estimated in the fit: what it adds is the fit's covariance less the
     // noise-only one.
     let start = Contribution::new(
@@ -463,15 +644,74 @@ pub fn uncertainty(
         ),
         &est.cov - &noise_cov,
     );
-    let contributions = vec![start, lat?, clock?, gravity?, tilt?];
-    let mut total_cov = noise_cov.clone();
-    for c in &contributions {
-        total_cov += &c.cov;
-    }
+    let mut contributions = vec![start];
+    contributions.extend(marginal.contributions);
+    contributions.push(tilt?);
+    // The knobs' joint covariance (their correlations kept), the start's and the tilt's.
+    let mut total_cov = &noise_cov + &contributions[0].cov + &marginal.cov;
+    total_cov += &contributions[4].cov;
     Ok(Uncertainty {
         noise_sigma: (0..n).map(|k| noise_cov[(k, k)].sqrt()).collect(),
         total_sigma: (0..n).map(|k| total_cov[(k, k)].sqrt()).collect(),
         contributions,
         total_cov,
+        setup_shift: marginal.shift,
+        setup_check: Some(marginal.check),
+        model_spread: vec![],
     })
+}
+
+/// A fit at the set-up's posterior: the identification, its measurements and the uncertainty.
+pub struct Settled {
+    /// Measurements with the set-up where prior and data put it.
+    pub prep: Prepared,
+    /// The fit there.
+    pub id: Identification,
+    /// The uncertainty (computed about the stated set-up: the covariances barely move).
+    pub unc: Uncertainty,
+}
+
+/// Where the knobs' posterior lies more than this many posterior 1σ from the stated set-up, the
+/// model is refitted there (below it the coefficients move by less than a tenth of their share).
+pub const SETTLE_SHIFT_SIGMA: f64 = 0.1;
+
+/// The set-up estimated where the data can: [`uncertainty`] about the stated set-up, then, if
+/// the knobs' posterior lies away from it (gravity 50 ppm off a value the data measure to
+/// 0.2 ppm), the model refitted there. The estimate is then the posterior's, not the stated
+/// set-up's.
+pub fn settle(
+    effects: &[&'static dyn Effect],
+    prep: Prepared,
+    cfg: &Config,
+    id: Identification,
+) -> anyhow::Result<Settled> {
+    let unc = uncertainty(effects, &prep, cfg, &id)?;
+    let far = unc.contributions[1..4]
+        .iter()
+        .zip(unc.setup_shift)
+        .any(|(c, d)| c.posterior_sigma > 0.0 && d.abs() > SETTLE_SHIFT_SIGMA * c.posterior_sigma);
+    if !far {
+        return Ok(Settled { prep, id, unc });
+    }
+    let p = moved(&prep, unc.setup_shift);
+    let model = build_model(p.site, effects, cfg)?;
+    match super::identify_from(&model, &p, cfg, &id) {
+        Ok(id2) => {
+            let mut unc = unc;
+            // The fit's own covariance at the new point; the set-up's terms as computed.
+            let n = id2.best().value.len();
+            let old = id.best().cov.clone();
+            unc.total_cov = &unc.total_cov - &old + &id2.best().cov;
+            unc.total_sigma = (0..n)
+                .map(|k| unc.total_cov[(k, k)].max(0.0).sqrt())
+                .collect();
+            Ok(Settled {
+                prep: p,
+                id: id2,
+                unc,
+            })
+        }
+        // The refit failed: the stated set-up's fit stands, with its uncertainty.
+        Err(_) => Ok(Settled { prep, id, unc }),
+    }
 }

@@ -134,7 +134,7 @@ pub struct SetupErrors {
     pub start_arcsec: [f64; 3],
     /// Recorder clock rate error, ppm: a stamp reads (1 + ppm·1e-6) × the true time.
     pub clock_ppm: f64,
-    /// The metadata latitude minus the true one, deg.
+    /// The metadata latitude (the scenario's) minus the true one, deg.
     pub latitude_deg: f64,
     /// The metadata gravity's relative error, ppm.
     pub gravity_ppm: f64,
@@ -492,7 +492,7 @@ pub fn describe(s: &Scenario) -> String {
         s.seed,
         s.hours,
         s.rate_s,
-        s.latitude_deg + s.setup_errors.latitude_deg,
+        s.latitude_deg,
         s.arw_deg2_per_h,
         s.accel_sigma_mps2
     );
@@ -511,6 +511,10 @@ pub fn simulate(s: &Scenario) -> Simulation {
     let g = s.gravity();
     let err = s.setup_errors;
     let mut truly = s.clone();
+    // The metadata states the scenario's latitude; the platform stands at the true one (the
+    // scenario's gravity either way: its change with 0.03° of latitude is 0.2 ppm).
+    truly.latitude_deg -= err.latitude_deg;
+    truly.gravity_mps2 = Some(g);
     for i in 0..3 {
         truly.initial_orientation_deg[i] += err.start_arcsec[i] / 3600.0;
     }
@@ -578,7 +582,7 @@ pub fn simulate(s: &Scenario) -> Simulation {
         ));
     }
     let meta = Metadata {
-        latitude_deg: Some(s.latitude_deg + err.latitude_deg),
+        latitude_deg: Some(s.latitude_deg),
         gravity_mps2: Some(g * (1.0 + err.gravity_ppm * 1e-6)),
         description: Some(describe(s)),
         extra,
