@@ -194,8 +194,10 @@ pub fn name_a_wrong_latitude(
     prep.findings.extend(found);
 }
 
-/// The catalog effects' evidence gains for the model `effects` fitted as `id` on `prep`
-/// ([`crate::diagnose::alternatives`]): the rivals of a wrong latitude.
+/// The catalog effects' evidence gains for the model `effects` fitted as `id` on `prep`: the
+/// rivals of a wrong latitude. The leaders by the linearised evidence
+/// ([`crate::diagnose::alternatives`]) are refitted, as the latitude is: far from the fit the
+/// one-step evidence overstates what a refit gains.
 pub fn rivals(
     prep: &Prepared,
     effects: &[&'static dyn estimator_core::effects::Effect],
@@ -206,13 +208,19 @@ pub fn rivals(
         identify: cfg.clone(),
         ..Default::default()
     };
-    crate::diagnose::alternatives::weigh(prep, effects, &dcfg, id)
-        .map(|alts| {
-            alts.into_iter()
-                .map(|a| (a.effect, a.evidence_gain))
-                .collect()
-        })
-        .unwrap_or_default()
+    let Ok(alts) = crate::diagnose::alternatives::weigh(prep, effects, &dcfg, id) else {
+        return vec![];
+    };
+    let leaders: Vec<String> = alts
+        .iter()
+        .take(crate::diagnose::select::REFIT_LEADERS)
+        .map(|a| a.effect.clone())
+        .collect();
+    let base = crate::diagnose::select::neg2_log_evidence(id);
+    crate::diagnose::select::refit(prep, effects, base, &leaders, &dcfg)
+        .into_iter()
+        .map(|r| (r.effect, r.evidence_gain))
+        .collect()
 }
 
 /// The starting model fitted on `prep` when its data are trusted (else `None`), a misfit first

@@ -389,10 +389,7 @@ pub fn run(args: &IdentifyArgs) -> anyhow::Result<()> {
     let mut prep = prep;
     if check.as_ref().is_some_and(|c| !c.is_consistent()) {
         // A model that does not fit: first ask whether the metadata latitude is the culprit.
-        let rivals: Vec<(String, f64)> = alts
-            .iter()
-            .map(|a| (a.effect.clone(), a.evidence_gain))
-            .collect();
+        let rivals = super::common::rivals(&prep, &effects, &cfg, &id);
         super::common::name_a_wrong_latitude(&mut prep, &effects, &cfg, &rivals);
     }
     let mut reasons = prep.untrusted_reasons();

@@ -125,6 +125,8 @@ pub struct Contribution {
     /// Where prior and data together put the parameter against the stated value, in the prior's
     /// unit (`None` where not estimated).
     pub offset: Option<f64>,
+    /// Hard half-width of the stated value, where it has one (its written digits).
+    pub bound: Option<f64>,
     /// The stated value and its unit (`latitude` 39.1 deg, …), where there is one.
     pub stated: Option<(f64, &'static str)>,
     /// 1σ this source adds to each parameter of the model (state order after the angles).
@@ -142,6 +144,7 @@ impl Contribution {
             data_sigma: None,
             posterior_sigma: f64::NAN,
             offset: None,
+            bound: None,
             stated: None,
             sigma: (0..cov.nrows())
                 .map(|k| cov[(k, k)].max(0.0).sqrt())
@@ -190,10 +193,28 @@ impl Uncertainty {
     }
 
     /// Why the result is not trusted on the set-up's account: the data contradict the stated
-    /// set-up ([`SetupCheck`]).
+    /// set-up ([`SetupCheck`]), or put a knob beyond what its written value allows.
     pub fn untrusted_reasons(&self) -> Vec<String> {
+        let mut out = vec![];
+        for k in &self.contributions {
+            let (Some(b), Some(o), Some((v, unit))) = (k.bound, k.offset, k.stated) else {
+                continue;
+            };
+            if o.abs() - 3.0 * k.posterior_sigma > b {
+                out.push(format!(
+                    "the data put the {} at {} {unit}, outside what the stated {} allows (±{}): either it is wrong or an \
+                     effect with a similar signature is present (a recorder clock's rate, a drift trend) — `driftid diagnose` \
+                     weighs the explanations; give the {} with the digits it is known to",
+                    k.source,
+                    crate::format::pm(v + o, k.posterior_sigma),
+                    crate::format::sig(v, 9),
+                    crate::format::sig(b, 2),
+                    k.source
+                ));
+            }
+        }
         let Some(c) = self.setup_check.filter(|c| c.p_value < CONTRADICTION_P) else {
-            return vec![];
+            return out;
         };
         let moved: Vec<String> = self.contributions[1..4]
             .iter()
@@ -207,14 +228,15 @@ impl Uncertainty {
                 ))
             })
             .collect();
-        vec![format!(
+        out.push(format!(
             "the data contradict the stated set-up and its priors (χ² = {:.1} on {} dof, p = {}): prior and data together put it at {}; \
              either the set-up is wrong or an effect with a similar signature is present — `driftid diagnose` weighs the explanations",
             c.chi2,
             c.dof,
             crate::format::sci(c.p_value),
             moved.join(", ")
-        )]
+        ));
+        out
     }
 
     /// Adds the model-averaging spread ([`crate::diagnose::alternatives`]) to the total.
@@ -327,6 +349,9 @@ pub struct SetupCheck {
 
 /// One set-up parameter that is not a state of the filter.
 struct Knob {
+    /// Hard half-width of the stated value where it has one (a latitude written to 0.1° lies
+    /// within ±0.05° of the truth).
+    bound: Option<f64>,
     source: &'static str,
     unit: &'static str,
     prior: String,
@@ -464,6 +489,7 @@ fn marginalise(
                 &col * col.transpose() * v[(k, k)],
             );
             c.stated = Some((kn.stated, kn.unit));
+            c.bound = kn.bound;
             c.posterior_sigma = v[(k, k)].sqrt() * h[k];
             let curv = hess_psd[(k, k)];
             if curv > 0.0 && h[k] > 0.0 {
@@ -604,6 +630,11 @@ pub fn uncertainty(
     let lat_sigma = priors.latitude_sigma(lat_deg);
     let knobs = [
         Knob {
+            bound: priors
+                .latitude_sigma_deg
+                .is_none()
+                .then(|| written_precision(lat_deg) * 12f64.sqrt() / 2.0)
+                .filter(|b| *b >= MIN_LATITUDE_SIGMA_DEG),
             source: "latitude",
             unit: "deg",
             prior: format!("{} deg", crate::format::sig(lat_sigma, 2)),
@@ -611,6 +642,7 @@ pub fn uncertainty(
             stated: (lat_deg * 1e9).round() / 1e9,
         },
         Knob {
+            bound: None,
             source: "clock rate",
             unit: "ppm",
             prior: format!("{} ppm", priors.clock_sigma_ppm),
@@ -618,6 +650,7 @@ pub fn uncertainty(
             stated: 0.0,
         },
         Knob {
+            bound: None,
             source: "gravity",
             unit: "ppm",
             prior: format!(
@@ -686,6 +719,10 @@ pub fn settle(
     id: Identification,
 ) -> anyhow::Result<Settled> {
     let unc = uncertainty(effects, &prep, cfg, &id)?;
+    if !unc.untrusted_reasons().is_empty() {
+        // The stated set-up is contradicted: the linearised posterior is no place to refit.
+        return Ok(Settled { prep, id, unc });
+    }
     let far = unc.contributions[1..4]
         .iter()
         .zip(unc.setup_shift)
@@ -693,7 +730,27 @@ pub fn settle(
     if !far {
         return Ok(Settled { prep, id, unc });
     }
-    let p = moved(&prep, unc.setup_shift);
+    let mut p = moved(&prep, unc.setup_shift);
+    for c in &unc.contributions[1..4] {
+        if let (Some(o), Some((v, unit))) = (c.offset, c.stated) {
+            if o.abs() > 3.0 * c.posterior_sigma {
+                p.findings.push(crate::quality::Finding {
+                    kind: "set-up",
+                    message: format!(
+                        "the {} is estimated from the data with its prior: {} {unit} (stated {}, prior 1σ {}); the coefficients are the fit's there",
+                        c.source,
+                        crate::format::pm(v + o, c.posterior_sigma),
+                        crate::format::sig(v, 9),
+                        c.prior
+                    ),
+                    start_s: None,
+                    end_s: None,
+                    samples: 0,
+                    action: crate::quality::Action::Repaired,
+                });
+            }
+        }
+    }
     let model = build_model(p.site, effects, cfg)?;
     match super::identify_from(&model, &p, cfg, &id) {
         Ok(id2) => {
