@@ -197,37 +197,6 @@ pub fn print_summary(id: &Identification, prep: &Prepared) {
     }
 }
 
-/// Why the alternatives make the result untrusted: one the data prefer, or a plausible one that
-/// moves a coefficient beyond its total 1σ.
-pub fn alternatives_untrusted(
-    alts: &[crate::diagnose::alternatives::Alternative],
-    unc: &Uncertainty,
-    id: &Identification,
-) -> Vec<String> {
-    use crate::diagnose::alternatives::PLAUSIBLE_MARGIN;
-    use crate::diagnose::select::MIN_EVIDENCE_GAIN;
-    let best = alts.iter().map(|a| a.evidence_gain).fold(0.0, f64::max);
-    let mut out = vec![];
-    for a in alts.iter().filter(|a| a.plausible(best)) {
-        let worst = (0..a.shift.len())
-            .map(|k| (k, a.shift[k] / unc.total_sigma[k]))
-            .max_by(|x, y| x.1.abs().total_cmp(&y.1.abs()));
-        let Some((k, z)) = worst else { continue };
-        if a.evidence_gain > MIN_EVIDENCE_GAIN {
-            out.push(format!(
-                "the data prefer adding `{}` (evidence gain {:.1}, −2 ln units); with it {} would move by {:+.1}σ — run `driftid diagnose`",
-                a.effect, a.evidence_gain, id.params[k].name, z
-            ));
-        } else if z.abs() > 1.0 {
-            out.push(format!(
-                "`{}` explains the data almost as well (evidence gain {:.1}, within {PLAUSIBLE_MARGIN} of the best) and would move {} by {:+.1}σ: this run cannot tell them apart — a second run from another orientation (`driftid plan`) or a bench value of `{}` would",
-                a.effect, a.evidence_gain, id.params[k].name, z, a.effect
-            ));
-        }
-    }
-    out
-}
-
 /// Prints the alternative explanations: evidence, weight, and the coefficients each could move
 /// beyond their total 1σ at a size the run cannot rule out.
 pub fn print_alternatives(
@@ -307,17 +276,7 @@ pub fn print_setup(unc: &Uncertainty, id: &Identification) {
 
 /// The JSON object of an identification.
 pub fn to_json(rows: &[Row], id: &Identification, prep: &Prepared) -> Value {
-    let mut coefs = Map::new();
-    for r in rows {
-        let mut o = json!({ "value": r.value, "sigma": r.sigma, "sigma_total": r.sigma_total,
-            "dominant_uncertainty": r.dominant, "bound": r.bound, "unit": r.unit,
-            "single_pass": { "value": r.single.0, "sigma": r.single.1 } });
-        if let Some(t) = r.truth {
-            o["truth"] = json!(t);
-            o["error"] = json!(r.value - t);
-        }
-        coefs.insert(r.name.to_string(), o);
-    }
+    let coefs = coefficients_json(rows);
     json!({
         "coefficients": coefs,
         "final_time_h": id.final_time_h,
@@ -329,6 +288,23 @@ pub fn to_json(rows: &[Row], id: &Identification, prep: &Prepared) -> Value {
         "weak_combinations": id.weak,
         "data_quality": { "findings": prep.findings },
     })
+}
+
+/// The coefficients as JSON: value, `sigma` (noise only), `sigma_total` (the headline), the
+/// bound, the unit, the single pass and the truth where known.
+pub fn coefficients_json(rows: &[Row]) -> Value {
+    let mut coefs = Map::new();
+    for r in rows {
+        let mut o = json!({ "value": r.value, "sigma": r.sigma, "sigma_total": r.sigma_total,
+            "dominant_uncertainty": r.dominant, "bound": r.bound, "unit": r.unit,
+            "single_pass": { "value": r.single.0, "sigma": r.single.1 } });
+        if let Some(t) = r.truth {
+            o["truth"] = json!(t);
+            o["error"] = json!(r.value - t);
+        }
+        coefs.insert(r.name.to_string(), o);
+    }
+    Value::Object(coefs)
 }
 
 /// Runs `driftid identify`.
@@ -359,31 +335,17 @@ pub fn run(args: &IdentifyArgs) -> anyhow::Result<()> {
         Some(p) => Some(truth_of(&read_truth(p)?, &id)),
         None => None,
     };
-    let spin = crate::progress::spinner(
-        "the set-up's uncertainty (start attitude, latitude, clock, gravity, vertical tilt)",
-    );
-    let settled = crate::identify::setup::settle(&effects, prep, &cfg, id)?;
+    let spin =
+        crate::progress::spinner("the set-up's uncertainty and the alternative explanations");
+    let crate::assess::Assessment {
+        prep,
+        id,
+        unc,
+        alternatives: alts,
+        reasons: assessed,
+    } = crate::assess::assess(&effects, prep, &cfg, id)?;
     spin.finish_and_clear();
-    let crate::identify::setup::Settled { prep, id, mut unc } = settled;
     let model = build_model(prep.site, &effects, &cfg)?;
-    // Every catalog effect not in the model as an alternative explanation, on the same evidence
-    // scale; the plausible ones' spread joins the total 1σ.
-    let alts = if id.refined.is_some() {
-        let dcfg = crate::diagnose::DiagnoseConfig {
-            identify: cfg.clone(),
-            ..Default::default()
-        };
-        let spin = crate::progress::spinner("weighing the alternative explanations");
-        let alts = crate::diagnose::alternatives::weigh(&prep, &effects, &dcfg, &id)?;
-        spin.finish_and_clear();
-        unc.add_model_spread(&crate::diagnose::alternatives::averaging_spread(
-            &alts,
-            id.params.len(),
-        ));
-        alts
-    } else {
-        vec![]
-    };
     let rows = rows(&id, &unc, &model, &prep, truth.as_deref());
     let check = consistency_of(&id, &prep);
     let mut prep = prep;
@@ -394,8 +356,7 @@ pub fn run(args: &IdentifyArgs) -> anyhow::Result<()> {
     }
     let mut reasons = prep.untrusted_reasons();
     reasons.extend(id.convergence.and_then(|c| c.untrusted_reason()));
-    reasons.extend(unc.untrusted_reasons());
-    reasons.extend(alternatives_untrusted(&alts, &unc, &id));
+    reasons.extend(assessed);
     let metadata_named = prep.findings.iter().any(|f| f.kind == "latitude");
     match &check {
         Some(c) if !c.is_consistent() && !metadata_named => reasons.push(format!(

@@ -75,7 +75,15 @@ pub fn run(args: &ReportArgs) -> anyhow::Result<()> {
         Some(p) => Some(super::identify::truth_of(&read_truth(p)?, &id)),
         None => None,
     };
-    let unc = crate::identify::setup::uncertainty(&final_effects, &prep, &cfg.identify, &id)?;
+    let crate::assess::Assessment {
+        prep,
+        id,
+        unc,
+        reasons: assessed,
+        ..
+    } = crate::assess::assess(&final_effects, prep, &cfg.identify, id)?;
+    let mut untrusted = untrusted;
+    untrusted.extend(assessed);
     let table = rows(&id, &unc, &model, &prep, truth.as_deref());
     let coefficients = table
         .iter()
