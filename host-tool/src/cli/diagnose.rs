@@ -298,7 +298,8 @@ pub fn diagnose_one(
     // identify and report).
     let spin =
         crate::progress::spinner("the set-up's uncertainty and the alternative explanations");
-    let assessed = crate::assess::assess(&final_effects, prep.clone(), &cfg.identify, identification)?;
+    let assessed =
+        crate::assess::assess(&final_effects, prep.clone(), &cfg.identify, identification)?;
     spin.finish_and_clear();
     if let Some(dir) = export_dir {
         export(dir, &diagnoses)?;

@@ -75,7 +75,7 @@ pub struct SimulateArgs {
     #[arg(long, value_delimiter = ',', allow_hyphen_values = true, value_name = "EAST,NORTH", value_parser = super::args::finite_f64)]
     pub vertical_tilt_arcsec: Option<Vec<f64>>,
     /// Draw every set-up error from the default set-up priors with the seed (identify's
-    /// defaults; the latitude's prior for a latitude written with one decimal, 0.029 deg).
+    /// defaults; the latitude uniform within half its last written digit: ±0.05 deg for 39.1).
     #[arg(long)]
     pub setup_errors_from_priors: bool,
 }
@@ -109,8 +109,8 @@ impl SimulateArgs {
         }
         if self.setup_errors_from_priors {
             let priors = crate::identify::setup::SetupPriors::default();
-            let lat_sigma = priors.latitude_sigma(s.latitude_deg);
-            s.setup_errors = crate::simulate::SetupErrors::draw(&priors, lat_sigma, s.seed);
+            let half = priors.latitude_sigma(s.latitude_deg) * 3f64.sqrt();
+            s.setup_errors = crate::simulate::SetupErrors::draw(&priors, half, s.seed);
         }
         let e = &mut s.setup_errors;
         if let Some(v) = &self.start_error_arcsec {

@@ -147,13 +147,15 @@ pub struct SetupErrors {
 
 impl SetupErrors {
     /// Errors drawn from the set-up priors (each component N(0, prior 1σ)) with `seed`: the
-    /// calibration sweeps' recordings. The latitude is drawn with `latitude_sigma_deg`.
+    /// calibration sweeps' recordings. The latitude is drawn uniform within ±`latitude_half_deg`,
+    /// the rounding of its last written digit (the default prior's model).
     pub fn draw(
         priors: &crate::identify::setup::SetupPriors,
-        latitude_sigma_deg: f64,
+        latitude_half_deg: f64,
         seed: u64,
     ) -> Self {
         let mut rng = engine::rng(seed, engine::stream::SETUP);
+        let latitude_deg = latitude_half_deg * (2.0 * rand::Rng::random::<f64>(&mut rng) - 1.0);
         let mut n = || -> f64 { StandardNormal.sample(&mut rng) };
         SetupErrors {
             start_arcsec: [
@@ -162,7 +164,7 @@ impl SetupErrors {
                 priors.azimuth_arcsec * n(),
             ],
             clock_ppm: priors.clock_sigma_ppm * n(),
-            latitude_deg: latitude_sigma_deg * n(),
+            latitude_deg,
             gravity_ppm: priors.gravity_sigma_ppm * n(),
             vertical_tilt_arcsec: [
                 priors.vertical_tilt_arcsec * n() * std::f64::consts::SQRT_2,
