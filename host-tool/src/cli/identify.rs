@@ -208,6 +208,7 @@ pub fn print_alternatives(
         return;
     }
     println!("alternative explanations (catalog effects not in the model; evidence gain in −2 ln units, > 0: the data prefer it):");
+    let mut any_conditional = false;
     for a in alts {
         let conditional: Vec<String> = (0..a.reach.len().min(id.params.len()))
             .filter(|&k| a.reach[k] > unc.total_sigma[k])
@@ -219,6 +220,7 @@ pub fn print_alternatives(
                 )
             })
             .collect();
+        any_conditional |= !conditional.is_empty();
         println!(
             "  {:<14} evidence gain {:>10.1}  weight {:.3}  {}",
             a.effect,
@@ -234,6 +236,9 @@ pub fn print_alternatives(
                 )
             }
         );
+    }
+    if any_conditional {
+        println!("  (such a coefficient holds only on that effect's absence: a second run from another orientation, `driftid plan`, or a bench value of the effect settles it)");
     }
 }
 
