@@ -404,14 +404,15 @@ fn identify_is_unchanged_by_checkpointing() {
     let id = identify(&model, &prep, &cfg).unwrap();
     let meas = &prep.measurements;
     let n = model.dim();
-    let (x0, p0) = wide_prior(&model, &vec![0.0; n], &[ANGLE_PRIOR_SIGMA_RAD; 3]);
+    // identify() starts the angles with the alignment's prior (the set-up's start attitude).
+    let (x0, p0) = wide_prior(&model, &vec![0.0; n], &prep.start_sigma());
     // identify's pass 2 starts at pass 1's coefficients with a 20× narrower prior.
     let mut start = vec![0.0; n];
     start[ANGLES..].copy_from_slice(&id.single_pass.value);
     let sigma: Vec<f64> = (0..n)
         .map(|i| {
             if i < ANGLES {
-                1e-6
+                prep.start_sigma()[i]
             } else {
                 model.param(i).prior_sigma / cfg.pass2_prior_shrink
             }
