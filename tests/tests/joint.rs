@@ -37,10 +37,10 @@ fn models<'m>(
 
 #[test]
 fn two_orientations_separate_what_one_static_run_cannot() {
-    // One level 60-h run leaves per gyro a combination of D0 and the g-sensitive terms 12–19×
-    // weaker than the next; a second run upside down (tx = 180°) reverses gravity along the
-    // platform z axis and brings every such ratio within 3× (measured 1.7, 1.2, 1.3), with every
-    // coefficient within 3σ of the truth (|err|/σ are N(0, 1); the seeds give ≤ 1.5).
+    // One level 60-h run leaves per gyro a combination of D0 and the g-sensitive terms weakly
+    // determined; a second run upside down (tx = 180°) reverses gravity along the platform z
+    // axis and pins it down, with every coefficient within 3σ of the truth (|err|/σ are N(0, 1);
+    // the seeds give ≤ 1.5).
     let cfg = Config::default();
     let effects = [catalog::paper()];
     let truth = scenario(1, [0.0; 3], 60.0).coefficients;
@@ -55,11 +55,19 @@ fn two_orientations_separate_what_one_static_run_cannot() {
         .map(|(model, prep)| Run { model, prep })
         .collect();
     let j = identify_joint(&runs, &cfg).unwrap();
-    for w in &j.runs[0].alone.weak {
-        assert!(w.ratio_to_next > 10.0, "alone: {w:?}");
-    }
-    for w in &j.weak {
-        assert!(w.ratio_to_next < 3.0, "joint: {w:?}");
+    // With the start's azimuth uncertain (the alignment prior, 30″), a single run has a second
+    // weak direction beside the polar one, so the weakest is no longer 12–19× below the next; what
+    // a second orientation does is shrink the weakest combination itself: per gyro by more than
+    // 5× (measured 1-s: see the print).
+    for (alone, joint) in j.runs[0].alone.weak.iter().zip(&j.weak) {
+        println!(
+            "axis {}: weakest 1σ alone {:.2e}, joint {:.2e} deg/h",
+            alone.axis, alone.sigma_degph, joint.sigma_degph
+        );
+        assert!(
+            alone.sigma_degph > 5.0 * joint.sigma_degph,
+            "alone: {alone:?}, joint: {joint:?}"
+        );
     }
     for k in 0..12 {
         let z = (j.estimate.value[k] - truth[k]) / j.estimate.sigma(k);

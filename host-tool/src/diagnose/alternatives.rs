@@ -10,7 +10,8 @@
 //! posterior  C = (I + Σ⁻¹)⁻¹,  β̂ = C s
 //! evidence gain (−2 ln units, positive: the data prefer adding it)
 //!            G = sᵀ C s − ln det(1 + Σ^½ I Σ^½)
-//! the coefficients under it  Δ = −Ψ_N β̂    (Ψ_N: how β moves the current estimate)
+//! the coefficients under it  Δ = Ψ_N β̂    (Ψ_N β: how far β, unmodelled, pulls the estimate
+//!                                           from the truth the refit with it recovers)
 //! ```
 //!
 //! `G` is the quantity the refits' evidence gain measures ([`super::select`]), without refitting;
@@ -110,8 +111,9 @@ fn alternative(setup: &Setup, sig: &super::score::Signature, n: usize) -> Altern
     let gain = s_scaled.dot(&beta_scaled) - ln_det;
     let beta = DVector::from_fn(q, |k, _| prior[k] * beta_scaled[k]);
     let cov = DMatrix::from_fn(q, q, |a, b| prior[a] * c_scaled[(a, b)] * prior[b]);
-    // Rows of the parameters (after the angles) of Ψ; the estimate moves by −Ψ β.
-    let sens = -sig
+    // Rows of the parameters (after the angles) of Ψ: refitting with β moves the estimate by
+    // +Ψ β (checked against the refit: tests/honest_uncertainty.rs).
+    let sens = sig
         .psi_final
         .view((estimator_core::model::ANGLES, 0), (n, q))
         .into_owned();

@@ -34,9 +34,8 @@ pub struct Signature {
     pub info: DMatrix<f64>,
     /// Whitened signature, 3 rows per update (3N × q).
     pub whitened: DMatrix<f64>,
-    /// Ψ at the last update (n × q): how β, unmodelled, moves the current model's estimate
-    /// there — its parameters are constants, so their smoothed estimate is this one:
-    /// `x̂ − x = −Ψ β`.
+    /// Ψ at the last update (n × q): the parameters are constants, so their smoothed estimate
+    /// is the last filtered one, and adding β to the model moves it by `Ψ β`.
     pub psi_final: DMatrix<f64>,
 }
 

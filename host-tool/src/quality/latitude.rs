@@ -9,10 +9,10 @@ use estimator_core::effects::Effect;
 use estimator_core::frames::normal_gravity;
 
 use super::{Action, Finding};
-use crate::cli::common::build_model;
 use crate::consistency::{assess, Thresholds};
 use crate::diagnose::select::{fit_stats, neg2_log_evidence};
-use crate::identify::{identify, Config, Identification, Prepared};
+use crate::identify::setup::at_latitude;
+use crate::identify::{build_model, identify, Config, Identification, Prepared};
 use rayon::prelude::*;
 
 /// Half-width of each searched interval ([`search_grid`]), deg.
@@ -33,8 +33,6 @@ pub struct LatitudeFit {
     /// Whether the model is consistent at the best latitude.
     pub consistent: bool,
 }
-
-use crate::identify::setup::at_latitude;
 
 /// The model fitted at latitude `lat`: −2 ln p(y) and the identification (`None` when it
 /// cannot be fitted there).

@@ -5,7 +5,7 @@ use std::fmt;
 use std::str::FromStr;
 
 /// Names of the injectable effects, as on the command line and in the truth file.
-pub const EFFECT_NAMES: [&str; 7] = [
+pub const EFFECT_NAMES: [&str; 9] = [
     "g2",
     "acc-bias",
     "acc-scale",
@@ -13,6 +13,8 @@ pub const EFFECT_NAMES: [&str; 7] = [
     "drift-trend",
     "drift-markov",
     "temp-drift",
+    "drift-sine",
+    "drift-transient",
 ];
 
 /// Help text describing the `--effect` syntax.
@@ -25,6 +27,8 @@ NAME=v1,v2,... (repeatable; the same effect twice adds up). Effects:
   drift-trend=kx,ky,kz  drift += k*t/3600, deg/h per hour
   drift-markov=sx,sy,sz:tx,ty,tz   first-order Gauss-Markov drift, std deg/h : time constant h
   temp-drift=cx,cy,cz   drift += c*(T(t)-T(0)), deg/h per deg C; adds a temp_c column
+  drift-sine=ax,ay,az:P drift += a*sin(2*pi*t/P), deg/h, period P in h (not in the catalog)
+  drift-transient=ax,ay,az:tau   turn-on transient: drift += a*exp(-t/tau), deg/h, tau in h (not in the catalog)
 Example: --effect acc-bias=1e-4,0,0 --effect drift-markov=0.01,0.01,0.01:5,5,5";
 
 /// An effect the truth simulator can inject. Serialised as `{"name": "acc-bias", "params": {…}}`.
@@ -50,6 +54,10 @@ pub enum InjectedEffect {
     },
     /// Temperature-driven drift: w_d,i += c_i (T(t) − T(0)), deg/h per °C.
     TempDrift { c_deg_h_per_c: [f64; 3] },
+    /// Periodic drift (not in the catalog): w_d,i += a_i sin(2π t / P), deg/h, P in h.
+    DriftSine { a_deg_h: [f64; 3], period_h: f64 },
+    /// Turn-on transient (not in the catalog): w_d,i += a_i exp(−t/τ), deg/h, τ in h.
+    DriftTransient { a_deg_h: [f64; 3], tau_h: f64 },
 }
 
 impl InjectedEffect {
@@ -63,6 +71,8 @@ impl InjectedEffect {
             InjectedEffect::DriftTrend { .. } => "drift-trend",
             InjectedEffect::DriftMarkov { .. } => "drift-markov",
             InjectedEffect::TempDrift { .. } => "temp-drift",
+            InjectedEffect::DriftSine { .. } => "drift-sine",
+            InjectedEffect::DriftTransient { .. } => "drift-transient",
         }
     }
 
@@ -71,6 +81,16 @@ impl InjectedEffect {
         let vals = self.values();
         if vals.iter().flatten().any(|v| !v.is_finite()) {
             return Err(format!("{}: parameters must be finite", self.name()));
+        }
+        if let InjectedEffect::DriftSine { period_h: t, .. }
+        | InjectedEffect::DriftTransient { tau_h: t, .. } = self
+        {
+            if *t <= 0.0 {
+                return Err(format!(
+                    "{}: the period or time constant must be > 0",
+                    self.name()
+                ));
+            }
         }
         if let InjectedEffect::DriftMarkov { sigma_deg_h, tau_h } = self {
             if sigma_deg_h.iter().any(|s| *s < 0.0) {
@@ -99,6 +119,13 @@ impl InjectedEffect {
                 vec![sigma_deg_h.to_vec(), tau_h.to_vec()]
             }
             InjectedEffect::TempDrift { c_deg_h_per_c } => vec![c_deg_h_per_c.to_vec()],
+            InjectedEffect::DriftSine {
+                a_deg_h,
+                period_h: t,
+            }
+            | InjectedEffect::DriftTransient { a_deg_h, tau_h: t } => {
+                vec![a_deg_h.to_vec(), vec![*t]]
+            }
         }
     }
 }
@@ -154,9 +181,14 @@ impl FromStr for InjectedEffect {
         })?;
         let name = name.trim();
         let groups: Vec<&str> = rest.split(':').collect();
-        let want_groups = if name == "drift-markov" { 2 } else { 1 };
+        let want_groups = match name {
+            "drift-markov" | "drift-sine" | "drift-transient" => 2,
+            _ => 1,
+        };
         if EFFECT_NAMES.contains(&name) && groups.len() != want_groups {
-            return Err(if want_groups == 2 {
+            return Err(if name == "drift-sine" || name == "drift-transient" {
+                format!("{name}: expected a_x,a_y,a_z:time (h), got {rest:?}")
+            } else if want_groups == 2 {
                 format!("{name}: expected sigma_x,sigma_y,sigma_z:tau_x,tau_y,tau_z, got {rest:?}")
             } else {
                 format!("{name}: expected one comma-separated list, got {rest:?}")
@@ -195,6 +227,14 @@ impl FromStr for InjectedEffect {
             },
             "temp-drift" => InjectedEffect::TempDrift {
                 c_deg_h_per_c: parse_list(name, "values (deg/h per deg C)", groups[0])?,
+            },
+            "drift-sine" => InjectedEffect::DriftSine {
+                a_deg_h: parse_list(name, "amplitudes (deg/h)", groups[0])?,
+                period_h: parse_list::<1>(name, "period (h)", groups[1])?[0],
+            },
+            "drift-transient" => InjectedEffect::DriftTransient {
+                a_deg_h: parse_list(name, "amplitudes (deg/h)", groups[0])?,
+                tau_h: parse_list::<1>(name, "time constant (h)", groups[1])?[0],
             },
             _ => {
                 return Err(format!(

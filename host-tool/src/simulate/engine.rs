@@ -62,6 +62,10 @@ pub struct Simulator {
     has_temp_drift: bool,
     temp: TempProfile,
     markov: Vec<Markov>,
+    /// Periodic drifts: amplitude per axis (rad/s) and period (s).
+    sines: Vec<([f64; 3], f64)>,
+    /// Turn-on transients: amplitude per axis (rad/s) and time constant (s).
+    transients: Vec<([f64; 3], f64)>,
     /// ARW density, rad²/s.
     q: f64,
     t: f64,
@@ -94,6 +98,8 @@ impl Simulator {
             has_temp_drift: false,
             temp: s.temp_profile.clone(),
             markov: Vec::new(),
+            sines: Vec::new(),
+            transients: Vec::new(),
             q: s.arw_deg2_per_h * (std::f64::consts::PI / 180.0).powi(2) / 3600.0,
             t: 0.0,
             // At t = 0 frame i coincides with frame 0, so C_i^p(0) = C_0^p(θ0).
@@ -138,6 +144,14 @@ impl Simulator {
                         tau_s: tau_h.map(|x| x * 3600.0),
                         m,
                     });
+                }
+                InjectedEffect::DriftSine { a_deg_h, period_h } => {
+                    sim.sines
+                        .push((a_deg_h.map(|a| a * RADPS_PER_DEG_H), period_h * 3600.0));
+                }
+                InjectedEffect::DriftTransient { a_deg_h, tau_h } => {
+                    sim.transients
+                        .push((a_deg_h.map(|a| a * RADPS_PER_DEG_H), tau_h * 3600.0));
                 }
                 InjectedEffect::AccBias { .. }
                 | InjectedEffect::AccScale { .. }
@@ -231,6 +245,12 @@ impl Simulator {
                     .sum::<f64>();
             }
             wi += self.trend[i] * t + self.temp_coef[i] * dt_temp + markov[i];
+            for (a, p) in &self.sines {
+                wi += a[i] * (2.0 * std::f64::consts::PI * t / p).sin();
+            }
+            for (a, tau) in &self.transients {
+                wi += a[i] * (-t / tau).exp();
+            }
             w[i] = wi;
         }
         w

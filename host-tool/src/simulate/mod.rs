@@ -412,7 +412,10 @@ impl Truth {
                         put(format!("K{}", xyz[i]), *v);
                     }
                 }
-                InjectedEffect::DriftMarkov { .. } => {}
+                // Outside the catalog: no parameter of an identified model is theirs.
+                InjectedEffect::DriftMarkov { .. }
+                | InjectedEffect::DriftSine { .. }
+                | InjectedEffect::DriftTransient { .. } => {}
             }
         }
         out
