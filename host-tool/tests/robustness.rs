@@ -544,3 +544,240 @@ fn a_simulate_that_fails_before_the_renames_leaves_the_earlier_recording() {
     );
     let _ = std::fs::remove_dir_all(&dir);
 }
+
+/// A recording as a logger writes it: `run.csv`'s content without the metadata line by which
+/// `driftid` recognises a recording `simulate` wrote (`# generator: driftid simulate`).
+fn foreign_recording(from: &Path, to: &Path) {
+    let text = std::fs::read_to_string(from).unwrap();
+    let kept: String = text
+        .lines()
+        .filter(|l| !l.starts_with("# generator:"))
+        .map(|l| format!("{l}\n"))
+        .collect();
+    std::fs::write(to, kept).unwrap();
+}
+
+/// Issue 28, item 1: a file the user has — above all a recording — is never replaced (or
+/// appended to) without `--force`. Before, `report a.csv -o b.csv` (a tab-completion slip)
+/// replaced the recording b.csv with HTML, `simulate --out rec.csv` replaced a real recording
+/// and `--out notes.csv` an unrelated `notes.truth.json`, `diagnose rung0.csv --export .`
+/// overwrote its own input, and `--raw` appended binary frames to a recording. Each must now
+/// exit 2 naming the file and `--force`, and leave every byte as it was; while files driftid
+/// wrote itself (its report, its simulated run) are still replaced without `--force`.
+#[test]
+fn files_driftid_did_not_write_are_never_replaced_without_force() {
+    let dir = temp_dir("foreign");
+    let csv = simulate(&dir, "0.2", "10");
+    let rec = dir.join("rec.csv");
+    foreign_recording(&csv, &rec);
+    let notes = dir.join("notes.truth.json");
+    std::fs::write(&notes, "my notes, not a truth file\n").unwrap();
+    let export = dir.join("export");
+    std::fs::create_dir(&export).unwrap();
+    let rung0 = export.join("rung0.csv");
+    std::fs::copy(&rec, &rung0).unwrap();
+    let user_index = export.join("rungs.csv");
+    std::fs::write(&user_index, "a,b\n1,2\n").unwrap();
+    let snapshot = |p: &Path| std::fs::read(p).unwrap();
+    let kept = [&rec, &notes, &rung0, &user_index].map(|p| (p.clone(), snapshot(p)));
+    let os = |s: &str| std::ffi::OsString::from(s);
+    let cases: Vec<(Vec<std::ffi::OsString>, &Path)> = vec![
+        (
+            vec![
+                os("report"),
+                csv.clone().into(),
+                os("-o"),
+                rec.clone().into(),
+            ],
+            &rec,
+        ),
+        (
+            vec![
+                os("simulate"),
+                os("--hours"),
+                os("0.1"),
+                os("--out"),
+                rec.clone().into(),
+            ],
+            &rec,
+        ),
+        (
+            vec![
+                os("simulate"),
+                os("--hours"),
+                os("0.1"),
+                os("--out"),
+                dir.join("notes.csv").into(),
+            ],
+            &notes,
+        ),
+        // The input itself in the export folder: refused as the input.
+        (
+            vec![
+                os("diagnose"),
+                rung0.clone().into(),
+                os("--export"),
+                export.clone().into(),
+            ],
+            &rung0,
+        ),
+        // A file of the user's named like an export file.
+        (
+            vec![
+                os("diagnose"),
+                csv.clone().into(),
+                os("--export"),
+                export.clone().into(),
+            ],
+            &rung0,
+        ),
+        (
+            vec![
+                os("replay"),
+                csv.clone().into(),
+                os("--port"),
+                os("/nonexistent"),
+                os("--raw"),
+                rec.clone().into(),
+            ],
+            &rec,
+        ),
+        (
+            vec![
+                os("replay"),
+                csv.clone().into(),
+                os("--port"),
+                os("/nonexistent"),
+                os("--out"),
+                rec.clone().into(),
+            ],
+            &rec,
+        ),
+    ];
+    for (args, named) in &cases {
+        let out = driftid().args(args).output().unwrap();
+        let err = stderr(&out);
+        assert_eq!(out.status.code(), Some(2), "{args:?}: {err}");
+        let name = named.file_name().unwrap().to_string_lossy();
+        let about_input = err.contains("that is the input");
+        assert!(
+            err.contains(name.as_ref()) && (err.contains("--force") || about_input),
+            "{args:?}: must name {name} and say --force replaces it: {err}"
+        );
+        for (p, bytes) in &kept {
+            assert_eq!(
+                &std::fs::read(p).unwrap(),
+                bytes,
+                "{args:?}: {} changed",
+                p.display()
+            );
+        }
+    }
+    assert!(
+        !dir.join("notes.csv").exists(),
+        "nothing written when the truth is refused"
+    );
+    // Files driftid wrote are replaced without --force: its simulated run and its own report.
+    let again = driftid()
+        .args([
+            "simulate", "--hours", "0.2", "--rate-s", "10", "--seed", "3", "--out",
+        ])
+        .arg(&csv)
+        .output()
+        .unwrap();
+    assert!(again.status.success(), "{}", stderr(&again));
+    let page = dir.join("page.html");
+    for _ in 0..2 {
+        let out = driftid()
+            .arg("report")
+            .arg(&csv)
+            .arg("-o")
+            .arg(&page)
+            .output()
+            .unwrap();
+        assert!(matches!(out.status.code(), Some(0 | 3)), "{}", stderr(&out));
+    }
+    // With --force the user's file is replaced.
+    let out = driftid()
+        .arg("report")
+        .arg(&csv)
+        .arg("-o")
+        .arg(&rec)
+        .arg("--force")
+        .output()
+        .unwrap();
+    assert!(matches!(out.status.code(), Some(0 | 3)), "{}", stderr(&out));
+    assert!(std::fs::read_to_string(&rec)
+        .unwrap()
+        .starts_with("<!DOCTYPE html>"));
+    assert!(
+        !names_in(&dir).iter().any(|n| n.starts_with(".driftid-")),
+        "no temporary file left: {:?}",
+        names_in(&dir)
+    );
+    let _ = std::fs::remove_dir_all(&dir);
+}
+
+/// Issue 28, item 1: a non-regular file is never renamed over. Before, the atomic rename
+/// replaced a FIFO (or, as root, `-o /dev/null`'s device node) with a regular file. A FIFO or
+/// a character device is what a user names to receive the output: it is written into, and is
+/// still a FIFO afterwards.
+#[cfg(unix)]
+#[test]
+fn a_fifo_target_is_written_into_not_renamed_over() {
+    use std::os::unix::fs::FileTypeExt as _;
+    let dir = temp_dir("fifo");
+    let fifo = dir.join("pipe.csv");
+    let made = Command::new("mkfifo").arg(&fifo).status().unwrap();
+    assert!(made.success());
+    let reader = {
+        let fifo = fifo.clone();
+        std::thread::spawn(move || std::fs::read_to_string(fifo).unwrap())
+    };
+    let out = driftid()
+        .args(["simulate", "--hours", "0.05", "--rate-s", "10", "--out"])
+        .arg(&fifo)
+        .output()
+        .unwrap();
+    assert!(out.status.success(), "{}", stderr(&out));
+    // Checked before joining the reader: a FIFO renamed over leaves the reader blocked for ever.
+    assert!(
+        std::fs::symlink_metadata(&fifo)
+            .unwrap()
+            .file_type()
+            .is_fifo(),
+        "the FIFO is still a FIFO"
+    );
+    let got = reader.join().unwrap();
+    assert!(
+        got.contains("t_s,ax_mps2"),
+        "the recording went into the FIFO: {got:.200}"
+    );
+    assert_eq!(names_in(&dir), ["pipe.csv", "pipe.truth.json"]);
+    let _ = std::fs::remove_dir_all(&dir);
+}
+
+/// Issue 28, item 10: `report` validates every output before it writes any. Before, a `--png`
+/// folder that cannot be made (here under a regular file) failed only after the HTML had been
+/// written: exit 2, yet a new report.html.
+#[test]
+fn report_writes_nothing_when_a_png_path_is_bad() {
+    let dir = temp_dir("badpng");
+    let csv = simulate(&dir, "0.2", "10");
+    let page = dir.join("page.html");
+    let out = driftid()
+        .arg("report")
+        .arg(&csv)
+        .arg("-o")
+        .arg(&page)
+        .arg("--png")
+        .arg(csv.join("plots"))
+        .output()
+        .unwrap();
+    let err = stderr(&out);
+    assert_eq!(out.status.code(), Some(2), "{err}");
+    assert!(err.contains("--png"), "names the option: {err}");
+    assert!(!page.exists(), "no HTML written when the command fails");
+    assert_eq!(names_in(&dir), ["run.csv", "run.truth.json"]);
+    let _ = std::fs::remove_dir_all(&dir);
+}
