@@ -781,3 +781,142 @@ fn report_writes_nothing_when_a_png_path_is_bad() {
     assert_eq!(names_in(&dir), ["run.csv", "run.truth.json"]);
     let _ = std::fs::remove_dir_all(&dir);
 }
+
+/// `src` with every time stamp `t` rewritten as `t + offset` (to 17 significant digits).
+fn offset_times(src: &Path, dst: &Path, offset: f64) {
+    let text = std::fs::read_to_string(src).unwrap();
+    let mut out = String::new();
+    for l in text.lines() {
+        match l.split_once(',') {
+            Some((t, rest)) if !l.starts_with('#') && !l.starts_with("t_s") => {
+                let t: f64 = t.parse().unwrap();
+                out.push_str(&format!("{:?},{rest}\n", t + offset));
+            }
+            _ => out.push_str(&format!("{l}\n")),
+        }
+    }
+    std::fs::write(dst, out).unwrap();
+}
+
+/// Issue 28, item 2: the same data twice counted its information twice — `identify a.csv
+/// a.csv` (or a copy under another name) was trusted with a 1σ narrower by √2, and `plan a.csv
+/// a.csv` accepted. Now the same file in any spelling, a byte-identical copy, or the same
+/// samples in another formatting are refused by name (exit 2) by identify, diagnose and plan,
+/// before any fit.
+#[test]
+fn the_same_data_twice_is_refused_by_name() {
+    let dir = temp_dir("twice");
+    let csv = simulate(&dir, "0.5", "10");
+    let copy = dir.join("copy.csv");
+    std::fs::copy(&csv, &copy).unwrap();
+    // The same samples, another description: not byte-identical, still the same data.
+    let renamed = dir.join("described.csv");
+    let text = std::fs::read_to_string(&csv).unwrap();
+    let other: String = text
+        .lines()
+        .map(|l| {
+            if l.starts_with("# description:") {
+                "# description: the same run, described again\n".to_string()
+            } else {
+                format!("{l}\n")
+            }
+        })
+        .collect();
+    assert_ne!(other, text);
+    std::fs::write(&renamed, other).unwrap();
+    let spelled = dir.join(".").join("run.csv");
+    for cmd in ["identify", "diagnose", "plan"] {
+        for (second, why) in [
+            (&csv, "is the same file as"),
+            (&spelled, "is the same file as"),
+            (&copy, "holds the same samples as"),
+            (&renamed, "holds the same samples as"),
+        ] {
+            let out = driftid().arg(cmd).arg(&csv).arg(second).output().unwrap();
+            let err = stderr(&out);
+            assert_eq!(
+                out.status.code(),
+                Some(2),
+                "{cmd} run.csv {second:?}: {err}"
+            );
+            let name = second.file_name().unwrap().to_string_lossy();
+            assert!(
+                err.contains(why) && err.contains(name.as_ref()) && err.contains("run.csv"),
+                "{cmd} run.csv {second:?}: must name both files: {err}"
+            );
+        }
+    }
+    let _ = std::fs::remove_dir_all(&dir);
+}
+
+/// Issue 28, item 4: loggers write absolute time stamps (Unix time, an uptime) or start at a
+/// negative time. Before, 1.7e9 + t ended in "innovation covariance is not positive definite",
+/// an offset of 1e15 or one stray stamp at 1e10 s hung identify, and negative starts failed in
+/// the filter. Now time is taken relative to the first sample, said once, and the result is
+/// exactly the one of the run stamped from 0; stamps whose offset leaves them without the
+/// resolution to tell samples apart, and a stray stamp far away, are refused naming the line.
+#[test]
+fn absolute_time_stamps_are_taken_relative_to_the_first_sample() {
+    let dir = temp_dir("epoch");
+    let csv = simulate(&dir, "2", "10");
+    let coefficients = |path: &Path| {
+        let out = driftid()
+            .arg("identify")
+            .arg(path)
+            .arg("--json")
+            .output()
+            .unwrap();
+        // 0 or 3 (this short run's fit may be untrusted): numbers computed either way.
+        assert!(
+            matches!(out.status.code(), Some(0 | 3)),
+            "{path:?}: {}",
+            stderr(&out)
+        );
+        let v: serde_json::Value = serde_json::from_slice(&out.stdout).unwrap();
+        (
+            (v["coefficients"].clone(), v["trusted"].clone()),
+            stderr(&out),
+        )
+    };
+    let (want, _) = coefficients(&csv);
+    for offset in [1.7e9, 1e6, 1e8, -5000.0] {
+        let shifted = dir.join("shifted.csv");
+        offset_times(&csv, &shifted, offset);
+        let (got, err) = coefficients(&shifted);
+        assert_eq!(got, want, "offset {offset}: the same result as from 0");
+        assert_eq!(
+            err.matches("relative to the first sample").count(),
+            1,
+            "offset {offset}: said once: {err}"
+        );
+    }
+    // 1e15: a double resolves 0.125 s there, the 10-s stamps are not usable: refused, line 7
+    // (the second sample), at once.
+    let far = dir.join("far.csv");
+    offset_times(&csv, &far, 1e15);
+    // A stray last stamp at 1e10 s: a gap of 300 years.
+    let stray = dir.join("stray.csv");
+    let mut text = std::fs::read_to_string(&csv).unwrap();
+    let last_start = text.trim_end().rfind('\n').unwrap() + 1;
+    let comma = last_start + text[last_start..].find(',').unwrap();
+    text.replace_range(last_start..comma, "1e10");
+    std::fs::write(&stray, &text).unwrap();
+    let stray_line = format!("stray.csv:{}:", text.lines().count());
+    for (path, want) in [(&far, "far.csv:7:"), (&stray, stray_line.as_str())] {
+        for cmd in ["identify", "diagnose", "plan"] {
+            let t0 = Instant::now();
+            let out = driftid().arg(cmd).arg(path).output().unwrap();
+            let err = stderr(&out);
+            assert_eq!(out.status.code(), Some(2), "{cmd} {path:?}: {err}");
+            assert!(
+                err.contains(want),
+                "{cmd} {path:?}: must name {want}: {err}"
+            );
+            assert!(
+                t0.elapsed() < Duration::from_secs(30),
+                "{cmd} {path:?}: no hang"
+            );
+        }
+    }
+    let _ = std::fs::remove_dir_all(&dir);
+}
