@@ -4,10 +4,12 @@
 //!   target (so the final rename never crosses a file system), flushed and synced, then renamed
 //!   over the target ([`AtomicFile`], [`TempPath`], [`write_atomic`]). An error, a panic or a
 //!   dropped writer removes the temporary file; the target is then either absent or still the
-//!   complete previous file — never a partial one. A process killed outright (SIGKILL, or a
-//!   Ctrl-C, which kills without running destructors) may leave the temporary file, named
+//!   complete previous file — never a partial one. The temporary files are named
 //!   `.driftid-PID-N.NAME` (hidden, and ending with the target's own name so that writers that
-//!   choose a format by extension, like the PNG plots, still do): never the target itself.
+//!   choose a format by extension, like the PNG plots, still do). SIGINT, SIGTERM and SIGHUP
+//!   remove every one that is not finished, then end the process by the signal
+//!   ([`remove_temporaries_on_signal`]); only a SIGKILL (which nothing can catch) may leave one —
+//!   never the target itself.
 //! - **Never over an input**: [`ensure_not_input`] refuses an output that is the same file as
 //!   one of the command's inputs (same device and inode on Unix — which also catches hard links
 //!   and symbolic links — or, when the output does not exist yet, the same canonical directory
@@ -38,6 +40,48 @@ use std::sync::atomic::{AtomicU64, Ordering};
 use anyhow::Context as _;
 
 static COUNTER: AtomicU64 = AtomicU64::new(0);
+
+/// The temporary files not yet renamed into place (or removed), for the signal clean-up. A
+/// temporary file is created and registered under this lock, and the clean-up holds it until
+/// the process is gone: no temporary file is created after the clean-up has looked.
+static TEMPORARIES: std::sync::Mutex<Vec<PathBuf>> = std::sync::Mutex::new(Vec::new());
+
+fn temporaries() -> std::sync::MutexGuard<'static, Vec<PathBuf>> {
+    TEMPORARIES.lock().unwrap_or_else(|e| e.into_inner())
+}
+
+fn unregister(temp: &Path) {
+    let mut t = temporaries();
+    if let Some(i) = t.iter().position(|p| p == temp) {
+        t.swap_remove(i);
+    }
+}
+
+/// Installs the clean-up: on SIGINT, SIGTERM or SIGHUP every unfinished temporary file is
+/// removed, then the signal's default action ends the process (status: killed by that signal,
+/// 130 for SIGINT in a shell). Call once at start-up; without it a signal leaves the
+/// temporaries (never a partial file under a real name).
+#[cfg(unix)]
+pub fn remove_temporaries_on_signal() -> anyhow::Result<()> {
+    use signal_hook::consts::{SIGHUP, SIGINT, SIGTERM};
+    let mut signals = signal_hook::iterator::Signals::new([SIGINT, SIGTERM, SIGHUP])
+        .context("installing the signal handlers")?;
+    std::thread::Builder::new()
+        .name("signals".into())
+        .spawn(move || {
+            if let Some(sig) = signals.forever().next() {
+                // Held until the process is gone: nothing new is created meanwhile.
+                let t = temporaries();
+                for p in t.iter() {
+                    let _ = fs::remove_file(p);
+                }
+                let _ = signal_hook::low_level::emulate_default_handler(sig);
+                std::process::exit(128 + sig);
+            }
+        })
+        .context("starting the signal thread")?;
+    Ok(())
+}
 
 /// The directory a target lives in (`.` for a bare file name).
 fn dir_of(target: &Path) -> &Path {
@@ -105,11 +149,33 @@ pub struct TempPath {
 impl TempPath {
     /// A fresh temporary path in the target's directory (nothing is created yet).
     pub fn new(target: &Path) -> anyhow::Result<Self> {
+        let temp = temp_path_for(target)?;
+        temporaries().push(temp.clone());
         Ok(TempPath {
             target: target.to_path_buf(),
-            temp: temp_path_for(target)?,
+            temp,
             committed: false,
         })
+    }
+
+    /// A fresh temporary file in the target's directory, created (empty) and registered under
+    /// one lock ([`TEMPORARIES`]).
+    fn create(target: &Path) -> anyhow::Result<(Self, File)> {
+        let temp = temp_path_for(target)?;
+        let mut t = temporaries();
+        let f = OpenOptions::new()
+            .write(true)
+            .create_new(true)
+            .open(&temp)
+            .with_context(|| format!("creating a temporary file for {}", target.display()))?;
+        t.push(temp.clone());
+        drop(t);
+        let path = TempPath {
+            target: target.to_path_buf(),
+            temp,
+            committed: false,
+        };
+        Ok((path, f))
     }
 
     /// Where to write.
@@ -126,6 +192,7 @@ impl TempPath {
     pub fn commit(mut self) -> anyhow::Result<()> {
         finish(&self.temp, &self.target)?;
         self.committed = true;
+        unregister(&self.temp);
         Ok(())
     }
 }
@@ -134,6 +201,7 @@ impl Drop for TempPath {
     fn drop(&mut self) {
         if !self.committed {
             let _ = fs::remove_file(&self.temp);
+            unregister(&self.temp);
         }
     }
 }
@@ -150,12 +218,7 @@ pub struct AtomicFile {
 impl AtomicFile {
     /// Creates the temporary file beside `target`.
     pub fn create(target: &Path) -> anyhow::Result<Self> {
-        let path = TempPath::new(target)?;
-        let f = OpenOptions::new()
-            .write(true)
-            .create_new(true)
-            .open(path.path())
-            .with_context(|| format!("creating a temporary file for {}", target.display()))?;
+        let (path, f) = TempPath::create(target)?;
         Ok(AtomicFile {
             w: BufWriter::with_capacity(1 << 16, f),
             path,

@@ -412,7 +412,7 @@ fn a_failing_replay_leaves_no_output_file() {
     let _ = std::fs::remove_dir_all(&dir);
 }
 
-/// `simulate` killed while it writes (SIGKILL, like a Ctrl-C: no destructor runs) over an
+/// `simulate` killed while it writes (SIGKILL: no destructor or handler runs) over an
 /// earlier run. Whatever moment the kill falls on, the real names hold a consistent state: the
 /// recording is complete (the old one or the new one), and a truth file beside it describes it
 /// (same number of samples) — never a partial CSV beside the previous run's truth. The kill is
@@ -917,6 +917,61 @@ fn absolute_time_stamps_are_taken_relative_to_the_first_sample() {
                 "{cmd} {path:?}: no hang"
             );
         }
+    }
+    let _ = std::fs::remove_dir_all(&dir);
+}
+
+/// Issue 28, item 10: SIGINT and SIGTERM left the hidden `.driftid-PID-N.NAME` temporary file
+/// beside the output (a Ctrl-C ran no destructor). Now the signal removes every unfinished
+/// temporary file, and the process still ends by the signal (a shell sees 130 / 143). The
+/// signal is aimed at the write phase (as soon as the temporary file appears), over an earlier
+/// run that must stay complete.
+#[cfg(unix)]
+#[test]
+fn sigint_and_sigterm_leave_no_temporary_file() {
+    use std::os::unix::process::ExitStatusExt as _;
+    let dir = temp_dir("signal");
+    let csv = simulate(&dir, "0.5", "10");
+    let old = std::fs::read(&csv).unwrap();
+    for sig in [libc::SIGINT, libc::SIGTERM] {
+        let mut child = driftid()
+            .args([
+                "simulate", "--hours", "20", "--rate-s", "0.1", "--seed", "9", "--out",
+            ])
+            .arg(&csv)
+            .stdout(Stdio::null())
+            .stderr(Stdio::null())
+            .spawn()
+            .unwrap();
+        let t0 = Instant::now();
+        let mut saw_temp = false;
+        while t0.elapsed() < Duration::from_secs(300) {
+            if names_in(&dir).iter().any(|n| n.starts_with(".driftid-")) {
+                saw_temp = true;
+                break;
+            }
+            if child.try_wait().unwrap().is_some() {
+                break;
+            }
+            std::thread::sleep(Duration::from_millis(1));
+        }
+        // SAFETY: kill(2) on the child's own pid.
+        unsafe {
+            libc::kill(child.id() as libc::pid_t, sig);
+        }
+        let status = child.wait().unwrap();
+        assert!(saw_temp, "the simulate never started writing");
+        assert_eq!(status.signal(), Some(sig), "ends by the signal: {status:?}");
+        assert_eq!(
+            names_in(&dir),
+            ["run.csv", "run.truth.json"],
+            "signal {sig}: no temporary file left"
+        );
+        assert_eq!(
+            std::fs::read(&csv).unwrap(),
+            old,
+            "the earlier run is intact"
+        );
     }
     let _ = std::fs::remove_dir_all(&dir);
 }
