@@ -975,3 +975,81 @@ fn sigint_and_sigterm_leave_no_temporary_file() {
     }
     let _ = std::fs::remove_dir_all(&dir);
 }
+
+/// Issue 28, item 8: every numeric option has a range, and a value outside it is a usage error
+/// (exit 2) naming the option and the range — before anything runs (the recording named does
+/// not exist). Before, `plan --hours 1e9` aborted on a 14-TB allocation (exit 134), and
+/// `--raw-sigma 1e-300` or a huge `--arw` ended in errors that named no option.
+#[test]
+fn every_numeric_option_out_of_range_names_the_option_and_its_range() {
+    let cases: &[(&[&str], &str, &str)] = &[
+        (
+            &["plan", "x.csv", "--hours", "1e9"],
+            "--hours",
+            "(0, 10000] h",
+        ),
+        (&["plan", "--rate-s", "1e9"], "--rate-s", "[1e-4, 86400] s"),
+        (
+            &["plan", "--alternatives", "1000000000"],
+            "--alternatives",
+            "[0, 100]",
+        ),
+        (
+            &["simulate", "--out", "x.csv", "--hours", "1e5"],
+            "--hours",
+            "[0, 10000] h",
+        ),
+        (
+            &["bench", "accuracy", "--hours", "12,1e9"],
+            "--hours",
+            "(0, 10000] h",
+        ),
+        (
+            &["identify", "x.csv", "--raw-sigma", "1e-300"],
+            "--raw-sigma",
+            "[1e-8, 1] m/s^2",
+        ),
+        (
+            &["identify", "x.csv", "--arw", "1e9"],
+            "--arw",
+            "[0, 1] deg^2/h",
+        ),
+        (
+            &["diagnose", "x.csv", "--period-s", "1e9"],
+            "--period-s",
+            "[0.001, 86400] s",
+        ),
+        (
+            &[
+                "replay",
+                "x.csv",
+                "--port",
+                "/nonexistent",
+                "--gate-nis",
+                "1e300",
+            ],
+            "--gate-nis",
+            "[0, 1e6]",
+        ),
+    ];
+    for (args, option, range) in cases {
+        let out = driftid().args(*args).output().unwrap();
+        let err = stderr(&out);
+        assert_eq!(out.status.code(), Some(2), "{args:?}: {err}");
+        assert!(
+            err.contains(option) && err.contains(range),
+            "{args:?}: must name {option} and its range {range}: {err}"
+        );
+    }
+    // In range one by one, too many samples together: refused naming both, at once.
+    let out = driftid()
+        .args(["plan", "--hours", "10000", "--rate-s", "1e-4"])
+        .output()
+        .unwrap();
+    let err = stderr(&out);
+    assert_eq!(out.status.code(), Some(2), "{err}");
+    assert!(
+        err.contains("--hours/--rate-s") && err.contains("at most 1e8"),
+        "{err}"
+    );
+}

@@ -15,13 +15,13 @@ pub struct ModelArgs {
     #[arg(long, allow_hyphen_values = true, value_parser = super::args::latitude_deg)]
     pub latitude_deg: Option<f64>,
     /// Filter period, s (raw samples are averaged over it).
-    #[arg(long, default_value_t = 60.0, allow_hyphen_values = true, value_parser = super::args::positive_f64)]
+    #[arg(long, default_value_t = 60.0, allow_hyphen_values = true, value_parser = super::args::period_s)]
     pub period_s: f64,
     /// Gyro angle-random-walk variance density, deg²/h.
-    #[arg(long, default_value_t = 1e-8, allow_hyphen_values = true, value_parser = super::args::nonneg_f64)]
+    #[arg(long, default_value_t = 1e-8, allow_hyphen_values = true, value_parser = super::args::arw)]
     pub arw: f64,
     /// Raw-sample accelerometer noise 1σ, m/s² (one value or x,y,z); default: estimated from the data.
-    #[arg(long, value_delimiter = ',', allow_hyphen_values = true, value_parser = super::args::positive_f64)]
+    #[arg(long, value_delimiter = ',', allow_hyphen_values = true, value_parser = super::args::raw_sigma)]
     pub raw_sigma: Option<Vec<f64>>,
     /// Use the paper's Euler step (X + f·dt) instead of RK4 (to reproduce the paper; inaccurate).
     #[arg(long)]

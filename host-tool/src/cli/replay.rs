@@ -24,17 +24,17 @@ pub struct ReplayArgs {
     #[arg(long, default_value_t = port::DEFAULT_BAUD, allow_hyphen_values = true, value_parser = super::args::positive_u32)]
     pub baud: u32,
     /// Filter period, s.
-    #[arg(long, default_value_t = 60.0, allow_hyphen_values = true, value_parser = super::args::positive_f64)]
+    #[arg(long, default_value_t = 60.0, allow_hyphen_values = true, value_parser = super::args::period_s)]
     pub period_s: f64,
     /// 1σ noise of one raw sample, m/s² (default: 1e-5 g per 60-s mean at the recording's rate).
-    #[arg(long, allow_hyphen_values = true, value_parser = super::args::positive_f64)]
+    #[arg(long, allow_hyphen_values = true, value_parser = super::args::raw_sigma)]
     pub raw_sigma: Option<f64>,
     /// Gyro angle random walk, deg²/h.
-    #[arg(long, default_value_t = 1e-8, allow_hyphen_values = true, value_parser = super::args::nonneg_f64)]
+    #[arg(long, default_value_t = 1e-8, allow_hyphen_values = true, value_parser = super::args::arw)]
     pub arw: f64,
     /// χ² innovation gate of the firmware's filter (NIS threshold; 0: off). Rejections are
     /// counted in the status; 10 in a row raise a fault.
-    #[arg(long, default_value_t = 0.0, allow_hyphen_values = true, value_parser = super::args::nonneg_f64)]
+    #[arg(long, default_value_t = 0.0, allow_hyphen_values = true, value_parser = super::args::gate_nis)]
     pub gate_nis: f64,
     /// Where to write the firmware's estimates (CSV); default: RECORDING.firmware.csv.
     #[arg(long)]

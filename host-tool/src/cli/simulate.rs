@@ -25,10 +25,10 @@ pub struct SimulateArgs {
     #[arg(long, value_enum, default_value_t = Preset::Paper)]
     pub scenario: Preset,
     /// Duration, hours (preset: 60).
-    #[arg(long, allow_hyphen_values = true, value_parser = super::args::nonneg_f64)]
+    #[arg(long, allow_hyphen_values = true, value_parser = super::args::hours_or_zero)]
     pub hours: Option<f64>,
     /// Sample interval, seconds (preset: 1).
-    #[arg(long, allow_hyphen_values = true, value_parser = super::args::positive_f64)]
+    #[arg(long, allow_hyphen_values = true, value_parser = super::args::rate_s)]
     pub rate_s: Option<f64>,
     /// Random seed (preset: 1).
     #[arg(long, allow_hyphen_values = true)]
