@@ -890,6 +890,33 @@ fn absolute_time_stamps_are_taken_relative_to_the_first_sample() {
             "offset {offset}: said once: {err}"
         );
     }
+    // Said once per file by the joint diagnose too (it reads each run twice: first to refuse
+    // the same data twice, then to diagnose it).
+    let other = dir.join("other.csv");
+    let again = driftid()
+        .args([
+            "simulate", "--hours", "2", "--rate-s", "10", "--seed", "5", "--out",
+        ])
+        .arg(&other)
+        .output()
+        .unwrap();
+    assert!(again.status.success(), "{}", stderr(&again));
+    let shifted = dir.join("shifted.csv");
+    offset_times(&csv, &shifted, 1.7e9);
+    let out = driftid()
+        .arg("diagnose")
+        .arg(&shifted)
+        .arg(&other)
+        .arg("--no-ladder")
+        .output()
+        .unwrap();
+    let err = stderr(&out);
+    assert!(matches!(out.status.code(), Some(0 | 3)), "{err}");
+    assert_eq!(
+        err.matches("relative to the first sample").count(),
+        1,
+        "{err}"
+    );
     // 1e15: a double resolves 0.125 s there, the 10-s stamps are not usable: refused, line 7
     // (the second sample), at once.
     let far = dir.join("far.csv");

@@ -109,7 +109,12 @@ pub const MAX_STAMP_RESOLUTION: f64 = 1e-3;
 /// as it is). Refused, naming the line: a stamp whose float resolution at its magnitude is
 /// coarser than [`MAX_STAMP_RESOLUTION`] of the interval since the previous sample, a gap
 /// longer than [`MAX_GAP_S`], a span longer than [`MAX_SPAN_S`].
-fn relative_times(path: &Path, samples: &mut [RawSample], lines: &[u32]) -> anyhow::Result<()> {
+fn relative_times(
+    path: &Path,
+    samples: &mut [RawSample],
+    lines: &[u32],
+    warn: bool,
+) -> anyhow::Result<()> {
     let Some(first) = samples.first() else {
         return Ok(());
     };
@@ -133,11 +138,17 @@ fn relative_times(path: &Path, samples: &mut [RawSample], lines: &[u32]) -> anyh
         }
     }
     if t0 != 0.0 {
-        eprintln!(
-            "driftid: warning: {}:{}: the time stamps start at t_s = {t0:?}: time is taken relative to the first sample (it is t = 0; an initial orientation in the metadata is the platform's at that sample)",
-            path.display(),
-            line(0)
-        );
+        // Once per file and process: the joint diagnose reads a run more than once.
+        static SAID: std::sync::Mutex<Vec<std::path::PathBuf>> = std::sync::Mutex::new(Vec::new());
+        let mut said = SAID.lock().unwrap_or_else(|e| e.into_inner());
+        if warn && !said.iter().any(|p| p == path) {
+            said.push(path.to_path_buf());
+            eprintln!(
+                "driftid: warning: {}:{}: the time stamps start at t_s = {t0:?}: time is taken relative to the first sample (it is t = 0; an initial orientation in the metadata is the platform's at that sample)",
+                path.display(),
+                line(0)
+            );
+        }
         let mut prev = f64::NEG_INFINITY;
         for (k, s) in samples.iter_mut().enumerate() {
             s.t_s -= t0;
@@ -213,14 +224,25 @@ fn fingerprint(samples: &[Sample]) -> u64 {
 
 /// Reads a recording; a bad file is an error naming file and line.
 pub fn load(path: &Path, latitude_override: Option<f64>) -> anyhow::Result<Loaded> {
+    load_with(path, latitude_override, true)
+}
+
+/// [`load`] without its warnings on stderr (a repaired last line, relative time stamps): for a
+/// first look at a recording that is loaded again, with its warnings, later (the joint
+/// `diagnose`'s check for the same data twice).
+pub fn load_quietly(path: &Path, latitude_override: Option<f64>) -> anyhow::Result<Loaded> {
+    load_with(path, latitude_override, false)
+}
+
+fn load_with(path: &Path, latitude_override: Option<f64>, warn: bool) -> anyhow::Result<Loaded> {
     let spin = crate::progress::spinner(&format!("reading {}", path.display()));
     let rec = read_recording(path);
     spin.finish_and_clear();
     let mut rec = rec?;
-    for r in &rec.repairs {
+    for r in rec.repairs.iter().filter(|_| warn) {
         eprintln!("driftid: warning: {r}");
     }
-    relative_times(path, &mut rec.samples, &rec.lines)?;
+    relative_times(path, &mut rec.samples, &rec.lines, warn)?;
     let latitude_deg = latitude_override
         .or(rec.meta.latitude_deg)
         .with_context(|| {

@@ -152,7 +152,7 @@ pub fn diagnose(args: &DiagnoseArgs) -> anyhow::Result<()> {
         refuse_same_data(&before, path, None)?;
     }
     for path in &args.recordings {
-        let fingerprint = load(path, args.model.latitude_deg)?.fingerprint;
+        let fingerprint = super::common::load_quietly(path, args.model.latitude_deg)?.fingerprint;
         refuse_same_data(&seen, path, Some(fingerprint))?;
         seen.push((path.as_path(), fingerprint));
     }
