@@ -420,12 +420,13 @@ pub fn check_export(
     Ok(())
 }
 
-/// Writes each rung's series (`rungK.csv`) and a summary (`rungs.csv`) into `dir`, each file
-/// whole or not at all (checked first by [`check_export`]).
+/// Writes each rung's series (`rungK.csv`) and a summary (`rungs.csv`) into `dir`, all whole
+/// or none (checked first by [`check_export`]).
 pub fn export(dir: &std::path::Path, diagnoses: &[Diagnosis]) -> anyhow::Result<()> {
     use std::fmt::Write as _;
     std::fs::create_dir_all(dir).with_context(|| format!("{}", dir.display()))?;
     let mut index = format!("{INDEX_HEADER}\n");
+    let mut files: Vec<(std::path::PathBuf, String)> = Vec::with_capacity(diagnoses.len() + 1);
     for (k, d) in diagnoses.iter().enumerate() {
         let model = if d.model.is_empty() {
             "paper".to_string()
@@ -463,9 +464,21 @@ pub fn export(dir: &std::path::Path, diagnoses: &[Diagnosis]) -> anyhow::Result<
             }
             let _ = writeln!(csv, ",{}", s.nis[j]);
         }
-        crate::output::write_atomic(&dir.join(format!("rung{k}.csv")), csv.as_bytes())?;
+        files.push((dir.join(format!("rung{k}.csv")), csv));
     }
-    crate::output::write_atomic(&dir.join("rungs.csv"), index.as_bytes())?;
+    files.push((dir.join("rungs.csv"), index));
+    // All written to temporaries first, then moved into place: an error (a full disk) leaves
+    // the earlier export as it was, not half old and half new.
+    let mut done = Vec::with_capacity(files.len());
+    for (target, text) in &files {
+        let mut f = crate::output::AtomicFile::create(target)?;
+        std::io::Write::write_all(&mut f, text.as_bytes())
+            .with_context(|| format!("writing {}", target.display()))?;
+        done.push(f);
+    }
+    for f in done {
+        f.commit()?;
+    }
     println!(
         "wrote {} rung files and rungs.csv to {}",
         diagnoses.len(),
