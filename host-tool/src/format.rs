@@ -16,6 +16,25 @@ pub fn with_sigma(value: f64, sigma: f64) -> String {
     format!("{:.*}", decimals_for(sigma), value)
 }
 
+/// `v` to `digits` significant digits, without trailing zeros (`0.4903942405116055` → `0.4903942`).
+pub fn sig(v: f64, digits: usize) -> String {
+    if !v.is_finite() || v == 0.0 {
+        return format!("{v}");
+    }
+    let mag = v.abs().log10().floor() as i32;
+    if (-4..7).contains(&mag) {
+        let d = (digits as i32 - 1 - mag).clamp(0, 15) as usize;
+        let s = format!("{v:.d$}");
+        if s.contains('.') {
+            s.trim_end_matches('0').trim_end_matches('.').to_string()
+        } else {
+            s
+        }
+    } else {
+        format!("{v:.*e}", digits.saturating_sub(1))
+    }
+}
+
 /// A number in short scientific notation, e.g. `3.1e-4`.
 pub fn sci(v: f64) -> String {
     format!("{v:.2e}")

@@ -14,6 +14,7 @@
 //! - [`cli`]: one module per `driftid` subcommand.
 #[cfg(all(target_os = "linux", target_env = "gnu"))]
 pub mod alloc;
+pub mod assess;
 pub mod beside;
 pub mod catalog;
 pub mod consistency;

@@ -143,6 +143,9 @@ pub fn designed_prepared(site: Site, design: &Design, cfg: &Config) -> anyhow::R
         },
         initial_angles: site.angles_to_chart(&theta_enu),
         initial_angle_sigma: [ANGLE_PRIOR_SIGMA_RAD; 3],
+        alignment_sigma: cfg.setup.alignment_sigma(
+            theta_enu == [0.0; 3] && site.chart == estimator_core::frames::Chart::Enu,
+        ),
         findings: vec![],
     })
 }

@@ -32,6 +32,22 @@ pub struct ModelArgs {
     /// Effects added to the paper's model, comma-separated (e.g. `acc-bias,drift-markov`).
     #[arg(long = "with", value_delimiter = ',')]
     pub with: Vec<String>,
+    /// Start attitude prior 1σ, arcsec: TILT (each level axis) and AZIMUTH. The start is
+    /// estimated with it; default 5,30 (docs/model.md, "Set-up parameters").
+    #[arg(long, value_delimiter = ',', num_args = 2, value_names = ["TILT", "AZIMUTH"], value_parser = super::args::nonneg_f64)]
+    pub alignment_arcsec: Option<Vec<f64>>,
+    /// Latitude 1σ, deg; default: half the last written digit of the latitude (/√3), at least 1e-4.
+    #[arg(long, value_parser = super::args::nonneg_f64)]
+    pub latitude_sigma_deg: Option<f64>,
+    /// Recorder clock rate 1σ, ppm (default 20: a quartz crystal; 1 for a disciplined clock).
+    #[arg(long, value_parser = super::args::nonneg_f64)]
+    pub clock_sigma_ppm: Option<f64>,
+    /// Gravity 1σ, ppm of g (default 30: normal gravity or a map value, altitude and anomaly).
+    #[arg(long, value_parser = super::args::nonneg_f64)]
+    pub gravity_sigma_ppm: Option<f64>,
+    /// Daily tilt of the apparent vertical, 1σ per component, arcsec (default 1).
+    #[arg(long, value_parser = super::args::nonneg_f64)]
+    pub vertical_tilt_arcsec: Option<f64>,
     /// TOML file of effects defined by the user, added to the catalog for this run (repeatable);
     /// see the README, "Effects defined in a file".
     #[arg(long = "effects", value_name = "FILE")]
@@ -56,7 +72,26 @@ impl ModelArgs {
                 self.period_s
             );
         }
+        let mut setup = crate::identify::setup::SetupPriors::default();
+        if let Some(v) = self.alignment_arcsec.as_deref() {
+            if let [tilt, azimuth] = v {
+                setup.tilt_arcsec = *tilt;
+                setup.azimuth_arcsec = *azimuth;
+            } else {
+                anyhow::bail!(
+                    "--alignment-arcsec takes TILT,AZIMUTH, got {} values",
+                    v.len()
+                );
+            }
+        }
+        setup.latitude_sigma_deg = self.latitude_sigma_deg.or(setup.latitude_sigma_deg);
+        setup.clock_sigma_ppm = self.clock_sigma_ppm.unwrap_or(setup.clock_sigma_ppm);
+        setup.gravity_sigma_ppm = self.gravity_sigma_ppm.unwrap_or(setup.gravity_sigma_ppm);
+        setup.vertical_tilt_arcsec = self
+            .vertical_tilt_arcsec
+            .unwrap_or(setup.vertical_tilt_arcsec);
         Ok(Config {
+            setup,
             period_s: self.period_s,
             arw_deg2_per_h: self.arw,
             propagation: if self.euler {
@@ -295,18 +330,49 @@ fn load_with(path: &Path, latitude_override: Option<f64>, warn: bool) -> anyhow:
 /// The model with the paper's drift and the chosen effects (lives in [`crate::identify`]).
 pub use crate::identify::build_model;
 
-/// Asks whether the metadata latitude is why a model does not fit ([`crate::quality::latitude`]):
-/// the profile's finding, if any, joins `prep.findings`, where it is a fault (the result is not
-/// trusted, and no physical effect is added to explain it). Call it once a fit is inconsistent.
+/// Asks whether the metadata latitude is why a model does not fit ([`crate::quality::latitude`]),
+/// against `rivals` (the catalog effects' evidence gains on the same scale): the profile's
+/// finding, if any, joins `prep.findings`, where it is a fault (the result is not trusted, and no
+/// physical effect is added to explain it). Call it once a fit is inconsistent.
 pub fn name_a_wrong_latitude(
     prep: &mut Prepared,
     effects: &[&'static dyn estimator_core::effects::Effect],
     cfg: &Config,
+    rivals: &[(String, f64)],
 ) {
     let spin = crate::progress::spinner("the model does not fit: profiling the latitude");
-    let found = crate::quality::latitude::check(prep, effects, cfg);
+    let found = crate::quality::latitude::check(prep, effects, cfg, rivals);
     spin.finish_and_clear();
     prep.findings.extend(found);
+}
+
+/// The catalog effects' evidence gains for the model `effects` fitted as `id` on `prep`: the
+/// rivals of a wrong latitude. The leaders by the linearised evidence
+/// ([`crate::diagnose::alternatives`]) are refitted, as the latitude is: far from the fit the
+/// one-step evidence overstates what a refit gains.
+pub fn rivals(
+    prep: &Prepared,
+    effects: &[&'static dyn estimator_core::effects::Effect],
+    cfg: &Config,
+    id: &crate::identify::Identification,
+) -> Vec<(String, f64)> {
+    let dcfg = crate::diagnose::DiagnoseConfig {
+        identify: cfg.clone(),
+        ..Default::default()
+    };
+    let Ok(alts) = crate::diagnose::alternatives::weigh(prep, effects, &dcfg, id) else {
+        return vec![];
+    };
+    let leaders: Vec<String> = alts
+        .iter()
+        .take(crate::diagnose::select::REFIT_LEADERS)
+        .map(|a| a.effect.clone())
+        .collect();
+    let base = crate::diagnose::select::neg2_log_evidence(id);
+    crate::diagnose::select::refit(prep, effects, base, &leaders, &dcfg)
+        .into_iter()
+        .map(|r| (r.effect, r.evidence_gain))
+        .collect()
 }
 
 /// The starting model fitted on `prep` when its data are trusted (else `None`), a misfit first
@@ -323,7 +389,8 @@ pub fn starting_fit(
     let model = build_model(prep.site, effects, cfg)?;
     let id = crate::identify::identify(&model, prep, cfg)?;
     if super::identify::consistency_of(&id, prep).is_some_and(|c| !c.is_consistent()) {
-        name_a_wrong_latitude(prep, effects, cfg);
+        let rivals = rivals(prep, effects, cfg, &id);
+        name_a_wrong_latitude(prep, effects, cfg, &rivals);
     }
     Ok(Some(id))
 }

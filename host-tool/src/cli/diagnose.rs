@@ -302,15 +302,33 @@ pub fn diagnose_one(
     }
     let spin = crate::progress::spinner("identifying, diagnosing and climbing the model ladder");
     let Ladder {
-        diagnoses, rungs, ..
+        diagnoses,
+        rungs,
+        identification,
+        effects: final_effects,
     } = ladder_from(&prep, &effects, &cfg, first)?;
+    spin.finish_and_clear();
+    // The final model's honest 1σ and the alternatives it cannot rule out (one path with
+    // identify and report).
+    let spin =
+        crate::progress::spinner("the set-up's uncertainty and the alternative explanations");
+    let assessed =
+        crate::assess::assess(&final_effects, prep.clone(), &cfg.identify, identification)?;
     spin.finish_and_clear();
     if let Some(dir) = export_dir {
         check_export(dir, diagnoses.len(), args)?;
         export(dir, &diagnoses)?;
     }
     let last = diagnoses.last().map(|d| d.consistency.clone());
-    let reasons = ladder_untrusted(&faults, &diagnoses);
+    let mut reasons = ladder_untrusted(&faults, &diagnoses);
+    reasons.extend(assessed.reasons.iter().cloned());
+    let final_rows = super::identify::rows(
+        &assessed.id,
+        &assessed.unc,
+        &super::common::build_model(assessed.prep.site, &final_effects, &cfg.identify)?,
+        &assessed.prep,
+        None,
+    );
     let d = &diagnoses[0];
     let final_model = diagnoses
         .last()
@@ -333,12 +351,15 @@ pub fn diagnose_one(
         "ladder": rungs,
         "final_verdict": diagnoses.last().map(|d| d.verdict.clone()),
         "final_consistency": last,
-        "data_quality": { "findings": prep.findings },
+        "data_quality": { "findings": assessed.prep.findings },
+        "coefficients": super::identify::coefficients_json(&final_rows),
+        "setup_uncertainty": assessed.unc.contributions,
+        "alternatives": assessed.alternatives,
         "trusted": reasons.is_empty(),
         "untrusted_reasons": reasons,
     });
     if !args.json {
-        print_findings(&prep.findings);
+        print_findings(&assessed.prep.findings);
         if !faults.is_empty() {
             println!("the data have faults the tool did not repair: they are named above as faults; no physical effect is added to explain them (no model ladder)");
         }
@@ -356,6 +377,11 @@ pub fn diagnose_one(
             }
         }
         print_ladder(&rungs);
+        println!();
+        println!("final model's coefficients with the 1σ this run supports:");
+        super::identify::print_table(&final_rows, true);
+        super::identify::print_setup(&assessed.unc, &assessed.id);
+        super::identify::print_alternatives(&assessed.alternatives, &assessed.unc, &assessed.id);
         if !reasons.is_empty() {
             println!("NOT TRUSTED:");
             for r in &reasons {

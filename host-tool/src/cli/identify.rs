@@ -10,6 +10,7 @@ use super::common::{build_model, load, print_findings, trusted_or, ModelArgs};
 use crate::catalog;
 use crate::consistency::{assess, Consistency, Thresholds};
 use crate::format::{sci, with_sigma};
+use crate::identify::setup::Uncertainty;
 use crate::identify::{identify, prepare_oriented, try_cramer_rao_bound, Identification, Prepared};
 use crate::simulate::read_truth;
 
@@ -38,8 +39,12 @@ pub struct Row {
     pub unit: &'static str,
     /// Estimate.
     pub value: f64,
-    /// 1σ of the estimate.
+    /// 1σ with the set-up exactly as stated (noise only; the bound's counterpart).
     pub sigma: f64,
+    /// 1σ with the set-up's priors ([`crate::identify::setup`]): the headline.
+    pub sigma_total: f64,
+    /// The set-up source that adds most (`noise` when none adds as much as the noise).
+    pub dominant: &'static str,
     /// Cramér–Rao bound 1σ (at the truth if known, else at the estimate).
     pub bound: f64,
     /// The paper's single-pass estimate and its claimed 1σ.
@@ -66,6 +71,7 @@ pub fn truth_of(truth: &crate::simulate::Truth, id: &Identification) -> Vec<f64>
 /// meaning unknown).
 pub fn rows(
     id: &Identification,
+    unc: &Uncertainty,
     model: &estimator_core::Model<'_>,
     prep: &Prepared,
     truth: Option<&[f64]>,
@@ -90,7 +96,9 @@ pub fn rows(
             name: id.params[k].name,
             unit: id.params[k].unit,
             value: best.value[k],
-            sigma: best.sigma(k),
+            sigma: unc.noise_sigma[k],
+            sigma_total: unc.total_sigma[k],
+            dominant: unc.dominant(k),
             bound: bound[k],
             single: (id.single_pass.value[k], id.single_pass.sigma(k)),
             truth: truth
@@ -104,8 +112,8 @@ pub fn rows(
 pub fn print_table(rows: &[Row], refined: bool) {
     let has_truth = rows.iter().any(|r| r.truth.is_some());
     print!(
-        "{:<6} {:<16} {:>12} {:>10} {:>10}",
-        "coef", "unit", "estimate", "1σ", "CRB 1σ"
+        "{:<6} {:<16} {:>12} {:>10} {:>10} {:>10} {:>6} {:<15}",
+        "coef", "unit", "estimate", "1σ total", "noise 1σ", "CRB 1σ", "ratio", "most from"
     );
     if has_truth {
         print!(
@@ -116,21 +124,31 @@ pub fn print_table(rows: &[Row], refined: bool) {
     println!("  {:>12} {:>9}", "single pass", "its 1σ");
     for r in rows {
         print!(
-            "{:<6} {:<16} {:>12} {:>10} {:>10}",
+            "{:<6} {:<16} {:>12} {:>10} {:>10} {:>10} {:>6.2} {:<15}",
             r.name,
             r.unit,
-            with_sigma(r.value, r.sigma),
+            with_sigma(r.value, r.sigma_total),
+            sci(r.sigma_total),
             sci(r.sigma),
-            sci(r.bound)
+            sci(r.bound),
+            r.sigma_total / r.sigma,
+            r.dominant
         );
         if let Some(t) = r.truth {
             let e = r.value - t;
+            // Relative to the truth's size: the sign is the error's, whatever the truth's sign.
             let pct = if t != 0.0 {
-                format!("{:.3}", 100.0 * e / t)
+                format!("{:.3}", 100.0 * e / t.abs())
             } else {
                 "-".into()
             };
-            print!(" {:>10} {:>10} {:>8} {:>7.2}", t, sci(e), pct, e / r.sigma);
+            print!(
+                " {:>10} {:>10} {:>8} {:>7.2}",
+                crate::format::sig(t, 7),
+                sci(e),
+                pct,
+                e / r.sigma_total
+            );
         } else if has_truth {
             print!(" {:>10} {:>10} {:>8} {:>7}", "—", "", "", "");
         }
@@ -179,18 +197,91 @@ pub fn print_summary(id: &Identification, prep: &Prepared) {
     }
 }
 
+/// Prints the alternative explanations: evidence, weight, and the coefficients each could move
+/// beyond their total 1σ at a size the run cannot rule out.
+pub fn print_alternatives(
+    alts: &[crate::diagnose::alternatives::Alternative],
+    unc: &Uncertainty,
+    id: &Identification,
+) {
+    if alts.is_empty() {
+        return;
+    }
+    println!("alternative explanations (catalog effects not in the model; evidence gain in −2 ln units, > 0: the data prefer it):");
+    let mut any_conditional = false;
+    for a in alts {
+        let conditional: Vec<String> = (0..a.reach.len().min(id.params.len()))
+            .filter(|&k| a.reach[k] > unc.total_sigma[k])
+            .map(|k| {
+                format!(
+                    "{} ({:.1}σ)",
+                    id.params[k].name,
+                    a.reach[k] / unc.total_sigma[k]
+                )
+            })
+            .collect();
+        any_conditional |= !conditional.is_empty();
+        println!(
+            "  {:<14} evidence gain {:>10.1}  weight {:.3}  {}",
+            a.effect,
+            a.evidence_gain,
+            a.weight,
+            if conditional.is_empty() {
+                "moves no coefficient beyond its total 1σ at any size this run cannot rule out"
+                    .to_string()
+            } else {
+                format!(
+                    "could move, at a size this run cannot rule out: {}",
+                    conditional.join(", ")
+                )
+            }
+        );
+    }
+    if any_conditional {
+        println!("  (such a coefficient holds only on that effect's absence: a second run from another orientation, `driftid plan`, or a bench value of the effect settles it)");
+    }
+}
+
+/// Prints what each set-up prior adds (the largest share over the coefficients).
+pub fn print_setup(unc: &Uncertainty, id: &Identification) {
+    if unc.contributions.is_empty() {
+        return;
+    }
+    println!(
+        "set-up uncertainty (1σ total = noise ⊕ these; docs/model.md, \"Set-up parameters\"):"
+    );
+    for c in &unc.contributions {
+        let (k, worst) = c
+            .sigma
+            .iter()
+            .enumerate()
+            .map(|(k, s)| (k, s / unc.noise_sigma[k]))
+            .max_by(|a, b| a.1.total_cmp(&b.1))
+            .unwrap_or((0, 0.0));
+        let data = match (c.offset, c.stated) {
+            (Some(o), Some((v, unit))) => format!(
+                "; estimated {} {unit} (stated {}{})",
+                crate::format::pm(v + o, c.posterior_sigma),
+                crate::format::sig(v, 9),
+                c.data_sigma
+                    .map(|s| format!("; the data alone ± {}", sci(s)))
+                    .unwrap_or_default()
+            ),
+            _ => String::new(),
+        };
+        println!(
+            "  {:<15} prior {:<28} adds up to {:.2} × the noise 1σ ({}){data}",
+            c.source,
+            c.prior,
+            worst,
+            id.params.get(k).map_or("", |p| p.name)
+        );
+    }
+}
+
 /// The JSON object of an identification.
 pub fn to_json(rows: &[Row], id: &Identification, prep: &Prepared) -> Value {
-    let mut coefs = Map::new();
-    for r in rows {
-        let mut o = json!({ "value": r.value, "sigma": r.sigma, "bound": r.bound, "unit": r.unit,
-            "single_pass": { "value": r.single.0, "sigma": r.single.1 } });
-        if let Some(t) = r.truth {
-            o["truth"] = json!(t);
-            o["error"] = json!(r.value - t);
-        }
-        coefs.insert(r.name.to_string(), o);
-    }
+    let coefs = coefficients_json(rows);
     json!({
         "coefficients": coefs,
         "final_time_h": id.final_time_h,
@@ -202,6 +293,23 @@ pub fn to_json(rows: &[Row], id: &Identification, prep: &Prepared) -> Value {
         "weak_combinations": id.weak,
         "data_quality": { "findings": prep.findings },
     })
+}
+
+/// The coefficients as JSON: value, `sigma` (noise only), `sigma_total` (the headline), the
+/// bound, the unit, the single pass and the truth where known.
+pub fn coefficients_json(rows: &[Row]) -> Value {
+    let mut coefs = Map::new();
+    for r in rows {
+        let mut o = json!({ "value": r.value, "sigma": r.sigma, "sigma_total": r.sigma_total,
+            "dominant_uncertainty": r.dominant, "bound": r.bound, "unit": r.unit,
+            "single_pass": { "value": r.single.0, "sigma": r.single.1 } });
+        if let Some(t) = r.truth {
+            o["truth"] = json!(t);
+            o["error"] = json!(r.value - t);
+        }
+        coefs.insert(r.name.to_string(), o);
+    }
+    Value::Object(coefs)
 }
 
 /// Runs `driftid identify`.
@@ -232,15 +340,28 @@ pub fn run(args: &IdentifyArgs) -> anyhow::Result<()> {
         Some(p) => Some(truth_of(&read_truth(p)?, &id)),
         None => None,
     };
-    let rows = rows(&id, &model, &prep, truth.as_deref());
+    let spin =
+        crate::progress::spinner("the set-up's uncertainty and the alternative explanations");
+    let crate::assess::Assessment {
+        prep,
+        id,
+        unc,
+        alternatives: alts,
+        reasons: assessed,
+    } = crate::assess::assess(&effects, prep, &cfg, id)?;
+    spin.finish_and_clear();
+    let model = build_model(prep.site, &effects, &cfg)?;
+    let rows = rows(&id, &unc, &model, &prep, truth.as_deref());
     let check = consistency_of(&id, &prep);
     let mut prep = prep;
     if check.as_ref().is_some_and(|c| !c.is_consistent()) {
         // A model that does not fit: first ask whether the metadata latitude is the culprit.
-        super::common::name_a_wrong_latitude(&mut prep, &effects, &cfg);
+        let rivals = super::common::rivals(&prep, &effects, &cfg, &id);
+        super::common::name_a_wrong_latitude(&mut prep, &effects, &cfg, &rivals);
     }
     let mut reasons = prep.untrusted_reasons();
     reasons.extend(id.convergence.and_then(|c| c.untrusted_reason()));
+    reasons.extend(assessed);
     let metadata_named = prep.findings.iter().any(|f| f.kind == "latitude");
     match &check {
         Some(c) if !c.is_consistent() && !metadata_named => reasons.push(format!(
@@ -255,6 +376,8 @@ pub fn run(args: &IdentifyArgs) -> anyhow::Result<()> {
     if args.json {
         let mut out = to_json(&rows, &id, &prep);
         out["consistency"] = serde_json::to_value(&check)?;
+        out["setup_uncertainty"] = serde_json::to_value(&unc.contributions)?;
+        out["alternatives"] = serde_json::to_value(&alts)?;
         out["convergence"] = serde_json::to_value(id.convergence)?;
         out["trusted"] = json!(reasons.is_empty());
         out["untrusted_reasons"] = json!(reasons);
@@ -272,6 +395,8 @@ pub fn run(args: &IdentifyArgs) -> anyhow::Result<()> {
         );
         print_table(&rows, id.refined.is_some());
         print_summary(&id, &prep);
+        print_setup(&unc, &id);
+        print_alternatives(&alts, &unc, &id);
         if !reasons.is_empty() {
             println!(
                 "NOT TRUSTED: the numbers above are computed but the tool does not trust them:"

@@ -259,13 +259,12 @@ fn refuse_wrong_latitudes(
 ) -> anyhow::Result<()> {
     let mut named = vec![];
     for (r, id) in runs.iter_mut().zip(alone) {
-        let misfit = id
-            .as_ref()
-            .ok()
-            .and_then(|id| super::identify::consistency_of(id, &r.prep))
-            .is_some_and(|c| !c.is_consistent());
-        if misfit {
-            super::common::name_a_wrong_latitude(&mut r.prep, effects, cfg);
+        let misfit = id.as_ref().ok().filter(|id| {
+            super::identify::consistency_of(id, &r.prep).is_some_and(|c| !c.is_consistent())
+        });
+        if let Some(id) = misfit {
+            let rivals = super::common::rivals(&r.prep, effects, cfg, id);
+            super::common::name_a_wrong_latitude(&mut r.prep, effects, cfg, &rivals);
         }
         named.extend(
             r.prep

@@ -85,7 +85,16 @@ pub fn run(args: &ReportArgs) -> anyhow::Result<()> {
         Some(p) => Some(super::identify::truth_of(&read_truth(p)?, &id)),
         None => None,
     };
-    let table = rows(&id, &model, &prep, truth.as_deref());
+    let crate::assess::Assessment {
+        prep,
+        id,
+        unc,
+        reasons: assessed,
+        ..
+    } = crate::assess::assess(&final_effects, prep, &cfg.identify, id)?;
+    let mut untrusted = untrusted;
+    untrusted.extend(assessed);
+    let table = rows(&id, &unc, &model, &prep, truth.as_deref());
     let coefficients = table
         .iter()
         .enumerate()
@@ -94,6 +103,8 @@ pub fn run(args: &ReportArgs) -> anyhow::Result<()> {
             unit: r.unit.to_string(),
             value: r.value,
             sigma: r.sigma,
+            sigma_total: r.sigma_total,
+            dominant: r.dominant.to_string(),
             bound: r.bound,
             truth: truth
                 .as_ref()

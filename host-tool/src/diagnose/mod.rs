@@ -14,6 +14,7 @@
 //! - [`verdict`]: the words, on the one definition of consistent ([`crate::consistency`]);
 //! - [`ladder`]: the models that add the chosen effect one at a time.
 
+pub mod alternatives;
 pub mod candidates;
 pub mod ladder;
 pub mod score;
@@ -142,7 +143,7 @@ pub fn diagnose_identified(
 
 /// One replay of the model's final forward pass carrying every testable candidate's signature
 /// ([`score::signatures`]).
-fn replay(
+pub(crate) fn replay(
     prep: &Prepared,
     model: &Model<'_>,
     effects: &[&'static dyn Effect],
@@ -160,7 +161,7 @@ fn replay(
         .collect();
     let mut x0 = vec![0.0; model.dim()];
     x0[..3].copy_from_slice(&prep.initial_angles);
-    let (x0, p0) = wide_prior(model, &x0, &prep.initial_angle_sigma);
+    let (x0, p0) = wide_prior(model, &x0, &prep.start_sigma());
     let meas = &prep.measurements;
     Ok(signatures(
         model,
@@ -173,7 +174,7 @@ fn replay(
 }
 
 /// Whether the recording's temperature varies (more than 1e-6 °C over at least two values).
-fn temp_varies(meas: &[Measurement]) -> bool {
+pub(crate) fn temp_varies(meas: &[Measurement]) -> bool {
     let t: Vec<f64> = meas
         .iter()
         .map(|m| m.temp_c)

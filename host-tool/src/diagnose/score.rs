@@ -34,6 +34,10 @@ pub struct Signature {
     pub info: DMatrix<f64>,
     /// Whitened signature, 3 rows per update (3N × q).
     pub whitened: DMatrix<f64>,
+    /// Ψ at the last update (n × q): how β, unmodelled, moves the current model's estimate
+    /// there — its parameters are constants, so their smoothed estimate is this one:
+    /// `x̂ − x = −Ψ β`.
+    pub psi_final: DMatrix<f64>,
 }
 
 /// Result of a score test.
@@ -227,6 +231,7 @@ pub fn signatures(
                     score: tk.score,
                     info: tk.info,
                     whitened: DMatrix::from_row_slice(n_rows, tk.q, &tk.rows),
+                    psi_final: tk.psi,
                 }
             })
         })

@@ -132,7 +132,7 @@ fn run_posterior(
     let nominal = nominal_trajectory(model, meas, angles0, params);
     let mut start = vec![0.0; n];
     start[..ANGLES].copy_from_slice(&run.prep.initial_angles);
-    let (x0, p0) = wide_prior(model, &start, &run.prep.initial_angle_sigma);
+    let (x0, p0) = wide_prior(model, &start, &run.prep.start_sigma());
     let pass = linearised_pass(model, meas, &nominal, &x0, &p0, true)?;
     let (Some(first), Some(last)) = (pass.states.first(), pass.states.last()) else {
         bail!("the smoother returned no states");
@@ -161,7 +161,7 @@ fn fit_under(
     let mut x0 = vec![0.0; n];
     x0[..ANGLES].copy_from_slice(angles0);
     x0[ANGLES..].copy_from_slice(&joint.value);
-    let (x0, mut p0) = wide_prior(model, &x0, &run.prep.initial_angle_sigma);
+    let (x0, mut p0) = wide_prior(model, &x0, &run.prep.start_sigma());
     p0.view_mut((ANGLES, ANGLES), (n - ANGLES, n - ANGLES))
         .copy_from(&joint.cov);
     let pass = linearised_pass(model, meas, &nominal, &x0, &p0, true)?;
@@ -271,7 +271,7 @@ pub fn run_bound_cov(
     let n = model.dim();
     let mut start = angles0.to_vec();
     start.extend_from_slice(params);
-    let (x0, p0) = wide_prior(model, &start, &run.prep.initial_angle_sigma);
+    let (x0, p0) = wide_prior(model, &start, &run.prep.start_sigma());
     let cov = super::smoother::noise_free_covariance(model, meas, &start, &x0, &p0)?;
     Ok(cov
         .view((ANGLES, ANGLES), (n - ANGLES, n - ANGLES))

@@ -13,6 +13,7 @@
 
 pub mod joint;
 pub mod noise;
+pub mod setup;
 pub mod smoother;
 
 use anyhow::{bail, Context as _};
@@ -42,6 +43,9 @@ pub struct Config {
     pub smoother_iterations: usize,
     /// Ratio between pass 1's prior 1σ and pass 2's.
     pub pass2_prior_shrink: f64,
+    /// Priors of the set-up: the start attitude is estimated with them, the rest enters the
+    /// total 1σ ([`setup`]).
+    pub setup: setup::SetupPriors,
 }
 
 impl Default for Config {
@@ -53,6 +57,7 @@ impl Default for Config {
             raw_sigma_mps2: None,
             smoother_iterations: 3,
             pass2_prior_shrink: 20.0,
+            setup: setup::SetupPriors::default(),
         }
     }
 }
@@ -68,8 +73,12 @@ pub struct Prepared {
     pub noise: NoiseFloor,
     /// Platform angles at t = 0 (rad): zero for a level start, levelled from the data otherwise.
     pub initial_angles: [f64; 3],
-    /// Prior 1σ of those angles, rad.
+    /// Their 1σ from the data and the stated start alone (0.2″ where the recording states the
+    /// start), rad: the noise-only covariance and the Cramér–Rao bound use it.
     pub initial_angle_sigma: [f64; 3],
+    /// The alignment's prior 1σ of the start attitude in the run's chart, rad
+    /// ([`setup::SetupPriors::alignment_sigma`]); zero: exactly as stated.
+    pub alignment_sigma: [f64; 3],
     /// Data-quality findings (empty for a clean recording).
     pub findings: Vec<Finding>,
 }
@@ -86,8 +95,15 @@ impl Prepared {
             },
             initial_angles: [0.0; 3],
             initial_angle_sigma: [ANGLE_PRIOR_SIGMA_RAD; 3],
+            alignment_sigma: [0.0; 3],
             findings: vec![],
         }
+    }
+
+    /// The start attitude's prior 1σ a fit uses, rad: the larger of what the data and the
+    /// stated start give and the alignment's.
+    pub fn start_sigma(&self) -> [f64; 3] {
+        [0, 1, 2].map(|i| self.initial_angle_sigma[i].max(self.alignment_sigma[i]))
     }
     /// Noise floor of one filter-period mean per axis, m/s² (median over the updates).
     pub fn floor_mps2(&self) -> [f64; 3] {
@@ -245,12 +261,14 @@ pub fn prepare_oriented(
             initial_angle_sigma.map(|s| s.max(quality::attitude::START_SIGMA_RAD))
         }
     };
+    let level_enu = theta0 == [0.0; 3] && site.chart == estimator_core::frames::Chart::Enu;
     Ok(Prepared {
         site: screened.site,
         measurements,
         noise,
         initial_angles,
         initial_angle_sigma,
+        alignment_sigma: cfg.setup.alignment_sigma(level_enu),
         findings,
     })
 }
@@ -497,7 +515,7 @@ pub fn identify(
     let mut sigma0: Vec<f64> = (0..n)
         .map(|i| {
             if i < ANGLES {
-                prep.initial_angle_sigma[i]
+                prep.start_sigma()[i]
             } else {
                 model.param(i).prior_sigma
             }
@@ -531,7 +549,7 @@ pub fn identify(
     // replaces the previous one (nominal in, states out), so at most one nominal, one pass's
     // states and one set of innovations are alive at a time.
     drop(single_res);
-    let (x0w, p0w) = wide_prior(model, &zeros, &prep.initial_angle_sigma);
+    let (x0w, p0w) = wide_prior(model, &zeros, &prep.start_sigma());
     let from_pass2 = ekf_pass(model, meas, &x0, &sigma0)
         .context("second EKF pass")
         .and_then(|(_, _, nominal)| {
@@ -571,6 +589,18 @@ pub fn identify(
     } else {
         from_pass2?
     };
+    converged(model, meas, single_pass, fit)
+}
+
+/// The identification a converged Gauss–Newton fit gives (`single_pass`: the paper's pass, kept
+/// for comparison).
+fn converged(
+    model: &Model<'_>,
+    meas: &[Measurement],
+    single_pass: Estimate,
+    fit: GaussNewton,
+) -> anyhow::Result<Identification> {
+    let n = model.dim();
     let GaussNewton {
         states: nominal,
         final_cov,
@@ -589,16 +619,40 @@ pub fn identify(
     let smoothed_residuals = smoothed_residuals(model, meas, &nominal);
     let weak = weak_combinations(model, &refined);
     Ok(Identification {
-        params,
+        params: params_of(model),
         single_pass,
         refined: Some(refined),
         innovations,
         smoothed_residuals,
-        final_time_h,
+        final_time_h: meas.last().map_or(0.0, |m| m.t_s) / 3600.0,
         weak,
         trajectory: nominal,
         convergence: Some(convergence),
     })
+}
+
+/// The model refitted on `prep` by Gauss–Newton from `start`'s trajectory (a fit of the same
+/// model on measurements alike: another latitude, clock or gravity), converged as [`identify`]
+/// converges.
+pub fn identify_from(
+    model: &Model<'_>,
+    prep: &Prepared,
+    cfg: &Config,
+    start: &Identification,
+) -> anyhow::Result<Identification> {
+    let mut x0 = vec![0.0; model.dim()];
+    x0[..ANGLES].copy_from_slice(&prep.initial_angles);
+    let (x0, p0) = wide_prior(model, &x0, &prep.start_sigma());
+    let fit = gauss_newton(
+        model,
+        &prep.measurements,
+        start.trajectory.clone(),
+        &x0,
+        &p0,
+        2,
+        cfg.smoother_iterations + GN_EXTRA_ITERATIONS,
+    )?;
+    converged(model, &prep.measurements, start.single_pass.clone(), fit)
 }
 
 /// Mean NIS/3 beyond which a converged fit is checked against the continuation fit.

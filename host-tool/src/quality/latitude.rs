@@ -7,7 +7,6 @@
 
 use estimator_core::effects::Effect;
 use estimator_core::frames::normal_gravity;
-use estimator_core::Site;
 
 use super::{Action, Finding};
 use crate::cli::common::build_model;
@@ -35,26 +34,7 @@ pub struct LatitudeFit {
     pub consistent: bool,
 }
 
-/// The site at another latitude: gravity moves with it when it was normal gravity (no metadata
-/// gravity), and stays when it was given or measured.
-fn site_at(prep: &Prepared, lat: f64) -> Site {
-    let derived = (prep.site.gravity_mps2 - normal_gravity(prep.site.latitude_rad)).abs() < 1e-12;
-    Site::new(lat, (!derived).then_some(prep.site.gravity_mps2))
-}
-
-/// `prep` at another latitude: the site moved ([`site_at`]) and the start's attitude kept,
-/// re-expressed in the chart that start calls for there. A chart's angles depend on the
-/// latitude: the angles of a start prepared in the polar chart, read at another latitude in the
-/// ENU chart, are another attitude (every latitude but the metadata's then failed to fit).
-fn at_latitude(prep: &Prepared, lat: f64) -> Prepared {
-    let enu = prep.site.angles_to_enu(&prep.initial_angles);
-    let mut site = site_at(prep, lat);
-    site.chart = site.chart_for_start(&enu);
-    let mut p = prep.clone();
-    p.initial_angles = site.angles_to_chart(&enu);
-    p.site = site;
-    p
-}
+use crate::identify::setup::at_latitude;
 
 /// The model fitted at latitude `lat`: −2 ln p(y) and the identification (`None` when it
 /// cannot be fitted there).
@@ -195,8 +175,25 @@ pub fn profile(
     })
 }
 
-/// A finding when the data clearly put the site at another latitude and the model fits there.
-pub fn check(prep: &Prepared, effects: &[&'static dyn Effect], cfg: &Config) -> Option<Finding> {
+/// Evidence a wrong latitude pays for being a free parameter (−2 ln units): the Occam factor of
+/// a latitude anywhere in the profile's search windows (4 × [`SEARCH_HALF_WIDTH_DEG`]) against
+/// the data's 1σ, `2 ln(W / (√(2π) σ))` — the scale on which catalog effects are weighed
+/// ([`crate::diagnose::alternatives`]).
+pub fn occam(sigma_deg: f64) -> f64 {
+    let w = 4.0 * SEARCH_HALF_WIDTH_DEG;
+    (2.0 * (w / ((2.0 * std::f64::consts::PI).sqrt() * sigma_deg.max(1e-9))).ln()).max(0.0)
+}
+
+/// A finding when the data clearly put the site at another latitude, the model fits there, and
+/// a wrong latitude explains the data better than every rival (`rivals`: the catalog effects'
+/// evidence gains on the same scale) by [`crate::diagnose::alternatives::PLAUSIBLE_MARGIN`]. A
+/// rival as good makes it a confounded finding without advice; a better rival, no finding.
+pub fn check(
+    prep: &Prepared,
+    effects: &[&'static dyn Effect],
+    cfg: &Config,
+    rivals: &[(String, f64)],
+) -> Option<Finding> {
     let fit = profile(prep, effects, cfg)?;
     let l0 = prep.site.latitude_rad.to_degrees();
     if !(fit.gain > MIN_GAIN
@@ -205,21 +202,45 @@ pub fn check(prep: &Prepared, effects: &[&'static dyn Effect], cfg: &Config) -> 
     {
         return None;
     }
+    let evidence = fit.gain - occam(fit.sigma_deg);
+    let rival = rivals
+        .iter()
+        .max_by(|a, b| a.1.total_cmp(&b.1))
+        .filter(|r| r.1 > evidence - crate::diagnose::alternatives::PLAUSIBLE_MARGIN);
     // As the metadata gave it: the site keeps radians, and 30° came back as 29.999999999999996.
     let given = (l0 * 1e9).round() / 1e9;
-    Some(Finding {
-        kind: "latitude",
-        message: format!(
-            "the data put the site at latitude {} deg; the metadata says {given} deg. At the data's latitude the same model explains the measurements\
-             {}. The metadata latitude is wrong: rerun with --latitude-deg {:.4}",
-            crate::format::pm(fit.latitude_deg, fit.sigma_deg),
+    let at = crate::format::pm(fit.latitude_deg, fit.sigma_deg);
+    let message = match rival {
+        Some((name, g)) if *g > evidence + crate::diagnose::alternatives::PLAUSIBLE_MARGIN => {
+            // A catalog effect explains the data clearly better: not the metadata.
+            let _ = (name, g);
+            return None;
+        }
+        Some((name, g)) => format!(
+            "the data do not tell a wrong metadata latitude from `{name}`: at latitude {at} deg (the metadata says {given}) the same model \
+             explains the measurements (evidence gain {evidence:.1} after the latitude's Occam factor), and adding `{name}` gains {g:.1} \
+             on the same scale; the coefficients differ under the two — check the latitude against the site's survey, or make a second \
+             run from another orientation (`driftid plan`)"
+        ),
+        None => format!(
+            "the data put the site at latitude {at} deg; the metadata says {given} deg. At the data's latitude the same model explains the measurements\
+             {}, better than any catalog effect by more than {} on the same scale. The metadata latitude is wrong: rerun with --latitude-deg {:.4}",
             if fit.gain.is_finite() {
-                format!(" (−2 ln p(y) lower by {:.1}); at the metadata's it does not", fit.gain)
+                format!(" (−2 ln p(y) lower by {:.1}; evidence gain {evidence:.1} after the latitude's Occam factor); at the metadata's it does not", fit.gain)
             } else {
                 "; at the metadata's it cannot even be fitted".to_string()
             },
+            crate::diagnose::alternatives::PLAUSIBLE_MARGIN,
             fit.latitude_deg
         ),
+    };
+    Some(Finding {
+        kind: if rival.is_some() {
+            "latitude-confounded"
+        } else {
+            "latitude"
+        },
+        message,
         start_s: None,
         end_s: None,
         samples: 0,

@@ -27,8 +27,12 @@ pub struct CoefRow {
     pub unit: String,
     /// Estimate.
     pub value: f64,
-    /// Its 1σ.
+    /// Its 1σ, noise only (the set-up as stated).
     pub sigma: f64,
+    /// Its 1σ with the set-up's priors: the headline.
+    pub sigma_total: f64,
+    /// The source that adds most to it.
+    pub dominant: String,
     /// Cramér–Rao bound (1σ).
     pub bound: f64,
     /// True value when the recording is simulated and its truth file was given.
@@ -510,31 +514,34 @@ fn movement_table(h: &mut String, rungs: &[Rung]) {
 
 fn coefficient_table(h: &mut String, rows: &[CoefRow]) {
     let truth = rows.iter().any(|r| r.truth.is_some());
-    let _ = write!(h, "<table><tr><th class=\"l\">parameter</th><th class=\"l\">unit</th><th>estimate ± 1σ</th><th>bound (CRB 1σ)</th><th>1σ / bound</th>");
+    let _ = write!(h, "<table><tr><th class=\"l\">parameter</th><th class=\"l\">unit</th><th>estimate ± 1σ total</th><th>noise 1σ</th><th>bound (CRB 1σ)</th><th>noise 1σ / bound</th><th>total / noise</th><th class=\"l\">most from</th>");
     if truth {
-        let _ = write!(h, "<th>truth</th><th>error</th><th>error / 1σ</th>");
+        let _ = write!(h, "<th>truth</th><th>error</th><th>error / 1σ total</th>");
     }
     let _ = writeln!(h, "</tr>");
     for r in rows {
         let _ = write!(
             h,
-            "<tr><td class=\"l\">{}</td><td class=\"l\">{}</td><td>{}</td><td>{:.2e}</td><td>{:.2}</td>",
+            "<tr><td class=\"l\">{}</td><td class=\"l\">{}</td><td>{}</td><td>{:.2e}</td><td>{:.2e}</td><td>{:.2}</td><td>{:.2}</td><td class=\"l\">{}</td>",
             esc(&r.name),
             esc(&r.unit),
-            esc(&pm(r.value, r.sigma)),
+            esc(&pm(r.value, r.sigma_total)),
+            r.sigma,
             r.bound,
-            r.sigma / r.bound
+            r.sigma / r.bound,
+            r.sigma_total / r.sigma,
+            esc(&r.dominant)
         );
         if truth {
             match r.truth {
                 Some(t) => {
                     let e = r.value - t;
-                    let z = e / r.sigma;
+                    let z = e / r.sigma_total;
                     let _ = write!(
                         h,
                         "<td>{}</td><td>{}</td><td class=\"{}\">{:+.2}</td>",
                         num(t),
-                        with_sigma(e, r.sigma),
+                        with_sigma(e, r.sigma_total),
                         if z.abs() > 3.0 { "bad" } else { "ok" },
                         z
                     );

@@ -120,6 +120,75 @@ pub struct Scenario {
     /// (C = Rz(tz)·Ry(ty)·Rx(tx), passive), deg. Zero: a level, north-aligned start.
     #[serde(default)]
     pub initial_orientation_deg: [f64; 3],
+    /// Errors of the set-up the recording states as exact (zero: none).
+    #[serde(default)]
+    pub setup_errors: SetupErrors,
+}
+
+/// What the recording's set-up gets wrong: the true start, clock, latitude, gravity and
+/// apparent vertical differ from what the metadata and the time stamps say.
+#[derive(Clone, Copy, Debug, Default, PartialEq, serde::Serialize, serde::Deserialize)]
+pub struct SetupErrors {
+    /// The true start minus the stated one, arcsec: tilt about x, tilt about y, azimuth (added
+    /// to the Euler angles tx, ty, tz).
+    pub start_arcsec: [f64; 3],
+    /// Recorder clock rate error, ppm: a stamp reads (1 + ppm·1e-6) × the true time.
+    pub clock_ppm: f64,
+    /// The metadata latitude (the scenario's) minus the true one, deg.
+    pub latitude_deg: f64,
+    /// The metadata gravity's relative error, ppm.
+    pub gravity_ppm: f64,
+    /// Daily tilt of the apparent vertical: amplitudes about east (∝ cos ωt) and north
+    /// (∝ sin ωt), arcsec.
+    pub vertical_tilt_arcsec: [f64; 2],
+    /// Its period, h (0: 24).
+    pub vertical_tilt_period_h: f64,
+}
+
+impl SetupErrors {
+    /// Errors drawn from the set-up priors (each component N(0, prior 1σ)) with `seed`: the
+    /// calibration sweeps' recordings. The latitude is drawn uniform within ±`latitude_half_deg`,
+    /// the rounding of its last written digit (the default prior's model).
+    pub fn draw(
+        priors: &crate::identify::setup::SetupPriors,
+        latitude_half_deg: f64,
+        seed: u64,
+    ) -> Self {
+        let mut rng = engine::rng(seed, engine::stream::SETUP);
+        let latitude_deg = latitude_half_deg * (2.0 * rand::Rng::random::<f64>(&mut rng) - 1.0);
+        let mut n = || -> f64 { StandardNormal.sample(&mut rng) };
+        SetupErrors {
+            start_arcsec: [
+                priors.tilt_arcsec * n(),
+                priors.tilt_arcsec * n(),
+                priors.azimuth_arcsec * n(),
+            ],
+            clock_ppm: priors.clock_sigma_ppm * n(),
+            latitude_deg,
+            gravity_ppm: priors.gravity_sigma_ppm * n(),
+            vertical_tilt_arcsec: [
+                priors.vertical_tilt_arcsec * n() * std::f64::consts::SQRT_2,
+                priors.vertical_tilt_arcsec * n() * std::f64::consts::SQRT_2,
+            ],
+            vertical_tilt_period_h: priors.vertical_tilt_period_h,
+        }
+    }
+
+    /// The apparent vertical's tilt at true time `t_s` as a rotation vector in ENU, rad.
+    fn vertical_tilt_rad(&self, t_s: f64) -> Vector3<f64> {
+        let p = if self.vertical_tilt_period_h > 0.0 {
+            self.vertical_tilt_period_h
+        } else {
+            24.0
+        };
+        let w = 2.0 * std::f64::consts::PI / (p * 3600.0);
+        let k = std::f64::consts::PI / (180.0 * 3600.0);
+        Vector3::new(
+            self.vertical_tilt_arcsec[0] * k * (w * t_s).cos(),
+            self.vertical_tilt_arcsec[1] * k * (w * t_s).sin(),
+            0.0,
+        )
+    }
 }
 
 impl Scenario {
@@ -142,6 +211,7 @@ impl Scenario {
             temp_profile: TempProfile::default(),
             max_substep_s: 1.0,
             initial_orientation_deg: [0.0; 3],
+            setup_errors: SetupErrors::default(),
         }
     }
 
@@ -226,6 +296,18 @@ impl Scenario {
         }
         for e in &self.effects {
             e.validate()?;
+        }
+        let se = &self.setup_errors;
+        if !(se.clock_ppm.abs() < 1e5
+            && se.latitude_deg.abs() <= 10.0
+            && se.gravity_ppm.abs() < 1e5
+            && se.start_arcsec.iter().all(|a| a.abs() <= 3600.0)
+            && se.vertical_tilt_arcsec.iter().all(|a| a.abs() <= 3600.0)
+            && se.vertical_tilt_period_h >= 0.0)
+        {
+            return Err(format!(
+                "set-up errors out of range (clock ±1e5 ppm, latitude ±10 deg, gravity ±1e5 ppm, angles ±3600 arcsec): {se:?}"
+            ));
         }
         let n = (self.hours * 3600.0) / self.rate_s;
         if n > 1e8 {
@@ -429,7 +511,17 @@ pub fn simulate(s: &Scenario) -> Simulation {
         panic!("invalid scenario: {e}");
     }
     let g = s.gravity();
-    let mut sim = Simulator::new(s);
+    let err = s.setup_errors;
+    let mut truly = s.clone();
+    // The metadata states the scenario's latitude; the platform stands at the true one (the
+    // scenario's gravity either way: its change with 0.03° of latitude is 0.2 ppm).
+    truly.latitude_deg -= err.latitude_deg;
+    truly.gravity_mps2 = Some(g);
+    for i in 0..3 {
+        truly.initial_orientation_deg[i] += err.start_arcsec[i] / 3600.0;
+    }
+    let mut sim = Simulator::new(&truly);
+    let clock = 1.0 + err.clock_ppm * 1e-6;
     let mut rng_acc = engine::rng(s.seed, engine::stream::ACCEL);
     let mut rng_temp = engine::rng(s.seed, engine::stream::TEMP);
     let sigma = s.accel_sigma_mps2 * (60.0 / s.rate_s).sqrt();
@@ -439,9 +531,13 @@ pub fn simulate(s: &Scenario) -> Simulation {
     let n = s.sample_count();
     let mut samples = Vec::with_capacity(n as usize);
     for i in 0..n {
-        let t = i as f64 * s.rate_s;
+        let t_stamp = i as f64 * s.rate_s;
+        let t = t_stamp / clock;
         sim.advance_to(t, max_sub);
-        let a = sim.specific_force();
+        let mut a = sim.specific_force();
+        if err.vertical_tilt_arcsec != [0.0; 2] {
+            a += sim.c_0p() * err.vertical_tilt_rad(t).cross(&Vector3::new(0.0, 0.0, g));
+        }
         let mut z = k * a + b;
         if sigma > 0.0 {
             for j in 0..3 {
@@ -458,7 +554,7 @@ pub fn simulate(s: &Scenario) -> Simulation {
             tc
         });
         samples.push(RawSample {
-            t_s: t,
+            t_s: t_stamp,
             specific_force_mps2: [z.x, z.y, z.z],
             temp_c,
         });
@@ -492,7 +588,7 @@ pub fn simulate(s: &Scenario) -> Simulation {
     }
     let meta = Metadata {
         latitude_deg: Some(s.latitude_deg),
-        gravity_mps2: Some(g),
+        gravity_mps2: Some(g * (1.0 + err.gravity_ppm * 1e-6)),
         description: Some(describe(s)),
         extra,
     };

@@ -1,0 +1,148 @@
+//! Every catalog effect not in the model as an alternative explanation of the same data, on one
+//! evidence scale with the model itself, and what each would do to the coefficients.
+//!
+//! From the one replay of the score tests ([`super::score`]) each candidate's parameters β have,
+//! to first order about the current fit, a Gaussian likelihood with information `I` and score
+//! `s`, and a prior `N(0, Σ)` (the effect's `prior_sigma`). Then, exactly for the linearised
+//! model:
+//!
+//! ```text
+//! posterior  C = (I + Σ⁻¹)⁻¹,  β̂ = C s
+//! evidence gain (−2 ln units, positive: the data prefer adding it)
+//!            G = sᵀ C s − ln det(1 + Σ^½ I Σ^½)
+//! the coefficients under it  Δ = −Ψ_N β̂    (Ψ_N: how β moves the current estimate)
+//! ```
+//!
+//! `G` is the quantity the refits' evidence gain measures ([`super::select`]), without refitting;
+//! the `ln det` term is the Occam factor. An alternative within [`PLAUSIBLE_MARGIN`] of the best
+//! explanation is plausible: the coefficients are averaged over the plausible models (weights
+//! `e^{G/2}`), and their spread joins the total 1σ. The *reach* of an alternative is how far it
+//! could move a coefficient at a size the run cannot rule out, `|Δ| + 2·√(S C Sᵀ)` — the
+//! consider analysis: a coefficient an absent effect could move beyond its total 1σ holds only on
+//! that effect's absence.
+
+use estimator_core::effects::Effect;
+use nalgebra::{DMatrix, DVector};
+use serde::Serialize;
+
+use super::candidates::{setups, Setup};
+use super::DiagnoseConfig;
+use crate::identify::{build_model, Identification, Prepared};
+
+/// Evidence (−2 ln units) within which an explanation stays plausible: 6 is "strong" evidence
+/// against on the Kass–Raftery scale (a Bayes factor of 20); a weaker one cannot dismiss it.
+pub const PLAUSIBLE_MARGIN: f64 = 6.0;
+
+/// One alternative explanation.
+#[derive(Clone, Debug, Serialize)]
+pub struct Alternative {
+    /// Catalog name of the effect that would be added.
+    pub effect: String,
+    /// Evidence gain of adding it (−2 ln units; positive: the data prefer it).
+    pub evidence_gain: f64,
+    /// Its weight among the plausible models (0 when not plausible).
+    pub weight: f64,
+    /// The model's parameters under it minus the current estimate (state order after the angles).
+    pub shift: Vec<f64>,
+    /// How far it could move each parameter at a size this run cannot rule out.
+    pub reach: Vec<f64>,
+}
+
+impl Alternative {
+    /// Whether it is within [`PLAUSIBLE_MARGIN`] of the best explanation (`best_gain`: the
+    /// largest gain, 0 when the current model is best).
+    pub fn plausible(&self, best_gain: f64) -> bool {
+        self.evidence_gain > best_gain - PLAUSIBLE_MARGIN
+    }
+}
+
+/// The alternatives to the model of `effects` fitted as `id` on `prep`.
+pub fn weigh(
+    prep: &Prepared,
+    effects: &[&'static dyn Effect],
+    cfg: &DiagnoseConfig,
+    id: &Identification,
+) -> anyhow::Result<Vec<Alternative>> {
+    let model = build_model(prep.site, effects, &cfg.identify)?;
+    let run_s = prep.measurements.last().map_or(0.0, |m| m.t_s);
+    let has_temp = super::temp_varies(&prep.measurements);
+    let setups = setups(effects, model.dim(), run_s, has_temp, cfg);
+    let (_, sigs, _) = super::replay(prep, &model, effects, &setups, id, cfg)?;
+    let n = model.dim() - estimator_core::model::ANGLES;
+    let mut out: Vec<Alternative> = setups
+        .iter()
+        .zip(&sigs)
+        .filter_map(|(setup, sig)| Some(alternative(setup, sig.as_ref()?, n)))
+        .collect();
+    let best = out.iter().map(|a| a.evidence_gain).fold(0.0, f64::max);
+    let norm: f64 = (-best / 2.0).exp()
+        + out
+            .iter()
+            .filter(|a| a.plausible(best))
+            .map(|a| ((a.evidence_gain - best) / 2.0).exp())
+            .sum::<f64>();
+    for a in &mut out {
+        if a.plausible(best) {
+            a.weight = ((a.evidence_gain - best) / 2.0).exp() / norm;
+        }
+    }
+    out.sort_by(|a, b| b.evidence_gain.total_cmp(&a.evidence_gain));
+    Ok(out)
+}
+
+/// One candidate's evidence gain, shift and reach (see the module docs).
+fn alternative(setup: &Setup, sig: &super::score::Signature, n: usize) -> Alternative {
+    let effect = setup.scored();
+    let q = sig.q;
+    let prior: Vec<f64> = (0..q).map(|k| effect.prior_sigma(k)).collect();
+    // Σ^½ I Σ^½ and the posterior in the prior's scale, where both terms are O(1).
+    let scaled_info = DMatrix::from_fn(q, q, |a, b| prior[a] * sig.info[(a, b)] * prior[b]);
+    let a = &scaled_info + DMatrix::identity(q, q);
+    let (c_scaled, ln_det) = match a.clone().cholesky() {
+        Some(ch) => {
+            let ln_det = 2.0 * ch.l().diagonal().iter().map(|d| d.ln()).sum::<f64>();
+            (ch.inverse(), ln_det)
+        }
+        None => (DMatrix::identity(q, q), 0.0),
+    };
+    let s_scaled = DVector::from_fn(q, |k, _| prior[k] * sig.score[k]);
+    let beta_scaled = &c_scaled * &s_scaled;
+    let gain = s_scaled.dot(&beta_scaled) - ln_det;
+    let beta = DVector::from_fn(q, |k, _| prior[k] * beta_scaled[k]);
+    let cov = DMatrix::from_fn(q, q, |a, b| prior[a] * c_scaled[(a, b)] * prior[b]);
+    // Rows of the parameters (after the angles) of Ψ; the estimate moves by −Ψ β.
+    let sens = -sig
+        .psi_final
+        .view((estimator_core::model::ANGLES, 0), (n, q))
+        .into_owned();
+    let shift = &sens * &beta;
+    let spread = (&sens * &cov * sens.transpose()).diagonal();
+    Alternative {
+        effect: setup.name.to_string(),
+        evidence_gain: gain,
+        weight: 0.0,
+        shift: shift.iter().copied().collect(),
+        reach: (0..n)
+            .map(|i| shift[i].abs() + 2.0 * spread[i].max(0.0).sqrt())
+            .collect(),
+    }
+}
+
+/// The 1σ per parameter of the estimate averaged over the plausible models (the current one with
+/// zero shift): the spread of their shifts about the average.
+pub fn averaging_spread(alts: &[Alternative], n: usize) -> Vec<f64> {
+    let mean: Vec<f64> = (0..n)
+        .map(|i| alts.iter().map(|a| a.weight * a.shift[i]).sum())
+        .collect();
+    let w0 = 1.0 - alts.iter().map(|a| a.weight).sum::<f64>();
+    (0..n)
+        .map(|i| {
+            let v = w0 * mean[i] * mean[i]
+                + alts
+                    .iter()
+                    .map(|a| a.weight * (a.shift[i] - mean[i]).powi(2))
+                    .sum::<f64>();
+            v.sqrt()
+        })
+        .collect()
+}

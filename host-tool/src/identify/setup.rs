@@ -1,0 +1,774 @@
+//! The run's set-up as uncertain parameters: what the 1σ of a coefficient must carry besides the
+//! noise (docs/model.md, "Set-up parameters").
+//!
+//! A recording states its set-up — the platform's start attitude (level and north), the latitude,
+//! the recorder's time scale, gravity — as if exactly known. None is:
+//! - **start attitude**: levelling leaves arcseconds of tilt, a gyrocompass alignment tens of
+//!   arcseconds of azimuth. The angles are states of the filter, so this prior is *estimated*
+//!   with the data (`Prepared::alignment_sigma`); [`Uncertainty`] reports what it adds against
+//!   a start known to 0.2″ (the noise-only 1σ, the one the Cramér–Rao bound is compared with).
+//! - **latitude, clock rate, gravity**: not states of the filter. Each is marginalised to first
+//!   order: the model is refitted at ±h (warm-started, a few Gauss–Newton passes), which gives the
+//!   coefficients' sensitivity `S = ∂ĉ/∂φ` and the data's own information about φ from the
+//!   curvature of −2 ln p(y); the posterior variance `v = 1/(1/σ_prior² + c/2)` (c the
+//!   curvature) then adds `S v Sᵀ` to the covariance — a Schmidt (consider) term where the data
+//!   say nothing, shrunk where they do.
+//! - **daily tilt of the apparent vertical** (a building's thermal tilt): a 24-h rotation of
+//!   the measured gravity direction, too small to detect at this noise; a pure consider term,
+//!   `S σ² Sᵀ`, S from the linearised smoother's response to the tilt's signature.
+//!
+//! The total covariance is the fit's (start attitude estimated) plus these terms.
+
+use anyhow::Context as _;
+use estimator_core::effects::Effect;
+use estimator_core::frames::Attitude;
+use estimator_core::model::{Model, ANGLES};
+use estimator_core::Site;
+use nalgebra::{DMatrix, DVector, Vector3};
+use rayon::prelude::*;
+use serde::Serialize;
+
+use super::smoother::linearised_pass;
+use super::{
+    build_model, gauss_newton, neg2_log_evidence, wide_prior, Config, Identification, Prepared,
+};
+
+/// Radians per arcsecond.
+pub const RAD_PER_ARCSEC: f64 = std::f64::consts::PI / (180.0 * 3600.0);
+
+/// Priors of the set-up (1σ each); `driftid` options `--alignment-arcsec`,
+/// `--latitude-sigma-deg`, `--clock-sigma-ppm`, `--gravity-sigma-ppm`, `--vertical-tilt-arcsec`.
+#[derive(Clone, Copy, Debug, PartialEq, Serialize)]
+pub struct SetupPriors {
+    /// Start tilt about each level axis, arcsec: a platform levelled on its accelerometers is
+    /// level to their bias over g (1e-4 m/s² / g ≈ 2″); 5″ allows for the levelling loop.
+    pub tilt_arcsec: f64,
+    /// Start azimuth, arcsec: a gyrocompass alignment's error is the east drift over the
+    /// horizontal Earth rate (1e-3 deg/h over 11.7 deg/h at 39° ≈ 18″); 30″ ("tens of arcseconds").
+    pub azimuth_arcsec: f64,
+    /// Latitude 1σ, deg; `None`: from the digits the latitude is written with (a uniform error
+    /// of half the last digit, unit/√12), at least [`MIN_LATITUDE_SIGMA_DEG`].
+    pub latitude_sigma_deg: Option<f64>,
+    /// Clock rate 1σ, ppm: a logger stamping from an ordinary quartz crystal (±20 ppm at 25 °C,
+    /// a few ppm of ageing and temperature in a laboratory). A disciplined clock: 1.
+    pub clock_sigma_ppm: f64,
+    /// Gravity 1σ, ppm of g: normal gravity or a value from a map misses altitude (0.3 ppm/m) and
+    /// the local anomaly (tens of ppm).
+    pub gravity_sigma_ppm: f64,
+    /// Daily tilt of the apparent vertical, 1σ of each of its four components (east and north,
+    /// in phase and in quadrature with the day), arcsec: a building's thermal tilt.
+    pub vertical_tilt_arcsec: f64,
+    /// Period of that tilt, h (a solar day).
+    pub vertical_tilt_period_h: f64,
+}
+
+/// Smallest default latitude 1σ, deg (≈ 10 m: a site's position is known at least that well).
+pub const MIN_LATITUDE_SIGMA_DEG: f64 = 1e-4;
+
+impl Default for SetupPriors {
+    fn default() -> Self {
+        SetupPriors {
+            tilt_arcsec: 5.0,
+            azimuth_arcsec: 30.0,
+            latitude_sigma_deg: None,
+            clock_sigma_ppm: 20.0,
+            gravity_sigma_ppm: 30.0,
+            vertical_tilt_arcsec: 1.0,
+            vertical_tilt_period_h: 24.0,
+        }
+    }
+}
+
+impl SetupPriors {
+    /// The start attitude prior in the run's chart, rad: two tilts and the azimuth for a level
+    /// start in the ENU chart; from any other start the small rotation mixes the three Euler
+    /// angles, so each gets the larger.
+    pub fn alignment_sigma(&self, level_enu: bool) -> [f64; 3] {
+        let (t, a) = (
+            self.tilt_arcsec * RAD_PER_ARCSEC,
+            self.azimuth_arcsec * RAD_PER_ARCSEC,
+        );
+        if level_enu {
+            [t, t, a]
+        } else {
+            [t.max(a); 3]
+        }
+    }
+
+    /// The latitude 1σ for a latitude written as `latitude_deg`, deg.
+    pub fn latitude_sigma(&self, latitude_deg: f64) -> f64 {
+        self.latitude_sigma_deg
+            .unwrap_or_else(|| written_precision(latitude_deg).max(MIN_LATITUDE_SIGMA_DEG))
+    }
+}
+
+/// 1σ of a uniform rounding error of the last digit of `x` as Rust writes it shortest
+/// (39.1 → 0.1/√12).
+pub fn written_precision(x: f64) -> f64 {
+    let s = format!("{x}");
+    let decimals = s.split_once('.').map_or(0, |(_, f)| f.len()) as i32;
+    10f64.powi(-decimals) / 12f64.sqrt()
+}
+
+/// What one set-up parameter adds to the coefficients' uncertainty.
+#[derive(Clone, Debug, Serialize)]
+pub struct Contribution {
+    /// `start attitude`, `latitude`, `clock rate`, `gravity` or `vertical tilt`.
+    pub source: &'static str,
+    /// The prior, in words with its unit.
+    pub prior: String,
+    /// 1σ the data alone give the parameter, in the prior's unit (`None`: not estimated, or the
+    /// data say nothing).
+    pub data_sigma: Option<f64>,
+    /// Posterior 1σ used, in the prior's unit.
+    pub posterior_sigma: f64,
+    /// Where prior and data together put the parameter against the stated value, in the prior's
+    /// unit (`None` where not estimated).
+    pub offset: Option<f64>,
+    /// Hard half-width of the stated value, where it has one (its written digits).
+    pub bound: Option<f64>,
+    /// The stated value and its unit (`latitude` 39.1 deg, …), where there is one.
+    pub stated: Option<(f64, &'static str)>,
+    /// 1σ this source adds to each parameter of the model (state order after the angles).
+    pub sigma: Vec<f64>,
+    /// The covariance it adds.
+    #[serde(skip)]
+    pub cov: DMatrix<f64>,
+}
+
+impl Contribution {
+    fn new(source: &'static str, prior: String, cov: DMatrix<f64>) -> Self {
+        Contribution {
+            source,
+            prior,
+            data_sigma: None,
+            posterior_sigma: f64::NAN,
+            offset: None,
+            bound: None,
+            stated: None,
+            sigma: (0..cov.nrows())
+                .map(|k| cov[(k, k)].max(0.0).sqrt())
+                .collect(),
+            cov,
+        }
+    }
+}
+
+/// The coefficients' uncertainty with the set-up's.
+#[derive(Clone, Debug, Serialize)]
+pub struct Uncertainty {
+    /// 1σ with the set-up exactly as stated (start attitude to 0.2″): noise only.
+    pub noise_sigma: Vec<f64>,
+    /// 1σ with every set-up prior: the headline.
+    pub total_sigma: Vec<f64>,
+    /// Each source's share.
+    pub contributions: Vec<Contribution>,
+    /// The total covariance of the parameters.
+    #[serde(skip)]
+    pub total_cov: DMatrix<f64>,
+    /// Where prior and data put the latitude (deg), clock rate (ppm) and gravity (ppm) against
+    /// the stated values: [`settle`] refits there.
+    pub setup_shift: [f64; 3],
+    /// The data against the stated set-up (`None` for a single pass).
+    pub setup_check: Option<SetupCheck>,
+    /// 1σ from averaging over the plausible explanations (empty until added).
+    pub model_spread: Vec<f64>,
+}
+
+impl Uncertainty {
+    /// The source that adds most to parameter `k` (`noise` when none adds as much as the noise).
+    pub fn dominant(&self, k: usize) -> &'static str {
+        let best = self
+            .contributions
+            .iter()
+            .max_by(|a, b| a.sigma[k].total_cmp(&b.sigma[k]));
+        let spread = self.model_spread.get(k).copied().unwrap_or(0.0);
+        match best {
+            _ if spread > self.noise_sigma[k] && best.is_none_or(|c| spread > c.sigma[k]) => {
+                "other models"
+            }
+            Some(c) if c.sigma[k] > self.noise_sigma[k] => c.source,
+            _ => "noise",
+        }
+    }
+
+    /// Why the result is not trusted on the set-up's account: the data contradict the stated
+    /// set-up ([`SetupCheck`]), or put a knob beyond what its written value allows.
+    pub fn untrusted_reasons(&self) -> Vec<String> {
+        let mut out = vec![];
+        for k in &self.contributions {
+            let (Some(b), Some(o), Some((v, unit))) = (k.bound, k.offset, k.stated) else {
+                continue;
+            };
+            if o.abs() - 3.0 * k.posterior_sigma > b {
+                out.push(format!(
+                    "the data put the {} at {} {unit}, outside what the stated {} allows (±{}): either it is wrong or an \
+                     effect with a similar signature is present (a recorder clock's rate, a drift trend) — `driftid diagnose` \
+                     weighs the explanations; give the {} with the digits it is known to",
+                    k.source,
+                    crate::format::pm(v + o, k.posterior_sigma),
+                    crate::format::sig(v, 9),
+                    crate::format::sig(b, 2),
+                    k.source
+                ));
+            }
+        }
+        let Some(c) = self.setup_check.filter(|c| c.p_value < CONTRADICTION_P) else {
+            return out;
+        };
+        let moved: Vec<String> = self.contributions[1..4]
+            .iter()
+            .filter_map(|k| {
+                let (v, unit) = k.stated?;
+                Some(format!(
+                    "{} {} {unit} (stated {})",
+                    k.source,
+                    crate::format::pm(v + k.offset?, k.posterior_sigma),
+                    crate::format::sig(v, 9)
+                ))
+            })
+            .collect();
+        out.push(format!(
+            "the data contradict the stated set-up and its priors (χ² = {:.1} on {} dof, p = {}): prior and data together put it at {}; \
+             either the set-up is wrong or an effect with a similar signature is present — `driftid diagnose` weighs the explanations",
+            c.chi2,
+            c.dof,
+            crate::format::sci(c.p_value),
+            moved.join(", ")
+        ));
+        out
+    }
+
+    /// Adds the model-averaging spread ([`crate::diagnose::alternatives`]) to the total.
+    pub fn add_model_spread(&mut self, spread: &[f64]) {
+        for (k, s) in spread.iter().enumerate() {
+            self.total_cov[(k, k)] += s * s;
+            self.total_sigma[k] = self.total_cov[(k, k)].max(0.0).sqrt();
+        }
+        self.model_spread = spread.to_vec();
+    }
+
+    /// Total over noise-only 1σ of parameter `k`.
+    pub fn ratio(&self, k: usize) -> f64 {
+        self.total_sigma[k] / self.noise_sigma[k]
+    }
+
+    /// No set-up uncertainty: the fit's own covariance (the single pass, or `--setup exact`).
+    pub fn exact(cov: &DMatrix<f64>) -> Self {
+        let s: Vec<f64> = (0..cov.nrows()).map(|k| cov[(k, k)].sqrt()).collect();
+        Uncertainty {
+            noise_sigma: s.clone(),
+            total_sigma: s,
+            contributions: vec![],
+            total_cov: cov.clone(),
+            setup_shift: [0.0; 3],
+            setup_check: None,
+            model_spread: vec![],
+        }
+    }
+}
+
+/// `prep` at another latitude: the site moved (gravity moves with it when it was normal
+/// gravity, and stays when given or measured) and the start's attitude kept, re-expressed in the
+/// chart that start calls for there (a chart's angles depend on the latitude).
+pub fn at_latitude(prep: &Prepared, lat_deg: f64) -> Prepared {
+    let derived = (prep.site.gravity_mps2
+        - estimator_core::frames::normal_gravity(prep.site.latitude_rad))
+    .abs()
+        < 1e-12;
+    let enu = prep.site.angles_to_enu(&prep.initial_angles);
+    let mut site = Site::new(lat_deg, (!derived).then_some(prep.site.gravity_mps2));
+    site.chart = site.chart_for_start(&enu);
+    let mut p = prep.clone();
+    p.initial_angles = site.angles_to_chart(&enu);
+    p.site = site;
+    p
+}
+
+/// `prep` as recorded by a clock running fast by `ppm` (its stamps divided by 1 + ppm·1e-6).
+fn with_clock(prep: &Prepared, ppm: f64) -> Prepared {
+    let k = 1.0 / (1.0 + ppm * 1e-6);
+    let mut p = prep.clone();
+    for m in &mut p.measurements {
+        m.t_s *= k;
+        m.time_var_s2 *= k * k;
+    }
+    p
+}
+
+/// `prep` with gravity scaled by 1 + `ppm`·1e-6.
+fn with_gravity(prep: &Prepared, ppm: f64) -> Prepared {
+    let mut p = prep.clone();
+    p.site.gravity_mps2 *= 1.0 + ppm * 1e-6;
+    p
+}
+
+/// A warm-started refit of `effects` on `p`: −2 ln p(y) and the parameters (after the angles).
+fn refit(
+    p: &Prepared,
+    effects: &[&'static dyn Effect],
+    cfg: &Config,
+    id: &Identification,
+) -> anyhow::Result<(f64, DVector<f64>)> {
+    let model = build_model(p.site, effects, cfg)?;
+    let mut x0 = vec![0.0; model.dim()];
+    x0[..ANGLES].copy_from_slice(&p.initial_angles);
+    let (x0, p0) = wide_prior(&model, &x0, &p.start_sigma());
+    let fit = gauss_newton(
+        &model,
+        &p.measurements,
+        id.trajectory.clone(),
+        &x0,
+        &p0,
+        2,
+        6,
+    )?;
+    let last = fit.states.last().context("no states")?;
+    Ok((
+        neg2_log_evidence(&fit.innovations),
+        last.rows(ANGLES, model.dim() - ANGLES).into_owned(),
+    ))
+}
+
+/// p-value below which the data contradict the stated set-up: a clean run crosses it once in
+/// ~16 000 (a normal deviate beyond 4σ).
+pub const CONTRADICTION_P: f64 = 6.3e-5;
+
+/// How well the data agree with the stated set-up and its priors: the score of the knobs at the
+/// stated values against its spread, `χ² = gᵀ [H (H + 2)]⁺ g` in units of the priors (g, H: the
+/// gradient and Hessian of −2 ln p(y); under the priors Var g = H² + 2H), on rank(H) dof.
+#[derive(Clone, Copy, Debug, Serialize)]
+pub struct SetupCheck {
+    /// The statistic.
+    pub chi2: f64,
+    /// Its degrees of freedom.
+    pub dof: usize,
+    /// Its p-value.
+    pub p_value: f64,
+}
+
+/// One set-up parameter that is not a state of the filter.
+struct Knob {
+    /// Hard half-width of the stated value where it has one (a latitude written to 0.1° lies
+    /// within ±0.05° of the truth).
+    bound: Option<f64>,
+    source: &'static str,
+    unit: &'static str,
+    prior: String,
+    sigma_prior: f64,
+    stated: f64,
+}
+
+/// `prep` with the set-up moved by `d` (latitude deg, clock ppm, gravity ppm).
+fn moved(prep: &Prepared, d: [f64; 3]) -> Prepared {
+    let lat_deg = prep.site.latitude_rad.to_degrees();
+    let mut p = if d[0] != 0.0 {
+        at_latitude(prep, lat_deg + d[0])
+    } else {
+        prep.clone()
+    };
+    if d[1] != 0.0 {
+        p = with_clock(&p, d[1]);
+    }
+    if d[2] != 0.0 {
+        p = with_gravity(&p, d[2]);
+    }
+    p
+}
+
+/// The knobs marginalised together (see the module docs): refits at ±h on each axis and at
+/// (+h, +h) on each pair give the gradient and Hessian of −2 ln p(y) and the coefficients'
+/// sensitivities; with the prior, the posterior of the knobs is Gaussian to second order, and
+/// its covariance V adds `S V Sᵀ` to the coefficients'. In units of each knob's prior 1σ.
+struct Marginal {
+    /// Per knob its contribution (the marginal share `S_k V_kk S_kᵀ`; the total uses all of V).
+    contributions: Vec<Contribution>,
+    /// The covariance the knobs add together.
+    cov: DMatrix<f64>,
+    /// The knobs' posterior offset from the stated values, in their units.
+    shift: [f64; 3],
+    /// The data against the stated set-up.
+    check: SetupCheck,
+}
+
+fn marginalise(
+    knobs: &[Knob; 3],
+    f0: f64,
+    prep: &Prepared,
+    effects: &[&'static dyn Effect],
+    cfg: &Config,
+    id: &Identification,
+) -> anyhow::Result<Marginal> {
+    let h: Vec<f64> = knobs.iter().map(|k| k.sigma_prior).collect();
+    let live: Vec<usize> = (0..3).filter(|&k| h[k] > 0.0).collect();
+    let mut points: Vec<[f64; 3]> = vec![];
+    for &k in &live {
+        for sign in [1.0, -1.0] {
+            let mut d = [0.0; 3];
+            d[k] = sign * h[k];
+            points.push(d);
+        }
+    }
+    for (a, &i) in live.iter().enumerate() {
+        for &j in &live[a + 1..] {
+            let mut d = [0.0; 3];
+            d[i] = h[i];
+            d[j] = h[j];
+            points.push(d);
+        }
+    }
+    let fits: Vec<anyhow::Result<(f64, DVector<f64>)>> = points
+        .par_iter()
+        .map(|d| refit(&moved(prep, *d), effects, cfg, id))
+        .collect();
+    let fits = fits.into_iter().collect::<anyhow::Result<Vec<_>>>()?;
+    let at = |d: [f64; 3]| points.iter().position(|p| *p == d).map(|k| &fits[k]);
+    let n = id.best().value.len();
+    let unit = |k: usize, s: f64| {
+        let mut d = [0.0; 3];
+        d[k] = s * h[k];
+        d
+    };
+    // Scaled units u = δ/σ_prior: the prior adds uᵀu to −2 ln p.
+    let mut grad = DVector::zeros(3);
+    let mut hess = DMatrix::zeros(3, 3);
+    let mut sens = DMatrix::zeros(n, 3);
+    for &k in &live {
+        let (Some((fp, cp)), Some((fm, cm))) = (at(unit(k, 1.0)), at(unit(k, -1.0))) else {
+            continue;
+        };
+        grad[k] = (fp - fm) / 2.0;
+        hess[(k, k)] = fp - 2.0 * f0 + fm;
+        sens.set_column(k, &((cp - cm) / 2.0));
+    }
+    for (a, &i) in live.iter().enumerate() {
+        for &j in &live[a + 1..] {
+            let mut d = [0.0; 3];
+            d[i] = h[i];
+            d[j] = h[j];
+            if let (Some((fij, _)), Some((fi, _)), Some((fj, _))) =
+                (at(d), at(unit(i, 1.0)), at(unit(j, 1.0)))
+            {
+                hess[(i, j)] = fij - fi - fj + f0;
+                hess[(j, i)] = hess[(i, j)];
+            }
+        }
+    }
+    // The data's curvature is a Gauss–Newton Hessian, positive semi-definite: clamp what the
+    // finite differences leave below zero.
+    let eig = nalgebra::SymmetricEigen::new(hess.clone());
+    let hess_psd = &eig.eigenvectors
+        * DMatrix::from_diagonal(&eig.eigenvalues.map(|l| l.max(0.0)))
+        * eig.eigenvectors.transpose();
+    let a = &hess_psd + DMatrix::identity(3, 3) * 2.0;
+    let a_inv = a.try_inverse().context("set-up posterior")?;
+    let v = &a_inv * 2.0;
+    let shift_u = -(&a_inv * &grad);
+    let cov = &sens * &v * sens.transpose();
+    let lmax = eig.eigenvalues.iter().cloned().fold(0.0, f64::max);
+    let (mut chi2, mut dof) = (0.0, 0);
+    for (k, &l) in eig.eigenvalues.iter().enumerate() {
+        if l > 1e-6 * lmax.max(1e-6) {
+            let gl = eig.eigenvectors.column(k).dot(&grad);
+            chi2 += gl * gl / (l * (l + 2.0));
+            dof += 1;
+        }
+    }
+    let p_value = if dof > 0 {
+        crate::stats::chi2_sf(chi2, dof as f64)
+    } else {
+        1.0
+    };
+    let contributions = (0..3)
+        .map(|k| {
+            let kn = &knobs[k];
+            let col = sens.column(k).into_owned();
+            let mut c = Contribution::new(
+                kn.source,
+                kn.prior.clone(),
+                &col * col.transpose() * v[(k, k)],
+            );
+            c.stated = Some((kn.stated, kn.unit));
+            c.bound = kn.bound;
+            c.posterior_sigma = v[(k, k)].sqrt() * h[k];
+            let curv = hess_psd[(k, k)];
+            if curv > 0.0 && h[k] > 0.0 {
+                c.data_sigma = Some((2.0 / curv).sqrt() * h[k]);
+            }
+            if h[k] > 0.0 {
+                c.offset = Some(shift_u[k] * h[k]);
+            }
+            c
+        })
+        .collect();
+    Ok(Marginal {
+        contributions,
+        cov,
+        shift: [0, 1, 2].map(|k| shift_u[k] * h[k]),
+        check: SetupCheck { chi2, dof, p_value },
+    })
+}
+
+/// The sensitivity of the parameters to an additive perturbation of the measurements, by one
+/// linearised smoother pass about the fit (linear in the measurements).
+fn response(
+    model: &Model<'_>,
+    prep: &Prepared,
+    id: &Identification,
+    base: &DVector<f64>,
+    delta: impl Fn(usize) -> Vector3<f64>,
+) -> anyhow::Result<DVector<f64>> {
+    let mut meas = prep.measurements.clone();
+    for (j, m) in meas.iter_mut().enumerate() {
+        let d = delta(j);
+        for i in 0..3 {
+            m.specific_force[i] += d[i];
+        }
+    }
+    let mut x0 = vec![0.0; model.dim()];
+    x0[..ANGLES].copy_from_slice(&prep.initial_angles);
+    let (x0, p0) = wide_prior(model, &x0, &prep.start_sigma());
+    let pass = linearised_pass(model, &meas, &id.trajectory, &x0, &p0, true)?;
+    let last = pass.states.last().context("no states")?;
+    Ok(last.rows(ANGLES, model.dim() - ANGLES).into_owned() - base)
+}
+
+/// The daily tilt of the apparent vertical as a consider parameter (four components).
+fn vertical_tilt(
+    model: &Model<'_>,
+    prep: &Prepared,
+    id: &Identification,
+    priors: &SetupPriors,
+) -> anyhow::Result<Contribution> {
+    let sigma = priors.vertical_tilt_arcsec * RAD_PER_ARCSEC;
+    let n = model.dim() - ANGLES;
+    if !(sigma > 0.0) {
+        return Ok(Contribution::new(
+            "vertical tilt",
+            "0".into(),
+            DMatrix::zeros(n, n),
+        ));
+    }
+    let omega = 2.0 * std::f64::consts::PI / (priors.vertical_tilt_period_h * 3600.0);
+    let g = prep.site.gravity_mps2;
+    let r = prep.site.chart_rotation();
+    let mut x0 = vec![0.0; model.dim()];
+    x0[..ANGLES].copy_from_slice(&prep.initial_angles);
+    let (x0v, p0) = wide_prior(model, &x0, &prep.start_sigma());
+    let base_pass = linearised_pass(model, &prep.measurements, &id.trajectory, &x0v, &p0, true)?;
+    let base = base_pass
+        .states
+        .last()
+        .context("no states")?
+        .rows(ANGLES, model.dim() - ANGLES)
+        .into_owned();
+    // Components: (axis east or north, cos or sin of the day); δ × g0 for a rotation δ of the
+    // vertical about the east axis is (0, −δ g, 0)… about north (δ g, 0, 0) in ENU.
+    let columns: Vec<anyhow::Result<DVector<f64>>> = (0..4)
+        .into_par_iter()
+        .map(|c| {
+            response(model, prep, id, &base, |j| {
+                let t = prep.measurements[j].t_s;
+                let phase = if c % 2 == 0 {
+                    (omega * t).cos()
+                } else {
+                    (omega * t).sin()
+                };
+                let d = sigma * phase * g;
+                let v0 = if c < 2 {
+                    Vector3::new(0.0, -d, 0.0)
+                } else {
+                    Vector3::new(d, 0.0, 0.0)
+                };
+                let th = &id.trajectory[j + 1];
+                Attitude::new(&Vector3::new(th[0], th[1], th[2])).specific_force(&(r * v0))
+            })
+        })
+        .collect();
+    let mut cov = DMatrix::zeros(n, n);
+    for col in columns {
+        let col = col?;
+        cov += &col * col.transpose();
+    }
+    let mut c = Contribution::new(
+        "vertical tilt",
+        format!(
+            "{}″ per component, {} h period",
+            priors.vertical_tilt_arcsec, priors.vertical_tilt_period_h
+        ),
+        cov,
+    );
+    c.posterior_sigma = priors.vertical_tilt_arcsec;
+    Ok(c)
+}
+
+/// The coefficients' uncertainty with the set-up priors of `cfg` (see the module docs). `id` is
+/// the converged fit of `effects` on `prep`.
+pub fn uncertainty(
+    effects: &[&'static dyn Effect],
+    prep: &Prepared,
+    cfg: &Config,
+    id: &Identification,
+) -> anyhow::Result<Uncertainty> {
+    let est = id.best();
+    let Some(_) = id.refined.as_ref() else {
+        return Ok(Uncertainty::exact(&est.cov));
+    };
+    let priors = cfg.setup;
+    let model = build_model(prep.site, effects, cfg)?;
+    let n = model.dim() - ANGLES;
+    let f0 = neg2_log_evidence(&id.innovations);
+    // Noise only: the same pass with the start attitude known to 0.2″.
+    let noise_cov = {
+        let mut x0 = vec![0.0; model.dim()];
+        x0[..ANGLES].copy_from_slice(&prep.initial_angles);
+        let (x0, p0) = wide_prior(&model, &x0, &prep.initial_angle_sigma);
+        let pass = linearised_pass(&model, &prep.measurements, &id.trajectory, &x0, &p0, true)?;
+        pass.final_cov.view((ANGLES, ANGLES), (n, n)).into_owned()
+    };
+    let lat_deg = prep.site.latitude_rad.to_degrees();
+    let lat_sigma = priors.latitude_sigma(lat_deg);
+    let knobs = [
+        Knob {
+            bound: priors
+                .latitude_sigma_deg
+                .is_none()
+                .then(|| written_precision(lat_deg) * 12f64.sqrt() / 2.0)
+                .filter(|b| *b >= MIN_LATITUDE_SIGMA_DEG),
+            source: "latitude",
+            unit: "deg",
+            prior: format!("{} deg", crate::format::sig(lat_sigma, 2)),
+            sigma_prior: lat_sigma,
+            stated: (lat_deg * 1e9).round() / 1e9,
+        },
+        Knob {
+            bound: None,
+            source: "clock rate",
+            unit: "ppm",
+            prior: format!("{} ppm", priors.clock_sigma_ppm),
+            sigma_prior: priors.clock_sigma_ppm,
+            stated: 0.0,
+        },
+        Knob {
+            bound: None,
+            source: "gravity",
+            unit: "ppm",
+            prior: format!(
+                "{} ppm of {} m/s^2",
+                priors.gravity_sigma_ppm,
+                crate::format::sig(prep.site.gravity_mps2, 7)
+            ),
+            sigma_prior: priors.gravity_sigma_ppm,
+            stated: 0.0,
+        },
+    ];
+    let (marginal, tilt) = rayon::join(
+        || marginalise(&knobs, f0, prep, effects, cfg, id),
+        || vertical_tilt(&model, prep, id, &priors),
+    );
+    let marginal = marginal?;
+    // The start attitude is estimated in the fit: what it adds is the fit's covariance less the
+    // noise-only one.
+    let start = Contribution::new(
+        "start attitude",
+        format!(
+            "tilt {}″, azimuth {}″",
+            priors.tilt_arcsec, priors.azimuth_arcsec
+        ),
+        &est.cov - &noise_cov,
+    );
+    let mut contributions = vec![start];
+    contributions.extend(marginal.contributions);
+    contributions.push(tilt?);
+    // The knobs' joint covariance (their correlations kept), the start's and the tilt's.
+    let mut total_cov = &noise_cov + &contributions[0].cov + &marginal.cov;
+    total_cov += &contributions[4].cov;
+    Ok(Uncertainty {
+        noise_sigma: (0..n).map(|k| noise_cov[(k, k)].sqrt()).collect(),
+        total_sigma: (0..n).map(|k| total_cov[(k, k)].sqrt()).collect(),
+        contributions,
+        total_cov,
+        setup_shift: marginal.shift,
+        setup_check: Some(marginal.check),
+        model_spread: vec![],
+    })
+}
+
+/// A fit at the set-up's posterior: the identification, its measurements and the uncertainty.
+pub struct Settled {
+    /// Measurements with the set-up where prior and data put it.
+    pub prep: Prepared,
+    /// The fit there.
+    pub id: Identification,
+    /// The uncertainty (computed about the stated set-up: the covariances barely move).
+    pub unc: Uncertainty,
+}
+
+/// Where the knobs' posterior lies more than this many posterior 1σ from the stated set-up, the
+/// model is refitted there (below it the coefficients move by less than a tenth of their share).
+pub const SETTLE_SHIFT_SIGMA: f64 = 0.1;
+
+/// The set-up estimated where the data can: [`uncertainty`] about the stated set-up, then, if
+/// the knobs' posterior lies away from it (gravity 50 ppm off a value the data measure to
+/// 0.2 ppm), the model refitted there. The estimate is then the posterior's, not the stated
+/// set-up's.
+pub fn settle(
+    effects: &[&'static dyn Effect],
+    prep: Prepared,
+    cfg: &Config,
+    id: Identification,
+) -> anyhow::Result<Settled> {
+    let unc = uncertainty(effects, &prep, cfg, &id)?;
+    if !unc.untrusted_reasons().is_empty() {
+        // The stated set-up is contradicted: the linearised posterior is no place to refit.
+        return Ok(Settled { prep, id, unc });
+    }
+    let far = unc.contributions[1..4]
+        .iter()
+        .zip(unc.setup_shift)
+        .any(|(c, d)| c.posterior_sigma > 0.0 && d.abs() > SETTLE_SHIFT_SIGMA * c.posterior_sigma);
+    if !far {
+        return Ok(Settled { prep, id, unc });
+    }
+    let mut p = moved(&prep, unc.setup_shift);
+    for c in &unc.contributions[1..4] {
+        if let (Some(o), Some((v, unit))) = (c.offset, c.stated) {
+            if o.abs() > 3.0 * c.posterior_sigma {
+                p.findings.push(crate::quality::Finding {
+                    kind: "set-up",
+                    message: format!(
+                        "the {} is estimated from the data with its prior: {} {unit} (stated {}, prior 1σ {}); the coefficients are the fit's there",
+                        c.source,
+                        crate::format::pm(v + o, c.posterior_sigma),
+                        crate::format::sig(v, 9),
+                        c.prior
+                    ),
+                    start_s: None,
+                    end_s: None,
+                    samples: 0,
+                    action: crate::quality::Action::Repaired,
+                });
+            }
+        }
+    }
+    let model = build_model(p.site, effects, cfg)?;
+    match super::identify_from(&model, &p, cfg, &id) {
+        Ok(id2) => {
+            let mut unc = unc;
+            // The fit's own covariance at the new point; the set-up's terms as computed.
+            let n = id2.best().value.len();
+            let old = id.best().cov.clone();
+            unc.total_cov = &unc.total_cov - &old + &id2.best().cov;
+            unc.total_sigma = (0..n)
+                .map(|k| unc.total_cov[(k, k)].max(0.0).sqrt())
+                .collect();
+            Ok(Settled {
+                prep: p,
+                id: id2,
+                unc,
+            })
+        }
+        // The refit failed: the stated set-up's fit stands, with its uncertainty.
+        Err(_) => Ok(Settled { prep, id, unc }),
+    }
+}
