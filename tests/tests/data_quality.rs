@@ -307,7 +307,7 @@ fn a_wrong_metadata_latitude_is_named_with_the_datas_latitude() {
     // 30°: its round trip through radians is 29.999999999999996, which the message once quoted.
     let wrong = Site::new(30.0, sc.gravity_mps2);
     let prep = prepare(wrong, &samples, &Config::default()).unwrap();
-    let f = host_tool::quality::latitude::check(&prep, &[catalog::paper()], &Config::default())
+    let f = host_tool::quality::latitude::check(&prep, &[catalog::paper()], &Config::default(), &[])
         .expect("the latitude is named");
     assert_eq!(f.kind, "latitude");
     eprintln!("{}", f.message);
@@ -322,7 +322,7 @@ fn a_wrong_metadata_latitude_is_named_with_the_datas_latitude() {
     // And the right latitude gives no such finding.
     let right = prepare(site_of(&sc), &samples, &Config::default()).unwrap();
     assert!(
-        host_tool::quality::latitude::check(&right, &[catalog::paper()], &Config::default())
+        host_tool::quality::latitude::check(&right, &[catalog::paper()], &Config::default(), &[])
             .is_none()
     );
 }
@@ -334,7 +334,7 @@ fn a_metadata_latitude_with_the_wrong_sign_is_named() {
     let (sc, samples) = run(6, 39.1, 30.0, 10.0, [0.0; 3]);
     let wrong = Site::new(-39.1, sc.gravity_mps2);
     let prep = prepare(wrong, &samples, &Config::default()).unwrap();
-    let f = host_tool::quality::latitude::check(&prep, &[catalog::paper()], &Config::default())
+    let f = host_tool::quality::latitude::check(&prep, &[catalog::paper()], &Config::default(), &[])
         .expect("the latitude is named");
     assert_eq!(f.kind, "latitude");
     assert!(
@@ -362,7 +362,7 @@ fn a_wrong_latitude_is_named_from_a_start_in_the_polar_chart() {
             host_tool::identify::prepare_oriented(site, &samples, &Config::default(), theta0)
                 .unwrap();
         assert_eq!(prep.site.chart, estimator_core::frames::Chart::Polar);
-        let f = host_tool::quality::latitude::check(&prep, &[catalog::paper()], &Config::default())
+        let f = host_tool::quality::latitude::check(&prep, &[catalog::paper()], &Config::default(), &[])
             .unwrap_or_else(|| panic!("metadata {wrong}: the latitude is named"));
         let est = named_latitude(&f);
         // Within 0.05° of the truth (its 1σ is ~0.003° on 30 h at 10 s).
