@@ -56,6 +56,12 @@ fn main() {
     unsafe {
         libc::signal(libc::SIGPIPE, libc::SIG_DFL);
     }
+    // SIGINT/SIGTERM/SIGHUP: unfinished outputs' temporary files removed, then the signal's
+    // default action (README, "Bad input").
+    #[cfg(unix)]
+    if let Err(e) = host_tool::output::remove_temporaries_on_signal() {
+        eprintln!("driftid: warning: {e:#}");
+    }
     cli::common::keep_freed_memory();
     let cli = Cli::parse();
     let result = match &cli.command {

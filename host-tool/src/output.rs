@@ -4,14 +4,30 @@
 //!   target (so the final rename never crosses a file system), flushed and synced, then renamed
 //!   over the target ([`AtomicFile`], [`TempPath`], [`write_atomic`]). An error, a panic or a
 //!   dropped writer removes the temporary file; the target is then either absent or still the
-//!   complete previous file — never a partial one. A process killed outright (SIGKILL, or a
-//!   Ctrl-C, which kills without running destructors) may leave the temporary file, named
+//!   complete previous file — never a partial one. The temporary files are named
 //!   `.driftid-PID-N.NAME` (hidden, and ending with the target's own name so that writers that
-//!   choose a format by extension, like the PNG plots, still do): never the target itself.
+//!   choose a format by extension, like the PNG plots, still do). SIGINT, SIGTERM and SIGHUP
+//!   remove every one that is not finished, then end the process by the signal
+//!   ([`remove_temporaries_on_signal`]); only a SIGKILL (which nothing can catch) may leave one —
+//!   never the target itself.
 //! - **Never over an input**: [`ensure_not_input`] refuses an output that is the same file as
 //!   one of the command's inputs (same device and inode on Unix — which also catches hard links
 //!   and symbolic links — or, when the output does not exist yet, the same canonical directory
 //!   and name).
+//!
+//! - **Never over a file the user has** ([`Outputs`], [`check_output`]): an existing target is
+//!   replaced without `--force` only when it is a regular file `driftid` itself wrote there
+//!   before, recognised by its content ([`Made`]): the report's HTML carries
+//!   `<meta name="generator" content="driftid">`, its PNGs a `tEXt` chunk `Software: driftid`,
+//!   a simulated recording the metadata line `# generator: driftid simulate`, a truth file the
+//!   JSON keys `scenario` and `coefficients`, a CSV export (`diagnose --export`, `replay`'s
+//!   estimates) the exact header line `driftid` writes; a raw frame log (`--raw`) is appended to
+//!   only when it is empty or holds a frame `driftid` decodes. Anything else — above all a
+//!   recording — is refused, naming the file and saying that `--force` replaces it.
+//! - **Never renamed over a non-regular file**: a FIFO or a character device (`-o /dev/null`, a
+//!   named pipe) is what a user names to receive the output: the finished temporary file is
+//!   copied *into* it and removed ([`finish`]); a directory, a block device or a socket is
+//!   refused, with or without `--force`.
 //!
 //! Renaming replaces a symbolic link at the target by a regular file (it does not write through
 //! the link), and the new file has default permissions.
@@ -24,6 +40,48 @@ use std::sync::atomic::{AtomicU64, Ordering};
 use anyhow::Context as _;
 
 static COUNTER: AtomicU64 = AtomicU64::new(0);
+
+/// The temporary files not yet renamed into place (or removed), for the signal clean-up. A
+/// temporary file is created and registered under this lock, and the clean-up holds it until
+/// the process is gone: no temporary file is created after the clean-up has looked.
+static TEMPORARIES: std::sync::Mutex<Vec<PathBuf>> = std::sync::Mutex::new(Vec::new());
+
+fn temporaries() -> std::sync::MutexGuard<'static, Vec<PathBuf>> {
+    TEMPORARIES.lock().unwrap_or_else(|e| e.into_inner())
+}
+
+fn unregister(temp: &Path) {
+    let mut t = temporaries();
+    if let Some(i) = t.iter().position(|p| p == temp) {
+        t.swap_remove(i);
+    }
+}
+
+/// Installs the clean-up: on SIGINT, SIGTERM or SIGHUP every unfinished temporary file is
+/// removed, then the signal's default action ends the process (status: killed by that signal,
+/// 130 for SIGINT in a shell). Call once at start-up; without it a signal leaves the
+/// temporaries (never a partial file under a real name).
+#[cfg(unix)]
+pub fn remove_temporaries_on_signal() -> anyhow::Result<()> {
+    use signal_hook::consts::{SIGHUP, SIGINT, SIGTERM};
+    let mut signals = signal_hook::iterator::Signals::new([SIGINT, SIGTERM, SIGHUP])
+        .context("installing the signal handlers")?;
+    std::thread::Builder::new()
+        .name("signals".into())
+        .spawn(move || {
+            if let Some(sig) = signals.forever().next() {
+                // Held until the process is gone: nothing new is created meanwhile.
+                let t = temporaries();
+                for p in t.iter() {
+                    let _ = fs::remove_file(p);
+                }
+                let _ = signal_hook::low_level::emulate_default_handler(sig);
+                std::process::exit(128 + sig);
+            }
+        })
+        .context("starting the signal thread")?;
+    Ok(())
+}
 
 /// The directory a target lives in (`.` for a bare file name).
 fn dir_of(target: &Path) -> &Path {
@@ -44,11 +102,31 @@ fn temp_path_for(target: &Path) -> anyhow::Result<PathBuf> {
     Ok(dir_of(target).join(temp))
 }
 
-/// Renames `temp` over `target` after syncing `temp`'s contents to disk.
+/// Renames `temp` over `target` after syncing `temp`'s contents to disk. A target that is a
+/// FIFO or a character device is never renamed over: `temp` is copied into it, then removed.
 fn finish(temp: &Path, target: &Path) -> anyhow::Result<()> {
     File::open(temp)
         .and_then(|f| f.sync_all())
         .with_context(|| format!("writing {}", target.display()))?;
+    if let Ok(m) = fs::metadata(target) {
+        let ft = m.file_type();
+        if !ft.is_file() {
+            let result = if is_stream(&ft) {
+                File::open(temp).and_then(|mut src| {
+                    let mut dst = OpenOptions::new().write(true).open(target)?;
+                    io::copy(&mut src, &mut dst)?;
+                    dst.flush()
+                })
+            } else {
+                Err(io::Error::other(format!(
+                    "{}, not a regular file; never replaced",
+                    describe_type(&ft)
+                )))
+            };
+            let _ = fs::remove_file(temp);
+            return result.with_context(|| format!("writing {}", target.display()));
+        }
+    }
     fs::rename(temp, target).with_context(|| {
         format!(
             "renaming the finished {} into place as {}",
@@ -71,11 +149,33 @@ pub struct TempPath {
 impl TempPath {
     /// A fresh temporary path in the target's directory (nothing is created yet).
     pub fn new(target: &Path) -> anyhow::Result<Self> {
+        let temp = temp_path_for(target)?;
+        temporaries().push(temp.clone());
         Ok(TempPath {
             target: target.to_path_buf(),
-            temp: temp_path_for(target)?,
+            temp,
             committed: false,
         })
+    }
+
+    /// A fresh temporary file in the target's directory, created (empty) and registered under
+    /// one lock ([`TEMPORARIES`]).
+    fn create(target: &Path) -> anyhow::Result<(Self, File)> {
+        let temp = temp_path_for(target)?;
+        let mut t = temporaries();
+        let f = OpenOptions::new()
+            .write(true)
+            .create_new(true)
+            .open(&temp)
+            .with_context(|| format!("creating a temporary file for {}", target.display()))?;
+        t.push(temp.clone());
+        drop(t);
+        let path = TempPath {
+            target: target.to_path_buf(),
+            temp,
+            committed: false,
+        };
+        Ok((path, f))
     }
 
     /// Where to write.
@@ -92,6 +192,7 @@ impl TempPath {
     pub fn commit(mut self) -> anyhow::Result<()> {
         finish(&self.temp, &self.target)?;
         self.committed = true;
+        unregister(&self.temp);
         Ok(())
     }
 }
@@ -100,6 +201,7 @@ impl Drop for TempPath {
     fn drop(&mut self) {
         if !self.committed {
             let _ = fs::remove_file(&self.temp);
+            unregister(&self.temp);
         }
     }
 }
@@ -116,12 +218,7 @@ pub struct AtomicFile {
 impl AtomicFile {
     /// Creates the temporary file beside `target`.
     pub fn create(target: &Path) -> anyhow::Result<Self> {
-        let path = TempPath::new(target)?;
-        let f = OpenOptions::new()
-            .write(true)
-            .create_new(true)
-            .open(path.path())
-            .with_context(|| format!("creating a temporary file for {}", target.display()))?;
+        let (path, f) = TempPath::create(target)?;
         Ok(AtomicFile {
             w: BufWriter::with_capacity(1 << 16, f),
             path,
@@ -197,6 +294,270 @@ pub fn ensure_not_input(output: &Path, option: &str, inputs: &[&Path]) -> anyhow
     Ok(())
 }
 
+/// A FIFO or a character device: written into, never renamed over.
+fn is_stream(ft: &fs::FileType) -> bool {
+    #[cfg(unix)]
+    {
+        use std::os::unix::fs::FileTypeExt as _;
+        ft.is_fifo() || ft.is_char_device()
+    }
+    #[cfg(not(unix))]
+    {
+        let _ = ft;
+        false
+    }
+}
+
+/// What kind of file a non-regular path is, for messages.
+fn describe_type(ft: &fs::FileType) -> &'static str {
+    #[cfg(unix)]
+    {
+        use std::os::unix::fs::FileTypeExt as _;
+        if ft.is_block_device() {
+            return "a block device";
+        }
+        if ft.is_socket() {
+            return "a socket";
+        }
+        if ft.is_fifo() {
+            return "a FIFO";
+        }
+        if ft.is_char_device() {
+            return "a character device";
+        }
+    }
+    if ft.is_dir() {
+        "a directory"
+    } else if ft.is_symlink() {
+        "a symbolic link to nothing"
+    } else {
+        "not a regular file"
+    }
+}
+
+/// The generator tag of `report`'s HTML, by which a later run recognises its own page.
+pub const HTML_GENERATOR: &str = "<meta name=\"generator\" content=\"driftid\">";
+/// The `tEXt` chunk's keyword and text in `report --png`'s plots.
+pub const PNG_SOFTWARE: &[u8] = b"Software\0driftid";
+/// The metadata key and value of a simulated recording.
+pub const SIMULATED_KEY: (&str, &str) = ("generator", "driftid simulate");
+
+/// What `driftid` writes at a target; an existing file there is recognised as one `driftid`
+/// wrote by its content (module docs), and only then replaced without `--force`.
+#[derive(Clone, Debug, PartialEq, Eq)]
+pub enum Made {
+    /// `report`'s HTML page.
+    Html,
+    /// A `report --png` plot.
+    Png,
+    /// `simulate`'s recording.
+    SimulatedRecording,
+    /// `simulate`'s truth file.
+    Truth,
+    /// A CSV whose first line is exactly this header (`diagnose --export`, `replay --out`).
+    Csv(String),
+    /// A raw frame log, appended to (`record --raw`, `replay --raw`).
+    RawLog,
+}
+
+/// How much of an existing file is read to recognise it.
+const SIGNATURE_BYTES: u64 = 64 << 10;
+
+impl Made {
+    /// What is written, for messages.
+    fn what(&self) -> &'static str {
+        match self {
+            Made::Html => "an HTML report",
+            Made::Png => "a PNG plot",
+            Made::SimulatedRecording => "a simulated recording",
+            Made::Truth => "a truth file",
+            Made::Csv(_) => "a CSV export",
+            Made::RawLog => "a raw frame log",
+        }
+    }
+
+    /// Whether `head` (the first [`SIGNATURE_BYTES`] of an existing regular file) is a file of
+    /// this kind that `driftid` wrote.
+    fn recognises(&self, head: &[u8]) -> bool {
+        let contains = |needle: &[u8]| head.windows(needle.len()).any(|w| w == needle);
+        match self {
+            Made::Html => contains(HTML_GENERATOR.as_bytes()),
+            Made::Png => head.starts_with(b"\x89PNG\r\n\x1a\n") && contains(PNG_SOFTWARE),
+            Made::SimulatedRecording => {
+                let line = format!("# {}: {}", SIMULATED_KEY.0, SIMULATED_KEY.1);
+                String::from_utf8_lossy(head)
+                    .lines()
+                    .take_while(|l| l.starts_with('#'))
+                    .any(|l| l.trim_end() == line)
+            }
+            Made::Truth => matches!(
+                serde_json::from_slice::<serde_json::Value>(head),
+                Ok(serde_json::Value::Object(o)) if o.contains_key("scenario") && o.contains_key("coefficients")
+            ),
+            Made::Csv(header) => {
+                let first = head.split(|&b| b == b'\n').next().unwrap_or_default();
+                first.strip_suffix(b"\r").unwrap_or(first) == header.as_bytes()
+            }
+            Made::RawLog => head.is_empty() || !crate::link::Receiver::new().feed(head).is_empty(),
+        }
+    }
+}
+
+/// The policy for one output path (module docs): `Ok` when `target` may be written — it does
+/// not exist, or it is a FIFO or a character device (written into), or a regular file `driftid`
+/// wrote as `made` (or any regular file with `force`); else an error naming `option`, the file
+/// and what to do. Its directory must exist.
+pub fn check_output(target: &Path, option: &str, made: &Made, force: bool) -> anyhow::Result<()> {
+    let shown = target.display();
+    if target.file_name().is_none() {
+        anyhow::bail!("{option} {shown}: not a file name");
+    }
+    let dir = dir_of(target);
+    match fs::metadata(dir) {
+        Ok(m) if m.is_dir() => {}
+        Ok(_) => anyhow::bail!("{option} {shown}: {} is not a directory", dir.display()),
+        Err(e) => anyhow::bail!("{option} {shown}: directory {}: {e}", dir.display()),
+    }
+    let link = match fs::symlink_metadata(target) {
+        Err(e) if e.kind() == io::ErrorKind::NotFound => return Ok(()),
+        Err(e) => anyhow::bail!("{option} {shown}: {e}"),
+        Ok(m) => m,
+    };
+    let m = match fs::metadata(target) {
+        Ok(m) => m,
+        // A symbolic link to nothing: renaming would replace the link.
+        Err(_) if force => return Ok(()),
+        Err(_) => anyhow::bail!(
+            "{option} {shown}: {} exists; refusing to replace it (give --force to replace it)",
+            describe_type(&link.file_type())
+        ),
+    };
+    let ft = m.file_type();
+    if is_stream(&ft) {
+        return Ok(());
+    }
+    if !ft.is_file() {
+        anyhow::bail!(
+            "{option} {shown}: {}; driftid writes only regular files, FIFOs and character devices",
+            describe_type(&ft)
+        );
+    }
+    if force {
+        return Ok(());
+    }
+    let mut head = Vec::new();
+    File::open(target)
+        .and_then(|f| {
+            use std::io::Read as _;
+            f.take(SIGNATURE_BYTES).read_to_end(&mut head)
+        })
+        .with_context(|| format!("{option} {shown}: reading the existing file"))?;
+    if made.recognises(&head) {
+        return Ok(());
+    }
+    anyhow::bail!(
+        "{option} {shown}: the file exists and is not {} driftid wrote{}; refusing to overwrite it (give --force to replace it, or choose another file)",
+        made.what(),
+        if *made == Made::RawLog { " (it would be appended to)" } else { "" }
+    )
+}
+
+/// `--png DIR`-like options: a folder that exists, or can be made (its nearest existing
+/// ancestor is a folder).
+pub fn check_output_dir(dir: &Path, option: &str) -> anyhow::Result<()> {
+    let mut p = dir;
+    loop {
+        match fs::metadata(p) {
+            Ok(m) if m.is_dir() => return Ok(()),
+            Ok(_) => anyhow::bail!(
+                "{option} {}: {} exists and is not a directory",
+                dir.display(),
+                p.display()
+            ),
+            Err(e) if e.kind() == io::ErrorKind::NotFound => match p.parent() {
+                Some(q) if !q.as_os_str().is_empty() => p = q,
+                _ => return Ok(()),
+            },
+            Err(e) => anyhow::bail!("{option} {}: {}: {e}", dir.display(), p.display()),
+        }
+    }
+}
+
+/// The outputs of one command, checked before anything is written: each against every input
+/// ([`ensure_not_input`]), against the outputs claimed before it, and by [`check_output`].
+#[derive(Debug)]
+pub struct Outputs {
+    inputs: Vec<PathBuf>,
+    force: bool,
+    claimed: Vec<(PathBuf, String)>,
+}
+
+impl Outputs {
+    /// The command's input files and its `--force`.
+    pub fn new(inputs: &[&Path], force: bool) -> Self {
+        Outputs {
+            inputs: inputs.iter().map(|p| p.to_path_buf()).collect(),
+            force,
+            claimed: Vec::new(),
+        }
+    }
+
+    /// Checks one output (given as `option`) and claims it.
+    pub fn check(&mut self, target: &Path, option: &str, made: Made) -> anyhow::Result<()> {
+        let inputs: Vec<&Path> = self.inputs.iter().map(|p| p.as_path()).collect();
+        ensure_not_input(target, option, &inputs)?;
+        if let Some((p, o)) = self.claimed.iter().find(|(p, _)| same_file(p, target)) {
+            anyhow::bail!(
+                "{option} {}: that is also the output {o} {}; choose another file",
+                target.display(),
+                p.display()
+            );
+        }
+        check_output(target, option, &made, self.force)?;
+        self.claimed
+            .push((target.to_path_buf(), option.to_string()));
+        Ok(())
+    }
+}
+
+/// Opens a log `driftid` appends to (`--raw`), after [`check_output`] with [`Made::RawLog`]:
+/// a raw frame log driftid wrote (or an empty file) is appended to; any other existing regular
+/// file is refused, or with `force` replaced (truncated) — never appended to; a FIFO or a
+/// character device is written into.
+pub fn open_log(target: &Path, option: &str, force: bool) -> anyhow::Result<File> {
+    check_output(target, option, &Made::RawLog, force)?;
+    let foreign = force && check_output(target, option, &Made::RawLog, false).is_err();
+    let mut o = OpenOptions::new();
+    if foreign {
+        o.write(true).truncate(true);
+    } else {
+        o.append(true).create(true);
+    }
+    o.open(target)
+        .with_context(|| format!("{option} {}: opening", target.display()))
+}
+
+/// Adds the `tEXt` chunk `Software: driftid` after a PNG's header chunk, by which
+/// [`Made::Png`] recognises the plot later. Bytes that are not a PNG are returned unchanged.
+pub fn tag_png(png: &[u8]) -> Vec<u8> {
+    // Signature (8) + IHDR chunk (4 length + 4 type + 13 data + 4 CRC).
+    const AFTER_IHDR: usize = 33;
+    if png.len() < AFTER_IHDR || !png.starts_with(b"\x89PNG\r\n\x1a\n") || &png[12..16] != b"IHDR" {
+        return png.to_vec();
+    }
+    let mut chunk = Vec::with_capacity(12 + PNG_SOFTWARE.len());
+    chunk.extend_from_slice(&(PNG_SOFTWARE.len() as u32).to_be_bytes());
+    chunk.extend_from_slice(b"tEXt");
+    chunk.extend_from_slice(PNG_SOFTWARE);
+    let crc = crc32fast::hash(&chunk[4..]);
+    chunk.extend_from_slice(&crc.to_be_bytes());
+    let mut out = Vec::with_capacity(png.len() + chunk.len());
+    out.extend_from_slice(&png[..AFTER_IHDR]);
+    out.extend_from_slice(&chunk);
+    out.extend_from_slice(&png[AFTER_IHDR..]);
+    out
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -248,6 +609,30 @@ mod tests {
         drop(t);
         assert_eq!(entries(&dir), ["run.csv"]);
         let _ = fs::remove_dir_all(&dir);
+    }
+
+    /// Files driftid writes are recognised as its own by their content; others are not.
+    #[test]
+    fn driftid_recognises_the_files_it_wrote() {
+        // The smallest PNG header: signature + IHDR (13 bytes of data) + CRC.
+        let mut png = b"\x89PNG\r\n\x1a\n\0\0\0\x0dIHDR".to_vec();
+        png.extend_from_slice(&[0; 17]);
+        png.extend_from_slice(b"\0\0\0\0IEND\xaeB`\x82");
+        assert!(!Made::Png.recognises(&png));
+        assert!(Made::Png.recognises(&tag_png(&png)));
+        assert!(Made::Html.recognises(format!("<html><head>{HTML_GENERATOR}").as_bytes()));
+        assert!(!Made::Html.recognises(b"t_s,ax_mps2,ay_mps2,az_mps2\n0,0,0,9.8\n"));
+        let sim =
+            "# latitude_deg: 39.1\n# generator: driftid simulate\nt_s,ax_mps2,ay_mps2,az_mps2\n";
+        assert!(Made::SimulatedRecording.recognises(sim.as_bytes()));
+        assert!(!Made::SimulatedRecording
+            .recognises(b"# latitude_deg: 39.1\nt_s,ax_mps2,ay_mps2,az_mps2\n"));
+        assert!(Made::Truth.recognises(br#"{"scenario": {}, "coefficients": {}}"#));
+        assert!(!Made::Truth.recognises(b"notes"));
+        assert!(Made::Csv("a,b".into()).recognises(b"a,b\r\n1,2\n"));
+        assert!(!Made::Csv("a,b".into()).recognises(b"a,b,c\n"));
+        assert!(Made::RawLog.recognises(b""));
+        assert!(!Made::RawLog.recognises(b"t_s,ax_mps2\n"));
     }
 
     #[test]

@@ -115,7 +115,17 @@ pub fn designed_prepared(site: Site, design: &Design, cfg: &Config) -> anyhow::R
     let mut site = site;
     let theta_enu = design.orientation_deg.map(f64::to_radians);
     site.chart = site.chart_for_start(&theta_enu);
-    let n = (design.hours * 3600.0 / design.rate_s).floor() as usize + 1;
+    // The simulator's own limit (Scenario::validate): `plan --hours 1e9` aborted on a 14-TB
+    // allocation here.
+    let samples_f = (design.hours * 3600.0 / design.rate_s).floor() + 1.0;
+    if samples_f > 1e8 {
+        bail!(
+            "--hours/--rate-s: a planned run of {} h at {} s is {samples_f:.0} samples, too many (at most 1e8)",
+            design.hours,
+            design.rate_s
+        );
+    }
+    let n = samples_f as usize;
     let samples: Vec<Sample> = (0..n)
         .map(|k| Sample {
             t_s: k as f64 * design.rate_s,

@@ -380,7 +380,14 @@ fn a_wrong_latitude_is_named_by_every_command() {
         "run.csv",
         &["--hours", "10", "--rate-s", "10", "--seed", "2"],
     );
-    let text = std::fs::read_to_string(&csv).unwrap();
+    // The wrong-latitude run is another run (seed 3): the same samples as run.csv would be
+    // refused as the same data twice by the joint fit (issue 28), before the latitude.
+    let other = simulate_to(
+        &dir,
+        "other.csv",
+        &["--hours", "10", "--rate-s", "10", "--seed", "3"],
+    );
+    let text = std::fs::read_to_string(&other).unwrap();
     let wrong: String = text
         .lines()
         .filter(|l| !l.starts_with("# gravity_mps2"))

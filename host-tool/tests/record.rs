@@ -88,6 +88,7 @@ fn options(dir: &std::path::Path) -> RecordOptions {
         latitude_deg: None,
         duration: None,
         reconnect: true,
+        force: false,
     }
 }
 
@@ -288,5 +289,51 @@ fn metadata_the_reader_would_refuse_is_not_written() {
         rec.meta.gravity_mps2, None,
         "left out: normal gravity is used"
     );
+    let _ = std::fs::remove_dir_all(&dir);
+}
+
+/// Issue 28, item 1: `record --raw old.csv` appended binary frames to an existing recording,
+/// which then no longer read; and `--out notes.txt` (not a recording) had its last line cut off
+/// before the recorder found it was not a recording. Now a `--raw` file that is not a raw frame
+/// log is refused (naming it and `--force`) and neither file changes by a byte; with `--force`
+/// it is replaced, never appended to.
+#[test]
+fn the_raw_log_is_never_appended_to_a_file_that_is_not_one() {
+    let dir = temp_dir("raw-foreign");
+    let mut opts = options(&dir);
+    let old = dir.join("old.csv");
+    let text = "# latitude_deg: 39.1\nt_s,ax_mps2,ay_mps2,az_mps2\n0,0,0,9.8\n1,0,0,9.8\n";
+    std::fs::write(&old, text).unwrap();
+    opts.raw = Some(old.clone());
+    let mut enc = Encoder::new();
+    let c = stream(&mut enc, 39.1, 0..=10, |_, _| {});
+    let err = format!("{:#}", run(&opts, vec![c.clone()]).unwrap_err());
+    assert!(err.contains("old.csv") && err.contains("--force"), "{err}");
+    assert_eq!(
+        std::fs::read_to_string(&old).unwrap(),
+        text,
+        "the recording is untouched"
+    );
+    assert!(
+        !dir.join("run.csv").exists(),
+        "nothing recorded when an output is refused"
+    );
+
+    // --out a text file with no final newline: not a recording, refused, not cut.
+    let notes = dir.join("notes.txt");
+    std::fs::write(&notes, "shopping list\nmilk").unwrap();
+    let mut o = options(&dir);
+    o.out = notes.clone();
+    o.raw = None;
+    assert!(run(&o, vec![c.clone()]).is_err());
+    assert_eq!(
+        std::fs::read_to_string(&notes).unwrap(),
+        "shopping list\nmilk"
+    );
+
+    // With --force the file is replaced by the raw log (not appended to).
+    opts.force = true;
+    run(&opts, vec![c.clone()]).unwrap();
+    assert_eq!(std::fs::read(&old).unwrap(), c);
     let _ = std::fs::remove_dir_all(&dir);
 }

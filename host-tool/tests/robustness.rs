@@ -412,7 +412,7 @@ fn a_failing_replay_leaves_no_output_file() {
     let _ = std::fs::remove_dir_all(&dir);
 }
 
-/// `simulate` killed while it writes (SIGKILL, like a Ctrl-C: no destructor runs) over an
+/// `simulate` killed while it writes (SIGKILL: no destructor or handler runs) over an
 /// earlier run. Whatever moment the kill falls on, the real names hold a consistent state: the
 /// recording is complete (the old one or the new one), and a truth file beside it describes it
 /// (same number of samples) — never a partial CSV beside the previous run's truth. The kill is
@@ -543,4 +543,540 @@ fn a_simulate_that_fails_before_the_renames_leaves_the_earlier_recording() {
         "no temporaries"
     );
     let _ = std::fs::remove_dir_all(&dir);
+}
+
+/// A recording as a logger writes it: `run.csv`'s content without the metadata line by which
+/// `driftid` recognises a recording `simulate` wrote (`# generator: driftid simulate`).
+fn foreign_recording(from: &Path, to: &Path) {
+    let text = std::fs::read_to_string(from).unwrap();
+    let kept: String = text
+        .lines()
+        .filter(|l| !l.starts_with("# generator:"))
+        .map(|l| format!("{l}\n"))
+        .collect();
+    std::fs::write(to, kept).unwrap();
+}
+
+/// Issue 28, item 1: a file the user has — above all a recording — is never replaced (or
+/// appended to) without `--force`. Before, `report a.csv -o b.csv` (a tab-completion slip)
+/// replaced the recording b.csv with HTML, `simulate --out rec.csv` replaced a real recording
+/// and `--out notes.csv` an unrelated `notes.truth.json`, `diagnose rung0.csv --export .`
+/// overwrote its own input, and `--raw` appended binary frames to a recording. Each must now
+/// exit 2 naming the file and `--force`, and leave every byte as it was; while files driftid
+/// wrote itself (its report, its simulated run) are still replaced without `--force`.
+#[test]
+fn files_driftid_did_not_write_are_never_replaced_without_force() {
+    let dir = temp_dir("foreign");
+    let csv = simulate(&dir, "0.2", "10");
+    let rec = dir.join("rec.csv");
+    foreign_recording(&csv, &rec);
+    let notes = dir.join("notes.truth.json");
+    std::fs::write(&notes, "my notes, not a truth file\n").unwrap();
+    let export = dir.join("export");
+    std::fs::create_dir(&export).unwrap();
+    let rung0 = export.join("rung0.csv");
+    std::fs::copy(&rec, &rung0).unwrap();
+    let user_index = export.join("rungs.csv");
+    std::fs::write(&user_index, "a,b\n1,2\n").unwrap();
+    let snapshot = |p: &Path| std::fs::read(p).unwrap();
+    let kept = [&rec, &notes, &rung0, &user_index].map(|p| (p.clone(), snapshot(p)));
+    let os = |s: &str| std::ffi::OsString::from(s);
+    let cases: Vec<(Vec<std::ffi::OsString>, &Path)> = vec![
+        (
+            vec![
+                os("report"),
+                csv.clone().into(),
+                os("-o"),
+                rec.clone().into(),
+            ],
+            &rec,
+        ),
+        (
+            vec![
+                os("simulate"),
+                os("--hours"),
+                os("0.1"),
+                os("--out"),
+                rec.clone().into(),
+            ],
+            &rec,
+        ),
+        (
+            vec![
+                os("simulate"),
+                os("--hours"),
+                os("0.1"),
+                os("--out"),
+                dir.join("notes.csv").into(),
+            ],
+            &notes,
+        ),
+        // The input itself in the export folder: refused as the input.
+        (
+            vec![
+                os("diagnose"),
+                rung0.clone().into(),
+                os("--export"),
+                export.clone().into(),
+            ],
+            &rung0,
+        ),
+        // A file of the user's named like an export file.
+        (
+            vec![
+                os("diagnose"),
+                csv.clone().into(),
+                os("--export"),
+                export.clone().into(),
+            ],
+            &rung0,
+        ),
+        (
+            vec![
+                os("replay"),
+                csv.clone().into(),
+                os("--port"),
+                os("/nonexistent"),
+                os("--raw"),
+                rec.clone().into(),
+            ],
+            &rec,
+        ),
+        (
+            vec![
+                os("replay"),
+                csv.clone().into(),
+                os("--port"),
+                os("/nonexistent"),
+                os("--out"),
+                rec.clone().into(),
+            ],
+            &rec,
+        ),
+    ];
+    for (args, named) in &cases {
+        let out = driftid().args(args).output().unwrap();
+        let err = stderr(&out);
+        assert_eq!(out.status.code(), Some(2), "{args:?}: {err}");
+        let name = named.file_name().unwrap().to_string_lossy();
+        let about_input = err.contains("that is the input");
+        assert!(
+            err.contains(name.as_ref()) && (err.contains("--force") || about_input),
+            "{args:?}: must name {name} and say --force replaces it: {err}"
+        );
+        for (p, bytes) in &kept {
+            assert_eq!(
+                &std::fs::read(p).unwrap(),
+                bytes,
+                "{args:?}: {} changed",
+                p.display()
+            );
+        }
+    }
+    assert!(
+        !dir.join("notes.csv").exists(),
+        "nothing written when the truth is refused"
+    );
+    // Files driftid wrote are replaced without --force: its simulated run and its own report.
+    let again = driftid()
+        .args([
+            "simulate", "--hours", "0.2", "--rate-s", "10", "--seed", "3", "--out",
+        ])
+        .arg(&csv)
+        .output()
+        .unwrap();
+    assert!(again.status.success(), "{}", stderr(&again));
+    let page = dir.join("page.html");
+    for _ in 0..2 {
+        let out = driftid()
+            .arg("report")
+            .arg(&csv)
+            .arg("-o")
+            .arg(&page)
+            .output()
+            .unwrap();
+        assert!(matches!(out.status.code(), Some(0 | 3)), "{}", stderr(&out));
+    }
+    // With --force the user's file is replaced.
+    let out = driftid()
+        .arg("report")
+        .arg(&csv)
+        .arg("-o")
+        .arg(&rec)
+        .arg("--force")
+        .output()
+        .unwrap();
+    assert!(matches!(out.status.code(), Some(0 | 3)), "{}", stderr(&out));
+    assert!(std::fs::read_to_string(&rec)
+        .unwrap()
+        .starts_with("<!DOCTYPE html>"));
+    assert!(
+        !names_in(&dir).iter().any(|n| n.starts_with(".driftid-")),
+        "no temporary file left: {:?}",
+        names_in(&dir)
+    );
+    let _ = std::fs::remove_dir_all(&dir);
+}
+
+/// Issue 28, item 1: a non-regular file is never renamed over. Before, the atomic rename
+/// replaced a FIFO (or, as root, `-o /dev/null`'s device node) with a regular file. A FIFO or
+/// a character device is what a user names to receive the output: it is written into, and is
+/// still a FIFO afterwards.
+#[cfg(unix)]
+#[test]
+fn a_fifo_target_is_written_into_not_renamed_over() {
+    use std::os::unix::fs::FileTypeExt as _;
+    let dir = temp_dir("fifo");
+    let fifo = dir.join("pipe.csv");
+    let made = Command::new("mkfifo").arg(&fifo).status().unwrap();
+    assert!(made.success());
+    let reader = {
+        let fifo = fifo.clone();
+        std::thread::spawn(move || std::fs::read_to_string(fifo).unwrap())
+    };
+    let out = driftid()
+        .args(["simulate", "--hours", "0.05", "--rate-s", "10", "--out"])
+        .arg(&fifo)
+        .output()
+        .unwrap();
+    assert!(out.status.success(), "{}", stderr(&out));
+    // Checked before joining the reader: a FIFO renamed over leaves the reader blocked for ever.
+    assert!(
+        std::fs::symlink_metadata(&fifo)
+            .unwrap()
+            .file_type()
+            .is_fifo(),
+        "the FIFO is still a FIFO"
+    );
+    let got = reader.join().unwrap();
+    assert!(
+        got.contains("t_s,ax_mps2"),
+        "the recording went into the FIFO: {got:.200}"
+    );
+    assert_eq!(names_in(&dir), ["pipe.csv", "pipe.truth.json"]);
+    let _ = std::fs::remove_dir_all(&dir);
+}
+
+/// Issue 28, item 10: `report` validates every output before it writes any. Before, a `--png`
+/// folder that cannot be made (here under a regular file) failed only after the HTML had been
+/// written: exit 2, yet a new report.html.
+#[test]
+fn report_writes_nothing_when_a_png_path_is_bad() {
+    let dir = temp_dir("badpng");
+    let csv = simulate(&dir, "0.2", "10");
+    let page = dir.join("page.html");
+    let out = driftid()
+        .arg("report")
+        .arg(&csv)
+        .arg("-o")
+        .arg(&page)
+        .arg("--png")
+        .arg(csv.join("plots"))
+        .output()
+        .unwrap();
+    let err = stderr(&out);
+    assert_eq!(out.status.code(), Some(2), "{err}");
+    assert!(err.contains("--png"), "names the option: {err}");
+    assert!(!page.exists(), "no HTML written when the command fails");
+    assert_eq!(names_in(&dir), ["run.csv", "run.truth.json"]);
+    let _ = std::fs::remove_dir_all(&dir);
+}
+
+/// `src` with every time stamp `t` rewritten as `t + offset` (to 17 significant digits).
+fn offset_times(src: &Path, dst: &Path, offset: f64) {
+    let text = std::fs::read_to_string(src).unwrap();
+    let mut out = String::new();
+    for l in text.lines() {
+        match l.split_once(',') {
+            Some((t, rest)) if !l.starts_with('#') && !l.starts_with("t_s") => {
+                let t: f64 = t.parse().unwrap();
+                out.push_str(&format!("{:?},{rest}\n", t + offset));
+            }
+            _ => out.push_str(&format!("{l}\n")),
+        }
+    }
+    std::fs::write(dst, out).unwrap();
+}
+
+/// Issue 28, item 2: the same data twice counted its information twice — `identify a.csv
+/// a.csv` (or a copy under another name) was trusted with a 1σ narrower by √2, and `plan a.csv
+/// a.csv` accepted. Now the same file in any spelling, a byte-identical copy, or the same
+/// samples in another formatting are refused by name (exit 2) by identify, diagnose and plan,
+/// before any fit.
+#[test]
+fn the_same_data_twice_is_refused_by_name() {
+    let dir = temp_dir("twice");
+    let csv = simulate(&dir, "0.5", "10");
+    let copy = dir.join("copy.csv");
+    std::fs::copy(&csv, &copy).unwrap();
+    // The same samples, another description: not byte-identical, still the same data.
+    let renamed = dir.join("described.csv");
+    let text = std::fs::read_to_string(&csv).unwrap();
+    let other: String = text
+        .lines()
+        .map(|l| {
+            if l.starts_with("# description:") {
+                "# description: the same run, described again\n".to_string()
+            } else {
+                format!("{l}\n")
+            }
+        })
+        .collect();
+    assert_ne!(other, text);
+    std::fs::write(&renamed, other).unwrap();
+    let spelled = dir.join(".").join("run.csv");
+    for cmd in ["identify", "diagnose", "plan"] {
+        for (second, why) in [
+            (&csv, "is the same file as"),
+            (&spelled, "is the same file as"),
+            (&copy, "holds the same samples as"),
+            (&renamed, "holds the same samples as"),
+        ] {
+            let out = driftid().arg(cmd).arg(&csv).arg(second).output().unwrap();
+            let err = stderr(&out);
+            assert_eq!(
+                out.status.code(),
+                Some(2),
+                "{cmd} run.csv {second:?}: {err}"
+            );
+            let name = second.file_name().unwrap().to_string_lossy();
+            assert!(
+                err.contains(why) && err.contains(name.as_ref()) && err.contains("run.csv"),
+                "{cmd} run.csv {second:?}: must name both files: {err}"
+            );
+        }
+    }
+    let _ = std::fs::remove_dir_all(&dir);
+}
+
+/// Issue 28, item 4: loggers write absolute time stamps (Unix time, an uptime) or start at a
+/// negative time. Before, 1.7e9 + t ended in "innovation covariance is not positive definite",
+/// an offset of 1e15 or one stray stamp at 1e10 s hung identify, and negative starts failed in
+/// the filter. Now time is taken relative to the first sample, said once, and the result is
+/// exactly the one of the run stamped from 0; stamps whose offset leaves them without the
+/// resolution to tell samples apart, and a stray stamp far away, are refused naming the line.
+#[test]
+fn absolute_time_stamps_are_taken_relative_to_the_first_sample() {
+    let dir = temp_dir("epoch");
+    let csv = simulate(&dir, "2", "10");
+    let coefficients = |path: &Path| {
+        let out = driftid()
+            .arg("identify")
+            .arg(path)
+            .arg("--json")
+            .output()
+            .unwrap();
+        // 0 or 3 (this short run's fit may be untrusted): numbers computed either way.
+        assert!(
+            matches!(out.status.code(), Some(0 | 3)),
+            "{path:?}: {}",
+            stderr(&out)
+        );
+        let v: serde_json::Value = serde_json::from_slice(&out.stdout).unwrap();
+        (
+            (v["coefficients"].clone(), v["trusted"].clone()),
+            stderr(&out),
+        )
+    };
+    let (want, _) = coefficients(&csv);
+    for offset in [1.7e9, 1e6, 1e8, -5000.0] {
+        let shifted = dir.join("shifted.csv");
+        offset_times(&csv, &shifted, offset);
+        let (got, err) = coefficients(&shifted);
+        assert_eq!(got, want, "offset {offset}: the same result as from 0");
+        assert_eq!(
+            err.matches("relative to the first sample").count(),
+            1,
+            "offset {offset}: said once: {err}"
+        );
+    }
+    // Said once per file by the joint diagnose too (it reads each run twice: first to refuse
+    // the same data twice, then to diagnose it).
+    let other = dir.join("other.csv");
+    let again = driftid()
+        .args([
+            "simulate", "--hours", "2", "--rate-s", "10", "--seed", "5", "--out",
+        ])
+        .arg(&other)
+        .output()
+        .unwrap();
+    assert!(again.status.success(), "{}", stderr(&again));
+    let shifted = dir.join("shifted.csv");
+    offset_times(&csv, &shifted, 1.7e9);
+    let out = driftid()
+        .arg("diagnose")
+        .arg(&shifted)
+        .arg(&other)
+        .arg("--no-ladder")
+        .output()
+        .unwrap();
+    let err = stderr(&out);
+    assert!(matches!(out.status.code(), Some(0 | 3)), "{err}");
+    assert_eq!(
+        err.matches("relative to the first sample").count(),
+        1,
+        "{err}"
+    );
+    // 1e15: a double resolves 0.125 s there, the 10-s stamps are not usable: refused, line 7
+    // (the second sample), at once.
+    let far = dir.join("far.csv");
+    offset_times(&csv, &far, 1e15);
+    // A stray last stamp at 1e10 s: a gap of 300 years.
+    let stray = dir.join("stray.csv");
+    let mut text = std::fs::read_to_string(&csv).unwrap();
+    let last_start = text.trim_end().rfind('\n').unwrap() + 1;
+    let comma = last_start + text[last_start..].find(',').unwrap();
+    text.replace_range(last_start..comma, "1e10");
+    std::fs::write(&stray, &text).unwrap();
+    let stray_line = format!("stray.csv:{}:", text.lines().count());
+    for (path, want) in [(&far, "far.csv:7:"), (&stray, stray_line.as_str())] {
+        for cmd in ["identify", "diagnose", "plan"] {
+            let t0 = Instant::now();
+            let out = driftid().arg(cmd).arg(path).output().unwrap();
+            let err = stderr(&out);
+            assert_eq!(out.status.code(), Some(2), "{cmd} {path:?}: {err}");
+            assert!(
+                err.contains(want),
+                "{cmd} {path:?}: must name {want}: {err}"
+            );
+            assert!(
+                t0.elapsed() < Duration::from_secs(30),
+                "{cmd} {path:?}: no hang"
+            );
+        }
+    }
+    let _ = std::fs::remove_dir_all(&dir);
+}
+
+/// Issue 28, item 10: SIGINT and SIGTERM left the hidden `.driftid-PID-N.NAME` temporary file
+/// beside the output (a Ctrl-C ran no destructor). Now the signal removes every unfinished
+/// temporary file, and the process still ends by the signal (a shell sees 130 / 143). The
+/// signal is aimed at the write phase (as soon as the temporary file appears), over an earlier
+/// run that must stay complete.
+#[cfg(unix)]
+#[test]
+fn sigint_and_sigterm_leave_no_temporary_file() {
+    use std::os::unix::process::ExitStatusExt as _;
+    let dir = temp_dir("signal");
+    let csv = simulate(&dir, "0.5", "10");
+    let old = std::fs::read(&csv).unwrap();
+    for sig in [libc::SIGINT, libc::SIGTERM] {
+        let mut child = driftid()
+            .args([
+                "simulate", "--hours", "20", "--rate-s", "0.1", "--seed", "9", "--out",
+            ])
+            .arg(&csv)
+            .stdout(Stdio::null())
+            .stderr(Stdio::null())
+            .spawn()
+            .unwrap();
+        let t0 = Instant::now();
+        let mut saw_temp = false;
+        while t0.elapsed() < Duration::from_secs(300) {
+            if names_in(&dir).iter().any(|n| n.starts_with(".driftid-")) {
+                saw_temp = true;
+                break;
+            }
+            if child.try_wait().unwrap().is_some() {
+                break;
+            }
+            std::thread::sleep(Duration::from_millis(1));
+        }
+        // SAFETY: kill(2) on the child's own pid.
+        unsafe {
+            libc::kill(child.id() as libc::pid_t, sig);
+        }
+        let status = child.wait().unwrap();
+        assert!(saw_temp, "the simulate never started writing");
+        assert_eq!(status.signal(), Some(sig), "ends by the signal: {status:?}");
+        assert_eq!(
+            names_in(&dir),
+            ["run.csv", "run.truth.json"],
+            "signal {sig}: no temporary file left"
+        );
+        assert_eq!(
+            std::fs::read(&csv).unwrap(),
+            old,
+            "the earlier run is intact"
+        );
+    }
+    let _ = std::fs::remove_dir_all(&dir);
+}
+
+/// Issue 28, item 8: every numeric option has a range, and a value outside it is a usage error
+/// (exit 2) naming the option and the range — before anything runs (the recording named does
+/// not exist). Before, `plan --hours 1e9` aborted on a 14-TB allocation (exit 134), and
+/// `--raw-sigma 1e-300` or a huge `--arw` ended in errors that named no option.
+#[test]
+fn every_numeric_option_out_of_range_names_the_option_and_its_range() {
+    let cases: &[(&[&str], &str, &str)] = &[
+        (
+            &["plan", "x.csv", "--hours", "1e9"],
+            "--hours",
+            "(0, 10000] h",
+        ),
+        (&["plan", "--rate-s", "1e9"], "--rate-s", "[1e-4, 86400] s"),
+        (
+            &["plan", "--alternatives", "1000000000"],
+            "--alternatives",
+            "[0, 100]",
+        ),
+        (
+            &["simulate", "--out", "x.csv", "--hours", "1e5"],
+            "--hours",
+            "[0, 10000] h",
+        ),
+        (
+            &["bench", "accuracy", "--hours", "12,1e9"],
+            "--hours",
+            "(0, 10000] h",
+        ),
+        (
+            &["identify", "x.csv", "--raw-sigma", "1e-300"],
+            "--raw-sigma",
+            "[1e-8, 1] m/s^2",
+        ),
+        (
+            &["identify", "x.csv", "--arw", "1e9"],
+            "--arw",
+            "[0, 1] deg^2/h",
+        ),
+        (
+            &["diagnose", "x.csv", "--period-s", "1e9"],
+            "--period-s",
+            "[0.001, 86400] s",
+        ),
+        (
+            &[
+                "replay",
+                "x.csv",
+                "--port",
+                "/nonexistent",
+                "--gate-nis",
+                "1e300",
+            ],
+            "--gate-nis",
+            "[0, 1e6]",
+        ),
+    ];
+    for (args, option, range) in cases {
+        let out = driftid().args(*args).output().unwrap();
+        let err = stderr(&out);
+        assert_eq!(out.status.code(), Some(2), "{args:?}: {err}");
+        assert!(
+            err.contains(option) && err.contains(range),
+            "{args:?}: must name {option} and its range {range}: {err}"
+        );
+    }
+    // In range one by one, too many samples together: refused naming both, at once.
+    let out = driftid()
+        .args(["plan", "--hours", "10000", "--rate-s", "1e-4"])
+        .output()
+        .unwrap();
+    let err = stderr(&out);
+    assert_eq!(out.status.code(), Some(2), "{err}");
+    assert!(
+        err.contains("--hours/--rate-s") && err.contains("at most 1e8"),
+        "{err}"
+    );
 }

@@ -518,7 +518,7 @@ fn paper_run_is_fast_and_truth_round_trips() {
     let dir = std::env::temp_dir().join(format!("driftid-simulator-truth-{}", std::process::id()));
     std::fs::create_dir_all(&dir).unwrap();
     let csv = dir.join("run.csv");
-    let tp = write_simulation(&csv, &sim).unwrap();
+    let tp = write_simulation(&csv, &sim, false).unwrap();
     assert_eq!(tp, dir.join("run.truth.json"));
     let truth = read_truth(&tp).unwrap();
     assert_eq!(truth, sim.truth);

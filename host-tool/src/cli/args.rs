@@ -86,6 +86,104 @@ pub fn seed_count(s: &str) -> Result<u64, String> {
     }
 }
 
+/// Longest run `--hours` accepts (simulate, plan, bench), h: about 14 months — far beyond a
+/// drift identification run (hours to weeks); `plan --hours 1e9` aborted on a 14-TB allocation.
+pub const MAX_HOURS: f64 = 1e4;
+/// Sample interval `--rate-s` accepts, s: 0.1 ms to one day.
+pub const RATE_S: (f64, f64) = (1e-4, 86_400.0);
+/// Filter period `--period-s` accepts, s: 1 ms to one day.
+pub const PERIOD_S: (f64, f64) = (1e-3, 86_400.0);
+/// `--arw` (gyro angle random walk variance density), deg²/h: 1 deg²/h is a random walk of
+/// 1 deg/√h, some 10⁴× an INS gyro's.
+pub const MAX_ARW: f64 = 1.0;
+/// `--raw-sigma` (1σ of one accelerometer sample), m/s²: 1 ng to 0.1 g.
+pub const RAW_SIGMA_MPS2: (f64, f64) = (1e-8, 1.0);
+/// `--gate-nis` (χ² gate on the NIS; 0: off).
+pub const MAX_GATE_NIS: f64 = 1e6;
+/// `--alternatives` (plan).
+pub const MAX_ALTERNATIVES: usize = 100;
+
+/// `v` as a person writes it: 0, 60, 86400, 1e-8, 1e9.
+fn short(v: f64) -> String {
+    if v == 0.0 || (1e-3..1e5).contains(&v.abs()) {
+        format!("{v}")
+    } else {
+        format!("{v:e}")
+    }
+}
+
+/// A parser of a finite number in `lo..=hi` (`lo` itself excluded when `open_low`), `unit` for
+/// the message: `invalid value '1e9' for '--hours <HOURS>': 1e9 is outside (0, 10000] h (the
+/// option's range)`.
+pub fn range_f64(
+    lo: f64,
+    hi: f64,
+    open_low: bool,
+    unit: &'static str,
+) -> impl Fn(&str) -> Result<f64, String> + Clone + Send + Sync + 'static {
+    move |s: &str| {
+        let v = number(s)?;
+        let above_lo = if open_low { v > lo } else { v >= lo };
+        if above_lo && v <= hi {
+            Ok(v)
+        } else {
+            Err(format!(
+                "{} is outside {}{}, {}]{}{unit} (the option's range)",
+                short(v),
+                if open_low { "(" } else { "[" },
+                short(lo),
+                short(hi),
+                if unit.is_empty() { "" } else { " " }
+            ))
+        }
+    }
+}
+
+/// `--hours` of a run to be made (plan, bench): (0, [`MAX_HOURS`]].
+pub fn hours(s: &str) -> Result<f64, String> {
+    range_f64(0.0, MAX_HOURS, true, "h")(s)
+}
+
+/// `--hours` of `simulate` (0 allowed: one sample): [0, [`MAX_HOURS`]].
+pub fn hours_or_zero(s: &str) -> Result<f64, String> {
+    range_f64(0.0, MAX_HOURS, false, "h")(s)
+}
+
+/// `--rate-s`: [`RATE_S`].
+pub fn rate_s(s: &str) -> Result<f64, String> {
+    range_f64(RATE_S.0, RATE_S.1, false, "s")(s)
+}
+
+/// `--period-s`: [`PERIOD_S`].
+pub fn period_s(s: &str) -> Result<f64, String> {
+    range_f64(PERIOD_S.0, PERIOD_S.1, false, "s")(s)
+}
+
+/// `--arw`: [0, [`MAX_ARW`]].
+pub fn arw(s: &str) -> Result<f64, String> {
+    range_f64(0.0, MAX_ARW, false, "deg^2/h")(s)
+}
+
+/// `--raw-sigma`: [`RAW_SIGMA_MPS2`].
+pub fn raw_sigma(s: &str) -> Result<f64, String> {
+    range_f64(RAW_SIGMA_MPS2.0, RAW_SIGMA_MPS2.1, false, "m/s^2")(s)
+}
+
+/// `--gate-nis`: [0, [`MAX_GATE_NIS`]].
+pub fn gate_nis(s: &str) -> Result<f64, String> {
+    range_f64(0.0, MAX_GATE_NIS, false, "")(s)
+}
+
+/// `--alternatives`: an integer in 0..=[`MAX_ALTERNATIVES`].
+pub fn alternatives(s: &str) -> Result<usize, String> {
+    match s.trim().parse::<usize>() {
+        Ok(v) if v <= MAX_ALTERNATIVES => Ok(v),
+        _ => Err(format!(
+            "{s:?} is not an integer in [0, {MAX_ALTERNATIVES}] (the option's range)"
+        )),
+    }
+}
+
 /// `secs` (already checked by [`duration_s`]) as a `Duration`, without a panic path.
 pub fn to_duration(secs: f64, option: &str) -> anyhow::Result<std::time::Duration> {
     std::time::Duration::try_from_secs_f64(secs)
@@ -121,5 +219,13 @@ mod tests {
         assert_eq!(positive_u32("115200"), Ok(115_200));
         assert!(seed_count("0").is_err() && seed_count("1000001").is_err());
         assert_eq!(seed_count("24"), Ok(24));
+        assert!(hours("0").is_err() && hours("1e9").is_err() && hours("nan").is_err());
+        assert_eq!(hours("60"), Ok(60.0));
+        assert_eq!(hours_or_zero("0"), Ok(0.0));
+        assert!(rate_s("1e9").is_err() && period_s("0").is_err());
+        assert!(raw_sigma("1e-300").is_err() && arw("1e9").is_err() && gate_nis("1e300").is_err());
+        assert!(alternatives("1000000000").is_err());
+        let e = hours("1e9").unwrap_err();
+        assert!(e.contains("1e9 is outside (0, 10000] h"), "{e}");
     }
 }

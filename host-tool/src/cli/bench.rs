@@ -25,10 +25,10 @@ pub struct BenchArgs {
     #[arg(long, default_value_t = 24, allow_hyphen_values = true, value_parser = super::args::seed_count)]
     pub seeds: u64,
     /// Run lengths at which to evaluate, h.
-    #[arg(long, value_delimiter = ',', default_value = "12,24,30,48,60", allow_hyphen_values = true, value_parser = super::args::positive_f64)]
+    #[arg(long, value_delimiter = ',', default_value = "12,24,30,48,60", allow_hyphen_values = true, value_parser = super::args::hours)]
     pub hours: Vec<f64>,
     /// Raw sample interval, s.
-    #[arg(long, default_value_t = 1.0, allow_hyphen_values = true, value_parser = super::args::positive_f64)]
+    #[arg(long, default_value_t = 1.0, allow_hyphen_values = true, value_parser = super::args::rate_s)]
     pub rate_s: f64,
     /// Print one JSON object instead of tables.
     #[arg(long)]

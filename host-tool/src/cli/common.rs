@@ -6,7 +6,7 @@ use anyhow::Context as _;
 use estimator_core::{Propagation, Sample, Site};
 
 use crate::identify::{Config, Prepared};
-use crate::recording::read_recording;
+use crate::recording::{read_recording, RawSample};
 
 /// Options of the model and the filter, common to identify/diagnose/report.
 #[derive(clap::Args, Clone, Debug)]
@@ -15,13 +15,13 @@ pub struct ModelArgs {
     #[arg(long, allow_hyphen_values = true, value_parser = super::args::latitude_deg)]
     pub latitude_deg: Option<f64>,
     /// Filter period, s (raw samples are averaged over it).
-    #[arg(long, default_value_t = 60.0, allow_hyphen_values = true, value_parser = super::args::positive_f64)]
+    #[arg(long, default_value_t = 60.0, allow_hyphen_values = true, value_parser = super::args::period_s)]
     pub period_s: f64,
     /// Gyro angle-random-walk variance density, deg²/h.
-    #[arg(long, default_value_t = 1e-8, allow_hyphen_values = true, value_parser = super::args::nonneg_f64)]
+    #[arg(long, default_value_t = 1e-8, allow_hyphen_values = true, value_parser = super::args::arw)]
     pub arw: f64,
     /// Raw-sample accelerometer noise 1σ, m/s² (one value or x,y,z); default: estimated from the data.
-    #[arg(long, value_delimiter = ',', allow_hyphen_values = true, value_parser = super::args::positive_f64)]
+    #[arg(long, value_delimiter = ',', allow_hyphen_values = true, value_parser = super::args::raw_sigma)]
     pub raw_sigma: Option<Vec<f64>>,
     /// Use the paper's Euler step (X + f·dt) instead of RK4 (to reproduce the paper; inaccurate).
     #[arg(long)]
@@ -117,17 +117,167 @@ pub struct Loaded {
     /// The platform's orientation at t = 0 from the metadata `initial_orientation_deg`, rad
     /// (zero: level, the default).
     pub initial_orientation_rad: [f64; 3],
+    /// A 64-bit hash of the samples' bits (times and specific forces): equal for the same data
+    /// (a copy, another formatting of it), so that a run given twice is refused
+    /// ([`super::joint::refuse_same_data`]); two different recordings collide with probability
+    /// 2⁻⁶⁴.
+    pub fingerprint: u64,
+}
+
+/// The longest span a recording may have, s (about 3.2 years; a drift identification run lasts
+/// hours to weeks). A longer one — typically one stray stamp far in the future — would make the
+/// filter propagate across it step by step for hours.
+pub const MAX_SPAN_S: f64 = 1e8;
+
+/// The longest gap between two samples, s (11.6 days). Measured: a 2-h run with its last
+/// sample 1e6 s later is identified; 1e7 s later the attitude's uncertainty grown across the gap
+/// (the drift integrated over months) makes the filter fail with a covariance error.
+pub const MAX_GAP_S: f64 = 1e6;
+
+/// The coarsest float resolution a time stamp may have, as a fraction of the interval since the
+/// previous sample. Beyond it the stamps' offset has eaten their fraction: at 1e15 s a double
+/// resolves only 0.125 s, so 1-s stamps come out 0.875, 1 or 1.125 s apart.
+pub const MAX_STAMP_RESOLUTION: f64 = 1e-3;
+
+/// Absolute time stamps (Unix time, a clock's uptime, a negative start): times are taken
+/// relative to the first sample, said once on stderr (a recording starting at t_s = 0 is left
+/// as it is). Refused, naming the line: a stamp whose float resolution at its magnitude is
+/// coarser than [`MAX_STAMP_RESOLUTION`] of the interval since the previous sample, a gap
+/// longer than [`MAX_GAP_S`], a span longer than [`MAX_SPAN_S`].
+fn relative_times(
+    path: &Path,
+    samples: &mut [RawSample],
+    lines: &[u32],
+    warn: bool,
+) -> anyhow::Result<()> {
+    let Some(first) = samples.first() else {
+        return Ok(());
+    };
+    let t0 = first.t_s;
+    let line = |k: usize| lines.get(k).copied().unwrap_or(0);
+    // The distance from |t| to the next double: the stamp's resolution.
+    let resolution = |t: f64| {
+        let a = t.abs();
+        f64::from_bits(a.to_bits() + 1) - a
+    };
+    for k in 1..samples.len() {
+        let (prev, t) = (samples[k - 1].t_s, samples[k].t_s);
+        let res = resolution(t).max(resolution(prev));
+        if res > MAX_STAMP_RESOLUTION * (t - prev) {
+            anyhow::bail!(
+                "{}:{}: t_s = {t:?} is {:.3e} s after the previous sample, but at this magnitude a time stamp resolves only {res:.3e} s (a double's precision): the offset of the time stamps leaves them unusable; write the time relative to the start of the run",
+                path.display(),
+                line(k),
+                t - prev
+            );
+        }
+    }
+    if t0 != 0.0 {
+        // Once per file and process: the joint diagnose reads a run more than once.
+        static SAID: std::sync::Mutex<Vec<std::path::PathBuf>> = std::sync::Mutex::new(Vec::new());
+        let mut said = SAID.lock().unwrap_or_else(|e| e.into_inner());
+        if warn && !said.iter().any(|p| p == path) {
+            said.push(path.to_path_buf());
+            eprintln!(
+                "driftid: warning: {}:{}: the time stamps start at t_s = {t0:?}: time is taken relative to the first sample (it is t = 0; an initial orientation in the metadata is the platform's at that sample)",
+                path.display(),
+                line(0)
+            );
+        }
+        let mut prev = f64::NEG_INFINITY;
+        for (k, s) in samples.iter_mut().enumerate() {
+            s.t_s -= t0;
+            // Stamps closer than the resolution at the span's magnitude would merge.
+            anyhow::ensure!(
+                s.t_s > prev,
+                "{}:{}: t_s = {:?} is not after the previous sample once taken relative to the first ({t0:?}); the stamps are too close for their offset",
+                path.display(),
+                line(k),
+                s.t_s + t0
+            );
+            prev = s.t_s;
+        }
+    }
+    Ok(())
+}
+
+/// Refuses, naming the line, a gap longer than [`MAX_GAP_S`] or a span longer than
+/// [`MAX_SPAN_S`] — in seconds: a time column in another unit that the data-quality checks
+/// recognise (ms, µs, minutes, hours: [`crate::quality::time`]) is measured in it, as they will
+/// convert it.
+fn check_gaps(path: &Path, site: &Site, samples: &[Sample], lines: &[u32]) -> anyhow::Result<()> {
+    use crate::quality::time::{time_scale, RATE_TOLERANCE, UNITS};
+    let (Some(first), Some(last)) = (samples.first(), samples.last()) else {
+        return Ok(());
+    };
+    let tolerance = 1.0 / RATE_TOLERANCE..=RATE_TOLERANCE;
+    // Seconds per unit of the time column.
+    let unit = time_scale(site, samples)
+        .filter(|s| !tolerance.contains(s))
+        .and_then(|s| UNITS.iter().find(|(f, _)| tolerance.contains(&(s / f))))
+        .map_or(1.0, |(f, _)| *f);
+    if (last.t_s - first.t_s) * unit <= MAX_GAP_S {
+        return Ok(());
+    }
+    let line = |k: usize| lines.get(k).copied().unwrap_or(0);
+    for k in 1..samples.len() {
+        let (prev, t) = (samples[k - 1].t_s, samples[k].t_s);
+        if (t - prev) * unit > MAX_GAP_S {
+            anyhow::bail!(
+                "{}:{}: this sample comes {:.3e} s after the previous one (line {}): a gap may last at most {MAX_GAP_S:e} s (11.6 days; across a longer one the platform's attitude is not predictable); a stray time stamp? split the recording there",
+                path.display(),
+                line(k),
+                (t - prev) * unit,
+                line(k - 1)
+            );
+        }
+        if (t - first.t_s) * unit > MAX_SPAN_S {
+            anyhow::bail!(
+                "{}:{}: this sample comes {:.3e} s after the first (line {}): a recording may span at most {MAX_SPAN_S:e} s (about 3 years)",
+                path.display(),
+                line(k),
+                (t - first.t_s) * unit,
+                line(0)
+            );
+        }
+    }
+    Ok(())
+}
+
+/// [`Loaded::fingerprint`] of `samples`.
+fn fingerprint(samples: &[Sample]) -> u64 {
+    use std::hash::{Hash as _, Hasher as _};
+    let mut h = std::collections::hash_map::DefaultHasher::new();
+    for s in samples {
+        s.t_s.to_bits().hash(&mut h);
+        for v in s.specific_force {
+            v.to_bits().hash(&mut h);
+        }
+    }
+    h.finish()
 }
 
 /// Reads a recording; a bad file is an error naming file and line.
 pub fn load(path: &Path, latitude_override: Option<f64>) -> anyhow::Result<Loaded> {
+    load_with(path, latitude_override, true)
+}
+
+/// [`load`] without its warnings on stderr (a repaired last line, relative time stamps): for a
+/// first look at a recording that is loaded again, with its warnings, later (the joint
+/// `diagnose`'s check for the same data twice).
+pub fn load_quietly(path: &Path, latitude_override: Option<f64>) -> anyhow::Result<Loaded> {
+    load_with(path, latitude_override, false)
+}
+
+fn load_with(path: &Path, latitude_override: Option<f64>, warn: bool) -> anyhow::Result<Loaded> {
     let spin = crate::progress::spinner(&format!("reading {}", path.display()));
     let rec = read_recording(path);
     spin.finish_and_clear();
-    let rec = rec?;
-    for r in &rec.repairs {
+    let mut rec = rec?;
+    for r in rec.repairs.iter().filter(|_| warn) {
         eprintln!("driftid: warning: {r}");
     }
+    relative_times(path, &mut rec.samples, &rec.lines, warn)?;
     let latitude_deg = latitude_override
         .or(rec.meta.latitude_deg)
         .with_context(|| {
@@ -145,7 +295,8 @@ pub fn load(path: &Path, latitude_override: Option<f64>) -> anyhow::Result<Loade
     let site = Site::new(latitude_deg, rec.meta.gravity_mps2);
     // In place: a `Sample` is no larger than a `RawSample`, so the conversion reuses the
     // recording's buffer instead of faulting in a second one (~9 MB for a 60-h run at 1 s).
-    let samples = rec.samples.into_iter().map(|s| Sample::from(&s)).collect();
+    let samples: Vec<Sample> = rec.samples.into_iter().map(|s| Sample::from(&s)).collect();
+    check_gaps(path, &site, &samples, &rec.lines)?;
     let initial_orientation_rad = match rec
         .meta
         .extra
@@ -169,6 +320,7 @@ pub fn load(path: &Path, latitude_override: Option<f64>) -> anyhow::Result<Loade
     };
     Ok(Loaded {
         site,
+        fingerprint: fingerprint(&samples),
         samples,
         description: rec.meta.description.clone(),
         initial_orientation_rad,

@@ -30,6 +30,9 @@ pub struct DiagnoseArgs {
     /// headers; for MATLAB, pandas): rung0.csv, rung1.csv, … and rungs.csv.
     #[arg(long, value_name = "DIR")]
     pub export: Option<PathBuf>,
+    /// Replace existing export files that are not files driftid wrote.
+    #[arg(long)]
+    pub force: bool,
     #[command(flatten)]
     pub model: ModelArgs,
 }
@@ -218,6 +221,17 @@ pub fn print_ladder(rungs: &[Rung]) {
 /// Runs `driftid diagnose`.
 pub fn run(args: &DiagnoseArgs) -> anyhow::Result<()> {
     super::common::load_effects_args(&args.model)?; // --effects FILE: user effects join the catalog
+                                                    // The export's files are checked before the long computation (and again before writing).
+    if let Some(dir) = &args.export {
+        let rungs = if args.no_ladder { 1 } else { 4 };
+        if args.recordings.len() > 1 {
+            for i in 0..args.recordings.len() {
+                check_export(&dir.join(format!("run{}", i + 1)), rungs, args)?;
+            }
+        } else {
+            check_export(dir, rungs, args)?;
+        }
+    }
     if args.recordings.len() > 1 {
         return super::joint::diagnose(args);
     }
@@ -302,6 +316,7 @@ pub fn diagnose_one(
         crate::assess::assess(&final_effects, prep.clone(), &cfg.identify, identification)?;
     spin.finish_and_clear();
     if let Some(dir) = export_dir {
+        check_export(dir, diagnoses.len(), args)?;
         export(dir, &diagnoses)?;
     }
     let last = diagnoses.last().map(|d| d.consistency.clone());
@@ -381,14 +396,63 @@ pub fn diagnose_one(
     })
 }
 
-/// Writes each rung's series (`rungK.csv`) and a summary (`rungs.csv`) into `dir`, each file
-/// whole or not at all.
+/// The header of `rungs.csv`.
+const INDEX_HEADER: &str =
+    "rung,model,rms_over_floor_x,rms_over_floor_y,rms_over_floor_z,nis_mean,whiteness_p,consistent";
+
+/// The header of `rungK.csv`.
+fn rung_header() -> String {
+    let mut h = String::from("t_h");
+    for q in [
+        "measured",
+        "predicted",
+        "residual",
+        "innovation",
+        "innovation_sigma",
+    ] {
+        for a in ["x", "y", "z"] {
+            h.push_str(&format!(",{q}_{a}_mps2"));
+        }
+    }
+    h + ",whitened_x,whitened_y,whitened_z,nis"
+}
+
+/// Checks the files an export of `rungs` rungs writes into `dir` ([`crate::output::Outputs`]):
+/// none is one of the command's inputs (recordings, effects files), and none replaces a file
+/// driftid did not write there, unless `--force`.
+pub fn check_export(
+    dir: &std::path::Path,
+    rungs: usize,
+    args: &DiagnoseArgs,
+) -> anyhow::Result<()> {
+    let mut inputs: Vec<&std::path::Path> = args.recordings.iter().map(|p| p.as_path()).collect();
+    inputs.extend(args.model.effects.iter().map(|p| p.as_path()));
+    let mut outputs = crate::output::Outputs::new(&inputs, args.force);
+    crate::output::check_output_dir(dir, "--export")?;
+    let header = crate::output::Made::Csv(rung_header());
+    for k in 0..rungs {
+        let p = dir.join(format!("rung{k}.csv"));
+        if dir.is_dir() {
+            outputs.check(&p, "--export", header.clone())?;
+        }
+    }
+    if dir.is_dir() {
+        outputs.check(
+            &dir.join("rungs.csv"),
+            "--export",
+            crate::output::Made::Csv(INDEX_HEADER.into()),
+        )?;
+    }
+    Ok(())
+}
+
+/// Writes each rung's series (`rungK.csv`) and a summary (`rungs.csv`) into `dir`, all whole
+/// or none (checked first by [`check_export`]).
 pub fn export(dir: &std::path::Path, diagnoses: &[Diagnosis]) -> anyhow::Result<()> {
     use std::fmt::Write as _;
     std::fs::create_dir_all(dir).with_context(|| format!("{}", dir.display()))?;
-    let mut index = String::from(
-        "rung,model,rms_over_floor_x,rms_over_floor_y,rms_over_floor_z,nis_mean,whiteness_p,consistent\n",
-    );
+    let mut index = format!("{INDEX_HEADER}\n");
+    let mut files: Vec<(std::path::PathBuf, String)> = Vec::with_capacity(diagnoses.len() + 1);
     for (k, d) in diagnoses.iter().enumerate() {
         let model = if d.model.is_empty() {
             "paper".to_string()
@@ -406,20 +470,8 @@ pub fn export(dir: &std::path::Path, diagnoses: &[Diagnosis]) -> anyhow::Result<
             d.consistency.is_consistent()
         );
         let s = &d.series;
-        let mut csv = String::new();
-        let _ = write!(csv, "t_h");
-        for q in [
-            "measured",
-            "predicted",
-            "residual",
-            "innovation",
-            "innovation_sigma",
-        ] {
-            for a in ["x", "y", "z"] {
-                let _ = write!(csv, ",{q}_{a}_mps2");
-            }
-        }
-        let _ = writeln!(csv, ",whitened_x,whitened_y,whitened_z,nis");
+        let mut csv = rung_header();
+        csv.push('\n');
         for j in 0..s.t_h.len() {
             let _ = write!(csv, "{}", s.t_h[j]);
             for q in [
@@ -438,9 +490,21 @@ pub fn export(dir: &std::path::Path, diagnoses: &[Diagnosis]) -> anyhow::Result<
             }
             let _ = writeln!(csv, ",{}", s.nis[j]);
         }
-        crate::output::write_atomic(&dir.join(format!("rung{k}.csv")), csv.as_bytes())?;
+        files.push((dir.join(format!("rung{k}.csv")), csv));
     }
-    crate::output::write_atomic(&dir.join("rungs.csv"), index.as_bytes())?;
+    files.push((dir.join("rungs.csv"), index));
+    // All written to temporaries first, then moved into place: an error (a full disk) leaves
+    // the earlier export as it was, not half old and half new.
+    let mut done = Vec::with_capacity(files.len());
+    for (target, text) in &files {
+        let mut f = crate::output::AtomicFile::create(target)?;
+        std::io::Write::write_all(&mut f, text.as_bytes())
+            .with_context(|| format!("writing {}", target.display()))?;
+        done.push(f);
+    }
+    for f in done {
+        f.commit()?;
+    }
     println!(
         "wrote {} rung files and rungs.csv to {}",
         diagnoses.len(),

@@ -27,16 +27,52 @@ pub struct LoadedRun {
     pub orientation_rad: [f64; 3],
 }
 
-/// Loads and prepares every recording; an unreadable or refused one names its file.
+/// Refuses the same data given twice (issue 28): counted twice, it would narrow every 1σ by
+/// √2 as if there were two runs. `seen` holds the runs checked so far with their samples'
+/// fingerprints ([`super::common::Loaded::fingerprint`]); `path` is the next one. The same file
+/// under any name (hard or symbolic link, another spelling) is caught without reading it
+/// (`fingerprint` `None`); a copy, or the same samples in another file, by the fingerprint.
+pub fn refuse_same_data(
+    seen: &[(&std::path::Path, u64)],
+    path: &std::path::Path,
+    fingerprint: Option<u64>,
+) -> anyhow::Result<()> {
+    for (p, f) in seen {
+        let why = if crate::output::same_file(p, path) {
+            "is the same file as"
+        } else if fingerprint == Some(*f) {
+            "holds the same samples as"
+        } else {
+            continue;
+        };
+        anyhow::bail!(
+            "{} {why} {}: the same data twice would be counted as two runs (a 1σ too narrow by √2); give each run once",
+            path.display(),
+            p.display()
+        );
+    }
+    Ok(())
+}
+
+/// Loads and prepares every recording; an unreadable or refused one names its file, and so does
+/// one that repeats another's data ([`refuse_same_data`]), before it is prepared.
 pub fn load_runs(
     paths: &[PathBuf],
     latitude_deg: Option<f64>,
     cfg: &Config,
 ) -> anyhow::Result<Vec<LoadedRun>> {
+    for (i, path) in paths.iter().enumerate() {
+        let before: Vec<(&std::path::Path, u64)> =
+            paths[..i].iter().map(|p| (p.as_path(), 0)).collect();
+        refuse_same_data(&before, path, None)?;
+    }
+    let mut seen: Vec<(&std::path::Path, u64)> = Vec::new();
     paths
         .iter()
         .map(|path| {
             let loaded = load(path, latitude_deg)?;
+            refuse_same_data(&seen, path, Some(loaded.fingerprint))?;
+            seen.push((path.as_path(), loaded.fingerprint));
             let prep = prepare_oriented(
                 loaded.site,
                 &loaded.samples,
@@ -105,6 +141,21 @@ pub fn run(args: &IdentifyArgs) -> anyhow::Result<()> {
 /// ladders chose, together, identified jointly from all runs. Effects with Gauss–Markov states
 /// are per run and stay out of the joint model (said so).
 pub fn diagnose(args: &DiagnoseArgs) -> anyhow::Result<()> {
+    // The same data twice is refused before any run is diagnosed (reading is quick next to a
+    // diagnosis; each run is read again by its diagnosis).
+    let mut seen: Vec<(&std::path::Path, u64)> = Vec::new();
+    for (i, path) in args.recordings.iter().enumerate() {
+        let before: Vec<(&std::path::Path, u64)> = args.recordings[..i]
+            .iter()
+            .map(|p| (p.as_path(), 0))
+            .collect();
+        refuse_same_data(&before, path, None)?;
+    }
+    for path in &args.recordings {
+        let fingerprint = super::common::load_quietly(path, args.model.latitude_deg)?.fingerprint;
+        refuse_same_data(&seen, path, Some(fingerprint))?;
+        seen.push((path.as_path(), fingerprint));
+    }
     let mut per_run = vec![];
     let mut reasons = vec![];
     let mut with: Vec<String> = args.model.with.clone();

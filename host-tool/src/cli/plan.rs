@@ -19,17 +19,17 @@ pub struct PlanArgs {
     /// Runs made so far (none: plan a first pair from the simulator's defaults).
     pub recordings: Vec<PathBuf>,
     /// Duration of the planned run(s), h (default: the runs' mean, or 60 h).
-    #[arg(long, value_parser = super::args::positive_f64)]
+    #[arg(long, allow_hyphen_values = true, value_parser = super::args::hours)]
     pub hours: Option<f64>,
     /// Sample interval of the planned run(s), s (default: that of the last run, or 1 s).
-    #[arg(long, value_parser = super::args::positive_f64)]
+    #[arg(long, allow_hyphen_values = true, value_parser = super::args::rate_s)]
     pub rate_s: Option<f64>,
     /// Two effects to separate (minimise the canonical correlation of their estimates), e.g.
     /// `acc-bias,acc-scale`; both are added to the model if missing.
     #[arg(long, value_delimiter = ',')]
     pub separate: Option<Vec<String>>,
     /// Number of alternatives to list after the best.
-    #[arg(long, default_value_t = 4)]
+    #[arg(long, default_value_t = 4, allow_hyphen_values = true, value_parser = super::args::alternatives)]
     pub alternatives: usize,
     /// Print one JSON object instead of the text.
     #[arg(long)]

@@ -19,7 +19,8 @@ pub struct RecordArgs {
     /// The recording to write (CSV interchange format).
     #[arg(long)]
     pub out: PathBuf,
-    /// Also append every received byte to this raw frame log (flushed per read).
+    /// Also append every received byte to this raw frame log (flushed per read); an existing file
+    /// that is not one is refused.
     #[arg(long)]
     pub raw: Option<PathBuf>,
     /// Latitude for the recording's metadata when the firmware does not announce one, degrees.
@@ -28,6 +29,9 @@ pub struct RecordArgs {
     /// Stop after this many seconds (default: until interrupted).
     #[arg(long, allow_hyphen_values = true, value_parser = super::args::duration_s)]
     pub duration_s: Option<f64>,
+    /// Replace a --raw file that is not a raw frame log driftid wrote (it is never appended to).
+    #[arg(long)]
+    pub force: bool,
     /// Exit when the port disappears instead of waiting for it to come back.
     #[arg(long)]
     pub no_reconnect: bool,
@@ -46,6 +50,7 @@ pub fn run(a: &RecordArgs) -> anyhow::Result<()> {
             .map(|s| super::args::to_duration(s, "--duration-s"))
             .transpose()?,
         reconnect: !a.no_reconnect,
+        force: a.force,
     };
     let mut samples = 0u64;
     let sum = record::record(&opts, |m| match m {

@@ -24,17 +24,17 @@ pub struct ReplayArgs {
     #[arg(long, default_value_t = port::DEFAULT_BAUD, allow_hyphen_values = true, value_parser = super::args::positive_u32)]
     pub baud: u32,
     /// Filter period, s.
-    #[arg(long, default_value_t = 60.0, allow_hyphen_values = true, value_parser = super::args::positive_f64)]
+    #[arg(long, default_value_t = 60.0, allow_hyphen_values = true, value_parser = super::args::period_s)]
     pub period_s: f64,
     /// 1σ noise of one raw sample, m/s² (default: 1e-5 g per 60-s mean at the recording's rate).
-    #[arg(long, allow_hyphen_values = true, value_parser = super::args::positive_f64)]
+    #[arg(long, allow_hyphen_values = true, value_parser = super::args::raw_sigma)]
     pub raw_sigma: Option<f64>,
     /// Gyro angle random walk, deg²/h.
-    #[arg(long, default_value_t = 1e-8, allow_hyphen_values = true, value_parser = super::args::nonneg_f64)]
+    #[arg(long, default_value_t = 1e-8, allow_hyphen_values = true, value_parser = super::args::arw)]
     pub arw: f64,
     /// χ² innovation gate of the firmware's filter (NIS threshold; 0: off). Rejections are
     /// counted in the status; 10 in a row raise a fault.
-    #[arg(long, default_value_t = 0.0, allow_hyphen_values = true, value_parser = super::args::nonneg_f64)]
+    #[arg(long, default_value_t = 0.0, allow_hyphen_values = true, value_parser = super::args::gate_nis)]
     pub gate_nis: f64,
     /// Where to write the firmware's estimates (CSV); default: RECORDING.firmware.csv.
     #[arg(long)]
@@ -42,6 +42,10 @@ pub struct ReplayArgs {
     /// Append every byte received to this raw frame log.
     #[arg(long)]
     pub raw: Option<PathBuf>,
+    /// Replace an existing --out that is not an estimates file driftid wrote, or a --raw that
+    /// is not a raw frame log (else such a file is refused).
+    #[arg(long)]
+    pub force: bool,
     /// Send Shutdown at the end (QEMU exits; a real board resets).
     #[arg(long)]
     pub shutdown: bool,
@@ -90,9 +94,10 @@ pub fn run(a: &ReplayArgs) -> anyhow::Result<()> {
         .out
         .clone()
         .unwrap_or_else(|| a.recording.with_extension("firmware.csv"));
-    output::ensure_not_input(&out_path, "--out", &[&a.recording])?;
+    let mut outputs = output::Outputs::new(&[&a.recording], a.force);
+    outputs.check(&out_path, "--out", output::Made::Csv(estimates_header()))?;
     if let Some(raw) = &a.raw {
-        output::ensure_not_input(raw, "--raw", &[&a.recording, &out_path])?;
+        outputs.check(raw, "--raw", output::Made::RawLog)?;
     }
     let timeout = super::args::to_duration(a.timeout_s, "--timeout-s")?;
     let rec = recording::read_recording(&a.recording)?;
@@ -117,13 +122,7 @@ pub fn run(a: &ReplayArgs) -> anyhow::Result<()> {
     let port = port::open(&a.port, a.baud)?;
     let writer = port::writer_of(&port)?;
     let mut raw = match &a.raw {
-        Some(p) => Some(
-            std::fs::OpenOptions::new()
-                .create(true)
-                .append(true)
-                .open(p)
-                .with_context(|| format!("opening {}", p.display()))?,
-        ),
+        Some(p) => Some(output::open_log(p, "--raw", a.force)?),
         None => None,
     };
     let opts = replay::ReplayOptions {

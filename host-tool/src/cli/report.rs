@@ -8,7 +8,7 @@ use crate::catalog;
 use crate::diagnose::{ladder_from, DiagnoseConfig, Ladder};
 use crate::identify::prepare_oriented;
 use crate::output;
-use crate::report::{render_html, write_pngs, CoefRow, ReportInput};
+use crate::report::{draw_pngs, render_html, CoefRow, ReportInput};
 use crate::simulate::read_truth;
 
 /// Arguments of `driftid report`.
@@ -25,6 +25,9 @@ pub struct ReportArgs {
     /// Truth file of a simulated run: adds truth and error columns.
     #[arg(long)]
     pub truth: Option<PathBuf>,
+    /// Replace an existing --out or PNG that is not a file driftid wrote.
+    #[arg(long)]
+    pub force: bool,
     #[command(flatten)]
     pub model: ModelArgs,
 }
@@ -32,10 +35,17 @@ pub struct ReportArgs {
 /// Runs `driftid report`.
 pub fn run(args: &ReportArgs) -> anyhow::Result<()> {
     super::common::load_effects_args(&args.model)?; // --effects FILE: user effects join the catalog
-                                                    // Outputs never overwrite an input: checked before the long computation.
+                                                    // Every output is checked before the long computation, and all are drawn before any is
+                                                    // moved into place: never over an input or a file driftid did not write, and no HTML left
+                                                    // behind when a PNG cannot be written.
     let mut inputs: Vec<&std::path::Path> = vec![&args.recording];
     inputs.extend(args.truth.as_deref());
-    output::ensure_not_input(&args.out, "--out", &inputs)?;
+    inputs.extend(args.model.effects.iter().map(|p| p.as_path()));
+    let mut outputs = output::Outputs::new(&inputs, args.force);
+    outputs.check(&args.out, "--out", output::Made::Html)?;
+    if let Some(dir) = &args.png {
+        output::check_output_dir(dir, "--png")?;
+    }
     let cfg = DiagnoseConfig {
         identify: args.model.config()?,
         ..Default::default()
@@ -118,13 +128,21 @@ pub fn run(args: &ReportArgs) -> anyhow::Result<()> {
         untrusted: untrusted.clone(),
     };
     let html = render_html(&input)?;
-    output::write_atomic(&args.out, html.as_bytes())?;
+    let pngs = match &args.png {
+        Some(dir) => draw_pngs(&input, dir, &mut outputs)?,
+        None => vec![],
+    };
+    let mut page = output::AtomicFile::create(&args.out)?;
+    std::io::Write::write_all(&mut page, html.as_bytes())
+        .map_err(|e| anyhow::anyhow!("writing {}: {e}", args.out.display()))?;
+    page.commit()?;
     println!("wrote {}", args.out.display());
     if let Some(dir) = &args.png {
-        std::fs::create_dir_all(dir).map_err(|e| anyhow::anyhow!("{}: {e}", dir.display()))?;
-        inputs.push(&args.out);
-        let files = write_pngs(&input, dir, &inputs)?;
-        println!("wrote {} PNG plots to {}", files.len(), dir.display());
+        let n = pngs.len();
+        for p in pngs {
+            p.commit()?;
+        }
+        println!("wrote {n} PNG plots to {}", dir.display());
     }
     super::common::trusted_or(untrusted)
 }

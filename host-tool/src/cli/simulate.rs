@@ -25,10 +25,10 @@ pub struct SimulateArgs {
     #[arg(long, value_enum, default_value_t = Preset::Paper)]
     pub scenario: Preset,
     /// Duration, hours (preset: 60).
-    #[arg(long, allow_hyphen_values = true, value_parser = super::args::nonneg_f64)]
+    #[arg(long, allow_hyphen_values = true, value_parser = super::args::hours_or_zero)]
     pub hours: Option<f64>,
     /// Sample interval, seconds (preset: 1).
-    #[arg(long, allow_hyphen_values = true, value_parser = super::args::positive_f64)]
+    #[arg(long, allow_hyphen_values = true, value_parser = super::args::rate_s)]
     pub rate_s: Option<f64>,
     /// Random seed (preset: 1).
     #[arg(long, allow_hyphen_values = true)]
@@ -40,6 +40,9 @@ pub struct SimulateArgs {
     /// Output recording; the truth goes to the same name with .truth.json instead of .csv.
     #[arg(long)]
     pub out: PathBuf,
+    /// Replace an existing --out (or its truth file) that is not a file simulate wrote.
+    #[arg(long)]
+    pub force: bool,
     /// Inject an effect.
     #[arg(long = "effect", value_name = "NAME=V1,V2,...", value_parser = parse_effect,
           allow_hyphen_values = true, long_help = EFFECT_SYNTAX_HELP)]
@@ -148,8 +151,13 @@ impl SimulateArgs {
 /// Runs `driftid simulate`.
 pub fn run(args: &SimulateArgs) -> anyhow::Result<()> {
     let scenario = args.scenario().context("invalid simulation settings")?;
+    // The outputs are checked before the simulation (write_simulation checks them again).
+    let mut outputs = crate::output::Outputs::new(&[], args.force);
+    outputs.check(&args.out, "--out", crate::output::Made::SimulatedRecording)?;
+    let truth = simulate::truth_path_for(&args.out);
+    outputs.check(&truth, "--out (its truth file)", crate::output::Made::Truth)?;
     let sim = simulate::simulate(&scenario);
-    let truth_path = simulate::write_simulation(&args.out, &sim)?;
+    let truth_path = simulate::write_simulation(&args.out, &sim, args.force)?;
     println!(
         "wrote {} ({} samples, {} h at {} s, seed {}) and {}",
         args.out.display(),

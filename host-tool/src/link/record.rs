@@ -10,7 +10,7 @@
 //! reconnect or a reset are skipped, never duplicated. A file recorded at another latitude than
 //! the firmware reports is refused, not mixed.
 
-use std::fs::{File, OpenOptions};
+use std::fs::File;
 use std::io::{BufWriter, Read, Write};
 use std::path::{Path, PathBuf};
 use std::time::{Duration, Instant};
@@ -44,6 +44,8 @@ pub struct RecordOptions {
     pub duration: Option<Duration>,
     /// Keep waiting for the port when it disappears.
     pub reconnect: bool,
+    /// Replace a `raw` file that is not a raw frame log (else it is refused).
+    pub force: bool,
 }
 
 /// What was recorded.
@@ -157,14 +159,10 @@ pub fn record_with<P: Read + Write>(
     if let Some(raw) = &opts.raw {
         crate::output::ensure_not_input(raw, "--raw", &[&opts.out])?;
     }
+    // Appended to only when it is a raw frame log already (or empty): never a recording or
+    // another file of the user's, unless --force (which replaces it).
     let raw = match &opts.raw {
-        Some(p) => Some(
-            OpenOptions::new()
-                .create(true)
-                .append(true)
-                .open(p)
-                .with_context(|| format!("opening {}", p.display()))?,
-        ),
+        Some(p) => Some(crate::output::open_log(p, "--raw", opts.force)?),
         None => None,
     };
     let mut sink = Sink {

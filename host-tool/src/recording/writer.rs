@@ -66,6 +66,19 @@ impl RecordingWriter<BufWriter<File>> {
             Some(i) => i + 1,
             None => 0,
         };
+        // Read and checked first: a file that is not a recording is not touched at all (its
+        // last line is not cut off either).
+        let mut reader =
+            super::RecordingReader::new(io::Cursor::new(&bytes[..complete]), name.clone())?;
+        let meta = reader.metadata().clone();
+        let has_temp = reader.has_temp();
+        let mut samples = 0u64;
+        let mut last_t_s = None;
+        for item in &mut reader {
+            let (_, s) = item?;
+            samples += 1;
+            last_t_s = Some(s.t_s);
+        }
         let mut repair = None;
         if complete < bytes.len() {
             let line = bytes[..complete].iter().filter(|&&b| b == b'\n').count() + 1;
@@ -79,17 +92,6 @@ impl RecordingWriter<BufWriter<File>> {
                 .map_err(open_err)?;
             f.set_len(complete as u64).map_err(open_err)?;
             f.sync_all().map_err(open_err)?;
-        }
-        let mut reader =
-            super::RecordingReader::new(io::Cursor::new(&bytes[..complete]), name.clone())?;
-        let meta = reader.metadata().clone();
-        let has_temp = reader.has_temp();
-        let mut samples = 0u64;
-        let mut last_t_s = None;
-        for item in &mut reader {
-            let (_, s) = item?;
-            samples += 1;
-            last_t_s = Some(s.t_s);
         }
         let f = std::fs::OpenOptions::new()
             .append(true)

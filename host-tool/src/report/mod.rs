@@ -4,7 +4,7 @@
 //!
 //! Plots are inline SVG drawn by [`plots`] (plotters' SVG backend, text measured with an embedded
 //! font); the page loads nothing from the network and needs no system font. The same figures can
-//! be written as PNG files ([`write_pngs`]).
+//! be written as PNG files ([`draw_pngs`]).
 
 pub mod plots;
 
@@ -145,7 +145,8 @@ pub fn render_html(input: &ReportInput) -> Result<String> {
     let mut h = String::new();
     let _ = write!(
         h,
-        "<!DOCTYPE html>\n<html lang=\"en\"><head><meta charset=\"utf-8\"><title>{}</title><style>{STYLE}</style></head><body>\n",
+        "<!DOCTYPE html>\n<html lang=\"en\"><head><meta charset=\"utf-8\">{}<title>{}</title><style>{STYLE}</style></head><body>\n",
+        crate::output::HTML_GENERATOR,
         esc(&input.title)
     );
     let _ = writeln!(h, "<h1>{}</h1>", esc(&input.title));
@@ -555,26 +556,37 @@ fn coefficient_table(h: &mut String, rows: &[CoefRow]) {
     let _ = writeln!(h, "</table>");
 }
 
-/// Writes every figure as `DIR/NN-name.png`; returns the files written. Each is written under a
-/// temporary name and renamed into place ([`crate::output`]); a PNG that would be one of the
-/// files in `protect` (the command's inputs) is refused before anything is written.
-pub fn write_pngs(input: &ReportInput, dir: &Path, protect: &[&Path]) -> Result<Vec<PathBuf>> {
+/// Draws every figure as `DIR/NN-name.png` under a temporary name beside it, tagged as
+/// driftid's ([`crate::output::tag_png`]); returns them uncommitted ([`crate::output::TempPath::commit`]
+/// moves each into place; dropped, they vanish). Every PNG is checked first by `outputs` (not an
+/// input, not another output, not a file driftid did not write, unless --force): nothing is
+/// drawn when one is refused.
+pub fn draw_pngs(
+    input: &ReportInput,
+    dir: &Path,
+    outputs: &mut crate::output::Outputs,
+) -> Result<Vec<crate::output::TempPath>> {
     anyhow::ensure!(!input.diagnoses.is_empty(), "report: no diagnosis to plot");
     let figures = plots::figures(input);
     let paths: Vec<PathBuf> = figures
         .iter()
         .map(|f| dir.join(format!("{}.png", f.file)))
         .collect();
+    crate::output::check_output_dir(dir, "--png")?;
+    std::fs::create_dir_all(dir).map_err(|e| anyhow::anyhow!("--png {}: {e}", dir.display()))?;
     for p in &paths {
-        crate::output::ensure_not_input(p, "--png", protect)?;
+        outputs.check(p, "--png", crate::output::Made::Png)?;
     }
     let mut out = vec![];
     for (f, p) in figures.iter().zip(paths) {
-        // Drawn under a temporary name and renamed into place: never a partial PNG.
+        // Drawn under a temporary name: never a partial PNG under the real one.
         let tmp = crate::output::TempPath::new(&p)?;
         plots::png(f, input, tmp.path()).map_err(|e| anyhow::anyhow!("{}: {e:#}", p.display()))?;
-        tmp.commit()?;
-        out.push(p);
+        let bytes =
+            std::fs::read(tmp.path()).map_err(|e| anyhow::anyhow!("{}: {e}", p.display()))?;
+        std::fs::write(tmp.path(), crate::output::tag_png(&bytes))
+            .map_err(|e| anyhow::anyhow!("{}: {e}", p.display()))?;
+        out.push(tmp);
     }
     Ok(out)
 }

@@ -578,7 +578,10 @@ pub fn simulate(s: &Scenario) -> Simulation {
         final_theta_rad: sim.theta_rad(),
         final_c_0p: to_rows(&sim.c_0p()),
     };
-    let mut extra = Vec::new();
+    // Marks the file as driftid's own: a later `simulate --out` may replace it without --force
+    // ([`crate::output::Made::SimulatedRecording`]); a recording of real data is never replaced.
+    let (k, v) = crate::output::SIMULATED_KEY;
+    let mut extra = vec![(k.to_string(), v.to_string())];
     if s.initial_orientation_deg != [0.0; 3] {
         let [tx, ty, tz] = s.initial_orientation_deg;
         extra.push((
@@ -621,8 +624,15 @@ pub fn truth_path_for(csv: &Path) -> PathBuf {
 /// (a truth file that is missing is reported by `--truth`; a stale one would silently give wrong
 /// errors). Renaming the truth first, or the recording first without removing the old truth,
 /// would each leave a mismatched pair.
-pub fn write_simulation(csv: &Path, sim: &Simulation) -> anyhow::Result<PathBuf> {
+///
+/// Neither file is written over a file the user has ([`crate::output::check_output`]): an
+/// existing recording that `simulate` did not write, or a truth file that is not one, is refused
+/// unless `force`.
+pub fn write_simulation(csv: &Path, sim: &Simulation, force: bool) -> anyhow::Result<PathBuf> {
     let tp = truth_path_for(csv);
+    let mut outputs = crate::output::Outputs::new(&[], force);
+    outputs.check(csv, "--out", crate::output::Made::SimulatedRecording)?;
+    outputs.check(&tp, "--out (its truth file)", crate::output::Made::Truth)?;
     let file = AtomicFile::create(csv)?;
     let mut w = RecordingWriter::new(file, &sim.meta, sim.truth.scenario.has_temp())
         .with_context(|| format!("writing {}", csv.display()))?;
@@ -637,7 +647,15 @@ pub fn write_simulation(csv: &Path, sim: &Simulation) -> anyhow::Result<PathBuf>
     truth_file
         .write_all(truth_json(&sim.truth)?.as_bytes())
         .with_context(|| format!("writing {}", tp.display()))?;
-    match std::fs::remove_file(&tp) {
+    // Only a file (or a link) is removed: a FIFO or a device node stays, and is written into.
+    let removable = std::fs::symlink_metadata(&tp).map_or(true, |m| {
+        m.file_type().is_file() || m.file_type().is_symlink()
+    });
+    match if removable {
+        std::fs::remove_file(&tp)
+    } else {
+        Ok(())
+    } {
         Ok(()) => {}
         Err(e) if e.kind() == std::io::ErrorKind::NotFound => {}
         Err(e) => return Err(e).with_context(|| format!("removing the previous {}", tp.display())),
