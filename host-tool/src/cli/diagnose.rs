@@ -315,10 +315,6 @@ pub fn diagnose_one(
     let assessed =
         crate::assess::assess(&final_effects, prep.clone(), &cfg.identify, identification)?;
     spin.finish_and_clear();
-    if let Some(dir) = export_dir {
-        check_export(dir, diagnoses.len(), args)?;
-        export(dir, &diagnoses)?;
-    }
     let last = diagnoses.last().map(|d| d.consistency.clone());
     let mut reasons = ladder_untrusted(&faults, &diagnoses);
     reasons.extend(assessed.reasons.iter().cloned());
@@ -329,6 +325,10 @@ pub fn diagnose_one(
         &assessed.prep,
         None,
     );
+    if let Some(dir) = export_dir {
+        check_export(dir, diagnoses.len(), args)?;
+        export(dir, &diagnoses, &final_rows)?;
+    }
     let d = &diagnoses[0];
     let final_model = diagnoses
         .last()
@@ -400,6 +400,10 @@ pub fn diagnose_one(
 const INDEX_HEADER: &str =
     "rung,model,rms_over_floor_x,rms_over_floor_y,rms_over_floor_z,nis_mean,whiteness_p,consistent";
 
+/// The header of `coefficients.csv`: the final model's parameters with the total 1σ (the
+/// headline), the noise-only 1σ, the bound and the source that dominates the total.
+const COEFFICIENTS_HEADER: &str = "name,unit,value,sigma_total,sigma_noise,crb,dominant";
+
 /// The header of `rungK.csv`.
 fn rung_header() -> String {
     let mut h = String::from("t_h");
@@ -442,13 +446,22 @@ pub fn check_export(
             "--export",
             crate::output::Made::Csv(INDEX_HEADER.into()),
         )?;
+        outputs.check(
+            &dir.join("coefficients.csv"),
+            "--export",
+            crate::output::Made::Csv(COEFFICIENTS_HEADER.into()),
+        )?;
     }
     Ok(())
 }
 
 /// Writes each rung's series (`rungK.csv`) and a summary (`rungs.csv`) into `dir`, all whole
 /// or none (checked first by [`check_export`]).
-pub fn export(dir: &std::path::Path, diagnoses: &[Diagnosis]) -> anyhow::Result<()> {
+pub fn export(
+    dir: &std::path::Path,
+    diagnoses: &[Diagnosis],
+    coefficients: &[super::identify::Row],
+) -> anyhow::Result<()> {
     use std::fmt::Write as _;
     std::fs::create_dir_all(dir).with_context(|| format!("{}", dir.display()))?;
     let mut index = format!("{INDEX_HEADER}\n");
@@ -493,6 +506,15 @@ pub fn export(dir: &std::path::Path, diagnoses: &[Diagnosis]) -> anyhow::Result<
         files.push((dir.join(format!("rung{k}.csv")), csv));
     }
     files.push((dir.join("rungs.csv"), index));
+    let mut coefs = format!("{COEFFICIENTS_HEADER}\n");
+    for r in coefficients {
+        let _ = writeln!(
+            coefs,
+            "{},{},{},{},{},{},{}",
+            r.name, r.unit, r.value, r.sigma_total, r.sigma, r.bound, r.dominant
+        );
+    }
+    files.push((dir.join("coefficients.csv"), coefs));
     // All written to temporaries first, then moved into place: an error (a full disk) leaves
     // the earlier export as it was, not half old and half new.
     let mut done = Vec::with_capacity(files.len());
@@ -506,7 +528,7 @@ pub fn export(dir: &std::path::Path, diagnoses: &[Diagnosis]) -> anyhow::Result<
         f.commit()?;
     }
     println!(
-        "wrote {} rung files and rungs.csv to {}",
+        "wrote {} rung files, rungs.csv and coefficients.csv to {}",
         diagnoses.len(),
         dir.display()
     );
