@@ -542,7 +542,7 @@ fn vertical_tilt(
 ) -> anyhow::Result<Contribution> {
     let sigma = priors.vertical_tilt_arcsec * RAD_PER_ARCSEC;
     let n = model.dim() - ANGLES;
-    if !(sigma > 0.0) {
+    if sigma <= 0.0 || sigma.is_nan() {
         return Ok(Contribution::new(
             "vertical tilt",
             "0".into(),
