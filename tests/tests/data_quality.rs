@@ -87,6 +87,86 @@ fn clean_recordings_produce_no_finding() {
     assert!(alarms.is_empty(), "false alarms on clean data: {alarms:?}");
 }
 
+/// Clean runs of one shape: the seeds (of `seeds`) whose screening reports anything, with the
+/// findings. `shape(seed)` gives (latitude, hours, sample interval, samples dropped at the start);
+/// the screening (`quality::screen`, what every command runs first) is called directly: the
+/// identification is not needed to see a false alarm, and the sweep must stay fast.
+fn false_alarms(
+    seeds: std::ops::Range<u64>,
+    shape: impl Fn(u64) -> (f64, f64, f64, usize),
+) -> Vec<(u64, Vec<String>)> {
+    let mut out = vec![];
+    for seed in seeds {
+        let (lat, hours, rate_s, skip) = shape(seed);
+        let (sc, samples) = run(seed, lat, hours, rate_s, [0.0; 3]);
+        let screened = host_tool::quality::screen(site_of(&sc), &samples[skip..], 60.0)
+            .unwrap_or_else(|r| panic!("seed {seed}: clean run refused: {r}"));
+        if !screened.findings.is_empty() {
+            out.push((seed, screened.findings.iter().map(|f| f.line()).collect()));
+        }
+    }
+    out
+}
+
+/// Issue 27: at most 1 false alarm in 100 clean seeds (the issue's ≤ 1 %). With 8σ thresholds
+/// a correctly weighted screening should give none; 1 is allowed so that a single rare
+/// coincidence (an 8σ event has P ≈ 1e-15, but the robust scales are estimated) does not make
+/// the test flaky, while the bug this guards against gave 5–9 per 100.
+fn assert_at_most_one_in(what: &str, seeds: u64, alarms: &[(u64, Vec<String>)]) {
+    eprintln!(
+        "{what}: {} of {seeds} clean seeds with a finding: {alarms:?}",
+        alarms.len()
+    );
+    assert!(
+        alarms.len() * 100 <= seeds as usize,
+        "{what}: {} false alarms in {seeds} clean seeds: {alarms:?}",
+        alarms.len()
+    );
+}
+
+#[test]
+fn no_false_alarm_at_the_partial_last_period_default_shape() {
+    // The default scenario's shape (1 s, 39.1° N, a whole number of hours: the last 60-s
+    // period holds one sample, t = end), 12 h instead of 60 to stay fast: the false alarm came
+    // from the last four means, whatever the length. Before the fix 5 of 60 default 60-h runs
+    // (seeds 7, 12, 51, 54, 56) reported a "step" at the end.
+    let alarms = false_alarms(0..100, |_| (39.1, 12.0, 1.0, 0));
+    assert_at_most_one_in("1 s, 12 h, 39.1° N", 100, &alarms);
+}
+
+#[test]
+fn no_false_alarm_at_the_partial_last_period_10_hz() {
+    // 10 Hz: the last period's one sample is √600 ≈ 24× noisier than a full mean.
+    let alarms = false_alarms(1000..1100, |_| (39.1, 3.0, 0.1, 0));
+    assert_at_most_one_in("0.1 s, 3 h, 39.1° N", 100, &alarms);
+}
+
+#[test]
+fn no_false_alarm_at_the_partial_last_period_other_latitudes() {
+    // Both hemispheres, near the equator and the pole (the cone, and so the gravity signal
+    // the third differences must remove, changes with latitude).
+    let lats = [-62.0, -21.0, 5.0, 71.0];
+    let alarms = false_alarms(2000..2100, |s| (lats[s as usize % 4], 12.0, 1.0, 0));
+    assert_at_most_one_in("1 s, 12 h, latitudes -62/-21/5/71", 100, &alarms);
+}
+
+#[test]
+fn no_false_alarm_at_partial_periods_odd_durations() {
+    // Odd durations: + 1 sample (the last period holds 2), 11.99 h (43 164 s: 25 in the last),
+    // + 37 s, and a recording that starts 23 s into its first period (a partial first one).
+    let alarms = false_alarms(3000..3100, |s| match s % 4 {
+        0 => (39.1, 12.0 + 1.0 / 3600.0, 1.0, 0),
+        1 => (39.1, 11.99, 1.0, 0),
+        2 => (39.1, 12.0 + 37.0 / 3600.0, 1.0, 0),
+        _ => (39.1, 12.0, 1.0, 23),
+    });
+    assert_at_most_one_in(
+        "1 s, odd durations and a partial first period",
+        100,
+        &alarms,
+    );
+}
+
 #[test]
 fn repairable_faults_are_repaired_and_the_estimate_holds() {
     let (sc, clean) = run(7, 39.1, 30.0, 1.0, [0.0; 3]);

@@ -266,9 +266,10 @@ pub fn screen_oriented(
     let mut mean_sigma_override_mps2 = steps::check_mean_noise(&means, &sigma, &mut findings);
     if quantum.iter().any(|q| q.is_some()) {
         let mut over = mean_sigma_override_mps2.unwrap_or_else(|| {
-            let n =
-                means.iter().map(|m| f64::from(m.count)).sum::<f64>() / means.len().max(1) as f64;
-            sigma.map(|s| s / n.max(1.0).sqrt())
+            // A full window's count (as `prepare` scales the override to each window's count),
+            // not the mean count, which the partial first and last windows pull down.
+            let n = steps::typical_count(&means);
+            sigma.map(|s| s / n.sqrt())
         });
         for (o, q) in over.iter_mut().zip(&quantum) {
             if let Some(q) = q {

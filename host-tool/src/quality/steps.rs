@@ -14,14 +14,33 @@ pub const STEP_SIGMAS: f64 = 8.0;
 /// The means' scatter must differ from white raw noise by at least this factor to replace it.
 pub const MEAN_NOISE_FACTOR: f64 = 1.5;
 
-/// Third differences of each axis over runs of four consecutive means: (index of the first,
-/// value). On an even grid of spacing h this is x₃ − 3x₂ + 3x₁ − x₀; on an uneven one (a window
-/// with rejected samples or cut short by a gap is tagged off the grid) it is the third divided
-/// difference times 6h³, h = (t₃ − t₀)/3, which also vanishes on a line or a parabola. Runs with a
-/// spacing outside [h/2, 3h/2] (a gap) are skipped. Skipping every uneven run instead once hid a
-/// 2e-2 m/s² bias step: the samples at the jump are rejected as glitches, which moves exactly
-/// the step's window off the grid.
-fn third_differences(means: &[Measurement], axis: usize) -> Vec<(usize, f64)> {
+/// One third difference of four consecutive means of an axis.
+#[derive(Clone, Copy, Debug)]
+struct Diff {
+    /// Index of the first of the four means.
+    k: usize,
+    /// The difference as taken (m/s²): on an even grid x₃ − 3x₂ + 3x₁ − x₀, which a jump J
+    /// makes −J, 2J or −J.
+    raw: f64,
+    /// The same difference rescaled to the noise it would have were its four means full windows
+    /// of the typical count (m/s²): `raw` · √(20 / (n · Σ cᵢ²/nᵢ)), cᵢ its coefficients, nᵢ
+    /// the means' sample counts, n the median count. Every threshold and scatter is taken on
+    /// this: a partial last (or first) filter period, or one with rejected samples, has a mean
+    /// √(n/nᵢ) noisier. Unweighted, the last period's single sample of a 60-h run at 1 s (√60 ≈
+    /// 7.7× the noise of a full mean, on an uneven grid that amplifies it 1.8× more) made 5 of
+    /// 60 clean runs report a "step" at the end (issue 27).
+    z: f64,
+}
+
+/// Third differences of each axis over runs of four consecutive means ([`Diff`]). On an even
+/// grid of spacing h this is x₃ − 3x₂ + 3x₁ − x₀; on an uneven one (a window with rejected
+/// samples, cut short by a gap or by the end of the record is tagged off the grid) it is the
+/// third divided difference times 6h³, h = (t₃ − t₀)/3, which also vanishes on a line or a
+/// parabola. Runs with a spacing outside [h/2, 3h/2] (a gap) are skipped. Skipping every uneven
+/// run instead once hid a 2e-2 m/s² bias step: the samples at the jump are rejected as
+/// glitches, which moves exactly the step's window off the grid.
+fn third_differences(means: &[Measurement], axis: usize) -> Vec<Diff> {
+    let typical = typical_count(means);
     let mut out = vec![];
     for k in 0..means.len().saturating_sub(3) {
         let t = |i: usize| means[k + i].t_s;
@@ -32,25 +51,42 @@ fn third_differences(means: &[Measurement], axis: usize) -> Vec<(usize, f64)> {
         }
         let x = |i: usize| means[k + i].specific_force[axis];
         let even = (0..3).all(|i| ((t(i + 1) - t(i)) / h - 1.0).abs() < 1e-3);
-        let d = if even {
-            x(3) - 3.0 * x(2) + 3.0 * x(1) - x(0)
+        let c: [f64; 4] = if even {
+            [-1.0, 3.0, -3.0, 1.0]
         } else {
             // Σ xᵢ / Πⱼ≠ᵢ (tᵢ − tⱼ), scaled to the even grid's form.
-            let divided: f64 = (0..4)
-                .map(|i| {
-                    let den: f64 = (0..4).filter(|&j| j != i).map(|j| t(i) - t(j)).product();
-                    x(i) / den
-                })
-                .sum();
-            6.0 * h * h * h * divided
+            core::array::from_fn(|i| {
+                let den: f64 = (0..4).filter(|&j| j != i).map(|j| t(i) - t(j)).product();
+                6.0 * h * h * h / den
+            })
         };
-        out.push((k, d));
+        let raw: f64 = (0..4).map(|i| c[i] * x(i)).sum();
+        // Σ cᵢ²/nᵢ against the even grid's 20/n: the variance of this difference in units of
+        // a full-window one's.
+        let var: f64 = (0..4)
+            .map(|i| c[i] * c[i] / f64::from(means[k + i].count.max(1)))
+            .sum();
+        let rel = (var * typical / 20.0).sqrt();
+        let z = if rel > 0.0 { raw / rel } else { raw };
+        out.push(Diff { k, raw, z });
     }
     out
 }
 
-fn robust_sigma(d: &[(usize, f64)]) -> f64 {
-    let mut v: Vec<f64> = d.iter().map(|(_, x)| x.abs()).collect();
+/// The median sample count of a filter-period mean (the full window's, whatever the partial
+/// first and last ones hold).
+pub fn typical_count(means: &[Measurement]) -> f64 {
+    let mut counts: Vec<u32> = means.iter().map(|m| m.count).collect();
+    if counts.is_empty() {
+        return 1.0;
+    }
+    let mid = counts.len() / 2;
+    f64::from(*counts.select_nth_unstable(mid).1).max(1.0)
+}
+
+/// Robust 1σ (MAD) of the rescaled differences ([`Diff::z`]).
+fn robust_sigma(d: &[Diff]) -> f64 {
+    let mut v: Vec<f64> = d.iter().map(|x| x.z.abs()).collect();
     let mid = v.len() / 2;
     let (_, m, _) = v.select_nth_unstable_by(mid, f64::total_cmp);
     1.4826 * *m
@@ -63,12 +99,10 @@ pub fn check_mean_noise(
     raw_sigma: &[f64; 3],
     findings: &mut Vec<Finding>,
 ) -> Option<[f64; 3]> {
-    let mut counts: Vec<u32> = means.iter().map(|m| m.count).collect();
-    if counts.is_empty() {
+    if means.is_empty() {
         return None;
     }
-    let mid = counts.len() / 2;
-    let n = f64::from(*counts.select_nth_unstable(mid).1);
+    let n = typical_count(means);
     let mut out = [0.0; 3];
     let mut any = vec![];
     for a in 0..3 {
@@ -125,17 +159,17 @@ pub fn check_steps(means: &[Measurement], skip: &[bool; 3], findings: &mut Vec<F
         }
         let mut k = 0;
         while k < d.len() {
-            if d[k].1.abs() > STEP_SIGMAS * s {
+            if d[k].z.abs() > STEP_SIGMAS * s {
                 // The event spans consecutive exceedances; its peak is the middle of (J, −2J, J).
                 let start = k;
-                while k < d.len() && d[k].0 <= d[start].0 + 4 && d[k].0 - d[start].0 <= 4 {
+                while k < d.len() && d[k].k <= d[start].k + 4 && d[k].k - d[start].k <= 4 {
                     k += 1;
                 }
                 let peak = (start..k)
-                    .max_by(|&i, &j| d[i].1.abs().total_cmp(&d[j].1.abs()))
+                    .max_by(|&i, &j| d[i].z.abs().total_cmp(&d[j].z.abs()))
                     .unwrap_or(start);
-                let j = -d[peak].1 / 2.0;
-                let idx = (d[peak].0 + 2).min(means.len() - 1);
+                let j = -d[peak].raw / 2.0;
+                let idx = (d[peak].k + 2).min(means.len() - 1);
                 findings.push(Finding {
                     kind: "step",
                     message: format!(
@@ -143,10 +177,10 @@ pub fn check_steps(means: &[Measurement], skip: &[bool; 3], findings: &mut Vec<F
                          a bias step or a disturbance of the platform; not repaired",
                         axis_name(a),
                         means[idx].t_s,
-                        d[peak].1.abs() / s
+                        d[peak].z.abs() / s
                     ),
-                    start_s: Some(means[d[start].0].t_s),
-                    end_s: Some(means[(d[k - 1].0 + 3).min(means.len() - 1)].t_s),
+                    start_s: Some(means[d[start].k].t_s),
+                    end_s: Some(means[(d[k - 1].k + 3).min(means.len() - 1)].t_s),
                     samples: 0,
                     action: Action::NotRepaired,
                 });
