@@ -42,6 +42,9 @@ pub struct Config {
     pub smoother_iterations: usize,
     /// Ratio between pass 1's prior 1σ and pass 2's.
     pub pass2_prior_shrink: f64,
+    /// Windows [t0, t1] (recording's seconds) whose samples are left out (`--exclude`), each
+    /// reported as an `excluded` finding.
+    pub exclude_s: Vec<(f64, f64)>,
 }
 
 impl Default for Config {
@@ -53,6 +56,7 @@ impl Default for Config {
             raw_sigma_mps2: None,
             smoother_iterations: 3,
             pass2_prior_shrink: 20.0,
+            exclude_s: Vec::new(),
         }
     }
 }
@@ -180,7 +184,7 @@ pub fn prepare_oriented(
     }
     site.chart = site.chart_for_start(&theta0_enu);
     let theta0 = site.angles_to_chart(&theta0_enu);
-    let screened = quality::screen_oriented(site, samples, cfg.period_s, theta0)?;
+    let screened = quality::screen_excluding(site, samples, cfg.period_s, theta0, &cfg.exclude_s)?;
     let noise = match cfg.raw_sigma_mps2 {
         Some(raw_sigma_mps2) => NoiseFloor {
             raw_sigma_mps2,

@@ -15,6 +15,7 @@
 //! [`screening`]: estimator_core::screening
 
 pub mod attitude;
+pub mod exclusion;
 pub mod latitude;
 pub mod physics;
 mod pieces;
@@ -169,7 +170,21 @@ pub fn screen_oriented(
     period_s: f64,
     theta0: [f64; 3],
 ) -> Result<Screened<'_>, Refusal> {
-    let mut findings = vec![];
+    screen_excluding(site, samples, period_s, theta0, &[])
+}
+
+/// [`screen_oriented`] without the samples in the windows `exclude_s` ([t0, t1] in the
+/// recording's seconds, the user's `--exclude`); the stretches pinned at a rail are left out
+/// too ([`exclusion`]), each with a finding.
+pub fn screen_excluding<'s>(
+    site: Site,
+    all: &'s [Sample],
+    period_s: f64,
+    theta0: [f64; 3],
+    exclude_s: &[(f64, f64)],
+) -> Result<Screened<'s>, Refusal> {
+    let (kept, mut findings) = exclusion::exclude(all, period_s, exclude_s);
+    let samples: &[Sample] = kept.as_deref().unwrap_or(all);
     let refuse = |mut findings: Vec<Finding>, kind, message: String| {
         findings.push(Finding {
             kind,
@@ -227,8 +242,11 @@ pub fn screen_oriented(
             ),
         );
     }
-    let mut accepted: Cow<'_, [Sample]> = if summary.rejected == 0 {
-        Cow::Borrowed(samples)
+    let mut accepted: Cow<'s, [Sample]> = if summary.rejected == 0 {
+        match &kept {
+            None => Cow::Borrowed(all),
+            Some(k) => Cow::Owned(k.clone()),
+        }
     } else {
         samples
             .iter()
@@ -248,12 +266,8 @@ pub fn screen_oriented(
         Err(f) => return refuse(findings, f.0, f.1),
     };
     let mut times: Vec<f64> = Vec::with_capacity(samples.len());
-    times.extend(
-        samples
-            .iter()
-            .map(|s| s.t_s * factor)
-            .filter(|t| t.is_finite()),
-    );
+    // The recording's own times (an excluded stretch is no gap in the recording).
+    times.extend(all.iter().map(|s| s.t_s * factor).filter(|t| t.is_finite()));
     time::check_spacing(&times, &mut findings);
     let initial_tilt =
         match physics::check_start(&site, &accepted, period_s, &sigma, theta0, &mut findings) {
@@ -280,7 +294,29 @@ pub fn screen_oriented(
     }
     // Undithered rounding makes the means jump by an LSB as the signal crosses a step: no steps
     // are looked for on those axes.
-    steps::check_steps(&means, &quantum.map(|q| q.is_some()), &mut findings);
+    let disturbed = steps::check_steps(&means, &quantum.map(|q| q.is_some()), &mut findings);
+    let mut means = means;
+    if !disturbed.is_empty() {
+        // The disturbed filter periods leave the means and the samples (the windows
+        // [k·T, (k+1)·T) holding those means).
+        let p = period_s.max(1e-9);
+        let windows: Vec<f64> = disturbed
+            .iter()
+            .map(|&i| (means[i].t_s / p).floor())
+            .collect();
+        accepted = accepted
+            .iter()
+            .filter(|s| !windows.contains(&(s.t_s / p).floor()))
+            .copied()
+            .collect::<Vec<_>>()
+            .into();
+        means = means
+            .into_iter()
+            .enumerate()
+            .filter(|(i, _)| disturbed.binary_search(i).is_err())
+            .map(|(_, m)| m)
+            .collect();
+    }
     Ok(Screened {
         site,
         samples: accepted,

@@ -146,8 +146,75 @@ pub fn check_mean_noise(
     Some(out)
 }
 
-/// Steps: third differences beyond [`STEP_SIGMAS`]; one finding per jump (not repaired).
-pub fn check_steps(means: &[Measurement], skip: &[bool; 3], findings: &mut Vec<Finding>) {
+/// Means on each side of an event fitted to tell a step from a disturbance.
+pub const SIDE_MEANS: usize = 12;
+/// A level shift across an event beyond this many of its 1σ is a step; within, the level comes
+/// back: a disturbance.
+pub const SHIFT_SIGMAS: f64 = 5.0;
+/// A mean inside a disturbance departs from the fit by more than this many of its 1σ: excluded.
+pub const DISTURBED_SIGMAS: f64 = 4.0;
+
+/// A level shift and its 1σ (m/s²), and the means departing from the fit (index, residual).
+type Shift = (f64, f64, Vec<(usize, f64)>);
+
+/// The level shift across means `i0..=i1` of axis `a` and its 1σ, and the means in that span that
+/// depart from the fit: a cubic in time (the slow gravity signal) plus a step at the event's
+/// middle, fitted by weighted least squares (weights the means' counts) to up to
+/// [`SIDE_MEANS`] means on each side; `sigma_full` is the 1σ of a full-window mean. `None` when
+/// a side has fewer than 4 means (an event at the record's ends).
+fn shift_across(
+    means: &[Measurement],
+    a: usize,
+    i0: usize,
+    i1: usize,
+    sigma_full: f64,
+) -> Option<Shift> {
+    let before: Vec<usize> = (i0.saturating_sub(SIDE_MEANS)..i0).collect();
+    let after: Vec<usize> = (i1 + 1..(i1 + 1 + SIDE_MEANS).min(means.len())).collect();
+    if before.len() < 4 || after.len() < 4 {
+        return None;
+    }
+    let typical = typical_count(means);
+    let tc = 0.5 * (means[i0].t_s + means[i1].t_s);
+    let scale = (means[i1].t_s - means[i0].t_s).max(1.0) + 1.0;
+    let row = |j: usize| {
+        let u = (means[j].t_s - tc) / scale;
+        [1.0, u, u * u, u * u * u, if u > 0.0 { 1.0 } else { 0.0 }]
+    };
+    let mut ata = nalgebra::SMatrix::<f64, 5, 5>::zeros();
+    let mut atb = nalgebra::SVector::<f64, 5>::zeros();
+    for &j in before.iter().chain(&after) {
+        let r = nalgebra::SVector::<f64, 5>::from(row(j));
+        let w = f64::from(means[j].count.max(1)) / typical;
+        ata += w * r * r.transpose();
+        atb += w * r * means[j].specific_force[a];
+    }
+    let inv = ata.try_inverse()?;
+    let p = inv * atb;
+    let shift = p[4];
+    let shift_sigma = inv[(4, 4)].sqrt() * sigma_full;
+    let disturbed = (i0..=i1)
+        .filter_map(|j| {
+            let fit = nalgebra::SVector::<f64, 5>::from(row(j)).dot(&p);
+            let sd = sigma_full * (typical / f64::from(means[j].count.max(1))).sqrt();
+            let r = means[j].specific_force[a] - fit;
+            (r.abs() > DISTURBED_SIGMAS * sd).then_some((j, r))
+        })
+        .collect();
+    Some((shift, shift_sigma, disturbed))
+}
+
+/// Steps: third differences beyond [`STEP_SIGMAS`]; one finding per event. An event across which
+/// the level comes back ([`shift_across`]) is a disturbance of the platform (a burst: a door
+/// slammed, a bump): its means are excluded (returned, indices into `means`, sorted) and the
+/// finding says so; one that leaves the level shifted is a `step` (not repaired; the message
+/// suggests `--exclude`).
+pub fn check_steps(
+    means: &[Measurement],
+    skip: &[bool; 3],
+    findings: &mut Vec<Finding>,
+) -> Vec<usize> {
+    let mut excluded = vec![];
     for a in (0..3).filter(|&a| !skip[a]) {
         let d = third_differences(means, a);
         if d.len() < 30 {
@@ -170,17 +237,53 @@ pub fn check_steps(means: &[Measurement], skip: &[bool; 3], findings: &mut Vec<F
                     .unwrap_or(start);
                 let j = -d[peak].raw / 2.0;
                 let idx = (d[peak].k + 2).min(means.len() - 1);
+                let i0 = d[start].k;
+                let i1 = (d[k - 1].k + 3).min(means.len() - 1);
+                let (t0, t1) = (means[i0].t_s, means[i1].t_s);
+                let burst =
+                    shift_across(means, a, i0, i1, s / 20f64.sqrt()).filter(|(shift, sd, dist)| {
+                        shift.abs() <= SHIFT_SIGMAS * sd && !dist.is_empty()
+                    });
+                if let Some((shift, sd, dist)) = burst {
+                    let (w0, w1) = (means[dist[0].0].t_s, means[dist[dist.len() - 1].0].t_s);
+                    let samples = dist.iter().map(|&(i, _)| means[i].count as usize).sum();
+                    let worst = dist
+                        .iter()
+                        .map(|x| x.1)
+                        .max_by(|x, y| x.abs().total_cmp(&y.abs()))
+                        .unwrap_or(j);
+                    findings.push(Finding {
+                        kind: "disturbance",
+                        message: format!(
+                            "axis {}: a burst at t = {w0:.0}–{w1:.0} s ({:.3} h): {} filter-period mean(s) depart from the slow signal by up to {worst:+.2e} m/s^2 \
+                             ({:.0}× the noise of their third differences) and the level comes back (shift across it {shift:+.1e} ± {sd:.1e} m/s^2: not a step): \
+                             a disturbance of the platform; those filter periods are excluded",
+                            axis_name(a),
+                            w0 / 3600.0,
+                            dist.len(),
+                            d[peak].z.abs() / s,
+                        ),
+                        start_s: Some(w0),
+                        end_s: Some(w1),
+                        samples,
+                        action: Action::Rejected,
+                    });
+                    excluded.extend(dist.iter().map(|x| x.0));
+                    continue;
+                }
                 findings.push(Finding {
                     kind: "step",
                     message: format!(
                         "axis {}: the filter-period means jump by about {j:+.2e} m/s^2 near t = {:.0} s ({:.0}× the noise of their third differences): \
-                         a bias step or a disturbance of the platform; not repaired",
+                         a bias step or a disturbance of the platform; not repaired (a disturbance you know of can be left out: --exclude {:.2}..{:.2})",
                         axis_name(a),
                         means[idx].t_s,
-                        d[peak].z.abs() / s
+                        d[peak].z.abs() / s,
+                        (t0 / 36.0).floor() / 100.0,
+                        (t1 / 36.0).ceil() / 100.0
                     ),
-                    start_s: Some(means[d[start].k].t_s),
-                    end_s: Some(means[(d[k - 1].k + 3).min(means.len() - 1)].t_s),
+                    start_s: Some(t0),
+                    end_s: Some(t1),
                     samples: 0,
                     action: Action::NotRepaired,
                 });
@@ -189,4 +292,7 @@ pub fn check_steps(means: &[Measurement], skip: &[bool; 3], findings: &mut Vec<F
             }
         }
     }
+    excluded.sort_unstable();
+    excluded.dedup();
+    excluded
 }
