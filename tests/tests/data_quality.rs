@@ -580,3 +580,21 @@ fn a_short_burst_is_a_disturbance_excluded_not_a_step() {
         "worst |error|/σ {worst:.2} after excluding the burst"
     );
 }
+
+#[test]
+fn a_fifteen_minute_disturbance_is_one_disturbance_not_two_steps() {
+    // 15 min of +0.01 m/s² on y at 5 h: its start and its end are two events of the step check
+    // (each a level shift on its own); together the level comes back, so one `disturbance`
+    // covering the 15 periods is excluded. Before the events were joined: two `step`s, exit 3.
+    let (sc, samples) = run_with_faults(3, 10.0, &["burst=y,0.01,5,900"]);
+    let prep = prepare(site_of(&sc), &samples, &Config::default()).unwrap();
+    assert_eq!(kinds(&prep), ["disturbance"], "{:#?}", prep.findings);
+    let f = &prep.findings[0];
+    // Periods 5.0–5.25 h (mean times 18 029.5 … 18 869.5 s): all of them, not more than one extra
+    // on either side.
+    let (a, b) = (f.start_s.unwrap(), f.end_s.unwrap());
+    assert!(
+        (17_960.0..=18_030.0).contains(&a) && (18_860.0..=18_930.0).contains(&b),
+        "{a}–{b}"
+    );
+}

@@ -204,11 +204,24 @@ fn shift_across(
     Some((shift, shift_sigma, disturbed))
 }
 
+/// Longest disturbance, in filter periods, whose start and end (two events of opposite sign)
+/// are joined into one: a bump or a door left open for up to an hour at the paper's 60 s.
+pub const DISTURBANCE_MAX_MEANS: usize = 60;
+
+/// One exceedance of the step check: means `i0..=i1`, the peak's difference.
+struct Event {
+    i0: usize,
+    i1: usize,
+    /// Index into the differences of the largest one.
+    peak: usize,
+}
+
 /// Steps: third differences beyond [`STEP_SIGMAS`]; one finding per event. An event across which
 /// the level comes back ([`shift_across`]) is a disturbance of the platform (a burst: a door
-/// slammed, a bump): its means are excluded (returned, indices into `means`, sorted) and the
-/// finding says so; one that leaves the level shifted is a `step` (not repaired; the message
-/// suggests `--exclude`).
+/// slammed, a bump), and so are two events of up to [`DISTURBANCE_MAX_MEANS`] apart across which
+/// together it comes back (its start and its end): its means are excluded (returned, indices
+/// into `means`, sorted) and the finding says so. One that leaves the level shifted is a `step`
+/// (not repaired; the message suggests `--exclude`).
 pub fn check_steps(
     means: &[Measurement],
     skip: &[bool; 3],
@@ -224,6 +237,7 @@ pub fn check_steps(
         if s <= 0.0 {
             continue;
         }
+        let mut events = vec![];
         let mut k = 0;
         while k < d.len() {
             if d[k].z.abs() > STEP_SIGMAS * s {
@@ -235,61 +249,79 @@ pub fn check_steps(
                 let peak = (start..k)
                     .max_by(|&i, &j| d[i].z.abs().total_cmp(&d[j].z.abs()))
                     .unwrap_or(start);
-                let j = -d[peak].raw / 2.0;
-                let idx = (d[peak].k + 2).min(means.len() - 1);
-                let i0 = d[start].k;
-                let i1 = (d[k - 1].k + 3).min(means.len() - 1);
-                let (t0, t1) = (means[i0].t_s, means[i1].t_s);
-                let burst =
-                    shift_across(means, a, i0, i1, s / 20f64.sqrt()).filter(|(shift, sd, dist)| {
-                        shift.abs() <= SHIFT_SIGMAS * sd && !dist.is_empty()
-                    });
-                if let Some((shift, sd, dist)) = burst {
-                    let (w0, w1) = (means[dist[0].0].t_s, means[dist[dist.len() - 1].0].t_s);
-                    let samples = dist.iter().map(|&(i, _)| means[i].count as usize).sum();
-                    let worst = dist
-                        .iter()
-                        .map(|x| x.1)
-                        .max_by(|x, y| x.abs().total_cmp(&y.abs()))
-                        .unwrap_or(j);
-                    findings.push(Finding {
-                        kind: "disturbance",
-                        message: format!(
-                            "axis {}: a burst at t = {w0:.0}–{w1:.0} s ({:.3} h): {} filter-period mean(s) depart from the slow signal by up to {worst:+.2e} m/s^2 \
-                             ({:.0}× the noise of their third differences) and the level comes back (shift across it {shift:+.1e} ± {sd:.1e} m/s^2: not a step): \
-                             a disturbance of the platform; those filter periods are excluded",
-                            axis_name(a),
-                            w0 / 3600.0,
-                            dist.len(),
-                            d[peak].z.abs() / s,
-                        ),
-                        start_s: Some(w0),
-                        end_s: Some(w1),
-                        samples,
-                        action: Action::Rejected,
-                    });
-                    excluded.extend(dist.iter().map(|x| x.0));
-                    continue;
-                }
-                findings.push(Finding {
-                    kind: "step",
-                    message: format!(
-                        "axis {}: the filter-period means jump by about {j:+.2e} m/s^2 near t = {:.0} s ({:.0}× the noise of their third differences): \
-                         a bias step or a disturbance of the platform; not repaired (a disturbance you know of can be left out: --exclude {:.2}..{:.2})",
-                        axis_name(a),
-                        means[idx].t_s,
-                        d[peak].z.abs() / s,
-                        (t0 / 36.0).floor() / 100.0,
-                        (t1 / 36.0).ceil() / 100.0
-                    ),
-                    start_s: Some(t0),
-                    end_s: Some(t1),
-                    samples: 0,
-                    action: Action::NotRepaired,
+                events.push(Event {
+                    i0: d[start].k,
+                    i1: (d[k - 1].k + 3).min(means.len() - 1),
+                    peak,
                 });
             } else {
                 k += 1;
             }
+        }
+        let sigma_full = s / 20f64.sqrt();
+        let burst = |i0: usize, i1: usize| {
+            shift_across(means, a, i0, i1, sigma_full)
+                .filter(|(shift, sd, dist)| shift.abs() <= SHIFT_SIGMAS * sd && !dist.is_empty())
+        };
+        let mut e = 0;
+        while e < events.len() {
+            let ev = &events[e];
+            // The event alone, or with a later one (its end) within the longest disturbance.
+            let found = std::iter::once(e)
+                .chain(
+                    (e + 1..events.len())
+                        .take_while(|&f| events[f].i0 <= ev.i1 + DISTURBANCE_MAX_MEANS),
+                )
+                .find_map(|f| burst(ev.i0, events[f].i1).map(|b| (f, b)));
+            if let Some((last, (shift, sd, dist))) = found {
+                let (w0, w1) = (means[dist[0].0].t_s, means[dist[dist.len() - 1].0].t_s);
+                let samples = dist.iter().map(|&(i, _)| means[i].count as usize).sum();
+                let worst = dist
+                    .iter()
+                    .map(|x| x.1)
+                    .max_by(|x, y| x.abs().total_cmp(&y.abs()))
+                    .unwrap_or(0.0);
+                findings.push(Finding {
+                    kind: "disturbance",
+                    message: format!(
+                        "axis {}: a burst at t = {w0:.0}–{w1:.0} s ({:.3}–{:.3} h): {} filter-period mean(s) depart from the slow signal by up to {worst:+.2e} m/s^2 \
+                         ({:.0}× the noise of their third differences) and the level comes back (shift across it {shift:+.1e} ± {sd:.1e} m/s^2: not a step): \
+                         a disturbance of the platform; those filter periods are excluded",
+                        axis_name(a),
+                        w0 / 3600.0,
+                        w1 / 3600.0,
+                        dist.len(),
+                        d[ev.peak].z.abs() / s,
+                    ),
+                    start_s: Some(w0),
+                    end_s: Some(w1),
+                    samples,
+                    action: Action::Rejected,
+                });
+                excluded.extend(dist.iter().map(|x| x.0));
+                e = last + 1;
+                continue;
+            }
+            let j = -d[ev.peak].raw / 2.0;
+            let idx = (d[ev.peak].k + 2).min(means.len() - 1);
+            let (t0, t1) = (means[ev.i0].t_s, means[ev.i1].t_s);
+            findings.push(Finding {
+                kind: "step",
+                message: format!(
+                    "axis {}: the filter-period means jump by about {j:+.2e} m/s^2 near t = {:.0} s ({:.0}× the noise of their third differences): \
+                     a bias step or a disturbance of the platform; not repaired (a disturbance you know of can be left out with --exclude {:.2}..T1, \
+                     hours, T1 where it ended: the run's end if it did not)",
+                    axis_name(a),
+                    means[idx].t_s,
+                    d[ev.peak].z.abs() / s,
+                    (t0 / 36.0).floor() / 100.0,
+                ),
+                start_s: Some(t0),
+                end_s: Some(t1),
+                samples: 0,
+                action: Action::NotRepaired,
+            });
+            e += 1;
         }
     }
     excluded.sort_unstable();
