@@ -317,6 +317,65 @@ pub fn screen_excluding<'s>(
             .map(|(_, m)| m)
             .collect();
     }
+    // Bias steps too small for the third differences: found in the means, repaired in the
+    // samples (the later ones corrected, the window holding the jump left out), the means
+    // recomputed. A step the third differences named is replaced by its repair.
+    let skip = quantum.map(|q| q.is_some());
+    let full = steps::mean_sigma(&means, &skip);
+    let found = steps::find_bias_steps(&means, &skip, &full);
+    if !found.is_empty() {
+        let p = period_s.max(1e-9);
+        let transitional: Vec<f64> = found
+            .iter()
+            .map(|b| (means[b.at].t_s / p).floor())
+            .collect();
+        let mut repaired: Vec<Sample> = Vec::with_capacity(accepted.len());
+        for s in accepted.iter() {
+            let w = (s.t_s / p).floor();
+            if transitional.contains(&w) {
+                continue;
+            }
+            let mut s = *s;
+            for (b, tw) in found.iter().zip(&transitional) {
+                if w > *tw {
+                    s.specific_force[b.axis] -= b.size;
+                }
+            }
+            repaired.push(s);
+        }
+        for b in &found {
+            let tag = format!("axis {}:", axis_name(b.axis));
+            let (t0, t1) = (means[b.at].t_s - p, means[b.at].t_s + p);
+            findings.retain(|f| {
+                !(f.kind == "step"
+                    && f.message.starts_with(&tag)
+                    && f.start_s.is_some_and(|a| a <= t1)
+                    && f.end_s.is_some_and(|e| e >= t0))
+            });
+            findings.push(Finding {
+                kind: "acc-bias-step",
+                message: format!(
+                    "axis {}: the accelerometer bias steps by {:+.3e} ± {:.1e} m/s^2 ({:.0}σ) at t = {:.0} s ({:.3} h): found as a level shift of the \
+                     filter-period means across it (a cubic for the slow signal plus a step, {} means each side) and sized on ±3 h of them (the Earth-rate turn of gravity, \
+                     modulated by a cubic, plus the step); repaired: every later sample corrected by {:+.3e} m/s^2, the filter period holding the jump left out",
+                    axis_name(b.axis),
+                    b.size,
+                    b.sigma,
+                    (b.size / b.sigma).abs(),
+                    b.t_s,
+                    b.t_s / 3600.0,
+                    steps::SIDE_MEANS,
+                    -b.size
+                ),
+                start_s: Some(b.t_s),
+                end_s: None,
+                samples: means[b.at].count as usize,
+                action: Action::Repaired,
+            });
+        }
+        means = window_means(&repaired, period_s, &sigma);
+        accepted = Cow::Owned(repaired);
+    }
     Ok(Screened {
         site,
         samples: accepted,

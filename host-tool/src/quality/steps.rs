@@ -84,6 +84,19 @@ pub fn typical_count(means: &[Measurement]) -> f64 {
     f64::from(*counts.select_nth_unstable(mid).1).max(1.0)
 }
 
+/// 1σ of a full-window mean per axis from the scatter of the means' third differences (robust);
+/// 0 on a skipped axis or one with too few means.
+pub fn mean_sigma(means: &[Measurement], skip: &[bool; 3]) -> [f64; 3] {
+    core::array::from_fn(|a| {
+        let d = third_differences(means, a);
+        if skip[a] || d.len() < 30 {
+            0.0
+        } else {
+            robust_sigma(&d) / 20f64.sqrt()
+        }
+    })
+}
+
 /// Robust 1σ (MAD) of the rescaled differences ([`Diff::z`]).
 fn robust_sigma(d: &[Diff]) -> f64 {
     let mut v: Vec<f64> = d.iter().map(|x| x.z.abs()).collect();
@@ -327,4 +340,215 @@ pub fn check_steps(
     excluded.sort_unstable();
     excluded.dedup();
     excluded
+}
+
+/// A local level shift beyond this many of its 1σ, anywhere in the run, is a bias step
+/// ([`find_bias_steps`]). Positions tried: one per filter period and axis (~10 800 on 60 h at
+/// 60 s, correlated over the ~25 means of one fit); at 6σ the chance of one false step per run
+/// is below 1e-5 for white Gaussian means.
+pub const BIAS_STEP_SIGMAS: f64 = 6.0;
+/// Largest number of bias steps repaired per axis.
+pub const MAX_BIAS_STEPS: usize = 3;
+
+/// A bias step of an accelerometer axis found in the filter-period means.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct BiasStep {
+    /// Axis, 0..3.
+    pub axis: usize,
+    /// Size, m/s² (the later readings are this much higher).
+    pub size: f64,
+    /// Its 1σ, m/s².
+    pub sigma: f64,
+    /// Index of the mean whose window holds the jump (excluded: part before, part after).
+    pub at: usize,
+    /// Estimated time of the jump, s (from how much of it the transitional mean holds).
+    pub t_s: f64,
+}
+
+/// Bias steps too small for the third differences (≥ 8σ of a difference, ~18σ of a mean): at each
+/// mean in turn, the level shift across it ([`shift_across`]: a cubic in time for the slow
+/// gravity signal plus a step, fitted to [`SIDE_MEANS`] means on each side) over its 1σ; the
+/// largest beyond [`BIAS_STEP_SIGMAS`] is a step, removed from the means, and the search
+/// repeated (at most [`MAX_BIAS_STEPS`] per axis). `sigma_full` is the 1σ of a full-window mean
+/// per axis (the means' own scatter).
+pub fn find_bias_steps(
+    means: &[Measurement],
+    skip: &[bool; 3],
+    sigma_full: &[f64; 3],
+) -> Vec<BiasStep> {
+    let mut out = vec![];
+    for a in (0..3).filter(|&a| !skip[a] && sigma_full[a] > 0.0) {
+        let mut x: Vec<Measurement> = means.to_vec();
+        // The typical spacing of the means: a fit whose sides span a gap (an excluded stretch,
+        // a gap in the recording) is not tried, the slow signal is no cubic across hours.
+        let mut gaps: Vec<f64> = x.windows(2).map(|w| w[1].t_s - w[0].t_s).collect();
+        if gaps.is_empty() {
+            continue;
+        }
+        let mid = gaps.len() / 2;
+        let h = *gaps.select_nth_unstable_by(mid, f64::total_cmp).1;
+        let span = (2 * SIDE_MEANS + 2) as f64 * h;
+        for _ in 0..MAX_BIAS_STEPS {
+            let best = (SIDE_MEANS..x.len().saturating_sub(SIDE_MEANS))
+                .filter(|&c| x[c + SIDE_MEANS].t_s - x[c - SIDE_MEANS].t_s <= span)
+                .filter_map(|c| {
+                    let (shift, sd, _) = shift_across(&x, a, c, c, sigma_full[a])?;
+                    (sd > 0.0).then_some((c, shift, sd))
+                })
+                .max_by(|p, q| (p.1 / p.2).abs().total_cmp(&(q.1 / q.2).abs()));
+            let Some((c, size, sd)) = best else { break };
+            if (size / sd).abs() <= BIAS_STEP_SIGMAS {
+                break;
+            }
+            // How much of the jump the transitional mean holds: its departure from the level
+            // before (the fit without the step, evaluated there) over the size.
+            let before = (c.saturating_sub(SIDE_MEANS)..c).collect::<Vec<_>>();
+            let level_before = local_fit(&x, a, &before, x[c].t_s);
+            let half = if c + 1 < x.len() {
+                0.5 * (x[c + 1].t_s - x[c].t_s)
+            } else {
+                0.5 * (x[c].t_s - x[c - 1].t_s)
+            };
+            // Sized on hours of signal when the run allows ([`refine_step`]).
+            let done: Vec<usize> = out
+                .iter()
+                .filter(|b: &&BiasStep| b.axis == a)
+                .map(|b| b.at)
+                .collect();
+            // A step is repaired only when hours of means size it, and agree with the local
+            // fit: near the run's ends, or next to another feature (a larger step a few means
+            // away bends the local cubic), the local shift alone is no bias step (the third
+            // differences name a large one as a `step`, not repaired).
+            let Some((size_h, sd_h)) = refine_step(&x, a, c, &done, sigma_full[a]) else {
+                break;
+            };
+            if (size_h - size).abs() > BIAS_STEP_SIGMAS * sd
+                || (size_h / sd_h).abs() <= BIAS_STEP_SIGMAS
+            {
+                break;
+            }
+            let (size, sd) = (size_h, sd_h);
+            // The window spans ~[t − half, t + half]; a fraction f after the jump.
+            let f = ((x[c].specific_force[a] - level_before) / size).clamp(0.0, 1.0);
+            let t_s = x[c].t_s + half - 2.0 * half * f;
+            out.push(BiasStep {
+                axis: a,
+                size,
+                sigma: sd,
+                at: c,
+                t_s,
+            });
+            for m in &mut x[c + 1..] {
+                m.specific_force[a] -= size;
+            }
+            // The transitional mean is left out of later searches' fits: set to the fit.
+            x[c].specific_force[a] = level_before;
+        }
+    }
+    out
+}
+
+/// A cubic in time fitted to means `idx` of axis `a` (weights their counts), evaluated at `t`.
+fn local_fit(means: &[Measurement], a: usize, idx: &[usize], t: f64) -> f64 {
+    if idx.len() < 4 {
+        return idx.iter().map(|&j| means[j].specific_force[a]).sum::<f64>()
+            / idx.len().max(1) as f64;
+    }
+    let scale = (means[idx[idx.len() - 1]].t_s - means[idx[0]].t_s).max(1.0);
+    let row = |tt: f64| {
+        let u = (tt - t) / scale;
+        nalgebra::SVector::<f64, 4>::new(1.0, u, u * u, u * u * u)
+    };
+    let mut ata = nalgebra::SMatrix::<f64, 4, 4>::zeros();
+    let mut atb = nalgebra::SVector::<f64, 4>::zeros();
+    for &j in idx {
+        let r = row(means[j].t_s);
+        let w = f64::from(means[j].count.max(1));
+        ata += w * r * r.transpose();
+        atb += w * r * means[j].specific_force[a];
+    }
+    match ata.try_inverse() {
+        Some(inv) => (inv * atb)[0],
+        None => means[idx[idx.len() - 1]].specific_force[a],
+    }
+}
+
+/// Half-width of the fit that sizes a found bias step, s: ±3 h.
+pub const REFINE_HALF_S: f64 = 3.0 * 3600.0;
+
+/// The size of a bias step at mean `c` of axis `a` and its 1σ, from the means within
+/// [`REFINE_HALF_S`] of it (not across a gap), the transitional mean and those of `other`
+/// steps' windows left out. A space-stable platform sees gravity turn at the Earth's rate: each
+/// axis is a + b·cos Ωt + c·sin Ωt, modulated slowly as the drift turns the platform, so
+/// {1, cos Ωτ, sin Ωτ} × {1, u, u², u³} (τ from the step, u = τ/half-width) plus the step fits
+/// hours of signal to far below the noise: the local cubic's 1σ (~1.3σ of a mean) would leave
+/// the later half of the run offset by a bias the model then reads as a misfit.
+pub fn refine_step(
+    means: &[Measurement],
+    a: usize,
+    c: usize,
+    other: &[usize],
+    sigma_full: f64,
+) -> Option<(f64, f64)> {
+    const N: usize = 13;
+    let tc = means[c].t_s;
+    let typical = typical_count(means);
+    let omega = estimator_core::units::EARTH_RATE_RADPS;
+    // Contiguous means on each side (a gap of more than 3 spacings ends a side).
+    let h = if c + 1 < means.len() {
+        means[c + 1].t_s - means[c].t_s
+    } else {
+        means[c].t_s - means[c - 1].t_s
+    };
+    let mut idx = vec![];
+    let mut j = c;
+    while j > 0
+        && tc - means[j - 1].t_s <= REFINE_HALF_S
+        && means[j].t_s - means[j - 1].t_s <= 3.0 * h
+    {
+        j -= 1;
+        idx.push(j);
+    }
+    let mut j = c;
+    while j + 1 < means.len()
+        && means[j + 1].t_s - tc <= REFINE_HALF_S
+        && means[j + 1].t_s - means[j].t_s <= 3.0 * h
+    {
+        j += 1;
+        idx.push(j);
+    }
+    idx.retain(|j| !other.contains(j));
+    let row = |j: usize| {
+        let tau = means[j].t_s - tc;
+        let u = tau / REFINE_HALF_S;
+        let (s, co) = (omega * tau).sin_cos();
+        let mut r = nalgebra::SVector::<f64, N>::zeros();
+        let mut k = 0;
+        for p in [1.0, u, u * u, u * u * u] {
+            for f in [1.0, co, s] {
+                r[k] = p * f;
+                k += 1;
+            }
+        }
+        r[12] = if tau > 0.0 { 1.0 } else { 0.0 };
+        r
+    };
+    let (nb, na) = (
+        idx.iter().filter(|&&j| j < c).count(),
+        idx.iter().filter(|&&j| j > c).count(),
+    );
+    if nb < 2 * N || na < 2 * N {
+        return None;
+    }
+    let mut ata = nalgebra::SMatrix::<f64, N, N>::zeros();
+    let mut atb = nalgebra::SVector::<f64, N>::zeros();
+    for &j in &idx {
+        let r = row(j);
+        let w = f64::from(means[j].count.max(1)) / typical;
+        ata += w * r * r.transpose();
+        atb += w * r * means[j].specific_force[a];
+    }
+    let inv = ata.try_inverse()?;
+    let p = inv * atb;
+    Some((p[12], inv[(12, 12)].sqrt() * sigma_full))
 }

@@ -15,7 +15,8 @@ NAME=v1,v2,... (repeatable). Faults, applied to the written samples after the ph
                                   +-LIMIT m/s^2 read +-LIMIT (the sensor pinned at its rails)
   burst=AXIS,SIZE,T0_H,DURATION_S from T0_H hours for DURATION_S seconds, SIZE m/s^2 added to
                                   AXIS (a disturbance of the platform: a door slammed, a bump)
-Example: --fault saturate=x,7,10,22 --fault burst=y,0.3,30,60";
+  step=AXIS,SIZE,T0_H             from T0_H hours on, SIZE m/s^2 added to AXIS (a bias step)
+Example: --fault saturate=x,7,10,22 --fault burst=y,0.3,30,60 --fault step=y,1e-3,30";
 
 /// A data fault added to simulated samples.
 #[derive(Clone, Debug, PartialEq)]
@@ -102,7 +103,11 @@ impl FromStr for Fault {
         let (name, rest) = s
             .split_once('=')
             .ok_or_else(|| format!("{s:?}: expected NAME=AXIS,v1,v2,v3 (saturate or burst)"))?;
-        let parts: Vec<&str> = rest.split(',').map(str::trim).collect();
+        let mut parts: Vec<&str> = rest.split(',').map(str::trim).collect();
+        if name.trim() == "step" && parts.len() == 3 {
+            // A step is a burst that lasts: to the end of any recording.
+            parts.push("inf-step");
+        }
         if parts.len() != 4 {
             return Err(format!(
                 "{name}: expected AXIS and 3 numbers, comma-separated, got {rest:?}"
@@ -111,6 +116,10 @@ impl FromStr for Fault {
         let axis = axis_of(parts[0]).map_err(|e| format!("{name}: {e}"))?;
         let mut v = [0.0; 3];
         for (o, p) in v.iter_mut().zip(&parts[1..]) {
+            if *p == "inf-step" {
+                *o = f64::INFINITY;
+                continue;
+            }
             *o = p
                 .parse::<f64>()
                 .ok()
@@ -131,6 +140,12 @@ impl FromStr for Fault {
                     t1_h: v[2],
                 })
             }
+            "step" => Ok(Fault::Burst {
+                axis,
+                size: v[0],
+                t0_h: v[1],
+                duration_s: f64::INFINITY,
+            }),
             "burst" => {
                 if v[2] <= 0.0 {
                     return Err(format!("burst: DURATION_S must be > 0, got {rest:?}"));
@@ -142,7 +157,7 @@ impl FromStr for Fault {
                     duration_s: v[2],
                 })
             }
-            other => Err(format!("unknown fault {other:?} (saturate or burst)")),
+            other => Err(format!("unknown fault {other:?} (saturate, burst or step)")),
         }
     }
 }
@@ -158,6 +173,12 @@ impl fmt::Display for Fault {
                 t0_h,
                 t1_h,
             } => write!(f, "saturate={},{limit:?},{t0_h:?},{t1_h:?}", ax(axis)),
+            Fault::Burst {
+                axis,
+                size,
+                t0_h,
+                duration_s,
+            } if duration_s == f64::INFINITY => write!(f, "step={},{size:?},{t0_h:?}", ax(axis)),
             Fault::Burst {
                 axis,
                 size,
