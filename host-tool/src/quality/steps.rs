@@ -347,6 +347,8 @@ pub fn check_steps(
 /// 60 s, correlated over the ~25 means of one fit); at 6σ the chance of one false step per run
 /// is below 1e-5 for white Gaussian means.
 pub const BIAS_STEP_SIGMAS: f64 = 6.0;
+/// The local fit's shift must exceed this many of its 1σ before the long fit sizes it.
+pub const PRESCREEN_SIGMAS: f64 = 1.5;
 /// Largest number of bias steps repaired per axis.
 pub const MAX_BIAS_STEPS: usize = 3;
 
@@ -389,11 +391,27 @@ pub fn find_bias_steps(
         let h = *gaps.select_nth_unstable_by(mid, f64::total_cmp).1;
         let span = (2 * SIDE_MEANS + 2) as f64 * h;
         for _ in 0..MAX_BIAS_STEPS {
+            // Sized on hours of signal ([`refine_step`]) where the local fit (cubic + step, 12
+            // means each side) shows any shift (beyond PRESCREEN_SIGMAS: ~13 % of positions on
+            // a clean run, so the long fit runs where it may matter); the long fit must agree
+            // with the local one (next to another feature, e.g. a larger step a few means
+            // away that bends the local cubic, or near the run's ends, where no hours of means
+            // size it, there is no repair: the third differences name a large one a `step`).
+            let done: Vec<usize> = out
+                .iter()
+                .filter(|b: &&BiasStep| b.axis == a)
+                .map(|b| b.at)
+                .collect();
             let best = (SIDE_MEANS..x.len().saturating_sub(SIDE_MEANS))
                 .filter(|&c| x[c + SIDE_MEANS].t_s - x[c - SIDE_MEANS].t_s <= span)
                 .filter_map(|c| {
                     let (shift, sd, _) = shift_across(&x, a, c, c, sigma_full[a])?;
-                    (sd > 0.0).then_some((c, shift, sd))
+                    if !(sd > 0.0 && (shift / sd).abs() > PRESCREEN_SIGMAS) {
+                        return None;
+                    }
+                    let (size_h, sd_h) = refine_step(&x, a, c, &done, sigma_full[a])?;
+                    ((size_h - shift).abs() <= BIAS_STEP_SIGMAS * sd && sd_h > 0.0)
+                        .then_some((c, size_h, sd_h))
                 })
                 .max_by(|p, q| (p.1 / p.2).abs().total_cmp(&(q.1 / q.2).abs()));
             let Some((c, size, sd)) = best else { break };
@@ -409,25 +427,6 @@ pub fn find_bias_steps(
             } else {
                 0.5 * (x[c].t_s - x[c - 1].t_s)
             };
-            // Sized on hours of signal when the run allows ([`refine_step`]).
-            let done: Vec<usize> = out
-                .iter()
-                .filter(|b: &&BiasStep| b.axis == a)
-                .map(|b| b.at)
-                .collect();
-            // A step is repaired only when hours of means size it, and agree with the local
-            // fit: near the run's ends, or next to another feature (a larger step a few means
-            // away bends the local cubic), the local shift alone is no bias step (the third
-            // differences name a large one as a `step`, not repaired).
-            let Some((size_h, sd_h)) = refine_step(&x, a, c, &done, sigma_full[a]) else {
-                break;
-            };
-            if (size_h - size).abs() > BIAS_STEP_SIGMAS * sd
-                || (size_h / sd_h).abs() <= BIAS_STEP_SIGMAS
-            {
-                break;
-            }
-            let (size, sd) = (size_h, sd_h);
             // The window spans ~[t − half, t + half]; a fraction f after the jump.
             let f = ((x[c].specific_force[a] - level_before) / size).clamp(0.0, 1.0);
             let t_s = x[c].t_s + half - 2.0 * half * f;
@@ -537,7 +536,20 @@ pub fn refine_step(
         idx.iter().filter(|&&j| j < c).count(),
         idx.iter().filter(|&&j| j > c).count(),
     );
-    if nb < 2 * N || na < 2 * N {
+    // Both sides must hold their ±3 h: an asymmetric fit extrapolates the 12 slow functions
+    // past one side's end (a clean 60-h run then showed "steps" of 2e-4 at 1.3 h and 58 h in
+    // 21 of 100 seeds).
+    let reach = |j: Option<&usize>| j.map_or(0.0, |&j| (means[j].t_s - tc).abs());
+    let first_after = idx.iter().position(|&j| j > c);
+    let (before_end, after_end) = match first_after {
+        Some(k) if k > 0 => (reach(idx[..k].last()), reach(idx.last())),
+        _ => return None,
+    };
+    if nb < 2 * N
+        || na < 2 * N
+        || before_end < 0.95 * REFINE_HALF_S
+        || after_end < 0.95 * REFINE_HALF_S
+    {
         return None;
     }
     let mut ata = nalgebra::SMatrix::<f64, N, N>::zeros();
