@@ -607,7 +607,7 @@ fn a_fifteen_minute_disturbance_is_one_disturbance_not_two_steps() {
 
 /// Issue 27 item 2: the y accelerometer's bias jumps by 1e-3 m/s² at 30 h of the default 60-h
 /// run (10× the 1σ of a 60-s mean; 2.3× under the third differences' 8σ, so it went unseen and
-/// the ladder named the wrong physics). Found by the local level-shift scan (6σ), sized on ±3 h
+/// the ladder named the wrong physics). Found by the local level-shift scan (6σ), sized on ±6 h
 /// of means, the later samples corrected: `acc-bias-step` (repaired) with its time and size,
 /// and the coefficients within 3σ of the truth.
 #[test]
@@ -621,7 +621,7 @@ fn a_bias_step_is_found_sized_and_repaired() {
     // The time to within one filter period (the window holding the jump is left out).
     let t = f.start_s.unwrap();
     assert!((t - 108_000.0).abs() <= 60.0, "t = {t}");
-    // The size: "steps by +9.902e-4 ± 4.0e-5": within 3σ of 1e-3.
+    // The size ("steps by +9.853e-4 ± 3.1e-5"): within 3σ of 1e-3.
     let (size, sd) = {
         let m = &f.message;
         let i = m.find("steps by ").unwrap() + 9;
@@ -640,7 +640,7 @@ fn a_bias_step_is_found_sized_and_repaired() {
 
 #[test]
 fn a_bias_step_of_four_times_the_noise_of_a_mean_is_found_and_repaired() {
-    // 4e-4 m/s² (4× the 1σ of a 60-s mean; 10σ of the ±3-h fit that sizes it): the local
+    // 4e-4 m/s² (4× the 1σ of a 60-s mean; 10σ of the ±6-h fit that sizes it): the local
     // level-shift scan alone (1σ ~1.3e-4) found no step of this size in 20 of 20 seeds, and
     // the run then misfit. Now found, sized within 3σ of the truth, the estimate trusted.
     let (sc, samples) = run_with_faults(5, 60.0, &["step=y,4e-4,30"]);

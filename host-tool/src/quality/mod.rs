@@ -356,7 +356,7 @@ pub fn screen_excluding<'s>(
                 kind: "acc-bias-step",
                 message: format!(
                     "axis {}: the accelerometer bias steps by {:+.3e} ± {:.1e} m/s^2 ({:.0}σ) at t = {:.0} s ({:.3} h): found as a level shift of the \
-                     filter-period means across it (a cubic for the slow signal plus a step, {} means each side) and sized on ±3 h of them (the Earth-rate turn of gravity, \
+                     filter-period means across it (a cubic for the slow signal plus a step, {} means each side) and sized on ±6 h of them (the Earth-rate turn of gravity, \
                      modulated by a cubic, plus the step); repaired: every later sample corrected by {:+.3e} m/s^2, the filter period holding the jump left out",
                     axis_name(b.axis),
                     b.size,

@@ -472,8 +472,9 @@ fn local_fit(means: &[Measurement], a: usize, idx: &[usize], t: f64) -> f64 {
     }
 }
 
-/// Half-width of the fit that sizes a found bias step, s: ±3 h.
-pub const REFINE_HALF_S: f64 = 3.0 * 3600.0;
+/// Half-width of the fit that sizes a found bias step, s: ±6 h. On 60 h at 1 s, ±3 h sized a
+/// step to 3.9e-5 m/s² (1σ), ±6 h to 3.1e-5, and found one of 2.5e-4 in 17 of 20 seeds, not 10.
+pub const REFINE_HALF_S: f64 = 6.0 * 3600.0;
 
 /// The size of a bias step at mean `c` of axis `a` and its 1σ, from the means within
 /// [`REFINE_HALF_S`] of it (not across a gap), the transitional mean and those of `other`
@@ -536,7 +537,7 @@ pub fn refine_step(
         idx.iter().filter(|&&j| j < c).count(),
         idx.iter().filter(|&&j| j > c).count(),
     );
-    // Both sides must hold their ±3 h: an asymmetric fit extrapolates the 12 slow functions
+    // Both sides must hold their ±6 h: an asymmetric fit extrapolates the 12 slow functions
     // past one side's end (a clean 60-h run then showed "steps" of 2e-4 at 1.3 h and 58 h in
     // 21 of 100 seeds).
     let reach = |j: Option<&usize>| j.map_or(0.0, |&j| (means[j].t_s - tc).abs());
