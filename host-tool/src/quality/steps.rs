@@ -371,7 +371,8 @@ pub struct BiasStep {
 /// mean in turn, the level shift across it ([`shift_across`]: a cubic in time for the slow
 /// gravity signal plus a step, fitted to [`SIDE_MEANS`] means on each side) over its 1σ; the
 /// largest beyond [`BIAS_STEP_SIGMAS`] is a step, removed from the means, and the search
-/// repeated (at most [`MAX_BIAS_STEPS`] per axis). `sigma_full` is the 1σ of a full-window mean
+/// repeated (at most [`MAX_BIAS_STEPS`] per axis); more than one in the run is no step (slow
+/// structure, e.g. a Gauss–Markov drift: none is returned). `sigma_full` is the 1σ of a full-window mean
 /// per axis (the means' own scatter).
 pub fn find_bias_steps(
     means: &[Measurement],
@@ -443,6 +444,13 @@ pub fn find_bias_steps(
             // The transitional mean is left out of later searches' fits: set to the fit.
             x[c].specific_force[a] = level_before;
         }
+    }
+    // One step is a fault; several (on one axis or across axes) are slow structure the
+    // Earth-rate basis does not follow — a Gauss–Markov drift wandering the platform gave 3 per
+    // axis on every axis (9 per run, seeds 1–3, σ 0.01–0.05 deg/h, τ 2–5 h) — which the model
+    // ladder must name (`drift-markov`), not a repair of the data.
+    if out.len() > 1 {
+        return vec![];
     }
     out
 }
