@@ -489,3 +489,104 @@ fn a_plan_from_a_run_the_model_does_not_explain_is_not_trusted() {
         );
     }
 }
+
+/// Runs driftid and returns (exit code, stdout + stderr).
+fn run_driftid(args: &[std::ffi::OsString]) -> (Option<i32>, String) {
+    let out = driftid().args(args).output().unwrap();
+    let all = format!(
+        "{}{}",
+        String::from_utf8_lossy(&out.stdout),
+        String::from_utf8_lossy(&out.stderr)
+    );
+    (out.status.code(), all)
+}
+
+/// Issue 27 item 6: a step the tool cannot repair (here 5e-3 m/s² on y at 7.9 h of an 8-h run:
+/// too near the end to be sized on hours of means, so a `step`, not an `acc-bias-step`) makes
+/// identify exit 3 and its message suggests `--exclude`; the user, who knows the run went bad
+/// at 7.9 h, leaves 7.85..8 h out: identify, diagnose and report then report the window as an
+/// `excluded` finding with its range and exit 0 (before: no such option, exit 2).
+#[test]
+fn a_window_is_excluded_by_every_command_and_an_unrepaired_step_suggests_it() {
+    let dir = temp_dir("exclude");
+    let csv = simulate_to(
+        &dir,
+        "run.csv",
+        &["--hours", "8", "--seed", "3", "--fault", "step=y,5e-3,7.9"],
+    );
+    let (code, all) = run_driftid(&["identify".into(), csv.clone().into()]);
+    assert_eq!(code, Some(3), "{all}");
+    assert!(
+        all.contains("step") && all.contains("--exclude 7.8"),
+        "the step suggests --exclude from about where it begins:\n{all}"
+    );
+    let html = dir.join("run.html");
+    let with = |cmd: &str| -> Vec<std::ffi::OsString> {
+        let mut v: Vec<std::ffi::OsString> = vec![cmd.into(), csv.clone().into()];
+        v.extend(["--exclude".into(), "7.85..8".into()]);
+        if cmd == "report" {
+            v.extend(["-o".into(), html.clone().into()]);
+        }
+        v
+    };
+    for cmd in ["identify", "diagnose", "report"] {
+        let (code, all) = run_driftid(&with(cmd));
+        assert_eq!(code, Some(0), "{cmd} --exclude 7.85..8:\n{all}");
+        assert!(
+            all.contains("excluded") && all.contains("7.8500–8.0000 h"),
+            "{cmd}: the window named with its range:\n{all}"
+        );
+    }
+    assert!(std::fs::read_to_string(&html)
+        .unwrap()
+        .contains("7.8500–8.0000 h"));
+    // The JSON finding: kind, range in seconds, samples left out (t = 28 260 … 28 800 s at 1 s).
+    let mut args = with("identify");
+    args.push("--json".into());
+    let out = driftid().args(&args).output().unwrap();
+    let v: serde_json::Value = serde_json::from_slice(&out.stdout).unwrap();
+    let f = v["data_quality"]["findings"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .find(|f| f["kind"] == "excluded")
+        .expect("an excluded finding");
+    assert_eq!(f["start_s"], 28260.0);
+    assert_eq!(f["end_s"], 28800.0);
+    assert_eq!(f["samples"], 541);
+    assert_eq!(f["action"], "rejected");
+    // A malformed window is a usage error.
+    let (code, _) = run_driftid(&[
+        "identify".into(),
+        csv.clone().into(),
+        "--exclude".into(),
+        "8..4".into(),
+    ]);
+    assert_eq!(code, Some(2));
+}
+
+/// Issue 27 item 3 through the CLI: `simulate --fault saturate` makes a recording pinned at
+/// ±6.5 m/s² on x (seed 3: x passes 7 m/s² near 5–6 h); identify names it `saturated` with its
+/// range and trusts the rest (exit 0; before: steps and a misfit, exit 3).
+#[test]
+fn a_saturated_recording_from_simulate_is_named_and_trusted() {
+    let dir = temp_dir("saturate");
+    let csv = simulate_to(
+        &dir,
+        "run.csv",
+        &[
+            "--hours",
+            "10",
+            "--seed",
+            "3",
+            "--fault",
+            "saturate=x,6.5,0,10",
+        ],
+    );
+    let (code, all) = run_driftid(&["identify".into(), csv.into()]);
+    assert_eq!(code, Some(0), "{all}");
+    assert!(
+        all.contains("saturated") && all.contains("rail +6.5 m/s^2"),
+        "{all}"
+    );
+}

@@ -87,6 +87,86 @@ fn clean_recordings_produce_no_finding() {
     assert!(alarms.is_empty(), "false alarms on clean data: {alarms:?}");
 }
 
+/// Clean runs of one shape: the seeds (of `seeds`) whose screening reports anything, with the
+/// findings. `shape(seed)` gives (latitude, hours, sample interval, samples dropped at the start);
+/// the screening (`quality::screen`, what every command runs first) is called directly: the
+/// identification is not needed to see a false alarm, and the sweep must stay fast.
+fn false_alarms(
+    seeds: std::ops::Range<u64>,
+    shape: impl Fn(u64) -> (f64, f64, f64, usize),
+) -> Vec<(u64, Vec<String>)> {
+    let mut out = vec![];
+    for seed in seeds {
+        let (lat, hours, rate_s, skip) = shape(seed);
+        let (sc, samples) = run(seed, lat, hours, rate_s, [0.0; 3]);
+        let screened = host_tool::quality::screen(site_of(&sc), &samples[skip..], 60.0)
+            .unwrap_or_else(|r| panic!("seed {seed}: clean run refused: {r}"));
+        if !screened.findings.is_empty() {
+            out.push((seed, screened.findings.iter().map(|f| f.line()).collect()));
+        }
+    }
+    out
+}
+
+/// Issue 27: at most 1 false alarm in 100 clean seeds (the issue's ≤ 1 %). With 8σ thresholds
+/// a correctly weighted screening should give none; 1 is allowed so that a single rare
+/// coincidence (an 8σ event has P ≈ 1e-15, but the robust scales are estimated) does not make
+/// the test flaky, while the bug this guards against gave 5–9 per 100.
+fn assert_at_most_one_in(what: &str, seeds: u64, alarms: &[(u64, Vec<String>)]) {
+    eprintln!(
+        "{what}: {} of {seeds} clean seeds with a finding: {alarms:?}",
+        alarms.len()
+    );
+    assert!(
+        alarms.len() * 100 <= seeds as usize,
+        "{what}: {} false alarms in {seeds} clean seeds: {alarms:?}",
+        alarms.len()
+    );
+}
+
+#[test]
+fn no_false_alarm_at_the_partial_last_period_default_shape() {
+    // The default scenario's shape (1 s, 39.1° N, a whole number of hours: the last 60-s
+    // period holds one sample, t = end), 12 h instead of 60 to stay fast: the false alarm came
+    // from the last four means, whatever the length. Before the fix 5 of 60 default 60-h runs
+    // (seeds 7, 12, 51, 54, 56) reported a "step" at the end.
+    let alarms = false_alarms(0..100, |_| (39.1, 12.0, 1.0, 0));
+    assert_at_most_one_in("1 s, 12 h, 39.1° N", 100, &alarms);
+}
+
+#[test]
+fn no_false_alarm_at_the_partial_last_period_10_hz() {
+    // 10 Hz: the last period's one sample is √600 ≈ 24× noisier than a full mean.
+    let alarms = false_alarms(1000..1100, |_| (39.1, 3.0, 0.1, 0));
+    assert_at_most_one_in("0.1 s, 3 h, 39.1° N", 100, &alarms);
+}
+
+#[test]
+fn no_false_alarm_at_the_partial_last_period_other_latitudes() {
+    // Both hemispheres, near the equator and the pole (the cone, and so the gravity signal
+    // the third differences must remove, changes with latitude).
+    let lats = [-62.0, -21.0, 5.0, 71.0];
+    let alarms = false_alarms(2000..2100, |s| (lats[s as usize % 4], 12.0, 1.0, 0));
+    assert_at_most_one_in("1 s, 12 h, latitudes -62/-21/5/71", 100, &alarms);
+}
+
+#[test]
+fn no_false_alarm_at_partial_periods_odd_durations() {
+    // Odd durations: + 1 sample (the last period holds 2), 11.99 h (43 164 s: 25 in the last),
+    // + 37 s, and a recording that starts 23 s into its first period (a partial first one).
+    let alarms = false_alarms(3000..3100, |s| match s % 4 {
+        0 => (39.1, 12.0 + 1.0 / 3600.0, 1.0, 0),
+        1 => (39.1, 11.99, 1.0, 0),
+        2 => (39.1, 12.0 + 37.0 / 3600.0, 1.0, 0),
+        _ => (39.1, 12.0, 1.0, 23),
+    });
+    assert_at_most_one_in(
+        "1 s, odd durations and a partial first period",
+        100,
+        &alarms,
+    );
+}
+
 #[test]
 fn repairable_faults_are_repaired_and_the_estimate_holds() {
     let (sc, clean) = run(7, 39.1, 30.0, 1.0, [0.0; 3]);
@@ -270,25 +350,31 @@ fn unrepairable_faults_are_refused_or_not_trusted() {
         "{:?}",
         prep.floor_mps2()
     );
-    // A bias step of 2e-3 m/s^2 (20× the floor of a 60-s mean) on y halfway.
+    // A bias step of 2e-3 m/s^2 (20× the floor of a 60-s mean) on y halfway: issue 27 made it
+    // a repair (`acc-bias-step`, sized and the later samples corrected), no longer an
+    // unrepaired `step` (a_bias_step_is_found_sized_and_repaired covers it in detail).
     let mut s = clean.clone();
     let half = s.len() / 2;
     s[half..]
         .iter_mut()
         .for_each(|x| x.specific_force[1] += 2e-3);
     let prep = prepare(site, &s, &Config::default()).unwrap();
-    assert!(kinds(&prep).contains(&"step"), "{:?}", kinds(&prep));
-    assert!(!prep.untrusted_reasons().is_empty());
+    assert_eq!(kinds(&prep), ["acc-bias-step"], "{:?}", prep.findings);
+    assert!(prep.untrusted_reasons().is_empty());
     // A step of 2e-2 m/s^2, 26× the raw noise: the samples at the jump depart from their
     // neighbours' line and are rejected as glitches, which tags the step's window off the
-    // grid; the step must still be named (third divided differences), not hidden by it.
+    // grid; the step must still be found (and repaired), not hidden by it.
     let mut s = clean.clone();
     s[half..]
         .iter_mut()
         .for_each(|x| x.specific_force[1] += 2e-2);
     let prep = prepare(site, &s, &Config::default()).unwrap();
-    assert!(kinds(&prep).contains(&"step"), "{:?}", kinds(&prep));
-    assert!(!prep.untrusted_reasons().is_empty());
+    assert!(
+        kinds(&prep).contains(&"acc-bias-step") && !kinds(&prep).contains(&"step"),
+        "{:?}",
+        prep.findings
+    );
+    assert!(prep.untrusted_reasons().is_empty());
 }
 
 /// The latitude a `latitude` finding names (the number after "latitude "), deg.
@@ -405,4 +491,194 @@ fn a_stated_initial_orientation_is_the_models_start() {
         "{:?}",
         kinds(&unstated)
     );
+}
+
+/// A clean run of the paper's scenario (`run`) with data faults (`driftid simulate --fault`
+/// syntax) applied to its samples.
+fn run_with_faults(seed: u64, hours: f64, faults: &[&str]) -> (Scenario, Vec<Sample>) {
+    let mut sc = Scenario::paper();
+    sc.seed = seed;
+    sc.hours = hours;
+    let mut sim = simulate(&sc);
+    for f in faults {
+        let fault: host_tool::simulate::Fault = f.parse().unwrap();
+        assert!(fault.apply(&mut sim.samples) > 0, "{f} changed nothing");
+    }
+    (sc, sim.samples.iter().map(Sample::from).collect())
+}
+
+#[test]
+fn a_sensor_pinned_at_its_rails_is_named_saturated_excluded_and_trusted() {
+    // Issue 27: x clipped at ±7 m/s² (seed 3, 30 h: x swings over ±7.3 m/s² as gravity turns
+    // in the platform frame, so it reaches each rail for hours, a fifth of the run in all) was
+    // reported as steps, a gravity mismatch and a misfit. Now: one `saturated` finding per
+    // stretch, each naming its time range, the samples excluded, nothing unrepaired, and the
+    // coefficients within 3σ of the truth (a clean run's worst is ~1.2σ for this seed's
+    // family: 3σ is the file's bound, see the top).
+    let (sc, samples) = run_with_faults(3, 30.0, &["saturate=x,7,0,30"]);
+    let pinned: Vec<f64> = samples
+        .iter()
+        .filter(|s| s.specific_force[0].abs() == 7.0)
+        .map(|s| s.t_s)
+        .collect();
+    let prep = prepare(site_of(&sc), &samples, &Config::default()).unwrap();
+    let sat: Vec<_> = prep
+        .findings
+        .iter()
+        .filter(|f| f.kind == "saturated")
+        .collect();
+    eprintln!("{:#?}", prep.findings);
+    assert!(
+        sat.len() >= 2,
+        "both rails (+7 near 6 h and 29 h, -7 near 18 h) named: {:?}",
+        kinds(&prep)
+    );
+    assert!(
+        sat.iter().any(|f| f.message.contains("+7"))
+            && sat.iter().any(|f| f.message.contains("-7"))
+    );
+    for f in &prep.findings {
+        assert!(
+            matches!(f.action, Action::Rejected | Action::Noted),
+            "only excluded or noted, nothing else: {}",
+            f.line()
+        );
+    }
+    // Every pinned reading lies in a reported range.
+    for t in &pinned {
+        assert!(
+            sat.iter()
+                .any(|f| f.start_s.unwrap() <= *t && *t <= f.end_s.unwrap()),
+            "pinned reading at {t} s outside every saturated range"
+        );
+    }
+    let worst = worst_err_over_sigma(&sc, &prep);
+    eprintln!("worst |error|/σ {worst:.2} after excluding the saturation");
+    assert!(
+        worst < 3.0,
+        "worst |error|/σ {worst:.2} after excluding the saturation"
+    );
+}
+
+#[test]
+fn a_short_burst_is_a_disturbance_excluded_not_a_step() {
+    // Issue 27: 60 s of +0.3 m/s² on y was reported as a "step" (not repaired, exit 3). The
+    // level before and after agree, so it is a disturbance: its filter periods are excluded
+    // (action rejected), the finding covers the burst, and the estimate stands (within 3σ).
+    let (sc, samples) = run_with_faults(3, 30.0, &["burst=y,0.3,12.01,60"]);
+    let prep = prepare(site_of(&sc), &samples, &Config::default()).unwrap();
+    eprintln!("{:#?}", prep.findings);
+    assert!(!kinds(&prep).contains(&"step"), "{:?}", kinds(&prep));
+    let d: Vec<_> = prep
+        .findings
+        .iter()
+        .filter(|f| f.kind == "disturbance")
+        .collect();
+    assert_eq!(d.len(), 1, "{:?}", kinds(&prep));
+    assert_eq!(d[0].action, Action::Rejected);
+    assert!(d[0].message.contains("axis y"), "{}", d[0].message);
+    // The burst is 43 236–43 295 s; the excluded periods (mean times given) cover it to within
+    // a period.
+    let (a, b) = (d[0].start_s.unwrap(), d[0].end_s.unwrap());
+    assert!(a - 60.0 <= 43_236.0 && 43_295.0 <= b + 60.0, "{a}–{b}");
+    // No measurement left inside the burst.
+    assert!(prep
+        .measurements
+        .iter()
+        .all(|m| !(43_236.0..43_296.0).contains(&m.t_s)));
+    for f in &prep.findings {
+        assert!(matches!(f.action, Action::Rejected), "{}", f.line());
+    }
+    let worst = worst_err_over_sigma(&sc, &prep);
+    eprintln!("worst |error|/σ {worst:.2} after excluding the burst");
+    assert!(
+        worst < 3.0,
+        "worst |error|/σ {worst:.2} after excluding the burst"
+    );
+}
+
+#[test]
+fn a_fifteen_minute_disturbance_is_one_disturbance_not_two_steps() {
+    // 15 min of +0.01 m/s² on y at 5 h: its start and its end are two events of the step check
+    // (each a level shift on its own); together the level comes back, so one `disturbance`
+    // covering the 15 periods is excluded. Before the events were joined: two `step`s, exit 3.
+    let (sc, samples) = run_with_faults(3, 10.0, &["burst=y,0.01,5,900"]);
+    let prep = prepare(site_of(&sc), &samples, &Config::default()).unwrap();
+    assert_eq!(kinds(&prep), ["disturbance"], "{:#?}", prep.findings);
+    let f = &prep.findings[0];
+    // Periods 5.0–5.25 h (mean times 18 029.5 … 18 869.5 s): all of them, not more than one extra
+    // on either side.
+    let (a, b) = (f.start_s.unwrap(), f.end_s.unwrap());
+    assert!(
+        (17_960.0..=18_030.0).contains(&a) && (18_860.0..=18_930.0).contains(&b),
+        "{a}–{b}"
+    );
+}
+
+/// Issue 27 item 2: the y accelerometer's bias jumps by 1e-3 m/s² at 30 h of the default 60-h
+/// run (10× the 1σ of a 60-s mean; 2.3× under the third differences' 8σ, so it went unseen and
+/// the ladder named the wrong physics). Found by the local level-shift scan (6σ), sized on ±6 h
+/// of means, the later samples corrected: `acc-bias-step` (repaired) with its time and size,
+/// and the coefficients within 3σ of the truth.
+#[test]
+fn a_bias_step_is_found_sized_and_repaired() {
+    let (sc, samples) = run_with_faults(5, 60.0, &["step=y,1e-3,30"]);
+    let prep = prepare(site_of(&sc), &samples, &Config::default()).unwrap();
+    assert_eq!(kinds(&prep), ["acc-bias-step"], "{:#?}", prep.findings);
+    let f = &prep.findings[0];
+    assert_eq!(f.action, Action::Repaired);
+    assert!(f.message.starts_with("axis y:"), "{}", f.message);
+    // The time to within one filter period (the window holding the jump is left out).
+    let t = f.start_s.unwrap();
+    assert!((t - 108_000.0).abs() <= 60.0, "t = {t}");
+    // The size ("steps by +9.853e-4 ± 3.1e-5"): within 3σ of 1e-3.
+    let (size, sd) = {
+        let m = &f.message;
+        let i = m.find("steps by ").unwrap() + 9;
+        let rest: Vec<&str> = m[i..].split_whitespace().collect();
+        (
+            rest[0].parse::<f64>().unwrap(),
+            rest[2].parse::<f64>().unwrap(),
+        )
+    };
+    eprintln!("size {size:e} ± {sd:e}");
+    assert!((size - 1e-3).abs() < 3.0 * sd, "size {size} ± {sd}");
+    let worst = worst_err_over_sigma(&sc, &prep);
+    eprintln!("worst |error|/σ {worst:.2} after the repair");
+    assert!(worst < 3.0, "worst |error|/σ {worst:.2}");
+}
+
+#[test]
+fn a_bias_step_of_four_times_the_noise_of_a_mean_is_found_and_repaired() {
+    // 4e-4 m/s² (4× the 1σ of a 60-s mean; 10σ of the ±6-h fit that sizes it): the local
+    // level-shift scan alone (1σ ~1.3e-4) found no step of this size in 20 of 20 seeds, and
+    // the run then misfit. Now found, sized within 3σ of the truth, the estimate trusted.
+    let (sc, samples) = run_with_faults(5, 60.0, &["step=y,4e-4,30"]);
+    let prep = prepare(site_of(&sc), &samples, &Config::default()).unwrap();
+    assert_eq!(kinds(&prep), ["acc-bias-step"], "{:#?}", prep.findings);
+    let m = &prep.findings[0].message;
+    let i = m.find("steps by ").unwrap() + 9;
+    let rest: Vec<&str> = m[i..].split_whitespace().collect();
+    let (size, sd) = (
+        rest[0].parse::<f64>().unwrap(),
+        rest[2].parse::<f64>().unwrap(),
+    );
+    assert!((size - 4e-4).abs() < 3.0 * sd, "size {size} ± {sd}");
+    let worst = worst_err_over_sigma(&sc, &prep);
+    assert!(worst < 3.0, "worst |error|/σ {worst:.2}");
+}
+
+#[test]
+fn a_gauss_markov_drift_is_not_taken_for_bias_steps() {
+    // A Gauss–Markov drift wanders the platform slowly; the bias-step scan's ±6-h fit does not
+    // follow that and found 3 "steps" per axis on every axis (seeds 1–3 of σ 0.01 deg/h, τ 5 h)
+    // and repaired them: a physical effect taken for a data fault. Several candidates in a run
+    // are now slow structure left to the model ladder (which names drift-markov): no finding.
+    let mut sc = Scenario::paper();
+    sc.seed = 1;
+    sc.effects = vec!["drift-markov=0.01,0.01,0.01:5,5,5".parse().unwrap()];
+    let sim = simulate(&sc);
+    let samples: Vec<Sample> = sim.samples.iter().map(Sample::from).collect();
+    let prep = prepare(site_of(&sc), &samples, &Config::default()).unwrap();
+    assert!(prep.findings.is_empty(), "{:#?}", prep.findings);
 }

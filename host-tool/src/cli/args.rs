@@ -48,6 +48,18 @@ pub fn nonneg_f64(s: &str) -> Result<f64, String> {
     }
 }
 
+/// A window of hours `T0..T1` (`--exclude`): finite, T0 ≤ T1.
+pub fn hours_window(s: &str) -> Result<(f64, f64), String> {
+    let (a, b) = s
+        .split_once("..")
+        .ok_or_else(|| format!("{s:?} is not a window T0..T1 in hours (e.g. 12.5..13)"))?;
+    let (a, b) = (number(a.trim())?, number(b.trim())?);
+    if a > b {
+        return Err(format!("the window {a}..{b} ends before it starts"));
+    }
+    Ok((a, b))
+}
+
 /// A latitude in degrees, in the range the recording format accepts (the reader's own check).
 pub fn latitude_deg(s: &str) -> Result<f64, String> {
     check_latitude_deg(number(s)?)

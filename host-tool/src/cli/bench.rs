@@ -17,9 +17,11 @@ use crate::stats::chi2_quantile;
 pub struct BenchArgs {
     /// What to benchmark: `accuracy` (estimates against the Cramér–Rao bound) or `calibration`
     /// (false-alarm rate of the diagnosis on clean runs) or `sensitivity` (detection rate of
-    /// each effect at 1× and 2× the size the diagnosis says it detects with 90 % power).
+    /// each effect at 1× and 2× the size the diagnosis says it detects with 90 % power) or
+    /// `screening` (false alarms of the data-quality screening on clean runs, one row per
+    /// `--hours`: runs with any finding, with an untrusting one).
     /// Speed benchmarks are `cargo bench`.
-    #[arg(value_parser = ["accuracy", "calibration", "sensitivity"])]
+    #[arg(value_parser = ["accuracy", "calibration", "sensitivity", "screening"])]
     pub what: String,
     /// Number of seeds.
     #[arg(long, default_value_t = 24, allow_hyphen_values = true, value_parser = super::args::seed_count)]
@@ -30,6 +32,9 @@ pub struct BenchArgs {
     /// Raw sample interval, s.
     #[arg(long, default_value_t = 1.0, allow_hyphen_values = true, value_parser = super::args::rate_s)]
     pub rate_s: f64,
+    /// Latitude of the simulated runs, degrees (`screening` only).
+    #[arg(long, default_value_t = 39.1, allow_hyphen_values = true)]
+    pub latitude_deg: f64,
     /// Print one JSON object instead of tables.
     #[arg(long)]
     pub json: bool,
@@ -59,12 +64,14 @@ pub fn run(args: &BenchArgs) -> anyhow::Result<()> {
     let mut longest = Scenario::paper();
     longest.hours = args.hours.iter().cloned().fold(0.0, f64::max);
     longest.rate_s = args.rate_s;
+    longest.latitude_deg = args.latitude_deg;
     longest
         .validate()
         .map_err(|e| anyhow::anyhow!("--hours/--rate-s: {e}"))?;
     match args.what.as_str() {
         "calibration" => calibration(args),
         "sensitivity" => sensitivity(args),
+        "screening" => screening(args),
         _ => accuracy(args),
     }
 }
@@ -173,6 +180,73 @@ fn calibration(args: &BenchArgs) -> anyhow::Result<()> {
             args.seeds,
             t0.elapsed().as_secs_f64()
         );
+    }
+    Ok(())
+}
+
+/// False alarms of the data-quality screening (what every command runs first) on clean runs of
+/// the paper's scenario: per `--hours` value (each a run length, fractions allowed: 59.99, or
+/// 60.0002778 for one sample more), seeds 1..=`--seeds` as `driftid simulate --seed N` makes
+/// them; the runs with any finding and with one that makes the estimate untrusted (exit 3).
+fn screening(args: &BenchArgs) -> anyhow::Result<()> {
+    use crate::quality::Action;
+    let t0 = std::time::Instant::now();
+    let mut rows = vec![];
+    for &hours in &args.hours {
+        let pb = crate::progress::bar(args.seeds, "clean seeds");
+        let per_seed: Vec<anyhow::Result<(u64, Vec<crate::quality::Finding>)>> = (1..=args.seeds)
+            .into_par_iter()
+            .progress_with(pb.clone())
+            .map(|seed| {
+                let mut sc = Scenario::paper();
+                sc.seed = seed;
+                sc.hours = hours;
+                sc.rate_s = args.rate_s;
+                sc.latitude_deg = args.latitude_deg;
+                sc.accel_sigma_mps2 = 1e-5 * sc.gravity();
+                let sim = simulate(&sc);
+                let samples: Vec<Sample> = sim.samples.iter().map(Sample::from).collect();
+                let site = estimator_core::Site::new(sc.latitude_deg, sc.gravity_mps2);
+                let prep = prepare(site, &samples, &Config::default())?;
+                Ok((seed, prep.findings))
+            })
+            .collect();
+        pb.finish_and_clear();
+        let per_seed: Vec<_> = per_seed.into_iter().collect::<anyhow::Result<_>>()?;
+        let any: Vec<&(u64, Vec<crate::quality::Finding>)> =
+            per_seed.iter().filter(|(_, f)| !f.is_empty()).collect();
+        let untrusting = any
+            .iter()
+            .filter(|(_, f)| {
+                f.iter()
+                    .any(|x| matches!(x.action, Action::NotRepaired | Action::Refused))
+            })
+            .count();
+        let examples: Vec<String> = any
+            .iter()
+            .take(5)
+            .map(|(seed, f)| format!("seed {seed}: {}", f[0].line()))
+            .collect();
+        if !args.json {
+            println!(
+                "{hours} h at {} s, {} deg: {}/{} clean seeds with a finding, {untrusting} untrusting{}",
+                args.rate_s,
+                args.latitude_deg,
+                any.len(),
+                args.seeds,
+                if examples.is_empty() {
+                    String::new()
+                } else {
+                    format!(" ({})", examples.join("; "))
+                }
+            );
+        }
+        rows.push(serde_json::json!({ "hours": hours, "rate_s": args.rate_s, "latitude_deg": args.latitude_deg, "seeds": args.seeds, "with_finding": any.len(), "untrusting": untrusting, "examples": examples }));
+    }
+    if args.json {
+        println!("{}", serde_json::to_string_pretty(&rows)?);
+    } else {
+        println!("{:.1} s", t0.elapsed().as_secs_f64());
     }
     Ok(())
 }

@@ -52,6 +52,11 @@ pub struct ModelArgs {
     /// see the README, "Effects defined in a file".
     #[arg(long = "effects", value_name = "FILE")]
     pub effects: Vec<std::path::PathBuf>,
+    /// Leave out the samples of a window, hours of the recording's time column (e.g. a
+    /// disturbance you know of: `--exclude 12.5..12.6`); repeatable, reported as an `excluded`
+    /// finding. With several runs it applies to each.
+    #[arg(long = "exclude", value_name = "T0..T1", allow_hyphen_values = true, value_parser = super::args::hours_window)]
+    pub exclude: Vec<(f64, f64)>,
 }
 
 /// Loads and registers the `--effects` files: call first in identify, diagnose and report.
@@ -101,6 +106,11 @@ impl ModelArgs {
             },
             raw_sigma_mps2,
             smoother_iterations: if self.single_pass { 0 } else { 3 },
+            exclude_s: self
+                .exclude
+                .iter()
+                .map(|&(a, b)| (a * 3600.0, b * 3600.0))
+                .collect(),
             ..Config::default()
         })
     }

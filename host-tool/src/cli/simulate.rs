@@ -4,7 +4,9 @@ use std::path::PathBuf;
 
 use anyhow::Context as _;
 
-use crate::simulate::{self, InjectedEffect, Scenario, EFFECT_SYNTAX_HELP};
+use crate::simulate::{
+    self, Fault, InjectedEffect, Scenario, EFFECT_SYNTAX_HELP, FAULT_SYNTAX_HELP,
+};
 
 /// Scenario presets.
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq, clap::ValueEnum)]
@@ -15,6 +17,10 @@ pub enum Preset {
 }
 
 fn parse_effect(s: &str) -> Result<InjectedEffect, String> {
+    s.parse()
+}
+
+fn parse_fault(s: &str) -> Result<Fault, String> {
     s.parse()
 }
 
@@ -47,6 +53,11 @@ pub struct SimulateArgs {
     #[arg(long = "effect", value_name = "NAME=V1,V2,...", value_parser = parse_effect,
           allow_hyphen_values = true, long_help = EFFECT_SYNTAX_HELP)]
     pub effects: Vec<InjectedEffect>,
+    /// Add a data fault to the written samples (not part of the truth model: what the
+    /// data-quality screening must find).
+    #[arg(long = "fault", value_name = "NAME=AXIS,V1,V2,V3", value_parser = parse_fault,
+          allow_hyphen_values = true, long_help = FAULT_SYNTAX_HELP)]
+    pub faults: Vec<Fault>,
     /// Write a temp_c column even without temp-drift.
     #[arg(long)]
     pub write_temp: bool,
@@ -156,7 +167,16 @@ pub fn run(args: &SimulateArgs) -> anyhow::Result<()> {
     outputs.check(&args.out, "--out", crate::output::Made::SimulatedRecording)?;
     let truth = simulate::truth_path_for(&args.out);
     outputs.check(&truth, "--out (its truth file)", crate::output::Made::Truth)?;
-    let sim = simulate::simulate(&scenario);
+    let mut sim = simulate::simulate(&scenario);
+    let mut applied = vec![];
+    for f in &args.faults {
+        let n = f.apply(&mut sim.samples);
+        applied.push(format!("{f} ({n} samples changed)"));
+    }
+    if !applied.is_empty() {
+        let d = sim.meta.description.get_or_insert_with(String::new);
+        d.push_str(&format!(", faults: {}", applied.join(" ")));
+    }
     let truth_path = simulate::write_simulation(&args.out, &sim, args.force)?;
     println!(
         "wrote {} ({} samples, {} h at {} s, seed {}) and {}",
@@ -167,6 +187,9 @@ pub fn run(args: &SimulateArgs) -> anyhow::Result<()> {
         scenario.seed,
         truth_path.display()
     );
+    for a in &applied {
+        println!("fault {a}");
+    }
     Ok(())
 }
 

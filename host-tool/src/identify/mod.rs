@@ -46,6 +46,9 @@ pub struct Config {
     /// Priors of the set-up: the start attitude is estimated with them, the rest enters the
     /// total 1σ ([`setup`]).
     pub setup: setup::SetupPriors,
+    /// Windows [t0, t1] (recording's seconds) whose samples are left out (`--exclude`), each
+    /// reported as an `excluded` finding.
+    pub exclude_s: Vec<(f64, f64)>,
 }
 
 impl Default for Config {
@@ -58,6 +61,7 @@ impl Default for Config {
             smoother_iterations: 3,
             pass2_prior_shrink: 20.0,
             setup: setup::SetupPriors::default(),
+            exclude_s: Vec::new(),
         }
     }
 }
@@ -196,7 +200,7 @@ pub fn prepare_oriented(
     }
     site.chart = site.chart_for_start(&theta0_enu);
     let theta0 = site.angles_to_chart(&theta0_enu);
-    let screened = quality::screen_oriented(site, samples, cfg.period_s, theta0)?;
+    let screened = quality::screen_excluding(site, samples, cfg.period_s, theta0, &cfg.exclude_s)?;
     let noise = match cfg.raw_sigma_mps2 {
         Some(raw_sigma_mps2) => NoiseFloor {
             raw_sigma_mps2,

@@ -15,6 +15,7 @@
 //! [`screening`]: estimator_core::screening
 
 pub mod attitude;
+pub mod exclusion;
 pub mod latitude;
 pub mod physics;
 mod pieces;
@@ -169,7 +170,21 @@ pub fn screen_oriented(
     period_s: f64,
     theta0: [f64; 3],
 ) -> Result<Screened<'_>, Refusal> {
-    let mut findings = vec![];
+    screen_excluding(site, samples, period_s, theta0, &[])
+}
+
+/// [`screen_oriented`] without the samples in the windows `exclude_s` ([t0, t1] in the
+/// recording's seconds, the user's `--exclude`); the stretches pinned at a rail are left out
+/// too ([`exclusion`]), each with a finding.
+pub fn screen_excluding<'s>(
+    site: Site,
+    all: &'s [Sample],
+    period_s: f64,
+    theta0: [f64; 3],
+    exclude_s: &[(f64, f64)],
+) -> Result<Screened<'s>, Refusal> {
+    let (kept, mut findings) = exclusion::exclude(all, period_s, exclude_s);
+    let samples: &[Sample] = kept.as_deref().unwrap_or(all);
     let refuse = |mut findings: Vec<Finding>, kind, message: String| {
         findings.push(Finding {
             kind,
@@ -227,8 +242,11 @@ pub fn screen_oriented(
             ),
         );
     }
-    let mut accepted: Cow<'_, [Sample]> = if summary.rejected == 0 {
-        Cow::Borrowed(samples)
+    let mut accepted: Cow<'s, [Sample]> = if summary.rejected == 0 {
+        match &kept {
+            None => Cow::Borrowed(all),
+            Some(k) => Cow::Owned(k.clone()),
+        }
     } else {
         samples
             .iter()
@@ -248,12 +266,8 @@ pub fn screen_oriented(
         Err(f) => return refuse(findings, f.0, f.1),
     };
     let mut times: Vec<f64> = Vec::with_capacity(samples.len());
-    times.extend(
-        samples
-            .iter()
-            .map(|s| s.t_s * factor)
-            .filter(|t| t.is_finite()),
-    );
+    // The recording's own times (an excluded stretch is no gap in the recording).
+    times.extend(all.iter().map(|s| s.t_s * factor).filter(|t| t.is_finite()));
     time::check_spacing(&times, &mut findings);
     let initial_tilt =
         match physics::check_start(&site, &accepted, period_s, &sigma, theta0, &mut findings) {
@@ -266,9 +280,10 @@ pub fn screen_oriented(
     let mut mean_sigma_override_mps2 = steps::check_mean_noise(&means, &sigma, &mut findings);
     if quantum.iter().any(|q| q.is_some()) {
         let mut over = mean_sigma_override_mps2.unwrap_or_else(|| {
-            let n =
-                means.iter().map(|m| f64::from(m.count)).sum::<f64>() / means.len().max(1) as f64;
-            sigma.map(|s| s / n.max(1.0).sqrt())
+            // A full window's count (as `prepare` scales the override to each window's count),
+            // not the mean count, which the partial first and last windows pull down.
+            let n = steps::typical_count(&means);
+            sigma.map(|s| s / n.sqrt())
         });
         for (o, q) in over.iter_mut().zip(&quantum) {
             if let Some(q) = q {
@@ -279,7 +294,88 @@ pub fn screen_oriented(
     }
     // Undithered rounding makes the means jump by an LSB as the signal crosses a step: no steps
     // are looked for on those axes.
-    steps::check_steps(&means, &quantum.map(|q| q.is_some()), &mut findings);
+    let disturbed = steps::check_steps(&means, &quantum.map(|q| q.is_some()), &mut findings);
+    let mut means = means;
+    if !disturbed.is_empty() {
+        // The disturbed filter periods leave the means and the samples (the windows
+        // [k·T, (k+1)·T) holding those means).
+        let p = period_s.max(1e-9);
+        let windows: Vec<f64> = disturbed
+            .iter()
+            .map(|&i| (means[i].t_s / p).floor())
+            .collect();
+        accepted = accepted
+            .iter()
+            .filter(|s| !windows.contains(&(s.t_s / p).floor()))
+            .copied()
+            .collect::<Vec<_>>()
+            .into();
+        means = means
+            .into_iter()
+            .enumerate()
+            .filter(|(i, _)| disturbed.binary_search(i).is_err())
+            .map(|(_, m)| m)
+            .collect();
+    }
+    // Bias steps too small for the third differences: found in the means, repaired in the
+    // samples (the later ones corrected, the window holding the jump left out), the means
+    // recomputed. A step the third differences named is replaced by its repair.
+    let skip = quantum.map(|q| q.is_some());
+    let full = steps::mean_sigma(&means, &skip);
+    let found = steps::find_bias_steps(&means, &skip, &full);
+    if !found.is_empty() {
+        let p = period_s.max(1e-9);
+        let transitional: Vec<f64> = found
+            .iter()
+            .map(|b| (means[b.at].t_s / p).floor())
+            .collect();
+        let mut repaired: Vec<Sample> = Vec::with_capacity(accepted.len());
+        for s in accepted.iter() {
+            let w = (s.t_s / p).floor();
+            if transitional.contains(&w) {
+                continue;
+            }
+            let mut s = *s;
+            for (b, tw) in found.iter().zip(&transitional) {
+                if w > *tw {
+                    s.specific_force[b.axis] -= b.size;
+                }
+            }
+            repaired.push(s);
+        }
+        for b in &found {
+            let tag = format!("axis {}:", axis_name(b.axis));
+            let (t0, t1) = (means[b.at].t_s - p, means[b.at].t_s + p);
+            findings.retain(|f| {
+                !(f.kind == "step"
+                    && f.message.starts_with(&tag)
+                    && f.start_s.is_some_and(|a| a <= t1)
+                    && f.end_s.is_some_and(|e| e >= t0))
+            });
+            findings.push(Finding {
+                kind: "acc-bias-step",
+                message: format!(
+                    "axis {}: the accelerometer bias steps by {:+.3e} ± {:.1e} m/s^2 ({:.0}σ) at t = {:.0} s ({:.3} h): found as a level shift of the \
+                     filter-period means across it (a cubic for the slow signal plus a step, {} means each side) and sized on ±6 h of them (the Earth-rate turn of gravity, \
+                     modulated by a cubic, plus the step); repaired: every later sample corrected by {:+.3e} m/s^2, the filter period holding the jump left out",
+                    axis_name(b.axis),
+                    b.size,
+                    b.sigma,
+                    (b.size / b.sigma).abs(),
+                    b.t_s,
+                    b.t_s / 3600.0,
+                    steps::SIDE_MEANS,
+                    -b.size
+                ),
+                start_s: Some(b.t_s),
+                end_s: None,
+                samples: means[b.at].count as usize,
+                action: Action::Repaired,
+            });
+        }
+        means = window_means(&repaired, period_s, &sigma);
+        accepted = Cow::Owned(repaired);
+    }
     Ok(Screened {
         site,
         samples: accepted,

@@ -16,6 +16,7 @@
 pub mod dcm;
 mod effects;
 mod engine;
+mod faults;
 
 use std::collections::BTreeMap;
 use std::io::Write as _;
@@ -27,6 +28,7 @@ use rand_distr::{Distribution, StandardNormal};
 
 pub use effects::{InjectedEffect, EFFECT_NAMES, EFFECT_SYNTAX_HELP};
 pub use engine::Simulator;
+pub use faults::{Fault, FAULT_SYNTAX_HELP};
 
 use crate::output::AtomicFile;
 use crate::recording::{Metadata, RawSample, RecordingWriter};
