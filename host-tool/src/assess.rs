@@ -86,7 +86,7 @@ pub fn alternatives_untrusted(
             ));
         } else if z.abs() > 1.0 {
             out.push(format!(
-                "`{}` explains the data almost as well (evidence gain {:.1}, within {PLAUSIBLE_MARGIN} of the best) and would move {} by {:+.1}σ: this run cannot tell them apart — a second run from another orientation (`driftid plan`) or a bench value of `{}` would",
+                "`{}` explains the data almost as well (evidence gain {:.1}, within {PLAUSIBLE_MARGIN} of the best) and would move {} by {:+.1}σ: this run cannot tell them apart — a longer run (a day at least), a second run from another orientation (`driftid plan`) or a bench value of `{}` would",
                 a.effect, a.evidence_gain, id.params[k].name, z, a.effect
             ));
         }
