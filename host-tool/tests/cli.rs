@@ -592,3 +592,30 @@ fn a_saturated_recording_from_simulate_is_named_and_trusted() {
         "{all}"
     );
 }
+
+/// Issue 26 through a joint fit: each run is assessed as `identify` assesses one. A second run
+/// recorded with a clock 1000 ppm fast (the data read it as a latitude 0.08° off "39.1", beyond
+/// what the written digits allow) makes the joint result untrusted, naming that run alone.
+#[test]
+fn a_joint_fit_is_not_trusted_when_one_runs_set_up_is_contradicted() {
+    let dir = temp_dir("joint-setup");
+    let a = simulate_to(&dir, "a.csv", &["--rate-s", "10", "--seed", "1"]);
+    let b = simulate_to(
+        &dir,
+        "b.csv",
+        &[
+            "--rate-s",
+            "10",
+            "--seed",
+            "4",
+            "--initial-orientation-deg",
+            "135,0,0",
+            "--clock-error-ppm",
+            "1000",
+        ],
+    );
+    let (code, all) = run_driftid(&["identify".into(), a.into(), b.into()]);
+    assert_eq!(code, Some(3), "{all}");
+    assert!(all.contains("b.csv alone:"), "{all}");
+    let _ = std::fs::remove_dir_all(&dir);
+}

@@ -328,7 +328,21 @@ pub fn identify_runs(
         .zip(&runs)
         .map(|(fit, r)| run_consistency(fit, &r.prep))
         .collect();
-    let reasons = runs_untrusted(&runs, &joint.runs, &checks);
+    let mut reasons = runs_untrusted(&runs, &joint.runs, &checks);
+    // Each run's own fit assessed as `identify` assesses one run (the set-up against its priors,
+    // the alternatives on one evidence scale): a run whose set-up the data contradict, or that
+    // prefers an effect the joint model lacks, makes the joint result untrusted too. The joint
+    // 1σ itself carries the start attitude, not yet the latitude, clock and gravity.
+    let spin = crate::progress::spinner("each run's set-up and alternatives");
+    for (r, fit) in runs.iter().zip(&joint.runs) {
+        let a = crate::assess::assess(&effects, r.prep.clone(), &cfg, fit.alone.clone())?;
+        reasons.extend(
+            a.reasons
+                .into_iter()
+                .map(|m| format!("{} alone: {m}", r.path.display())),
+        );
+    }
+    spin.finish_and_clear();
     let mut out = to_json(&joint, &runs, &checks, &bound, truth.as_deref());
     out["trusted"] = json!(reasons.is_empty());
     out["untrusted_reasons"] = json!(reasons);
