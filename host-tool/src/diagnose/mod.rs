@@ -39,7 +39,7 @@ pub use self::verdict::is_consistent;
 use crate::consistency::{assess, Thresholds};
 use crate::identify::smoother::temp_devs;
 use crate::identify::{
-    build_model, identify, smoothed_residuals, wide_prior, Config, Identification, Prepared,
+    build_model, identify, smoothed_residuals, start_prior, Config, Identification, Prepared,
 };
 
 /// Settings of a diagnosis.
@@ -159,9 +159,7 @@ pub(crate) fn replay(
                 .and_then(|l| build_model(prep.site, l, &cfg.identify).ok())
         })
         .collect();
-    let mut x0 = vec![0.0; model.dim()];
-    x0[..3].copy_from_slice(&prep.initial_angles);
-    let (x0, p0) = wide_prior(model, &x0, &prep.start_sigma());
+    let (x0, p0) = start_prior(model, prep, &prep.start_sigma());
     let meas = &prep.measurements;
     Ok(signatures(
         model,

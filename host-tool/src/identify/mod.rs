@@ -459,6 +459,18 @@ pub fn wide_prior(
     (DVector::from_row_slice(x0), p0)
 }
 
+/// [`wide_prior`] about `prep`'s start: the angles at `prep.initial_angles` with `angle_sigma`,
+/// the parameters at zero.
+pub fn start_prior(
+    model: &Model<'_>,
+    prep: &Prepared,
+    angle_sigma: &[f64; 3],
+) -> (DVector<f64>, DMatrix<f64>) {
+    let mut x0 = vec![0.0; model.dim()];
+    x0[..ANGLES].copy_from_slice(&prep.initial_angles);
+    wide_prior(model, &x0, angle_sigma)
+}
+
 /// The noise-free trajectory of the model from angles `angles0` with parameters `params`, at t = 0
 /// and every measurement.
 pub fn nominal_trajectory(
@@ -644,9 +656,7 @@ pub fn identify_from(
     cfg: &Config,
     start: &Identification,
 ) -> anyhow::Result<Identification> {
-    let mut x0 = vec![0.0; model.dim()];
-    x0[..ANGLES].copy_from_slice(&prep.initial_angles);
-    let (x0, p0) = wide_prior(model, &x0, &prep.start_sigma());
+    let (x0, p0) = start_prior(model, prep, &prep.start_sigma());
     let fit = gauss_newton(
         model,
         &prep.measurements,

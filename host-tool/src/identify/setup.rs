@@ -30,7 +30,7 @@ use serde::Serialize;
 
 use super::smoother::linearised_pass;
 use super::{
-    build_model, gauss_newton, neg2_log_evidence, wide_prior, Config, Identification, Prepared,
+    build_model, gauss_newton, neg2_log_evidence, start_prior, Config, Identification, Prepared,
 };
 
 /// Radians per arcsecond.
@@ -315,9 +315,7 @@ fn refit(
     id: &Identification,
 ) -> anyhow::Result<(f64, DVector<f64>)> {
     let model = build_model(p.site, effects, cfg)?;
-    let mut x0 = vec![0.0; model.dim()];
-    x0[..ANGLES].copy_from_slice(&p.initial_angles);
-    let (x0, p0) = wide_prior(&model, &x0, &p.start_sigma());
+    let (x0, p0) = start_prior(&model, p, &p.start_sigma());
     let fit = gauss_newton(
         &model,
         &p.measurements,
@@ -529,9 +527,7 @@ fn response(
             m.specific_force[i] += d[i];
         }
     }
-    let mut x0 = vec![0.0; model.dim()];
-    x0[..ANGLES].copy_from_slice(&prep.initial_angles);
-    let (x0, p0) = wide_prior(model, &x0, &prep.start_sigma());
+    let (x0, p0) = start_prior(model, prep, &prep.start_sigma());
     let pass = linearised_pass(model, &meas, &id.trajectory, &x0, &p0, true)?;
     let last = pass.states.last().context("no states")?;
     Ok(last.rows(ANGLES, model.dim() - ANGLES).into_owned() - base)
@@ -556,9 +552,7 @@ fn vertical_tilt(
     let omega = 2.0 * std::f64::consts::PI / (priors.vertical_tilt_period_h * 3600.0);
     let g = prep.site.gravity_mps2;
     let r = prep.site.chart_rotation();
-    let mut x0 = vec![0.0; model.dim()];
-    x0[..ANGLES].copy_from_slice(&prep.initial_angles);
-    let (x0v, p0) = wide_prior(model, &x0, &prep.start_sigma());
+    let (x0v, p0) = start_prior(model, prep, &prep.start_sigma());
     let base_pass = linearised_pass(model, &prep.measurements, &id.trajectory, &x0v, &p0, true)?;
     let base = base_pass
         .states
@@ -624,9 +618,7 @@ pub fn uncertainty(
     let f0 = neg2_log_evidence(&id.innovations);
     // Noise only: the same pass with the start attitude known to 0.2″.
     let noise_cov = {
-        let mut x0 = vec![0.0; model.dim()];
-        x0[..ANGLES].copy_from_slice(&prep.initial_angles);
-        let (x0, p0) = wide_prior(&model, &x0, &prep.initial_angle_sigma);
+        let (x0, p0) = start_prior(&model, prep, &prep.initial_angle_sigma);
         let pass = linearised_pass(&model, &prep.measurements, &id.trajectory, &x0, &p0, true)?;
         pass.final_cov.view((ANGLES, ANGLES), (n, n)).into_owned()
     };
