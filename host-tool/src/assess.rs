@@ -14,7 +14,7 @@ use crate::diagnose::alternatives::{self, Alternative, PLAUSIBLE_MARGIN};
 use crate::diagnose::select::MIN_EVIDENCE_GAIN;
 use crate::diagnose::DiagnoseConfig;
 use crate::identify::setup::{settle, Settled, Uncertainty};
-use crate::identify::{Config, Identification, Prepared};
+use crate::identify::{build_model, identify_from, misstated, Config, Identification, Prepared};
 
 /// A final fit assessed.
 pub struct Assessment {
@@ -28,41 +28,72 @@ pub struct Assessment {
     pub alternatives: Vec<Alternative>,
     /// Why not to trust it on these accounts (empty: nothing against it here).
     pub reasons: Vec<String>,
+    /// The settings it was assessed with (a repaired misstatement's prior is the data's 1σ).
+    pub cfg: Config,
 }
 
 /// Assesses the fit `id` of `effects` on `prep` (see the module docs). A single pass is returned
-/// as it is, with its own covariance.
+/// as it is, with its own covariance. A misstated set-up that beats every other explanation
+/// ([`misstated::to_repair`]) is repaired, named among the findings, and the model refitted and
+/// assessed there (once).
 pub fn assess(
     effects: &[&'static dyn Effect],
     prep: Prepared,
     cfg: &Config,
     id: Identification,
 ) -> anyhow::Result<Assessment> {
+    let (first, repair) = assess_as_stated(effects, prep, cfg, id, true)?;
+    let Some((prep, cfg, start)) = repair else {
+        return Ok(first);
+    };
+    let model = build_model(prep.site, effects, &cfg)?;
+    let id = identify_from(&model, &prep, &cfg, &start)?;
+    let (mut again, _) = assess_as_stated(effects, prep, &cfg, id, false)?;
+    again.cfg = cfg;
+    Ok(again)
+}
+
+/// [`assess`] with the set-up as `prep` and `cfg` state it; with the repaired set-up and the
+/// fit to start from where a misstatement is to be repaired (and `may_repair`).
+fn assess_as_stated(
+    effects: &[&'static dyn Effect],
+    prep: Prepared,
+    cfg: &Config,
+    id: Identification,
+    may_repair: bool,
+) -> anyhow::Result<(Assessment, Option<(Prepared, Config, Identification)>)> {
+    let stated = (prep.clone(), id.clone());
     let Settled { prep, id, mut unc } = settle(effects, prep, cfg, id)?;
-    if id.refined.is_none() {
-        return Ok(Assessment {
-            prep,
-            id,
-            unc,
-            alternatives: vec![],
-            reasons: vec![],
-        });
+    let mut out = Assessment {
+        prep,
+        id,
+        unc: Uncertainty::exact(&nalgebra::DMatrix::zeros(0, 0)),
+        alternatives: vec![],
+        reasons: vec![],
+        cfg: cfg.clone(),
+    };
+    if out.id.refined.is_none() {
+        out.unc = unc;
+        return Ok((out, None));
     }
     let dcfg = DiagnoseConfig {
         identify: cfg.clone(),
         ..Default::default()
     };
-    let alts = alternatives::weigh(&prep, effects, &dcfg, &id)?;
-    unc.add_model_spread(&alternatives::averaging_spread(&alts, id.params.len()));
+    let mut alts = alternatives::weigh(&out.prep, effects, &dcfg, &out.id)?;
+    alts.extend(misstated::weigh(effects, &stated.0, cfg, &stated.1, &unc)?);
+    alternatives::weight(&mut alts);
+    if let Some(m) = misstated::to_repair(&alts, &[]).filter(|_| may_repair) {
+        let (p, c) = misstated::repair(&stated.0, cfg, &m, &alts, &[]);
+        return Ok((out, Some((p, c, stated.1))));
+    }
+    unc.add_model_spread(&alternatives::averaging_spread(&alts, out.id.params.len()));
     let mut reasons = unc.untrusted_reasons();
-    reasons.extend(alternatives_untrusted(&alts, &unc, &id));
-    Ok(Assessment {
-        prep,
-        id,
-        unc,
-        alternatives: alts,
-        reasons,
-    })
+    reasons.extend(alternatives_untrusted(&alts, &unc, &out.id));
+    out.unc = unc;
+    out.alternatives = alts;
+    out.reasons = reasons;
+    Ok((out, None))
 }
 
 /// Why the alternatives make the result untrusted: one the data prefer, or a plausible one that
@@ -79,15 +110,34 @@ pub fn alternatives_untrusted(
             .map(|k| (k, a.shift[k] / unc.total_sigma[k]))
             .max_by(|x, y| x.1.abs().total_cmp(&y.1.abs()));
         let Some((k, z)) = worst else { continue };
+        let what = match &a.misstated {
+            Some(m) => format!(
+                "a misstated {} ({} {} where {} is stated)",
+                m.knob,
+                crate::format::pm(m.value, m.sigma),
+                m.unit,
+                crate::format::sig(m.stated, 9)
+            ),
+            None => format!("adding `{}`", a.effect),
+        };
         if a.evidence_gain > MIN_EVIDENCE_GAIN {
             out.push(format!(
-                "the data prefer adding `{}` (evidence gain {:.1}, −2 ln units); with it {} would move by {:+.1}σ — run `driftid diagnose`",
-                a.effect, a.evidence_gain, id.params[k].name, z
+                "the data prefer {what} (evidence gain {:.1}, −2 ln units); with it {} would move by {:+.1}σ — run `driftid diagnose`",
+                a.evidence_gain, id.params[k].name, z
             ));
         } else if z.abs() > 1.0 {
+            let how = if a.evidence_gain > 0.0 {
+                format!("better, short of the {MIN_EVIDENCE_GAIN} that would settle it")
+            } else {
+                format!("almost as well, within {PLAUSIBLE_MARGIN} of the best")
+            };
+            let settle = match &a.misstated {
+                Some(m) => format!("the {} known better", m.knob),
+                None => format!("a bench value of `{}`", a.effect),
+            };
             out.push(format!(
-                "`{}` explains the data almost as well (evidence gain {:.1}, within {PLAUSIBLE_MARGIN} of the best) and would move {} by {:+.1}σ: this run cannot tell them apart — a longer run (a day at least), a second run from another orientation (`driftid plan`) or a bench value of `{}` would",
-                a.effect, a.evidence_gain, id.params[k].name, z, a.effect
+                "{what} explains the data {how} (evidence gain {:.1}) and would move {} by {:+.1}σ: this run cannot tell them apart — a longer run (a day at least), a second run from another orientation (`driftid plan`) or {settle} would",
+                a.evidence_gain, id.params[k].name, z
             ));
         }
     }

@@ -148,14 +148,77 @@ fn a_latitude_within_its_prior_is_estimated_and_one_beyond_it_is_named() {
         .map(|z| z.0.abs())
         .fold(0.0, f64::max);
     assert!(worst < 3.0, "worst error {worst:.2} total σ");
-    // 0.5° off: beyond what "39.1" allows; not trusted, the reason names the latitude.
+    // 0.5° off: beyond what "39.1" allows, a misstated latitude. It beats every other
+    // explanation (a clock 7000 ppm off comes closest) and is repaired by name; the coefficients
+    // are then the fit's at the data's latitude, within 3 total σ of the truth.
     sc.setup_errors.latitude_deg = 0.5;
-    let (a, _) = run(&sc);
+    let (a, truth) = run(&sc);
+    assert!(a.reasons.is_empty(), "{:?}", a.reasons);
+    assert_repaired(&a, "latitude is misstated");
+    assert_within_3_sigma(&a, &truth);
+}
+
+/// The finding that names a repaired set-up.
+fn assert_repaired(a: &Assessment, what: &str) {
     assert!(
-        a.reasons.iter().any(|r| r.contains("latitude")),
-        "{:?}",
-        a.reasons
+        a.prep
+            .findings
+            .iter()
+            .any(|f| f.kind == "set-up" && f.message.contains(what)),
+        "no `{what}` among {:?}",
+        a.prep.findings
     );
+}
+
+/// Every coefficient within 3 total σ of the truth (a calibrated 1σ misses that once in 370
+/// coefficients; these runs check 12 each).
+fn assert_within_3_sigma(a: &Assessment, truth: &[f64; 12]) {
+    let worst = z_scores(a, truth)
+        .iter()
+        .map(|z| z.0.abs())
+        .fold(0.0, f64::max);
+    assert!(worst < 3.0, "worst error {worst:.2} total σ");
+}
+
+#[test]
+fn a_misstated_clock_or_gravity_is_repaired_by_name_not_absorbed_by_an_effect() {
+    // A recorder clock 1000 ppm fast (50 times its prior): a drift trend fits it almost as well
+    // (the case: drift-trend or g2 was added, 6–64σ off), but the misstated clock beats
+    // it on the same evidence scale. Gravity 900 ppm off (0.09 %: acc-scale was added, 29σ off).
+    // 36 h at 10 s: the clock is then known to ~80 ppm, gravity to 0.2 ppm.
+    for seed in [3, 4] {
+        let mut sc = scenario(seed, 36.0, 10.0);
+        sc.setup_errors.clock_ppm = 1000.0;
+        let (a, truth) = run(&sc);
+        assert!(a.reasons.is_empty(), "seed {seed}: {:?}", a.reasons);
+        assert_repaired(&a, "clock rate is misstated");
+        assert_within_3_sigma(&a, &truth);
+        let mut sc = scenario(seed, 36.0, 10.0);
+        sc.setup_errors.gravity_ppm = 900.0;
+        let (a, truth) = run(&sc);
+        assert!(a.reasons.is_empty(), "seed {seed}: {:?}", a.reasons);
+        assert_repaired(&a, "gravity is misstated");
+        assert_within_3_sigma(&a, &truth);
+    }
+}
+
+#[test]
+fn a_drift_trend_is_not_repaired_as_a_misstated_clock() {
+    // The reverse trap: a real trend (3 axes, ~5× its detection limit at 36 h) is close to a
+    // clock error. The tool must not repair the clock (which would trust wrong coefficients):
+    // not trusted, and no set-up finding.
+    for seed in [1, 2] {
+        let mut sc = scenario(seed, 36.0, 10.0);
+        sc.effects
+            .push("drift-trend=2e-5,-2e-5,1.5e-5".parse().unwrap());
+        let (a, _) = run(&sc);
+        assert!(!a.reasons.is_empty(), "seed {seed}: trusted");
+        assert!(
+            !a.prep.findings.iter().any(|f| f.message.contains("misstated")),
+            "seed {seed}: {:?}",
+            a.prep.findings
+        );
+    }
 }
 
 #[test]

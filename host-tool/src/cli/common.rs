@@ -385,23 +385,37 @@ pub fn rivals(
         .collect()
 }
 
-/// The starting model fitted on `prep` when its data are trusted (else `None`), a misfit first
-/// checked against the latitude ([`name_a_wrong_latitude`]). `diagnose` and `report` start their
-/// ladder from this fit ([`crate::diagnose::ladder_from`]).
+/// The starting model fitted on `prep` when its data are trusted (else `None`). A misfit is
+/// first weighed against a misstated set-up ([`crate::identify::misstated`]; one that beats every
+/// explanation is repaired in `prep` and `cfg` and the model refitted there), then against the
+/// latitude ([`name_a_wrong_latitude`]). `diagnose` and `report` start their ladder from this
+/// fit ([`crate::diagnose::ladder_from`]).
 pub fn starting_fit(
     prep: &mut Prepared,
     effects: &[&'static dyn estimator_core::effects::Effect],
-    cfg: &Config,
+    cfg: &mut Config,
 ) -> anyhow::Result<Option<crate::identify::Identification>> {
+    use crate::identify::{misstated, setup};
     if !prep.untrusted_reasons().is_empty() {
         return Ok(None);
     }
     let model = build_model(prep.site, effects, cfg)?;
     let id = crate::identify::identify(&model, prep, cfg)?;
-    if super::identify::consistency_of(&id, prep).is_some_and(|c| !c.is_consistent()) {
-        let rivals = rivals(prep, effects, cfg, &id);
-        name_a_wrong_latitude(prep, effects, cfg, &rivals);
+    if !super::identify::consistency_of(&id, prep).is_some_and(|c| !c.is_consistent()) {
+        return Ok(Some(id));
     }
+    let mut rivals = rivals(prep, effects, cfg, &id);
+    let unc = setup::uncertainty(effects, prep, cfg, &id)?;
+    let mis = misstated::weigh(effects, prep, cfg, &id, &unc)?;
+    if let Some(m) = misstated::to_repair(&mis, &rivals) {
+        let (p, c) = misstated::repair(prep, cfg, &m, &mis, &rivals);
+        let refitted = crate::identify::identify_from(&build_model(p.site, effects, &c)?, &p, &c, &id)?;
+        *prep = p;
+        *cfg = c;
+        return Ok(Some(refitted));
+    }
+    rivals.extend(mis.iter().map(|a| (a.effect.clone(), a.evidence_gain)));
+    name_a_wrong_latitude(prep, effects, cfg, &rivals);
     Ok(Some(id))
 }
 

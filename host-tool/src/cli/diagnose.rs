@@ -294,7 +294,7 @@ pub fn diagnose_one(
     .with_context(|| format!("{}", recording.display()))?;
     let mut cfg = cfg;
     let mut prep = prep;
-    let first = super::common::starting_fit(&mut prep, &effects, &cfg.identify)?;
+    let first = super::common::starting_fit(&mut prep, &effects, &mut cfg.identify)?;
     let faults = prep.untrusted_reasons();
     if !faults.is_empty() {
         // A data fault is named as a fault, never explained by a physical effect: no ladder.

@@ -207,7 +207,7 @@ pub fn print_alternatives(
     if alts.is_empty() {
         return;
     }
-    println!("alternative explanations (catalog effects not in the model; evidence gain in −2 ln units, > 0: the data prefer it):");
+    println!("alternative explanations (catalog effects not in the model, a misstated set-up; evidence gain in −2 ln units, > 0: the data prefer it):");
     let mut any_conditional = false;
     for a in alts {
         let conditional: Vec<String> = (0..a.reach.len().min(id.params.len()))
@@ -222,7 +222,7 @@ pub fn print_alternatives(
             .collect();
         any_conditional |= !conditional.is_empty();
         println!(
-            "  {:<14} evidence gain {:>10.1}  weight {:.3}  {}",
+            "  {:<20} evidence gain {:>10.1}  weight {:.3}  {}",
             a.effect,
             a.evidence_gain,
             a.weight,
@@ -348,6 +348,7 @@ pub fn run(args: &IdentifyArgs) -> anyhow::Result<()> {
         unc,
         alternatives: alts,
         reasons: assessed,
+        ..
     } = crate::assess::assess(&effects, prep, &cfg, id)?;
     spin.finish_and_clear();
     let model = build_model(prep.site, &effects, &cfg)?;

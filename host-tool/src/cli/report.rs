@@ -46,7 +46,7 @@ pub fn run(args: &ReportArgs) -> anyhow::Result<()> {
     if let Some(dir) = &args.png {
         output::check_output_dir(dir, "--png")?;
     }
-    let cfg = DiagnoseConfig {
+    let mut cfg = DiagnoseConfig {
         identify: args.model.config()?,
         ..Default::default()
     };
@@ -63,7 +63,7 @@ pub fn run(args: &ReportArgs) -> anyhow::Result<()> {
         loaded.initial_orientation_rad,
     )?;
     let mut prep = prep;
-    let first = super::common::starting_fit(&mut prep, &effects, &cfg.identify)?;
+    let first = super::common::starting_fit(&mut prep, &effects, &mut cfg.identify)?;
     super::common::print_findings(&prep.findings);
     let faults = prep.untrusted_reasons();
     let mut cfg = cfg;

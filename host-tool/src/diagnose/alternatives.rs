@@ -47,6 +47,26 @@ pub struct Alternative {
     pub shift: Vec<f64>,
     /// How far it could move each parameter at a size this run cannot rule out.
     pub reach: Vec<f64>,
+    /// For a misstated set-up ([`crate::identify::misstated`]): where the data put the knob.
+    pub misstated: Option<Misstated>,
+}
+
+/// A set-up value the data give under the hypothesis that it was misstated.
+#[derive(Clone, Copy, Debug, Serialize)]
+pub struct Misstated {
+    /// `latitude`, `clock rate` or `gravity`.
+    pub knob: &'static str,
+    /// Its unit (`deg`, `ppm`).
+    pub unit: &'static str,
+    /// The stated value.
+    pub stated: f64,
+    /// The data's value under the broad prior.
+    pub value: f64,
+    /// Its 1σ.
+    pub sigma: f64,
+    /// Index of the knob (0 latitude, 1 clock rate, 2 gravity).
+    #[serde(skip)]
+    pub index: usize,
 }
 
 impl Alternative {
@@ -75,20 +95,28 @@ pub fn weigh(
         .zip(&sigs)
         .filter_map(|(setup, sig)| Some(alternative(setup, sig.as_ref()?, n)))
         .collect();
-    let best = out.iter().map(|a| a.evidence_gain).fold(0.0, f64::max);
+    weight(&mut out);
+    Ok(out)
+}
+
+/// Sets each alternative's model-averaging weight `e^{G/2}` among the plausible ones and the
+/// current model (gain 0), and sorts them by evidence, best first.
+pub fn weight(alts: &mut [Alternative]) {
+    let best = alts.iter().map(|a| a.evidence_gain).fold(0.0, f64::max);
     let norm: f64 = (-best / 2.0).exp()
-        + out
+        + alts
             .iter()
             .filter(|a| a.plausible(best))
             .map(|a| ((a.evidence_gain - best) / 2.0).exp())
             .sum::<f64>();
-    for a in &mut out {
-        if a.plausible(best) {
-            a.weight = ((a.evidence_gain - best) / 2.0).exp() / norm;
-        }
+    for a in alts.iter_mut() {
+        a.weight = if a.plausible(best) {
+            ((a.evidence_gain - best) / 2.0).exp() / norm
+        } else {
+            0.0
+        };
     }
-    out.sort_by(|a, b| b.evidence_gain.total_cmp(&a.evidence_gain));
-    Ok(out)
+    alts.sort_by(|a, b| b.evidence_gain.total_cmp(&a.evidence_gain));
 }
 
 /// One candidate's evidence gain, shift and reach (see the module docs).
@@ -127,6 +155,7 @@ fn alternative(setup: &Setup, sig: &super::score::Signature, n: usize) -> Altern
         reach: (0..n)
             .map(|i| shift[i].abs() + 2.0 * spread[i].max(0.0).sqrt())
             .collect(),
+        misstated: None,
     }
 }
 

@@ -12,6 +12,7 @@
 //! percent with a covariance that claims far more than it knows; steps 3–4 remove that.
 
 pub mod joint;
+pub mod misstated;
 pub mod noise;
 pub mod setup;
 pub mod smoother;

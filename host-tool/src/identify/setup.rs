@@ -173,6 +173,27 @@ pub struct Uncertainty {
     pub setup_check: Option<SetupCheck>,
     /// 1σ from averaging over the plausible explanations (empty until added).
     pub model_spread: Vec<f64>,
+    /// The data's quadratic model of latitude, clock rate and gravity about the stated set-up
+    /// (`None` for a single pass): what [`super::misstated`] weighs a misstated set-up with.
+    #[serde(skip)]
+    pub knobs: Option<KnobModel>,
+}
+
+/// −2 ln p(y) to second order in the knobs (latitude, clock rate, gravity) about the stated
+/// set-up, in units `u = δ/h` of each knob's prior 1σ `h`: `f0 + gᵀu + ½ uᵀHu`, and the
+/// coefficients' sensitivity `∂ĉ/∂u`.
+#[derive(Clone, Debug)]
+pub struct KnobModel {
+    /// −2 ln p(y) at the stated set-up.
+    pub f0: f64,
+    /// Gradient g.
+    pub grad: DVector<f64>,
+    /// Hessian H (Gauss–Newton, clamped positive semi-definite).
+    pub hess: DMatrix<f64>,
+    /// Sensitivity of the parameters (after the angles) per unit u, one column per knob.
+    pub sens: DMatrix<f64>,
+    /// The unit of each knob, its prior 1σ h (deg, ppm, ppm; 0: not marginalised).
+    pub unit: [f64; 3],
 }
 
 impl Uncertainty {
@@ -264,6 +285,7 @@ impl Uncertainty {
             setup_shift: [0.0; 3],
             setup_check: None,
             model_spread: vec![],
+            knobs: None,
         }
     }
 }
@@ -276,6 +298,11 @@ pub fn at_latitude(prep: &Prepared, lat_deg: f64) -> Prepared {
         - estimator_core::frames::normal_gravity(prep.site.latitude_rad))
     .abs()
         < 1e-12;
+    at_latitude_with(prep, lat_deg, derived)
+}
+
+/// [`at_latitude`], gravity moving with the latitude (`derived`) or kept.
+pub fn at_latitude_with(prep: &Prepared, lat_deg: f64, derived: bool) -> Prepared {
     let enu = prep.site.angles_to_enu(&prep.initial_angles);
     let mut site = Site::new(lat_deg, (!derived).then_some(prep.site.gravity_mps2));
     site.chart = site.chart_for_start(&enu);
@@ -308,7 +335,7 @@ fn with_gravity(prep: &Prepared, ppm: f64) -> Prepared {
 /// one prior σ of a knob, so the pass is the linearised problem's exact solution and its
 /// evidence the quadratic model's (the second pass changed the differences by < 1 %, for twice
 /// the time).
-fn refit(
+pub(crate) fn refit(
     p: &Prepared,
     effects: &[&'static dyn Effect],
     cfg: &Config,
@@ -362,7 +389,7 @@ struct Knob {
 }
 
 /// `prep` with the set-up moved by `d` (latitude deg, clock ppm, gravity ppm).
-fn moved(prep: &Prepared, d: [f64; 3]) -> Prepared {
+pub(crate) fn moved(prep: &Prepared, d: [f64; 3]) -> Prepared {
     let lat_deg = prep.site.latitude_rad.to_degrees();
     let mut p = if d[0] != 0.0 {
         at_latitude(prep, lat_deg + d[0])
@@ -391,6 +418,8 @@ struct Marginal {
     shift: [f64; 3],
     /// The data against the stated set-up.
     check: SetupCheck,
+    /// The quadratic model it was built from.
+    model: KnobModel,
 }
 
 fn marginalise(
@@ -508,6 +537,13 @@ fn marginalise(
         cov,
         shift: [0, 1, 2].map(|k| shift_u[k] * h[k]),
         check: SetupCheck { chi2, dof, p_value },
+        model: KnobModel {
+            f0,
+            grad,
+            hess: hess_psd,
+            sens,
+            unit: [h[0], h[1], h[2]],
+        },
     })
 }
 
@@ -641,7 +677,7 @@ pub fn uncertainty(
             bound: None,
             source: "clock rate",
             unit: "ppm",
-            prior: format!("{} ppm", priors.clock_sigma_ppm),
+            prior: format!("{} ppm", crate::format::sig(priors.clock_sigma_ppm, 2)),
             sigma_prior: priors.clock_sigma_ppm,
             stated: 0.0,
         },
@@ -651,7 +687,7 @@ pub fn uncertainty(
             unit: "ppm",
             prior: format!(
                 "{} ppm of {} m/s^2",
-                priors.gravity_sigma_ppm,
+                crate::format::sig(priors.gravity_sigma_ppm, 2),
                 crate::format::sig(prep.site.gravity_mps2, 7)
             ),
             sigma_prior: priors.gravity_sigma_ppm,
@@ -687,6 +723,7 @@ pub fn uncertainty(
         setup_shift: marginal.shift,
         setup_check: Some(marginal.check),
         model_spread: vec![],
+        knobs: Some(marginal.model),
     })
 }
 

@@ -36,7 +36,7 @@ pub struct LatitudeFit {
 
 /// The model fitted at latitude `lat`: −2 ln p(y) and the identification (`None` when it
 /// cannot be fitted there).
-fn fit_at(
+pub(crate) fn fit_at(
     prep: &Prepared,
     effects: &[&'static dyn Effect],
     cfg: &Config,
@@ -93,12 +93,12 @@ fn latitude_of_gravity(g: f64) -> f64 {
 }
 
 /// Profiles the evidence over latitude: a grid of 2° ([`search_grid`]) then a golden-section
-/// refinement.
+/// refinement. Also returns the fit at the best latitude.
 pub fn profile(
     prep: &Prepared,
     effects: &[&'static dyn Effect],
     cfg: &Config,
-) -> Option<LatitudeFit> {
+) -> Option<(LatitudeFit, Identification)> {
     let l0 = prep.site.latitude_rad.to_degrees();
     // A model that cannot even be fitted at the metadata latitude (the smoother fails) leaves
     // any latitude where it fits, and fits consistently, the better one.
@@ -165,12 +165,15 @@ pub fn profile(
         &Thresholds::default(),
     )
     .is_consistent();
-    Some(LatitudeFit {
-        latitude_deg: best,
-        sigma_deg,
-        gain: f0 - fb,
-        consistent,
-    })
+    Some((
+        LatitudeFit {
+            latitude_deg: best,
+            sigma_deg,
+            gain: f0 - fb,
+            consistent,
+        },
+        id,
+    ))
 }
 
 /// Evidence a wrong latitude pays for being a free parameter (−2 ln units): the Occam factor of
@@ -192,7 +195,7 @@ pub fn check(
     cfg: &Config,
     rivals: &[(String, f64)],
 ) -> Option<Finding> {
-    let fit = profile(prep, effects, cfg)?;
+    let (fit, _) = profile(prep, effects, cfg)?;
     let l0 = prep.site.latitude_rad.to_degrees();
     if !(fit.gain > MIN_GAIN
         && fit.consistent
