@@ -81,7 +81,7 @@ fn assess_as_stated(
         ..Default::default()
     };
     let mut alts = alternatives::weigh(&out.prep, effects, &dcfg, &out.id)?;
-    alts.extend(misstated::weigh(effects, &stated.0, cfg, &stated.1, &unc)?);
+    alts.extend(misstated::weigh(effects, &stated.0, cfg, &stated.1, &unc)?.alternatives);
     alternatives::weight(&mut alts);
     if let Some(m) = misstated::to_repair(&alts, &[]).filter(|_| may_repair) {
         let (p, c) = misstated::repair(&stated.0, cfg, &m, &alts, &[]);

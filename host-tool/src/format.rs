@@ -65,12 +65,23 @@ pub fn pm(value: f64, sigma: f64) -> String {
     }
 }
 
-/// A p-value, or its natural log when it underflows to 0: `3.1e-7`, `e^-4.8e6`.
-pub fn p_or_ln(p: f64, ln_p: f64) -> String {
-    if p > 0.0 || !ln_p.is_finite() {
+/// A p-value, the one way every command and the page print it: two decimals in scientific
+/// notation (`4.21e-1`), also below the smallest double, from its natural log `ln_p` when given
+/// (`3.72e-2083`); `< 1e-308` when it underflowed without one, `n/a` when undefined.
+pub fn p_value(p: f64, ln_p: f64) -> String {
+    if p.is_nan() {
+        "n/a".into()
+    } else if p > 0.0 || (p == 0.0 && ln_p == f64::NEG_INFINITY) {
         format!("{p:.2e}")
+    } else if ln_p.is_finite() {
+        let log10 = ln_p / std::f64::consts::LN_10;
+        let e = log10.floor();
+        let m = 10f64.powf(log10 - e);
+        // 9.995… rounds to 10.00: carry into the exponent.
+        let (m, e) = if m >= 9.995 { (1.0, e + 1.0) } else { (m, e) };
+        format!("{m:.2}e{e}")
     } else {
-        format!("e^{ln_p:.3e}")
+        "< 1e-308".into()
     }
 }
 
@@ -84,5 +95,20 @@ mod pm_tests {
         assert_eq!(pm(2.0003e-3, 9.04e-7), "0.00200030 ± 0.00000090");
         assert_eq!(pm(5.54e-6, 2.07e-7), "5.54e-6 ± 2.1e-7");
         assert_eq!(pm(12345.6, 78.0), "12346 ± 78");
+    }
+}
+
+#[cfg(test)]
+mod p_value_tests {
+    use super::p_value;
+
+    #[test]
+    fn one_style_above_and_below_the_smallest_double() {
+        assert_eq!(p_value(0.4213, f64::NAN), "4.21e-1");
+        assert_eq!(p_value(0.0, -4.8e6), "3.07e-2084614");
+        assert_eq!(p_value(0.0, f64::NAN), "< 1e-308");
+        assert_eq!(p_value(f64::NAN, f64::NAN), "n/a");
+        // ln p of 1e-400 exactly: 1.00e-400, not 10.00e-401.
+        assert_eq!(p_value(0.0, -400.0 * std::f64::consts::LN_10), "1.00e-400");
     }
 }

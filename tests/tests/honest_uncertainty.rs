@@ -214,7 +214,10 @@ fn a_drift_trend_is_not_repaired_as_a_misstated_clock() {
         let (a, _) = run(&sc);
         assert!(!a.reasons.is_empty(), "seed {seed}: trusted");
         assert!(
-            !a.prep.findings.iter().any(|f| f.message.contains("misstated")),
+            !a.prep
+                .findings
+                .iter()
+                .any(|f| f.message.contains("misstated")),
             "seed {seed}: {:?}",
             a.prep.findings
         );

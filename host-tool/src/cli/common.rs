@@ -394,6 +394,7 @@ pub fn starting_fit(
     prep: &mut Prepared,
     effects: &[&'static dyn estimator_core::effects::Effect],
     cfg: &mut Config,
+    stated: &mut Option<Prepared>,
 ) -> anyhow::Result<Option<crate::identify::Identification>> {
     use crate::identify::{misstated, setup};
     if !prep.untrusted_reasons().is_empty() {
@@ -406,17 +407,54 @@ pub fn starting_fit(
     }
     let mut rivals = rivals(prep, effects, cfg, &id);
     let unc = setup::uncertainty(effects, prep, cfg, &id)?;
-    let mis = misstated::weigh(effects, prep, cfg, &id, &unc)?;
+    // On the scale of the rivals, refitted at the stated set-up: the misstatements' gains over
+    // that fit, and the stated set-up within its priors as one more rival.
+    let (mis, within_priors) = misstated::weigh(effects, prep, cfg, &id, &unc)?.on_the_stated_fit();
+    let catalog_best = rivals.iter().map(|r| r.1).fold(0.0, f64::max);
+    rivals.extend(within_priors.clone());
     if let Some(m) = misstated::to_repair(&mis, &rivals) {
         let (p, c) = misstated::repair(prep, cfg, &m, &mis, &rivals);
-        let refitted = crate::identify::identify_from(&build_model(p.site, effects, &c)?, &p, &c, &id)?;
+        let refitted =
+            crate::identify::identify_from(&build_model(p.site, effects, &c)?, &p, &c, &id)?;
         *prep = p;
         *cfg = c;
         return Ok(Some(refitted));
     }
+    if let Some(f) = misstated::confounded(&mis, &rivals) {
+        prep.findings.push(f);
+        return Ok(Some(id));
+    }
+    if within_priors.is_some_and(|(_, g)| g > catalog_best) {
+        // The set-up within its priors explains the misfit better than any effect: the ladder
+        // starts where prior and data put it.
+        // `stated` keeps the set-up as stated for the final assessment, whose own settling
+        // applies the priors once.
+        let settled = setup::settle(effects, prep.clone(), cfg, id)?;
+        *stated = Some(std::mem::replace(prep, settled.prep));
+        return Ok(Some(settled.id));
+    }
     rivals.extend(mis.iter().map(|a| (a.effect.clone(), a.evidence_gain)));
     name_a_wrong_latitude(prep, effects, cfg, &rivals);
     Ok(Some(id))
+}
+
+/// The final fit `id` of `effects` where it is to be assessed: on `stated` when the ladder ran on
+/// a settled set-up ([`starting_fit`]), refitted there; else on `prep` as it is.
+pub fn for_assessment(
+    stated: Option<Prepared>,
+    prep: &Prepared,
+    effects: &[&'static dyn estimator_core::effects::Effect],
+    cfg: &Config,
+    id: crate::identify::Identification,
+) -> anyhow::Result<(Prepared, crate::identify::Identification)> {
+    match stated {
+        Some(p) => {
+            let model = build_model(p.site, effects, cfg)?;
+            let refitted = crate::identify::identify_from(&model, &p, cfg, &id)?;
+            Ok((p, refitted))
+        }
+        None => Ok((prep.clone(), id)),
+    }
 }
 
 /// The numbers were computed but the tool does not trust them (exit status 3); the reasons say

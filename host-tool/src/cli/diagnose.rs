@@ -10,7 +10,7 @@ use anyhow::Context as _;
 use super::common::{load, print_findings, trusted_or, ModelArgs};
 use crate::catalog;
 use crate::diagnose::{ladder_from, DiagnoseConfig, Diagnosis, Ladder, Rung};
-use crate::format::{p_or_ln, pm, sci};
+use crate::format::{p_value, pm, sci};
 use crate::identify::prepare_oriented;
 
 /// Arguments of `driftid diagnose`.
@@ -58,13 +58,13 @@ pub fn print_diagnosis(d: &Diagnosis) {
         sci(d.floor_mps2[2])
     );
     println!(
-        "  mean NIS/3 {:.3} (99.9 % band {:.3}–{:.3}); Ljung–Box Q {:.1} on {} dof, p = {:.2e}",
+        "  mean NIS/3 {:.3} (99.9 % band {:.3}–{:.3}); Ljung–Box Q {:.1} on {} dof, p = {}",
         d.nis_mean,
         d.consistency.nis_band[0],
         d.consistency.nis_band[1],
         d.whiteness.ljung_box_q,
         d.whiteness.dof,
-        d.whiteness.p_value
+        p_value(d.whiteness.p_value, f64::NAN)
     );
     if !d.failures.is_empty() {
         let w: Vec<String> = d
@@ -142,17 +142,17 @@ pub fn print_diagnosis(d: &Diagnosis) {
             c.effect,
             c.statistic,
             c.dof,
-            p_or_ln(c.p_value, c.ln_p_value),
-            p_or_ln(c.p_adjusted, c.ln_p_adjusted),
+            p_value(c.p_value, c.ln_p_value),
+            p_value(c.p_adjusted, c.ln_p_adjusted),
             ev,
             after
         );
     }
     for cf in &d.confounding {
         if cf.separated {
-            println!("  similar signatures: {} vs {} (canonical correlation {:.3}) — but the data prefer {} (statistic gap {:.1})", cf.a, cf.b, cf.canonical_correlation, cf.a, cf.statistic_gap);
+            println!("  similar signatures: {} vs {} (canonical correlation {:.3}) — but the data prefer {} (−2 ln p lower by {:.1})", cf.a, cf.b, cf.canonical_correlation, cf.a, cf.statistic_gap);
         } else {
-            println!("  NOT SEPARATED: {} vs {} (canonical correlation {:.3}, statistic gap only {:.1}); what would separate them: {}", cf.a, cf.b, cf.canonical_correlation, cf.statistic_gap, cf.separate_by);
+            println!("  NOT SEPARATED: {} vs {} (canonical correlation {:.3}, −2 ln p apart by only {:.1}); what would separate them: {}", cf.a, cf.b, cf.canonical_correlation, cf.statistic_gap, cf.separate_by);
         }
     }
     println!("  verdict: {}", d.verdict);
@@ -174,16 +174,16 @@ pub fn print_ladder(rungs: &[Rung]) {
         let next = r
             .next
             .as_ref()
-            .map(|(e, p)| format!("{e} (p = {p:.1e})"))
+            .map(|(e, p)| format!("{e} (p = {})", p_value(*p, f64::NAN)))
             .unwrap_or_else(|| "—".into());
         println!(
-            "  {:<40} [{:>5.3}, {:>5.3}, {:>5.3}] {:>9.3} {:>10.2e}  {next}",
+            "  {:<40} [{:>5.3}, {:>5.3}, {:>5.3}] {:>9.3} {:>10}  {next}",
             m,
             r.residual_rms_over_floor[0],
             r.residual_rms_over_floor[1],
             r.residual_rms_over_floor[2],
             r.nis_mean,
-            r.whiteness_p
+            p_value(r.whiteness_p, f64::NAN)
         );
     }
     for r in rungs {
@@ -294,7 +294,8 @@ pub fn diagnose_one(
     .with_context(|| format!("{}", recording.display()))?;
     let mut cfg = cfg;
     let mut prep = prep;
-    let first = super::common::starting_fit(&mut prep, &effects, &mut cfg.identify)?;
+    let mut stated = None;
+    let first = super::common::starting_fit(&mut prep, &effects, &mut cfg.identify, &mut stated)?;
     let faults = prep.untrusted_reasons();
     if !faults.is_empty() {
         // A data fault is named as a fault, never explained by a physical effect: no ladder.
@@ -312,8 +313,14 @@ pub fn diagnose_one(
     // identify and report).
     let spin =
         crate::progress::spinner("the set-up's uncertainty and the alternative explanations");
-    let assessed =
-        crate::assess::assess(&final_effects, prep.clone(), &cfg.identify, identification)?;
+    let (at, identification) = super::common::for_assessment(
+        stated,
+        &prep,
+        &final_effects,
+        &cfg.identify,
+        identification,
+    )?;
+    let assessed = crate::assess::assess(&final_effects, at, &cfg.identify, identification)?;
     spin.finish_and_clear();
     let last = diagnoses.last().map(|d| d.consistency.clone());
     let mut reasons = ladder_untrusted(&faults, &diagnoses);

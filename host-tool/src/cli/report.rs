@@ -63,7 +63,8 @@ pub fn run(args: &ReportArgs) -> anyhow::Result<()> {
         loaded.initial_orientation_rad,
     )?;
     let mut prep = prep;
-    let first = super::common::starting_fit(&mut prep, &effects, &mut cfg.identify)?;
+    let mut stated = None;
+    let first = super::common::starting_fit(&mut prep, &effects, &mut cfg.identify, &mut stated)?;
     super::common::print_findings(&prep.findings);
     let faults = prep.untrusted_reasons();
     let mut cfg = cfg;
@@ -85,13 +86,14 @@ pub fn run(args: &ReportArgs) -> anyhow::Result<()> {
         Some(p) => Some(super::identify::truth_of(&read_truth(p)?, &id)),
         None => None,
     };
+    let (at, id) = super::common::for_assessment(stated, &prep, &final_effects, &cfg.identify, id)?;
     let crate::assess::Assessment {
         prep,
         id,
         unc,
         reasons: assessed,
         ..
-    } = crate::assess::assess(&final_effects, prep, &cfg.identify, id)?;
+    } = crate::assess::assess(&final_effects, at, &cfg.identify, id)?;
     let mut untrusted = untrusted;
     untrusted.extend(assessed);
     let table = rows(&id, &unc, &model, &prep, truth.as_deref());

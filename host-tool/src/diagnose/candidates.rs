@@ -13,8 +13,8 @@ use super::DiagnoseConfig;
 use crate::catalog;
 use crate::stats::{chi2_ln_sf, chi2_quantile, chi2_sf};
 
-/// Statistic gap below which two similar candidates are "not clearly separated": a likelihood
-/// ratio below e^5 ≈ 150 : 1.
+/// Gap of −2 ln p below which two similar candidates are "not clearly separated": a ratio of
+/// p-values below e^5 ≈ 150 : 1.
 pub const SEPARATION_GAP: f64 = 10.0;
 /// Canonical correlation above which two candidates' signatures count as confounded.
 pub const CONFOUNDING_CORRELATION: f64 = 0.9;
@@ -225,7 +225,9 @@ pub fn confounding(ranking: &[(Candidate, Option<&Signature>)], alpha: f64) -> V
             let cc = canonical_correlation(sa, sb);
             let significant = a.p_adjusted < alpha || b.p_adjusted < alpha;
             if cc > CONFOUNDING_CORRELATION && significant {
-                let gap = a.statistic - b.statistic;
+                // On the −2 ln p scale, fair between effects of different dof (raw statistics
+                // are not: a 15-dof statistic 20 above a 3-dof one can be the weaker evidence).
+                let gap = 2.0 * (b.ln_p_value - a.ln_p_value);
                 out.push(Confounding {
                     a: a.effect.clone(),
                     b: b.effect.clone(),

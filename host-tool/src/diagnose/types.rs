@@ -116,8 +116,8 @@ pub struct Confounding {
     pub b: String,
     /// Largest canonical correlation of their whitened innovation signatures.
     pub canonical_correlation: f64,
-    /// Difference of their score statistics (a − b): approximately twice the log-likelihood
-    /// ratio of the two alternative models.
+    /// Difference of −2 ln p of their score tests (b − a, ≥ 0: `a` ranks first), a scale fair
+    /// between effects with different degrees of freedom.
     pub statistic_gap: f64,
     /// Whether the data still prefer one clearly (gap ≥ [`crate::diagnose::SEPARATION_GAP`]).
     pub separated: bool,

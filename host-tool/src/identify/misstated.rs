@@ -3,21 +3,22 @@
 //! The set-up's priors ([`super::setup`]) say how far a *correctly* stated latitude, clock rate or
 //! gravity may be off. A *misstated* one — a latitude of another site, a recorder clock or sample
 //! interval set wrong, a gravity value of another place — is another hypothesis: that knob with
-//! the broad prior [`BROAD`], the others as stated. On the data's quadratic model of the knobs
-//! about the stated set-up ([`KnobModel`]; units `u = δ/h`, h the knob's prior 1σ) and with
-//! `λ = (broad/h)²`:
+//! the broad prior [`BROAD`], the others with their priors. On the data's quadratic model of the
+//! knobs about the stated set-up ([`KnobModel`]: `f(u) = f0 + gᵀu + ½uᵀHu` in units `u = δ/h`, h
+//! each knob's prior 1σ), with prior covariance Λ (identity; knob k's entry `(broad/h)²` when it
+//! is misstated), the Laplace evidence is
 //!
 //! ```text
-//! u* = −g_k / (H_kk + 2/λ),   var u* = 2 / (H_kk + 2/λ)          (its estimate)
-//! −2 ln Z = f(u*) + u*²/λ + ln(1 + λ H_kk / 2)                     (Laplace)
-//! evidence gain G = f(0) − (−2 ln Z) − 2 ln 20
+//! u*(Λ) = −(H + 2Λ⁻¹)⁻¹ g                                     (the knobs' estimate)
+//! −2 ln Z(Λ) = f(u*) + u*ᵀΛ⁻¹u* + ln det(1 + Λ^½ H Λ^½ / 2)
+//! evidence gain G_k = −2 ln Z(I) − (−2 ln Z(Λ_k)) − 2 ln 100
 //! ```
 //!
-//! `f(u*)` and `f(0)` come from refits (the quadratic model is measured at ±1 prior σ and a clock
-//! 1000 ppm off is 50 of them), so G is on the scale of the catalog's refits
-//! ([`crate::diagnose::select`]): the gain over the model with the set-up as stated. The
-//! `ln(1 + λH/2)` term is the Occam factor of a broad prior the data then narrow; `2 ln 20`
-//! ([`PRIOR_ODDS`]) the prior odds of a stated set-up over a misstated one.
+//! against the stated set-up *with its priors* — the fit [`super::setup::settle`] ends at, the
+//! one the catalog's alternatives are weighed against. `f(u*)` comes from refits (a clock 1000 ppm
+//! off is 50 prior σ from where the quadratic model was measured); the `ln det` term is the Occam
+//! factor of a broad prior the data then narrow; `2 ln 100` ([`PRIOR_ODDS`]) the prior odds of a
+//! stated set-up over a misstated one.
 //!
 //! A misstatement is *repaired* ([`to_repair`]) only when it beats every other explanation by
 //! [`PLAUSIBLE_MARGIN`] and the stated set-up by [`MIN_EVIDENCE_GAIN`]: the knob is then moved to
@@ -25,7 +26,7 @@
 //! one more alternative, averaged and reported like the catalog's.
 
 use estimator_core::effects::Effect;
-use nalgebra::DVector;
+use nalgebra::{DMatrix, DVector};
 use rayon::prelude::*;
 
 use super::setup::{moved, refit, KnobModel, Uncertainty};
@@ -41,14 +42,45 @@ use crate::quality::{Action, Finding};
 /// gravity differs by 0.5 % from equator to pole).
 pub const BROAD: [f64; 3] = [0.5, 1000.0, 1000.0];
 
-/// Prior odds against a misstated set-up, −2 ln units: a stated set-up is taken as 20 times
-/// likelier than a misstated one before the data are seen (a gross metadata fault is the
-/// exception, not the rule). Without it a clean run's 2.5σ clock estimate (p ≈ 1 %) would make
-/// a misstated clock a plausible rival.
-pub const PRIOR_ODDS: f64 = 5.991_464_547_107_982; // 2 ln 20
+/// Prior odds against a misstated set-up, −2 ln units: a stated set-up is taken as 100 times
+/// likelier than a misstated one before the data are seen (a gross metadata fault in about one
+/// recording in a hundred). Without them a clean run's 2.5σ clock estimate would make a
+/// misstated clock a plausible rival, and on a day's run (where the data know the clock only to
+/// ~600 ppm) one in six clean runs would be distrusted for it (measured with 20:1: 7 of 40).
+pub const PRIOR_ODDS: f64 = 9.210_340_371_976_184; // 2 ln 100
 
 /// The knobs' names and units, in the [`KnobModel`]'s order.
-pub const KNOBS: [(&str, &str); 3] = [("latitude", "deg"), ("clock rate", "ppm"), ("gravity", "ppm")];
+pub const KNOBS: [(&str, &str); 3] = [
+    ("latitude", "deg"),
+    ("clock rate", "ppm"),
+    ("gravity", "ppm"),
+];
+
+/// The misstatements weighed ([`weigh`]).
+pub struct Weighed {
+    /// Each knob misstated, its evidence gain over the stated set-up with its priors (or over
+    /// the stated set-up's own fit when the data contradict those priors).
+    pub alternatives: Vec<Alternative>,
+    /// The evidence gain of the stated set-up with its priors over its own fit (−2 ln units;
+    /// `None` when the data contradict those priors): add it to put the alternatives on the
+    /// scale of effects refitted at the stated set-up.
+    pub stated_gain: Option<f64>,
+}
+
+impl Weighed {
+    /// The alternatives with gains over the stated set-up's own fit, and the stated set-up with
+    /// its priors as one more rival (what the catalog's refits at the stated set-up compare to).
+    pub fn on_the_stated_fit(mut self) -> (Vec<Alternative>, Option<(String, f64)>) {
+        let g0 = self.stated_gain.unwrap_or(0.0);
+        for a in &mut self.alternatives {
+            a.evidence_gain += g0;
+        }
+        let rival = self
+            .stated_gain
+            .map(|g| ("the stated set-up within its priors".to_string(), g));
+        (self.alternatives, rival)
+    }
+}
 
 /// Each knob misstated, as an alternative explanation of the fit `id` of `effects` on `prep` (the
 /// stated set-up, the one `unc` was computed about). Empty for a single pass.
@@ -58,59 +90,182 @@ pub fn weigh(
     cfg: &Config,
     id: &Identification,
     unc: &Uncertainty,
-) -> anyhow::Result<Vec<Alternative>> {
+) -> anyhow::Result<Weighed> {
     let Some(km) = &unc.knobs else {
-        return Ok(vec![]);
+        return Ok(Weighed {
+            alternatives: vec![],
+            stated_gain: None,
+        });
     };
     let live: Vec<usize> = (0..3).filter(|&k| km.unit[k] > 0.0).collect();
-    let points: Vec<[f64; 3]> = std::iter::once([0.0; 3])
+    // The priors: as stated (first), then each live knob broad.
+    let lambdas: Vec<[f64; 3]> = std::iter::once([1.0; 3])
         .chain(live.iter().map(|&k| {
-            let mut d = [0.0; 3];
-            d[k] = estimate(km, k).0 * km.unit[k];
-            d
+            let mut l = [1.0; 3];
+            l[k] = (BROAD[k] / km.unit[k]).powi(2);
+            l
         }))
         .collect();
-    let fits: Vec<anyhow::Result<(f64, DVector<f64>)>> = points
+    // The latitude's own prior is uniform within its written digits: the Gaussian stand-in must
+    // not let it wander beyond them (a clock 1000 ppm off would hide in a latitude 0.06° off
+    // one written "39.1").
+    let bound = unc
+        .contributions
+        .iter()
+        .find(|c| c.source == "latitude")
+        .and_then(|c| c.bound);
+    let laplace: Vec<Laplace> = lambdas
+        .iter()
+        .map(|l| Laplace::new(km, *l, bound))
+        .collect();
+    let fits: Vec<anyhow::Result<(f64, DVector<f64>)>> = laplace
         .par_iter()
-        .map(|d| refit(&moved(prep, *d), effects, cfg, id))
+        .map(|l| refit(&moved(prep, l.delta(km)), effects, cfg, id))
         .collect();
     let fits = fits.into_iter().collect::<anyhow::Result<Vec<_>>>()?;
-    let (f0, c0) = &fits[0];
+    // Against the stated set-up with its priors — unless the data contradict those (the
+    // χ² check or the latitude's digits): then that hypothesis is out, and the stated set-up's
+    // own fit is the reference, as it is for the catalog's alternatives weighed on it.
+    let contradicted = !unc.untrusted_reasons().is_empty();
+    let base = if contradicted {
+        km.f0
+    } else {
+        laplace[0].neg2_ln_z(fits[0].0)
+    };
     let stated = stated_values(prep);
-    let mut out: Vec<Alternative> = live
-        .iter()
-        .zip(&fits[1..])
-        .map(|(&k, (f, c))| alternative(km, k, f0 - f, c - c0, stated[k]))
-        .collect();
-    // A latitude far from the stated one is beyond the quadratic model's reach (the Earth rate's
-    // direction turns with it): its profile over full fits decides.
-    if let Some(a) = out.iter_mut().find(|a| {
-        a.misstated
-            .is_some_and(|m| m.index == 0 && (m.value - m.stated).abs() > LATITUDE_REACH_DEG)
-    }) {
-        let start = a.misstated.map_or(stated[0], |m| m.value);
-        if let Some(p) = profiled_latitude(km, effects, prep, cfg, id, stated[0], start) {
-            *a = p;
+    let mut out = vec![];
+    for (j, &k) in live.iter().enumerate() {
+        let (l, (f, c)) = (&laplace[j + 1], &fits[j + 1]);
+        let (u, var) = (l.u[k], l.var[k]);
+        let (name, unit) = KNOBS[k];
+        let sens = km.sens.column(k);
+        let shift = c - &fits[0].1;
+        let mut a = Alternative {
+            effect: format!("{name} misstated"),
+            evidence_gain: base - l.neg2_ln_z(*f) - PRIOR_ODDS,
+            weight: 0.0,
+            reach: (0..shift.len())
+                .map(|i| shift[i].abs() + 2.0 * var.sqrt() * sens[i].abs())
+                .collect(),
+            shift: shift.iter().copied().collect(),
+            misstated: Some(Misstated {
+                knob: name,
+                unit,
+                stated: stated[k],
+                value: stated[k] + u * km.unit[k],
+                sigma: var.sqrt() * km.unit[k],
+                index: k,
+            }),
+        };
+        // A latitude the broad prior puts beyond 3σ of where its own prior does is weighed by
+        // full fits with gravity kept: the quadratic model moves normal gravity with the latitude
+        // (4.4 ppm per 0.05°, 26σ of what the data know of gravity) and misses far from the
+        // stated latitude.
+        if k == 0 && ((u - laplace[0].u[0]) * km.unit[0]).abs() > 3.0 * var.sqrt() * km.unit[0] {
+            let start = stated[0] + u * km.unit[0];
+            // The other knobs' share of −2 ln Z under this hypothesis, so that the profiled
+            // latitude is weighed on the scale of the others.
+            let others = l.ln_det - (1.0 + l.lambda[0] * km.hess[(0, 0)] / 2.0).ln()
+                + (1..3).map(|i| l.u[i] * l.u[i] / l.lambda[i]).sum::<f64>();
+            if let Some(p) = profiled_latitude(
+                km,
+                effects,
+                prep,
+                cfg,
+                (&fits[0].1, base - others),
+                stated[0],
+                start,
+            ) {
+                a = p;
+            }
         }
+        out.push(a);
     }
-    Ok(out)
+    Ok(Weighed {
+        alternatives: out,
+        stated_gain: (!contradicted).then(|| km.f0 - base),
+    })
 }
 
-/// How far from the stated latitude the quadratic model's estimate is taken, deg (a few of its
-/// ±1σ finite-difference steps for a latitude written to 0.1°).
-pub const LATITUDE_REACH_DEG: f64 = 0.05;
+/// The knobs' Laplace approximation under prior covariance Λ (diagonal, prior units).
+struct Laplace {
+    /// Λ's diagonal.
+    lambda: [f64; 3],
+    /// The knobs' estimate u*.
+    u: [f64; 3],
+    /// Its variances.
+    var: [f64; 3],
+    /// `ln det(1 + Λ^½ H Λ^½ / 2)`.
+    ln_det: f64,
+}
+
+impl Laplace {
+    /// `lat_bound`: the latitude's hard half-width (deg) when it has its own prior.
+    fn new(km: &KnobModel, lambda: [f64; 3], lat_bound: Option<f64>) -> Self {
+        let live = |k: usize| km.unit[k] > 0.0;
+        let mut a = km.hess.clone();
+        let mut b = km.hess.clone();
+        for i in 0..3 {
+            a[(i, i)] += if live(i) { 2.0 / lambda[i] } else { 1.0 };
+            for j in 0..3 {
+                b[(i, j)] *= (lambda[i] * lambda[j]).sqrt() / 2.0;
+            }
+            b[(i, i)] += 1.0;
+        }
+        let inv = a
+            .clone()
+            .try_inverse()
+            .unwrap_or_else(|| DMatrix::identity(3, 3));
+        let mut u = -(&inv * &km.grad);
+        if let Some(b) = lat_bound.filter(|_| lambda[0] == 1.0 && km.unit[0] > 0.0) {
+            let cap = b / km.unit[0];
+            if u[0].abs() > cap {
+                // The latitude at its bound, the other knobs where the data then put them.
+                u[0] = cap.copysign(u[0]);
+                let rest = a.view((1, 1), (2, 2)).into_owned();
+                let rhs = -(km.grad.rows(1, 2) + km.hess.view((1, 0), (2, 1)) * u[0]);
+                if let Some(r) = rest.try_inverse() {
+                    let ur = r * rhs;
+                    u[1] = ur[0];
+                    u[2] = ur[1];
+                }
+            }
+        }
+        let ln_det = b.determinant().max(1e-300).ln();
+        Laplace {
+            lambda,
+            u: [u[0], u[1], u[2]],
+            var: [0, 1, 2].map(|k| 2.0 * inv[(k, k)]),
+            ln_det,
+        }
+    }
+
+    /// The knobs' offsets from the stated set-up, in their units.
+    fn delta(&self, km: &KnobModel) -> [f64; 3] {
+        [0, 1, 2].map(|k| self.u[k] * km.unit[k])
+    }
+
+    /// −2 ln Z with `f` = −2 ln p(y) refitted at u*.
+    fn neg2_ln_z(&self, f: f64) -> f64 {
+        f + (0..3)
+            .map(|k| self.u[k] * self.u[k] / self.lambda[k])
+            .sum::<f64>()
+            + self.ln_det
+    }
+}
 
 /// The misstated latitude from full fits (the Earth rate's direction turns with the latitude, so
 /// far from the stated one the quadratic model misses, and −2 ln p(y) has local minima): the
 /// best of a 0.1° grid over ±2 broad σ and the quadratic model's estimate `start` (deg), then
 /// Newton steps with three-point differences 0.01° apart; then the broad prior's penalty and
-/// Occam factor with that estimate and its 1σ.
+/// Occam factor with that estimate and its 1σ, against `base` (−2 ln Z of the stated set-up with
+/// its priors, its parameters `c0`).
 fn profiled_latitude(
     km: &KnobModel,
     effects: &[&'static dyn Effect],
     prep: &Prepared,
     cfg: &Config,
-    id: &Identification,
+    (c0, base): (&DVector<f64>, f64),
     stated: f64,
     start: f64,
 ) -> Option<Alternative> {
@@ -123,7 +278,6 @@ fn profiled_latitude(
         let id = super::identify(&model, &p, cfg).ok()?;
         Some((crate::diagnose::select::neg2_log_evidence(&id), id))
     };
-    let f_stated = crate::diagnose::select::neg2_log_evidence(id);
     let grid: Vec<f64> = (-10..=10)
         .map(|k| stated + 0.1 * k as f64)
         .chain(std::iter::once(start))
@@ -154,11 +308,12 @@ fn profiled_latitude(
         l += dl;
     }
     let (fb, sigma, at) = best?;
-    let n = id.params.len();
-    let shift = DVector::from_fn(n, |i, _| at.best().value[i] - id.best().value[i]);
+    let n = c0.len();
+    let shift = DVector::from_fn(n, |i, _| at.best().value[i] - c0[i]);
     let lambda = (BROAD[0] / sigma).powi(2);
     let u = (l - stated) / BROAD[0];
-    let gain = f_stated - fb - u * u - (1.0 + lambda).ln() - PRIOR_ODDS;
+    // The other knobs as stated (their priors' share is small beside a latitude this far off).
+    let gain = base - (fb + u * u + (1.0 + lambda).ln()) - PRIOR_ODDS;
     let sens = km.sens.column(0) / km.unit[0];
     Some(Alternative {
         effect: "latitude misstated".into(),
@@ -179,13 +334,6 @@ fn profiled_latitude(
     })
 }
 
-/// The knob's estimate under its broad prior and that estimate's variance, both in prior units u.
-fn estimate(km: &KnobModel, k: usize) -> (f64, f64) {
-    let lambda = (BROAD[k] / km.unit[k]).powi(2);
-    let a = km.hess[(k, k)] + 2.0 / lambda;
-    (-km.grad[k] / a, 2.0 / a)
-}
-
 /// The stated latitude (deg), clock rate and gravity (ppm of the stated value: 0).
 fn stated_values(prep: &Prepared) -> [f64; 3] {
     [
@@ -193,39 +341,6 @@ fn stated_values(prep: &Prepared) -> [f64; 3] {
         0.0,
         0.0,
     ]
-}
-
-/// Knob `k` misstated: `fit_gain` = f(0) − f(u*), `shift` the refits' parameter difference.
-fn alternative(
-    km: &KnobModel,
-    k: usize,
-    fit_gain: f64,
-    shift: DVector<f64>,
-    stated: f64,
-) -> Alternative {
-    let lambda = (BROAD[k] / km.unit[k]).powi(2);
-    let (u, var) = estimate(km, k);
-    let occam = (1.0 + lambda * km.hess[(k, k)] / 2.0).ln();
-    let gain = fit_gain - u * u / lambda - occam - PRIOR_ODDS;
-    let sens = km.sens.column(k);
-    let (name, unit) = KNOBS[k];
-    Alternative {
-        effect: format!("{name} misstated"),
-        evidence_gain: gain,
-        weight: 0.0,
-        reach: (0..shift.len())
-            .map(|i| shift[i].abs() + 2.0 * var.sqrt() * sens[i].abs())
-            .collect(),
-        shift: shift.iter().copied().collect(),
-        misstated: Some(Misstated {
-            knob: name,
-            unit,
-            stated,
-            value: stated + u * km.unit[k],
-            sigma: var.sqrt() * km.unit[k],
-            index: k,
-        }),
-    }
 }
 
 /// The misstatement to repair among `alts` (every explanation weighed, the catalog's and the
@@ -245,6 +360,48 @@ pub fn to_repair(alts: &[Alternative], rivals: &[(String, f64)]) -> Option<Misst
         .fold(0.0, f64::max);
     (best.evidence_gain > MIN_EVIDENCE_GAIN && best.evidence_gain - next >= PLAUSIBLE_MARGIN)
         .then_some(m)
+}
+
+/// When misstatements beat every other explanation by [`PLAUSIBLE_MARGIN`] but not each other
+/// (a clock 1000 ppm fast and a latitude 0.07° off fit 60 h alike): the set-up is wrong, which
+/// part the run cannot tell. A finding that is not repaired (no physical effect is then added
+/// to explain it), naming them and what would tell them apart.
+pub fn confounded(mis: &[Alternative], rivals: &[(String, f64)]) -> Option<Finding> {
+    let best = mis
+        .iter()
+        .map(|a| a.evidence_gain)
+        .fold(f64::NEG_INFINITY, f64::max);
+    let rival = rivals.iter().map(|r| r.1).fold(0.0, f64::max);
+    if !(best > MIN_EVIDENCE_GAIN && best - rival >= PLAUSIBLE_MARGIN) {
+        return None;
+    }
+    let close: Vec<String> = mis
+        .iter()
+        .filter(|a| a.evidence_gain > best - PLAUSIBLE_MARGIN)
+        .filter_map(|a| {
+            let m = a.misstated?;
+            Some(format!(
+                "the {} at {} {} (stated {}; evidence gain {:.1})",
+                m.knob,
+                crate::format::pm(m.value, m.sigma),
+                m.unit,
+                crate::format::sig(m.stated, 9),
+                a.evidence_gain
+            ))
+        })
+        .collect();
+    (close.len() > 1).then(|| Finding {
+        kind: "set-up",
+        message: format!(
+            "the stated set-up is wrong, but this run cannot tell which part: {} explain the data alike, better than any physical effect (by {:.1} or more); state the others to the precision you know them (a latitude with all its digits, `--latitude-sigma-deg`; a disciplined clock, `--clock-sigma-ppm`) and run again",
+            close.join(" or "),
+            best - rival
+        ),
+        start_s: None,
+        end_s: None,
+        samples: 0,
+        action: Action::NotRepaired,
+    })
 }
 
 /// `prep` and `cfg` with the misstated knob repaired: moved to the data's value, its prior the

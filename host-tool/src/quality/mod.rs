@@ -74,7 +74,7 @@ impl Finding {
             Action::Repaired => "repaired",
             Action::Rejected => "samples rejected",
             Action::Noted => "noted",
-            Action::NotRepaired => "NOT repaired — estimate not trusted",
+            Action::NotRepaired => "estimate not trusted",
             Action::Refused => "refused",
         };
         format!("{}{when}: {} ({act})", self.kind, self.message)

@@ -289,7 +289,7 @@ pub fn render_html(input: &ReportInput) -> Result<String> {
     for c in &first.confounding {
         let _ = writeln!(
             h,
-            "<p>{}<b>{}</b> and <b>{}</b> leave nearly the same signature on this run (canonical correlation {:.3}); the score gap is {:.1}{}. To separate them: {}.</p>",
+            "<p>{}<b>{}</b> and <b>{}</b> leave nearly the same signature on this run (canonical correlation {:.3}); their score tests' −2 ln p differ by {:.1}{}. To separate them: {}.</p>",
             if c.separated { "" } else { "<span class=\"bad\">Not separated:</span> " },
             esc(&c.a),
             esc(&c.b),
@@ -430,9 +430,9 @@ fn ranking_table(h: &mut String, d: &Diagnosis) {
             esc(&c.effect),
             c.statistic,
             c.dof,
-            esc(&crate::format::p_or_ln(c.p_value, c.ln_p_value)),
+            esc(&crate::format::p_value(c.p_value, c.ln_p_value)),
             if c.p_adjusted < 0.01 { "bad" } else { "ok" },
-            esc(&crate::format::p_or_ln(c.p_adjusted, c.ln_p_adjusted)),
+            esc(&crate::format::p_value(c.p_adjusted, c.ln_p_adjusted)),
             sizes,
             c.refit.as_ref().map(|r| format!("{:+.1}", r.evidence_gain)).unwrap_or_else(|| "—".into()),
             c.refit

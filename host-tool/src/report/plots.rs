@@ -1221,17 +1221,9 @@ fn minutes_label(h: f64) -> String {
     }
 }
 
-/// p-value for display.
+/// p-value for display ([`crate::format::p_value`]: one style everywhere).
 pub fn fmt_p(p: f64) -> String {
-    if !p.is_finite() {
-        "n/a".into()
-    } else if p >= 0.001 {
-        format!("{p:.3}")
-    } else if p == 0.0 {
-        "< 1e-300".into()
-    } else {
-        format!("{p:.1e}")
-    }
+    crate::format::p_value(p, f64::NAN)
 }
 
 /// Draws category labels under a chart's x axis at the given data x positions.
@@ -1498,7 +1490,7 @@ fn temperature_status(input: &ReportInput, d: usize) -> String {
             "{TEMP_DRIFT}: candidate #{} of {}, p (Holm) = {}",
             k + 1,
             dg.ranking.len(),
-            crate::format::p_or_ln(c.p_adjusted, c.ln_p_adjusted)
+            crate::format::p_value(c.p_adjusted, c.ln_p_adjusted)
         ),
     }
 }
