@@ -121,6 +121,7 @@ fn run_qemu<R: Read, W: Write + Send>(
         config,
         shutdown: true,
         timeout: Duration::from_secs(300),
+        ..ReplayOptions::default()
     };
     let reader: Box<dyn Read + Send> = Box::new(pty.master);
     let outcome = replay::replay(
