@@ -260,8 +260,10 @@ pub fn record_with<P: Read + Write>(
     }
     if let Some(h) = sink.timeline.unconfirmed() {
         sum.unconfirmed = Some(format!(
-            "sample {}: t_s = {:?} s jumps ahead of the recording's last sample and no later sample came to confirm it; not written",
-            h.seq, h.t_s
+            "sample {}: t_s = {:?} s is out of line with the last sample recorded (t_s = {:?} s) and no later sample came to tell a gap or a new run from a bad time stamp; not written",
+            h.seq,
+            h.t_s,
+            sink.timeline.last_t().unwrap_or(f64::NAN)
         ));
     }
     if sum.samples == 0 {
