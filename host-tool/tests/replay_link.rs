@@ -33,6 +33,8 @@ enum Script {
     FaultsThenDone,
     /// One estimate only, then "done" at Finish.
     DoneEarly,
+    /// Every estimate but step 3's (its steps numbered on).
+    SkipsStep,
     /// Reboots after sample 5 and resumes from a checkpoint at sample 10 000.
     ResumePastEnd,
     /// The second estimate's D(X)_0 is NaN.
@@ -100,7 +102,12 @@ impl Tx {
             (Script::NanTime, 0) => e.t_s = f64::NAN,
             _ => {}
         }
-        if self.script != Script::DoneEarly || self.steps == 0 {
+        let skip = match self.script {
+            Script::DoneEarly => self.steps > 0,
+            Script::SkipsStep => self.steps == 3,
+            _ => false,
+        };
+        if !skip {
             self.send(Message::Estimate(e));
         }
         self.steps += 1;
@@ -257,6 +264,12 @@ fn done_early_is_an_error_naming_what_is_missing() {
         e.contains("done after 1 estimates (the last at t = 29.5 s)")
             && e.contains("goes on to t = 599.0 s")
             && e.contains("its end has no estimate"),
+        "{e}"
+    );
+    // An estimate missing in the middle, not lost by the link (which counts what it loses).
+    let e = error_of(Script::SkipsStep);
+    assert!(
+        e.contains("1 of its 10 update steps sent no estimate (the link lost 0 frames)"),
         "{e}"
     );
 }

@@ -171,7 +171,12 @@ pub fn replay<R: Read, W: Write + Send>(
             out.frames_sent = sent??;
         }
     }
-    check_complete(samples, opts.config.filter_period_s, &out)?;
+    check_complete(
+        samples,
+        opts.config.filter_period_s,
+        &out,
+        rx.stats().lost(),
+    )?;
     out.rx = rx.stats();
     out.elapsed_s = start.elapsed().as_secs_f64();
     Ok(out)
@@ -476,10 +481,16 @@ pub fn estimate_problem(e: &Estimate) -> Option<String> {
     None
 }
 
-/// The firmware said the run was done: its estimates must cover the recording, one per update.
+/// The firmware said the run was done: its estimates must cover the recording, one per update
+/// (but for estimate frames the link lost: `lost_frames`).
 /// The last estimate's time (the mean time of the last window's samples) lies within one filter
 /// period of the last sample; two periods allow the last window's samples to be screened out.
-fn check_complete(samples: &[RawSample], period_s: f64, out: &ReplayOutcome) -> anyhow::Result<()> {
+fn check_complete(
+    samples: &[RawSample],
+    period_s: f64,
+    out: &ReplayOutcome,
+    lost_frames: u64,
+) -> anyhow::Result<()> {
     let Some(last) = samples.last() else {
         return Ok(());
     };
@@ -493,15 +504,12 @@ fn check_complete(samples: &[RawSample], period_s: f64, out: &ReplayOutcome) -> 
         ),
         None => String::new(),
     };
-    if let Some((i, e)) = out
-        .estimates
-        .iter()
-        .enumerate()
-        .find(|(i, e)| e.step as usize != *i)
-    {
+    // Estimate frames the link lost are counted there, not the firmware's doing.
+    let next = out.estimates.last().map_or(0, |e| u64::from(e.step) + 1);
+    let missing = next.saturating_sub(out.estimates.len() as u64);
+    if missing > lost_frames {
         bail!(
-            "the firmware said the run was done, but estimates are missing: update step {i} never came (the next received is step {}){faults}",
-            e.step
+            "the firmware said the run was done, but {missing} of its {next} update steps sent no estimate (the link lost {lost_frames} frames){faults}"
         );
     }
     let covered = out.estimates.last().map(|e| e.t_s);
