@@ -45,6 +45,8 @@ enum Script {
     NanTime,
     /// Answers Start, then never sends again (it goes on reading).
     Silent,
+    /// Every estimate, and a filter fault at step 2.
+    FaultMidRun,
 }
 
 fn status(running: bool, boot: bool, resumed: Option<Resume>, frames_rx: u32) -> Message {
@@ -109,6 +111,10 @@ impl Tx {
         };
         if !skip {
             self.send(Message::Estimate(e));
+        }
+        if self.script == Script::FaultMidRun && self.steps == 2 {
+            let f = Fault::new(FaultCode::Filter, 2, format_args!("update refused"));
+            self.send(Message::Fault(f));
         }
         self.steps += 1;
         window.clear();
@@ -312,4 +318,68 @@ fn a_firmware_that_stops_answering_is_named_after_the_silence_limit() {
     // The limit, plus the reader's 0.1-s poll and the thread's start: 3 s is far from the 60-s
     // time-out, and far above the scheduling noise of a loaded machine.
     assert!(took < silence + Duration::from_secs(3), "took {took:?}");
+}
+
+/// `driftid replay` on the pty's slave, a fake firmware on its master: returns the exit code,
+/// stderr and the estimates file if one was written.
+fn replay_cli(script: Script, name: &str) -> (Option<i32>, String, Option<String>) {
+    let dir =
+        std::env::temp_dir().join(format!("driftid-replay-link-{}-{name}", std::process::id()));
+    let _ = std::fs::remove_dir_all(&dir);
+    std::fs::create_dir_all(&dir).unwrap();
+    let rec = dir.join("run.csv");
+    let meta = host_tool::recording::Metadata {
+        latitude_deg: Some(39.1),
+        ..Default::default()
+    };
+    let rows: Vec<host_tool::recording::RawSample> = samples()
+        .iter()
+        .map(|s| host_tool::recording::RawSample {
+            t_s: s.t_s,
+            specific_force_mps2: s.specific_force,
+            temp_c: None,
+        })
+        .collect();
+    host_tool::recording::write_recording(&rec, &meta, &rows).unwrap();
+    let pty = pty_pair().unwrap();
+    let done = Arc::new(AtomicBool::new(false));
+    let d = done.clone();
+    let master = pty.master;
+    let firmware = std::thread::spawn(move || fake_firmware(master, script, d));
+    let out_csv = dir.join("estimates.csv");
+    let out = std::process::Command::new(env!("CARGO_BIN_EXE_driftid"))
+        .arg("replay")
+        .arg(&rec)
+        .args(["--port", &pty.slave_path, "--timeout-s", "60", "--out"])
+        .arg(&out_csv)
+        .output()
+        .unwrap();
+    done.store(true, Ordering::SeqCst);
+    firmware.join().unwrap();
+    let written = std::fs::read_to_string(&out_csv).ok();
+    let _ = std::fs::remove_dir_all(&dir);
+    (
+        out.status.code(),
+        String::from_utf8_lossy(&out.stderr).into_owned(),
+        written,
+    )
+}
+
+/// The exit codes the command gives: faults with every estimate there are "computed but not
+/// trusted" (3, the estimates written, the fault named); an estimate the firmware could not
+/// compute is an error (2) and nothing is written — not half a file.
+#[test]
+fn the_command_exits_3_on_faults_and_2_on_a_nan_estimate_writing_nothing() {
+    let (code, err, written) = replay_cli(Script::FaultMidRun, "fault");
+    assert_eq!(code, Some(3), "{err}");
+    assert!(
+        err.contains("Filter at update step 2: update refused"),
+        "{err}"
+    );
+    let rows = written.expect("the estimates are written").lines().count();
+    assert_eq!(rows, 1 + 10, "header and the ten estimates");
+    let (code, err, written) = replay_cli(Script::NanEstimate, "nan");
+    assert_eq!(code, Some(2), "{err}");
+    assert!(err.contains("state DX0 = NaN"), "{err}");
+    assert_eq!(written, None, "no output at all");
 }

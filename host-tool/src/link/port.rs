@@ -12,19 +12,18 @@ pub const DEFAULT_BAUD: u32 = 115_200;
 /// Read timeout used by the link loops: short, so they can watch deadlines and child processes.
 pub const POLL: Duration = Duration::from_millis(100);
 
-/// How long the link's sending side waits for the receiver to read: long, because the receiver
-/// legitimately stops reading for a while (an EKF update, QEMU busy). Only a receiver that reads
-/// nothing for this long is an error. The sender waits in writes of [`POLL`] each, so that it
-/// can stop at a deadline or when the run failed (`replay::write_frame`).
+/// Write timeout of the link's sending side: long, because the receiver legitimately stops
+/// reading for a while (an EKF update, QEMU busy) and a write that times out half-way through a
+/// frame would lose the rest of the stream. Only a receiver gone for this long is an error. (A
+/// replay does not wait for it: it ends at its own time-out, `replay::replay`.)
 pub const WRITE_TIMEOUT: Duration = Duration::from_secs(60);
 
-/// A second handle on `port` for the sending side (writes time out after [`POLL`]; the sender
-/// retries them up to [`WRITE_TIMEOUT`]).
+/// A second handle on `port` for the sending side, with [`WRITE_TIMEOUT`] (reads keep [`POLL`]).
 pub fn writer_of(port: &TTYPort) -> anyhow::Result<TTYPort> {
     let mut w = port
         .try_clone_native()
         .context("cloning the serial port for writing")?;
-    w.set_timeout(POLL)?;
+    w.set_timeout(WRITE_TIMEOUT)?;
     Ok(w)
 }
 

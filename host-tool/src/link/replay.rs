@@ -21,7 +21,7 @@
 
 use std::io::{Read, Write};
 use std::sync::atomic::{AtomicBool, AtomicU64, Ordering};
-use std::sync::mpsc;
+use std::sync::{mpsc, Arc};
 use std::time::{Duration, Instant};
 
 use anyhow::{bail, Context as _};
@@ -116,11 +116,14 @@ pub fn config_for(meta: &recording::Metadata, base: Config) -> anyhow::Result<Co
 }
 
 /// Replays `samples` over a link. `reader`/`writer` are the two directions of one port (e.g. a
-/// port and its `try_clone`; the writer's timeout should be short, [`super::port::POLL`]: it is
-/// how often a blocked write looks at the deadline); `alive` says whether the other end still
-/// runs (checked while waiting); `on_msg` sees every received message (progress display, raw
-/// logging).
-pub fn replay<R: Read, W: Write + Send>(
+/// port and its `try_clone`); `alive` says whether the other end still runs (checked while
+/// waiting); `on_msg` sees every received message (progress display, raw logging).
+///
+/// The writer runs on a thread of its own, one `write_all` per frame. When the run fails (the
+/// time-out included) while that thread is blocked in a write to a firmware that does not read,
+/// the replay returns its error at once and leaves the thread to end with its write's own
+/// time-out ([`super::port::WRITE_TIMEOUT`]): the time-out holds for writes too.
+pub fn replay<R: Read, W: Write + Send + 'static>(
     reader: R,
     writer: W,
     samples: &[RawSample],
@@ -130,46 +133,44 @@ pub fn replay<R: Read, W: Write + Send>(
     on_msg: impl FnMut(&Message),
 ) -> anyhow::Result<ReplayOutcome> {
     let start = Instant::now();
-    let link = Link {
-        samples,
-        opts,
+    let link = Arc::new(Link {
+        samples: samples.to_vec(),
+        opts: opts.clone(),
         deadline: start + opts.timeout,
         finish_sent: AtomicBool::new(false),
         stop: AtomicBool::new(false),
         sent_frames: AtomicU64::new(0),
         sent_samples: AtomicU64::new(0),
-    };
+    });
     let (ctl_tx, ctl_rx) = mpsc::channel::<Ctl>();
     let mut out = ReplayOutcome::default();
     let mut rx = Receiver::new();
-    let (result, sent) = std::thread::scope(|scope| {
-        let link = &link;
-        let writer_thread = scope.spawn(move || write_run(link, writer, ctl_rx));
-        let io = ReadIo {
-            reader,
-            alive,
-            on_bytes,
-            on_msg,
-        };
-        let result = read_run(link, io, &mut out, &mut rx, &ctl_tx, || {
-            writer_thread.is_finished()
-        });
-        if result.is_err() {
-            link.stop.store(true, Ordering::SeqCst);
-        }
-        let _ = ctl_tx.send(Ctl::Done(result.is_ok()));
-        let sent = writer_thread
-            .join()
-            .map_err(|_| anyhow::anyhow!("the writer thread panicked"));
-        (result, sent)
+    let writer_thread = std::thread::spawn({
+        let link = Arc::clone(&link);
+        move || write_run(&link, writer, ctl_rx)
     });
-    match (result, sent) {
+    let io = ReadIo {
+        reader,
+        alive,
+        on_bytes,
+        on_msg,
+    };
+    let result = read_run(&link, io, &mut out, &mut rx, &ctl_tx, || {
+        writer_thread.is_finished()
+    });
+    if result.is_err() {
+        link.stop.store(true, Ordering::SeqCst);
+    }
+    let _ = ctl_tx.send(Ctl::Done(result.is_ok()));
+    match (
+        result,
+        end_writer(writer_thread, link.stop.load(Ordering::SeqCst)),
+    ) {
         // The writer's own failure (the firmware does not read) is the cause the reader saw.
-        (Err(e), Ok(Err(w))) if e.to_string().contains(WRITER_ENDED) => return Err(w),
-        (r, sent) => {
-            r?;
-            out.frames_sent = sent??;
-        }
+        (Err(e), Some(Err(w))) if e.to_string().contains(WRITER_ENDED) => return Err(w),
+        (Err(e), _) => return Err(e),
+        (Ok(()), None) => bail!("internal error: the writer to the link did not end"),
+        (Ok(()), Some(sent)) => out.frames_sent = sent?,
     }
     check_complete(
         samples,
@@ -182,10 +183,33 @@ pub fn replay<R: Read, W: Write + Send>(
     Ok(out)
 }
 
+/// How long a failed run waits for its writer to end before leaving it blocked in a write.
+const WRITER_GRACE: Duration = Duration::from_millis(500);
+
+/// Ends the writer thread: joined when the run succeeded (it sends `Shutdown`, to a firmware
+/// that reads) or when it ends within [`WRITER_GRACE`]; `None` if it is still blocked in a write
+/// after a failure (left to end with that write's time-out).
+fn end_writer(
+    t: std::thread::JoinHandle<anyhow::Result<u64>>,
+    failed: bool,
+) -> Option<anyhow::Result<u64>> {
+    let t0 = Instant::now();
+    while failed && !t.is_finished() {
+        if t0.elapsed() > WRITER_GRACE {
+            return None;
+        }
+        std::thread::sleep(Duration::from_millis(10));
+    }
+    Some(
+        t.join()
+            .unwrap_or_else(|_| Err(anyhow::anyhow!("the writer thread panicked"))),
+    )
+}
+
 /// What the writer and the reader of one run share.
-struct Link<'a> {
-    samples: &'a [RawSample],
-    opts: &'a ReplayOptions,
+struct Link {
+    samples: Vec<RawSample>,
+    opts: ReplayOptions,
     deadline: Instant,
     /// `Finish` is (being) sent: a "not running" status now ends the run.
     finish_sent: AtomicBool,
@@ -201,12 +225,8 @@ const WRITER_ENDED: &str = "the writer to the link ended";
 
 /// The writer thread: `Configure`, `Start`, the samples, `Finish`; resets followed as the
 /// reader says. Returns the frames sent.
-fn write_run<W: Write>(
-    link: &Link<'_>,
-    mut w: W,
-    ctl_rx: mpsc::Receiver<Ctl>,
-) -> anyhow::Result<u64> {
-    let (samples, config) = (link.samples, link.opts.config);
+fn write_run<W: Write>(link: &Link, mut w: W, ctl_rx: mpsc::Receiver<Ctl>) -> anyhow::Result<u64> {
+    let (samples, config) = (&link.samples[..], link.opts.config);
     let mut enc = Encoder::new();
     let mut send = |w: &mut W, cmd: Command| -> anyhow::Result<()> {
         let f = enc
@@ -264,40 +284,29 @@ fn write_run<W: Write>(
     Ok(link.sent_frames.load(Ordering::SeqCst))
 }
 
-/// Writes one frame whole. A write that times out (the firmware is not reading) is tried again,
-/// but not past the run's failure, its deadline, or [`WRITE_TIMEOUT`] without progress.
-fn write_frame<W: Write>(w: &mut W, mut f: &[u8], link: &Link<'_>) -> anyhow::Result<()> {
-    let mut progress = Instant::now();
-    while !f.is_empty() {
-        if link.stop.load(Ordering::SeqCst) {
-            bail!("the replay stopped");
-        }
-        if Instant::now() > link.deadline {
-            bail!(
-                "replay timed out after {:?} while writing to the link: the firmware is not reading ({} frames sent)",
-                link.opts.timeout,
-                link.sent_frames.load(Ordering::SeqCst)
-            );
-        }
-        if progress.elapsed() > WRITE_TIMEOUT {
-            bail!(
-                "the firmware has read nothing for {:?} ({} frames sent): it stopped reading",
-                WRITE_TIMEOUT,
-                link.sent_frames.load(Ordering::SeqCst)
-            );
-        }
-        match w.write(f) {
-            Ok(0) => bail!("the link accepts no more bytes"),
-            Ok(n) => {
-                f = &f[n..];
-                progress = Instant::now();
-            }
-            Err(e) if is_timeout(&e) => {}
-            Err(e) if is_gone(&e) => bail!("the link went away while writing: {e}"),
-            Err(e) => return Err(e).context("writing to the link"),
-        }
+/// Writes one frame whole (one `write_all`: tests damage frames by it), unless the run failed
+/// or its deadline passed. The writer's own time-out ([`WRITE_TIMEOUT`]) ends a write to a
+/// firmware that reads nothing.
+fn write_frame<W: Write>(w: &mut W, f: &[u8], link: &Link) -> anyhow::Result<()> {
+    if link.stop.load(Ordering::SeqCst) {
+        bail!("the replay stopped");
     }
-    Ok(())
+    if Instant::now() > link.deadline {
+        bail!(
+            "replay timed out after {:?} while writing to the link ({} frames sent)",
+            link.opts.timeout,
+            link.sent_frames.load(Ordering::SeqCst)
+        );
+    }
+    match w.write_all(f) {
+        Ok(()) => Ok(()),
+        Err(e) if is_timeout(&e) => bail!(
+            "the firmware has read nothing for {WRITE_TIMEOUT:?} ({} frames sent): it stopped reading",
+            link.sent_frames.load(Ordering::SeqCst)
+        ),
+        Err(e) if is_gone(&e) => bail!("the link went away while writing: {e}"),
+        Err(e) => Err(e).context("writing to the link"),
+    }
 }
 
 /// The reading side's inputs and callbacks.
@@ -311,7 +320,7 @@ struct ReadIo<R, A, B, M> {
 /// The reader: collects what the firmware sends until the run ends (a "not running" status
 /// after `Finish`), or fails naming why.
 fn read_run<R: Read>(
-    link: &Link<'_>,
+    link: &Link,
     mut io: ReadIo<
         R,
         impl FnMut() -> bool,
@@ -323,7 +332,7 @@ fn read_run<R: Read>(
     ctl_tx: &mpsc::Sender<Ctl>,
     writer_ended: impl Fn() -> bool,
 ) -> anyhow::Result<()> {
-    let opts = link.opts;
+    let opts = &link.opts;
     let mut buf = [0u8; 4096];
     let mut started = false;
     let mut last_rx = Instant::now();
@@ -379,7 +388,7 @@ fn read_run<R: Read>(
 
 /// Takes one message into the outcome; `Ok(true)`: the run ended.
 fn take(
-    link: &Link<'_>,
+    link: &Link,
     msg: Message,
     out: &mut ReplayOutcome,
     started: &mut bool,
@@ -403,7 +412,7 @@ fn take(
             out.resets.push(s.resumed);
             match s.resumed {
                 Some(r) => {
-                    check_resume(link.samples, &r)?;
+                    check_resume(&link.samples, &r)?;
                     out.estimates.retain(|e| e.step < r.step);
                     let _ = ctl_tx.send(Ctl::ResendFrom(r.next_seq));
                 }
