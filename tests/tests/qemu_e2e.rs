@@ -106,7 +106,7 @@ fn input() -> (Config, Vec<RawSample>) {
 }
 
 /// Runs one replay through QEMU; `wrap_w`/`wrap_r` may damage the two directions.
-fn run_qemu<R: Read, W: Write + Send>(
+fn run_qemu<R: Read, W: Write + Send + 'static>(
     samples: &[RawSample],
     config: Config,
     wrap_r: impl FnOnce(Box<dyn Read + Send>) -> R,

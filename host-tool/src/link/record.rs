@@ -233,18 +233,7 @@ pub fn record_with<P: Read + Write>(
                 Err(e) if is_gone(&e) => break true,
                 Err(e) => return Err(e).context("reading from the link"),
             };
-            log_raw(opts, &mut sink, &buf[..n])?;
-            for p in rx.feed(&buf[..n]) {
-                on_msg(&p.msg);
-                if sink.link_seq.observe(p.seq) == SeqEvent::Restart && p.seq == 0 {
-                    // The firmware rebooted; its boot status may still say it resumed.
-                    sink.timeline.firmware_reset(false);
-                }
-                handle(opts, &mut sink, &mut sum, p.msg)?;
-            }
-            if let Some(w) = sink.csv.as_mut() {
-                w.flush().context("flushing the recording")?;
-            }
+            take_bytes(opts, &mut sink, &mut sum, &mut rx, &buf[..n], &mut on_msg)?;
         };
         sum.rx = rx.stats();
         if !gone || !opts.reconnect {
@@ -270,6 +259,30 @@ pub fn record_with<P: Read + Write>(
         anyhow::bail!("{}", nothing_recorded(opts, &sum, start.elapsed()));
     }
     Ok(sum)
+}
+
+/// Takes bytes received: logged raw, decoded, each message handled; the rows flushed.
+fn take_bytes(
+    opts: &RecordOptions,
+    sink: &mut Sink,
+    sum: &mut RecordSummary,
+    rx: &mut Receiver,
+    bytes: &[u8],
+    on_msg: &mut impl FnMut(&Message),
+) -> anyhow::Result<()> {
+    log_raw(opts, sink, bytes)?;
+    for p in rx.feed(bytes) {
+        on_msg(&p.msg);
+        if sink.link_seq.observe(p.seq) == SeqEvent::Restart && p.seq == 0 {
+            // The firmware rebooted; its boot status may still say it resumed.
+            sink.timeline.firmware_reset(false);
+        }
+        handle(opts, sink, sum, p.msg)?;
+    }
+    if let Some(w) = sink.csv.as_mut() {
+        w.flush().context("flushing the recording")?;
+    }
+    Ok(())
 }
 
 /// Appends received bytes to the raw log, creating it at the first.
