@@ -60,7 +60,8 @@ pub struct RecordOptions {
 pub struct RecordSummary {
     /// Samples written to the CSV.
     pub samples: u64,
-    /// Samples skipped as duplicates (time not after the last written, e.g. after a reconnect).
+    /// Samples skipped as already recorded (resent after a reconnect or to a restarted
+    /// recorder, or a run resumed from a checkpoint overlapping the recording).
     pub duplicates: u64,
     /// Gaps in the firmware's sample numbers (samples it did not send or we did not receive).
     pub sample_gaps: u64,
