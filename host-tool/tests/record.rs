@@ -337,3 +337,161 @@ fn the_raw_log_is_never_appended_to_a_file_that_is_not_one() {
     assert_eq!(std::fs::read(&old).unwrap(), c);
     let _ = std::fs::remove_dir_all(&dir);
 }
+
+/// Issue 28, item 3: a firmware that changed its latitude mid-stream went on being recorded into
+/// the same file. Now the recorder stops, naming both latitudes, and the file keeps the first run.
+#[test]
+fn a_latitude_change_mid_stream_stops_the_recorder_by_name() {
+    let dir = temp_dir("latitude-change");
+    let opts = options(&dir);
+    let mut enc = Encoder::new();
+    let mut bytes = stream(&mut enc, 39.1, 0..=10, |_, _| {});
+    bytes.extend(stream(&mut enc, 45.0, 11..=20, |_, _| {}));
+    let e = format!("{:#}", run(&opts, vec![bytes]).unwrap_err());
+    assert!(
+        e.contains("latitude 39.1 deg")
+            && e.contains("reports 45 deg")
+            && e.contains("keeps the first run (11 samples"),
+        "{e}"
+    );
+    let rec = read_recording(&opts.out).unwrap();
+    assert_eq!(rec.samples.len(), 11, "only the first run");
+    let _ = std::fs::remove_dir_all(&dir);
+}
+
+/// Issue 28, item 3: a firmware that restarted its clock ended as two runs in one file, the
+/// second's first samples called "duplicates". Now the recorder stops at the new run's first
+/// sample, by name — whether its readings differ from the recorded ones or are the same (a
+/// reboot is also seen in the link's sequence numbers starting again at 0).
+#[test]
+fn a_clock_restart_is_another_run_not_duplicates() {
+    for same_readings in [false, true] {
+        let dir = temp_dir(&format!("clock-restart-{same_readings}"));
+        let opts = options(&dir);
+        let mut enc = Encoder::new();
+        let mut bytes = stream(&mut enc, 39.1, 0..=30, |_, _| {});
+        if same_readings {
+            // The firmware rebooted: its link numbering starts again at 0, its samples too.
+            bytes.extend(stream(&mut Encoder::new(), 39.1, 0..=40, |_, _| {}));
+        } else {
+            // The same link, the clock back at 0, other readings.
+            for k in 0..=40u32 {
+                let mut s = sample(k);
+                s.specific_force[0] += 1e-4;
+                bytes.extend(enc.frame(Message::Raw(s)).unwrap());
+            }
+        }
+        let e = format!("{:#}", run(&opts, vec![bytes]).unwrap_err());
+        assert!(
+            e.contains("went back from t_s = 30.0 s") && e.contains("another run"),
+            "{same_readings}: {e}"
+        );
+        let rec = read_recording(&opts.out).unwrap();
+        assert_eq!(rec.samples.len(), 31, "{same_readings}: only the first run");
+        let _ = std::fs::remove_dir_all(&dir);
+    }
+}
+
+/// Issue 28, item 3: a first sample without a temperature dropped the temp_c column for the
+/// whole recording (the 89 temperatures after it lost, not counted). Now the column is always
+/// there, empty where a sample has none, and those samples are counted.
+#[test]
+fn a_first_sample_without_temperature_keeps_the_column() {
+    let dir = temp_dir("temp-column");
+    let opts = options(&dir);
+    let mut enc = Encoder::new();
+    let mut bytes = enc.frame(hello(39.1)).unwrap().to_vec();
+    for k in 0..90u32 {
+        let mut s = sample(k);
+        if k > 0 {
+            s.temp_c = 20.0 + 0.01 * f64::from(k);
+        }
+        bytes.extend(enc.frame(Message::Raw(s)).unwrap());
+    }
+    let sum = run(&opts, vec![bytes]).unwrap();
+    assert_eq!((sum.samples, sum.no_temp), (90, 1));
+    let rec = read_recording(&opts.out).unwrap();
+    assert!(rec.has_temp);
+    let temps: Vec<Option<f64>> = rec.samples.iter().map(|s| s.temp_c).collect();
+    assert_eq!(temps[0], None);
+    for (k, t) in temps.iter().enumerate().skip(1) {
+        assert_eq!(
+            *t,
+            Some(20.0 + 0.01 * k as f64),
+            "sample {k}: written exactly"
+        );
+    }
+    let _ = std::fs::remove_dir_all(&dir);
+}
+
+/// Issue 28, item 3: a sample stamped t = 1e308 was written, and the next 49 real samples were
+/// dropped as "duplicates". Now an absurd time stamp (beyond any run, or out of line with its
+/// neighbours) costs that sample only, named and counted.
+#[test]
+fn an_absurd_time_stamp_costs_only_itself() {
+    let dir = temp_dir("absurd-time");
+    let opts = options(&dir);
+    let mut enc = Encoder::new();
+    let mut bytes = enc.frame(hello(39.1)).unwrap().to_vec();
+    for k in 0..100u32 {
+        bytes.extend(enc.frame(Message::Raw(sample(k))).unwrap());
+        let spike = match k {
+            20 => Some(1e308),
+            60 => Some(5000.0), // finite, plausible alone, but between 60 s and 61 s
+            _ => None,
+        };
+        if let Some(t) = spike {
+            let mut s = sample(1000 + k);
+            s.t_s = t;
+            bytes.extend(enc.frame(Message::Raw(s)).unwrap());
+        }
+    }
+    let sum = run(&opts, vec![bytes]).unwrap();
+    assert_eq!((sum.samples, sum.duplicates, sum.bad_times), (100, 0, 2));
+    let first = sum.first_bad_time.unwrap();
+    assert!(
+        first.contains("sample 1020") && first.contains("1e308"),
+        "{first}"
+    );
+    let rec = read_recording(&opts.out).unwrap();
+    let times: Vec<f64> = rec.samples.iter().map(|s| s.t_s).collect();
+    assert_eq!(times, (0..100).map(f64::from).collect::<Vec<_>>());
+    let _ = std::fs::remove_dir_all(&dir);
+}
+
+/// Issue 29, item 9: a recorder that received nothing said "0 samples to rec.csv" and exited 0.
+/// Now it is an error saying what (did not) arrive, and no file is made — neither the recording
+/// nor the raw log.
+#[test]
+fn receiving_nothing_is_an_error_and_makes_no_file() {
+    let dir = temp_dir("nothing");
+    let opts = options(&dir);
+    let e = format!("{:#}", run(&opts, vec![Vec::new()]).unwrap_err());
+    assert!(
+        e.contains("nothing received") && e.contains("no sample recorded"),
+        "{e}"
+    );
+    // Frames, but no sample (Hello only).
+    let mut enc = Encoder::new();
+    let e = format!(
+        "{:#}",
+        run(&opts, vec![enc.frame(hello(39.1)).unwrap().to_vec()]).unwrap_err()
+    );
+    assert!(
+        e.contains("1 frames received") && e.contains("but no sample"),
+        "{e}"
+    );
+    assert!(!opts.out.exists(), "no recording");
+    let raw = std::fs::read(dir.join("run.bin")).unwrap();
+    assert!(
+        !raw.is_empty(),
+        "the bytes that did arrive are in the raw log"
+    );
+    std::fs::remove_file(dir.join("run.bin")).unwrap();
+    run(&opts, vec![Vec::new()]).unwrap_err();
+    assert!(
+        !dir.join("run.bin").exists(),
+        "no byte received: no raw log"
+    );
+    let _ = std::fs::remove_dir_all(&dir);
+}

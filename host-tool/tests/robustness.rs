@@ -1080,3 +1080,69 @@ fn every_numeric_option_out_of_range_names_the_option_and_its_range() {
         "{err}"
     );
 }
+
+/// Issue 29, item 8: `replay --timeout-s 5` into a port whose other end never reads ran 42.5 s
+/// (its writer blocked in a write), then said "timed out after 5s". Now the time-out holds for
+/// writes too, and a failed replay leaves no output.
+#[cfg(unix)]
+#[test]
+fn replay_into_a_port_that_never_reads_keeps_its_time_out() {
+    let dir = temp_dir("never-reads");
+    // 36 000 samples, ~1.8 MB of frames: far more than a pty's buffer holds.
+    let csv = simulate(&dir, "1", "0.1");
+    let pty = host_tool::link::port::pty_pair().unwrap();
+    let out_csv = dir.join("estimates.csv");
+    let t0 = Instant::now();
+    let out = driftid()
+        .arg("replay")
+        .arg(&csv)
+        .args(["--port", &pty.slave_path, "--timeout-s", "2", "--out"])
+        .arg(&out_csv)
+        .output()
+        .unwrap();
+    let took = t0.elapsed();
+    let err = stderr(&out);
+    assert_eq!(out.status.code(), Some(2), "{err}");
+    assert!(err.contains("timed out after 2s"), "{err}");
+    // The time-out, plus the writer's 0.1-s write polls and the process start: 3 s of margin is
+    // far below the tens of seconds a blocked write took, and above a loaded machine's noise.
+    assert!(took < Duration::from_secs(5), "took {took:?}");
+    assert!(!out_csv.exists());
+    drop(pty);
+    let _ = std::fs::remove_dir_all(&dir);
+}
+
+/// Issue 29, item 9: `record` on a silent port exited 0 saying "0 samples to rec.csv" (and
+/// wrote no file); on a missing port it failed but left an empty `--raw` file. Now both exit 2
+/// saying what happened, and neither leaves a file.
+#[cfg(unix)]
+#[test]
+fn record_on_a_silent_or_missing_port_exits_2_and_leaves_nothing() {
+    let dir = temp_dir("record-silent");
+    let pty = host_tool::link::port::pty_pair().unwrap();
+    let record = |port: &str| {
+        driftid()
+            .args(["record", "--port", port, "--duration-s", "1", "--out"])
+            .arg(dir.join("rec.csv"))
+            .arg("--raw")
+            .arg(dir.join("rec.bin"))
+            .output()
+            .unwrap()
+    };
+    let out = record(&pty.slave_path);
+    let err = stderr(&out);
+    assert_eq!(out.status.code(), Some(2), "{err}");
+    assert!(
+        err.contains("nothing received from") && err.contains("rec.csv not written"),
+        "{err}"
+    );
+    assert!(names_in(&dir).is_empty(), "{:?}", names_in(&dir));
+    let missing = dir.join("no-such-tty");
+    let out = record(missing.to_str().unwrap());
+    let err = stderr(&out);
+    assert_eq!(out.status.code(), Some(2), "{err}");
+    assert!(err.contains("no-such-tty"), "{err}");
+    assert!(names_in(&dir).is_empty(), "{:?}", names_in(&dir));
+    drop(pty);
+    let _ = std::fs::remove_dir_all(&dir);
+}

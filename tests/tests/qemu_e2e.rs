@@ -106,7 +106,7 @@ fn input() -> (Config, Vec<RawSample>) {
 }
 
 /// Runs one replay through QEMU; `wrap_w`/`wrap_r` may damage the two directions.
-fn run_qemu<R: Read, W: Write + Send>(
+fn run_qemu<R: Read, W: Write + Send + 'static>(
     samples: &[RawSample],
     config: Config,
     wrap_r: impl FnOnce(Box<dyn Read + Send>) -> R,
@@ -121,6 +121,7 @@ fn run_qemu<R: Read, W: Write + Send>(
         config,
         shutdown: true,
         timeout: Duration::from_secs(300),
+        ..ReplayOptions::default()
     };
     let reader: Box<dyn Read + Send> = Box::new(pty.master);
     let outcome = replay::replay(

@@ -102,6 +102,7 @@ fn qemu_resets_at_random_points_end_with_the_uninterrupted_estimates() {
         config,
         shutdown: true,
         timeout: Duration::from_secs(600),
+        ..ReplayOptions::default()
     };
     let mut pending = resets.clone();
     let mut fired = Vec::new();

@@ -88,6 +88,21 @@ pub fn run(a: &RecordArgs) -> anyhow::Result<()> {
             sum.temp_dropped
         );
     }
+    if sum.no_temp > 0 {
+        eprintln!(
+            "driftid record: {} of the {} samples written have no temperature (temp_c left empty)",
+            sum.no_temp, sum.samples
+        );
+    }
+    if let Some(first) = &sum.first_bad_time {
+        eprintln!(
+            "driftid record: skipped {} samples with a time stamp out of line with their neighbours (first: {first})",
+            sum.bad_times
+        );
+    }
+    if let Some(u) = &sum.unconfirmed {
+        eprintln!("driftid record: warning: {u}");
+    }
     for n in &sum.notes {
         eprintln!("driftid record: warning: {n}");
     }

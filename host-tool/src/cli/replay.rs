@@ -49,9 +49,12 @@ pub struct ReplayArgs {
     /// Send Shutdown at the end (QEMU exits; a real board resets).
     #[arg(long)]
     pub shutdown: bool,
-    /// Give up after this many seconds.
+    /// Give up after this many seconds (writing to a firmware that does not read included).
     #[arg(long, default_value_t = 3600.0, allow_hyphen_values = true, value_parser = super::args::duration_s)]
     pub timeout_s: f64,
+    /// Give up when the firmware sends nothing for this many seconds (it stopped answering).
+    #[arg(long, default_value_t = 60.0, allow_hyphen_values = true, value_parser = super::args::duration_s)]
+    pub silence_s: f64,
     /// Print every estimate.
     #[arg(long)]
     pub verbose: bool,
@@ -100,6 +103,7 @@ pub fn run(a: &ReplayArgs) -> anyhow::Result<()> {
         outputs.check(raw, "--raw", output::Made::RawLog)?;
     }
     let timeout = super::args::to_duration(a.timeout_s, "--timeout-s")?;
+    let silence = super::args::to_duration(a.silence_s, "--silence-s")?;
     let rec = recording::read_recording(&a.recording)?;
     let rate_s = if rec.samples.len() > 1 {
         (rec.samples[rec.samples.len() - 1].t_s - rec.samples[0].t_s)
@@ -129,6 +133,7 @@ pub fn run(a: &ReplayArgs) -> anyhow::Result<()> {
         config,
         shutdown: a.shutdown,
         timeout,
+        silence,
     };
     eprintln!(
         "driftid replay: {} samples from {} into {}",
@@ -195,5 +200,20 @@ pub fn run(a: &ReplayArgs) -> anyhow::Result<()> {
             eprintln!("  {n:>4} = {}", crate::format::pm(v, s));
         }
     }
-    Ok(())
+    super::common::trusted_or(fault_reasons(&outcome.faults))
+}
+
+/// The firmware's faults as reasons not to trust the estimates. A refused checkpoint is not one:
+/// the firmware then started the run again from the beginning, and the replay followed.
+fn fault_reasons(faults: &[protocol::Fault]) -> Vec<String> {
+    faults
+        .iter()
+        .filter(|f| f.code != protocol::FaultCode::CheckpointRefused)
+        .map(|f| {
+            format!(
+                "the firmware reported a fault: {:?} at update step {}: {}",
+                f.code, f.step, f.detail
+            )
+        })
+        .collect()
 }

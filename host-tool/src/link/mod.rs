@@ -5,10 +5,12 @@
 //! - [`Receiver`]: bytes → messages, counting damaged frames and sequence gaps.
 //! - [`replay`]: stream a recording into the firmware and collect what comes back.
 //! - [`record`]: record the firmware's stream to a recording CSV and a raw frame log.
+//! - [`timeline`]: which received samples continue a recording (resends, bad time stamps, a new run).
 
 pub mod port;
 pub mod record;
 pub mod replay;
+pub mod timeline;
 
 use protocol::{DecodeError, Decoder, DecoderStats, Message, Packet, SeqEvent, SeqTracker};
 

@@ -14,7 +14,8 @@ pub const POLL: Duration = Duration::from_millis(100);
 
 /// Write timeout of the link's sending side: long, because the receiver legitimately stops
 /// reading for a while (an EKF update, QEMU busy) and a write that times out half-way through a
-/// frame would lose the rest of the stream. Only a receiver gone for this long is an error.
+/// frame would lose the rest of the stream. Only a receiver gone for this long is an error. (A
+/// replay does not wait for it: it ends at its own time-out, `replay::replay`.)
 pub const WRITE_TIMEOUT: Duration = Duration::from_secs(60);
 
 /// A second handle on `port` for the sending side, with [`WRITE_TIMEOUT`] (reads keep [`POLL`]).

@@ -212,6 +212,11 @@ impl<W: Write> RecordingWriter<W> {
         self.w.flush()
     }
 
+    /// Whether the rows carry a `temp_c` column.
+    pub fn has_temp(&self) -> bool {
+        self.has_temp
+    }
+
     /// Number of rows written so far.
     pub fn rows_written(&self) -> u64 {
         self.rows
