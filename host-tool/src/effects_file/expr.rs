@@ -8,12 +8,20 @@ use exmex::prelude::*;
 use exmex::MatchLiteral; // named by literal_matcher_from_pattern!
 
 /// Longest expression accepted, characters. exmex's differentiation grows faster than linearly
-/// with the expression (a 20 000-term expression took over 300 s); at this length an effect with
-/// the most parameters compiles in well under a second (README, "Bad input").
-pub const MAX_EXPR_CHARS: usize = 1000;
+/// with the expression (a 20 000-term expression took over 300 s; 49 parameters in three
+/// 773-character sums, 32 s); see also [`MAX_DERIVATIVE_WORK`].
+pub const MAX_EXPR_CHARS: usize = 300;
 /// Deepest nesting of parentheses accepted: exmex parses and differentiates recursively (300
-/// nested `sin(` overflowed the stack, exit 134); 16 levels is far beyond any physical formula.
-pub const MAX_EXPR_DEPTH: usize = 16;
+/// nested `sin(` overflowed the stack, exit 134) and each level multiplies the derivative's
+/// size; 8 levels is beyond any physical formula.
+pub const MAX_EXPR_DEPTH: usize = 8;
+/// Most differentiation work of one effect: Σ over its three expressions of (variables
+/// differentiated: parameters and A components)² × (characters once `up_*` and `abs` are
+/// rewritten). exmex's time per derivative grows with the expression's length and its number of
+/// variables (~5 µs per unit of this measure, from 2 to 49 variables and 80 to 300
+/// characters), so the costliest effect admitted compiles in about a second (49 parameters in
+/// one 225-character sum took 2.7 s).
+pub const MAX_DERIVATIVE_WORK: usize = 200_000;
 
 /// The variables every expression may use besides the effect's parameters, with their meaning.
 pub const VARIABLES: [(&str, &str); 8] = [
@@ -290,10 +298,41 @@ fn bind_vars(expr: Expr, params: &[&str], columns: &[&str]) -> Result<Bound, Str
     Ok(Bound { expr, slots })
 }
 
+/// Stack of the thread that compiles an expression. exmex parses and differentiates
+/// recursively, one level per operator of a chain (`a+b+c+…`), not only per parenthesis: the
+/// largest expression the limits admit overflowed a test thread's 2 MiB. Only the pages used are
+/// committed, so a generous reservation costs nothing.
+const COMPILE_STACK_BYTES: usize = 256 << 20;
+
 /// Parses, checks and differentiates one expression; `params` are the effect's parameter
 /// names, `columns` the recording columns it declares. A refusal says what is wrong with the
-/// expression (the caller names file and place).
-pub fn compile(src: &str, params: &[&str], columns: &[&str]) -> Result<AxisExpr, Refusal> {
+/// expression (the caller names file and place). Runs on a thread of its own with
+/// [`COMPILE_STACK_BYTES`] of stack, whatever the caller's.
+pub fn compile(
+    src: &str,
+    params: &[&str],
+    columns: &[&str],
+    budget: usize,
+) -> Result<(AxisExpr, usize), Refusal> {
+    std::thread::scope(|scope| {
+        std::thread::Builder::new()
+            .name("effects-file compiler".into())
+            .stack_size(COMPILE_STACK_BYTES)
+            .spawn_scoped(scope, || compile_here(src, params, columns, budget))
+            .map_err(|e| format!("cannot start the expression compiler: {e}"))?
+            .join()
+            .map_err(|_| "the expression compiler failed (a bug: please report it)".to_string())?
+    })
+}
+
+/// [`compile`] on the caller's thread; also returns the differentiation work it spent of
+/// `budget` (see [`MAX_DERIVATIVE_WORK`]).
+fn compile_here(
+    src: &str,
+    params: &[&str],
+    columns: &[&str],
+    budget: usize,
+) -> Result<(AxisExpr, usize), Refusal> {
     if src.trim().is_empty() {
         return Err(
             "empty expression (write \"0\" for an axis the effect does not touch)".to_string(),
@@ -331,6 +370,22 @@ pub fn compile(src: &str, params: &[&str], columns: &[&str]) -> Result<AxisExpr,
     for t in &abs_texts {
         abs_args.push(bind_vars(parse(t)?, params, columns).map_err(internal)?);
     }
+    let n_diff = value
+        .slots
+        .iter()
+        .filter(|s| matches!(s, Slot::Param(_) | Slot::Force(_)))
+        .count();
+    let work = n_diff * n_diff * text.chars().count();
+    if work > budget {
+        return Err(format!(
+            "too costly to differentiate: ({n_diff} variables)² × {} characters = {work} (once \
+             up_* and abs are rewritten), but the effect's three expressions may \
+             spend at most {MAX_DERIVATIVE_WORK} together ({} left); use fewer parameters per \
+             expression (split the effect) or shorter expressions",
+            text.chars().count(),
+            budget
+        ));
+    }
     let (mut d_params, mut d_force) = (Vec::new(), Vec::new());
     for (idx, slot) in value.slots.iter().enumerate() {
         let d = || {
@@ -348,13 +403,14 @@ pub fn compile(src: &str, params: &[&str], columns: &[&str]) -> Result<AxisExpr,
             Slot::TimeH | Slot::TempC | Slot::Column(_) | Slot::Sign(_) => {}
         }
     }
-    Ok(AxisExpr {
+    let ax = AxisExpr {
         source: src.to_string(),
         value,
         abs_args,
         d_params,
         d_force,
-    })
+    };
+    Ok((ax, work))
 }
 
 #[cfg(test)]
@@ -373,7 +429,14 @@ mod tests {
     /// these small integers and halves, so the comparisons are exact.
     #[test]
     fn abs_and_its_derivative() {
-        let e = compile("K * abs(A_x - 2*abs(A_y))", &["K"], &[]).unwrap();
+        let e = compile(
+            "K * abs(A_x - 2*abs(A_y))",
+            &["K"],
+            &[],
+            MAX_DERIVATIVE_WORK,
+        )
+        .unwrap()
+        .0;
         for (a, value, dk) in [
             ([1.0, 3.0, 0.0], 3.0 * 5.0, 5.0),  // |1 - 6| = 5
             ([7.0, -3.0, 0.0], 3.0 * 1.0, 1.0), // |7 - 6| = 1
@@ -397,34 +460,43 @@ mod tests {
     /// tolerance is a few ulps of the divisions.
     #[test]
     fn up_is_the_unit_specific_force() {
-        let e = compile("K * up_x", &["K"], &[]).unwrap();
+        let e = compile("K * up_x", &["K"], &[], MAX_DERIVATIVE_WORK)
+            .unwrap()
+            .0;
         let vars = e.bind(&[2.0], &ctx([3.0, 4.0, 12.0]), &[]);
         assert!((e.value(&vars) - 2.0 * 3.0 / 13.0).abs() < 1e-15);
         let (_, d) = e.d_force.iter().find(|(j, _)| *j == 0).unwrap();
         assert!((eval(d, &vars) - 2.0 * (169.0 - 9.0) / 2197.0).abs() < 1e-15);
     }
 
-    /// The limits are checked before exmex sees the text.
+    /// The limits are checked before exmex sees the text (the differentiation budget before
+    /// the derivatives are taken).
     #[test]
     fn limits_are_refused_with_the_limit() {
-        let deep = format!("{}K{}", "sin(".repeat(17), ")".repeat(17));
-        let e = compile(&deep, &["K"], &[]).unwrap_err();
+        let w = MAX_DERIVATIVE_WORK;
+        let deep = format!("{}K{}", "sin(".repeat(9), ")".repeat(9));
+        let e = compile(&deep, &["K"], &[], w).unwrap_err();
         assert!(
-            e.contains("nested 17 deep") && e.contains("at most 16"),
+            e.contains("nested 9 deep") && e.contains("at most 8"),
             "{e}"
         );
-        assert!(compile(
-            &format!("{}K{}", "sin(".repeat(16), ")".repeat(16)),
-            &["K"],
-            &[]
-        )
-        .is_ok());
+        let eight = format!("{}K{}", "sin(".repeat(8), ")".repeat(8));
+        assert!(compile(&eight, &["K"], &[], w).is_ok());
         let long = vec!["K*A_x"; 4000].join("+");
-        let e = compile(&long, &["K"], &[]).unwrap_err();
+        let e = compile(&long, &["K"], &[], w).unwrap_err();
         assert!(
-            e.contains("23999 characters") && e.contains("at most 1000"),
+            e.contains("23999 characters") && e.contains("at most 300"),
             "{e}"
         );
         assert!(excerpt(&long).ends_with("(23999 characters)"));
+        // 40 parameters in a 149-character sum: 40² × 149 = 238 400, over the budget.
+        let names: Vec<String> = (0..40).map(|i| format!("P{i}")).collect();
+        let refs: Vec<&str> = names.iter().map(String::as_str).collect();
+        let e = compile(&refs.join("+"), &refs, &[], w).unwrap_err();
+        let head = "too costly to differentiate: (40 variables)² × 149 characters = 238400";
+        assert!(e.starts_with(head), "{e}");
+        // 30 of them (109 characters): 30² × 109 = 98 100 spent.
+        let refs = &refs[..30];
+        assert_eq!(compile(&refs.join("+"), refs, &[], w).unwrap().1, 98_100);
     }
 }

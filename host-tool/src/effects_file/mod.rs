@@ -36,7 +36,7 @@
 //!
 //! A file is code handed to the tool: it is read and compiled within checked limits
 //! ([`MAX_FILE_BYTES`], [`MAX_EFFECTS`], [`MAX_PARAMS`], [`MAX_EXPR_CHARS`], [`MAX_EXPR_DEPTH`],
-//! [`PRIOR_SIGMA_RANGE`]), and a value that is not finite or beyond [`MAX_REACH`] while the
+//! [`MAX_DERIVATIVE_WORK`], [`PRIOR_SIGMA_RANGE`]), and a value that is not finite or beyond [`MAX_REACH`] while the
 //! filter runs is recorded for the CLI to report ([`numeric_failure`]).
 //!
 //! An accelerometer effect adds its value (m/s²) to that axis' accelerometer output; a drift
@@ -62,7 +62,7 @@ use toml::Spanned;
 use crate::cli::common::ModelArgs;
 use crate::recording::{read_columns, REQUIRED_COLUMNS, TEMP_COLUMN};
 use expr::{eval, excerpt, parse_expr, AxisExpr, HIDDEN_PREFIX};
-pub use expr::{MAX_EXPR_CHARS, MAX_EXPR_DEPTH, VARIABLES};
+pub use expr::{MAX_DERIVATIVE_WORK, MAX_EXPR_CHARS, MAX_EXPR_DEPTH, VARIABLES};
 
 const AXES: [&str; 3] = ["x", "y", "z"];
 
@@ -614,6 +614,7 @@ fn build_axes(
 ) -> anyhow::Result<([AxisExpr; 3], [String; 3])> {
     let mut axes = Vec::with_capacity(3);
     let mut at = Vec::with_capacity(3);
+    let mut budget = MAX_DERIVATIVE_WORK;
     for (i, e) in [&def.x, &def.y, &def.z].into_iter().enumerate() {
         let Some(e) = e else {
             return Err(loc.err(
@@ -625,10 +626,11 @@ fn build_axes(
                 ),
             ));
         };
-        let ax = expr::compile(e.get_ref(), names, columns).map_err(|why| {
+        let (ax, work) = expr::compile(e.get_ref(), names, columns, budget).map_err(|why| {
             let what = format!("{} = \"{}\"", AXES[i], excerpt(e.get_ref()));
             loc.err(e.span(), n, format!("{what}: {why}"))
         })?;
+        budget -= work;
         axes.push(ax);
         at.push(loc.at(e.span()));
     }
