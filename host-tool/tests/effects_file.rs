@@ -58,7 +58,7 @@ fn bad_files_are_errors_naming_file_effect_and_position() {
         (
             k2_file("K2x * B_x^2", "K2y * A_y^2", Some("K2z * A_z^2")),
             "bad.toml:8:5: effect `acc-k2`: x = \"K2x * B_x^2\": unknown variable `B_x` (character 7 of the expression)",
-            &["extra recording columns are not supported yet", "A_x, A_y, A_z, t_h, temp_c"],
+            &["a recording column must be declared: columns = [\"B_x\"]", "A_x, A_y, A_z, up_x, up_y, up_z, t_h, temp_c"],
         ),
         (
             k2_file("K2x * A_x^2", "K2y * A_y^2", None),
@@ -648,5 +648,66 @@ fn the_cli_reports_a_bad_effects_file() {
         );
         assert!(stderr.starts_with(&expected), "{cmd}: {stderr}");
     }
+    std::fs::remove_dir_all(&dir).ok();
+}
+
+/// The binary (issue 28 item 7): an effect whose value is not a finite number while the filter
+/// runs (`sqrt` of a negative A_x), or a file that never ends, stops the command with exit 2 and
+/// a message naming the file, line:column, the effect and the expression. Before: "filter:
+/// step 13: innovation covariance is not positive definite", or reading /dev/zero forever.
+#[test]
+fn the_cli_names_the_effect_of_a_numeric_failure() {
+    let dir = std::env::temp_dir().join(format!("driftid-effects-nan-{}", std::process::id()));
+    std::fs::create_dir_all(&dir).unwrap();
+    let run = dir.join("run.csv");
+    let driftid = || std::process::Command::new(env!("CARGO_BIN_EXE_driftid"));
+    let out = driftid()
+        .args(["simulate", "--hours", "24", "--rate-s", "10", "--out"])
+        .arg(&run)
+        .output()
+        .unwrap();
+    assert!(
+        out.status.success(),
+        "{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    let file = dir.join("sqrt.toml");
+    std::fs::write(
+        &file,
+        "[[effect]]\nname = \"e1\"\napplies_to = \"accelerometer\"\nparams = [ { name = \"K\", prior_sigma = 1e-4 } ]\nx = \"K*sqrt(A_x)\"\ny = \"0\"\nz = \"0\"\n",
+    )
+    .unwrap();
+    let out = driftid()
+        .arg("identify")
+        .arg(&run)
+        .arg("--effects")
+        .arg(&file)
+        .args(["--with", "e1"])
+        .output()
+        .unwrap();
+    let stderr = String::from_utf8_lossy(&out.stderr);
+    // 2: input that cannot support a result (README, "Exit status").
+    assert_eq!(out.status.code(), Some(2), "{stderr}");
+    let head = format!(
+        "driftid: error: {}:5:5: effect `e1`: x = \"K*sqrt(A_x)\": at t = ",
+        file.display()
+    );
+    assert!(stderr.contains(&head), "{stderr}");
+    assert!(
+        stderr.contains("its value is NaN, not a finite number"),
+        "{stderr}"
+    );
+    let out = driftid()
+        .arg("identify")
+        .arg(&run)
+        .args(["--effects", "/dev/zero"])
+        .output()
+        .unwrap();
+    let stderr = String::from_utf8_lossy(&out.stderr);
+    assert_eq!(out.status.code(), Some(2), "{stderr}");
+    assert!(
+        stderr.starts_with("driftid: error: /dev/zero: more than 1048576 bytes"),
+        "{stderr}"
+    );
     std::fs::remove_dir_all(&dir).ok();
 }

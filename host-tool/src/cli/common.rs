@@ -288,6 +288,8 @@ fn load_with(path: &Path, latitude_override: Option<f64>, warn: bool) -> anyhow:
         eprintln!("driftid: warning: {r}");
     }
     relative_times(path, &mut rec.samples, &rec.lines, warn)?;
+    // File effects that use extra columns of the recording (`columns = [...]`) read them now.
+    crate::effects_file::bind_columns(path, &rec.samples, &rec.lines)?;
     let latitude_deg = latitude_override
         .or(rec.meta.latitude_deg)
         .with_context(|| {

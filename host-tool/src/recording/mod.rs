@@ -18,6 +18,7 @@
 //! [`ERROR_EXCERPT_CHARS`] characters of the file's text.
 
 mod blocks;
+mod columns;
 mod error;
 mod reader;
 mod writer;
@@ -26,6 +27,7 @@ use std::fs::File;
 use std::io::BufReader;
 use std::path::{Path, PathBuf};
 
+pub use columns::read_columns;
 pub use error::RecordingError;
 pub use reader::{
     check_gravity_mps2, check_latitude_deg, excerpt, sample_problem, RecordingReader,

@@ -187,7 +187,7 @@ fn as_utf8<'a>(buf: &'a [u8], line: u32, file: &str) -> Result<&'a str, Recordin
 }
 
 /// A field without surrounding white space and without one pair of surrounding double quotes.
-fn clean_field(f: &str) -> &str {
+pub(crate) fn clean_field(f: &str) -> &str {
     let f = f.trim();
     if f.len() >= 2 && f.starts_with('"') && f.ends_with('"') {
         f[1..f.len() - 1].trim()
@@ -196,7 +196,12 @@ fn clean_field(f: &str) -> &str {
     }
 }
 
-fn parse_number(text: &str, file: &str, line: u32, column: &str) -> Result<f64, RecordingError> {
+pub(crate) fn parse_number(
+    text: &str,
+    file: &str,
+    line: u32,
+    column: &str,
+) -> Result<f64, RecordingError> {
     if text.is_empty() {
         return Err(RecordingError::EmptyValue {
             file: file.to_string(),
