@@ -19,6 +19,7 @@ pub mod exclusion;
 pub mod latitude;
 pub mod physics;
 mod pieces;
+pub mod signal;
 pub mod steps;
 pub mod time;
 
@@ -215,7 +216,10 @@ pub fn screen_excluding<'s>(
                 .into(),
         );
     };
-    let first = pieces::screen(samples, &sigma0, &cfg, &mut flags);
+    // The glitch test screens the residual of a model of the slow signal where a line through
+    // the neighbours would miss its curvature (slow logs, noise-free records: [`signal`]).
+    let series = signal::outlier_series(samples, &sigma0);
+    let first = pieces::screen(samples, &series, &sigma0, &cfg, &mut flags);
     // The screening is a function of the samples and the noise alone (it rewrites every flag):
     // when the first pass rejected nothing, the noise of the accepted samples is sigma0 itself
     // and the second pass would repeat the first bit for bit (half of `prepare` on clean data).
@@ -223,7 +227,7 @@ pub fn screen_excluding<'s>(
         (sigma0, first)
     } else {
         let sigma = robust_sigma(samples, &flags).unwrap_or(sigma0);
-        let summary = pieces::screen(samples, &sigma, &cfg, &mut flags);
+        let summary = pieces::screen(samples, &series, &sigma, &cfg, &mut flags);
         (sigma, summary)
     };
     if let Some(f) = dead_axis(samples, &flags) {
