@@ -209,11 +209,21 @@ pub fn screen_excluding<'s>(
     let cfg = ScreenConfig::default();
     let mut flags = vec![0u8; samples.len()];
     let Some(sigma0) = robust_sigma(samples, &flags) else {
+        let place = match noise::first_irregular(samples) {
+            Some((k, d, med)) => format!(
+                "; the times are irregular from sample {} (t = {} s): {d:.6e} s after the previous one against a median interval of {med:.6e} s",
+                k + 1,
+                samples[k].t_s
+            ),
+            None => String::new(),
+        };
         return refuse(
             findings,
             "too-few-samples",
-            "fewer than 8 runs of 4 equally spaced finite samples: cannot estimate the noise"
-                .into(),
+            format!(
+                "fewer than 8 runs of 4 finite samples equally spaced to within {:.0} % of their interval (clock jitter): cannot estimate the noise{place}",
+                100.0 * noise::MAX_JITTER
+            ),
         );
     };
     // The glitch test screens the residual of a model of the slow signal where a line through
@@ -444,7 +454,7 @@ fn lsb(samples: &[Sample], a: usize) -> Option<f64> {
     Some(*nz.select_nth_unstable_by(k, f64::total_cmp).1)
 }
 
-/// Robust raw noise per axis from third differences of accepted, equally spaced samples.
+/// Robust raw noise per axis from third differences of accepted, (nearly) equally spaced samples.
 fn robust_sigma(samples: &[Sample], flags: &[u8]) -> Option<[f64; 3]> {
     let ok = |s: &Sample, f: u8| {
         f == 0 && s.t_s.is_finite() && s.specific_force.iter().all(|v| v.is_finite())
