@@ -135,7 +135,8 @@ pub struct Scenario {
 #[derive(Clone, Copy, Debug, Default, PartialEq, serde::Serialize, serde::Deserialize)]
 pub struct Logger {
     /// Each sample is the mean of the specific force over its interval, centred on its stamp
-    /// ([t − Δ/2, t + Δ/2]; the first, at t = 0, the value there), not the value at the stamp.
+    /// ([t − Δ/2, t + Δ/2]; the first, at t = 0, extrapolated to second order over the half
+    /// before the run's start), not the value at the stamp.
     #[serde(default)]
     pub averaged: bool,
     /// Each stamp after the first is off its sampling time by a uniform draw within ± this, s.
@@ -373,6 +374,34 @@ impl Scenario {
     }
 }
 
+/// The specific force (with the apparent vertical's tilt, `err`) at true time `t`, s.
+fn force_at(sim: &mut Simulator, err: SetupErrors, g: f64, t: f64, max_sub: f64) -> Vector3<f64> {
+    sim.advance_to(t, max_sub);
+    let mut a = sim.specific_force();
+    if err.vertical_tilt_arcsec != [0.0; 2] {
+        a += sim.c_0p() * err.vertical_tilt_rad(t).cross(&Vector3::new(0.0, 0.0, g));
+    }
+    a
+}
+
+/// The mean specific force over [`from`, `to`] (true times, s) by the midpoint rule on steps of
+/// at most 1 s (its own error A''·(1 s)²/24 ~ 2e-9 m/s²).
+fn interval_mean(
+    sim: &mut Simulator,
+    err: SetupErrors,
+    g: f64,
+    from: f64,
+    to: f64,
+    max_sub: f64,
+) -> Vector3<f64> {
+    let m = (to - from).ceil().max(2.0);
+    let w = (to - from) / m;
+    let sum = (0..m as u64).fold(Vector3::zeros(), |acc, j| {
+        acc + force_at(sim, err, g, from + (j as f64 + 0.5) * w, max_sub)
+    });
+    sum / m
+}
+
 /// A simulated recording with its truth.
 #[derive(Clone, Debug)]
 pub struct Simulation {
@@ -593,25 +622,22 @@ pub fn simulate(s: &Scenario) -> Simulation {
     for i in 0..n {
         let t_stamp = i as f64 * s.rate_s;
         let t = t_stamp / clock;
-        let mut force_at = |t: f64| {
-            sim.advance_to(t, max_sub);
-            let mut a = sim.specific_force();
-            if err.vertical_tilt_arcsec != [0.0; 2] {
-                a += sim.c_0p() * err.vertical_tilt_rad(t).cross(&Vector3::new(0.0, 0.0, g));
+        let a = if s.logger.averaged {
+            let half = 0.5 * s.rate_s / clock;
+            if i == 0 {
+                // [−Δ/2, Δ/2] reaches before the run's start: to second order its mean is
+                // f(0) + (A₂ − 3A₁ + 2f(0))/4, A₁ and A₂ the means over [0, Δ/2] and [Δ/2, Δ]
+                // (exact on a parabola), taken on a copy of the simulator.
+                let f0 = force_at(&mut sim, err, g, 0.0, max_sub);
+                let mut probe = sim.clone();
+                let a1 = interval_mean(&mut probe, err, g, 0.0, half, max_sub);
+                let a2 = interval_mean(&mut probe, err, g, half, 2.0 * half, max_sub);
+                f0 + (a2 - 3.0 * a1 + 2.0 * f0) / 4.0
+            } else {
+                interval_mean(&mut sim, err, g, t - half, t + half, max_sub)
             }
-            a
-        };
-        let a = if s.logger.averaged && i > 0 {
-            // The interval's mean by the midpoint rule on steps of at most 1 s (its own error
-            // A''·(1 s)²/24 ~ 2e-9 m/s²).
-            let m = (s.rate_s / clock).ceil().max(2.0);
-            let w = s.rate_s / clock / m;
-            let sum = (0..m as u64).fold(Vector3::zeros(), |acc, j| {
-                acc + force_at(t - 0.5 * s.rate_s / clock + (j as f64 + 0.5) * w)
-            });
-            sum / m
         } else {
-            force_at(t)
+            force_at(&mut sim, err, g, t, max_sub)
         };
         let mut z = k * a + b;
         if sigma > 0.0 {
