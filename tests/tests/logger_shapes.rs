@@ -41,7 +41,10 @@ fn slow_logs_give_no_finding() {
             let (sc, s) = recording(seed, hours, rate_s, Logger::default());
             let p = prepared(&sc, &s);
             if !p.findings.is_empty() {
-                alarms.push(format!("{hours} h at {rate_s} s, seed {seed}: {:?}", p.findings));
+                alarms.push(format!(
+                    "{hours} h at {rate_s} s, seed {seed}: {:?}",
+                    p.findings
+                ));
             }
         }
     }
@@ -91,7 +94,9 @@ fn a_log_of_averages_reads_as_values_at_the_middle() {
     let diff = values
         .iter()
         .zip(&means)
-        .flat_map(|(v, m)| (0..3).map(move |a| (v.specific_force_mps2[a] - m.specific_force_mps2[a]).abs()))
+        .flat_map(|(v, m)| {
+            (0..3).map(move |a| (v.specific_force_mps2[a] - m.specific_force_mps2[a]).abs())
+        })
         .fold(0.0, f64::max);
     assert!(diff > 1e-9 && diff < 8e-6, "{diff:e}");
     let (sc, s) = recording(2, 60.0, 60.0, averaged);
@@ -106,17 +111,36 @@ fn a_log_of_averages_reads_as_values_at_the_middle() {
 #[test]
 fn jittered_and_rounded_stamps_estimate_the_noise() {
     let cases = [
-        (60.0, 10.0, Logger { time_jitter_s: 40e-6, ..Logger::default() }),
-        (12.0, 1.0 / 3.0, Logger { time_decimals: Some(3), ..Logger::default() }),
+        (
+            60.0,
+            10.0,
+            Logger {
+                time_jitter_s: 40e-6,
+                ..Logger::default()
+            },
+        ),
+        (
+            12.0,
+            1.0 / 3.0,
+            Logger {
+                time_decimals: Some(3),
+                ..Logger::default()
+            },
+        ),
     ];
     for (hours, rate_s, logger) in cases {
         let (sc, s) = recording(5, hours, rate_s, logger);
-        assert!(s.windows(2).any(|w| ((w[1].t_s - w[0].t_s) / rate_s - 1.0).abs() > 1e-6));
+        assert!(s
+            .windows(2)
+            .any(|w| ((w[1].t_s - w[0].t_s) / rate_s - 1.0).abs() > 1e-6));
         let p = prepared(&sc, &s);
         assert!(p.findings.is_empty(), "{rate_s} s: {:?}", p.findings);
         let want = sc.accel_sigma_mps2 * (60.0 / rate_s).sqrt();
         for got in p.noise.raw_sigma_mps2 {
-            assert!((got / want - 1.0).abs() < 0.06, "{rate_s} s: {got:e} against {want:e}");
+            assert!(
+                (got / want - 1.0).abs() < 0.06,
+                "{rate_s} s: {got:e} against {want:e}"
+            );
         }
     }
 }
@@ -136,7 +160,9 @@ fn really_irregular_times_are_refused_naming_the_sample() {
     let r = err.downcast::<Refusal>().expect("a refusal");
     let msg = r.to_string();
     assert!(
-        msg.contains("cannot estimate the noise; the times are irregular from sample 4 (t = 3.5 s)"),
+        msg.contains(
+            "cannot estimate the noise; the times are irregular from sample 4 (t = 3.5 s)"
+        ),
         "{msg}"
     );
 }

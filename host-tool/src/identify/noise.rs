@@ -86,7 +86,7 @@ fn third_difference(w: &[Sample], a: usize) -> Option<f64> {
         return Some(x(3) - 3.0 * x(2) + 3.0 * x(1) - x(0));
     }
     let h = (t(3) - t(0)) / 3.0;
-    if !(h > 0.0) || (0..3).any(|i| !((t(i + 1) - t(i) - h).abs() <= MAX_JITTER * h)) {
+    if h.is_nan() || h <= 0.0 || (0..3).any(|i| !jitter(t(i + 1) - t(i), h)) {
         return None;
     }
     // Σ xᵢ / Πⱼ≠ᵢ (tᵢ − tⱼ), scaled to the even grid's form; its variance Σcᵢ² against 20.
@@ -97,6 +97,11 @@ fn third_difference(w: &[Sample], a: usize) -> Option<f64> {
     let raw: f64 = (0..4).map(|i| c[i] * x(i)).sum();
     let var: f64 = c.iter().map(|v| v * v).sum();
     Some(raw * (20.0 / var).sqrt())
+}
+
+/// Whether interval `d` is within [`MAX_JITTER`] of `h` (false for NaN).
+fn jitter(d: f64, h: f64) -> bool {
+    (d - h).abs() <= MAX_JITTER * h
 }
 
 /// The first sample (index) whose interval to the previous one departs from the median interval
@@ -111,6 +116,6 @@ pub fn first_irregular(samples: &[Sample]) -> Option<(usize, f64, f64)> {
     let med = *dt.select_nth_unstable_by(mid, f64::total_cmp).1;
     samples.windows(2).enumerate().find_map(|(k, w)| {
         let d = w[1].t_s - w[0].t_s;
-        (!((d - med).abs() <= MAX_JITTER * med)).then_some((k + 1, d, med))
+        (!jitter(d, med)).then_some((k + 1, d, med))
     })
 }

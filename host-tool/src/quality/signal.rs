@@ -94,7 +94,11 @@ pub fn outlier_series<'s>(samples: &'s [Sample], sigma: &[f64; 3]) -> Cow<'s, [S
     let at = |t: f64| ut.partition_point(|&x| x < t);
     for (j, &tc) in centres.iter().enumerate() {
         let fit = &usable[at(tc - half)..at(tc + half).max(at(tc - half))];
-        let from = if j == 0 { 0 } else { at(0.5 * (centres[j - 1] + tc)) };
+        let from = if j == 0 {
+            0
+        } else {
+            at(0.5 * (centres[j - 1] + tc))
+        };
         let to = match centres.get(j + 1) {
             Some(next) => at(0.5 * (tc + next)),
             None => usable.len(),

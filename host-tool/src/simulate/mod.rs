@@ -356,7 +356,9 @@ impl Scenario {
             ));
         }
         let lg = &self.logger;
-        let rounding = lg.time_decimals.map_or(0.0, |d| 0.5 * 10f64.powi(-(d.min(300) as i32)));
+        let rounding = lg
+            .time_decimals
+            .map_or(0.0, |d| 0.5 * 10f64.powi(-(d.min(300) as i32)));
         if !(lg.time_jitter_s.is_finite() && lg.time_jitter_s >= 0.0)
             || lg.time_jitter_s + rounding >= 0.25 * self.rate_s
             || lg.time_decimals.is_some_and(|d| d > 15)
