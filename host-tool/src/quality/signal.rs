@@ -216,7 +216,7 @@ mod tests {
     }
 
     /// On a noise-free 60-s log the model leaves under 5e-9 m/s² of the signal (the degree-8
-    /// bound is ~3e-10; measured 5.6e-10 at the record's end, where the last fit is one-sided:
+    /// bound is ~3e-10; measured 5.6e-10 at the record's end, the edge of the last fit:
     /// the tolerance leaves ~10× room), and a 2e-3 m/s² glitch stands out by its size to 1 % (the
     /// robust fit gives it no weight).
     #[test]
