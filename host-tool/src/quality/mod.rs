@@ -279,6 +279,8 @@ pub fn screen_excluding<'s>(
         Ok(f) => f,
         Err(f) => return refuse(findings, f.0, f.1),
     };
+    // On the times in seconds (a time column in ms would read as 1000-s samples).
+    findings.extend(signal::no_noise(&accepted, &sigma));
     let mut times: Vec<f64> = Vec::with_capacity(samples.len());
     // The recording's own times (an excluded stretch is no gap in the recording).
     times.extend(all.iter().map(|s| s.t_s * factor).filter(|t| t.is_finite()));
