@@ -211,9 +211,10 @@ pub fn screen_excluding<'s>(
     let Some(sigma0) = robust_sigma(samples, &flags) else {
         let place = match noise::first_irregular(samples) {
             Some((k, d, med)) => format!(
-                "; the times are irregular from sample {} (t = {} s): {d:.6e} s after the previous one against a median interval of {med:.6e} s",
+                "; the times are irregular from sample {} (t = {} s): {d:.6} s after the previous one against a median interval of {med:.6} s (more than {:.0} % off: no clock jitter)",
                 k + 1,
-                samples[k].t_s
+                samples[k].t_s,
+                100.0 * noise::MAX_JITTER
             ),
             None => String::new(),
         };
