@@ -92,6 +92,18 @@ pub struct SimulateArgs {
     /// defaults; the latitude uniform within half its last written digit: ±0.05 deg for 39.1).
     #[arg(long)]
     pub setup_errors_from_priors: bool,
+    /// Logger: each sample is the mean over its interval (centred on its stamp), not the value
+    /// at the stamp (a log of averages).
+    #[arg(long)]
+    pub averaged: bool,
+    /// Logger: each stamp after the first is off its sampling time by a uniform draw within
+    /// ± this many seconds (a real clock's jitter; below a quarter of the interval).
+    #[arg(long, value_parser = super::args::finite_f64)]
+    pub time_jitter_s: Option<f64>,
+    /// Logger: stamps written rounded to this many decimals of a second (e.g. 3 for a logger
+    /// writing milliseconds).
+    #[arg(long, value_parser = clap::value_parser!(u32).range(0..=15))]
+    pub time_decimals: Option<u32>,
 }
 
 impl SimulateArgs {
@@ -147,6 +159,11 @@ impl SimulateArgs {
         if self.no_noise {
             s = s.without_noise();
         }
+        s.logger = crate::simulate::Logger {
+            averaged: self.averaged,
+            time_jitter_s: self.time_jitter_s.unwrap_or(0.0),
+            time_decimals: self.time_decimals,
+        };
         s.validate().map_err(|e| {
             anyhow::anyhow!(
                 "{e} (from --hours {}, --rate-s {}, --latitude-deg {} and the --effect values)",

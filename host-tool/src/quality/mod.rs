@@ -19,6 +19,7 @@ pub mod exclusion;
 pub mod latitude;
 pub mod physics;
 mod pieces;
+pub mod signal;
 pub mod steps;
 pub mod time;
 
@@ -208,14 +209,28 @@ pub fn screen_excluding<'s>(
     let cfg = ScreenConfig::default();
     let mut flags = vec![0u8; samples.len()];
     let Some(sigma0) = robust_sigma(samples, &flags) else {
+        let place = match noise::first_irregular(samples) {
+            Some((k, d, med)) => format!(
+                "; the times are irregular from sample {} (t = {} s): {d:.6} s after the previous one against a median interval of {med:.6} s (more than {:.0} % off: no clock jitter)",
+                k + 1,
+                samples[k].t_s,
+                100.0 * noise::MAX_JITTER
+            ),
+            None => String::new(),
+        };
         return refuse(
             findings,
             "too-few-samples",
-            "fewer than 8 runs of 4 equally spaced finite samples: cannot estimate the noise"
-                .into(),
+            format!(
+                "fewer than 8 runs of 4 finite samples equally spaced to within {:.0} % of their interval (clock jitter): cannot estimate the noise{place}",
+                100.0 * noise::MAX_JITTER
+            ),
         );
     };
-    let first = pieces::screen(samples, &sigma0, &cfg, &mut flags);
+    // The glitch test screens the residual of a model of the slow signal where a line through
+    // the neighbours would miss its curvature (slow logs, noise-free records: [`signal`]).
+    let series = signal::outlier_series(samples, &sigma0);
+    let first = pieces::screen(samples, &series, &sigma0, &cfg, &mut flags);
     // The screening is a function of the samples and the noise alone (it rewrites every flag):
     // when the first pass rejected nothing, the noise of the accepted samples is sigma0 itself
     // and the second pass would repeat the first bit for bit (half of `prepare` on clean data).
@@ -223,7 +238,7 @@ pub fn screen_excluding<'s>(
         (sigma0, first)
     } else {
         let sigma = robust_sigma(samples, &flags).unwrap_or(sigma0);
-        let summary = pieces::screen(samples, &sigma, &cfg, &mut flags);
+        let summary = pieces::screen(samples, &series, &sigma, &cfg, &mut flags);
         (sigma, summary)
     };
     if let Some(f) = dead_axis(samples, &flags) {
@@ -265,6 +280,8 @@ pub fn screen_excluding<'s>(
         Ok(f) => f,
         Err(f) => return refuse(findings, f.0, f.1),
     };
+    // On the times in seconds (a time column in ms would read as 1000-s samples).
+    findings.extend(signal::no_noise(&accepted, &sigma));
     let mut times: Vec<f64> = Vec::with_capacity(samples.len());
     // The recording's own times (an excluded stretch is no gap in the recording).
     times.extend(all.iter().map(|s| s.t_s * factor).filter(|t| t.is_finite()));
@@ -440,7 +457,7 @@ fn lsb(samples: &[Sample], a: usize) -> Option<f64> {
     Some(*nz.select_nth_unstable_by(k, f64::total_cmp).1)
 }
 
-/// Robust raw noise per axis from third differences of accepted, equally spaced samples.
+/// Robust raw noise per axis from third differences of accepted, (nearly) equally spaced samples.
 fn robust_sigma(samples: &[Sample], flags: &[u8]) -> Option<[f64; 3]> {
     let ok = |s: &Sample, f: u8| {
         f == 0 && s.t_s.is_finite() && s.specific_force.iter().all(|v| v.is_finite())

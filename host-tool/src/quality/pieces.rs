@@ -12,31 +12,41 @@ use estimator_core::Sample;
 /// pieces' set-up (a copy of their flags and margins) is not worth it.
 const MIN_PIECE: usize = 32_768;
 
-/// [`screening::screen`] with the outlier test on all cores (rayon's pool).
+/// [`screening::screen`] with the outlier test on all cores (rayon's pool), run on `series`
+/// (the samples, or their residuals from a model of the slow signal: same length and times).
 pub fn screen(
     samples: &[Sample],
+    series: &[Sample],
     sigma: &[f64; 3],
     cfg: &ScreenConfig,
     flags: &mut [u8],
 ) -> ScreenSummary {
     let n = samples.len().min(flags.len());
     let piece = n.div_ceil(rayon::current_num_threads()).max(MIN_PIECE);
-    screen_in_pieces(samples, sigma, cfg, flags, piece)
+    screen_in_pieces(samples, series, sigma, cfg, flags, piece)
 }
 
 /// [`screen`] in pieces of `piece` samples (one piece: the one-thread screening itself).
 fn screen_in_pieces(
     samples: &[Sample],
+    series: &[Sample],
     sigma: &[f64; 3],
     cfg: &ScreenConfig,
     flags: &mut [u8],
     piece: usize,
 ) -> ScreenSummary {
-    let n = samples.len().min(flags.len());
+    let n = samples.len().min(flags.len()).min(series.len());
+    let (samples, series, flags) = (&samples[..n], &series[..n], &mut flags[..n]);
     if piece >= n {
-        return screening::screen(samples, sigma, cfg, flags);
+        // `screening::screen`'s steps, the outlier test on the series.
+        let mut sum = screening::screen_runs(samples, sigma, cfg, flags);
+        let ordered = screening::times_ordered(series);
+        for (a, s) in sigma.iter().enumerate() {
+            sum.outliers[a] = screening::flag_outliers(series, flags, a, *s, cfg, ordered);
+        }
+        sum.rejected = flags.iter().filter(|f| **f != 0).count();
+        return sum;
     }
-    let (samples, flags) = (&samples[..n], &mut flags[..n]);
     let mut sum = screening::screen_runs(samples, sigma, cfg, flags);
     let ordered = screening::times_ordered(samples);
     let reach = screening::outlier_reach(cfg);
@@ -46,7 +56,7 @@ fn screen_in_pieces(
         let (from, to) = (lo.saturating_sub(reach), (hi + reach).min(n));
         let mut window = before[from..to].to_vec();
         for (a, s) in sigma.iter().enumerate() {
-            screening::flag_outliers(&samples[from..to], &mut window, a, *s, cfg, ordered);
+            screening::flag_outliers(&series[from..to], &mut window, a, *s, cfg, ordered);
         }
         out.copy_from_slice(&window[lo - from..hi - from]);
         // An outlier is never stuck (the test skips stuck samples), so its axis bits are
@@ -125,7 +135,7 @@ mod tests {
         assert!(expected.stuck.iter().sum::<usize>() > 20, "{expected:?}");
         for piece in [1, 7, 61, 333, 1000, 2499, 4999] {
             let mut flags = vec![0xffu8; s.len()];
-            let got = screen_in_pieces(&s, &sig, &cfg, &mut flags, piece);
+            let got = screen_in_pieces(&s, &s, &sig, &cfg, &mut flags, piece);
             assert_eq!(got, expected, "summary, pieces of {piece}");
             assert!(flags == whole, "flags, pieces of {piece}");
         }

@@ -23,6 +23,7 @@ pub(crate) mod stream {
     pub const MARKOV: u64 = 2;
     pub const TEMP: u64 = 3;
     pub const SETUP: u64 = 4;
+    pub const TIMING: u64 = 5;
 }
 
 pub(crate) fn rng(seed: u64, stream: u64) -> ChaCha8Rng {

@@ -125,6 +125,49 @@ pub struct Scenario {
     /// Errors of the set-up the recording states as exact (zero: none).
     #[serde(default)]
     pub setup_errors: SetupErrors,
+    /// How the logger writes its samples (default: the value at each exact stamp).
+    #[serde(default, skip_serializing_if = "Logger::is_plain")]
+    pub logger: Logger,
+}
+
+/// How a logger writes its samples: values or interval means, and its time stamps' jitter and
+/// rounding (docs/recording-format.md, "Rates and gaps").
+#[derive(Clone, Copy, Debug, Default, PartialEq, serde::Serialize, serde::Deserialize)]
+pub struct Logger {
+    /// Each sample is the mean of the specific force over its interval, centred on its stamp
+    /// ([t − Δ/2, t + Δ/2]; the first, at t = 0, extrapolated to second order over the half
+    /// before the run's start), not the value at the stamp.
+    #[serde(default)]
+    pub averaged: bool,
+    /// Each stamp after the first is off its sampling time by a uniform draw within ± this, s.
+    #[serde(default)]
+    pub time_jitter_s: f64,
+    /// Stamps written rounded to this many decimals of a second.
+    #[serde(default)]
+    pub time_decimals: Option<u32>,
+}
+
+impl Logger {
+    /// The default logger: exact stamps, values at them.
+    pub fn is_plain(&self) -> bool {
+        *self == Logger::default()
+    }
+
+    /// The stamp written for sampling time `t` (s), `jitter` a draw in [−1, 1].
+    pub fn stamp(&self, t: f64, jitter: f64) -> f64 {
+        let t = if t == 0.0 {
+            t
+        } else {
+            t + self.time_jitter_s * jitter
+        };
+        match self.time_decimals {
+            Some(d) => {
+                let f = 10f64.powi(d as i32);
+                (t * f).round() / f
+            }
+            None => t,
+        }
+    }
 }
 
 /// What the recording's set-up gets wrong: the true start, clock, latitude, gravity and
@@ -214,6 +257,7 @@ impl Scenario {
             max_substep_s: 1.0,
             initial_orientation_deg: [0.0; 3],
             setup_errors: SetupErrors::default(),
+            logger: Logger::default(),
         }
     }
 
@@ -311,12 +355,53 @@ impl Scenario {
                 "set-up errors out of range (clock ±1e5 ppm, latitude ±10 deg, gravity ±1e5 ppm, angles ±3600 arcsec): {se:?}"
             ));
         }
+        let lg = &self.logger;
+        let rounding = lg
+            .time_decimals
+            .map_or(0.0, |d| 0.5 * 10f64.powi(-(d.min(300) as i32)));
+        if !(lg.time_jitter_s.is_finite() && lg.time_jitter_s >= 0.0)
+            || lg.time_jitter_s + rounding >= 0.25 * self.rate_s
+            || lg.time_decimals.is_some_and(|d| d > 15)
+        {
+            return Err(format!(
+                "time-stamp jitter {} s and rounding to {:?} decimals must stay below a quarter of the interval {} s (decimals at most 15)",
+                lg.time_jitter_s, lg.time_decimals, self.rate_s
+            ));
+        }
         let n = (self.hours * 3600.0) / self.rate_s;
         if n > 1e8 {
             return Err(format!("{n:.0} samples is too many (at most 1e8)"));
         }
         Ok(())
     }
+}
+
+/// The specific force (with the apparent vertical's tilt, `err`) at true time `t`, s.
+fn force_at(sim: &mut Simulator, err: SetupErrors, g: f64, t: f64, max_sub: f64) -> Vector3<f64> {
+    sim.advance_to(t, max_sub);
+    let mut a = sim.specific_force();
+    if err.vertical_tilt_arcsec != [0.0; 2] {
+        a += sim.c_0p() * err.vertical_tilt_rad(t).cross(&Vector3::new(0.0, 0.0, g));
+    }
+    a
+}
+
+/// The mean specific force over [`from`, `to`] (true times, s) by the midpoint rule on steps of
+/// at most 1 s (its own error A''·(1 s)²/24 ~ 2e-9 m/s²).
+fn interval_mean(
+    sim: &mut Simulator,
+    err: SetupErrors,
+    g: f64,
+    from: f64,
+    to: f64,
+    max_sub: f64,
+) -> Vector3<f64> {
+    let m = (to - from).ceil().max(2.0);
+    let w = (to - from) / m;
+    let sum = (0..m as u64).fold(Vector3::zeros(), |acc, j| {
+        acc + force_at(sim, err, g, from + (j as f64 + 0.5) * w, max_sub)
+    });
+    sum / m
 }
 
 /// A simulated recording with its truth.
@@ -529,6 +614,7 @@ pub fn simulate(s: &Scenario) -> Simulation {
     let clock = 1.0 + err.clock_ppm * 1e-6;
     let mut rng_acc = engine::rng(s.seed, engine::stream::ACCEL);
     let mut rng_temp = engine::rng(s.seed, engine::stream::TEMP);
+    let mut rng_time = engine::rng(s.seed, engine::stream::TIMING);
     let sigma = s.accel_sigma_mps2 * (60.0 / s.rate_s).sqrt();
     let (k, b) = accel_model(&s.effects);
     let has_temp = s.has_temp();
@@ -538,11 +624,23 @@ pub fn simulate(s: &Scenario) -> Simulation {
     for i in 0..n {
         let t_stamp = i as f64 * s.rate_s;
         let t = t_stamp / clock;
-        sim.advance_to(t, max_sub);
-        let mut a = sim.specific_force();
-        if err.vertical_tilt_arcsec != [0.0; 2] {
-            a += sim.c_0p() * err.vertical_tilt_rad(t).cross(&Vector3::new(0.0, 0.0, g));
-        }
+        let a = if s.logger.averaged {
+            let half = 0.5 * s.rate_s / clock;
+            if i == 0 {
+                // [−Δ/2, Δ/2] reaches before the run's start: to second order its mean is
+                // f(0) + (A₂ − 3A₁ + 2f(0))/4, A₁ and A₂ the means over [0, Δ/2] and [Δ/2, Δ]
+                // (exact on a parabola), taken on a copy of the simulator.
+                let f0 = force_at(&mut sim, err, g, 0.0, max_sub);
+                let mut probe = sim.clone();
+                let a1 = interval_mean(&mut probe, err, g, 0.0, half, max_sub);
+                let a2 = interval_mean(&mut probe, err, g, half, 2.0 * half, max_sub);
+                f0 + (a2 - 3.0 * a1 + 2.0 * f0) / 4.0
+            } else {
+                interval_mean(&mut sim, err, g, t - half, t + half, max_sub)
+            }
+        } else {
+            force_at(&mut sim, err, g, t, max_sub)
+        };
         let mut z = k * a + b;
         if sigma > 0.0 {
             for j in 0..3 {
@@ -558,8 +656,13 @@ pub fn simulate(s: &Scenario) -> Simulation {
             }
             tc
         });
+        let jitter = if s.logger.time_jitter_s > 0.0 {
+            rand::Rng::random_range(&mut rng_time, -1.0..=1.0)
+        } else {
+            0.0
+        };
         samples.push(RawSample {
-            t_s: t_stamp,
+            t_s: s.logger.stamp(t_stamp, jitter),
             specific_force_mps2: [z.x, z.y, z.z],
             temp_c,
         });
