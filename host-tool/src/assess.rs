@@ -53,6 +53,10 @@ pub fn assess(
     Ok(again)
 }
 
+/// A misstated set-up to repair: the repaired measurements and settings, and the fit to start
+/// from.
+type Repair = (Prepared, Config, Identification);
+
 /// [`assess`] with the set-up as `prep` and `cfg` state it; with the repaired set-up and the
 /// fit to start from where a misstatement is to be repaired (and `may_repair`).
 fn assess_as_stated(
@@ -61,7 +65,7 @@ fn assess_as_stated(
     cfg: &Config,
     id: Identification,
     may_repair: bool,
-) -> anyhow::Result<(Assessment, Option<(Prepared, Config, Identification)>)> {
+) -> anyhow::Result<(Assessment, Option<Repair>)> {
     let stated = (prep.clone(), id.clone());
     let Settled { prep, id, mut unc } = settle(effects, prep, cfg, id)?;
     let mut out = Assessment {

@@ -404,7 +404,7 @@ pub fn starting_fit(
     }
     let model = build_model(prep.site, effects, cfg)?;
     let id = crate::identify::identify(&model, prep, cfg)?;
-    if !super::identify::consistency_of(&id, prep).is_some_and(|c| !c.is_consistent()) {
+    if super::identify::consistency_of(&id, prep).is_none_or(|c| c.is_consistent()) {
         return Ok(Some(id));
     }
     let mut rivals = rivals(prep, effects, cfg, &id);

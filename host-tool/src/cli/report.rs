@@ -67,7 +67,6 @@ pub fn run(args: &ReportArgs) -> anyhow::Result<()> {
     let first = super::common::starting_fit(&mut prep, &effects, &mut cfg.identify, &mut stated)?;
     super::common::print_findings(&prep.findings);
     let faults = prep.untrusted_reasons();
-    let mut cfg = cfg;
     if !faults.is_empty() {
         // A data fault is named as a fault, never explained by a physical effect: no ladder.
         cfg.max_rungs = 1;

@@ -97,7 +97,16 @@ pub fn weigh(
             stated_gain: None,
         });
     };
-    let live: Vec<usize> = (0..3).filter(|&k| km.unit[k] > 0.0).collect();
+    // A gravity derived from the stated latitude (normal gravity) that the data find far off
+    // says the site is elsewhere (another latitude or altitude), not that a gravity value was
+    // mistaken: that is the latitude's profile to name ([`crate::quality::latitude`]).
+    let derived = (prep.site.gravity_mps2
+        - estimator_core::frames::normal_gravity(prep.site.latitude_rad))
+    .abs()
+        < 1e-12;
+    let live: Vec<usize> = (0..3)
+        .filter(|&k| km.unit[k] > 0.0 && !(k == 2 && derived))
+        .collect();
     // The priors: as stated (first), then each live knob broad.
     let lambdas: Vec<[f64; 3]> = std::iter::once([1.0; 3])
         .chain(live.iter().map(|&k| {
@@ -183,7 +192,7 @@ pub fn weigh(
     }
     Ok(Weighed {
         alternatives: out,
-        stated_gain: (!contradicted).then(|| km.f0 - base),
+        stated_gain: (!contradicted).then_some(km.f0 - base),
     })
 }
 
@@ -434,7 +443,7 @@ pub fn repair(
         .map(|a| a.evidence_gain);
     let next = alts
         .iter()
-        .filter(|a| !a.misstated.is_some_and(|x| x.index == m.index))
+        .filter(|a| a.misstated.is_none_or(|x| x.index != m.index))
         .map(|a| (a.effect.as_str(), a.evidence_gain))
         .chain(rivals.iter().map(|r| (r.0.as_str(), r.1)))
         .max_by(|a, b| a.1.total_cmp(&b.1));
