@@ -87,6 +87,46 @@ fn simulate_then_identify_json_has_the_documented_fields() {
         assert!(r > 0.8 * 9.8e-5 && r < 1.1 * 9.8e-5, "residual RMS {r}");
     }
     assert!((v["nis_mean"].as_f64().unwrap() - 1.0).abs() < 0.15);
+    // `diagnose --truth` (issue 29: diagnose had none): the final model's coefficients carry the
+    // truth and the error, the same 4-total-σ bound holds; with two recordings it is refused.
+    let truth_file = dir.join("run.truth.json");
+    let out = driftid()
+        .arg("diagnose")
+        .arg(&csv)
+        .arg("--truth")
+        .arg(&truth_file)
+        .arg("--json")
+        .output()
+        .unwrap();
+    assert!(
+        out.status.success(),
+        "{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    let d: serde_json::Value = serde_json::from_slice(&out.stdout).unwrap();
+    for (name, k) in ["DX0", "DYx", "DZz"].into_iter().zip([0, 5, 11]) {
+        let c = &d["coefficients"][name];
+        let (value, error, sigma) = (
+            c["value"].as_f64().unwrap(),
+            c["error"].as_f64().unwrap(),
+            c["sigma_total"].as_f64().unwrap(),
+        );
+        assert!((error - (value - truth[k])).abs() <= 1e-12 * value.abs().max(1.0));
+        assert!(
+            error.abs() < 4.0 * sigma,
+            "{name}: error {error} vs 1σ {sigma}"
+        );
+    }
+    let out = driftid()
+        .arg("diagnose")
+        .arg(&csv)
+        .arg(&csv)
+        .arg("--truth")
+        .arg(&truth_file)
+        .output()
+        .unwrap();
+    assert_eq!(out.status.code(), Some(2));
+    assert!(String::from_utf8_lossy(&out.stderr).contains("--truth takes one recording"));
     let _ = std::fs::remove_dir_all(&dir);
 }
 
@@ -225,6 +265,13 @@ fn report_is_one_self_contained_page_that_tells_the_story() {
     ] {
         assert!(page.contains(section), "missing section {section}");
     }
+    // Provenance (issue 29): the command that made the page, with its version.
+    assert!(
+        page.contains("How this page was made")
+            && page.contains("report ")
+            && page.contains(env!("CARGO_PKG_VERSION")),
+        "no provenance"
+    );
     // The story: the starting model is paper, the ladder's next rung adds acc-bias.
     assert!(
         page.contains("<b>acc-bias</b>"),

@@ -20,6 +20,10 @@ pub struct DiagnoseArgs {
     /// their ladders chose are identified jointly from all of them.
     #[arg(required = true, num_args = 1..)]
     pub recordings: Vec<PathBuf>,
+    /// Truth file of a simulated run (`NAME.truth.json`; one recording): adds error and error/σ
+    /// columns to the final model's coefficients.
+    #[arg(long)]
+    pub truth: Option<PathBuf>,
     /// Print one JSON object instead of the text summary.
     #[arg(long)]
     pub json: bool,
@@ -221,7 +225,10 @@ pub fn print_ladder(rungs: &[Rung]) {
 /// Runs `driftid diagnose`.
 pub fn run(args: &DiagnoseArgs) -> anyhow::Result<()> {
     super::common::load_effects_args(&args.model)?; // --effects FILE: user effects join the catalog
-                                                    // The export's files are checked before the long computation (and again before writing).
+    if args.truth.is_some() && args.recordings.len() > 1 {
+        anyhow::bail!("--truth takes one recording (a truth file describes one simulated run)");
+    }
+    // The export's files are checked before the long computation (and again before writing).
     if let Some(dir) = &args.export {
         let rungs = if args.no_ladder { 1 } else { 4 };
         if args.recordings.len() > 1 {
@@ -325,12 +332,19 @@ pub fn diagnose_one(
     let last = diagnoses.last().map(|d| d.consistency.clone());
     let mut reasons = ladder_untrusted(&faults, &diagnoses);
     reasons.extend(assessed.reasons.iter().cloned());
+    let truth = match &args.truth {
+        Some(p) => Some(super::identify::truth_of(
+            &crate::simulate::read_truth(p)?,
+            &assessed.id,
+        )),
+        None => None,
+    };
     let final_rows = super::identify::rows(
         &assessed.id,
         &assessed.unc,
         &super::common::build_model(assessed.prep.site, &final_effects, &cfg.identify)?,
         &assessed.prep,
-        None,
+        truth.as_deref(),
     );
     if let Some(dir) = export_dir {
         check_export(dir, diagnoses.len(), args)?;

@@ -127,6 +127,7 @@ pub fn run(args: &ReportArgs) -> anyhow::Result<()> {
         coefficients,
         findings: prep.findings.clone(),
         untrusted: untrusted.clone(),
+        provenance: provenance(&args.model.effects),
     };
     let html = render_html(&input)?;
     let pngs = match &args.png {
@@ -146,4 +147,29 @@ pub fn run(args: &ReportArgs) -> anyhow::Result<()> {
         println!("wrote {n} PNG plots to {}", dir.display());
     }
     super::common::trusted_or(untrusted)
+}
+
+/// The command line as given and each effects file's text (what made the page).
+fn provenance(effects: &[std::path::PathBuf]) -> crate::report::Provenance {
+    let quote = |a: String| {
+        if a.is_empty() || a.contains(|c: char| c.is_whitespace() || "'\"$`\\".contains(c)) {
+            format!("'{}'", a.replace('\'', "'\\''"))
+        } else {
+            a
+        }
+    };
+    crate::report::Provenance {
+        command: std::env::args_os()
+            .map(|a| quote(a.to_string_lossy().into_owned()))
+            .collect::<Vec<_>>()
+            .join(" "),
+        effects_files: effects
+            .iter()
+            .map(|p| {
+                let text =
+                    std::fs::read_to_string(p).unwrap_or_else(|e| format!("(unreadable: {e})"));
+                (p.display().to_string(), text)
+            })
+            .collect(),
+    }
 }

@@ -58,6 +58,18 @@ pub struct ReportInput {
     pub findings: Vec<crate::quality::Finding>,
     /// Why the result is not trusted (empty: trusted).
     pub untrusted: Vec<String>,
+    /// What produced the page: the command line, and each effects file with its text.
+    pub provenance: Provenance,
+}
+
+/// What produced a page (issue: a page must say which command, version, effects file and
+/// options made it).
+#[derive(Clone, Debug, Default)]
+pub struct Provenance {
+    /// The command line as given.
+    pub command: String,
+    /// Each `--effects` file: its path and its text.
+    pub effects_files: Vec<(String, String)>,
 }
 
 /// A p-value as HTML text (`< 1e-300` must be escaped).
@@ -157,6 +169,7 @@ pub fn render_html(input: &ReportInput) -> Result<String> {
         input.description.as_deref().map(|d| format!(" — {}", esc(d))).unwrap_or_default(),
         env!("CARGO_PKG_VERSION")
     );
+    provenance(&mut h, &input.provenance);
 
     // Data quality, first.
     let _ = writeln!(h, "<h2>Data quality</h2>");
@@ -355,6 +368,28 @@ fn caption(f: &Figure) -> String {
         Kind::NisBeforeAfter => "Rolling NIS/3 of the starting and the final model (log scale).",
     };
     format!("{} [{}]", what, f.file)
+}
+
+/// The command line and the effects files that made the page, folded away.
+fn provenance(h: &mut String, p: &Provenance) {
+    if p.command.is_empty() {
+        return;
+    }
+    let _ = writeln!(
+        h,
+        "<details class=\"small\"><summary>How this page was made</summary><p>Command: <code>{}</code> (driftid {})</p>",
+        esc(&p.command),
+        env!("CARGO_PKG_VERSION")
+    );
+    for (path, text) in &p.effects_files {
+        let _ = writeln!(
+            h,
+            "<p>Effects file <code>{}</code>:</p><pre>{}</pre>",
+            esc(path),
+            esc(text)
+        );
+    }
+    let _ = writeln!(h, "</details>");
 }
 
 fn fit_table(h: &mut String, ds: &[Diagnosis]) {

@@ -1069,13 +1069,14 @@ fn nis<DB: DrawingBackend>(
     }
     let p = Panel {
         caption: Some(format!(
-            "95 % band of a {} mean: {:.2}–{:.2}; mean NIS/3 over the run {:.2} (band {:.2}–{:.2}){}",
+            "95 % band of a {} mean: {:.2}–{:.2}; mean NIS/3 over the run {:.2} ({:.1} % band {:.2}–{:.2}, the one the verdict uses){}",
             hours_label(window_h),
             band[0],
             band[1],
             ds[0].nis_mean,
-            ds[0].nis_band95[0],
-            ds[0].nis_band95[1],
+            100.0 * crate::consistency::Thresholds::default().nis_band_prob,
+            ds[0].consistency.nis_band[0],
+            ds[0].consistency.nis_band[1],
             if ds.len() > 1 { format!(" → {:.2}", ds[ds.len() - 1].nis_mean) } else { String::new() }
         )),
         x_desc: Some("time since start, h".into()),
@@ -1693,6 +1694,7 @@ mod tests {
             coefficients: vec![],
             findings: vec![],
             untrusted: vec![],
+            provenance: Default::default(),
         }
     }
 
