@@ -264,9 +264,9 @@ impl Laplace {
 }
 
 /// The misstated latitude from full fits (the Earth rate's direction turns with the latitude, so
-/// far from the stated one the quadratic model misses, and −2 ln p(y) has local minima): the
-/// best of a 0.1° grid over ±2 broad σ and the quadratic model's estimate `start` (deg), then
-/// Newton steps with three-point differences 0.01° apart; then the broad prior's penalty and
+/// far from the stated one the quadratic model misses, and −2 ln p(y) has local minima): from
+/// the quadratic model's estimate `start` (deg) — or, more than 0.1° away, from the best of it
+/// and a 0.1° grid over ±2 broad σ — Newton steps with three-point differences 0.01° apart; then the broad prior's penalty and
 /// Occam factor with that estimate and its 1σ, against `base` (−2 ln Z of the stated set-up with
 /// its priors, its parameters `c0`).
 fn profiled_latitude(
@@ -287,18 +287,22 @@ fn profiled_latitude(
         let id = super::identify(&model, &p, cfg).ok()?;
         Some((crate::diagnose::select::neg2_log_evidence(&id), id))
     };
-    let grid: Vec<f64> = (-10..=10)
-        .map(|k| stated + 0.1 * k as f64)
-        .chain(std::iter::once(start))
-        .collect();
-    let vals: Vec<f64> = grid
-        .par_iter()
-        .map(|&l| f(l).map_or(f64::INFINITY, |x| x.0))
-        .collect();
-    let k = (0..grid.len()).min_by(|&a, &b| vals[a].total_cmp(&vals[b]))?;
-    let mut l = grid[k];
+    // Within 0.1° of the stated latitude the quadratic model's estimate is a good start;
+    // beyond, the grid's best (21 fits).
+    let mut l = start;
+    if (start - stated).abs() > 0.1 {
+        let grid: Vec<f64> = (-10..=10)
+            .map(|k| stated + 0.1 * k as f64)
+            .chain(std::iter::once(start))
+            .collect();
+        let vals: Vec<f64> = grid
+            .par_iter()
+            .map(|&l| f(l).map_or(f64::INFINITY, |x| x.0))
+            .collect();
+        l = grid[(0..grid.len()).min_by(|&a, &b| vals[a].total_cmp(&vals[b]))?];
+    }
     let mut best: Option<(f64, f64, Identification)> = None;
-    for _ in 0..6 {
+    for _ in 0..4 {
         let ((m, c), p) = rayon::join(
             || rayon::join(|| f(l - STEP_DEG), || f(l)),
             || f(l + STEP_DEG),
@@ -311,7 +315,7 @@ fn profiled_latitude(
         }
         let dl = (-g / h).clamp(-1.0, 1.0);
         best = Some((c.0, (2.0 / h).sqrt(), c.1));
-        if dl.abs() < 0.1 * (2.0 / h).sqrt() {
+        if dl.abs() < 0.5 * (2.0 / h).sqrt() {
             break;
         }
         l += dl;
