@@ -530,7 +530,7 @@ fn a_tilted_start_is_named_and_never_a_panic() {
             })
             .collect();
         let prep = prepare(site, &samples, &cfg).unwrap();
-        let kinds: Vec<&str> = prep.findings.iter().map(|f| f.kind).collect();
+        let kinds: Vec<&str> = prep.findings.iter().map(|f| f.kind.name()).collect();
         assert!(kinds.contains(&"initial-tilt"), "tilt {tilt}: {kinds:?}");
         if let Err(err) = identify(&model, &prep, &cfg) {
             let text = format!("{err:#}");

@@ -54,7 +54,7 @@ fn worst_err_over_sigma(sc: &Scenario, prep: &Prepared) -> f64 {
 }
 
 fn kinds(prep: &Prepared) -> Vec<&'static str> {
-    prep.findings.iter().map(|f| f.kind).collect()
+    prep.findings.iter().map(|f| f.kind.name()).collect()
 }
 
 fn refusal(site: Site, samples: &[Sample]) -> Refusal {
@@ -327,7 +327,7 @@ fn unrepairable_faults_are_refused_or_not_trusted() {
         assert!(
             r.findings
                 .iter()
-                .any(|f| f.kind == kind && f.action == Action::Refused),
+                .any(|f| f.kind.name() == kind && f.action == Action::Refused),
             "{what}: {r}"
         );
         eprintln!("{what}: {r}");
@@ -396,7 +396,7 @@ fn a_wrong_metadata_latitude_is_named_with_the_datas_latitude() {
     let f =
         host_tool::quality::latitude::check(&prep, &[catalog::paper()], &Config::default(), &[])
             .expect("the latitude is named");
-    assert_eq!(f.kind, "latitude");
+    assert_eq!(f.kind.name(), "latitude");
     eprintln!("{}", f.message);
     assert!(
         f.message.contains("the metadata says 30 deg"),
@@ -427,7 +427,7 @@ fn a_metadata_latitude_with_the_wrong_sign_is_named() {
     let f =
         host_tool::quality::latitude::check(&prep, &[catalog::paper()], &Config::default(), &[])
             .expect("the latitude is named");
-    assert_eq!(f.kind, "latitude");
+    assert_eq!(f.kind.name(), "latitude");
     assert!(
         f.message.contains("the metadata says -39.1 deg"),
         "{}",
@@ -487,7 +487,7 @@ fn a_stated_initial_orientation_is_the_models_start() {
         unstated
             .findings
             .iter()
-            .any(|f| f.kind == "initial-orientation" && f.action == Action::Repaired),
+            .any(|f| f.kind.name() == "initial-orientation" && f.action == Action::Repaired),
         "{:?}",
         kinds(&unstated)
     );
@@ -525,7 +525,7 @@ fn a_sensor_pinned_at_its_rails_is_named_saturated_excluded_and_trusted() {
     let sat: Vec<_> = prep
         .findings
         .iter()
-        .filter(|f| f.kind == "saturated")
+        .filter(|f| f.kind.name() == "saturated")
         .collect();
     eprintln!("{:#?}", prep.findings);
     assert!(
@@ -572,7 +572,7 @@ fn a_short_burst_is_a_disturbance_excluded_not_a_step() {
     let d: Vec<_> = prep
         .findings
         .iter()
-        .filter(|f| f.kind == "disturbance")
+        .filter(|f| f.kind.name() == "disturbance")
         .collect();
     assert_eq!(d.len(), 1, "{:?}", kinds(&prep));
     assert_eq!(d[0].action, Action::Rejected);

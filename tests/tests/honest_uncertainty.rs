@@ -121,7 +121,7 @@ fn a_drift_trend_is_not_blamed_on_the_latitude() {
             a.reasons
         );
         assert!(
-            !a.prep.findings.iter().any(|f| f.kind == "latitude"),
+            !a.prep.findings.iter().any(|f| f.kind.name() == "latitude"),
             "seed {seed}: the latitude was blamed"
         );
     }
@@ -139,7 +139,7 @@ fn a_latitude_within_its_prior_is_estimated_and_one_beyond_it_is_named() {
         a.prep
             .findings
             .iter()
-            .any(|f| f.kind == "set-up" && f.message.contains("latitude")),
+            .any(|f| f.kind.name() == "set-up" && f.message.contains("latitude")),
         "{:?}",
         a.prep.findings
     );
@@ -164,7 +164,7 @@ fn assert_repaired(a: &Assessment, what: &str) {
         a.prep
             .findings
             .iter()
-            .any(|f| f.kind == "set-up" && f.message.contains(what)),
+            .any(|f| f.kind.name() == "set-up" && f.message.contains(what)),
         "no `{what}` among {:?}",
         a.prep.findings
     );

@@ -58,7 +58,11 @@ fn a_glitch_in_a_slow_log_is_found() {
     let (sc, mut s) = recording(3, 60.0, 60.0, Logger::default());
     s[1800].specific_force[1] += 2e-3;
     let p = prepared(&sc, &s);
-    let g: Vec<_> = p.findings.iter().filter(|f| f.kind == "glitch").collect();
+    let g: Vec<_> = p
+        .findings
+        .iter()
+        .filter(|f| f.kind.name() == "glitch")
+        .collect();
     assert_eq!(g.len(), 1, "{:?}", p.findings);
     assert_eq!(g[0].samples, 1, "{:?}", g[0]);
     assert_eq!(g[0].start_s, Some(1800.0 * 60.0));
@@ -81,8 +85,8 @@ fn noise_free_logs_are_named_not_refused() {
         let kinds: Vec<_> = p
             .findings
             .iter()
-            .filter(|f| f.kind != "mean-noise")
-            .map(|f| (f.kind, f.action))
+            .filter(|f| f.kind.name() != "mean-noise")
+            .map(|f| (f.kind.name(), f.action))
             .collect();
         assert_eq!(
             kinds,

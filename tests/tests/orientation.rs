@@ -117,7 +117,7 @@ fn an_unstated_orientation_is_estimated_from_the_earths_turn() {
         let f = prep
             .findings
             .iter()
-            .find(|f| f.kind == "initial-orientation")
+            .find(|f| f.kind.name() == "initial-orientation")
             .expect("the estimate is reported");
         eprintln!("{}", f.message);
         // Compare attitudes, not Euler triples: the angle of C_est·C_trueᵀ.

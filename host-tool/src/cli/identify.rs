@@ -363,7 +363,10 @@ pub fn run(args: &IdentifyArgs) -> anyhow::Result<()> {
     let mut reasons = prep.untrusted_reasons();
     reasons.extend(id.convergence.and_then(|c| c.untrusted_reason()));
     reasons.extend(assessed);
-    let metadata_named = prep.findings.iter().any(|f| f.kind == "latitude");
+    let metadata_named = prep
+        .findings
+        .iter()
+        .any(|f| f.kind == crate::quality::Kind::Latitude);
     match &check {
         Some(c) if !c.is_consistent() && !metadata_named => reasons.push(format!(
             "the model does not explain the measurements: {}; run `driftid diagnose` to find the missing effect",

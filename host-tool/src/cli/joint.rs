@@ -270,7 +270,7 @@ fn refuse_wrong_latitudes(
             r.prep
                 .findings
                 .iter()
-                .filter(|f| f.kind == "latitude")
+                .filter(|f| f.kind == crate::quality::Kind::Latitude)
                 .map(|f| format!("{}: {}", r.path.display(), f.message)),
         );
     }

@@ -404,7 +404,7 @@ pub fn confounded(mis: &[Alternative], rivals: &[(String, f64)]) -> Option<Findi
         })
         .collect();
     (close.len() > 1).then(|| Finding {
-        kind: "set-up",
+        kind: crate::quality::Kind::SetUp,
         message: format!(
             "the stated set-up is wrong, but this run cannot tell which part: {} explain the data alike, better than any physical effect (by {:.1} or more); state the others to the precision you know them (a latitude with all its digits, `--latitude-sigma-deg`; a disciplined clock, `--clock-sigma-ppm`) and run again",
             close.join(" or "),
@@ -452,7 +452,7 @@ pub fn repair(
         .chain(rivals.iter().map(|r| (r.0.as_str(), r.1)))
         .max_by(|a, b| a.1.total_cmp(&b.1));
     p.findings.push(Finding {
-        kind: "set-up",
+        kind: crate::quality::Kind::SetUp,
         message: format!(
             "the {} is misstated: the data put it at {} {} (stated {}); this explains the data better than the stated value (evidence gain {:.1}, −2 ln units) and than every other explanation{} — repaired; correct it in the recording's metadata",
             m.knob,

@@ -248,7 +248,7 @@ pub fn prepare_oriented(
             findings.insert(
                 0,
                 Finding {
-                    kind: "initial-orientation",
+                    kind: crate::quality::Kind::InitialOrientation,
                     message: format!(
                         "the recording states no initial orientation and does not start level: estimated from the Earth's turn of gravity \
                          in the first hours as tx, ty, tz = {:.2}, {:.2}, {:.2} deg (fit {:.2} deg RMS; 1σ {:.1} deg given to the filter, \

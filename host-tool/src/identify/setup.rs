@@ -768,7 +768,7 @@ pub fn settle(
         if let (Some(o), Some((v, unit))) = (c.offset, c.stated) {
             if o.abs() > 3.0 * c.posterior_sigma {
                 p.findings.push(crate::quality::Finding {
-                    kind: "set-up",
+                    kind: crate::quality::Kind::SetUp,
                     message: format!(
                         "the {} is estimated from the data with its prior: {} {unit} (stated {}, prior 1σ {}); the coefficients are the fit's there",
                         c.source,

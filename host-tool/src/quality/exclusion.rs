@@ -17,7 +17,7 @@ use std::collections::HashMap;
 
 use estimator_core::Sample;
 
-use super::{axis_name, Action, Finding};
+use super::{axis_name, Action, Finding, Kind};
 
 /// Fewest readings at an extreme that can be a rail.
 pub const SAT_MIN_SAMPLES: usize = 5;
@@ -48,7 +48,7 @@ pub fn exclude(
     for &(a, b) in user_s {
         let n = samples.iter().filter(|s| s.t_s >= a && s.t_s <= b).count();
         findings.push(Finding {
-            kind: "excluded",
+            kind: Kind::Excluded,
             message: format!(
                 "t = {:.4}–{:.4} h excluded as asked (--exclude): {n} samples left out{}",
                 a / 3600.0,
@@ -82,7 +82,7 @@ pub fn exclude(
                     .map(|s| format!("{:.3}–{:.3} h", s.t0 / 3600.0, s.t1 / 3600.0))
                     .collect();
                 findings.push(Finding {
-                    kind: "saturated",
+                    kind: Kind::Saturated,
                     message: format!(
                         "axis {}: {} more stretches at the rail {rail:+} m/s^2 excluded ({})",
                         axis_name(axis),
@@ -97,7 +97,7 @@ pub fn exclude(
                 break;
             }
             findings.push(Finding {
-                kind: "saturated",
+                kind: Kind::Saturated,
                 message: format!(
                     "axis {} is pinned at its rail {rail:+} m/s^2 ({} reading): {pinned} readings in the run repeat that extreme value exactly \
                      (a flat top: the sensor or its converter cannot read beyond it); the filter periods of t = {:.3}–{:.3} h ({n} samples) are excluded",

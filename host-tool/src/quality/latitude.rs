@@ -8,7 +8,7 @@
 use estimator_core::effects::Effect;
 use estimator_core::frames::normal_gravity;
 
-use super::{Action, Finding};
+use super::{Action, Finding, Kind};
 use crate::consistency::{assess, Thresholds};
 use crate::diagnose::select::{fit_stats, neg2_log_evidence};
 use crate::identify::setup::at_latitude;
@@ -237,9 +237,9 @@ pub fn check(
     };
     Some(Finding {
         kind: if rival.is_some() {
-            "latitude-confounded"
+            Kind::LatitudeConfounded
         } else {
-            "latitude"
+            Kind::Latitude
         },
         message,
         start_s: None,

@@ -16,6 +16,7 @@
 
 pub mod attitude;
 pub mod exclusion;
+mod finding;
 pub mod latitude;
 pub mod physics;
 mod pieces;
@@ -25,97 +26,10 @@ pub mod time;
 
 use estimator_core::screening::{self, flag, ScreenConfig, ScreenSummary};
 use estimator_core::{Averager, Sample, Site};
-use serde::Serialize;
+pub use finding::{Action, Finding, Kind, Refusal};
 use std::borrow::Cow;
 
 use crate::identify::noise;
-
-/// What was done about a finding.
-#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize)]
-#[serde(rename_all = "kebab-case")]
-pub enum Action {
-    /// The defect was corrected (e.g. a time unit, outputs in g); the estimate stands.
-    Repaired,
-    /// The affected samples were left out of the filter-period means.
-    Rejected,
-    /// Noted; nothing to do (e.g. a gap the filter bridges).
-    Noted,
-    /// Not repaired: the numbers are computed but not trusted (exit 3).
-    NotRepaired,
-    /// The recording cannot support an estimate (exit 2).
-    Refused,
-}
-
-/// One data-quality finding.
-#[derive(Clone, Debug, PartialEq, Serialize)]
-pub struct Finding {
-    /// Kind, e.g. `glitch`, `stuck`, `time-units`, `gravity-mismatch`.
-    pub kind: &'static str,
-    /// What is wrong, in plain words with the numbers.
-    pub message: String,
-    /// First affected time, s (recording's time axis after any time repair).
-    pub start_s: Option<f64>,
-    /// Last affected time, s.
-    pub end_s: Option<f64>,
-    /// Samples affected.
-    pub samples: usize,
-    /// What was done.
-    pub action: Action,
-}
-
-impl Finding {
-    /// One line for the terminal.
-    pub fn line(&self) -> String {
-        let when = match (self.start_s, self.end_s) {
-            (Some(a), Some(b)) if b > a => format!(" [t = {a:.1}–{b:.1} s]"),
-            (Some(a), _) => format!(" [t = {a:.1} s]"),
-            _ => String::new(),
-        };
-        let act = match self.action {
-            Action::Repaired => "repaired",
-            Action::Rejected => "samples rejected",
-            Action::Noted => "noted",
-            Action::NotRepaired => "estimate not trusted",
-            Action::Refused => "refused",
-        };
-        format!("{}{when}: {} ({act})", self.kind, self.message)
-    }
-}
-
-/// A recording that cannot support an estimate: the findings say why.
-#[derive(Debug)]
-pub struct Refusal {
-    /// Every finding so far, the refused ones included.
-    pub findings: Vec<Finding>,
-}
-
-impl std::fmt::Display for Refusal {
-    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
-        let refused: Vec<String> = self
-            .findings
-            .iter()
-            .filter(|x| x.action == Action::Refused)
-            .map(|x| x.line())
-            .collect();
-        write!(
-            f,
-            "the recording cannot support an estimate: {}",
-            refused.join("; ")
-        )?;
-        let others: Vec<String> = self
-            .findings
-            .iter()
-            .filter(|x| x.action != Action::Refused)
-            .map(|x| x.line())
-            .collect();
-        if !others.is_empty() {
-            write!(f, " (also found: {})", others.join("; "))?;
-        }
-        Ok(())
-    }
-}
-
-impl std::error::Error for Refusal {}
 
 /// The screened recording: accepted (and repaired) samples, the site, the findings.
 #[derive(Clone, Debug)]
@@ -200,7 +114,7 @@ pub fn screen_excluding<'s>(
     if samples.len() < 16 {
         return refuse(
             findings,
-            "too-few-samples",
+            Kind::TooFewSamples,
             format!("{} samples; at least 16 are needed", samples.len()),
         );
     }
@@ -220,7 +134,7 @@ pub fn screen_excluding<'s>(
         };
         return refuse(
             findings,
-            "too-few-samples",
+            Kind::TooFewSamples,
             format!(
                 "fewer than 8 runs of 4 finite samples equally spaced to within {:.0} % of their interval (clock jitter): cannot estimate the noise{place}",
                 100.0 * noise::MAX_JITTER
@@ -242,13 +156,13 @@ pub fn screen_excluding<'s>(
         (sigma, summary)
     };
     if let Some(f) = dead_axis(samples, &flags) {
-        return refuse(findings, "dead-axis", f);
+        return refuse(findings, Kind::DeadAxis, f);
     }
     findings.extend(group_flags(samples, &flags, &summary));
     if summary.rejected as f64 > MAX_REJECTED_FRACTION * samples.len() as f64 {
         return refuse(
             findings,
-            "too-many-rejected",
+            Kind::TooManyRejected,
             format!(
                 "{} of {} samples rejected (more than {:.0} %)",
                 summary.rejected,
@@ -364,13 +278,13 @@ pub fn screen_excluding<'s>(
             let tag = format!("axis {}:", axis_name(b.axis));
             let (t0, t1) = (means[b.at].t_s - p, means[b.at].t_s + p);
             findings.retain(|f| {
-                !(f.kind == "step"
+                !(f.kind == Kind::Step
                     && f.message.starts_with(&tag)
                     && f.start_s.is_some_and(|a| a <= t1)
                     && f.end_s.is_some_and(|e| e >= t0))
             });
             findings.push(Finding {
-                kind: "acc-bias-step",
+                kind: Kind::AccBiasStep,
                 message: format!(
                     "axis {}: the accelerometer bias steps by {:+.3e} ± {:.1e} m/s^2 ({:.0}σ) at t = {:.0} s ({:.3} h): found as a level shift of the \
                      filter-period means across it (a cubic for the slow signal plus a step, {} means each side) and sized on ±6 h of them (the Earth-rate turn of gravity, \
@@ -425,7 +339,7 @@ fn quantisation(
         let Some(q) = lsb(samples, a) else { continue };
         *o = Some(q);
         findings.push(Finding {
-            kind: "quantization",
+            kind: Kind::Quantization,
             message: format!(
                 "axis {}: outputs come in steps of {q:.3e} m/s^2 and {:.0} % of consecutive readings repeat: the noise does not dither the rounding, \
                  whose error follows the slowly turning signal and does not average out; the floor of a filter-period mean is set to q/√12 = {:.2e} m/s^2 \
@@ -539,7 +453,7 @@ fn group_flags(samples: &[Sample], flags: &[u8], sum: &ScreenSummary) -> Vec<Fin
     if sum.non_finite > 0 {
         let (n, a, b) = times(&|f| f & flag::NON_FINITE != 0);
         out.push(Finding {
-            kind: "non-finite",
+            kind: Kind::NonFinite,
             message: format!("{n} samples with a NaN or infinite value"),
             start_s: a,
             end_s: b,
@@ -550,7 +464,7 @@ fn group_flags(samples: &[Sample], flags: &[u8], sum: &ScreenSummary) -> Vec<Fin
     if sum.zero > 0 {
         let (n, a, b) = times(&|f| f & flag::ZERO != 0);
         out.push(Finding {
-            kind: "dropout",
+            kind: Kind::Dropout,
             message: format!(
                 "{n} samples read exactly 0 on every axis (at rest |A| = g): sensor dropouts"
             ),
@@ -585,7 +499,7 @@ fn group_flags(samples: &[Sample], flags: &[u8], sum: &ScreenSummary) -> Vec<Fin
             if i == 10 {
                 let rest: usize = runs[10..].iter().map(|(a, b)| b - a).sum();
                 out.push(Finding {
-                    kind: "stuck",
+                    kind: Kind::Stuck,
                     message: format!(
                         "axis {}: {} more stuck runs, {rest} samples",
                         axis_name(ax),
@@ -599,7 +513,7 @@ fn group_flags(samples: &[Sample], flags: &[u8], sum: &ScreenSummary) -> Vec<Fin
                 break;
             }
             out.push(Finding {
-                kind: "stuck",
+                kind: Kind::Stuck,
                 message: format!(
                     "axis {} repeats {} m/s^2 for {} samples (noise makes a run of {} already improbable)",
                     axis_name(ax),
@@ -625,7 +539,7 @@ fn group_flags(samples: &[Sample], flags: &[u8], sum: &ScreenSummary) -> Vec<Fin
             .map(|(s, _)| format!("{:.1} s", s.t_s))
             .collect();
         out.push(Finding {
-            kind: "glitch",
+            kind: Kind::Glitch,
             message: format!(
                 "{n} samples depart from their neighbours by more than {}σ of the raw noise (x {}, y {}, z {}; first at {})",
                 ScreenConfig::default().outlier_k,

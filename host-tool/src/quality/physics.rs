@@ -8,11 +8,11 @@ use estimator_core::{Model, Propagation, Sample, Site, PAPER_EFFECTS};
 use nalgebra::Vector3;
 use std::borrow::Cow;
 
-use super::{Action, Finding};
+use super::{Action, Finding, Kind};
 use crate::recording::GRAVITY_RANGE_MPS2;
 
 /// A refusal: finding kind and message.
-pub type Refuse = (&'static str, String);
+pub type Refuse = (Kind, String);
 
 /// Relative disagreement of the measured |A| with the metadata gravity beyond which the metadata
 /// is wrong: accelerometer scale-factor errors are 1e-5–1e-4, so 1e-3 is far outside them.
@@ -54,7 +54,7 @@ pub fn check_gravity(
             *s *= STANDARD_GRAVITY;
         }
         findings.push(Finding {
-            kind: "units-g",
+            kind: Kind::UnitsG,
             message: format!(
                 "mean |A| = {m:.6} in the file: the outputs are in g, not m/s^2; converted with 1 g = {STANDARD_GRAVITY} m/s^2"
             ),
@@ -72,7 +72,7 @@ pub fn check_gravity(
     let (lo, hi) = GRAVITY_RANGE_MPS2;
     if (lo..=hi).contains(&m) {
         findings.push(Finding {
-            kind: "gravity-mismatch",
+            kind: Kind::GravityMismatch,
             message: format!(
                 "the mean specific-force magnitude is {m:.5} m/s^2 but the metadata gravity is {g:.5} m/s^2 \
                  (relative {rel:+.1e}; accelerometer scale errors are 1e-5–1e-4, so {GRAVITY_REL_TOL:.0e} is far beyond them): \
@@ -87,7 +87,7 @@ pub fn check_gravity(
         Ok(())
     } else {
         Err((
-            "gravity-mismatch",
+            Kind::GravityMismatch,
             format!(
                 "the mean specific-force magnitude is {m:.4} m/s^2, not gravity ({g:.4} m/s^2, or 1 if the outputs were in g): \
                  the accelerometer outputs have a wrong unit or scale"
@@ -141,7 +141,7 @@ pub fn check_start(
         if off_deg > MAX_START_TILT_DEG {
             let enu = site.angles_to_enu(&theta0);
             return Err((
-                "initial-orientation",
+                Kind::InitialOrientation,
                 format!(
                     "at the start the specific force is [{:.4}, {:.4}, {:.4}] m/s^2, {off_deg:.1} deg from the [{:.4}, {:.4}, {:.4}] m/s^2 \
                      the metadata's initial orientation ({:.3}, {:.3}, {:.3} deg) predicts: the orientation metadata, the columns or their signs are wrong",
@@ -173,7 +173,7 @@ pub fn check_start(
             ),
         };
         return Err((
-            "initial-orientation",
+            Kind::InitialOrientation,
             format!(
                 "at the start (first {:.0} s) the specific force is [{:.4}, {:.4}, {:.4}] m/s^2, {tilt_deg:.1} deg from +z: {what}. \
                  The model starts from a level platform (x east, y north, z up); fix the columns or signs of the recording",
@@ -207,7 +207,7 @@ pub fn check_start(
     let sigma_tilt = noise.hypot(drift_radps * (t_mid - 0.0).max(0.0)).max(1e-6);
     if tilt > TILT_SIGMAS * sigma_tilt {
         findings.push(Finding {
-            kind: "initial-tilt",
+            kind: Kind::InitialTilt,
             message: format!(
                 "the platform starts {:.3} deg from the stated orientation (correction tx {:+.4} deg, ty {:+.4} deg, 1σ {:.1e} deg): \
                  the initial state is levelled from the first window's gravity direction (azimuth from the alignment)",

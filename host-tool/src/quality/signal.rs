@@ -12,7 +12,7 @@
 
 use std::borrow::Cow;
 
-use super::{Action, Finding};
+use super::{Action, Finding, Kind};
 use crate::identify::noise;
 use estimator_core::units::EARTH_RATE_RADPS;
 use estimator_core::Sample;
@@ -133,7 +133,7 @@ pub fn no_noise(samples: &[Sample], sigma: &[f64; 3]) -> Option<Finding> {
         return None;
     }
     Some(Finding {
-        kind: "no-noise",
+        kind: Kind::NoNoise,
         message: format!(
             "the samples show no noise: raw 1σ [{:.2e}, {:.2e}, {:.2e}] m/s^2 is the floor ({:.0e}) or no more than the slow signal's own third differences at {dt:.3} s ({own:.1e}): \
              a noise-free recording (a simulation without noise?); the filter's consistency checks and the set-up's estimates have no noise to be judged against",

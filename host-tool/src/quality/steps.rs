@@ -7,7 +7,7 @@
 
 use estimator_core::Measurement;
 
-use super::{axis_name, Action, Finding};
+use super::{axis_name, Action, Finding, Kind};
 
 /// A step is reported beyond this many robust 1σ of the third differences.
 pub const STEP_SIGMAS: f64 = 8.0;
@@ -139,7 +139,7 @@ pub fn check_mean_noise(
         return None;
     }
     findings.push(Finding {
-        kind: "mean-noise",
+        kind: Kind::MeanNoise,
         message: format!(
             "the filter-period means scatter unlike white raw noise would ({}; raw 1σ [{:.2e}, {:.2e}, {:.2e}] m/s^2 over √{n:.0}): \
              quantised outputs or correlated noise; the filter uses the means' own scatter [{:.2e}, {:.2e}, {:.2e}] m/s^2",
@@ -295,7 +295,7 @@ pub fn check_steps(
                     .max_by(|x, y| x.abs().total_cmp(&y.abs()))
                     .unwrap_or(0.0);
                 findings.push(Finding {
-                    kind: "disturbance",
+                    kind: Kind::Disturbance,
                     message: format!(
                         "axis {}: a burst at t = {w0:.0}–{w1:.0} s ({:.3}–{:.3} h): {} filter-period mean(s) depart from the slow signal by up to {worst:+.2e} m/s^2 \
                          ({:.0}× the noise of their third differences) and the level comes back (shift across it {shift:+.1e} ± {sd:.1e} m/s^2: not a step): \
@@ -319,7 +319,7 @@ pub fn check_steps(
             let idx = (d[ev.peak].k + 2).min(means.len() - 1);
             let (t0, t1) = (means[ev.i0].t_s, means[ev.i1].t_s);
             findings.push(Finding {
-                kind: "step",
+                kind: Kind::Step,
                 message: format!(
                     "axis {}: the filter-period means jump by about {j:+.2e} m/s^2 near t = {:.0} s ({:.0}× the noise of their third differences): \
                      a bias step or a disturbance of the platform; not repaired (a disturbance you know of can be left out with --exclude {:.2}..T1, \

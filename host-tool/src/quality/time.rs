@@ -9,7 +9,7 @@ use nalgebra::Vector3;
 use std::borrow::Cow;
 
 use super::physics::Refuse;
-use super::{Action, Finding};
+use super::{Action, Finding, Kind};
 
 /// The measured sweep may differ from the Earth-rate prediction by this factor (drift of a few
 /// deg/h against 15 cos(L) deg/h, a latitude a few degrees off) before the time unit is doubted.
@@ -100,7 +100,7 @@ pub fn check_units(
                     }
                     applied = factor;
                     findings.push(Finding {
-                        kind: "time-units",
+                        kind: Kind::TimeUnits,
                         message: format!(
                             "gravity turns {:.4}× as fast per time unit as the Earth's rotation predicts at latitude {:.2} deg: \
                              the time column is in {name}; converted to seconds",
@@ -115,7 +115,7 @@ pub fn check_units(
                 }
                 None => {
                     return Err((
-                        "time-units",
+                        Kind::TimeUnits,
                         format!(
                             "gravity turns {:.3e}× as fast per time unit as the Earth's rotation predicts at latitude {:.2} deg: \
                              the time column is not in seconds (nor ms, µs, minutes or hours), or the latitude is far off",
@@ -161,7 +161,7 @@ pub fn check_spacing(times: &[f64], findings: &mut Vec<Finding>) {
             .max_by(|&a, &b| dt(a).total_cmp(&dt(b)))
             .unwrap_or(0);
         findings.push(Finding {
-            kind: "time-gap",
+            kind: Kind::TimeGap,
             message: format!(
                 "{} gaps in the time axis totalling {total:.1} s (longest {:.1} s after t = {:.1} s; usual interval {med:.4} s); the filter bridges them",
                 gaps.len(),
@@ -183,7 +183,7 @@ pub fn check_spacing(times: &[f64], findings: &mut Vec<Finding>) {
     let (first, last) = (quarter(0), quarter(intervals - q));
     if (first / last - 1.0).abs() > 0.1 {
         findings.push(Finding {
-            kind: "sample-rate-change",
+            kind: Kind::SampleRateChange,
             message: format!(
                 "the sample interval changes from {first:.4} s (first quarter) to {last:.4} s (last quarter); the filter-period means use the actual times"
             ),
@@ -210,7 +210,11 @@ mod tests {
         let mut findings = Vec::new();
         check_spacing(&times, &mut findings);
         let kinds: Vec<_> = findings.iter().map(|f| f.kind).collect();
-        assert_eq!(kinds, ["time-gap", "sample-rate-change"], "{findings:?}");
+        assert_eq!(
+            kinds,
+            [Kind::TimeGap, Kind::SampleRateChange],
+            "{findings:?}"
+        );
         let gap = &findings[0];
         assert_eq!((gap.start_s, gap.end_s), (Some(9_990.0), Some(11_000.0)));
         assert!(
