@@ -11,10 +11,11 @@
 use estimator_core::effects::Effect;
 
 use crate::diagnose::alternatives::{self, Alternative, PLAUSIBLE_MARGIN};
+use crate::diagnose::misstated;
 use crate::diagnose::select::MIN_EVIDENCE_GAIN;
 use crate::diagnose::DiagnoseConfig;
 use crate::identify::setup::{settle, Settled, Uncertainty};
-use crate::identify::{build_model, identify_from, misstated, Config, Identification, Prepared};
+use crate::identify::{build_model, identify_from, Config, Identification, Prepared};
 
 /// A final fit assessed.
 pub struct Assessment {

@@ -398,7 +398,12 @@ impl Made {
                 let first = head.split(|&b| b == b'\n').next().unwrap_or_default();
                 first.strip_suffix(b"\r").unwrap_or(first) == header.as_bytes()
             }
-            Made::RawLog => head.is_empty() || !crate::link::Receiver::new().feed(head).is_empty(),
+            Made::RawLog => {
+                // A frame the protocol decodes (the link layer is above this module).
+                let mut framed = false;
+                protocol::Decoder::default().feed(head, |r| framed |= r.is_ok());
+                head.is_empty() || framed
+            }
         }
     }
 }

@@ -19,10 +19,10 @@ use nalgebra::DMatrix;
 use rayon::prelude::*;
 
 use crate::identify::joint::{fuse, run_bound_cov, Run};
-use crate::identify::noise::NoiseFloor;
 use crate::identify::{
     build_model, canonical_correlation, weak_combinations, Config, Estimate, Prepared,
 };
+use crate::quality::noise::NoiseFloor;
 
 /// What a run to be made looks like.
 #[derive(Clone, Copy, Debug, serde::Serialize)]

@@ -394,7 +394,7 @@ fn a_wrong_metadata_latitude_is_named_with_the_datas_latitude() {
     let wrong = Site::new(30.0, sc.gravity_mps2);
     let prep = prepare(wrong, &samples, &Config::default()).unwrap();
     let f =
-        host_tool::quality::latitude::check(&prep, &[catalog::paper()], &Config::default(), &[])
+        host_tool::diagnose::latitude::check(&prep, &[catalog::paper()], &Config::default(), &[])
             .expect("the latitude is named");
     assert_eq!(f.kind.name(), "latitude");
     eprintln!("{}", f.message);
@@ -408,7 +408,7 @@ fn a_wrong_metadata_latitude_is_named_with_the_datas_latitude() {
     assert!((est - 39.1).abs() < 0.05, "{est}");
     // And the right latitude gives no such finding.
     let right = prepare(site_of(&sc), &samples, &Config::default()).unwrap();
-    assert!(host_tool::quality::latitude::check(
+    assert!(host_tool::diagnose::latitude::check(
         &right,
         &[catalog::paper()],
         &Config::default(),
@@ -425,7 +425,7 @@ fn a_metadata_latitude_with_the_wrong_sign_is_named() {
     let wrong = Site::new(-39.1, sc.gravity_mps2);
     let prep = prepare(wrong, &samples, &Config::default()).unwrap();
     let f =
-        host_tool::quality::latitude::check(&prep, &[catalog::paper()], &Config::default(), &[])
+        host_tool::diagnose::latitude::check(&prep, &[catalog::paper()], &Config::default(), &[])
             .expect("the latitude is named");
     assert_eq!(f.kind.name(), "latitude");
     assert!(
@@ -453,7 +453,7 @@ fn a_wrong_latitude_is_named_from_a_start_in_the_polar_chart() {
             host_tool::identify::prepare_oriented(site, &samples, &Config::default(), theta0)
                 .unwrap();
         assert_eq!(prep.site.chart, estimator_core::frames::Chart::Polar);
-        let f = host_tool::quality::latitude::check(
+        let f = host_tool::diagnose::latitude::check(
             &prep,
             &[catalog::paper()],
             &Config::default(),

@@ -59,9 +59,6 @@ pub struct ModelArgs {
     pub exclude: Vec<(f64, f64)>,
 }
 
-/// Loads and registers the `--effects` files: call first in identify, diagnose and report.
-pub use crate::effects_file::load_effects_args;
-
 impl ModelArgs {
     /// The identification settings these options give.
     pub fn config(&self) -> anyhow::Result<Config> {
@@ -342,7 +339,7 @@ fn load_with(path: &Path, latitude_override: Option<f64>, warn: bool) -> anyhow:
 /// The model with the paper's drift and the chosen effects (lives in [`crate::identify`]).
 pub use crate::identify::build_model;
 
-/// Asks whether the metadata latitude is why a model does not fit ([`crate::quality::latitude`]),
+/// Asks whether the metadata latitude is why a model does not fit ([`crate::diagnose::latitude`]),
 /// against `rivals` (the catalog effects' evidence gains on the same scale): the profile's
 /// finding, if any, joins `prep.findings`, where it is a fault (the result is not trusted, and no
 /// physical effect is added to explain it). Call it once a fit is inconsistent.
@@ -353,7 +350,7 @@ pub fn name_a_wrong_latitude(
     rivals: &[(String, f64)],
 ) {
     let spin = crate::progress::spinner("the model does not fit: profiling the latitude");
-    let found = crate::quality::latitude::check(prep, effects, cfg, rivals);
+    let found = crate::diagnose::latitude::check(prep, effects, cfg, rivals);
     spin.finish_and_clear();
     prep.findings.extend(found);
 }
@@ -388,7 +385,7 @@ pub fn rivals(
 }
 
 /// The starting model fitted on `prep` when its data are trusted (else `None`). A misfit is
-/// first weighed against a misstated set-up ([`crate::identify::misstated`]; one that beats every
+/// first weighed against a misstated set-up ([`crate::diagnose::misstated`]; one that beats every
 /// explanation is repaired in `prep` and `cfg` and the model refitted there), then against the
 /// latitude ([`name_a_wrong_latitude`]). `diagnose` and `report` start their ladder from this
 /// fit ([`crate::diagnose::ladder_from`]).
@@ -398,7 +395,8 @@ pub fn starting_fit(
     cfg: &mut Config,
     stated: &mut Option<Prepared>,
 ) -> anyhow::Result<Option<crate::identify::Identification>> {
-    use crate::identify::{misstated, setup};
+    use crate::diagnose::misstated;
+    use crate::identify::setup;
     if !prep.untrusted_reasons().is_empty() {
         return Ok(None);
     }
@@ -523,3 +521,11 @@ pub fn keep_freed_memory() {
 /// Heap advised for huge pages at start-up ([`keep_freed_memory`]).
 #[cfg(all(target_os = "linux", target_env = "gnu"))]
 const PREADVISED_HEAP_BYTES: usize = 64 << 20;
+
+/// What `identify`, `diagnose` and `report` call first: loads and registers `--effects` files.
+pub fn load_effects_args(args: &ModelArgs) -> anyhow::Result<()> {
+    if !args.effects.is_empty() {
+        crate::effects_file::load_and_register(&args.effects)?;
+    }
+    Ok(())
+}

@@ -47,7 +47,7 @@ pub struct Alternative {
     pub shift: Vec<f64>,
     /// How far it could move each parameter at a size this run cannot rule out.
     pub reach: Vec<f64>,
-    /// For a misstated set-up ([`crate::identify::misstated`]): where the data put the knob.
+    /// For a misstated set-up ([`crate::diagnose::misstated`]): where the data put the knob.
     pub misstated: Option<Misstated>,
 }
 

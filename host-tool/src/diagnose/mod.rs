@@ -17,6 +17,8 @@
 pub mod alternatives;
 pub mod candidates;
 pub mod ladder;
+pub mod latitude;
+pub mod misstated;
 pub mod score;
 pub mod select;
 pub mod statistics;

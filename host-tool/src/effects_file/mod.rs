@@ -59,7 +59,6 @@ use exmex::Express as _;
 use serde::Deserialize;
 use toml::Spanned;
 
-use crate::cli::common::ModelArgs;
 use crate::recording::{read_columns, REQUIRED_COLUMNS, TEMP_COLUMN};
 use expr::{eval, excerpt, parse_expr, AxisExpr, HIDDEN_PREFIX};
 pub use expr::{MAX_DERIVATIVE_WORK, MAX_EXPR_CHARS, MAX_EXPR_DEPTH, VARIABLES};
@@ -940,12 +939,4 @@ pub fn numeric_failure() -> Option<String> {
     loaded
         .iter()
         .find_map(|e| e.numeric_failure().map(str::to_string))
-}
-
-/// What `identify`, `diagnose` and `report` call first: loads and registers `--effects` files.
-pub fn load_effects_args(args: &ModelArgs) -> anyhow::Result<()> {
-    if !args.effects.is_empty() {
-        load_and_register(&args.effects)?;
-    }
-    Ok(())
 }

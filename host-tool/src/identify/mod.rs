@@ -12,8 +12,6 @@
 //! percent with a covariance that claims far more than it knows; steps 3–4 remove that.
 
 pub mod joint;
-pub mod misstated;
-pub mod noise;
 pub mod setup;
 pub mod smoother;
 
@@ -25,8 +23,8 @@ use estimator_core::propagate::{propagate, Transition};
 use estimator_core::{Ekf, Measurement, Propagation, Residual, Sample, Site};
 use nalgebra::{DMatrix, DVector, SymmetricEigen};
 
-use self::noise::NoiseFloor;
 use self::smoother::{linearised_pass, noise_free_covariance};
+use crate::quality::noise::NoiseFloor;
 use crate::quality::{self, Action, Finding};
 
 /// Settings of an identification.

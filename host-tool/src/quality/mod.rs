@@ -17,7 +17,7 @@
 pub mod attitude;
 pub mod exclusion;
 mod finding;
-pub mod latitude;
+pub mod noise;
 pub mod physics;
 mod pieces;
 pub mod signal;
@@ -28,8 +28,6 @@ use estimator_core::screening::{self, flag, ScreenConfig, ScreenSummary};
 use estimator_core::{Averager, Sample, Site};
 pub use finding::{Action, Finding, Kind, Refusal};
 use std::borrow::Cow;
-
-use crate::identify::noise;
 
 /// The screened recording: accepted (and repaired) samples, the site, the findings.
 #[derive(Clone, Debug)]

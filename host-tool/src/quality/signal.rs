@@ -12,8 +12,8 @@
 
 use std::borrow::Cow;
 
+use super::noise;
 use super::{Action, Finding, Kind};
-use crate::identify::noise;
 use estimator_core::units::EARTH_RATE_RADPS;
 use estimator_core::Sample;
 use nalgebra::{SMatrix, SVector};

@@ -8,11 +8,11 @@
 use estimator_core::effects::Effect;
 use estimator_core::frames::normal_gravity;
 
-use super::{Action, Finding, Kind};
 use crate::consistency::{assess, Thresholds};
 use crate::diagnose::select::{fit_stats, neg2_log_evidence};
 use crate::identify::setup::at_latitude;
 use crate::identify::{build_model, identify, Config, Identification, Prepared};
+use crate::quality::{Action, Finding, Kind};
 use rayon::prelude::*;
 
 /// Half-width of each searched interval ([`search_grid`]), deg.

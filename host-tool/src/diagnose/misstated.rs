@@ -1,6 +1,6 @@
 //! A misstated set-up as an explanation of the data, weighed on the catalog's evidence scale.
 //!
-//! The set-up's priors ([`super::setup`]) say how far a *correctly* stated latitude, clock rate or
+//! The set-up's priors ([`crate::identify::setup`]) say how far a *correctly* stated latitude, clock rate or
 //! gravity may be off. A *misstated* one — a latitude of another site, a recorder clock or sample
 //! interval set wrong, a gravity value of another place — is another hypothesis: that knob with
 //! the broad prior [`BROAD`], the others with their priors. On the data's quadratic model of the
@@ -14,7 +14,7 @@
 //! evidence gain G_k = −2 ln Z(I) − (−2 ln Z(Λ_k)) − 2 ln 100
 //! ```
 //!
-//! against the stated set-up *with its priors* — the fit [`super::setup::settle`] ends at, the
+//! against the stated set-up *with its priors* — the fit [`crate::identify::setup::settle`] ends at, the
 //! one the catalog's alternatives are weighed against. `f(u*)` comes from refits (a clock 1000 ppm
 //! off is 50 prior σ from where the quadratic model was measured); the `ln det` term is the Occam
 //! factor of a broad prior the data then narrow; `2 ln 100` ([`PRIOR_ODDS`]) the prior odds of a
@@ -29,14 +29,14 @@ use estimator_core::effects::Effect;
 use nalgebra::{DMatrix, DVector};
 use rayon::prelude::*;
 
-use super::setup::{moved, refit, KnobModel, Uncertainty};
-use super::{Config, Identification, Prepared};
 use crate::diagnose::alternatives::{Alternative, Misstated, PLAUSIBLE_MARGIN};
 use crate::diagnose::select::MIN_EVIDENCE_GAIN;
+use crate::identify::setup::{moved, refit, KnobModel, Uncertainty};
+use crate::identify::{Config, Identification, Prepared};
 use crate::quality::{Action, Finding};
 
 /// The broad 1σ of a misstated knob: latitude 0.5° (a site's latitude mistaken within a region:
-/// beyond it the profile of [`crate::quality::latitude`] searches ±12°), clock rate 1000 ppm (a
+/// beyond it the profile of [`crate::diagnose::latitude`] searches ±12°), clock rate 1000 ppm (a
 /// sample interval or clock set wrong by 0.1 %: a quartz crystal is good to 20 ppm, so 1000 is a
 /// fault, not a tolerance), gravity 1000 ppm (a gravity value of another place or formula: normal
 /// gravity differs by 0.5 % from equator to pole).
@@ -99,7 +99,7 @@ pub fn weigh(
     };
     // A gravity derived from the stated latitude (normal gravity) that the data find far off
     // says the site is elsewhere (another latitude or altitude), not that a gravity value was
-    // mistaken: that is the latitude's profile to name ([`crate::quality::latitude`]).
+    // mistaken: that is the latitude's profile to name ([`crate::diagnose::latitude`]).
     let derived = (prep.site.gravity_mps2
         - estimator_core::frames::normal_gravity(prep.site.latitude_rad))
     .abs()
@@ -282,9 +282,9 @@ fn profiled_latitude(
     // Gravity kept as stated: a misstated latitude need not mean a misstated gravity (one measured
     // on site), and where both are wrong the set-up's gravity prior then takes the rest.
     let f = |l: f64| {
-        let p = super::setup::at_latitude_with(prep, l, false);
-        let model = super::build_model(p.site, effects, cfg).ok()?;
-        let id = super::identify(&model, &p, cfg).ok()?;
+        let p = crate::identify::setup::at_latitude_with(prep, l, false);
+        let model = crate::identify::build_model(p.site, effects, cfg).ok()?;
+        let id = crate::identify::identify(&model, &p, cfg).ok()?;
         Some((crate::diagnose::select::neg2_log_evidence(&id), id))
     };
     // Within 0.1° of the stated latitude the quadratic model's estimate is a good start;
@@ -429,7 +429,7 @@ pub fn repair(
 ) -> (Prepared, Config) {
     let mut p = if m.index == 0 {
         // As it was weighed: gravity kept ([`profiled_latitude`]).
-        super::setup::at_latitude_with(prep, m.value, false)
+        crate::identify::setup::at_latitude_with(prep, m.value, false)
     } else {
         let mut d = [0.0; 3];
         d[m.index] = m.value - m.stated;
