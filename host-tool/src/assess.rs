@@ -14,7 +14,7 @@ use crate::diagnose::alternatives::{self, Alternative, PLAUSIBLE_MARGIN};
 use crate::diagnose::misstated;
 use crate::diagnose::select::MIN_EVIDENCE_GAIN;
 use crate::diagnose::DiagnoseConfig;
-use crate::identify::setup::{settle, Settled, Uncertainty};
+use crate::identify::setup::{settle, Settled, SetupPriors, Uncertainty};
 use crate::identify::{build_model, identify_from, Config, Identification, Prepared};
 
 /// A final fit assessed.
@@ -86,7 +86,16 @@ fn assess_as_stated(
         ..Default::default()
     };
     let mut alts = alternatives::weigh(&out.prep, effects, &dcfg, &out.id)?;
-    alts.extend(misstated::weigh(effects, &stated.0, cfg, &stated.1, &unc)?.alternatives);
+    let weighed = misstated::weigh(effects, &stated.0, cfg, &stated.1, &unc)?;
+    // The data prefer the set-up moved within its priors to the set-up as stated.
+    let moved = weighed.stated_gain.filter(|g| *g > 0.0);
+    // (The misstatements' shifts are taken about the refit where the stated priors put the
+    // set-up, which `settle` ends at.)
+    alts.extend(weighed.alternatives);
+    if let Some(g0) = moved {
+        let to_final = offset(&stated.1, &out.id);
+        alts.extend(rivals_of_the_move(effects, &stated, &dcfg, g0, &to_final)?);
+    }
     alternatives::weight(&mut alts);
     if let Some(m) = misstated::to_repair(&alts, &[]).filter(|_| may_repair) {
         let (p, c) = misstated::repair(&stated.0, cfg, &m, &alts, &[]);
@@ -95,10 +104,100 @@ fn assess_as_stated(
     unc.add_model_spread(&alternatives::averaging_spread(&alts, out.id.params.len()));
     let mut reasons = unc.untrusted_reasons();
     reasons.extend(alternatives_untrusted(&alts, &unc, &out.id));
+    if let Some(g0) = moved {
+        reasons.extend(move_confounded(&alts, g0, &unc, &out.id, &cfg.setup));
+    }
     out.unc = unc;
     out.alternatives = alts;
     out.reasons = reasons;
     Ok((out, None))
+}
+
+/// The final fit's parameters minus `from`'s (the same model; state order after the angles).
+fn offset(from: &Identification, to: &Identification) -> Vec<f64> {
+    from.best()
+        .value
+        .iter()
+        .zip(to.best().value.iter())
+        .map(|(a, b)| a - b)
+        .collect()
+}
+
+/// `a` with its shift taken about the final fit instead of the fit `offset` was taken from.
+fn rebased(mut a: Alternative, offset: &[f64]) -> Alternative {
+    for (s, o) in a.shift.iter_mut().zip(offset) {
+        *s += o;
+    }
+    a
+}
+
+/// When the data moved the set-up within its priors (evidence gain `moved` over the stated
+/// set-up's own fit), the catalog effects fitted at the set-up as stated are rivals of that move:
+/// a drift trend or a clock running fast can look like a latitude a few hundredths of a degree
+/// off. Each is put on the final fit's scale (gain minus `moved`; shift about the final fit).
+fn rivals_of_the_move(
+    effects: &[&'static dyn Effect],
+    stated: &(Prepared, Identification),
+    dcfg: &DiagnoseConfig,
+    moved: f64,
+    to_final: &[f64],
+) -> anyhow::Result<Vec<Alternative>> {
+    let at_stated = alternatives::weigh(&stated.0, effects, dcfg, &stated.1)?;
+    Ok(at_stated
+        .into_iter()
+        .map(|mut a| {
+            a.evidence_gain -= moved;
+            a.instead_of_setup = true;
+            rebased(a, to_final)
+        })
+        .collect())
+}
+
+/// When the data moved the set-up within its priors (evidence gain `moved`), a knob misstated
+/// whose prior is only the tool's assumption ([`SetupPriors::assumed`]) and that the data alone do
+/// not rule out (its gain without the prior odds within [`PLAUSIBLE_MARGIN`]) is the same data
+/// told another way: a clock running fast looks like a latitude a few hundredths of a degree off.
+/// Only the assumption tells them apart; where they differ beyond the total 1σ the result rests
+/// on it, and the user is asked to state what they know.
+fn move_confounded(
+    alts: &[Alternative],
+    moved: f64,
+    unc: &Uncertainty,
+    id: &Identification,
+    priors: &SetupPriors,
+) -> Vec<String> {
+    let mut out = vec![];
+    for a in alts {
+        let Some(m) = &a.misstated else { continue };
+        let on_the_data = a.evidence_gain + misstated::PRIOR_ODDS;
+        if !priors.assumed[m.index] || on_the_data < -PLAUSIBLE_MARGIN {
+            continue;
+        }
+        let Some((k, z)) = (0..a.shift.len())
+            .map(|k| (k, a.shift[k] / unc.total_sigma[k]))
+            .max_by(|x, y| x.1.abs().total_cmp(&y.1.abs()))
+            .filter(|(_, z)| z.abs() > 1.0)
+        else {
+            continue;
+        };
+        let option = [
+            "--latitude-sigma-deg",
+            "--clock-sigma-ppm",
+            "--gravity-sigma-ppm",
+        ];
+        out.push(format!(
+            "the data moved the set-up within its priors (evidence gain {moved:.1}), and a misstated {} ({} {} where {} is stated) explains them as well on the data alone (gain {on_the_data:.1} before the prior odds) and would move {} by {z:+.1}σ: the result rests on the assumed {} prior — state what you know of the set-up ({}, {}; more digits of the latitude) and rerun",
+            m.knob,
+            crate::format::pm(m.value, m.sigma),
+            m.unit,
+            crate::format::sig(m.stated, 9),
+            id.params[k].name,
+            m.knob,
+            option[m.index],
+            option.iter().enumerate().filter(|(i, _)| *i != m.index).map(|(_, o)| *o).collect::<Vec<_>>().join(", "),
+        ));
+    }
+    out
 }
 
 /// Why the alternatives make the result untrusted: one the data prefer, or a plausible one that
@@ -122,6 +221,10 @@ pub fn alternatives_untrusted(
                 crate::format::pm(m.value, m.sigma),
                 m.unit,
                 crate::format::sig(m.stated, 9)
+            ),
+            None if a.instead_of_setup => format!(
+                "adding `{}` with the set-up as stated (instead of the set-up the data moved within its priors)",
+                a.effect
             ),
             None => format!("adding `{}`", a.effect),
         };

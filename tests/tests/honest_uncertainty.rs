@@ -19,12 +19,25 @@ use host_tool::identify::{build_model, identify, prepare, Config};
 use host_tool::simulate::{simulate, Scenario, SetupErrors};
 
 /// Simulates `sc`, prepares it with the recording's metadata (not the truth) and assesses the
-/// paper model's fit. Returns the assessment and the true coefficients.
+/// paper model's fit with the default priors (the tool's assumptions). Returns the assessment
+/// and the true coefficients.
 fn run(sc: &Scenario) -> (Assessment, [f64; 12]) {
+    run_with(sc, Config::default())
+}
+
+/// The settings of a user who states the set-up's priors (`--latitude-sigma-deg`,
+/// `--clock-sigma-ppm`, `--gravity-sigma-ppm`) at the defaults' values: no longer assumptions.
+fn stated_priors() -> Config {
+    let mut cfg = Config::default();
+    cfg.setup.assumed = [false; 3];
+    cfg
+}
+
+/// [`run`] with the settings `cfg`.
+fn run_with(sc: &Scenario, cfg: Config) -> (Assessment, [f64; 12]) {
     let sim = simulate(sc);
     let samples: Vec<Sample> = sim.samples.iter().map(Sample::from).collect();
     let site = estimator_core::Site::new(sim.meta.latitude_deg.unwrap(), sim.meta.gravity_mps2);
-    let cfg = Config::default();
     let prep = prepare(site, &samples, &cfg).unwrap();
     let effects = [catalog::paper()];
     let model = build_model(prep.site, &effects, &cfg).unwrap();
@@ -69,7 +82,10 @@ fn the_total_sigma_covers_set_up_errors_drawn_from_the_priors() {
                             let mut sc = scenario(seed, 36.0, 10.0);
                             let half = priors.latitude_sigma(sc.latitude_deg) * 3f64.sqrt();
                             sc.setup_errors = SetupErrors::draw(&priors, half, seed);
-                            let (a, truth) = run(&sc);
+                            // The user states the priors the errors are drawn from: with the
+                            // defaults a latitude moved within its digits is also a clock
+                            // running fast (`a_clock_running_fast_is_not_trusted_as_a_latitude_move`).
+                            let (a, truth) = run_with(&sc, stated_priors());
                             (z_scores(&a, &truth), a.reasons.is_empty())
                         })
                         .collect::<Vec<_>>()
@@ -131,9 +147,17 @@ fn a_drift_trend_is_not_blamed_on_the_latitude() {
 fn a_latitude_within_its_prior_is_estimated_and_one_beyond_it_is_named() {
     // 0.05° off a latitude written "39.1" (prior 1σ 0.029°): estimated from the data, named as a
     // repaired set-up finding, the coefficients within 3 total σ of the truth.
+    // With the priors stated by the user (at the defaults' values): with the defaults' assumed
+    // clock the same data are also a clock 640 ppm fast, and the result is not trusted.
     let mut sc = scenario(7, 60.0, 10.0);
     sc.setup_errors.latitude_deg = 0.05;
-    let (a, truth) = run(&sc);
+    let (a, _) = run(&sc);
+    assert!(
+        a.reasons.iter().any(|r| r.contains("rests on the assumed")),
+        "{:?}",
+        a.reasons
+    );
+    let (a, truth) = run_with(&sc, stated_priors());
     assert!(a.reasons.is_empty(), "{:?}", a.reasons);
     assert!(
         a.prep
@@ -152,7 +176,7 @@ fn a_latitude_within_its_prior_is_estimated_and_one_beyond_it_is_named() {
     // explanation (a clock 7000 ppm off comes closest) and is repaired by name; the coefficients
     // are then the fit's at the data's latitude, within 3 total σ of the truth.
     sc.setup_errors.latitude_deg = 0.5;
-    let (a, truth) = run(&sc);
+    let (a, truth) = run_with(&sc, stated_priors());
     assert!(a.reasons.is_empty(), "{:?}", a.reasons);
     assert_repaired(&a, "latitude is misstated");
     assert_within_3_sigma(&a, &truth);
@@ -211,6 +235,31 @@ fn a_misstated_gravity_is_repaired_and_a_misstated_clock_is_never_trusted_wrong(
 }
 
 #[test]
+fn a_clock_running_fast_is_not_trusted_as_a_latitude_move() {
+    // A recorder clock 300 ppm fast (15 times its default prior) on a latitude written "39.1":
+    // the data move the latitude 0.02° within its digits and fit; a clock 300 ppm fast fits
+    // them as well (the two differ only in their priors), and the coefficients differ by 6σ
+    // (DXx was 8σ off, trusted). The result rests on the assumed clock prior: not trusted, the
+    // clock named. Stated (the user vouches for the clock) the latitude move is trusted.
+    for seed in [1, 2] {
+        let mut sc = scenario(seed, 60.0, 10.0);
+        sc.setup_errors.clock_ppm = 300.0;
+        let (a, _) = run(&sc);
+        assert!(
+            a.reasons
+                .iter()
+                .any(|r| r.contains("misstated clock rate") && r.contains("rests on the assumed")),
+            "seed {seed}: {:?}",
+            a.reasons
+        );
+        // The same recording with a clock as stated (none of the above): trusted.
+        let (a, truth) = run(&scenario(seed, 60.0, 10.0));
+        assert!(a.reasons.is_empty(), "seed {seed}: {:?}", a.reasons);
+        assert_within_3_sigma(&a, &truth);
+    }
+}
+
+#[test]
 fn a_drift_trend_is_not_repaired_as_a_misstated_clock() {
     // The reverse trap: a real trend (3 axes, ~5× its detection limit at 36 h) is close to a
     // clock error. The tool must not repair the clock (which would trust wrong coefficients):
@@ -252,7 +301,7 @@ fn an_alternatives_shift_is_what_refitting_with_it_gives() {
     let alt = a
         .alternatives
         .iter()
-        .find(|x| x.effect == "drift-trend")
+        .find(|x| x.effect == "drift-trend" && !x.instead_of_setup)
         .expect("drift-trend weighed");
     assert!(alt.evidence_gain > 10.0, "gain {}", alt.evidence_gain);
     let with = [catalog::paper(), catalog::by_name("drift-trend").unwrap()];

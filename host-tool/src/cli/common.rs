@@ -86,6 +86,11 @@ impl ModelArgs {
                 );
             }
         }
+        setup.assumed = [
+            self.latitude_sigma_deg.is_none(),
+            self.clock_sigma_ppm.is_none(),
+            self.gravity_sigma_ppm.is_none(),
+        ];
         setup.latitude_sigma_deg = self.latitude_sigma_deg.or(setup.latitude_sigma_deg);
         setup.clock_sigma_ppm = self.clock_sigma_ppm.unwrap_or(setup.clock_sigma_ppm);
         setup.gravity_sigma_ppm = self.gravity_sigma_ppm.unwrap_or(setup.gravity_sigma_ppm);

@@ -49,6 +49,10 @@ pub struct Alternative {
     pub reach: Vec<f64>,
     /// For a misstated set-up ([`crate::diagnose::misstated`]): where the data put the knob.
     pub misstated: Option<Misstated>,
+    /// The effect fitted at the set-up as stated, instead of where the data moved it within its
+    /// priors: a rival of that move ([`crate::assess`]).
+    #[serde(skip_serializing_if = "std::ops::Not::not")]
+    pub instead_of_setup: bool,
 }
 
 /// A set-up value the data give under the hypothesis that it was misstated.
@@ -156,6 +160,7 @@ fn alternative(setup: &Setup, sig: &super::score::Signature, n: usize) -> Altern
             .map(|i| shift[i].abs() + 2.0 * spread[i].max(0.0).sqrt())
             .collect(),
         misstated: None,
+        instead_of_setup: false,
     }
 }
 

@@ -157,6 +157,7 @@ pub fn weigh(
                 .map(|i| shift[i].abs() + 2.0 * var.sqrt() * sens[i].abs())
                 .collect(),
             shift: shift.iter().copied().collect(),
+            instead_of_setup: false,
             misstated: Some(Misstated {
                 knob: name,
                 unit,
@@ -336,6 +337,7 @@ fn profiled_latitude(
             .map(|i| shift[i].abs() + 2.0 * sigma * sens[i].abs())
             .collect(),
         shift: shift.iter().copied().collect(),
+        instead_of_setup: false,
         misstated: Some(Misstated {
             knob: KNOBS[0].0,
             unit: KNOBS[0].1,

@@ -60,6 +60,10 @@ pub struct SetupPriors {
     pub vertical_tilt_arcsec: f64,
     /// Period of that tilt, h (a solar day).
     pub vertical_tilt_period_h: f64,
+    /// Whether the latitude's, the clock rate's and the gravity's priors are the tool's defaults
+    /// (an assumption the run rests on) rather than the user's statement.
+    #[serde(skip)]
+    pub assumed: [bool; 3],
 }
 
 /// Smallest default latitude 1σ, deg (≈ 10 m: a site's position is known at least that well).
@@ -75,6 +79,7 @@ impl Default for SetupPriors {
             gravity_sigma_ppm: 30.0,
             vertical_tilt_arcsec: 1.0,
             vertical_tilt_period_h: 24.0,
+            assumed: [true; 3],
         }
     }
 }

@@ -5,7 +5,7 @@ use std::fmt;
 use std::str::FromStr;
 
 /// Names of the injectable effects, as on the command line and in the truth file.
-pub const EFFECT_NAMES: [&str; 9] = [
+pub const EFFECT_NAMES: [&str; 10] = [
     "g2",
     "acc-bias",
     "acc-scale",
@@ -15,6 +15,7 @@ pub const EFFECT_NAMES: [&str; 9] = [
     "temp-drift",
     "drift-sine",
     "drift-transient",
+    "acc-temp",
 ];
 
 /// Help text describing the `--effect` syntax.
@@ -29,6 +30,7 @@ NAME=v1,v2,... (repeatable; the same effect twice adds up). Effects:
   temp-drift=cx,cy,cz   drift += c*(T(t)-T(0)), deg/h per deg C; adds a temp_c column
   drift-sine=ax,ay,az:P drift += a*sin(2*pi*t/P), deg/h, period P in h (not in the catalog)
   drift-transient=ax,ay,az:tau   turn-on transient: drift += a*exp(-t/tau), deg/h, tau in h (not in the catalog)
+  acc-temp=kx,ky,kz     accelerometer bias += k*(T(t)-T(0)), m/s^2 per deg C; adds a temp_c column (not in the catalog)
 Example: --effect acc-bias=1e-4,0,0 --effect drift-markov=0.01,0.01,0.01:5,5,5";
 
 /// An effect the truth simulator can inject. Serialised as `{"name": "acc-bias", "params": {…}}`.
@@ -58,6 +60,9 @@ pub enum InjectedEffect {
     DriftSine { a_deg_h: [f64; 3], period_h: f64 },
     /// Turn-on transient (not in the catalog): w_d,i += a_i exp(−t/τ), deg/h, τ in h.
     DriftTransient { a_deg_h: [f64; 3], tau_h: f64 },
+    /// Temperature-driven accelerometer bias (not in the catalog): z_i += k_i (T(t) − T(0)),
+    /// m/s² per °C.
+    AccTemp { k_mps2_per_c: [f64; 3] },
 }
 
 impl InjectedEffect {
@@ -73,6 +78,7 @@ impl InjectedEffect {
             InjectedEffect::TempDrift { .. } => "temp-drift",
             InjectedEffect::DriftSine { .. } => "drift-sine",
             InjectedEffect::DriftTransient { .. } => "drift-transient",
+            InjectedEffect::AccTemp { .. } => "acc-temp",
         }
     }
 
@@ -119,6 +125,7 @@ impl InjectedEffect {
                 vec![sigma_deg_h.to_vec(), tau_h.to_vec()]
             }
             InjectedEffect::TempDrift { c_deg_h_per_c } => vec![c_deg_h_per_c.to_vec()],
+            InjectedEffect::AccTemp { k_mps2_per_c } => vec![k_mps2_per_c.to_vec()],
             InjectedEffect::DriftSine {
                 a_deg_h,
                 period_h: t,
@@ -231,6 +238,9 @@ impl FromStr for InjectedEffect {
             "drift-sine" => InjectedEffect::DriftSine {
                 a_deg_h: parse_list(name, "amplitudes (deg/h)", groups[0])?,
                 period_h: parse_list::<1>(name, "period (h)", groups[1])?[0],
+            },
+            "acc-temp" => InjectedEffect::AccTemp {
+                k_mps2_per_c: parse_list(name, "values (m/s^2 per deg C)", groups[0])?,
             },
             "drift-transient" => InjectedEffect::DriftTransient {
                 a_deg_h: parse_list(name, "amplitudes (deg/h)", groups[0])?,

@@ -155,6 +155,7 @@ impl Simulator {
                         .push((a_deg_h.map(|a| a * RADPS_PER_DEG_H), tau_h * 3600.0));
                 }
                 InjectedEffect::AccBias { .. }
+                | InjectedEffect::AccTemp { .. }
                 | InjectedEffect::AccScale { .. }
                 | InjectedEffect::AccMisalign { .. } => {}
             }

@@ -16,6 +16,8 @@ NAME=v1,v2,... (repeatable). Faults, applied to the written samples after the ph
   burst=AXIS,SIZE,T0_H,DURATION_S from T0_H hours for DURATION_S seconds, SIZE m/s^2 added to
                                   AXIS (a disturbance of the platform: a door slammed, a bump)
   step=AXIS,SIZE,T0_H             from T0_H hours on, SIZE m/s^2 added to AXIS (a bias step)
+  flip=AXIS                       AXIS written with its sign flipped (a wiring or configuration
+                                  slip; the metadata and the other axes as they should be)
 Example: --fault saturate=x,7,10,22 --fault burst=y,0.3,30,60 --fault step=y,1e-3,30";
 
 /// A data fault added to simulated samples.
@@ -42,6 +44,11 @@ pub enum Fault {
         t0_h: f64,
         /// Duration, s (> 0).
         duration_s: f64,
+    },
+    /// Readings of `axis` written with the opposite sign, the whole run.
+    Flip {
+        /// 0, 1, 2 for x, y, z.
+        axis: usize,
     },
 }
 
@@ -83,6 +90,12 @@ impl Fault {
                     n += 1;
                 }
             }
+            Fault::Flip { axis } => {
+                for s in samples.iter_mut() {
+                    s.specific_force_mps2[axis] = -s.specific_force_mps2[axis];
+                }
+                n = samples.len();
+            }
         }
         n
     }
@@ -104,6 +117,14 @@ impl FromStr for Fault {
             .split_once('=')
             .ok_or_else(|| format!("{s:?}: expected NAME=AXIS,v1,v2,v3 (saturate or burst)"))?;
         let mut parts: Vec<&str> = rest.split(',').map(str::trim).collect();
+        if name.trim() == "flip" {
+            return match parts[..] {
+                [a] => Ok(Fault::Flip {
+                    axis: axis_of(a).map_err(|e| format!("flip: {e}"))?,
+                }),
+                _ => Err(format!("flip: expected one AXIS (x, y or z), got {rest:?}")),
+            };
+        }
         if name.trim() == "step" && parts.len() == 3 {
             // A step is a burst that lasts: to the end of any recording.
             parts.push("inf-step");
@@ -157,7 +178,9 @@ impl FromStr for Fault {
                     duration_s: v[2],
                 })
             }
-            other => Err(format!("unknown fault {other:?} (saturate, burst or step)")),
+            other => Err(format!(
+                "unknown fault {other:?} (saturate, burst, step or flip)"
+            )),
         }
     }
 }
@@ -185,6 +208,7 @@ impl fmt::Display for Fault {
                 t0_h,
                 duration_s,
             } => write!(f, "burst={},{size:?},{t0_h:?},{duration_s:?}", ax(axis)),
+            Fault::Flip { axis } => write!(f, "flip={}", ax(axis)),
         }
     }
 }
@@ -197,6 +221,10 @@ mod tests {
     fn faults_parse_apply_and_print_back() {
         let f: Fault = "saturate=x,1.5,0,1".parse().unwrap();
         assert_eq!(f.to_string().parse::<Fault>().unwrap(), f);
+        let flip: Fault = "flip=y".parse().unwrap();
+        assert_eq!(flip, Fault::Flip { axis: 1 });
+        assert_eq!(flip.to_string().parse::<Fault>().unwrap(), flip);
+        assert!("flip=y,1".parse::<Fault>().is_err());
         let mut s: Vec<RawSample> = (0..4)
             .map(|k| RawSample {
                 t_s: k as f64 * 1800.0,

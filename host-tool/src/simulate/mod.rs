@@ -283,10 +283,12 @@ impl Scenario {
     /// Whether the recording gets a `temp_c` column.
     pub fn has_temp(&self) -> bool {
         self.write_temp
-            || self
-                .effects
-                .iter()
-                .any(|e| matches!(e, InjectedEffect::TempDrift { .. }))
+            || self.effects.iter().any(|e| {
+                matches!(
+                    e,
+                    InjectedEffect::TempDrift { .. } | InjectedEffect::AccTemp { .. }
+                )
+            })
     }
 
     /// Checks ranges: latitude in [−90, 90], hours ≥ 0, rate_s > 0, finite coefficients,
@@ -502,7 +504,8 @@ impl Truth {
                 // Outside the catalog: no parameter of an identified model is theirs.
                 InjectedEffect::DriftMarkov { .. }
                 | InjectedEffect::DriftSine { .. }
-                | InjectedEffect::DriftTransient { .. } => {}
+                | InjectedEffect::DriftTransient { .. }
+                | InjectedEffect::AccTemp { .. } => {}
             }
         }
         out
@@ -617,6 +620,14 @@ pub fn simulate(s: &Scenario) -> Simulation {
     let mut rng_time = engine::rng(s.seed, engine::stream::TIMING);
     let sigma = s.accel_sigma_mps2 * (60.0 / s.rate_s).sqrt();
     let (k, b) = accel_model(&s.effects);
+    let acc_temp: Vector3<f64> = s
+        .effects
+        .iter()
+        .filter_map(|e| match e {
+            InjectedEffect::AccTemp { k_mps2_per_c } => Some(Vector3::from(*k_mps2_per_c)),
+            _ => None,
+        })
+        .sum();
     let has_temp = s.has_temp();
     let max_sub = s.max_substep_s.min(1.0);
     let n = s.sample_count();
@@ -641,7 +652,7 @@ pub fn simulate(s: &Scenario) -> Simulation {
         } else {
             force_at(&mut sim, err, g, t, max_sub)
         };
-        let mut z = k * a + b;
+        let mut z = k * a + b + acc_temp * (s.temp_profile.at(t) - s.temp_profile.at(0.0));
         if sigma > 0.0 {
             for j in 0..3 {
                 let e: f64 = StandardNormal.sample(&mut rng_acc);
