@@ -51,6 +51,8 @@ pub enum Kind {
     InitialTilt,
     /// An inverted or swapped axis at the start.
     InitialOrientation,
+    /// Gravity turning as in the other hemisphere: the latitude's sign, or a left-handed frame.
+    OtherHemisphere,
     /// The metadata latitude contradicted by the data.
     Latitude,
     /// A latitude misstatement that competes with another explanation.
@@ -85,6 +87,7 @@ impl Kind {
             Kind::GravityMismatch => "gravity-mismatch",
             Kind::InitialTilt => "initial-tilt",
             Kind::InitialOrientation => "initial-orientation",
+            Kind::OtherHemisphere => "other-hemisphere",
             Kind::Latitude => "latitude",
             Kind::LatitudeConfounded => "latitude-confounded",
             Kind::SetUp => "set-up",

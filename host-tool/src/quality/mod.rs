@@ -17,6 +17,7 @@
 pub mod attitude;
 pub mod exclusion;
 mod finding;
+mod hemisphere;
 pub mod noise;
 pub mod physics;
 mod pieces;
@@ -203,6 +204,10 @@ pub fn screen_excluding<'s>(
             Ok(t) => t,
             Err(f) => return refuse(findings, f.0, f.1),
         };
+    // After the start's orientation (an inverted or swapped axis is named there first).
+    if let Err(f) = hemisphere::check_hemisphere(&site, &accepted) {
+        return refuse(findings, f.0, f.1);
+    }
     // 3. Quantisation, the noise at the filter period, and steps in the means.
     let quantum = quantisation(&accepted, &summary, &mut findings);
     let means = window_means(&accepted, period_s, &sigma);
