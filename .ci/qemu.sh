@@ -15,76 +15,12 @@ ELF=target/$T/firmware/firmware
 # ratchet (it may only go down) and prints the gap to the target. Lower a ratchet when a change
 # wins bytes or instructions; never raise it to make a build pass without saying why.
 TEXT_TARGET=$((64 * 1024))
-TEXT_RATCHET=$TEXT_TARGET     # STM32H743 .text, bytes: measured 63 560 (issue 12, fourth
-                             # session, 2026-11-24: no runtime loop unrolling on the M7, see
-                             # INSTR_RATCHET). Before: 65 000, and 65 008 (issue 10, trig,
-                             # 2026-11-23): met. estimator_core::trig::sincos (Cody-Waite
-                             # reduction for |x| < 2^20*pi/2, fdlibm's kernels) instead of
-                             # libm's sincos, whose Payne-Hanek reduction and dispatch
-                             # (rem_pio2_large 1 352 B, rem_pio2 672 B) the filter's small angles
-                             # never reach: -2 136 B; 24 840 instructions per update.
-                             # Before: 67 296 (issue 10, fwsize2,
-                             # 2026-11-23), from 68 604: square roots through sampling::sqrt,
-                             # the FPU's VSQRT.F64 on the M7 (no libm::sqrt: -344); estimator-
-                             # core's cold set-up (Model::new/owner/param, Site::new,
-                             # earth_rate_r) #[inline], so compiled in the "z" application
-                             # (-668); no libm sin/ceil (normal_gravity through sincos,
-                             # sampling::ceil_usize: -296).
-                             # Before: 68 688 (issue 10, fwsize,
-                             # 2026-11-23), from 74 516: the sample screening and averaging in
-                             # a crate of their own (`sampling`) at opt-level "z" instead of
-                             # estimator-core's 2 (-3 464); fault texts written with
-                             # protocol::Detail instead of core::fmt (-1 032); identical code
-                             # folding at the link, firmware/build.rs (-740); the checkpoint
-                             # codec's helpers #[inline], so compiled in the "z" application
-                             # (-536); no Option::expect (-56). The rest of the gap: the EKF
-                             # (step_paper and the model, ~16 KB at opt-level 2), embassy-stm32
-                             # (~9 KB, its RCC set-up 3.4 KB), the core::fmt that panics
-                             # still link (~3.5 KB: embassy-stm32's unwrap!, core's bounds
-                             # checks), libm's sin/cos argument reduction (2.3 KB).
-                             # Before: 74 516 (issue 10, 2026-11-23):
-                             # the Screener drops its front sample by swaps instead of
-                             # `copy_within`, the image's only memmove (-832 B); before, 75 348
-                             # with Cargo.toml [profile.firmware] at opt-level "z" for every
-                             # crate but estimator-core and nalgebra, was "s" (-3 144 B).
-                             # Before: 78 492 (fw2 re-landed on main with
-                             # the per-run chart and the structured EKF step, 2026-11-23). Raised
-                             # from 77 000: the per-run chart of the angles (issue 11: gravity and
-                             # Earth rate as vectors in the chart frame, frames.rs) adds 648 B to
-                             # the model, and the structured EKF step (issue 12: no copy of the
-                             # filter per step, fewer instructions) 1 192 B; before them 76 652
-                             # (Cargo.toml [profile.firmware]: per-crate levels without LTO; with
-                             # estimator-core's sample screening, ~6 KB, in the firmware since
-                             # issue 8). The gap: the EKF (step_paper and the model, ~18 KB at
-                             # opt-level 2), embassy-stm32's RCC/USART/flash init (~10 KB), the
-                             # screening (~6 KB), postcard framing (~9 KB).
+TEXT_RATCHET=$TEXT_TARGET     # STM32H743 .text, bytes (met; docs/measurements.md: how, and the history)
 STACK_TARGET=$((16 * 1024))
-STACK_RATCHET=$STACK_TARGET  # self-test stack high-water (EKF steps + checkpoint round trip; its
-                             # filters in statics, as the application's): measured 14 412 with
-                             # the opt-level "z" crates (issue 10); before, 14 364
-                             # (fw2's own tip, before main's chart work: 14 060)
+STACK_RATCHET=$STACK_TARGET  # self-test stack high-water, bytes (met)
 INSTR_TARGET=30000
-INSTR_RATCHET=21000          # max instructions per EKF update: measured 20 440 (issue 12,
-                             # fourth session, 2026-11-24): the M7 built without runtime loop
-                             # unrolling (.cargo/config.toml: +440 instructions, -2 368 B of
-                             # .text), B*Phi_D^T by 3x3 blocks, the update's health checks in
-                             # one pass after its loop; .text 63 560 B. Before: 21 000 (issue 12,
-                             # 2026-11-24): Phi_D*P through filter::three_rows_times, the one
-                             # kernel the host's smoother calls too (+120 instructions, -288 B
-                             # of .text). Before: 20 880 (issue 12,
-                             # 2026-11-24): Φ of a step as exp(h·F) at the step's midpoint, one
-                             # Jacobian per step instead of four RK4 derivative stages
-                             # (estimator-core/src/propagate.rs); .text 65 304 B with it.
-                             # Before: 24 840 (issue 10,
-                             # trig.rs); 25 680 before (issue 12,
-                             # 2026-11-23; under the 30 000 target, so the ratchet only guards a
-                             # regression): closed-form 3x3 Cholesky, a 6-product Joseph entry,
-                             # register-blocked Phi_D*P and F*Phi, the RK4 stage input formed
-                             # inside the derivative, no per-call clearing of the Jacobian, no
-                             # 64-bit mask shifts (estimator-core/src/{filter,propagate,model}.rs).
-                             # Before: 38 320 with libm at opt-level "z" (issue 10); 38 200 on
-                             # main before that (the EKF is estimator-core's `step_paper`,
-                             # compiled at its crate's opt-level 2; the firmware only calls it)
+INSTR_RATCHET=21000          # max instructions per EKF update: under the target, so the ratchet
+                             # only guards against a regression; lower it when a change wins
 
 sizetool=""
 for s in llvm-size size; do command -v "$s" >/dev/null 2>&1 && { sizetool=$s; break; }; done

@@ -1,6 +1,7 @@
 //! Filter checkpoints: the complete filter state in a versioned, CRC-checked byte image, so a
-//! 60-hour run survives a reset. The firmware writes it to non-volatile storage (double-buffered;
-//! see the firmware), the host can do the same to a file.
+//! 60-hour run survives a reset. The firmware appends it to a record log in non-volatile storage
+//! (`firmware/app/src/checkpoints.rs`: the newest intact record wins), the host can write it to a
+//! file.
 //!
 //! Layout (little-endian): magic `DIDC`, format version u16, state size n u16, model
 //! fingerprint u32, update count u32, time f64, temperature reference f64, temperature deviation

@@ -76,14 +76,15 @@ impl core::fmt::Display for FilterError {
 /// `max_run` refusals in a row. Rejections are counted and returned, never silent.
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct Gate {
-    /// NIS threshold (χ²(3) quantile; e.g. 27.9 is the 1e-5 upper tail).
+    /// NIS threshold (a χ²(3) upper quantile: 25.90 leaves a 1e-5 tail, 27.88 a 3.85e-6 tail).
     pub nis_max: f64,
     /// Consecutive rejections that raise [`FilterError::RejectionRun`].
     pub max_run: u32,
 }
 
 impl Gate {
-    /// χ²(3) upper 1e-5 quantile with a fault after 10 consecutive rejections.
+    /// NIS above 27.88 refused (the χ²(3) upper 3.85e-6 tail; the 1e-5 quantile is 25.90),
+    /// with a fault after 10 consecutive rejections.
     pub const DEFAULT: Gate = Gate {
         nis_max: 27.88,
         max_run: 10,

@@ -31,6 +31,14 @@
 //!
 //! Renaming replaces a symbolic link at the target by a regular file (it does not write through
 //! the link), and the new file has default permissions.
+//!
+//! Hand-written rather than `tempfile`'s `NamedTempFile::new_in` + `persist`, which cannot keep
+//! two of the guarantees above: it removes its file in `Drop`, and a signal ends the process
+//! without running destructors, so the SIGINT/SIGTERM/SIGHUP clean-up needs this registry of
+//! temporaries anyway (created and registered under one lock); and `persist` is a bare rename,
+//! which would replace a FIFO or a character device at the target (`-o /dev/null`) instead of
+//! writing into it. What it would take over — a fresh name beside the target and `create_new` —
+//! is a dozen lines here, against a second clean-up path beside the registry.
 
 use std::fs::{self, File, OpenOptions};
 use std::io::{self, BufWriter, Write};

@@ -1,7 +1,7 @@
 //! Framing: postcard + CRC-32 + COBS + delimiters, and the streaming decoder.
 
 use crate::cobs::{self, Unstuffer};
-use crate::{Message, Packet, CRC, MAX_FRAME, MAX_PACKET, PROTOCOL_VERSION};
+use crate::{Message, Packet, CRC, CRC_BYTES, MAX_FRAME, MAX_PACKET, PROTOCOL_VERSION};
 
 /// Why a packet could not be framed.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
@@ -23,11 +23,11 @@ impl std::error::Error for EncodeError {}
 /// delimiters included.
 pub fn encode<'a>(packet: &Packet, out: &'a mut [u8]) -> Result<&'a [u8], EncodeError> {
     let mut raw = [0u8; MAX_PACKET];
-    let n = postcard::to_slice(packet, &mut raw[..MAX_PACKET - 4])
+    let n = postcard::to_slice(packet, &mut raw[..MAX_PACKET - CRC_BYTES])
         .map_err(|_| EncodeError::TooLarge)?
         .len();
     let crc = CRC.checksum(&raw[..n]);
-    raw[n..n + 4].copy_from_slice(&crc.to_le_bytes());
+    raw[n..n + CRC_BYTES].copy_from_slice(&crc.to_le_bytes());
     let body = n + 4;
     if out.len() < cobs::max_encoded_len(body) + 2 {
         return Err(EncodeError::TooLarge);

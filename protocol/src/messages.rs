@@ -1,13 +1,14 @@
 //! The messages. Units: seconds, m/s², °C; the state as the estimator core holds it (angles in
 //! rad, drift coefficients in deg/h and deg/h/(m/s²)).
 
+use postcard::experimental::max_size::MaxSize;
 use serde::{Deserialize, Serialize};
 
 use crate::STATE_DIM;
 
 /// What travels in one frame: protocol version, the sender's link sequence number (one counter
 /// per direction, +1 per frame, wrapping), and the message.
-#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize, MaxSize)]
 pub struct Packet {
     /// [`crate::PROTOCOL_VERSION`] of the sender. First byte of every packet.
     pub version: u8,
@@ -65,7 +66,7 @@ impl<'de> Deserialize<'de> for NotACommand {
 }
 
 /// Every message of the link, both directions.
-#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize, MaxSize)]
 pub enum Message {
     /// Firmware → host, at boot and on request: who is talking.
     Hello(Hello),
@@ -82,7 +83,7 @@ pub enum Message {
 }
 
 /// Which board the firmware runs on.
-#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize)]
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize, MaxSize)]
 pub enum Board {
     /// The navigation computer (STM32H743-class, ADXL355 over SPI).
     Stm32h743,
@@ -93,7 +94,7 @@ pub enum Board {
 }
 
 /// Firmware identification.
-#[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
+#[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize, MaxSize)]
 pub struct Hello {
     /// The board.
     pub board: Board,
@@ -106,7 +107,7 @@ pub struct Hello {
 }
 
 /// One raw accelerometer sample.
-#[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
+#[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize, MaxSize)]
 pub struct RawSample {
     /// Sample number since start (gaps: samples lost or rejected at the source).
     pub seq: u32,
@@ -119,7 +120,7 @@ pub struct RawSample {
 }
 
 /// One filter update: the state after it, its 1σ, and the update's innovation.
-#[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
+#[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize, MaxSize)]
 pub struct Estimate {
     /// Update number, 0-based (the estimator's `steps()` before this update).
     pub step: u32,
@@ -138,7 +139,7 @@ pub struct Estimate {
 }
 
 /// Where the samples come from.
-#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize)]
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize, MaxSize)]
 pub enum Source {
     /// The board's accelerometer, at the configured rate.
     Sensor,
@@ -148,14 +149,14 @@ pub enum Source {
 
 /// Which physical effects the filter estimates. Only the paper's model for now; the firmware
 /// refuses anything it was not built for.
-#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize)]
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize, MaxSize)]
 pub enum EffectSet {
     /// The paper's 12 drift coefficients (15 states).
     Paper,
 }
 
 /// Run configuration (host → firmware while stopped; echoed in [`Hello`]).
-#[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
+#[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize, MaxSize)]
 pub struct Config {
     /// Filter (averaging) period, s.
     pub filter_period_s: f64,
@@ -211,7 +212,7 @@ impl Default for Config {
 }
 
 /// Host → firmware.
-#[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
+#[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize, MaxSize)]
 pub enum Command {
     /// Replace the configuration (only while stopped; otherwise refused with a fault).
     Configure(Config),
@@ -230,7 +231,7 @@ pub enum Command {
 }
 
 /// Counters of everything that was rejected or lost, since boot.
-#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Serialize, Deserialize)]
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Serialize, Deserialize, MaxSize)]
 pub struct Counters {
     /// Samples accepted into the averaging.
     pub samples_ok: u32,
@@ -279,7 +280,7 @@ pub struct Counters {
 }
 
 /// A run resumed from a checkpoint after a reset.
-#[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
+#[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize, MaxSize)]
 pub struct Resume {
     /// Filter updates already done in the checkpoint (the next estimate has this step number).
     pub step: u32,
@@ -293,7 +294,7 @@ pub struct Resume {
 }
 
 /// Firmware state and resources.
-#[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
+#[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize, MaxSize)]
 pub struct Status {
     /// Filter time, s.
     pub t_s: f64,
@@ -320,7 +321,7 @@ pub struct Status {
 }
 
 /// Kinds of fault.
-#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize)]
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize, MaxSize)]
 pub enum FaultCode {
     /// The firmware panicked (detail: location and message).
     Panic,
@@ -354,6 +355,13 @@ pub struct Fault {
     pub step: u32,
     /// Human-readable detail (truncated to 80 bytes).
     pub detail: heapless::String<80>,
+}
+
+// By hand: postcard's `MaxSize` covers heapless 0.7's `String`, not the 0.9 one used here.
+impl MaxSize for Fault {
+    /// The code, the step, and the detail: its length (a varint, one byte below 128) and bytes.
+    const POSTCARD_MAX_SIZE: usize =
+        FaultCode::POSTCARD_MAX_SIZE + u32::POSTCARD_MAX_SIZE + 1 + <[u8; 80]>::POSTCARD_MAX_SIZE;
 }
 
 impl Fault {

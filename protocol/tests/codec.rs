@@ -422,3 +422,35 @@ fn details_write_numbers_and_truncate_like_format() {
         Fault::new(FaultCode::Filter, 1, format_args!("step {}: gate", 39))
     );
 }
+
+/// `MAX_PACKET` is postcard's `MaxSize` bound for the largest packet plus the CRC: an `Estimate`
+/// with every varint at its longest (5 bytes for a u32) fills it exactly — the bound is neither
+/// short (a packet refused) nor loose (buffers too large) — and the longest `Fault` fits.
+#[test]
+fn packet_size_bound_is_reached_by_the_largest_estimate() {
+    let est = Estimate {
+        step: u32::MAX,
+        t_s: 1.0,
+        samples: u32::MAX,
+        state: [1.0; STATE_DIM],
+        sigma: [1.0; STATE_DIM],
+        innovation: [1.0; 3],
+        nis: 1.0,
+    };
+    let largest = Packet::new(u32::MAX, Message::Estimate(est));
+    let mut raw = [0u8; 2 * MAX_PACKET];
+    let n = postcard::to_slice(&largest, &mut raw).unwrap().len();
+    assert_eq!(n + CRC_BYTES, MAX_PACKET);
+    let mut frame = [0u8; MAX_FRAME];
+    assert!(encode(&largest, &mut frame).is_ok());
+
+    let detail = Detail::from("0123456789".repeat(8).as_str());
+    assert_eq!(detail.as_str().len(), 80);
+    let fault = Packet::new(
+        u32::MAX,
+        Message::Fault(Fault::with_detail(FaultCode::Storage, u32::MAX, detail)),
+    );
+    let n = postcard::to_slice(&fault, &mut raw).unwrap().len();
+    assert!(n + CRC_BYTES <= MAX_PACKET, "{n}");
+    assert!(encode(&fault, &mut frame).is_ok());
+}

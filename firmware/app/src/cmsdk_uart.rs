@@ -58,7 +58,7 @@ pub fn enable_rx(r: &mut impl Regs) {
 
 /// The receive interrupt: acknowledges it first (a byte arriving after this raises it again),
 /// then moves every waiting byte into `ring`.
-pub fn on_rx_interrupt<const N: usize>(r: &mut impl Regs, ring: &crate::serial::RxRing<N>) {
+pub fn on_rx_interrupt(r: &mut impl Regs, ring: &mut crate::serial::RxProducer<'_>) {
     r.write(INTCLEAR, INT_RX);
     while r.read(STATE) & STATE_RX_FULL != 0 {
         ring.push(r.read(DATA) as u8);

@@ -7,7 +7,8 @@
 use std::collections::VecDeque;
 
 use firmware_app::cmsdk_uart::{self as uart, Regs};
-use firmware_app::serial::RxRing;
+use firmware_app::serial::RxProducer;
+use heapless::spsc::Queue;
 
 /// QEMU's CMSDK APB UART, receive side, and the NVIC line of its receive interrupt.
 struct QemuUart {
@@ -105,7 +106,9 @@ impl Regs for QemuUart {
 fn boot(waiting: usize, first_byte_at: usize, bring_up: impl FnOnce(&mut QemuUart)) -> Vec<u8> {
     let pty: VecDeque<u8> = (0..waiting).map(|i| (i % 251) as u8).collect();
     let mut u = QemuUart::after_reset(pty, first_byte_at);
-    let ring: RxRing<4096> = RxRing::new();
+    let mut queue: Queue<u8, 4096> = Queue::new();
+    let (p, mut ring) = queue.split();
+    let mut rx = RxProducer::new(p);
     bring_up(&mut u);
     let mut got = Vec::new();
     // The main loop polls the ring; the interrupt preempts it whenever pending.
@@ -115,11 +118,11 @@ fn boot(waiting: usize, first_byte_at: usize, bring_up: impl FnOnce(&mut QemuUar
         u.main_loop();
         if u.nvic_pending {
             u.nvic_pending = false;
-            uart::on_rx_interrupt(&mut u, &ring);
+            uart::on_rx_interrupt(&mut u, &mut rx);
             // Level-sensitive: still high after the handler, pending again.
             u.update();
         }
-        while let Some(b) = ring.pop() {
+        while let Some(b) = ring.dequeue() {
             got.push(b);
         }
     }

@@ -2,12 +2,12 @@
 //! 16-byte receive FIFO at 115 200 Bd, the host replaying a recording at full line rate, and
 //! the firmware's blocking work taking simulated time: a flash sector erase 2.2 s (datasheet
 //! maximum at x32 parallelism; typical 1.1 s), a 32-byte flash word 100 µs, an EKF step 2 ms
-//! (~40 k instructions at 64 MHz, with a 2x margin), and every byte the firmware sends its line
+//! (~20 500 instructions, `.ci/qemu.sh`: 0.3 ms at 64 MHz and one per cycle; 2 ms is ample margin), and every byte the firmware sends its line
 //! time (the transmitter is blocking).
 //!
 //! - Polled, as the old board read its UART: the FIFO overruns while the loop is blocked; bytes
 //!   and frames are lost (the scenario is a real threat, the test can fail).
-//! - Through the receive-interrupt ring of the boards ([`RxRing`], [`RX_RING_BYTES`]): the
+//! - Through the receive-interrupt ring of the boards ([`RxQueue`], [`RX_RING_BYTES`]): the
 //!   interrupt empties the FIFO as bytes arrive, nothing is lost, and the firmware's estimates
 //!   are bit-identical to the host's single pass.
 
@@ -20,7 +20,7 @@ use embedded_storage::nor_flash::{ErrorType, NorFlash, ReadNorFlash};
 use estimator_core::Sample;
 use firmware_app::app::{App, NoTimer, Platform};
 use firmware_app::checkpoints::{RamFlash, RamFlashError};
-use firmware_app::serial::{RingSerial, RxRing, RX_RING_BYTES};
+use firmware_app::serial::{RingSerial, RxProducer, RxQueue, RX_RING_BYTES};
 use firmware_app::NoSensor;
 use protocol::*;
 
@@ -45,7 +45,7 @@ struct Line {
     fifo: VecDeque<u8>,
     /// Bytes lost because the FIFO was full (the USART's overrun).
     overruns: u64,
-    ring: Option<&'static RxRing<RX_RING_BYTES>>,
+    ring: Option<RxProducer<'static>>,
     max_ring: usize,
     /// Bytes the firmware sent.
     tx: Vec<u8>,
@@ -67,7 +67,7 @@ impl Line {
             } else {
                 self.overruns += 1;
             }
-            if let Some(ring) = self.ring {
+            if let Some(ring) = self.ring.as_mut() {
                 while let Some(b) = self.fifo.pop_front() {
                     ring.push(b);
                 }
@@ -231,7 +231,8 @@ struct Outcome {
 
 /// Runs the replay through `App` with a polled or an interrupt-driven receiver.
 fn run(samples: &[RawSample], interrupt: bool) -> Outcome {
-    let ring: &'static RxRing<RX_RING_BYTES> = Box::leak(Box::new(RxRing::new()));
+    let queue: &'static mut RxQueue = Box::leak(Box::new(RxQueue::new()));
+    let (producer, consumer) = queue.split();
     let host = host_stream(samples);
     let line_s = host.len() as f64 * BYTE_S;
     let line = Rc::new(RefCell::new(Line {
@@ -241,7 +242,7 @@ fn run(samples: &[RawSample], interrupt: bool) -> Outcome {
         next_arrival: 0.1,
         fifo: VecDeque::new(),
         overruns: 0,
-        ring: interrupt.then_some(ring),
+        ring: interrupt.then(|| RxProducer::new(producer)),
         max_ring: 0,
         tx: Vec::new(),
         erases: 0,
@@ -250,7 +251,7 @@ fn run(samples: &[RawSample], interrupt: bool) -> Outcome {
     let flash = Flash(line.clone(), RamFlash::new(mem));
     let board = Board(line.clone());
     let counters = if interrupt {
-        let serial = RingSerial::new(ring, Tx(line.clone()));
+        let serial = RingSerial::new(consumer, Tx(line.clone()));
         drive(
             App::with_storage(serial, NoSensor, NoTimer, board, flash),
             &line,
@@ -278,7 +279,7 @@ fn run(samples: &[RawSample], interrupt: bool) -> Outcome {
         estimates,
         counters,
         overruns: l.overruns,
-        ring_dropped: ring.dropped(),
+        ring_dropped: l.ring.as_ref().map_or(0, RxProducer::dropped),
         max_ring: l.max_ring,
         erases: l.erases,
         line_s,
@@ -298,7 +299,8 @@ where
         line.borrow_mut().advance(IDLE_S);
         app.poll();
         let l = line.borrow();
-        let idle = l.host.is_empty() && l.fifo.is_empty() && l.ring.is_none_or(|r| r.is_empty());
+        let idle =
+            l.host.is_empty() && l.fifo.is_empty() && l.ring.as_ref().is_none_or(|r| r.is_empty());
         if !idle {
             quiet_since = None;
         } else if quiet_since.is_none() {

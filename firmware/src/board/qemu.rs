@@ -1,7 +1,7 @@
 //! QEMU `mps2-an500` board: Cortex-M7 with double-precision FPU, code at 0x0, RAM at
 //! 0x2000_0000, CMSDK APB UART0 at 0x4000_4000 (QEMU's first `-serial`). Reception as on the
 //! real board: UART0's receive interrupt (IRQ 0) moves each byte into the receive ring
-//! ([`firmware_app::serial::RxRing`]) the application reads. No accelerometer:
+//! ([`firmware_app::serial::RxQueue`]) the application reads. No accelerometer:
 //! samples come over the link (HIL replay). SysTick runs free on the core clock as the tick
 //! counter for timing filter updates; with `-icount shift=0` one instruction is one virtual
 //! nanosecond, so ticks convert exactly to instructions. Semihosting ends the run with an exit
@@ -12,7 +12,8 @@
 //! a `system_reset` (only the ELF's load segments are reloaded, and the firmware initialises only
 //! its own .data/.bss), so it plays the part of the real board's flash in the reset tests.
 
-use core::ptr::{read_volatile, write_volatile};
+use core::cell::RefCell;
+use core::ptr::{addr_of_mut, read_volatile, write_volatile};
 
 // The STM32 board's HAL is a dependency of every build (Cargo has no "unless feature"), and its
 // PAC turns on cortex-m-rt's device vector table: link it so that table exists. Its handlers
@@ -21,6 +22,7 @@ use core::ptr::{read_volatile, write_volatile};
 use core::sync::atomic::{AtomicU32, Ordering};
 use embassy_stm32 as _;
 
+use cortex_m::interrupt::Mutex;
 use cortex_m::peripheral::syst::SystClkSource;
 use cortex_m::peripheral::SYST;
 use cortex_m_rt::exception;
@@ -28,7 +30,7 @@ use cortex_m_semihosting::{debug, hprintln};
 use firmware_app::app::{App, NoTimer, Platform};
 use firmware_app::checkpoints::RamFlash;
 use firmware_app::cmsdk_uart::{self, Regs, STATE, STATE_TX_FULL};
-use firmware_app::serial::{RingSerial, RxRing, RX_RING_BYTES};
+use firmware_app::serial::{RingSerial, RxProducer, RxQueue};
 use firmware_app::NoSensor;
 use protocol::{Board, Detail, Fault, FaultCode};
 
@@ -52,16 +54,26 @@ unsafe impl cortex_m::interrupt::InterruptNumber for Uart0Rx {
     }
 }
 
-/// What UART0's receive interrupt fills and the application reads.
-static RX: RxRing<RX_RING_BYTES> = RxRing::new();
+/// What UART0's receive interrupt fills and the application reads; split once, by [`init`].
+static mut RX_QUEUE: RxQueue = RxQueue::new();
+
+/// The ring's producer end, for UART0's receive interrupt: [`init`] puts it here before it
+/// unmasks the interrupt.
+static RX: Mutex<RefCell<Option<RxProducer<'static>>>> = Mutex::new(RefCell::new(None));
 
 /// Every interrupt without its own handler lands here (cortex-m-rt, no device crate): UART0
 /// receive drains the UART into [`RX`]; anything else is a fault.
 #[exception]
 unsafe fn DefaultHandler(irqn: i16) {
     if irqn == 0 {
-        // UART0's registers; the main loop only transmits (TX registers).
-        cmsdk_uart::on_rx_interrupt(&mut Mmio(UART0), &RX);
+        cortex_m::interrupt::free(|cs| match RX.borrow(cs).borrow_mut().as_mut() {
+            // UART0's registers; the main loop only transmits (TX registers).
+            Some(rx) => cmsdk_uart::on_rx_interrupt(&mut Mmio(UART0), rx),
+            None => fatal(
+                FaultCode::HardFault,
+                Detail::from("UART0 receive before init"),
+            ),
+        });
     } else {
         let mut m = Detail::from("unexpected interrupt ");
         m.signed(irqn.into());
@@ -187,7 +199,7 @@ fn init_storage() -> Storage {
 pub type BoardApp = App<Serial, NoSensor, NoTimer, Qemu, Storage>;
 
 /// The link: the receive ring (UART0's interrupt) and UART0's transmitter.
-pub type Serial = RingSerial<'static, Uart, RX_RING_BYTES>;
+pub type Serial = RingSerial<'static, Uart>;
 
 /// The board's parts for the application.
 pub struct Parts {
@@ -205,6 +217,10 @@ pub fn init() -> Parts {
     start_systick(cp.SYST);
     // SAFETY: the only UART0 instance.
     let uart = unsafe { Uart::new(UART0) };
+    // SAFETY: init runs once (the peripherals are taken above, or it panics), so this is the
+    // only reference to RX_QUEUE there will be; its two ends are all that is used from here on.
+    let (rx, rx_loop) = unsafe { (*addr_of_mut!(RX_QUEUE)).split() };
+    cortex_m::interrupt::free(|cs| RX.borrow(cs).replace(Some(RxProducer::new(rx))));
     // Reception by interrupt from here on: the receiver and its interrupt in one write (a byte
     // arriving between two writes would wedge QEMU's UART: firmware_app::cmsdk_uart), then the
     // NVIC line (a byte already received has latched it pending).
@@ -212,7 +228,7 @@ pub fn init() -> Parts {
     // SAFETY: UART0's receive interrupt; its handler is DefaultHandler above.
     unsafe { cortex_m::peripheral::NVIC::unmask(Uart0Rx) };
     Parts {
-        serial: RingSerial::new(&RX, uart),
+        serial: RingSerial::new(rx_loop, uart),
         accel: NoSensor,
         timer: NoTimer,
         platform: Qemu,

@@ -1,8 +1,8 @@
 //! The navigation computer: STM32H743 (Nucleo-H743ZI pin-out), on the embassy-stm32 HAL's
 //! blocking drivers (no register addresses here).
 //!
-//! - Clock: HSI 64 MHz for the core and all buses, no PLL (the EKF needs ~40 k instructions per
-//!   60-s update). SPI1's kernel clock: per_ck = HSI.
+//! - Clock: HSI 64 MHz for the core and all buses, no PLL (an EKF update is ~20 500 instructions,
+//!   `.ci/qemu.sh`, once per 60-s period). SPI1's kernel clock: per_ck = HSI.
 //! - Link: USART3 on PD8 (TX) / PD9 (RX), 115 200 Bd, 8N1 (the Nucleo's ST-LINK virtual COM
 //!   port), embassy's interrupt-driven `BufferedUart`: the receive interrupt fills a
 //!   [`RX_RING_BYTES`] ring (2.8 s of input), so a flash erase or a filter step loses no byte.
