@@ -7,7 +7,7 @@ pub(super) fn acf<DB: DrawingBackend>(area: &DrawingArea<DB, Shift>, d: &Diagnos
     let (cap, rest) = area.split_vertically(24);
     cap.draw(&Text::new(
         format!(
-            "Ljung–Box Q = {:.1} on {:.0} dof (three axes), p = {}; dashed: ±1.96/√N = ±{:.3} (95 % bound for a white sequence)",
+            "Ljung–Box Q = {:.1} on {:.0} dof (three axes), p = {}; dashed: ±1.96/√N = ±{:.3} (95 % bound of a white sequence); red: a lag beyond it",
             wh.ljung_box_q,
             wh.dof,
             fmt_p(wh.p_value),
@@ -48,8 +48,8 @@ pub(super) fn acf<DB: DrawingBackend>(area: &DrawingArea<DB, Shift>, d: &Diagnos
             } else {
                 ""
             })
-            .label_style((FONT, 12))
-            .axis_desc_style((FONT, 13))
+            .label_style((FONT, 14))
+            .axis_desc_style((FONT, 14))
             .bold_line_style(RGBColor(225, 225, 225))
             .light_line_style(RGBColor(245, 245, 245))
             .x_labels(6)
@@ -86,11 +86,9 @@ pub(super) fn acf<DB: DrawingBackend>(area: &DrawingArea<DB, Shift>, d: &Diagnos
                 } else {
                     0.0
                 };
-                let color = if v.abs() > b {
-                    PREDICTED
-                } else {
-                    AXIS_COLORS[i]
-                };
+                // Red only beyond the bound; the axes' own colours (orange for y) read as
+                // red on the page.
+                let color = if v.abs() > b { RED } else { LINE };
                 ((k + 1) as f64, v, color)
             })
             .collect();

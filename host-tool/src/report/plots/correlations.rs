@@ -33,7 +33,7 @@ pub(super) fn correlations<DB: DrawingBackend>(
         .x_labels(0)
         .x_desc("regressor (A = specific force in the platform frame, m/s²; t = time; temp = temperature)")
         .y_desc("correlation with residual (dimensionless)")
-        .label_style((FONT, 13))
+        .label_style((FONT, 14))
         .axis_desc_style((FONT, 14))
         .bold_line_style(RGBColor(225, 225, 225))
         .light_line_style(RGBColor(245, 245, 245))

@@ -35,7 +35,7 @@ pub(super) fn ladder<DB: DrawingBackend>(
         .x_labels(0)
         .x_desc("rung of the ladder (model)")
         .y_desc("residual RMS / noise floor (log scale)")
-        .label_style((FONT, 13))
+        .label_style((FONT, 14))
         .axis_desc_style((FONT, 14))
         .bold_line_style(RGBColor(225, 225, 225))
         .light_line_style(RGBColor(245, 245, 245))

@@ -3,7 +3,7 @@
 use super::*;
 
 /// Width of the legend strip to the right of every chart, px.
-pub(super) const LEGEND_W: i32 = 200;
+pub(super) const LEGEND_W: i32 = 230;
 /// Characters per legend line before it wraps.
 pub(super) const LEGEND_WRAP: usize = 25;
 
@@ -76,9 +76,9 @@ pub(super) fn legend_strip<DB: DrawingBackend>(
         .map_err(err)?;
         for line in wrap(&e.label) {
             strip
-                .draw(&Text::new(line, (x1 + 6, y), (FONT, 12)))
+                .draw(&Text::new(line, (x1 + 6, y), (FONT, 14)))
                 .map_err(err)?;
-            y += 15;
+            y += 17;
         }
         y += 5;
     }

@@ -27,6 +27,7 @@ mod ladder;
 mod legend;
 mod panel;
 mod series;
+mod story;
 mod temperature;
 #[cfg(test)]
 mod tests;
@@ -38,6 +39,7 @@ use ladder::*;
 use legend::*;
 use panel::*;
 use series::*;
+use story::*;
 use temperature::*;
 
 /// Lowest NIS/3 a log axis shows (values below are drawn at the edge).
@@ -49,8 +51,8 @@ const WIDTH: u32 = 1000;
 const FONT: &str = "sans-serif";
 const AXES: [&str; 3] = ["x", "y", "z"];
 
-const MEASURED: RGBColor = RGBColor(120, 160, 215);
-const PREDICTED: RGBColor = RGBColor(200, 30, 30);
+/// Marks what is out of bounds: ACF stems beyond their bound, points beyond the frame.
+const RED: RGBColor = RGBColor(200, 30, 30);
 const LINE: RGBColor = RGBColor(30, 70, 150);
 const BEFORE: RGBColor = RGBColor(215, 90, 60);
 const AFTER: RGBColor = RGBColor(30, 70, 150);
@@ -66,8 +68,8 @@ const AXIS_COLORS: [RGBColor; 3] = [
 /// Which plot.
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub enum Kind {
-    /// Measured and predicted specific force, per axis, of diagnosis `d`.
-    MeasuredPredicted(usize),
+    /// What changed along the ladder: NIS and whiteness per rung, the coefficients that moved.
+    Story,
     /// Residual (measured − predicted) with the noise floor, per axis.
     Residual(usize),
     /// Innovations with ±1σ and ±3σ bands, per axis.
@@ -116,10 +118,10 @@ pub fn figure(kind: Kind, input: &ReportInput) -> Figure {
     let name = |d: usize| model_name(&input.diagnoses[d]);
     let last = input.diagnoses.len() - 1;
     let (stem, title, h) = match kind {
-        Kind::MeasuredPredicted(d) => (
-            "measured-predicted",
-            format!("Measured and predicted specific force — model {}", name(d)),
-            640,
+        Kind::Story => (
+            "what-changed",
+            format!("What changed from {} to {}", name(0), name(last)),
+            400,
         ),
         Kind::Residual(d) => (
             "residual",
@@ -192,8 +194,7 @@ pub fn figure(kind: Kind, input: &ReportInput) -> Figure {
         ),
     };
     let suffix = match kind {
-        Kind::MeasuredPredicted(d)
-        | Kind::Residual(d)
+        Kind::Residual(d)
         | Kind::Innovations(d)
         | Kind::Whitened(d)
         | Kind::Nis(d)
@@ -215,15 +216,15 @@ pub fn figure(kind: Kind, input: &ReportInput) -> Figure {
 /// Every figure of the report, in the report's order.
 pub fn figures(input: &ReportInput) -> Vec<Figure> {
     let last = input.diagnoses.len() - 1;
-    let mut kinds = vec![
-        Kind::MeasuredPredicted(0),
+    let mut kinds = if last > 0 { vec![Kind::Story] } else { vec![] };
+    kinds.extend([
         Kind::Residual(0),
         Kind::Innovations(0),
         Kind::Whitened(0),
         Kind::Nis(0),
         Kind::Acf(0),
         Kind::Correlations(0),
-    ];
+    ]);
     if shows_temperature(&input.diagnoses[0]) {
         kinds.push(Kind::Temperature(0));
     }
@@ -294,7 +295,6 @@ fn draw<DB: DrawingBackend>(
         .map_err(err)?;
     let last = input.diagnoses.len() - 1;
     match fig.kind {
-        Kind::MeasuredPredicted(d) => measured_predicted(&area, &input.diagnoses[d]),
         Kind::Residual(d) => residual(&area, &input.diagnoses[d], None),
         Kind::Innovations(d) => innovations(&area, &input.diagnoses[d]),
         Kind::Whitened(d) => whitened(&area, &input.diagnoses[d]),
@@ -303,6 +303,7 @@ fn draw<DB: DrawingBackend>(
         Kind::Correlations(d) => correlations(&area, &input.diagnoses[d]),
         Kind::Temperature(d) => temperature(&area, input, d),
         Kind::Ladder => ladder(&area, input),
+        Kind::Story => what_changed(&area, input),
         Kind::ResidualBeforeAfter => {
             residual(&area, &input.diagnoses[0], Some(&input.diagnoses[last]))
         }

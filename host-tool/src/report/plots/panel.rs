@@ -33,6 +33,9 @@ pub(super) struct Panel {
     pub(super) hlines: Vec<(f64, RGBColor, Option<String>)>,
     /// Shaded time intervals (failure windows).
     pub(super) shade: Vec<(f64, f64)>,
+    /// Points of the whole series below and above the frame, when the caller counted them
+    /// (else the drawn, decimated points are counted).
+    pub(super) beyond: Option<[usize; 2]>,
     pub(super) legend: bool,
 }
 
@@ -117,13 +120,12 @@ where
     DB: DrawingBackend,
     Y: Ranged<ValueType = f64> + ValueFormatter<f64>,
 {
-    let (y0, y1) = p.y;
     chart
         .configure_mesh()
         .x_desc(p.x_desc.clone().unwrap_or_default())
         .y_desc(&p.y_desc)
-        .label_style((FONT, 13))
-        .axis_desc_style((FONT, 14))
+        .label_style((FONT, 14))
+        .axis_desc_style((FONT, 15))
         .bold_line_style(RGBColor(225, 225, 225))
         .light_line_style(RGBColor(245, 245, 245))
         .x_labels(14)
@@ -133,6 +135,25 @@ where
         .draw()
         .map_err(err)?;
     let mut entries = vec![];
+    shading(chart, x, p, &mut entries)?;
+    bands(chart, x, p, &mut entries)?;
+    lines(chart, p, &mut entries)?;
+    clipped(chart, x, p, &mut entries)?;
+    Ok(entries)
+}
+
+/// The failure windows, shaded over the whole height.
+fn shading<DB, Y>(
+    chart: &mut ChartContext<'_, DB, Cartesian2d<RangedCoordf64, Y>>,
+    x: (f64, f64),
+    p: &Panel,
+    entries: &mut Vec<Entry>,
+) -> Result<()>
+where
+    DB: DrawingBackend,
+    Y: Ranged<ValueType = f64> + ValueFormatter<f64>,
+{
+    let (y0, y1) = p.y;
     let mut shaded = false;
     for &(a, b) in &p.shade {
         let (a, b) = (a.max(x.0), b.min(x.1));
@@ -150,6 +171,21 @@ where
         }
         shaded = true;
     }
+    Ok(())
+}
+
+/// Constant bands, bands about zero and reference lines.
+fn bands<DB, Y>(
+    chart: &mut ChartContext<'_, DB, Cartesian2d<RangedCoordf64, Y>>,
+    x: (f64, f64),
+    p: &Panel,
+    entries: &mut Vec<Entry>,
+) -> Result<()>
+where
+    DB: DrawingBackend,
+    Y: Ranged<ValueType = f64> + ValueFormatter<f64>,
+{
+    let (y0, y1) = p.y;
     for (lo, hi, color, label) in &p.hbands {
         chart
             .draw_series(std::iter::once(Rectangle::new(
@@ -197,6 +233,19 @@ where
             entries.push(entry(l.as_str(), Mark::Line(style, true)));
         }
     }
+    Ok(())
+}
+
+/// The data lines, clamped to the frame (what lies beyond is marked by [`clipped`]).
+fn lines<DB, Y>(
+    chart: &mut ChartContext<'_, DB, Cartesian2d<RangedCoordf64, Y>>,
+    p: &Panel,
+    entries: &mut Vec<Entry>,
+) -> Result<()>
+where
+    DB: DrawingBackend,
+    Y: Ranged<ValueType = f64> + ValueFormatter<f64>,
+{
     for line in &p.lines {
         let style = line.color.stroke_width(line.width);
         let pts = clamp_pts(&line.pts, p.y);
@@ -213,11 +262,82 @@ where
             entries.push(entry(l.as_str(), Mark::Line(style, line.dashed)));
         }
     }
-    Ok(entries)
+    Ok(())
 }
 
-pub(super) fn shade_of(d: &Diagnosis) -> Vec<(f64, f64)> {
-    d.failures.iter().map(|f| (f.start_h, f.end_h)).collect()
+/// How many points lie below and above `y` (non-finite ones are not drawn, so not counted).
+pub(super) fn count_beyond(vals: impl Iterator<Item = f64>, y: (f64, f64)) -> [usize; 2] {
+    vals.fold([0, 0], |[lo, hi], v| {
+        [lo + usize::from(v < y.0), hi + usize::from(v > y.1)]
+    })
+}
+
+/// Never a silent clip: every drawn point beyond the frame gets a red triangle at the edge it
+/// crosses, and the chart says how many points lie beyond ([`Panel::beyond`] when the caller
+/// counted the whole series, else the drawn points).
+fn clipped<DB, Y>(
+    chart: &mut ChartContext<'_, DB, Cartesian2d<RangedCoordf64, Y>>,
+    x: (f64, f64),
+    p: &Panel,
+    entries: &mut Vec<Entry>,
+) -> Result<()>
+where
+    DB: DrawingBackend,
+    Y: Ranged<ValueType = f64> + ValueFormatter<f64>,
+{
+    let (y0, y1) = p.y;
+    let drawn: Vec<(f64, f64)> = p
+        .lines
+        .iter()
+        .flat_map(|l| l.pts.iter().copied())
+        .filter(|&(_, v)| v.is_finite() && (v < y0 || v > y1))
+        .collect();
+    let [below, above] = p
+        .beyond
+        .unwrap_or_else(|| count_beyond(drawn.iter().map(|q| q.1), p.y));
+    if below + above == 0 {
+        return Ok(());
+    }
+    let style = RED.filled();
+    chart
+        .draw_series(drawn.iter().map(|&(t, v)| {
+            let (edge, tri) = if v > y1 {
+                (y1, vec![(0, 0), (-5, 9), (5, 9)])
+            } else {
+                (y0, vec![(0, 0), (-5, -9), (5, -9)])
+            };
+            EmptyElement::at((t, edge)) + Polygon::new(tri, style)
+        }))
+        .map_err(err)?;
+    let mut parts = vec![];
+    if above > 0 {
+        parts.push(format!("▲ {above} above"));
+    }
+    if below > 0 {
+        parts.push(format!("▼ {below} below"));
+    }
+    let note = format!(
+        "{} the frame (clipped, marked at the edge)",
+        parts.join(", ")
+    );
+    chart
+        .draw_series(std::iter::once(
+            EmptyElement::at((x.0, y1))
+                + Text::new(note.clone(), (8, 12), (FONT, 13).into_font().color(&RED)),
+        ))
+        .map_err(err)?;
+    entries.push(entry(note, Mark::Fill(RED.to_rgba())));
+    Ok(())
+}
+
+/// The failure windows of `d` to shade: those whose worst axis is `axis` (a window belongs to
+/// one axis), or all of them on a chart of every axis (`None`: NIS, temperature).
+pub(super) fn shade_of(d: &Diagnosis, axis: Option<usize>) -> Vec<(f64, f64)> {
+    d.failures
+        .iter()
+        .filter(|f| axis.is_none_or(|i| f.worst_axis == AXES[i].chars().next().unwrap_or('x')))
+        .map(|f| (f.start_h, f.end_h))
+        .collect()
 }
 
 /// Three stacked panels, one per axis; `make(axis)` builds each; the last gets the time label.
@@ -265,7 +385,7 @@ pub(super) fn category_labels<
     Ok(())
 }
 /// Height of one line of text under a chart, px.
-pub(super) const LINE_H: usize = 16;
+pub(super) const LINE_H: usize = 18;
 
 /// Height of `lines` lines of notes under a chart (with their margin), px.
 pub(super) fn notes_height(lines: usize) -> u32 {
@@ -292,7 +412,7 @@ pub(super) fn draw_notes<DB: DrawingBackend>(
 ) -> Result<()> {
     for (k, line) in notes.iter().enumerate() {
         let y = 4 + (LINE_H * k) as i32;
-        area.draw(&Text::new(line.clone(), (12, y), (FONT, 12)))
+        area.draw(&Text::new(line.clone(), (12, y), (FONT, 14)))
             .map_err(err)?;
     }
     Ok(())

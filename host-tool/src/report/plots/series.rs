@@ -2,55 +2,34 @@
 
 use super::*;
 
-pub(super) fn measured_predicted<DB: DrawingBackend>(
-    area: &DrawingArea<DB, Shift>,
-    d: &Diagnosis,
-) -> Result<()> {
-    let s = &d.series;
-    let x = x_range(&s.t_h);
-    three_axes(area, x, |i| {
-        let m = decimate(&s.t_h, |k| s.measured[k][i], x, COLS);
-        let p = decimate(&s.t_h, |k| s.predicted[k][i], x, COLS);
-        let lo = m
+/// A residual plot scales to its largest point when that is within this factor of the robust
+/// range; a larger outlier (a glitch) would flatten the rest, so it is marked at the edge.
+const SCALE_TO_DATA: f64 = 3.0;
+
+/// The residual plot's half-range on `axis` and how many residuals lie below and above it: the
+/// largest residual (of either model) when it is within [`SCALE_TO_DATA`] times the robust
+/// range (99.5 % quantile, at least 3.5 floors), else the robust range, the rest marked.
+fn residual_range(d: &Diagnosis, after: Option<&Diagnosis>, axis: usize) -> (f64, [usize; 2]) {
+    let all = || {
+        d.series
+            .residual
             .iter()
-            .chain(&p)
-            .map(|q| q.1)
-            .fold(f64::INFINITY, f64::min);
-        let hi = m
-            .iter()
-            .chain(&p)
-            .map(|q| q.1)
-            .fold(f64::NEG_INFINITY, f64::max);
-        let pad = ((hi - lo) * 0.08).max(1e-6);
-        let (lo, hi) = if lo.is_finite() && hi.is_finite() {
-            (lo - pad, hi + pad)
-        } else {
-            (-1.0, 1.0)
-        };
-        Panel {
-            caption: None,
-            y_desc: format!("A_{}, m/s²", AXES[i]),
-            y: (lo, hi),
-            lines: vec![
-                Line {
-                    label: Some("measured".into()),
-                    color: MEASURED,
-                    width: 4,
-                    dashed: false,
-                    pts: m,
-                },
-                Line {
-                    label: Some("predicted (model)".into()),
-                    color: PREDICTED,
-                    width: 1,
-                    dashed: true,
-                    pts: p,
-                },
-            ],
-            legend: true,
-            ..Panel::default()
-        }
-    })
+            .chain(after.map(|a| &a.series.residual[..]).unwrap_or(&[]))
+            .map(move |r| r[axis])
+    };
+    let robust = (quantile(all().map(f64::abs), 0.995) * 1.15)
+        .max(3.5 * d.floor_mps2[axis])
+        .max(f64::MIN_POSITIVE);
+    let max = all()
+        .map(f64::abs)
+        .filter(|v| v.is_finite())
+        .fold(0.0f64, f64::max);
+    let lim = if max <= SCALE_TO_DATA * robust {
+        (max * 1.05).max(robust)
+    } else {
+        robust
+    };
+    (lim, count_beyond(all(), (-lim, lim)))
 }
 
 /// Residual with the ±1 and ±3 floor bands; with `after`, the before/after comparison on the
@@ -64,10 +43,7 @@ pub(super) fn residual<DB: DrawingBackend>(
     let x = x_range(&s.t_h);
     three_axes(area, x, |i| {
         let floor = d.floor_mps2[i];
-        let r = s.residual.iter().map(|r| r[i].abs());
-        let lim = (quantile(r, 0.995) * 1.15)
-            .max(3.5 * floor)
-            .max(f64::MIN_POSITIVE);
+        let (lim, beyond) = residual_range(d, after, i);
         let (f, unit) = scale(lim);
         let y = (-lim * f, lim * f);
         let mut lines = vec![];
@@ -126,7 +102,12 @@ pub(super) fn residual<DB: DrawingBackend>(
                     Some("±1 × noise floor".into()),
                 ),
             ],
-            shade: if after.is_none() { shade_of(d) } else { vec![] },
+            shade: if after.is_none() {
+                shade_of(d, Some(i))
+            } else {
+                vec![]
+            },
+            beyond: Some(beyond),
             legend: true,
             ..Panel::default()
         }
@@ -146,6 +127,7 @@ pub(super) fn innovations<DB: DrawingBackend>(
         let lim = (quantile(s.innovation.iter().map(|v| v[i].abs()), 0.99) * 1.15)
             .max(4.0 * sig)
             .max(f64::MIN_POSITIVE);
+        let beyond = count_beyond(s.innovation.iter().map(|v| v[i]), (-lim, lim));
         let (f, unit) = scale(lim);
         let up1 = decimate(&s.t_h, |k| s.innovation_sigma[k][i] * f, x, COLS);
         let up3: Vec<(f64, f64)> = up1.iter().map(|&(t, u)| (t, 3.0 * u)).collect();
@@ -172,7 +154,8 @@ pub(super) fn innovations<DB: DrawingBackend>(
                 dashed: false,
                 pts: decimate(&s.t_h, |k| s.innovation[k][i] * f, x, COLS),
             }],
-            shade: shade_of(d),
+            shade: shade_of(d, Some(i)),
+            beyond: Some(beyond),
             legend: true,
             ..Panel::default()
         }
@@ -187,6 +170,7 @@ pub(super) fn whitened<DB: DrawingBackend>(
     let x = x_range(&s.t_h);
     three_axes(area, x, |i| {
         let lim = (quantile(s.whitened.iter().map(|v| v[i].abs()), 0.995) * 1.15).max(4.5);
+        let beyond = count_beyond(s.whitened.iter().map(|v| v[i]), (-lim, lim));
         Panel {
             caption: Some(format!("{} axis", AXES[i])),
             y_desc: "whitened innovation, σ units".into(),
@@ -202,7 +186,8 @@ pub(super) fn whitened<DB: DrawingBackend>(
                 dashed: false,
                 pts: decimate(&s.t_h, |k| s.whitened[k][i], x, COLS),
             }],
-            shade: shade_of(d),
+            shade: shade_of(d, Some(i)),
+            beyond: Some(beyond),
             legend: true,
             ..Panel::default()
         }
@@ -296,7 +281,7 @@ pub(super) fn nis<DB: DrawingBackend>(
         lines,
         hbands: vec![(band[0], band[1], BAND1, Some(format!("95 % band of the {} mean", hours_label(window_h))))],
         hlines: vec![(1.0, RGBColor(0, 0, 0), Some("1 (model consistent)".into()))],
-        shade: if raw { shade_of(ds[0]) } else { vec![] },
+        shade: if raw { shade_of(ds[0], None) } else { vec![] },
         legend: true,
         ..Panel::default()
     };

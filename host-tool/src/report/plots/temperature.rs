@@ -120,7 +120,7 @@ pub(super) fn temperature<DB: DrawingBackend>(
             dashed: false,
             pts,
         }],
-        shade: shade_of(dg),
+        shade: shade_of(dg, None),
         legend: true,
         ..Panel::default()
     };
