@@ -198,13 +198,19 @@ pub fn print_ladder(rungs: &[Rung]) {
     if let Some(last) = rungs.last() {
         if !last.effect_params.is_empty() {
             println!("  added effects' parameters (last model):");
+            // The value column does not shift with a long name (`GXxx-zz-long`).
+            let nw = last
+                .effect_params
+                .iter()
+                .map(|p| p.0.chars().count())
+                .fold(8, usize::max);
             for (name, unit, v, s) in &last.effect_params {
                 let resolved = if v.abs() < 2.0 * s {
                     "  (not resolved by this run: |value| < 2σ)"
                 } else {
                     ""
                 };
-                println!("    {name:<8} {} {unit}{resolved}", pm(*v, *s));
+                println!("    {name:<nw$} {} {unit}{resolved}", pm(*v, *s));
             }
         }
     }

@@ -393,8 +393,14 @@ fn print_text(
         "joint drift coefficients from {} runs (each run's smoother relinearised about the joint estimate)",
         runs.len()
     );
+    // The name column as wide as the longest name (`GXxx-zz`), 6 at least.
+    let w = joint
+        .params
+        .iter()
+        .map(|p| p.name.chars().count())
+        .fold(6, usize::max);
     print!(
-        "{:<6} {:<16} {:>12} {:>10} {:>10} {:>12}",
+        "{:<w$} {:<16} {:>12} {:>10} {:>10} {:>12}",
         "coef", "unit", "estimate", "1σ", "CRB 1σ", "best run 1σ"
     );
     if truth.is_some() {
@@ -409,7 +415,7 @@ fn print_text(
             .map(|f| f.alone.best().sigma(k))
             .fold(f64::INFINITY, f64::min);
         print!(
-            "{:<6} {:<16} {:>12} {:>10} {:>10} {:>12}",
+            "{:<w$} {:<16} {:>12} {:>10} {:>10} {:>12}",
             p.name,
             p.unit,
             with_sigma(e.value[k], e.sigma(k)),
