@@ -308,13 +308,22 @@ pub fn diagnose_one(
     let mut cfg = cfg;
     let mut prep = prep;
     let mut stated = None;
-    let first = super::common::starting_fit(&mut prep, &effects, &mut cfg.identify, &mut stated)?;
+    let spin = crate::progress::spinner("fitting the starting model");
+    let first = super::common::starting_fit(
+        &mut prep,
+        &effects,
+        &mut cfg.identify,
+        &mut stated,
+        &crate::progress::follow(&spin),
+    )?;
+    spin.finish_and_clear();
     let faults = prep.untrusted_reasons();
     if !faults.is_empty() {
         // A data fault is named as a fault, never explained by a physical effect: no ladder.
         cfg.max_rungs = 1;
     }
-    let spin = crate::progress::spinner("identifying, diagnosing and climbing the model ladder");
+    let spin = crate::progress::spinner("climbing the model ladder");
+    cfg.progress = crate::progress::follow(&spin);
     let Ladder {
         diagnoses,
         rungs,
@@ -333,7 +342,13 @@ pub fn diagnose_one(
         &cfg.identify,
         identification,
     )?;
-    let assessed = crate::assess::assess(&final_effects, at, &cfg.identify, identification)?;
+    let assessed = crate::assess::assess_with(
+        &final_effects,
+        at,
+        &cfg.identify,
+        identification,
+        &crate::progress::follow(&spin),
+    )?;
     spin.finish_and_clear();
     let last = diagnoses.last().map(|d| d.consistency.clone());
     let mut reasons = ladder_untrusted(&faults, &diagnoses);

@@ -355,7 +355,7 @@ pub fn run(args: &IdentifyArgs) -> anyhow::Result<()> {
         alternatives: alts,
         reasons: assessed,
         ..
-    } = crate::assess::assess(&effects, prep, &cfg, id)?;
+    } = crate::assess::assess_with(&effects, prep, &cfg, id, &crate::progress::follow(&spin))?;
     spin.finish_and_clear();
     let model = build_model(prep.site, &effects, &cfg)?;
     let rows = rows(&id, &unc, &model, &prep, truth.as_deref());
@@ -363,8 +363,11 @@ pub fn run(args: &IdentifyArgs) -> anyhow::Result<()> {
     let mut prep = prep;
     if check.as_ref().is_some_and(|c| !c.is_consistent()) {
         // A model that does not fit: first ask whether the metadata latitude is the culprit.
-        let rivals = super::common::rivals(&prep, &effects, &cfg, &id);
-        super::common::name_a_wrong_latitude(&mut prep, &effects, &cfg, &rivals);
+        let spin = crate::progress::spinner("the model does not fit");
+        let progress = crate::progress::follow(&spin);
+        let rivals = super::common::rivals(&prep, &effects, &cfg, &id, &progress);
+        super::common::name_a_wrong_latitude(&mut prep, &effects, &cfg, &rivals, &progress);
+        spin.finish_and_clear();
     }
     let mut reasons = prep.untrusted_reasons();
     reasons.extend(id.convergence.and_then(|c| c.untrusted_reason()));

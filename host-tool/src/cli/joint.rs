@@ -263,8 +263,11 @@ fn refuse_wrong_latitudes(
             super::identify::consistency_of(id, &r.prep).is_some_and(|c| !c.is_consistent())
         });
         if let Some(id) = misfit {
-            let rivals = super::common::rivals(&r.prep, effects, cfg, id);
-            super::common::name_a_wrong_latitude(&mut r.prep, effects, cfg, &rivals);
+            let spin = crate::progress::spinner("the model does not fit");
+            let progress = crate::progress::follow(&spin);
+            let rivals = super::common::rivals(&r.prep, effects, cfg, id, &progress);
+            super::common::name_a_wrong_latitude(&mut r.prep, effects, cfg, &rivals, &progress);
+            spin.finish_and_clear();
         }
         named.extend(
             r.prep
