@@ -9,7 +9,11 @@ const SCALE_TO_DATA: f64 = 3.0;
 /// The residual plot's half-range on `axis` and how many residuals lie below and above it: the
 /// largest residual (of either model) when it is within [`SCALE_TO_DATA`] times the robust
 /// range (99.5 % quantile, at least 3.5 floors), else the robust range, the rest marked.
-fn residual_range(d: &Diagnosis, after: Option<&Diagnosis>, axis: usize) -> (f64, [usize; 2]) {
+pub(super) fn residual_range(
+    d: &Diagnosis,
+    after: Option<&Diagnosis>,
+    axis: usize,
+) -> (f64, [usize; 2]) {
     let all = || {
         d.series
             .residual

@@ -207,3 +207,107 @@ fn legend_labels_wrap_at_spaces() {
     );
     assert_eq!(wrap("short"), ["short"]);
 }
+
+/// The residual figure of `input`'s starting model as SVG.
+fn residual_svg(input: &ReportInput) -> String {
+    svg(&figure(Kind::Residual(0), input), input).unwrap()
+}
+
+/// Red triangles at a frame's edge (the clip markers: red polygons).
+fn red_triangles(svg: &str) -> usize {
+    svg.split("<polygon")
+        .skip(1)
+        .filter(|p| p.split('>').next().unwrap_or("").contains("#C81E1E"))
+        .count()
+}
+
+#[test]
+fn a_worst_misfit_within_three_robust_ranges_is_in_the_frame() {
+    // The case: a maximum of 5.2e-4 against a robust limit of ~3.5e-4 (3.5 floors):
+    // the plot scales to the data, nothing is clipped.
+    let mut input = input();
+    input.diagnoses[0].series.residual[300] = [5.2e-4, 0.0, 0.0];
+    let s = residual_svg(&input);
+    assert!(
+        !s.contains("the frame (clipped"),
+        "nothing should be clipped"
+    );
+    assert_eq!(red_triangles(&s), 0);
+}
+
+#[test]
+fn a_glitch_beyond_the_frame_is_marked_at_the_edge_and_counted() {
+    // Two residuals of 40 floors on x, one of −40 on z: far beyond 3 robust ranges, so the frame
+    // keeps the bulk and marks them.
+    let mut input = input();
+    let r = &mut input.diagnoses[0].series.residual;
+    r[100][0] = 4e-3;
+    r[400][0] = 4.2e-3;
+    r[250][2] = -4e-3;
+    let s = residual_svg(&input);
+    assert!(s.contains("▲ 2 above the frame"), "x axis: two above");
+    assert!(s.contains("▼ 1 below the frame"), "z axis: one below");
+    assert_eq!(red_triangles(&s), 3, "one marker per clipped point");
+}
+
+#[test]
+fn a_failure_window_is_shaded_on_its_own_axis_only() {
+    // The window of `input` belongs to axis x: shaded in the x panel, not in y or z.
+    let input = input();
+    let s = residual_svg(&input);
+    let shade = "#FFAAAA";
+    let x_panel = s.find("x axis").unwrap();
+    let y_panel = s.find("y axis").unwrap();
+    assert!(s[x_panel..y_panel].contains(shade), "x panel shaded");
+    assert!(!s[y_panel..].contains(shade), "y and z panels not shaded");
+}
+
+#[test]
+fn acf_stems_are_red_only_beyond_their_bound() {
+    let mut input = input();
+    let last = input.diagnoses.len() - 1;
+    // All lags inside ±0.08 but one at 0.2 on axis y.
+    input.diagnoses[last].whiteness.acf[2][1] = 0.2;
+    let s = svg(&figure(Kind::Acf(last), &input), &input).unwrap();
+    // One stem and its dot in red, nothing else (the caption's text is black).
+    let red = s.matches("#C81E1E").count();
+    assert_eq!(red, 2, "one red stem and its dot");
+    // In-band stems are not in the axes' colours (y's orange reads as red).
+    for c in AXIS_COLORS {
+        let hex = format!("#{:02X}{:02X}{:02X}", c.0, c.1, c.2);
+        assert!(!s.contains(&hex), "a stem in {hex}");
+    }
+}
+
+#[test]
+fn what_changed_shows_nis_whiteness_and_the_shifts_per_rung() {
+    let mut input = input();
+    // The starting model misfits: NIS/3 above its band, p far below the whiteness level.
+    input.diagnoses[0].nis_mean = 1.11;
+    input.diagnoses[0].whiteness.p_value = 0.0;
+    input.ladder[0].coefficients = vec![("DX0".into(), 0.48, 5e-4), ("DY0".into(), -0.5, 5e-4)];
+    input.ladder[1].coefficients = vec![("DX0".into(), 0.4988, 9e-4), ("DY0".into(), -0.5, 6e-4)];
+    let s = svg(&figure(Kind::Story, &input), &input).unwrap();
+    for label in [
+        "mean NIS/3, 99.9 % band",
+        "Ljung–Box p (whiteness)",
+        "0: paper",
+        "1: + temp-drift",
+        "DX0",
+    ] {
+        assert!(find_text(&s, label).is_some(), "{label} missing");
+    }
+    // DX0 moved by (0.4988 − 0.48)/9e-4 = 20.9 σ: drawn; p = 0 drawn at the edge as "< 1e-308".
+    assert!(
+        s.contains("p = &lt; 1e-308") || s.contains("p = < 1e-308"),
+        "p of 0 labelled"
+    );
+    let moved = crate::report::story::moved(&input.ladder);
+    assert_eq!(moved[0].name, "DX0");
+    // Exact arithmetic on two decimals: the tolerance only absorbs rounding.
+    assert!(
+        (moved[0].sigmas - 20.888).abs() < 1e-2,
+        "{}",
+        moved[0].sigmas
+    );
+}
