@@ -115,9 +115,32 @@ fn model_name(d: &Diagnosis) -> String {
 
 /// The figure for `kind`, titled for this input.
 pub fn figure(kind: Kind, input: &ReportInput) -> Figure {
+    let (stem, title, h) = spec(kind, input);
+    let suffix = match kind {
+        Kind::Residual(d)
+        | Kind::Innovations(d)
+        | Kind::Whitened(d)
+        | Kind::Nis(d)
+        | Kind::Acf(d)
+        | Kind::Correlations(d)
+        | Kind::Temperature(d) => {
+            format!("-rung{d}")
+        }
+        _ => String::new(),
+    };
+    Figure {
+        kind,
+        file: format!("{stem}{suffix}"),
+        title,
+        size: (WIDTH, h),
+    }
+}
+
+/// File stem, title and height (px) of the figure of `kind`.
+fn spec(kind: Kind, input: &ReportInput) -> (&'static str, String, u32) {
     let name = |d: usize| model_name(&input.diagnoses[d]);
     let last = input.diagnoses.len() - 1;
-    let (stem, title, h) = match kind {
+    match kind {
         Kind::Story => (
             "what-changed",
             format!("What changed from {} to {}", name(0), name(last)),
@@ -192,24 +215,6 @@ pub fn figure(kind: Kind, input: &ReportInput) -> Figure {
             ),
             360,
         ),
-    };
-    let suffix = match kind {
-        Kind::Residual(d)
-        | Kind::Innovations(d)
-        | Kind::Whitened(d)
-        | Kind::Nis(d)
-        | Kind::Acf(d)
-        | Kind::Correlations(d)
-        | Kind::Temperature(d) => {
-            format!("-rung{d}")
-        }
-        _ => String::new(),
-    };
-    Figure {
-        kind,
-        file: format!("{stem}{suffix}"),
-        title,
-        size: (WIDTH, h),
     }
 }
 
