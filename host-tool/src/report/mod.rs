@@ -153,6 +153,7 @@ h3{font-size:1.08em;margin-top:1.4em}
 .scroll{overflow-x:auto;max-width:100%;margin:.6em 0}
 table{border-collapse:collapse;font-size:.95em} th,td{border:1px solid #ccd;padding:.22em .55em;text-align:right}
 td{white-space:nowrap} td.l{white-space:normal;text-align:left} th.l{text-align:left}
+.n{white-space:nowrap} td.about{min-width:22em}
 th{background:#eef}
 .verdict{background:#f6f6ff;border-left:5px solid #557;padding:.6em 1em;margin:1em 0}
 .headline{border:2px solid #557;border-left-width:10px;padding:.5em 1em;margin:1em 0;background:#f6f6ff}

@@ -54,12 +54,12 @@ pub(super) fn ranking_table(h: &mut String, d: &Diagnosis) {
     );
     for (i, c) in d.ranking.iter().enumerate() {
         if let Some(why) = &c.untestable {
-            let _ = writeln!(h, "<tr><td>{}</td><td class=\"l\">{}</td><td colspan=\"7\" class=\"l\">not testable: {}</td><td class=\"l small\">{}</td></tr>", i + 1, esc(&c.effect), text(why), text(&c.about));
+            let _ = writeln!(h, "<tr><td>{}</td><td class=\"l\">{}</td><td colspan=\"7\" class=\"l\">not testable: {}</td><td class=\"l small about\">{}</td></tr>", i + 1, esc(&c.effect), text(why), text(&c.about));
             continue;
         }
         let size = |p: &crate::diagnose::types::ParamEstimate| {
             format!(
-                "{} = {} {} (≥ {})<br>",
+                "<span class=\"n\">{} = {} {} (≥ {})</span><br>",
                 esc(&p.name),
                 esc(&crate::format::pm(p.value, p.sigma)),
                 esc(&p.unit),
@@ -78,7 +78,7 @@ pub(super) fn ranking_table(h: &mut String, d: &Diagnosis) {
         }
         let _ = writeln!(
             h,
-            "<tr><td>{}</td><td class=\"l\"><b>{}</b></td><td>{:.1}</td><td>{:.0}</td><td>{}</td><td class=\"{}\">{}</td><td class=\"l\">{}</td><td>{}</td><td>{}</td><td class=\"l small\">{}</td></tr>",
+            "<tr><td>{}</td><td class=\"l\"><b>{}</b></td><td>{:.1}</td><td>{:.0}</td><td>{}</td><td class=\"{}\">{}</td><td class=\"l\">{}</td><td>{}</td><td>{}</td><td class=\"l small about\">{}</td></tr>",
             i + 1,
             esc(&c.effect),
             c.statistic,
