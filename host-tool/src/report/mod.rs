@@ -153,7 +153,7 @@ h3{font-size:1.08em;margin-top:1.4em}
 .scroll{overflow-x:auto;max-width:100%;margin:.6em 0}
 table{border-collapse:collapse;font-size:.95em} th,td{border:1px solid #ccd;padding:.22em .55em;text-align:right}
 td{white-space:nowrap} td.l{white-space:normal;text-align:left} th.l{text-align:left}
-.n{white-space:nowrap} td.about{min-width:22em}
+.n{white-space:nowrap}
 th{background:#eef}
 .verdict{background:#f6f6ff;border-left:5px solid #557;padding:.6em 1em;margin:1em 0}
 .headline{border:2px solid #557;border-left-width:10px;padding:.5em 1em;margin:1em 0;background:#f6f6ff}
@@ -237,7 +237,7 @@ fn caption(f: &Figure) -> String {
         Kind::Correlations(_) => "Correlation of the residual with candidate regressors (specific-force components, their products, time, temperature) with the 99 % bound.",
         Kind::Temperature(_) => "The recording's temperature, °C, with the failure windows shaded; where temperature drift stands among the candidates and its estimated size ± 1σ.",
         Kind::Ladder => "Residual RMS / noise floor per axis for each model of the ladder (log scale); 1 is the floor. Under the chart: the parameters each rung added, ± 1σ.",
-        Kind::ResidualBeforeAfter => "Residual of the starting model and of the final model, m/s².",
+        Kind::ResidualBeforeAfter => "Residual of the starting and of the final model averaged over windows of about an hour, m/s², with ±3σ of such a mean of noise at the floor: averaging takes the noise down, a missing effect's slow signature stays.",
         Kind::NisBeforeAfter => "Rolling NIS/3 of the starting and the final model (log scale).",
     };
     format!("{} [{}]", what, f.file)

@@ -2,6 +2,17 @@
 
 use super::*;
 
+/// A candidate's physics, folded under its name: the table stays narrow enough for 800 px.
+fn physics(about: &str) -> String {
+    if about.is_empty() {
+        return String::new();
+    }
+    format!(
+        "<details class=\"small\"><summary>physics</summary>{}</details>",
+        text(about)
+    )
+}
+
 /// Parameter sizes a candidate's row shows before the rest folds away.
 const SIZES_SHOWN: usize = 6;
 
@@ -50,11 +61,11 @@ pub(super) fn ranking_table(h: &mut String, d: &Diagnosis) {
     }
     let _ = writeln!(
         h,
-        "<table><tr><th>#</th><th class=\"l\">effect</th><th>statistic</th><th>dof</th><th>p</th><th>p (Holm)</th><th class=\"l\">estimated size ± 1σ (detectable ≥)</th><th>evidence gain (refit)</th><th>RMS/floor after refit (x, y, z)</th><th class=\"l\">physics</th></tr>"
+        "<table><tr><th>#</th><th class=\"l\">effect</th><th>statistic</th><th>dof</th><th>p</th><th>p (Holm)</th><th class=\"l\">estimated size ± 1σ (detectable ≥)</th><th>evidence gain (refit)</th><th>RMS/floor after refit (x, y, z)</th></tr>"
     );
     for (i, c) in d.ranking.iter().enumerate() {
         if let Some(why) = &c.untestable {
-            let _ = writeln!(h, "<tr><td>{}</td><td class=\"l\">{}</td><td colspan=\"7\" class=\"l\">not testable: {}</td><td class=\"l small about\">{}</td></tr>", i + 1, esc(&c.effect), text(why), text(&c.about));
+            let _ = writeln!(h, "<tr><td>{}</td><td class=\"l\">{}{}</td><td colspan=\"7\" class=\"l\">not testable: {}</td></tr>", i + 1, esc(&c.effect), physics(&c.about), text(why));
             continue;
         }
         let size = |p: &crate::diagnose::types::ParamEstimate| {
@@ -78,9 +89,10 @@ pub(super) fn ranking_table(h: &mut String, d: &Diagnosis) {
         }
         let _ = writeln!(
             h,
-            "<tr><td>{}</td><td class=\"l\"><b>{}</b></td><td>{:.1}</td><td>{:.0}</td><td>{}</td><td class=\"{}\">{}</td><td class=\"l\">{}</td><td>{}</td><td>{}</td><td class=\"l small about\">{}</td></tr>",
+            "<tr><td>{}</td><td class=\"l\"><b>{}</b>{}</td><td>{:.1}</td><td>{:.0}</td><td>{}</td><td class=\"{}\">{}</td><td class=\"l\">{}</td><td>{}</td><td>{}</td></tr>",
             i + 1,
             esc(&c.effect),
+            physics(&c.about),
             c.statistic,
             c.dof,
             esc(&crate::format::p_value(c.p_value, c.ln_p_value)),
@@ -92,7 +104,6 @@ pub(super) fn ranking_table(h: &mut String, d: &Diagnosis) {
                 .as_ref()
                 .map(|r| format!("{:.3}, {:.3}, {:.3}", r.rms_over_floor[0], r.rms_over_floor[1], r.rms_over_floor[2]))
                 .unwrap_or_else(|| "not refitted".into()),
-            text(&c.about)
         );
     }
     let _ = writeln!(h, "</table>");

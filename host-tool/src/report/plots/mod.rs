@@ -25,6 +25,7 @@ mod correlations;
 mod data;
 mod ladder;
 mod legend;
+mod means;
 mod panel;
 mod series;
 mod story;
@@ -37,6 +38,7 @@ use correlations::*;
 use data::*;
 use ladder::*;
 use legend::*;
+use means::*;
 use panel::*;
 use series::*;
 use story::*;
@@ -203,7 +205,11 @@ fn spec(kind: Kind, input: &ReportInput) -> (&'static str, String, u32) {
         ),
         Kind::ResidualBeforeAfter => (
             "residual-before-after",
-            format!("Residual before ({}) and after ({})", name(0), name(last)),
+            format!(
+                "Residual averaged over windows, before ({}) and after ({})",
+                name(0),
+                name(last)
+            ),
             640,
         ),
         Kind::NisBeforeAfter => (
@@ -300,7 +306,7 @@ fn draw<DB: DrawingBackend>(
         .map_err(err)?;
     let last = input.diagnoses.len() - 1;
     match fig.kind {
-        Kind::Residual(d) => residual(&area, &input.diagnoses[d], None),
+        Kind::Residual(d) => residual(&area, &input.diagnoses[d]),
         Kind::Innovations(d) => innovations(&area, &input.diagnoses[d]),
         Kind::Whitened(d) => whitened(&area, &input.diagnoses[d]),
         Kind::Nis(d) => nis(&area, &[&input.diagnoses[d]], true),
@@ -310,7 +316,7 @@ fn draw<DB: DrawingBackend>(
         Kind::Ladder => ladder(&area, input),
         Kind::Story => what_changed(&area, input),
         Kind::ResidualBeforeAfter => {
-            residual(&area, &input.diagnoses[0], Some(&input.diagnoses[last]))
+            residual_means(&area, &input.diagnoses[0], &input.diagnoses[last])
         }
         Kind::NisBeforeAfter => nis(&area, &[&input.diagnoses[0], &input.diagnoses[last]], false),
     }

@@ -7,20 +7,10 @@ use super::*;
 const SCALE_TO_DATA: f64 = 3.0;
 
 /// The residual plot's half-range on `axis` and how many residuals lie below and above it: the
-/// largest residual (of either model) when it is within [`SCALE_TO_DATA`] times the robust
-/// range (99.5 % quantile, at least 3.5 floors), else the robust range, the rest marked.
-pub(super) fn residual_range(
-    d: &Diagnosis,
-    after: Option<&Diagnosis>,
-    axis: usize,
-) -> (f64, [usize; 2]) {
-    let all = || {
-        d.series
-            .residual
-            .iter()
-            .chain(after.map(|a| &a.series.residual[..]).unwrap_or(&[]))
-            .map(move |r| r[axis])
-    };
+/// largest residual when it is within [`SCALE_TO_DATA`] times the robust range (99.5 %
+/// quantile, at least 3.5 floors), else the robust range, the rest marked.
+pub(super) fn residual_range(d: &Diagnosis, axis: usize) -> (f64, [usize; 2]) {
+    let all = || d.series.residual.iter().map(move |r| r[axis]);
     let robust = (quantile(all().map(f64::abs), 0.995) * 1.15)
         .max(3.5 * d.floor_mps2[axis])
         .max(f64::MIN_POSITIVE);
@@ -36,62 +26,32 @@ pub(super) fn residual_range(
     (lim, count_beyond(all(), (-lim, lim)))
 }
 
-/// Residual with the ±1 and ±3 floor bands; with `after`, the before/after comparison on the
-/// same scale.
+/// Residual (measured − predicted) with the ±1 and ±3 floor bands, each failure window on its
+/// axis.
 pub(super) fn residual<DB: DrawingBackend>(
     area: &DrawingArea<DB, Shift>,
     d: &Diagnosis,
-    after: Option<&Diagnosis>,
 ) -> Result<()> {
     let s = &d.series;
     let x = x_range(&s.t_h);
     three_axes(area, x, |i| {
         let floor = d.floor_mps2[i];
-        let (lim, beyond) = residual_range(d, after, i);
+        let (lim, beyond) = residual_range(d, i);
         let (f, unit) = scale(lim);
-        let y = (-lim * f, lim * f);
-        let mut lines = vec![];
-        let before = decimate(&s.t_h, |k| s.residual[k][i] * f, x, COLS);
-        match after {
-            None => lines.push(Line {
+        Panel {
+            caption: Some(format!(
+                "{} axis: RMS/floor {:.2}",
+                AXES[i], d.residual_rms_over_floor[i]
+            )),
+            y_desc: format!("residual, {unit}m/s²"),
+            y: (-lim * f, lim * f),
+            lines: vec![Line {
                 label: Some("residual".into()),
                 color: LINE,
                 width: 1,
                 dashed: false,
-                pts: before,
-            }),
-            Some(a) => {
-                let sa = &a.series;
-                lines.push(Line {
-                    label: Some(format!("before: {}", model_name(d))),
-                    color: BEFORE,
-                    width: 1,
-                    dashed: false,
-                    pts: before,
-                });
-                let pa = decimate(&sa.t_h, |k| sa.residual[k][i] * f, x, COLS);
-                lines.push(Line {
-                    label: Some(format!("after: {}", model_name(a))),
-                    color: AFTER,
-                    width: 1,
-                    dashed: false,
-                    pts: pa,
-                });
-            }
-        }
-        let rms = |dd: &Diagnosis| format!("RMS/floor {:.2}", dd.residual_rms_over_floor[i]);
-        let caption = match after {
-            None => format!("{} axis: {}", AXES[i], rms(d)),
-            Some(a) => format!(
-                "{} axis: RMS/floor {:.2} → {:.2}",
-                AXES[i], d.residual_rms_over_floor[i], a.residual_rms_over_floor[i]
-            ),
-        };
-        Panel {
-            caption: Some(caption),
-            y_desc: format!("residual, {unit}m/s²"),
-            y,
-            lines,
+                pts: decimate(&s.t_h, |k| s.residual[k][i] * f, x, COLS),
+            }],
             hbands: vec![
                 (
                     -3.0 * floor * f,
@@ -106,11 +66,7 @@ pub(super) fn residual<DB: DrawingBackend>(
                     Some("±1 × noise floor".into()),
                 ),
             ],
-            shade: if after.is_none() {
-                shade_of(d, Some(i))
-            } else {
-                vec![]
-            },
+            shade: shade_of(d, Some(i)),
             beyond: Some(beyond),
             legend: true,
             ..Panel::default()

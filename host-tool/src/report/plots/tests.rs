@@ -311,3 +311,18 @@ fn what_changed_shows_nis_whiteness_and_the_shifts_per_rung() {
         moved[0].sigmas
     );
 }
+
+#[test]
+fn window_means_average_whole_windows() {
+    // Updates valued 1..=9 in windows of 4: means of 1–4 and 5–8; the last one alone (less than
+    // half a window) is left out. Exact arithmetic: the tolerance absorbs rounding only.
+    let t: Vec<f64> = (0..10).map(|k| k as f64).collect();
+    let m = window_means(&t[..9], |k| (k + 1) as f64, 4);
+    assert_eq!(m.len(), 2);
+    assert!((m[0].0 - 1.5).abs() < 1e-12 && (m[0].1 - 2.5).abs() < 1e-12);
+    assert!((m[1].0 - 5.5).abs() < 1e-12 && (m[1].1 - 6.5).abs() < 1e-12);
+    // Half a window (2 of 4) is kept: 9 and 10 average to 9.5.
+    let m = window_means(&t, |k| (k + 1) as f64, 4);
+    assert_eq!(m.len(), 3);
+    assert!((m[2].1 - 9.5).abs() < 1e-12);
+}
