@@ -74,7 +74,7 @@ pub(super) fn ranking_table(h: &mut String, d: &Diagnosis) {
                 esc(&p.name),
                 esc(&crate::format::pm(p.value, p.sigma)),
                 esc(&p.unit),
-                num(p.min_detectable)
+                crate::format::sci(p.min_detectable)
             )
         };
         let mut sizes: String = c.params.iter().take(SIZES_SHOWN).map(size).collect();
