@@ -326,3 +326,22 @@ fn window_means_average_whole_windows() {
     assert_eq!(m.len(), 3);
     assert!((m[2].1 - 9.5).abs() < 1e-12);
 }
+
+#[test]
+fn a_final_model_that_does_not_fit_is_outside_the_catalog_in_the_verdict_block() {
+    let mut input = input();
+    let last = input.diagnoses.len() - 1;
+    // The final model fails its whiteness check and nothing earns its place.
+    input.diagnoses[last].whiteness.p_value = 1e-6;
+    input.diagnoses[last].consistency =
+        assess(1.0, 600, 1e-6, [0.7; 3], 0.0, &Thresholds::default());
+    input.untrusted = vec!["define it in `--effects FILE.toml` <here>".into()];
+    let page = crate::report::render_html(&input).unwrap();
+    let block = &page[page.find("<section id=\"verdict\"").unwrap()..];
+    let block = &block[..block.find("</section>").unwrap()];
+    assert!(block.contains("class=\"headline untrusted\"><p class=\"state\">NOT TRUSTED</p>"));
+    assert!(block.contains("<p class=\"fit\">OUTSIDE THE CATALOG</p>"));
+    // The reason with its backticks as <code>, its markup escaped.
+    assert!(block.contains("<li>define it in <code>--effects FILE.toml</code> &lt;here&gt;</li>"));
+    assert!(block.contains("The ladder added <code>temp-drift</code>"));
+}
