@@ -153,6 +153,40 @@ pub(super) fn whitened<DB: DrawingBackend>(
         }
     })
 }
+/// A rolling NIS/3 mean ([`rolling_nis`]): points, window in updates, 95 % band.
+type Rolled = (Vec<(f64, f64)>, usize, [f64; 2]);
+
+/// The y range of the NIS/3 plot (log axis): from the rolling means, their band and, with
+/// `raw`, the bulk of the single updates. NIS/3 spans decades (χ²(3)/3 of single updates reaches
+/// down to 1e-3, a missing effect drives it to hundreds), and equal ratios around 1 look equal.
+fn nis_range(s0: &Series, rolled: &[Rolled], raw: bool) -> (f64, f64) {
+    let roll_hi = rolled
+        .iter()
+        .flat_map(|r| r.0.iter().map(|p| p.1))
+        .fold(0.0f64, |a, b| if b.is_finite() { a.max(b) } else { a });
+    let raw_q = if raw {
+        quantile(s0.nis.iter().map(|v| v / 3.0), 0.995)
+    } else {
+        0.0
+    };
+    let top = (roll_hi * 1.3)
+        .max(rolled[0].2[1] * 1.4)
+        .max(raw_q)
+        .max(2.0);
+    // A log axis: NIS/3 spans decades (χ²(3)/3 of single updates reaches down to 1e-3, a
+    // missing effect drives it to hundreds), and equal ratios around 1 look equal.
+    let roll_lo = quantile(rolled.iter().flat_map(|r| r.0.iter().map(|p| p.1)), 0.01);
+    let raw_lo = if raw {
+        quantile(s0.nis.iter().map(|v| v / 3.0), 0.02)
+    } else {
+        f64::INFINITY
+    };
+    let bottom = (roll_lo * 0.8)
+        .min(rolled[0].2[0] * 0.8)
+        .min(raw_lo)
+        .clamp(NIS_LOG_FLOOR, 0.5);
+    (bottom, top)
+}
 
 /// NIS/3: for one diagnosis the raw values (faint) and the rolling mean with its band; for two,
 /// the rolling means before and after.
@@ -166,28 +200,7 @@ pub(super) fn nis<DB: DrawingBackend>(
     let rolled: Vec<_> = ds.iter().map(|d| rolling_nis(&d.series)).collect();
     let (_, w, band) = &rolled[0];
     let window_h = *w as f64 * period_h(&s0.t_h);
-    let roll_hi = rolled
-        .iter()
-        .flat_map(|r| r.0.iter().map(|p| p.1))
-        .fold(0.0f64, |a, b| if b.is_finite() { a.max(b) } else { a });
-    let raw_q = if raw {
-        quantile(s0.nis.iter().map(|v| v / 3.0), 0.995)
-    } else {
-        0.0
-    };
-    let top = (roll_hi * 1.3).max(band[1] * 1.4).max(raw_q).max(2.0);
-    // A log axis: NIS/3 spans decades (χ²(3)/3 of single updates reaches down to 1e-3, a
-    // missing effect drives it to hundreds), and equal ratios around 1 look equal.
-    let roll_lo = quantile(rolled.iter().flat_map(|r| r.0.iter().map(|p| p.1)), 0.01);
-    let raw_lo = if raw {
-        quantile(s0.nis.iter().map(|v| v / 3.0), 0.02)
-    } else {
-        f64::INFINITY
-    };
-    let bottom = (roll_lo * 0.8)
-        .min(band[0] * 0.8)
-        .min(raw_lo)
-        .clamp(NIS_LOG_FLOOR, 0.5);
+    let (bottom, top) = nis_range(s0, &rolled, raw);
     let mut lines = vec![];
     if raw {
         lines.push(Line {
