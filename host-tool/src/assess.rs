@@ -8,6 +8,7 @@
 //! 3. The reasons not to trust it: the data contradict the stated set-up; the data prefer an
 //!    effect the model lacks; a plausible alternative moves a coefficient beyond its total 1σ.
 
+use crate::steps::Progress;
 use estimator_core::effects::Effect;
 
 use crate::diagnose::alternatives::{self, Alternative, PLAUSIBLE_MARGIN};
@@ -43,13 +44,25 @@ pub fn assess(
     cfg: &Config,
     id: Identification,
 ) -> anyhow::Result<Assessment> {
-    let (first, repair) = assess_as_stated(effects, prep, cfg, id, true)?;
+    assess_with(effects, prep, cfg, id, &Progress::default())
+}
+
+/// [`assess`], its steps noted to `progress` (the set-up, the alternatives, a repair).
+pub fn assess_with(
+    effects: &[&'static dyn Effect],
+    prep: Prepared,
+    cfg: &Config,
+    id: Identification,
+    progress: &Progress,
+) -> anyhow::Result<Assessment> {
+    let (first, repair) = assess_as_stated(effects, prep, cfg, id, true, progress)?;
     let Some((prep, cfg, start)) = repair else {
         return Ok(first);
     };
+    progress.note(|| "refitting at the repaired set-up".into());
     let model = build_model(prep.site, effects, &cfg)?;
     let id = identify_from(&model, &prep, &cfg, &start)?;
-    let (mut again, _) = assess_as_stated(effects, prep, &cfg, id, false)?;
+    let (mut again, _) = assess_as_stated(effects, prep, &cfg, id, false, progress)?;
     again.cfg = cfg;
     Ok(again)
 }
@@ -66,8 +79,10 @@ fn assess_as_stated(
     cfg: &Config,
     id: Identification,
     may_repair: bool,
+    progress: &Progress,
 ) -> anyhow::Result<(Assessment, Option<Repair>)> {
     let stated = (prep.clone(), id.clone());
+    progress.note(|| "the set-up's uncertainty (refits at the priors' ±1σ)".into());
     let Settled { prep, id, mut unc } = settle(effects, prep, cfg, id)?;
     let mut out = Assessment {
         prep,
@@ -83,9 +98,12 @@ fn assess_as_stated(
     }
     let dcfg = DiagnoseConfig {
         identify: cfg.clone(),
+        progress: progress.clone(),
         ..Default::default()
     };
+    progress.note(|| "weighing the catalog effects not in the model".into());
     let mut alts = alternatives::weigh(&out.prep, effects, &dcfg, &out.id)?;
+    progress.note(|| "weighing a misstated latitude, clock rate or gravity".into());
     let weighed = misstated::weigh(effects, &stated.0, cfg, &stated.1, &unc)?;
     // The data prefer the set-up moved within its priors to the set-up as stated.
     let moved = weighed.stated_gain.filter(|g| *g > 0.0);

@@ -11,9 +11,33 @@ pub fn decimals_for(sigma: f64) -> usize {
     (1.0 - sigma.log10().floor()).clamp(0.0, 12.0) as usize
 }
 
-/// `value` with the decimals that two significant digits of `sigma` need.
+/// `value` with the decimals that two significant digits of `sigma` need; in scientific
+/// notation, as [`pm`] writes it, when the numbers are very small or large (`2.942e-6`, not
+/// `0.000002942`).
 pub fn with_sigma(value: f64, sigma: f64) -> String {
-    format!("{:.*}", decimals_for(sigma), value)
+    match sci_digits(value, sigma) {
+        Some(d) => format!("{value:.d$e}"),
+        None => format!("{:.*}", decimals_for(sigma), value),
+    }
+}
+
+/// The mantissa decimals of `value` in scientific notation when `value ± sigma` is too small or
+/// large for fixed decimals (the rule of [`pm`]); `None`: fixed decimals.
+fn sci_digits(value: f64, sigma: f64) -> Option<usize> {
+    if !(value.is_finite() && sigma.is_finite() && sigma > 0.0) {
+        return None;
+    }
+    let last = sigma.log10().floor() as i32 - 1; // place of sigma's second significant digit
+    let mag = if value != 0.0 {
+        value.abs().log10().floor() as i32
+    } else {
+        last + 1
+    };
+    if (-3..5).contains(&mag.max(last + 1)) && last >= -12 {
+        None
+    } else {
+        Some((mag.max(last + 1) - last).clamp(1, 15) as usize)
+    }
 }
 
 /// `v` to `digits` significant digits, without trailing zeros (`0.4903942405116055` → `0.4903942`).
@@ -50,18 +74,12 @@ pub fn pm(value: f64, sigma: f64) -> String {
     if !(sigma.is_finite() && sigma > 0.0) {
         return format!("{value:.3e}");
     }
-    let last = sigma.log10().floor() as i32 - 1; // place of sigma's second significant digit
-    let mag = if value != 0.0 {
-        value.abs().log10().floor() as i32
-    } else {
-        last + 1
-    };
-    if (-3..5).contains(&mag.max(last + 1)) && last >= -12 {
-        let d = decimals_for(sigma);
-        format!("{value:.d$} ± {sigma:.d$}")
-    } else {
-        let d = (mag.max(last + 1) - last).clamp(1, 15) as usize;
-        format!("{value:.d$e} ± {sigma:.1e}")
+    match sci_digits(value, sigma) {
+        None => {
+            let d = decimals_for(sigma);
+            format!("{value:.d$} ± {sigma:.d$}")
+        }
+        Some(d) => format!("{value:.d$e} ± {sigma:.1e}"),
     }
 }
 
@@ -95,6 +113,15 @@ mod pm_tests {
         assert_eq!(pm(2.0003e-3, 9.04e-7), "0.00200030 ± 0.00000090");
         assert_eq!(pm(5.54e-6, 2.07e-7), "5.54e-6 ± 2.1e-7");
         assert_eq!(pm(12345.6, 78.0), "12346 ± 78");
+    }
+
+    #[test]
+    fn a_value_alone_follows_the_same_rule() {
+        use super::with_sigma;
+        // The paper's coefficients keep their fixed decimals; a tiny one reads as 2.942e-6.
+        assert_eq!(with_sigma(-0.099995, 9.08e-5), "-0.099995");
+        assert_eq!(with_sigma(2.942e-6, 6.79e-8), "2.942e-6");
+        assert_eq!(with_sigma(-8.8e-4, 5.68e-4), "-8.8e-4");
     }
 }
 

@@ -31,6 +31,7 @@ pub mod recording;
 pub mod report;
 pub mod simulate;
 pub mod stats;
+pub mod steps;
 pub mod cli {
     //! One module per subcommand: its arguments and its `run`.
     pub mod args;

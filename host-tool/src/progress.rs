@@ -16,6 +16,16 @@ pub fn bar(len: u64, msg: &str) -> ProgressBar {
     pb
 }
 
+/// Notes of the library's steps ([`crate::steps::Progress`]) as `pb`'s message; nothing when
+/// `pb` is hidden (stderr not a terminal), so a redirected run formats no message at all.
+pub fn follow(pb: &ProgressBar) -> crate::steps::Progress {
+    if pb.is_hidden() {
+        return crate::steps::Progress::default();
+    }
+    let pb = pb.clone();
+    crate::steps::Progress::new(move |m| pb.set_message(m.to_string()))
+}
+
 /// A spinner with a message that the caller updates; hidden unless stderr is a terminal.
 pub fn spinner(msg: &str) -> ProgressBar {
     let pb = ProgressBar::with_draw_target(None, ProgressDrawTarget::stderr());

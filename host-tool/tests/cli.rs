@@ -289,6 +289,7 @@ fn report_is_one_self_contained_page_that_tells_the_story() {
     }
     // Text, not markup, where a p-value is tiny: "< 1e-300" must be escaped.
     assert!(!page.contains("< 1e-300"));
+    page_structure(&page);
     // PNGs: one valid file per figure.
     let mut files: Vec<_> = std::fs::read_dir(&png)
         .unwrap()
@@ -665,4 +666,71 @@ fn a_joint_fit_is_not_trusted_when_one_runs_set_up_is_contradicted() {
     assert_eq!(code, Some(3), "{all}");
     assert!(all.contains("b.csv alone:"), "{all}");
     let _ = std::fs::remove_dir_all(&dir);
+}
+
+/// The page's structure (issue 29): the verdict as its own block before everything else, a table
+/// of contents whose links all land, no table cut at 800 px (each scrolls in a wrapper, numbers
+/// never wrap, a base font of at least 14 px), every clipped point marked and counted, long lists
+/// openable, Markdown backticks rendered as `<code>`.
+fn page_structure(page: &str) {
+    // The verdict block: first thing after the title and provenance, trusted and fitting here.
+    let verdict = page
+        .find("<section id=\"verdict\" class=\"headline trusted\"><p class=\"state\">TRUSTED</p><p class=\"fit\">THE FINAL MODEL FITS</p>")
+        .expect("the verdict block");
+    assert!(
+        verdict < page.find("<h2").unwrap(),
+        "the verdict comes first"
+    );
+    // The table of contents: every link lands on an element of the page.
+    let toc = &page[page.find("<nav class=\"toc\">").expect("contents")..];
+    let toc = &toc[..toc.find("</nav>").unwrap()];
+    let links: Vec<&str> = toc
+        .split("href=\"#")
+        .skip(1)
+        .map(|l| &l[..l.find('"').unwrap()])
+        .collect();
+    assert!(links.len() >= 8, "contents: {links:?}");
+    for id in &links {
+        assert!(page.contains(&format!(" id=\"{id}\"")), "no #{id}");
+    }
+    // No horizontal cut: every table in a scrolling wrapper, numeric cells unbroken, 16 px text.
+    let tables = page.matches("<table>").count();
+    assert!(tables >= 6);
+    assert_eq!(
+        page.matches("<div class=\"scroll\"><table>").count(),
+        tables
+    );
+    assert!(page.contains(".scroll{overflow-x:auto"));
+    assert!(page.contains("td{white-space:nowrap}"));
+    let font = page.split("font-size:").nth(1).unwrap();
+    let px: f64 = font[..font.find("px").unwrap()].parse().unwrap();
+    assert!(px >= 14.0, "base font {px} px");
+    // Clipped points: each red edge marker is counted in words. The innovations start from a
+    // wide prior, beyond the frame of the bulk: at least that figure clips.
+    let notes = page
+        .matches(" the frame (clipped, marked at the edge)")
+        .count();
+    let markers = page
+        .split("<polygon")
+        .skip(1)
+        .filter(|p| p.split('>').next().unwrap_or("").contains("#C81E1E"))
+        .count();
+    assert!(
+        notes >= 1 && markers >= 1,
+        "notes {notes}, markers {markers}"
+    );
+    // Long lists open in place: every "… N more" is a <details>' summary.
+    for (i, _) in page.match_indices("… ") {
+        let rest = &page[i + "… ".len()..];
+        if rest.starts_with(|c: char| c.is_ascii_digit()) || rest.starts_with("and ") {
+            assert!(
+                page[..i].ends_with("<summary>"),
+                "a list that cannot be opened: {}",
+                &page[i..i + 40]
+            );
+        }
+    }
+    // Backticks rendered: the verdicts name `acc-bias` as <code>.
+    assert!(!page.contains('`'), "a backtick left as text");
+    assert!(page.contains("<code>acc-bias</code>"));
 }

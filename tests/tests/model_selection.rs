@@ -281,7 +281,15 @@ fn a_ladder_from_the_starting_fit_is_the_ladder() {
     let (_, prep) = simulate_and_prepare(&sc, None);
     let cfg = DiagnoseConfig::default();
     let effects = [catalog::paper()];
-    let own = ladder(&prep, &effects, &cfg).unwrap();
+    // The ladder that fits its own start also notes its steps (issue 29.10: what a terminal
+    // shows); noting must not change a bit of the result.
+    let notes = std::sync::Arc::new(std::sync::Mutex::new(Vec::<String>::new()));
+    let sink = notes.clone();
+    let noted = DiagnoseConfig {
+        progress: host_tool::steps::Progress::new(move |m| sink.lock().unwrap().push(m.into())),
+        ..DiagnoseConfig::default()
+    };
+    let own = ladder(&prep, &effects, &noted).unwrap();
     let model = host_tool::identify::build_model(prep.site, &effects, &cfg.identify).unwrap();
     let first = identify(&model, &prep, &cfg.identify).unwrap();
     let handed = ladder_from(&prep, &effects, &cfg, Some(first)).unwrap();
@@ -292,6 +300,20 @@ fn a_ladder_from_the_starting_fit_is_the_ladder() {
     );
     let json = |l: &host_tool::diagnose::Ladder| serde_json::to_string(&l.rungs).unwrap();
     assert_eq!(json(&own), json(&handed));
+    // Each rung names what it fits, its score tests and each refit with its count.
+    let notes = notes.lock().unwrap();
+    let added = own.rungs[1].model.join(" + ");
+    for want in [
+        "rung 0: fitting paper".to_string(),
+        "rung 0: score tests of ".into(),
+        format!("rung 0: refitting {added} ("),
+        format!("rung 1: fitting paper + {added}"),
+    ] {
+        assert!(
+            notes.iter().any(|n| n.starts_with(&want)),
+            "no note {want:?} in {notes:?}"
+        );
+    }
 }
 
 /// One rung from the paper's model: the effect the evidence names, and the ranking behind it.

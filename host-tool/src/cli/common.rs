@@ -1,5 +1,6 @@
 //! Pieces every analysis subcommand shares: loading a recording and building the model.
 
+use crate::steps::Progress;
 use std::path::Path;
 
 use anyhow::Context as _;
@@ -353,10 +354,10 @@ pub fn name_a_wrong_latitude(
     effects: &[&'static dyn estimator_core::effects::Effect],
     cfg: &Config,
     rivals: &[(String, f64)],
+    progress: &Progress,
 ) {
-    let spin = crate::progress::spinner("the model does not fit: profiling the latitude");
+    progress.note(|| "the model does not fit: profiling the latitude".into());
     let found = crate::diagnose::latitude::check(prep, effects, cfg, rivals);
-    spin.finish_and_clear();
     prep.findings.extend(found);
 }
 
@@ -369,11 +370,14 @@ pub fn rivals(
     effects: &[&'static dyn estimator_core::effects::Effect],
     cfg: &Config,
     id: &crate::identify::Identification,
+    progress: &Progress,
 ) -> Vec<(String, f64)> {
     let dcfg = crate::diagnose::DiagnoseConfig {
         identify: cfg.clone(),
+        progress: progress.within("the model does not fit"),
         ..Default::default()
     };
+    progress.note(|| "the model does not fit: weighing the catalog effects".into());
     let Ok(alts) = crate::diagnose::alternatives::weigh(prep, effects, &dcfg, id) else {
         return vec![];
     };
@@ -399,19 +403,23 @@ pub fn starting_fit(
     effects: &[&'static dyn estimator_core::effects::Effect],
     cfg: &mut Config,
     stated: &mut Option<Prepared>,
+    progress: &Progress,
 ) -> anyhow::Result<Option<crate::identify::Identification>> {
     use crate::diagnose::misstated;
     use crate::identify::setup;
     if !prep.untrusted_reasons().is_empty() {
         return Ok(None);
     }
+    progress.note(|| "fitting the starting model".into());
     let model = build_model(prep.site, effects, cfg)?;
     let id = crate::identify::identify(&model, prep, cfg)?;
     if super::identify::consistency_of(&id, prep).is_none_or(|c| c.is_consistent()) {
         return Ok(Some(id));
     }
-    let mut rivals = rivals(prep, effects, cfg, &id);
+    let mut rivals = rivals(prep, effects, cfg, &id, progress);
+    progress.note(|| "the model does not fit: the set-up's uncertainty".into());
     let unc = setup::uncertainty(effects, prep, cfg, &id)?;
+    progress.note(|| "the model does not fit: weighing a misstated set-up".into());
     // On the scale of the rivals, refitted at the stated set-up: the misstatements' gains over
     // that fit, and the stated set-up within its priors as one more rival.
     let (mis, within_priors) = misstated::weigh(effects, prep, cfg, &id, &unc)?.on_the_stated_fit();
@@ -439,7 +447,7 @@ pub fn starting_fit(
         return Ok(Some(settled.id));
     }
     rivals.extend(mis.iter().map(|a| (a.effect.clone(), a.evidence_gain)));
-    name_a_wrong_latitude(prep, effects, cfg, &rivals);
+    name_a_wrong_latitude(prep, effects, cfg, &rivals, progress);
     Ok(Some(id))
 }
 

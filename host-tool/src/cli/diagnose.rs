@@ -198,13 +198,19 @@ pub fn print_ladder(rungs: &[Rung]) {
     if let Some(last) = rungs.last() {
         if !last.effect_params.is_empty() {
             println!("  added effects' parameters (last model):");
+            // The value column does not shift with a long name (`GXxx-zz-long`).
+            let nw = last
+                .effect_params
+                .iter()
+                .map(|p| p.0.chars().count())
+                .fold(8, usize::max);
             for (name, unit, v, s) in &last.effect_params {
                 let resolved = if v.abs() < 2.0 * s {
                     "  (not resolved by this run: |value| < 2σ)"
                 } else {
                     ""
                 };
-                println!("    {name:<8} {} {unit}{resolved}", pm(*v, *s));
+                println!("    {name:<nw$} {} {unit}{resolved}", pm(*v, *s));
             }
         }
     }
@@ -302,13 +308,22 @@ pub fn diagnose_one(
     let mut cfg = cfg;
     let mut prep = prep;
     let mut stated = None;
-    let first = super::common::starting_fit(&mut prep, &effects, &mut cfg.identify, &mut stated)?;
+    let spin = crate::progress::spinner("fitting the starting model");
+    let first = super::common::starting_fit(
+        &mut prep,
+        &effects,
+        &mut cfg.identify,
+        &mut stated,
+        &crate::progress::follow(&spin),
+    )?;
+    spin.finish_and_clear();
     let faults = prep.untrusted_reasons();
     if !faults.is_empty() {
         // A data fault is named as a fault, never explained by a physical effect: no ladder.
         cfg.max_rungs = 1;
     }
-    let spin = crate::progress::spinner("identifying, diagnosing and climbing the model ladder");
+    let spin = crate::progress::spinner("climbing the model ladder");
+    cfg.progress = crate::progress::follow(&spin);
     let Ladder {
         diagnoses,
         rungs,
@@ -327,7 +342,13 @@ pub fn diagnose_one(
         &cfg.identify,
         identification,
     )?;
-    let assessed = crate::assess::assess(&final_effects, at, &cfg.identify, identification)?;
+    let assessed = crate::assess::assess_with(
+        &final_effects,
+        at,
+        &cfg.identify,
+        identification,
+        &crate::progress::follow(&spin),
+    )?;
     spin.finish_and_clear();
     let last = diagnoses.last().map(|d| d.consistency.clone());
     let mut reasons = ladder_untrusted(&faults, &diagnoses);

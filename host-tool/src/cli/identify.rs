@@ -111,8 +111,14 @@ pub fn rows(
 /// Prints the coefficient table.
 pub fn print_table(rows: &[Row], refined: bool) {
     let has_truth = rows.iter().any(|r| r.truth.is_some());
+    // Columns that do not shift with a long parameter name (`GXxx-zz`): the name column is as
+    // wide as the longest name, 6 at least (the paper's names keep their layout).
+    let w = rows
+        .iter()
+        .map(|r| r.name.chars().count())
+        .fold(6, usize::max);
     print!(
-        "{:<6} {:<16} {:>12} {:>10} {:>10} {:>10} {:>6} {:<15}",
+        "{:<w$} {:<16} {:>12} {:>10} {:>10} {:>10} {:>6} {:<15}",
         "coef", "unit", "estimate", "1σ total", "noise 1σ", "CRB 1σ", "ratio", "most from"
     );
     if has_truth {
@@ -124,7 +130,7 @@ pub fn print_table(rows: &[Row], refined: bool) {
     println!("  {:>12} {:>9}", "single pass", "its 1σ");
     for r in rows {
         print!(
-            "{:<6} {:<16} {:>12} {:>10} {:>10} {:>10} {:>6.2} {:<15}",
+            "{:<w$} {:<16} {:>12} {:>10} {:>10} {:>10} {:>6.2} {:<15}",
             r.name,
             r.unit,
             with_sigma(r.value, r.sigma_total),
@@ -175,11 +181,11 @@ pub fn print_summary(id: &Identification, prep: &Prepared) {
         *counts.select_nth_unstable(mid).1
     };
     println!(
-        "run: {:.2} h, {} updates; noise floor per {}-sample mean {:?} m/s^2; residual RMS [{}, {}, {}] m/s^2; mean NIS/3 {:.3} (1 when consistent)",
+        "run: {:.2} h, {} updates; noise floor per {}-sample mean [{}] m/s^2; residual RMS [{}, {}, {}] m/s^2; mean NIS/3 {:.3} (1 when consistent)",
         id.final_time_h,
         prep.measurements.len(),
         typical,
-        floor.iter().map(|v| sci(*v)).collect::<Vec<_>>(),
+        floor.map(sci).join(", "),
         sci(rms[0]),
         sci(rms[1]),
         sci(rms[2]),
@@ -349,7 +355,7 @@ pub fn run(args: &IdentifyArgs) -> anyhow::Result<()> {
         alternatives: alts,
         reasons: assessed,
         ..
-    } = crate::assess::assess(&effects, prep, &cfg, id)?;
+    } = crate::assess::assess_with(&effects, prep, &cfg, id, &crate::progress::follow(&spin))?;
     spin.finish_and_clear();
     let model = build_model(prep.site, &effects, &cfg)?;
     let rows = rows(&id, &unc, &model, &prep, truth.as_deref());
@@ -357,8 +363,11 @@ pub fn run(args: &IdentifyArgs) -> anyhow::Result<()> {
     let mut prep = prep;
     if check.as_ref().is_some_and(|c| !c.is_consistent()) {
         // A model that does not fit: first ask whether the metadata latitude is the culprit.
-        let rivals = super::common::rivals(&prep, &effects, &cfg, &id);
-        super::common::name_a_wrong_latitude(&mut prep, &effects, &cfg, &rivals);
+        let spin = crate::progress::spinner("the model does not fit");
+        let progress = crate::progress::follow(&spin);
+        let rivals = super::common::rivals(&prep, &effects, &cfg, &id, &progress);
+        super::common::name_a_wrong_latitude(&mut prep, &effects, &cfg, &rivals, &progress);
+        spin.finish_and_clear();
     }
     let mut reasons = prep.untrusted_reasons();
     reasons.extend(id.convergence.and_then(|c| c.untrusted_reason()));

@@ -263,8 +263,11 @@ fn refuse_wrong_latitudes(
             super::identify::consistency_of(id, &r.prep).is_some_and(|c| !c.is_consistent())
         });
         if let Some(id) = misfit {
-            let rivals = super::common::rivals(&r.prep, effects, cfg, id);
-            super::common::name_a_wrong_latitude(&mut r.prep, effects, cfg, &rivals);
+            let spin = crate::progress::spinner("the model does not fit");
+            let progress = crate::progress::follow(&spin);
+            let rivals = super::common::rivals(&r.prep, effects, cfg, id, &progress);
+            super::common::name_a_wrong_latitude(&mut r.prep, effects, cfg, &rivals, &progress);
+            spin.finish_and_clear();
         }
         named.extend(
             r.prep
@@ -393,8 +396,14 @@ fn print_text(
         "joint drift coefficients from {} runs (each run's smoother relinearised about the joint estimate)",
         runs.len()
     );
+    // The name column as wide as the longest name (`GXxx-zz`), 6 at least.
+    let w = joint
+        .params
+        .iter()
+        .map(|p| p.name.chars().count())
+        .fold(6, usize::max);
     print!(
-        "{:<6} {:<16} {:>12} {:>10} {:>10} {:>12}",
+        "{:<w$} {:<16} {:>12} {:>10} {:>10} {:>12}",
         "coef", "unit", "estimate", "1σ", "CRB 1σ", "best run 1σ"
     );
     if truth.is_some() {
@@ -409,7 +418,7 @@ fn print_text(
             .map(|f| f.alone.best().sigma(k))
             .fold(f64::INFINITY, f64::min);
         print!(
-            "{:<6} {:<16} {:>12} {:>10} {:>10} {:>12}",
+            "{:<w$} {:<16} {:>12} {:>10} {:>10} {:>12}",
             p.name,
             p.unit,
             with_sigma(e.value[k], e.sigma(k)),

@@ -64,14 +64,23 @@ pub fn run(args: &ReportArgs) -> anyhow::Result<()> {
     )?;
     let mut prep = prep;
     let mut stated = None;
-    let first = super::common::starting_fit(&mut prep, &effects, &mut cfg.identify, &mut stated)?;
+    let spin = crate::progress::spinner("fitting the starting model");
+    let first = super::common::starting_fit(
+        &mut prep,
+        &effects,
+        &mut cfg.identify,
+        &mut stated,
+        &crate::progress::follow(&spin),
+    )?;
+    spin.finish_and_clear();
     super::common::print_findings(&prep.findings);
     let faults = prep.untrusted_reasons();
     if !faults.is_empty() {
         // A data fault is named as a fault, never explained by a physical effect: no ladder.
         cfg.max_rungs = 1;
     }
-    let spin = crate::progress::spinner("identifying, diagnosing and climbing the model ladder");
+    let spin = crate::progress::spinner("climbing the model ladder");
+    cfg.progress = crate::progress::follow(&spin);
     let Ladder {
         diagnoses,
         rungs,
@@ -85,6 +94,8 @@ pub fn run(args: &ReportArgs) -> anyhow::Result<()> {
         Some(p) => Some(super::identify::truth_of(&read_truth(p)?, &id)),
         None => None,
     };
+    let spin =
+        crate::progress::spinner("the set-up's uncertainty and the alternative explanations");
     let (at, id) = super::common::for_assessment(stated, &prep, &final_effects, &cfg.identify, id)?;
     let crate::assess::Assessment {
         prep,
@@ -92,7 +103,14 @@ pub fn run(args: &ReportArgs) -> anyhow::Result<()> {
         unc,
         reasons: assessed,
         ..
-    } = crate::assess::assess(&final_effects, at, &cfg.identify, id)?;
+    } = crate::assess::assess_with(
+        &final_effects,
+        at,
+        &cfg.identify,
+        id,
+        &crate::progress::follow(&spin),
+    )?;
+    spin.finish_and_clear();
     let mut untrusted = untrusted;
     untrusted.extend(assessed);
     let table = rows(&id, &unc, &model, &prep, truth.as_deref());

@@ -47,9 +47,14 @@ pub fn ladder_from(
     let mut rungs: Vec<Rung> = vec![];
     let mut first = first;
     loop {
+        // The steps of this rung are noted as `rung k: …`.
+        let at = DiagnoseConfig {
+            progress: cfg.progress.within(format!("rung {}", rungs.len())),
+            ..cfg.clone()
+        };
         let (d, id) = match first.take() {
-            Some(id) => diagnose_identified(prep, &effects, cfg, id)?,
-            None => diagnose(prep, &effects, cfg)?,
+            Some(id) => diagnose_identified(prep, &effects, &at, id)?,
+            None => diagnose(prep, &effects, &at)?,
         };
         rungs.push(rung(&d, &id));
         let next = if rungs.len() < cfg.max_rungs {

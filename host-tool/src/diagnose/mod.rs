@@ -57,6 +57,8 @@ pub struct DiagnoseConfig {
     pub max_rungs: usize,
     /// Correlation time of the Gauss–Markov stand-in blocks, h.
     pub markov_block_h: f64,
+    /// Where the steps are noted (the rung, the refit); nowhere by default.
+    pub progress: crate::steps::Progress,
 }
 
 impl Default for DiagnoseConfig {
@@ -67,6 +69,7 @@ impl Default for DiagnoseConfig {
             lags: 20,
             max_rungs: 4,
             markov_block_h: 5.0,
+            progress: crate::steps::Progress::default(),
         }
     }
 }
@@ -78,6 +81,17 @@ pub fn diagnose(
     cfg: &DiagnoseConfig,
 ) -> anyhow::Result<(Diagnosis, Identification)> {
     let model = build_model(prep.site, effects, &cfg.identify)?;
+    cfg.progress.note(|| {
+        format!(
+            "fitting {}",
+            ["paper".to_string()]
+                .iter()
+                .chain(&model_names(effects))
+                .cloned()
+                .collect::<Vec<_>>()
+                .join(" + ")
+        )
+    });
     let id = identify(&model, prep, &cfg.identify)?;
     diagnose_identified(prep, effects, cfg, id)
 }
@@ -99,6 +113,8 @@ pub fn diagnose_identified(
     // Candidates: every catalog effect not in the model, scored from one replay.
     let run_s = meas.last().map(|m| m.t_s).unwrap_or(0.0);
     let setups = candidates::setups(effects, model.dim(), run_s, temp_varies(meas), cfg);
+    cfg.progress
+        .note(|| format!("score tests of {} candidates", setups.len()));
     let (pass, sigs, _) = replay(prep, &model, effects, &setups, &id, cfg)?;
     // Series and residual statistics.
     let series = series(&model, meas, &id, &pass.innovations);

@@ -82,9 +82,15 @@ pub fn refit(
     names: &[String],
     cfg: &DiagnoseConfig,
 ) -> Vec<Refit> {
+    let started = std::sync::atomic::AtomicUsize::new(0);
     names
         .par_iter()
-        .filter_map(|name| refit_one(prep, effects, base_evidence, name, cfg))
+        .filter_map(|name| {
+            let k = 1 + started.fetch_add(1, std::sync::atomic::Ordering::Relaxed);
+            cfg.progress
+                .note(|| format!("refitting {name} ({k}/{})", names.len()));
+            refit_one(prep, effects, base_evidence, name, cfg)
+        })
         .collect()
 }
 

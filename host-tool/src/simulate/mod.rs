@@ -588,8 +588,9 @@ pub fn describe(s: &Scenario) -> String {
         s.hours,
         s.rate_s,
         s.latitude_deg,
-        s.arw_deg2_per_h,
-        s.accel_sigma_mps2
+        // Noise levels with the digits they are known to (issue 29: not 0.00009800897657048797).
+        crate::format::sig(s.arw_deg2_per_h, 3),
+        crate::format::sig(s.accel_sigma_mps2, 3)
     );
     if !s.effects.is_empty() {
         let e: Vec<String> = s.effects.iter().map(|e| e.to_string()).collect();
