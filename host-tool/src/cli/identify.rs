@@ -336,6 +336,8 @@ pub fn run(args: &IdentifyArgs) -> anyhow::Result<()> {
     let spin = crate::progress::spinner("identifying (2 EKF passes + iterated smoother)");
     let id = identify(&model, &prep, &cfg)?;
     spin.finish_and_clear();
+    // drift-markov in the model: its σ and τ from the data, the model refitted there.
+    let (effects, id) = crate::identify::markov::tune(&prep, &effects, &cfg, id)?;
     let truth = match &args.truth {
         Some(p) => Some(truth_of(&read_truth(p)?, &id)),
         None => None,
@@ -380,6 +382,9 @@ pub fn run(args: &IdentifyArgs) -> anyhow::Result<()> {
         out["setup_uncertainty"] = serde_json::to_value(&unc.contributions)?;
         out["alternatives"] = serde_json::to_value(&alts)?;
         out["convergence"] = serde_json::to_value(id.convergence)?;
+        if let Some(gm) = &id.markov {
+            out["drift_markov"] = serde_json::to_value(gm)?;
+        }
         out["trusted"] = json!(reasons.is_empty());
         out["untrusted_reasons"] = json!(reasons);
         println!("{}", serde_json::to_string_pretty(&out)?);
@@ -396,6 +401,9 @@ pub fn run(args: &IdentifyArgs) -> anyhow::Result<()> {
         );
         print_table(&rows, id.refined.is_some());
         print_summary(&id, &prep);
+        if let Some(gm) = &id.markov {
+            println!("{}", gm.line());
+        }
         print_setup(&unc, &id);
         print_alternatives(&alts, &unc, &id);
         if !reasons.is_empty() {

@@ -12,6 +12,7 @@
 //! percent with a covariance that claims far more than it knows; steps 3–4 remove that.
 
 pub mod joint;
+pub mod markov;
 pub mod misstated;
 pub mod noise;
 pub mod setup;
@@ -344,6 +345,9 @@ pub struct Identification {
     /// The smoother's Gauss–Newton iterations, if refined: how many ran, the last one's largest
     /// move of a state in its 1σ, and whether that met [`GN_TOLERANCE_SIGMA`].
     pub convergence: Option<Convergence>,
+    /// `drift-markov`'s σ and τ fitted to the data ([`markov::tune`]); `None`: not in the model,
+    /// or its catalog values.
+    pub markov: Option<markov::MarkovFit>,
 }
 
 /// How the smoother's Gauss–Newton iterations ended.
@@ -555,6 +559,7 @@ pub fn identify(
             weak,
             trajectory: vec![],
             convergence: None,
+            markov: None,
         });
     }
     let mut x0 = zeros.clone();
@@ -645,6 +650,7 @@ fn converged(
         weak,
         trajectory: nominal,
         convergence: Some(convergence),
+        markov: None,
     })
 }
 
@@ -667,7 +673,10 @@ pub fn identify_from(
         2,
         cfg.smoother_iterations + GN_EXTRA_ITERATIONS,
     )?;
-    converged(model, &prep.measurements, start.single_pass.clone(), fit)
+    let mut id = converged(model, &prep.measurements, start.single_pass.clone(), fit)?;
+    // The same effects, so the same tuned Gauss–Markov hyperparameters.
+    id.markov = start.markov;
+    Ok(id)
 }
 
 /// Mean NIS/3 beyond which a converged fit is checked against the continuation fit.
