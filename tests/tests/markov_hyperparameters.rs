@@ -14,7 +14,7 @@
 //!   so the realisation's own σ and τ scatter about it by about the printed 1σ; 3σ is exceeded
 //!   with probability 0.27 % per parameter for a correct 1σ;
 //! - over the seeds, the mean of those z-scores within ±2: a mean of 3 independent z has 1σ 0.58,
-//!   so this catches a bias of about 1σ per run (the sweep in docs/model.md gave |mean z| < 0.8);
+//!   so this catches a bias of about 1σ per run (the 8-seed sweeps in docs/model.md gave |mean z| ≤ 0.52);
 //! - white: Ljung–Box p ≥ 1e-3, the one definition's level (`consistency::Thresholds`), so a
 //!   correct model fails by chance once in a thousand runs;
 //! - clean run: σ below 1e-3 deg/h, a third of the smallest wander recovered here (0.003 deg/h,
