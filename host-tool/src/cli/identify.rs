@@ -342,6 +342,13 @@ pub fn run(args: &IdentifyArgs) -> anyhow::Result<()> {
         Some(p) => Some(truth_of(&read_truth(p)?, &id)),
         None => None,
     };
+    // A misfit at the stated set-up: is it a step of the gyro drift at one time?
+    let step = match consistency_of(&id, &prep) {
+        Some(c) if !c.is_consistent() => {
+            crate::identify::drift_step::profile(&prep, &effects, &cfg, &id)
+        }
+        _ => None,
+    };
     let spin =
         crate::progress::spinner("the set-up's uncertainty and the alternative explanations");
     let crate::assess::Assessment {
@@ -366,6 +373,9 @@ pub fn run(args: &IdentifyArgs) -> anyhow::Result<()> {
     reasons.extend(id.convergence.and_then(|c| c.untrusted_reason()));
     reasons.extend(assessed);
     let metadata_named = prep.findings.iter().any(|f| f.kind == "latitude");
+    if let Some(s) = step.filter(|s| !metadata_named && s.beats(&alts)) {
+        reasons.push(s.reason());
+    }
     match &check {
         Some(c) if !c.is_consistent() && !metadata_named => reasons.push(format!(
             "the model does not explain the measurements: {}; run `driftid diagnose` to find the missing effect",
