@@ -373,7 +373,8 @@ pub fn run(args: &IdentifyArgs) -> anyhow::Result<()> {
     reasons.extend(id.convergence.and_then(|c| c.untrusted_reason()));
     reasons.extend(assessed);
     let metadata_named = prep.findings.iter().any(|f| f.kind == "latitude");
-    if let Some(s) = step.filter(|s| !metadata_named && s.beats(&alts)) {
+    let step = step.filter(|s| !metadata_named && s.beats(&alts));
+    if let Some(s) = &step {
         reasons.push(s.reason());
     }
     match &check {
@@ -394,6 +395,9 @@ pub fn run(args: &IdentifyArgs) -> anyhow::Result<()> {
         out["convergence"] = serde_json::to_value(id.convergence)?;
         if let Some(gm) = &id.markov {
             out["drift_markov"] = serde_json::to_value(gm)?;
+        }
+        if let Some(s) = &step {
+            out["drift_step"] = serde_json::to_value(s)?;
         }
         out["trusted"] = json!(reasons.is_empty());
         out["untrusted_reasons"] = json!(reasons);
