@@ -376,7 +376,7 @@ pub fn diagnose_one(
         .last()
         .map(|d| d.model.clone())
         .unwrap_or_default();
-    let out = json!({
+    let mut out = json!({
         "recording": recording.display().to_string(),
         "model": d.model,
         "residual_rms_over_floor": d.residual_rms_over_floor,
@@ -400,6 +400,9 @@ pub fn diagnose_one(
         "trusted": reasons.is_empty(),
         "untrusted_reasons": reasons,
     });
+    if let Some(gm) = &assessed.id.markov {
+        out["drift_markov"] = serde_json::to_value(gm)?;
+    }
     if !args.json {
         print_findings(&assessed.prep.findings);
         if !faults.is_empty() {
@@ -422,6 +425,9 @@ pub fn diagnose_one(
         println!();
         println!("final model's coefficients with the 1σ this run supports:");
         super::identify::print_table(&final_rows, true);
+        if let Some(gm) = &assessed.id.markov {
+            println!("{}", gm.line());
+        }
         super::identify::print_setup(&assessed.unc, &assessed.id);
         super::identify::print_alternatives(&assessed.alternatives, &assessed.unc, &assessed.id);
         if !reasons.is_empty() {

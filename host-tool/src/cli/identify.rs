@@ -342,9 +342,18 @@ pub fn run(args: &IdentifyArgs) -> anyhow::Result<()> {
     let spin = crate::progress::spinner("identifying (2 EKF passes + iterated smoother)");
     let id = identify(&model, &prep, &cfg)?;
     spin.finish_and_clear();
+    // drift-markov in the model: its σ and τ from the data, the model refitted there.
+    let (effects, id) = crate::identify::markov::tune(&prep, &effects, &cfg, id)?;
     let truth = match &args.truth {
         Some(p) => Some(truth_of(&read_truth(p)?, &id)),
         None => None,
+    };
+    // A misfit at the stated set-up: is it a step of the gyro drift at one time?
+    let step = match consistency_of(&id, &prep) {
+        Some(c) if !c.is_consistent() => {
+            crate::identify::drift_step::profile(&prep, &effects, &cfg, &id)
+        }
+        _ => None,
     };
     let spin =
         crate::progress::spinner("the set-up's uncertainty and the alternative explanations");
@@ -376,6 +385,10 @@ pub fn run(args: &IdentifyArgs) -> anyhow::Result<()> {
         .findings
         .iter()
         .any(|f| f.kind == crate::quality::Kind::Latitude);
+    let step = step.filter(|s| !metadata_named && s.beats(&alts));
+    if let Some(s) = &step {
+        reasons.push(s.reason());
+    }
     match &check {
         Some(c) if !c.is_consistent() && !metadata_named => reasons.push(format!(
             "the model does not explain the measurements: {}; run `driftid diagnose` to find the missing effect",
@@ -392,6 +405,12 @@ pub fn run(args: &IdentifyArgs) -> anyhow::Result<()> {
         out["setup_uncertainty"] = serde_json::to_value(&unc.contributions)?;
         out["alternatives"] = serde_json::to_value(&alts)?;
         out["convergence"] = serde_json::to_value(id.convergence)?;
+        if let Some(gm) = &id.markov {
+            out["drift_markov"] = serde_json::to_value(gm)?;
+        }
+        if let Some(s) = &step {
+            out["drift_step"] = serde_json::to_value(s)?;
+        }
         out["trusted"] = json!(reasons.is_empty());
         out["untrusted_reasons"] = json!(reasons);
         println!("{}", serde_json::to_string_pretty(&out)?);
@@ -408,6 +427,9 @@ pub fn run(args: &IdentifyArgs) -> anyhow::Result<()> {
         );
         print_table(&rows, id.refined.is_some());
         print_summary(&id, &prep);
+        if let Some(gm) = &id.markov {
+            println!("{}", gm.line());
+        }
         print_setup(&unc, &id);
         print_alternatives(&alts, &unc, &id);
         if !reasons.is_empty() {

@@ -5,9 +5,9 @@ use estimator_core::effects::Effect;
 
 use super::types::{Diagnosis, Rung};
 use super::verdict::is_consistent;
-use super::{diagnose, diagnose_identified, DiagnoseConfig};
+use super::{diagnose_identified, model_label, DiagnoseConfig};
 use crate::catalog;
-use crate::identify::{Identification, Prepared};
+use crate::identify::{build_model, identify, markov, Identification, Prepared};
 
 /// The 12 drift coefficients of the paper's model come first among the parameters.
 const DRIFT_COEFFICIENTS: usize = 12;
@@ -52,10 +52,20 @@ pub fn ladder_from(
             progress: cfg.progress.within(format!("rung {}", rungs.len())),
             ..cfg.clone()
         };
-        let (d, id) = match first.take() {
-            Some(id) => diagnose_identified(prep, &effects, &at, id)?,
-            None => diagnose(prep, &effects, &at)?,
+        let id = match first.take() {
+            Some(id) => id,
+            None => {
+                let model = build_model(prep.site, &effects, &cfg.identify)?;
+                at.progress
+                    .note(|| format!("fitting {}", model_label(&effects)));
+                identify(&model, prep, &cfg.identify)?
+            }
         };
+        // A rung with `drift-markov`: its σ and τ from the data before it is diagnosed (the
+        // candidates' refits keep the catalog's: the choice of effect is unchanged).
+        let (tuned, id) = markov::tune(prep, &effects, &cfg.identify, id)?;
+        effects = tuned;
+        let (d, id) = diagnose_identified(prep, &effects, &at, id)?;
         rungs.push(rung(&d, &id));
         let next = if rungs.len() < cfg.max_rungs {
             next_effect(&d)

@@ -81,17 +81,8 @@ pub fn diagnose(
     cfg: &DiagnoseConfig,
 ) -> anyhow::Result<(Diagnosis, Identification)> {
     let model = build_model(prep.site, effects, &cfg.identify)?;
-    cfg.progress.note(|| {
-        format!(
-            "fitting {}",
-            ["paper".to_string()]
-                .iter()
-                .chain(&model_names(effects))
-                .cloned()
-                .collect::<Vec<_>>()
-                .join(" + ")
-        )
-    });
+    cfg.progress
+        .note(|| format!("fitting {}", model_label(effects)));
     let id = identify(&model, prep, &cfg.identify)?;
     diagnose_identified(prep, effects, cfg, id)
 }
@@ -202,6 +193,16 @@ pub(crate) fn temp_varies(meas: &[Measurement]) -> bool {
 }
 
 /// The model's effects beyond the paper's drift, by name.
+/// "paper + acc-bias + …": the model of `effects` for a progress note.
+pub(super) fn model_label(effects: &[&'static dyn Effect]) -> String {
+    ["paper".to_string()]
+        .iter()
+        .chain(&model_names(effects))
+        .cloned()
+        .collect::<Vec<_>>()
+        .join(" + ")
+}
+
 fn model_names(effects: &[&'static dyn Effect]) -> Vec<String> {
     effects
         .iter()

@@ -11,7 +11,9 @@
 //! A single pass linearises about poor estimates for the first day and leaves errors of several
 //! percent with a covariance that claims far more than it knows; steps 3–4 remove that.
 
+pub mod drift_step;
 pub mod joint;
+pub mod markov;
 pub mod setup;
 pub mod smoother;
 
@@ -342,6 +344,9 @@ pub struct Identification {
     /// The smoother's Gauss–Newton iterations, if refined: how many ran, the last one's largest
     /// move of a state in its 1σ, and whether that met [`GN_TOLERANCE_SIGMA`].
     pub convergence: Option<Convergence>,
+    /// `drift-markov`'s σ and τ fitted to the data ([`markov::tune`]); `None`: not in the model,
+    /// or its catalog values.
+    pub markov: Option<markov::MarkovFit>,
 }
 
 /// How the smoother's Gauss–Newton iterations ended.
@@ -553,6 +558,7 @@ pub fn identify(
             weak,
             trajectory: vec![],
             convergence: None,
+            markov: None,
         });
     }
     let mut x0 = zeros.clone();
@@ -643,6 +649,7 @@ fn converged(
         weak,
         trajectory: nominal,
         convergence: Some(convergence),
+        markov: None,
     })
 }
 
@@ -665,7 +672,10 @@ pub fn identify_from(
         2,
         cfg.smoother_iterations + GN_EXTRA_ITERATIONS,
     )?;
-    converged(model, &prep.measurements, start.single_pass.clone(), fit)
+    let mut id = converged(model, &prep.measurements, start.single_pass.clone(), fit)?;
+    // The same effects, so the same tuned Gauss–Markov hyperparameters.
+    id.markov = start.markov;
+    Ok(id)
 }
 
 /// Mean NIS/3 beyond which a converged fit is checked against the continuation fit.

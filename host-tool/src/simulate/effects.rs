@@ -5,7 +5,7 @@ use std::fmt;
 use std::str::FromStr;
 
 /// Names of the injectable effects, as on the command line and in the truth file.
-pub const EFFECT_NAMES: [&str; 10] = [
+pub const EFFECT_NAMES: [&str; 11] = [
     "g2",
     "acc-bias",
     "acc-scale",
@@ -16,6 +16,7 @@ pub const EFFECT_NAMES: [&str; 10] = [
     "drift-sine",
     "drift-transient",
     "acc-temp",
+    "drift-step",
 ];
 
 /// Help text describing the `--effect` syntax.
@@ -31,6 +32,7 @@ NAME=v1,v2,... (repeatable; the same effect twice adds up). Effects:
   drift-sine=ax,ay,az:P drift += a*sin(2*pi*t/P), deg/h, period P in h (not in the catalog)
   drift-transient=ax,ay,az:tau   turn-on transient: drift += a*exp(-t/tau), deg/h, tau in h (not in the catalog)
   acc-temp=kx,ky,kz     accelerometer bias += k*(T(t)-T(0)), m/s^2 per deg C; adds a temp_c column (not in the catalog)
+  drift-step=ax,ay,az:T0 drift step: drift += a from T0 hours on, deg/h (not in the catalog)
 Example: --effect acc-bias=1e-4,0,0 --effect drift-markov=0.01,0.01,0.01:5,5,5";
 
 /// An effect the truth simulator can inject. Serialised as `{"name": "acc-bias", "params": {…}}`.
@@ -63,6 +65,9 @@ pub enum InjectedEffect {
     /// Temperature-driven accelerometer bias (not in the catalog): z_i += k_i (T(t) − T(0)),
     /// m/s² per °C.
     AccTemp { k_mps2_per_c: [f64; 3] },
+    /// Drift step (not in the catalog): w_d,i += a_i for t ≥ T0, deg/h, T0 in h (a sudden change
+    /// of a gyro's constant drift: a kink, not a jump, in the accelerometers).
+    DriftStep { a_deg_h: [f64; 3], t0_h: f64 },
 }
 
 impl InjectedEffect {
@@ -79,6 +84,7 @@ impl InjectedEffect {
             InjectedEffect::DriftSine { .. } => "drift-sine",
             InjectedEffect::DriftTransient { .. } => "drift-transient",
             InjectedEffect::AccTemp { .. } => "acc-temp",
+            InjectedEffect::DriftStep { .. } => "drift-step",
         }
     }
 
@@ -96,6 +102,11 @@ impl InjectedEffect {
                     "{}: the period or time constant must be > 0",
                     self.name()
                 ));
+            }
+        }
+        if let InjectedEffect::DriftStep { t0_h, .. } = self {
+            if *t0_h < 0.0 {
+                return Err("drift-step: the step time must be >= 0 h".into());
             }
         }
         if let InjectedEffect::DriftMarkov { sigma_deg_h, tau_h } = self {
@@ -130,7 +141,8 @@ impl InjectedEffect {
                 a_deg_h,
                 period_h: t,
             }
-            | InjectedEffect::DriftTransient { a_deg_h, tau_h: t } => {
+            | InjectedEffect::DriftTransient { a_deg_h, tau_h: t }
+            | InjectedEffect::DriftStep { a_deg_h, t0_h: t } => {
                 vec![a_deg_h.to_vec(), vec![*t]]
             }
         }
@@ -189,17 +201,21 @@ impl FromStr for InjectedEffect {
         let name = name.trim();
         let groups: Vec<&str> = rest.split(':').collect();
         let want_groups = match name {
-            "drift-markov" | "drift-sine" | "drift-transient" => 2,
+            "drift-markov" | "drift-sine" | "drift-transient" | "drift-step" => 2,
             _ => 1,
         };
         if EFFECT_NAMES.contains(&name) && groups.len() != want_groups {
-            return Err(if name == "drift-sine" || name == "drift-transient" {
-                format!("{name}: expected a_x,a_y,a_z:time (h), got {rest:?}")
-            } else if want_groups == 2 {
-                format!("{name}: expected sigma_x,sigma_y,sigma_z:tau_x,tau_y,tau_z, got {rest:?}")
-            } else {
-                format!("{name}: expected one comma-separated list, got {rest:?}")
-            });
+            return Err(
+                if ["drift-sine", "drift-transient", "drift-step"].contains(&name) {
+                    format!("{name}: expected a_x,a_y,a_z:time (h), got {rest:?}")
+                } else if want_groups == 2 {
+                    format!(
+                        "{name}: expected sigma_x,sigma_y,sigma_z:tau_x,tau_y,tau_z, got {rest:?}"
+                    )
+                } else {
+                    format!("{name}: expected one comma-separated list, got {rest:?}")
+                },
+            );
         }
         let e = match name {
             "g2" => {
@@ -245,6 +261,10 @@ impl FromStr for InjectedEffect {
             "drift-transient" => InjectedEffect::DriftTransient {
                 a_deg_h: parse_list(name, "amplitudes (deg/h)", groups[0])?,
                 tau_h: parse_list::<1>(name, "time constant (h)", groups[1])?[0],
+            },
+            "drift-step" => InjectedEffect::DriftStep {
+                a_deg_h: parse_list(name, "step sizes (deg/h)", groups[0])?,
+                t0_h: parse_list::<1>(name, "step time (h)", groups[1])?[0],
             },
             _ => {
                 return Err(format!(

@@ -67,6 +67,8 @@ pub struct Simulator {
     sines: Vec<([f64; 3], f64)>,
     /// Turn-on transients: amplitude per axis (rad/s) and time constant (s).
     transients: Vec<([f64; 3], f64)>,
+    /// Drift steps: size per axis (rad/s) and time (s).
+    drift_steps: Vec<([f64; 3], f64)>,
     /// ARW density, rad²/s.
     q: f64,
     t: f64,
@@ -101,6 +103,7 @@ impl Simulator {
             markov: Vec::new(),
             sines: Vec::new(),
             transients: Vec::new(),
+            drift_steps: Vec::new(),
             q: s.arw_deg2_per_h * (std::f64::consts::PI / 180.0).powi(2) / 3600.0,
             t: 0.0,
             // At t = 0 frame i coincides with frame 0, so C_i^p(0) = C_0^p(θ0).
@@ -153,6 +156,10 @@ impl Simulator {
                 InjectedEffect::DriftTransient { a_deg_h, tau_h } => {
                     sim.transients
                         .push((a_deg_h.map(|a| a * RADPS_PER_DEG_H), tau_h * 3600.0));
+                }
+                InjectedEffect::DriftStep { a_deg_h, t0_h } => {
+                    sim.drift_steps
+                        .push((a_deg_h.map(|a| a * RADPS_PER_DEG_H), t0_h * 3600.0));
                 }
                 InjectedEffect::AccBias { .. }
                 | InjectedEffect::AccTemp { .. }
@@ -252,6 +259,11 @@ impl Simulator {
             }
             for (a, tau) in &self.transients {
                 wi += a[i] * (-t / tau).exp();
+            }
+            for (a, t0) in &self.drift_steps {
+                if t >= *t0 {
+                    wi += a[i];
+                }
             }
             w[i] = wi;
         }

@@ -505,7 +505,8 @@ impl Truth {
                 InjectedEffect::DriftMarkov { .. }
                 | InjectedEffect::DriftSine { .. }
                 | InjectedEffect::DriftTransient { .. }
-                | InjectedEffect::AccTemp { .. } => {}
+                | InjectedEffect::AccTemp { .. }
+                | InjectedEffect::DriftStep { .. } => {}
             }
         }
         out
@@ -536,6 +537,7 @@ fn units() -> BTreeMap<String, String> {
         ("drift-trend", "deg/h per h"),
         ("drift-markov", "sigma deg/h, tau h"),
         ("temp-drift", "deg/h per deg C"),
+        ("drift-step", "deg/h : h (size per axis : step time)"),
     ]
     .into_iter()
     .map(|(k, v)| (k.to_string(), v.to_string()))
@@ -824,6 +826,7 @@ mod tests {
             "drift-markov=0.01,0.01,0.01:5,5,5",
             "temp-drift=0.001,0.002,0.003",
             "g2=1,2,3,4,5,6,7,8,9,10,11,12,13,14,15,16,17,18",
+            "drift-step=0,0.002,0:30",
         ];
         for c in cases {
             let e: InjectedEffect = c.parse().unwrap();
@@ -857,8 +860,35 @@ mod tests {
             "drift-markov=-1,1,1:1,1,1",
             "nope=1,2,3",
             "acc-bias=1,2,inf",
+            "drift-step=0,0.002,0",
+            "drift-step=0,0.002,0:-1",
         ] {
             assert!(bad.parse::<InjectedEffect>().is_err(), "{bad}");
+        }
+    }
+
+    #[test]
+    fn a_drift_step_changes_the_drift_at_its_time() {
+        // 0.002 deg/h on Y from 1 h: the drift rate's change from 1 s before to 1 s after, minus
+        // the same run's without the step (the Earth's turn moves gravity in platform axes by
+        // ~1.5e-4 rad in 2 s, so the paper drift itself changes by ~1e-4 deg/h), is the step on
+        // Y and nothing else. The runs share their noise (same seed); they differ by the step's
+        // 1 s of turn, 1e-8 rad, so 1e-6 deg/h bounds what is left.
+        let change = |effects: &[&str]| {
+            let mut sc = Scenario::paper();
+            for e in effects {
+                sc.effects.push(e.parse().unwrap());
+            }
+            let mut sim = engine::Simulator::new(&sc);
+            sim.advance_to(3599.0, 1.0);
+            let before = sim.drift_rate_rad_s();
+            sim.advance_to(3601.0, 1.0);
+            (sim.drift_rate_rad_s() - before) / dcm::RADPS_PER_DEG_H
+        };
+        let d = change(&["drift-step=0,0.002,0:1"]) - change(&[]);
+        let want = [0.0, 0.002, 0.0];
+        for i in 0..3 {
+            assert!((d[i] - want[i]).abs() < 1e-6, "axis {i}: {d:?} deg/h");
         }
     }
 

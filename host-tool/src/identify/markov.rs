@@ -1,0 +1,463 @@
+//! The Gauss–Markov hyperparameters of `drift-markov` (stationary 1σ σ and correlation time τ)
+//! from the data, by maximising the marginal likelihood of the measurements.
+//!
+//! `−2 ln L(σ, τ) = Σ_j (ν_jᵀ S_j⁻¹ ν_j + ln det S_j + 3 ln 2π)` is the prediction-error
+//! decomposition of the Kalman filter linearised about the converged fit's trajectory
+//! ([`crate::identify::neg2_log_evidence`], the same evidence every model choice uses): every
+//! other state (the drift coefficients, the start angles, the Markov states themselves) is
+//! integrated out by the filter, so only σ and τ are maximised over (type-II maximum likelihood).
+//! The Gauss–Markov dynamics are linear, so changing σ or τ needs no new linearisation: one
+//! forward pass per (σ, τ), about the same nominal.
+//!
+//! **Shared, not per axis.** One σ and one τ for the three axes: a 60-h run holds only 60 h/τ
+//! correlation times per axis, so six free hyperparameters would each carry a 1σ of tens of
+//! percent (and the azimuth axis' drift reaches the accelerometers only through the Earth's
+//! turn, weakly); the wander of one gyro's axes comes from one rotor, suspension and thermal
+//! environment, and three axes pooled give √3 more correlation times for the same two numbers.
+//!
+//! **Search.** In ln σ and ln τ within [`SIGMA_RANGE_DEGPH`] and [`TAU_RANGE_H`]: a coarse grid
+//! ([`GRID_SIGMA_DEGPH`] × [`GRID_TAU_H`]) and then Newton steps on a quadratic fitted to a
+//! 3×3 stencil about the best point, until a step moves less than a tenth of the 1σ. The
+//! curvature there gives a 1σ, `cov(ln σ, ln τ) = 2 H⁻¹` (H the Hessian of −2 ln L); the 1σ
+//! intervals printed are the profile likelihood's (−2 ln L minimised over the other parameter
+//! rises by 1), since the ridge between σ and τ bends. About 60–100 passes in all, 0.3–0.8 s on a
+//! 60-h run at the 60-s period (a forward pass is 6–12 ms); the optimum found about the refitted
+//! trajectory moved by < 1e-4 relative, so one round suffices.
+//!
+//! Only the model being fitted is tuned (`identify --with drift-markov`, a ladder rung that holds
+//! it): the candidates' refits that choose an effect keep the catalog's σ and τ, so the choice of
+//! effect is what it was.
+
+use estimator_core::effects::{DriftMarkov, Effect};
+use estimator_core::model::Model;
+use nalgebra::{Matrix2, Vector2};
+use serde::Serialize;
+
+use super::{build_model, neg2_log_evidence, start_prior, Config, Identification, Prepared};
+
+/// The effect whose σ and τ are estimated.
+pub const NAME: &str = "drift-markov";
+/// Range of σ searched, deg/h: from far below a detectable wander to a wander larger than the
+/// paper's whole constant drift.
+pub const SIGMA_RANGE_DEGPH: (f64, f64) = (1e-4, 0.3);
+/// Range of τ searched, h: from a quarter hour (15 filter periods) to 100 h (beyond that a 60-h
+/// run sees a random walk: only σ²/τ is determined).
+pub const TAU_RANGE_H: (f64, f64) = (0.25, 100.0);
+
+/// −2 ln L of `effects` with `drift-markov`'s σ (deg/h) and τ (h) set, linearised about the fit
+/// `id` (one forward pass).
+pub fn neg2_ln_l(
+    prep: &Prepared,
+    effects: &[&'static dyn Effect],
+    cfg: &Config,
+    id: &Identification,
+    sigma_degph: f64,
+    tau_h: f64,
+) -> anyhow::Result<f64> {
+    let gm = DriftMarkov { sigma_degph, tau_h };
+    let list: Vec<&dyn Effect> = effects
+        .iter()
+        .map(|e| {
+            if e.name() == NAME {
+                &gm as &dyn Effect
+            } else {
+                *e
+            }
+        })
+        .collect();
+    let model: Model<'_> = build_model(prep.site, &list, cfg)?;
+    let (x0, p0) = start_prior(&model, prep, &prep.start_sigma());
+    let pass = super::smoother::linearised_pass(
+        &model,
+        &prep.measurements,
+        &id.trajectory,
+        &x0,
+        &p0,
+        false,
+    )?;
+    Ok(neg2_log_evidence(&pass.innovations))
+}
+
+/// Coarse grid of σ, deg/h.
+pub const GRID_SIGMA_DEGPH: [f64; 4] = [3e-4, 2e-3, 1e-2, 5e-2];
+/// Coarse grid of τ, h.
+pub const GRID_TAU_H: [f64; 4] = [0.5, 2.0, 8.0, 32.0];
+
+/// The fitted hyperparameters.
+#[derive(Clone, Copy, Debug, Serialize)]
+pub struct MarkovFit {
+    /// Stationary 1σ of each axis' Gauss–Markov drift, deg/h.
+    pub sigma_degph: f64,
+    /// 1σ of σ from the curvature of −2 ln L at the optimum, deg/h (infinite where it is flat).
+    pub sigma_sd_degph: f64,
+    /// The 1σ (68 %) interval of σ from its profile likelihood, deg/h: where −2 ln L, minimised
+    /// over τ, rises by 1. The likelihood's ridge bends (σ²/τ is what a long τ leaves), so this
+    /// is the honest interval; the curvature's 1σ was up to 2× narrower on the long side.
+    pub sigma_interval_degph: [f64; 2],
+    /// Correlation time, h.
+    pub tau_h: f64,
+    /// 1σ of τ from the curvature, h.
+    pub tau_sd_h: f64,
+    /// The 1σ interval of τ from its profile likelihood, h.
+    pub tau_interval_h: [f64; 2],
+    /// Correlation of the estimates of ln σ and ln τ.
+    pub correlation: f64,
+    /// Whether σ or τ ended on a bound of its range (then its 1σ is a curvature at the bound).
+    pub at_bound: bool,
+    /// −2 ln L gain over the catalog's fixed σ = 0.01 deg/h, τ = 5 h.
+    pub evidence_gain: f64,
+    /// Forward passes spent.
+    pub passes: usize,
+}
+
+/// A point of the search: ln σ, ln τ.
+type Point = Vector2<f64>;
+/// Points evaluated, with their −2 ln L.
+type Seen = Vec<(Point, f64)>;
+
+/// Largest Newton iterations on the stencil before the search stops where it is.
+const MAX_NEWTON: usize = 8;
+/// Largest Newton step in ln σ or ln τ.
+const MAX_STEP_LN: f64 = 1.0;
+/// A Newton step below this fraction of the 1σ (in ln σ, ln τ) ends the search.
+const STOP_SIGMA: f64 = 0.1;
+
+fn bounds() -> (Point, Point) {
+    (
+        Point::new(SIGMA_RANGE_DEGPH.0.ln(), TAU_RANGE_H.0.ln()),
+        Point::new(SIGMA_RANGE_DEGPH.1.ln(), TAU_RANGE_H.1.ln()),
+    )
+}
+
+/// `p` moved into the range by at least `margin` from each bound (a stencil of half-width
+/// `margin` about it stays in the range).
+fn clamp(p: Point, margin: f64) -> Point {
+    let (lo, hi) = bounds();
+    Point::new(
+        p[0].clamp(lo[0] + margin, hi[0] - margin),
+        p[1].clamp(lo[1] + margin, hi[1] - margin),
+    )
+}
+
+/// −2 ln L at several points, on rayon's pool (the passes are independent); a pass that fails
+/// (a filter breakdown at an extreme σ) counts as +∞.
+fn evaluate(points: &[Point], f: &(impl Fn(f64, f64) -> anyhow::Result<f64> + Sync)) -> Vec<f64> {
+    use rayon::prelude::*;
+    points
+        .par_iter()
+        .map(|p| f(p[0].exp(), p[1].exp()).unwrap_or(f64::INFINITY))
+        .collect()
+}
+
+/// A quadratic fitted to −2 ln L on the 3×3 stencil of half-width `h` about `c`: its gradient and
+/// Hessian at `c`, in ln units. `None` when a value is not finite.
+fn stencil(
+    c: Point,
+    h: f64,
+    f: &(impl Fn(f64, f64) -> anyhow::Result<f64> + Sync),
+) -> Option<(Point, Matrix2<f64>, Seen)> {
+    let offsets: Vec<Point> = (-1..=1)
+        .flat_map(|i| (-1..=1).map(move |j| Point::new(f64::from(i), f64::from(j))))
+        .collect();
+    let points: Vec<Point> = offsets.iter().map(|o| c + o * h).collect();
+    let values = evaluate(&points, f);
+    if values.iter().any(|v| !v.is_finite()) {
+        return None;
+    }
+    let at = |i: i32, j: i32| values[((i + 1) * 3 + (j + 1)) as usize];
+    // Least-squares quadratic on the 3×3 grid: the central differences of its row/column means.
+    let gx = (0..3).map(|j| at(1, j - 1) - at(-1, j - 1)).sum::<f64>() / (6.0 * h);
+    let gy = (0..3).map(|i| at(i - 1, 1) - at(i - 1, -1)).sum::<f64>() / (6.0 * h);
+    let hxx = (0..3)
+        .map(|j| at(1, j - 1) - 2.0 * at(0, j - 1) + at(-1, j - 1))
+        .sum::<f64>()
+        / (3.0 * h * h);
+    let hyy = (0..3)
+        .map(|i| at(i - 1, 1) - 2.0 * at(i - 1, 0) + at(i - 1, -1))
+        .sum::<f64>()
+        / (3.0 * h * h);
+    let hxy = (at(1, 1) - at(1, -1) - at(-1, 1) + at(-1, -1)) / (4.0 * h * h);
+    let seen = points.into_iter().zip(values).collect();
+    Some((Point::new(gx, gy), Matrix2::new(hxx, hxy, hxy, hyy), seen))
+}
+
+/// The point of least −2 ln L among `seen`, if one is finite.
+fn best(seen: &[(Point, f64)]) -> Option<(Point, f64)> {
+    seen.iter()
+        .copied()
+        .min_by(|a, b| a.1.total_cmp(&b.1))
+        .filter(|b| b.1.is_finite())
+}
+
+/// Newton steps on the 3×3 stencil from `c` (every point evaluated joins `seen`), until a step
+/// moves less than [`STOP_SIGMA`] of the 1σ; returns the last convex stencil's covariance of
+/// (ln σ, ln τ), 2 H⁻¹.
+fn newton(
+    mut c: Point,
+    f: &(impl Fn(f64, f64) -> anyhow::Result<f64> + Sync),
+    seen: &mut Seen,
+) -> Option<Matrix2<f64>> {
+    let mut h = 0.5;
+    let mut cov = None;
+    for _ in 0..MAX_NEWTON {
+        c = clamp(c, h);
+        let Some((g, hess, points)) = stencil(c, h, f) else {
+            break;
+        };
+        seen.extend(points);
+        let convex = hess[(0, 0)] > 0.0 && hess.determinant() > 0.0;
+        let Some(inv) = hess.try_inverse().filter(|_| convex) else {
+            // Not convex here: move to the best point seen and look again.
+            cov = None;
+            match best(seen) {
+                Some((b, _)) if b != c => c = b,
+                _ => break,
+            }
+            continue;
+        };
+        let cv = inv * 2.0;
+        let sd = Point::new(cv[(0, 0)].sqrt(), cv[(1, 1)].sqrt());
+        cov = Some(cv);
+        // Newton's step, at most a factor e in σ or τ (a trust region: the quadratic is local).
+        let mut step = -(inv * g);
+        if step.amax() > MAX_STEP_LN {
+            step *= MAX_STEP_LN / step.amax();
+        }
+        let next = clamp(c + step, h);
+        let moved = ((next - c)[0] / sd[0])
+            .abs()
+            .max(((next - c)[1] / sd[1]).abs());
+        if moved < STOP_SIGMA {
+            break;
+        }
+        c = next;
+        // A wide stencil while far (the quadratic over the ridge), about one 1σ once close (the
+        // curvature the 1σ is read from).
+        if moved < 1.0 {
+            h = sd.max().clamp(0.1, 0.5);
+        }
+    }
+    cov
+}
+
+/// Passes of one coordinate's profile interval: 2 sides × 2 offsets × 3 points.
+const PROFILE_PASSES: usize = 12;
+
+/// −2 ln L minimised over coordinate 1 − `i` with coordinate `i` at `p[i] + d`: a parabola
+/// through three points about the ridge the curvature `cov` predicts, one conditional 1σ apart.
+fn profile_points(p: Point, cov: &Matrix2<f64>, i: usize, d: f64) -> ([Point; 3], f64) {
+    let j = 1 - i;
+    let mean = p[j] + cov[(i, j)] / cov[(i, i)] * d;
+    let w = (cov[(j, j)] - cov[(i, j)].powi(2) / cov[(i, i)])
+        .max(0.0)
+        .sqrt()
+        .max(0.02);
+    let at = |o: f64| {
+        let mut q = p;
+        q[i] += d;
+        q[j] = mean + o * w;
+        q
+    };
+    ([at(-1.0), at(0.0), at(1.0)], w)
+}
+
+/// The minimum of the parabola through values `v` at −w, 0, w (the least value if it opens down
+/// or its vertex lies beyond ±2w).
+fn parabola_min(v: [f64; 3]) -> f64 {
+    let a = (v[0] + v[2] - 2.0 * v[1]) / 2.0;
+    let b = (v[2] - v[0]) / 2.0;
+    let least = v.iter().copied().fold(f64::INFINITY, f64::min);
+    if a > 0.0 && (b / (2.0 * a)).abs() <= 2.0 {
+        (v[1] - b * b / (4.0 * a)).min(least)
+    } else {
+        least
+    }
+}
+
+/// The 1σ interval of coordinate `i` (ln units) from its profile likelihood: on each side the
+/// profile at one and two curvature-1σ, a quadratic in the offset through them and the optimum,
+/// solved for a rise of 1 (at most 4 curvature-1σ out).
+fn profile_interval(
+    p: Point,
+    f_best: f64,
+    cov: &Matrix2<f64>,
+    i: usize,
+    f: &(impl Fn(f64, f64) -> anyhow::Result<f64> + Sync),
+) -> [f64; 2] {
+    let sd = cov[(i, i)].sqrt();
+    let offsets = [-2.0, -1.0, 1.0, 2.0];
+    let points: Vec<Point> = offsets
+        .iter()
+        .flat_map(|k| profile_points(p, cov, i, k * sd).0)
+        .collect();
+    let values = evaluate(&points, f);
+    let rise: Vec<f64> = values
+        .chunks(3)
+        .map(|v| parabola_min([v[0], v[1], v[2]]) - f_best)
+        .collect();
+    let reach = |d1: f64, d2: f64| {
+        // g(k) = α k + β k², g(1) = d1, g(2) = d2; the k where g = 1.
+        if !(d1 > 0.0 && d2.is_finite()) {
+            return 1.0;
+        }
+        let beta = (d2 - 2.0 * d1) / 2.0;
+        let alpha = d1 - beta;
+        let k = if beta.abs() < 1e-12 {
+            1.0 / alpha
+        } else {
+            let disc = alpha * alpha + 4.0 * beta;
+            if disc < 0.0 {
+                4.0
+            } else {
+                (-alpha + disc.sqrt()) / (2.0 * beta)
+            }
+        };
+        if k.is_finite() && k > 0.0 {
+            k.clamp(0.25, 4.0)
+        } else {
+            4.0
+        }
+    };
+    [
+        p[i] - reach(rise[1], rise[0]) * sd,
+        p[i] + reach(rise[2], rise[3]) * sd,
+    ]
+}
+
+/// Maximises the marginal likelihood over σ and τ about the fit `id` of `effects` (which hold
+/// `drift-markov`): the coarse grid, then Newton on the stencil (see the module docs).
+pub fn fit(
+    prep: &Prepared,
+    effects: &[&'static dyn Effect],
+    cfg: &Config,
+    id: &Identification,
+) -> anyhow::Result<MarkovFit> {
+    let f = |s: f64, t: f64| neg2_ln_l(prep, effects, cfg, id, s, t);
+    let catalog = DriftMarkov::default();
+    let mut grid: Vec<Point> = GRID_TAU_H
+        .iter()
+        .flat_map(|t| {
+            GRID_SIGMA_DEGPH
+                .iter()
+                .map(move |s| Point::new(s.ln(), t.ln()))
+        })
+        .collect();
+    grid.push(Point::new(catalog.sigma_degph.ln(), catalog.tau_h.ln()));
+    let values = evaluate(&grid, &f);
+    let f_catalog = values[grid.len() - 1];
+    let mut seen: Seen = grid.into_iter().zip(values).collect();
+    let Some((c, _)) = best(&seen) else {
+        anyhow::bail!("{NAME}: the filter fails at every σ, τ of the grid");
+    };
+    let cov = newton(c, &f, &mut seen);
+    let Some((p, f_best)) = best(&seen) else {
+        anyhow::bail!("{NAME}: no finite likelihood");
+    };
+    let (lo, hi) = bounds();
+    let at_bound = (0..2).any(|i| p[i] <= lo[i] + 1e-6 || p[i] >= hi[i] - 1e-6);
+    let (sigma, tau) = (p[0].exp(), p[1].exp());
+    let (sd, correlation) = match cov {
+        Some(cv) => (
+            Point::new(cv[(0, 0)].sqrt(), cv[(1, 1)].sqrt()),
+            cv[(0, 1)] / (cv[(0, 0)] * cv[(1, 1)]).sqrt(),
+        ),
+        None => (Point::new(f64::INFINITY, f64::INFINITY), f64::NAN),
+    };
+    let interval = |i: usize| match cov {
+        Some(cv) if !at_bound => profile_interval(p, f_best, &cv, i, &f),
+        _ => [f64::NEG_INFINITY, f64::INFINITY],
+    };
+    let (si, ti) = (interval(0), interval(1));
+    Ok(MarkovFit {
+        sigma_degph: sigma,
+        sigma_sd_degph: sigma * sd[0],
+        sigma_interval_degph: si.map(f64::exp),
+        tau_h: tau,
+        tau_sd_h: tau * sd[1],
+        tau_interval_h: ti.map(f64::exp),
+        correlation,
+        at_bound,
+        evidence_gain: f_catalog - f_best,
+        passes: seen.len()
+            + if cov.is_some() && !at_bound {
+                2 * PROFILE_PASSES
+            } else {
+                0
+            },
+    })
+}
+
+/// `drift-markov` with σ and τ set, for the rest of the process: one leaked value per distinct
+/// (σ, τ) (effects are `&'static` throughout; a run tunes a handful at most).
+pub fn interned(sigma_degph: f64, tau_h: f64) -> &'static DriftMarkov {
+    static TUNED: std::sync::Mutex<Vec<&'static DriftMarkov>> = std::sync::Mutex::new(Vec::new());
+    let mut v = TUNED.lock().unwrap_or_else(|e| e.into_inner());
+    if let Some(d) = v
+        .iter()
+        .find(|d| d.sigma_degph == sigma_degph && d.tau_h == tau_h)
+    {
+        return d;
+    }
+    let d: &'static DriftMarkov = Box::leak(Box::new(DriftMarkov { sigma_degph, tau_h }));
+    v.push(d);
+    d
+}
+
+/// When `effects` hold `drift-markov` and `id` is converged: σ and τ fitted ([`fit`]), the
+/// effect replaced by one with them and the model refitted there (from `id`'s trajectory).
+/// Otherwise everything is returned as it is (the clean path does no work here).
+pub fn tune(
+    prep: &Prepared,
+    effects: &[&'static dyn Effect],
+    cfg: &Config,
+    id: Identification,
+) -> anyhow::Result<(Vec<&'static dyn Effect>, Identification)> {
+    if id.trajectory.is_empty() || !effects.iter().any(|e| e.name() == NAME) {
+        return Ok((effects.to_vec(), id));
+    }
+    let gm = fit(prep, effects, cfg, &id)?;
+    let tuned: &'static dyn Effect = interned(gm.sigma_degph, gm.tau_h);
+    let list: Vec<&'static dyn Effect> = effects
+        .iter()
+        .map(|e| if e.name() == NAME { tuned } else { *e })
+        .collect();
+    let model = build_model(prep.site, &list, cfg)?;
+    let mut refit = super::identify_from(&model, prep, cfg, &id)?;
+    refit.markov = Some(gm);
+    Ok((list, refit))
+}
+
+impl MarkovFit {
+    /// One line for the text output: the estimates with their 1σ, or the bound they ended on.
+    pub fn line(&self) -> String {
+        use crate::format::sig;
+        let head = format!(
+            "{NAME}: σ and τ fitted by marginal likelihood, shared by the three axes ({} filter passes; range σ {}–{} deg/h, τ {}–{} h)",
+            self.passes,
+            sig(SIGMA_RANGE_DEGPH.0, 2),
+            sig(SIGMA_RANGE_DEGPH.1, 2),
+            sig(TAU_RANGE_H.0, 2),
+            sig(TAU_RANGE_H.1, 2)
+        );
+        if self.at_bound {
+            return format!(
+                "{head}: σ = {} deg/h, τ = {} h — at the edge of the range: no Gauss–Markov wander this run can measure (no 1σ)",
+                sig(self.sigma_degph, 2),
+                sig(self.tau_h, 2)
+            );
+        }
+        let [s0, s1] = self.sigma_interval_degph;
+        let [t0, t1] = self.tau_interval_h;
+        format!(
+            "{head}: σ = {} deg/h (1σ interval {}–{}), τ = {} h (1σ interval {}–{}; correlation of ln σ, ln τ {:.2}); −2 ln L {:.1} below the catalog's σ 0.01 deg/h, τ 5 h",
+            sig(self.sigma_degph, 3),
+            sig(s0, 2),
+            sig(s1, 2),
+            sig(self.tau_h, 3),
+            sig(t0, 2),
+            sig(t1, 2),
+            self.correlation,
+            self.evidence_gain
+        )
+    }
+}
