@@ -1,5 +1,5 @@
 //! A gyro drift step (issue 27, item 2, the gyro half): found as an explanation with its time and
-//! size (`host_tool::identify::drift_step`), on the paper scenario from the independent truth
+//! size (`host_tool::diagnose::drift_step`), on the paper scenario from the independent truth
 //! simulator, 60 h at 10-s samples, with `drift-step=0,0.002,0:30` injected (0.002 deg/h on Y at
 //! 30 h). The profile runs on the paper model's converged fit at the stated set-up, as
 //! `driftid identify` runs it on a misfit.
@@ -15,8 +15,8 @@
 
 use estimator_core::{Sample, Site};
 use host_tool::catalog;
+use host_tool::diagnose::drift_step::profile;
 use host_tool::diagnose::DiagnoseConfig;
-use host_tool::identify::drift_step::profile;
 use host_tool::identify::{build_model, identify, prepare};
 use host_tool::simulate::{simulate, InjectedEffect, Scenario};
 

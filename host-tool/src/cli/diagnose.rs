@@ -68,7 +68,10 @@ pub fn print_diagnosis(d: &Diagnosis) {
         d.consistency.nis_band[1],
         d.whiteness.ljung_box_q,
         d.whiteness.dof,
-        p_value(d.whiteness.p_value, f64::NAN)
+        p_value(
+            d.whiteness.p_value,
+            crate::stats::chi2_ln_sf(d.whiteness.ljung_box_q, d.whiteness.dof)
+        )
     );
     if !d.failures.is_empty() {
         let w: Vec<String> = d

@@ -351,7 +351,7 @@ pub fn run(args: &IdentifyArgs) -> anyhow::Result<()> {
     // A misfit at the stated set-up: is it a step of the gyro drift at one time?
     let step = match consistency_of(&id, &prep) {
         Some(c) if !c.is_consistent() => {
-            crate::identify::drift_step::profile(&prep, &effects, &cfg, &id)
+            crate::diagnose::drift_step::profile(&prep, &effects, &cfg, &id)
         }
         _ => None,
     };

@@ -16,6 +16,7 @@
 
 pub mod alternatives;
 pub mod candidates;
+pub mod drift_step;
 pub mod ladder;
 pub mod latitude;
 pub mod misstated;

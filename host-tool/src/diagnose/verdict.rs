@@ -35,12 +35,16 @@ fn state(d: &Diagnosis) -> String {
         .map(|r| format!("{r:.2}"))
         .collect();
     format!(
-        "Residual RMS / noise floor = [{}] (x, y, z), mean NIS/3 = {:.3} (99.9 % band {:.3}–{:.3}), Ljung–Box p = {:.2e}.",
+        "Residual RMS / noise floor = [{}] (x, y, z), mean NIS/3 = {:.3} (99.9 % band {:.3}–{:.3}), Ljung–Box p = {}.",
         rms.join(", "),
         d.nis_mean,
         d.consistency.nis_band[0],
         d.consistency.nis_band[1],
-        d.whiteness.p_value
+        // One p-value style (`format::p_value`): its log where p underflows.
+        crate::format::p_value(
+            d.whiteness.p_value,
+            crate::stats::chi2_ln_sf(d.whiteness.ljung_box_q, d.whiteness.dof)
+        )
     )
 }
 

@@ -11,7 +11,6 @@
 //! A single pass linearises about poor estimates for the first day and leaves errors of several
 //! percent with a covariance that claims far more than it knows; steps 3–4 remove that.
 
-pub mod drift_step;
 pub mod joint;
 pub mod markov;
 pub mod setup;

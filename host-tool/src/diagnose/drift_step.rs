@@ -16,7 +16,9 @@ use estimator_core::units::S_PER_H;
 use nalgebra::{DVector, Vector3};
 use serde::Serialize;
 
-use super::{build_model, neg2_log_evidence, start_prior, Config, Identification, Prepared};
+use crate::identify::{
+    build_model, neg2_log_evidence, start_prior, Config, Identification, Prepared,
+};
 
 /// Prior 1σ of each axis' step, deg/h.
 pub const PRIOR_SIGMA_DEGPH: f64 = 0.01;
@@ -114,9 +116,15 @@ fn at(
     let n = model.dim();
     let nominal = extended(id, n);
     let (x0, p0) = start_prior(&model, prep, &prep.start_sigma());
-    let pass =
-        super::smoother::linearised_pass(&model, &prep.measurements, &nominal, &x0, &p0, false)
-            .ok()?;
+    let pass = crate::identify::smoother::linearised_pass(
+        &model,
+        &prep.measurements,
+        &nominal,
+        &x0,
+        &p0,
+        false,
+    )
+    .ok()?;
     let last = pass.states.last()?;
     let size = [0, 1, 2].map(|i| last[n - 3 + i]);
     let sigma = [0, 1, 2].map(|i| pass.final_cov[(n - 3 + i, n - 3 + i)].max(0.0).sqrt());
@@ -186,14 +194,14 @@ fn refit(
     let model = build_model(prep.site, &list, cfg).ok()?;
     let n = model.dim();
     let (x0, p0) = start_prior(&model, prep, &prep.start_sigma());
-    let fit = super::gauss_newton(
+    let fit = crate::identify::gauss_newton(
         &model,
         &prep.measurements,
         extended(id, n),
         &x0,
         &p0,
         2,
-        cfg.smoother_iterations + super::GN_EXTRA_ITERATIONS,
+        cfg.smoother_iterations + crate::identify::GN_EXTRA_ITERATIONS,
     )
     .ok()?;
     let last = fit.states.last()?;
