@@ -29,15 +29,7 @@ fn a_drift_step_is_found_with_its_time_and_size() {
         let injected: InjectedEffect = "drift-step=0,0.002,0:30".parse().unwrap();
         sc.effects.push(injected);
         let sim = simulate(&sc);
-        let samples: Vec<Sample> = sim
-            .samples
-            .iter()
-            .map(|s| Sample {
-                t_s: s.t_s,
-                specific_force: s.specific_force_mps2,
-                temp_c: f64::NAN,
-            })
-            .collect();
+        let samples: Vec<Sample> = sim.samples.iter().map(Sample::from).collect();
         let cfg = DiagnoseConfig::default().identify;
         let prep = prepare(Site::new(sc.latitude_deg, sc.gravity_mps2), &samples, &cfg).unwrap();
         let effects = vec![catalog::paper()];

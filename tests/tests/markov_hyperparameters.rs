@@ -45,15 +45,7 @@ fn fit_markov(seed: u64, effect: Option<&str>) -> (f64, MarkovFit, Identificatio
         sc.effects.push(injected);
     }
     let sim = simulate(&sc);
-    let samples: Vec<Sample> = sim
-        .samples
-        .iter()
-        .map(|s| Sample {
-            t_s: s.t_s,
-            specific_force: s.specific_force_mps2,
-            temp_c: s.temp_c.unwrap_or(f64::NAN),
-        })
-        .collect();
+    let samples: Vec<Sample> = sim.samples.iter().map(Sample::from).collect();
     let cfg = DiagnoseConfig::default().identify;
     let prep = prepare(Site::new(sc.latitude_deg, sc.gravity_mps2), &samples, &cfg).unwrap();
     let effects = catalog::model_effects(&["drift-markov".to_string()]).unwrap();

@@ -36,15 +36,7 @@ pub fn run(args: &DemoArgs) -> anyhow::Result<()> {
     );
     let sim = simulate(&sc);
     let truth = sim.truth.coefficient_array();
-    let samples: Vec<Sample> = sim
-        .samples
-        .iter()
-        .map(|s| Sample {
-            t_s: s.t_s,
-            specific_force: s.specific_force_mps2,
-            temp_c: s.temp_c.unwrap_or(f64::NAN),
-        })
-        .collect();
+    let samples: Vec<Sample> = sim.samples.iter().map(Sample::from).collect();
     let site = estimator_core::Site::new(sc.latitude_deg, sc.gravity_mps2);
     let cfg = Config::default();
     let effects = vec![catalog::paper()];
@@ -129,15 +121,7 @@ fn hidden_effect_story(seed: u64) -> anyhow::Result<()> {
          (hidden from the tool; the truth file would name it). The diagnosis compares the model with the measurements…\n"
     );
     let sim = simulate(&sc);
-    let samples: Vec<Sample> = sim
-        .samples
-        .iter()
-        .map(|s| Sample {
-            t_s: s.t_s,
-            specific_force: s.specific_force_mps2,
-            temp_c: s.temp_c.unwrap_or(f64::NAN),
-        })
-        .collect();
+    let samples: Vec<Sample> = sim.samples.iter().map(Sample::from).collect();
     let site = estimator_core::Site::new(sc.latitude_deg, sc.gravity_mps2);
     let cfg = DiagnoseConfig::default();
     let prep = prepare(site, &samples, &cfg.identify)?;
