@@ -189,6 +189,13 @@ fn demo_runs_without_arguments() {
     );
     let s = String::from_utf8_lossy(&out.stdout);
     assert!(s.contains("paper T2") && s.contains("DZz") && s.contains("converged"));
+    // Issue 29 item 11: g² widens D0's 1σ some 60×; the ladder points to `plan`, which can
+    // separate it with a second orientation.
+    assert!(
+        s.contains("the added effects widen a 1σ up to ×")
+            && s.contains("driftid plan RUN.csv --with g2"),
+        "{s}"
+    );
 }
 
 /// `driftid report` on a run with a hidden accelerometer bias: one self-contained HTML page that
@@ -535,6 +542,19 @@ fn a_plan_from_a_run_the_model_does_not_explain_is_not_trusted() {
             code == 3,
             "--with {with:?}: the misfit named exactly when it is there:\n{all}"
         );
+        // Issue 29 item 11: a ready `driftid simulate` line for the planned run, which runs
+        // (its output put in the test's folder) and makes a recording of that orientation.
+        let line = all
+            .lines()
+            .find_map(|l| l.split_once("to try it in simulation: driftid "))
+            .map(|(_, rest)| rest.to_string())
+            .unwrap_or_else(|| panic!("no simulate line:\n{all}"));
+        let mut args: Vec<std::ffi::OsString> = line.split_whitespace().map(Into::into).collect();
+        let out_at = args.iter().position(|a| a == "--out").unwrap() + 1;
+        args[out_at] = dir.join(format!("next-{}.csv", with.is_some())).into();
+        let (status, text) = run_driftid(&args);
+        assert_eq!(status, Some(0), "{line}:\n{text}");
+        assert!(dir.join(format!("next-{}.csv", with.is_some())).is_file());
     }
 }
 

@@ -228,8 +228,23 @@ pub fn print_ladder(rungs: &[Rung]) {
                 s1 / s0
             );
         }
+        let widest = a
+            .coefficients
+            .iter()
+            .zip(&b.coefficients)
+            .map(|((_, _, s0), (_, _, s1))| s1 / s0)
+            .fold(0.0, f64::max);
+        if widest > WIDENED_POINT_TO_PLAN {
+            println!(
+                "  the added effects widen a 1σ up to ×{widest:.0}: one static run cannot separate them from the drift; a second run from another orientation can — `driftid plan RUN.csv --with {}` says which",
+                b.model.join(",")
+            );
+        }
     }
 }
+
+/// A 1σ widened more than this by the added effects earns a pointer to `driftid plan`.
+const WIDENED_POINT_TO_PLAN: f64 = 3.0;
 
 /// Runs `driftid diagnose`.
 pub fn run(args: &DiagnoseArgs) -> anyhow::Result<()> {

@@ -222,6 +222,18 @@ fn print_plan(
         d.hours,
         d.rate_s
     );
+    for (k, d) in best.designs.iter().enumerate() {
+        let o = d.orientation_deg;
+        println!(
+            "  to try it in simulation: driftid simulate --initial-orientation-deg {:.0},{:.0},{:.0} --hours {} --rate-s {} --out next{}.csv",
+            o[0],
+            o[1],
+            o[2],
+            d.hours,
+            d.rate_s,
+            if best.designs.len() > 1 { format!("-{}", k + 1) } else { String::new() }
+        );
+    }
     let show = |v: f64| {
         if what.starts_with("canonical") {
             format!("{v:.3}")
@@ -261,7 +273,7 @@ fn print_plan(
         }
     }
     if alternatives > 0 {
-        println!("alternatives:");
+        println!("alternatives ({what}):");
         for c in ranked.iter().skip(1).take(alternatives) {
             println!("  {} → {}", runs(c), show(c.score));
         }

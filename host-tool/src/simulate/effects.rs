@@ -22,7 +22,10 @@ pub const EFFECT_NAMES: [&str; 11] = [
 /// Help text describing the `--effect` syntax.
 pub const EFFECT_SYNTAX_HELP: &str = "\
 NAME=v1,v2,... (repeatable; the same effect twice adds up). Effects:
-  g2=18 values          drift += sum_{j<=k} D(i)_jk A_j A_k, deg/h/(m/s^2)^2; 6 per axis X,Y,Z in order xx,xy,xz,yy,yz,zz
+  g2=18 values          drift += sum_{j<=k} D(i)_jk A_j A_k, deg/h/(m/s^2)^2; 6 per axis X,Y,Z in order xx,xy,xz,yy,yz,zz.
+                        A static run sees 15 combinations (A_x^2+A_y^2+A_z^2 = g^2): the truth file and the
+                        estimates give D(i)0 += g^2 D(i)zz, G(i)xx-zz = D(i)xx - D(i)zz, G(i)yy-zz = D(i)yy - D(i)zz,
+                        G(i)xy, G(i)xz, G(i)yz (estimator-core/src/effects/g2.rs)
   acc-bias=bx,by,bz     accelerometer bias, m/s^2
   acc-scale=sx,sy,sz    accelerometer scale-factor error, ppm (z_i += s_i*1e-6*A_i)
   acc-misalign=xy,xz,yx,yz,zx,zy   z_i += sum_{j!=i} m_ij A_j, rad
