@@ -6,7 +6,8 @@
 //! (a missing or wrong-sign term changes a column by O(1) relative).
 
 use estimator_core::effects::{
-    AccBias, AccMisalign, AccScale, DriftMarkov, DriftTrend, Effect, G2Drift, PaperDrift, TempDrift,
+    AccBias, AccMisalign, AccScale, DriftDaily, DriftMarkov, DriftTrend, Effect, G2Drift,
+    PaperDrift, TempDrift,
 };
 use estimator_core::model::{Model, Propagation};
 use estimator_core::propagate::{propagate, Transition};
@@ -21,7 +22,7 @@ static MARKOV: DriftMarkov = DriftMarkov {
     tau_h: 2.0,
 };
 /// Every catalog effect at once, so each effect's partials are checked.
-static EFFECTS: [&dyn Effect; 8] = [
+static EFFECTS: [&dyn Effect; 9] = [
     &PaperDrift,
     &AccBias,
     &MARKOV,
@@ -30,6 +31,7 @@ static EFFECTS: [&dyn Effect; 8] = [
     &AccMisalign,
     &DriftTrend,
     &TempDrift,
+    &DriftDaily { sigma_degph: 0.01 },
 ];
 
 fn model(propagation: Propagation) -> Model<'static> {

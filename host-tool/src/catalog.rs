@@ -1,7 +1,8 @@
 //! The catalog of physical effects the host can add to the model by name (`--with a,b`).
 
 use estimator_core::effects::{
-    AccBias, AccMisalign, AccScale, DriftMarkov, DriftTrend, Effect, G2Drift, PaperDrift, TempDrift,
+    AccBias, AccMisalign, AccScale, DriftDaily, DriftMarkov, DriftTrend, Effect, G2Drift,
+    PaperDrift, TempDrift,
 };
 
 static PAPER: PaperDrift = PaperDrift;
@@ -10,6 +11,7 @@ static ACC_SCALE: AccScale = AccScale;
 static ACC_MISALIGN: AccMisalign = AccMisalign;
 static G2: G2Drift = G2Drift;
 static DRIFT_TREND: DriftTrend = DriftTrend;
+static DRIFT_DAILY: DriftDaily = DriftDaily { sigma_degph: 0.01 };
 static TEMP_DRIFT: TempDrift = TempDrift;
 static DRIFT_MARKOV: DriftMarkov = DriftMarkov {
     sigma_degph: 0.01,
@@ -33,6 +35,7 @@ fn builtin_candidates() -> Vec<&'static dyn Effect> {
         &DRIFT_TREND,
         &DRIFT_MARKOV,
         &TEMP_DRIFT,
+        &DRIFT_DAILY,
     ]
 }
 

@@ -17,6 +17,7 @@ use nalgebra::{Matrix3, Vector3};
 mod acc_bias;
 pub mod acc_misalign;
 mod acc_scale;
+mod drift_daily;
 mod drift_markov;
 mod drift_trend;
 mod g2;
@@ -26,6 +27,7 @@ mod temp_drift;
 pub use acc_bias::AccBias;
 pub use acc_misalign::AccMisalign;
 pub use acc_scale::AccScale;
+pub use drift_daily::{DriftDaily, SOLAR_DAY_S};
 pub use drift_markov::DriftMarkov;
 pub use drift_trend::DriftTrend;
 pub use g2::G2Drift;
@@ -113,8 +115,9 @@ mod tests {
     /// all be overwritten.
     #[test]
     fn effects_set_every_parameter_column() {
-        let effects: [&dyn Effect; 8] = [
+        let effects: [&dyn Effect; 9] = [
             &PaperDrift,
+            &DriftDaily::default(),
             &AccBias,
             &AccMisalign,
             &AccScale,

@@ -49,6 +49,10 @@ pub struct ModelArgs {
     /// Daily tilt of the apparent vertical, 1σ per component, arcsec (default 1).
     #[arg(long, value_parser = super::args::nonneg_f64)]
     pub vertical_tilt_arcsec: Option<f64>,
+    /// Drift that follows the solar day (a laboratory's thermal cycle), 1σ per component, deg/h
+    /// (default 3e-4; 0 when the gyros' temperature is held or the drift is modelled from it).
+    #[arg(long, value_parser = super::args::nonneg_f64)]
+    pub daily_drift_deg_h: Option<f64>,
     /// TOML file of effects defined by the user, added to the catalog for this run (repeatable);
     /// see the README, "Effects defined in a file".
     #[arg(long = "effects", value_name = "FILE")]
@@ -98,6 +102,7 @@ impl ModelArgs {
         setup.vertical_tilt_arcsec = self
             .vertical_tilt_arcsec
             .unwrap_or(setup.vertical_tilt_arcsec);
+        setup.daily_drift_deg_h = self.daily_drift_deg_h.unwrap_or(setup.daily_drift_deg_h);
         Ok(Config {
             setup,
             period_s: self.period_s,

@@ -16,11 +16,16 @@
 //! - **daily tilt of the apparent vertical** (a building's thermal tilt): a 24-h rotation of
 //!   the measured gravity direction, too small to detect at this noise; a pure consider term,
 //!   `S σ² Sᵀ`, S from the linearised smoother's response to the tilt's signature.
+//! - **daily drift** (a laboratory's thermal cycle reaching the gyros): a drift at the solar day,
+//!   which one run of a few days hardly separates from the coefficients (the platform turns with
+//!   the sidereal day). Marginalised: the model with its six components at their prior is
+//!   linearised about the fit; what it adds is that covariance less the fit's (shrunk where the
+//!   data see it, the full consider term where they do not).
 //!
 //! The total covariance is the fit's (start attitude estimated) plus these terms.
 
 use anyhow::Context as _;
-use estimator_core::effects::Effect;
+use estimator_core::effects::{DriftDaily, Effect};
 use estimator_core::frames::Attitude;
 use estimator_core::model::{Model, ANGLES};
 use estimator_core::Site;
@@ -37,7 +42,8 @@ use super::{
 pub const RAD_PER_ARCSEC: f64 = std::f64::consts::PI / (180.0 * 3600.0);
 
 /// Priors of the set-up (1σ each); `driftid` options `--alignment-arcsec`,
-/// `--latitude-sigma-deg`, `--clock-sigma-ppm`, `--gravity-sigma-ppm`, `--vertical-tilt-arcsec`.
+/// `--latitude-sigma-deg`, `--clock-sigma-ppm`, `--gravity-sigma-ppm`, `--vertical-tilt-arcsec`,
+/// `--daily-drift-deg-h`.
 #[derive(Clone, Copy, Debug, PartialEq, Serialize)]
 pub struct SetupPriors {
     /// Start tilt about each level axis, arcsec: a platform levelled on its accelerometers is
@@ -60,6 +66,13 @@ pub struct SetupPriors {
     pub vertical_tilt_arcsec: f64,
     /// Period of that tilt, h (a solar day).
     pub vertical_tilt_period_h: f64,
+    /// A gyro drift that follows the solar day, 1σ of each of its six components (x, y, z; in
+    /// phase and in quadrature with the day), deg/h: a laboratory's daily thermal cycle that
+    /// reaches the gyros when no temperature is recorded. An air-conditioned room swings by
+    /// about ±1 °C a day; the platform's thermal control passes some ±0.15 °C to the gyros; an
+    /// electrostatic gyro's drift moves by ~0.002 deg/h per °C (the catalog's `temp-drift`
+    /// examples span 0.001–0.003): 3e-4 deg/h.
+    pub daily_drift_deg_h: f64,
     /// Whether the latitude's, the clock rate's and the gravity's priors are the tool's defaults
     /// (an assumption the run rests on) rather than the user's statement.
     #[serde(skip)]
@@ -79,6 +92,7 @@ impl Default for SetupPriors {
             gravity_sigma_ppm: 30.0,
             vertical_tilt_arcsec: 1.0,
             vertical_tilt_period_h: 24.0,
+            daily_drift_deg_h: 3e-4,
             assumed: [true; 3],
         }
     }
@@ -118,7 +132,7 @@ pub fn written_precision(x: f64) -> f64 {
 /// What one set-up parameter adds to the coefficients' uncertainty.
 #[derive(Clone, Debug, Serialize)]
 pub struct Contribution {
-    /// `start attitude`, `latitude`, `clock rate`, `gravity` or `vertical tilt`.
+    /// `start attitude`, `latitude`, `clock rate`, `gravity`, `vertical tilt` or `daily drift`.
     pub source: &'static str,
     /// The prior, in words with its unit.
     pub prior: String,
@@ -182,6 +196,10 @@ pub struct Uncertainty {
     /// (`None` for a single pass): what [`super::misstated`] weighs a misstated set-up with.
     #[serde(skip)]
     pub knobs: Option<KnobModel>,
+    /// How far marginalising the daily drift at its prior moves the parameters (state order after
+    /// the angles; empty for a single pass): [`settle`] applies it.
+    #[serde(skip)]
+    pub daily_shift: Vec<f64>,
 }
 
 /// −2 ln p(y) to second order in the knobs (latitude, clock rate, gravity) about the stated
@@ -291,6 +309,7 @@ impl Uncertainty {
             setup_check: None,
             model_spread: vec![],
             knobs: None,
+            daily_shift: vec![],
         }
     }
 }
@@ -641,6 +660,64 @@ fn vertical_tilt(
     Ok(c)
 }
 
+/// A daily periodic drift marginalised at its prior (six components): the model with
+/// [`DriftDaily`] appended, linearised about the fit with the components at zero, against the
+/// fit's model by the same pass; what it adds is the difference of the parameters' covariances,
+/// and where it puts them the difference of the passes' estimates. Nothing when the model
+/// already holds `drift-daily`.
+fn daily_drift(
+    effects: &[&'static dyn Effect],
+    prep: &Prepared,
+    cfg: &Config,
+    id: &Identification,
+) -> anyhow::Result<(Contribution, Vec<f64>)> {
+    let sigma = cfg.setup.daily_drift_deg_h;
+    let n = id.best().value.len();
+    let prior = format!("{} deg/h per component", crate::format::sig(sigma, 2));
+    let daily = DriftDaily { sigma_degph: sigma };
+    if !(sigma > 0.0) || effects.iter().any(|e| e.name() == daily.name()) {
+        let none = Contribution::new("daily drift", prior, DMatrix::zeros(n, n));
+        return Ok((none, vec![0.0; n]));
+    }
+    let mut with: Vec<&dyn Effect> = effects.iter().map(|e| *e as &dyn Effect).collect();
+    with.push(&daily);
+    let base = build_model(prep.site, effects, cfg)?;
+    let model = build_model(prep.site, &with, cfg)?;
+    let added = daily.params().len();
+    let nominal: Vec<DVector<f64>> = id
+        .trajectory
+        .iter()
+        .map(|x| x.clone().resize_vertically(x.len() + added, 0.0))
+        .collect();
+    let cov_of = |m: &Model<'_>, nominal: &[DVector<f64>]| {
+        let (x0, p0) = start_prior(m, prep, &prep.start_sigma());
+        linearised_pass(m, &prep.measurements, nominal, &x0, &p0, false)
+    };
+    let (without, with) = rayon::join(
+        || cov_of(&base, &id.trajectory),
+        || cov_of(&model, &nominal),
+    );
+    let (without, with) = (without?, with?);
+    // The parameters where the daily drift's prior and the data put them: one Gauss–Newton step
+    // of the augmented model from the converged fit (exact to first order: the drift is linear
+    // in its components), against the same pass without it.
+    let (a, b) = (
+        without.states.last().context("no states")?,
+        with.states.last().context("no states")?,
+    );
+    let shift: Vec<f64> = (0..n).map(|k| b[ANGLES + k] - a[ANGLES + k]).collect();
+    let (without, with) = (without.final_cov, with.final_cov);
+    let cov = with.view((ANGLES, ANGLES), (n, n)) - without.view((ANGLES, ANGLES), (n, n));
+    let mut c = Contribution::new("daily drift", prior, cov);
+    let post = (0..added)
+        .map(|k| with[(ANGLES + n + k, ANGLES + n + k)].sqrt())
+        .fold(0.0, f64::max);
+    c.posterior_sigma = post;
+    c.data_sigma =
+        (post < 0.99 * sigma).then(|| 1.0 / (1.0 / (post * post) - 1.0 / (sigma * sigma)).sqrt());
+    Ok((c, shift))
+}
+
 /// The coefficients' uncertainty with the set-up priors of `cfg` (see the module docs). `id` is
 /// the converged fit of `effects` on `prep`.
 pub fn uncertainty(
@@ -699,9 +776,14 @@ pub fn uncertainty(
             stated: 0.0,
         },
     ];
-    let (marginal, tilt) = rayon::join(
+    let (marginal, (tilt, daily)) = rayon::join(
         || marginalise(&knobs, f0, prep, effects, cfg, id),
-        || vertical_tilt(&model, prep, id, &priors),
+        || {
+            rayon::join(
+                || vertical_tilt(&model, prep, id, &priors),
+                || daily_drift(effects, prep, cfg, id),
+            )
+        },
     );
     let marginal = marginal?;
     // The start attitude is estimated in the fit: what it adds is the fit's covariance less the
@@ -716,10 +798,14 @@ pub fn uncertainty(
     );
     let mut contributions = vec![start];
     contributions.extend(marginal.contributions);
+    let (daily, daily_shift) = daily?;
     contributions.push(tilt?);
-    // The knobs' joint covariance (their correlations kept), the start's and the tilt's.
+    contributions.push(daily);
+    // The knobs' joint covariance (their correlations kept), the start's, the tilt's and the
+    // daily drift's.
     let mut total_cov = &noise_cov + &contributions[0].cov + &marginal.cov;
     total_cov += &contributions[4].cov;
+    total_cov += &contributions[5].cov;
     Ok(Uncertainty {
         noise_sigma: (0..n).map(|k| noise_cov[(k, k)].sqrt()).collect(),
         total_sigma: (0..n).map(|k| total_cov[(k, k)].sqrt()).collect(),
@@ -729,6 +815,7 @@ pub fn uncertainty(
         setup_check: Some(marginal.check),
         model_spread: vec![],
         knobs: Some(marginal.model),
+        daily_shift,
     })
 }
 
@@ -746,27 +833,51 @@ pub struct Settled {
 /// model is refitted there (below it the coefficients move by less than a tenth of their share).
 pub const SETTLE_SHIFT_SIGMA: f64 = 0.1;
 
-/// The set-up estimated where the data can: [`uncertainty`] about the stated set-up, then, if
-/// the knobs' posterior lies away from it (gravity 50 ppm off a value the data measure to
-/// 0.2 ppm), the model refitted there. The estimate is then the posterior's, not the stated
-/// set-up's.
+/// The set-up estimated where the data can ([`settle_setup`]), and the coefficients moved where
+/// the daily drift's prior and the data put them ([`Uncertainty::daily_shift`]).
 pub fn settle(
     effects: &[&'static dyn Effect],
     prep: Prepared,
     cfg: &Config,
     id: Identification,
 ) -> anyhow::Result<Settled> {
+    let (mut settled, moved) = settle_setup(effects, prep, cfg, id)?;
+    let mut shift = std::mem::take(&mut settled.unc.daily_shift);
+    if moved {
+        // The shift is the daily drift's reach from the fit it is taken about: about the stated
+        // set-up's misfit it would also soak up the set-up's error the refit has repaired.
+        shift = daily_drift(effects, &settled.prep, cfg, &settled.id)?.1;
+    }
+    if let Some(est) = settled.id.refined.as_mut() {
+        for (v, d) in est.value.iter_mut().zip(&shift) {
+            *v += d;
+        }
+    }
+    Ok(settled)
+}
+
+/// The set-up's part of [`settle`], and whether it refitted: [`uncertainty`] about the stated
+/// set-up, then, if
+/// the knobs' posterior lies away from it (gravity 50 ppm off a value the data measure to
+/// 0.2 ppm), the model refitted there. The estimate is then the posterior's, not the stated
+/// set-up's.
+fn settle_setup(
+    effects: &[&'static dyn Effect],
+    prep: Prepared,
+    cfg: &Config,
+    id: Identification,
+) -> anyhow::Result<(Settled, bool)> {
     let unc = uncertainty(effects, &prep, cfg, &id)?;
     if !unc.untrusted_reasons().is_empty() {
         // The stated set-up is contradicted: the linearised posterior is no place to refit.
-        return Ok(Settled { prep, id, unc });
+        return Ok((Settled { prep, id, unc }, false));
     }
     let far = unc.contributions[1..4]
         .iter()
         .zip(unc.setup_shift)
         .any(|(c, d)| c.posterior_sigma > 0.0 && d.abs() > SETTLE_SHIFT_SIGMA * c.posterior_sigma);
     if !far {
-        return Ok(Settled { prep, id, unc });
+        return Ok((Settled { prep, id, unc }, false));
     }
     let mut p = moved(&prep, unc.setup_shift);
     for c in &unc.contributions[1..4] {
@@ -800,13 +911,16 @@ pub fn settle(
             unc.total_sigma = (0..n)
                 .map(|k| unc.total_cov[(k, k)].max(0.0).sqrt())
                 .collect();
-            Ok(Settled {
-                prep: p,
-                id: id2,
-                unc,
-            })
+            Ok((
+                Settled {
+                    prep: p,
+                    id: id2,
+                    unc,
+                },
+                true,
+            ))
         }
         // The refit failed: the stated set-up's fit stands, with its uncertainty.
-        Err(_) => Ok(Settled { prep, id, unc }),
+        Err(_) => Ok((Settled { prep, id, unc }, false)),
     }
 }

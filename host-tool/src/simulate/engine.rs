@@ -15,6 +15,9 @@ use rand_distr::{Distribution, StandardNormal};
 use super::dcm::{self, RADPS_PER_DEG_H};
 use super::{InjectedEffect, Scenario, TempProfile};
 
+/// A solar day, s (the period of a set-up's daily drift).
+const SOLAR_DAY_S: f64 = 86_400.0;
+
 /// Random-number streams of one seed; separate streams keep each noise source's realisation
 /// independent of which other effects are switched on.
 pub(crate) mod stream {
@@ -65,6 +68,8 @@ pub struct Simulator {
     markov: Vec<Markov>,
     /// Periodic drifts: amplitude per axis (rad/s) and period (s).
     sines: Vec<([f64; 3], f64)>,
+    /// Daily drift (a set-up error): per axis the cos and sin amplitudes at the solar day, rad/s.
+    daily: [[f64; 2]; 3],
     /// Turn-on transients: amplitude per axis (rad/s) and time constant (s).
     transients: Vec<([f64; 3], f64)>,
     /// Drift steps: size per axis (rad/s) and time (s).
@@ -102,6 +107,10 @@ impl Simulator {
             temp: s.temp_profile.clone(),
             markov: Vec::new(),
             sines: Vec::new(),
+            daily: [0, 1, 2].map(|i| {
+                let d = &s.setup_errors.daily_drift_deg_h;
+                [d[2 * i] * RADPS_PER_DEG_H, d[2 * i + 1] * RADPS_PER_DEG_H]
+            }),
             transients: Vec::new(),
             drift_steps: Vec::new(),
             q: s.arw_deg2_per_h * (std::f64::consts::PI / 180.0).powi(2) / 3600.0,
@@ -256,6 +265,10 @@ impl Simulator {
             wi += self.trend[i] * t + self.temp_coef[i] * dt_temp + markov[i];
             for (a, p) in &self.sines {
                 wi += a[i] * (2.0 * std::f64::consts::PI * t / p).sin();
+            }
+            if self.daily[i] != [0.0; 2] {
+                let (sn, cs) = (std::f64::consts::TAU * t / SOLAR_DAY_S).sin_cos();
+                wi += self.daily[i][0] * cs + self.daily[i][1] * sn;
             }
             for (a, tau) in &self.transients {
                 wi += a[i] * (-t / tau).exp();

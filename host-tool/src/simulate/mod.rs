@@ -188,6 +188,10 @@ pub struct SetupErrors {
     pub vertical_tilt_arcsec: [f64; 2],
     /// Its period, h (0: 24).
     pub vertical_tilt_period_h: f64,
+    /// A gyro drift that follows the solar day (a laboratory's thermal cycle), deg/h: per axis
+    /// x, y, z the amplitude in phase (∝ cos Ωt) and in quadrature (∝ sin Ωt), Ω = 2π/24 h.
+    #[serde(default)]
+    pub daily_drift_deg_h: [f64; 6],
 }
 
 impl SetupErrors {
@@ -216,6 +220,7 @@ impl SetupErrors {
                 priors.vertical_tilt_arcsec * n() * std::f64::consts::SQRT_2,
             ],
             vertical_tilt_period_h: priors.vertical_tilt_period_h,
+            daily_drift_deg_h: [(); 6].map(|_| priors.daily_drift_deg_h * n()),
         }
     }
 
@@ -351,10 +356,11 @@ impl Scenario {
             && se.gravity_ppm.abs() < 1e5
             && se.start_arcsec.iter().all(|a| a.abs() <= 3600.0)
             && se.vertical_tilt_arcsec.iter().all(|a| a.abs() <= 3600.0)
-            && se.vertical_tilt_period_h >= 0.0)
+            && se.vertical_tilt_period_h >= 0.0
+            && se.daily_drift_deg_h.iter().all(|a| a.abs() <= 1.0))
         {
             return Err(format!(
-                "set-up errors out of range (clock ±1e5 ppm, latitude ±10 deg, gravity ±1e5 ppm, angles ±3600 arcsec): {se:?}"
+                "set-up errors out of range (clock ±1e5 ppm, latitude ±10 deg, gravity ±1e5 ppm, angles ±3600 arcsec, daily drift ±1 deg/h): {se:?}"
             ));
         }
         let lg = &self.logger;
