@@ -671,33 +671,40 @@ fn daily_drift(
     cfg: &Config,
     id: &Identification,
 ) -> anyhow::Result<(Contribution, Vec<f64>)> {
-    let sigma = cfg.setup.daily_drift_deg_h;
+    let sigma0 = cfg.setup.daily_drift_deg_h;
     let n = id.best().value.len();
-    let prior = format!("{} deg/h per component", crate::format::sig(sigma, 2));
-    let daily = DriftDaily { sigma_degph: sigma };
-    if !(sigma > 0.0) || effects.iter().any(|e| e.name() == daily.name()) {
-        let none = Contribution::new("daily drift", prior, DMatrix::zeros(n, n));
+    let prior = |s: f64| format!("{} deg/h per component", crate::format::sig(s, 2));
+    if !(sigma0 > 0.0)
+        || effects
+            .iter()
+            .any(|e| e.name() == DriftDaily::default().name())
+    {
+        let none = Contribution::new("daily drift", prior(sigma0), DMatrix::zeros(n, n));
         return Ok((none, vec![0.0; n]));
     }
-    let mut with: Vec<&dyn Effect> = effects.iter().map(|e| *e as &dyn Effect).collect();
-    with.push(&daily);
-    let base = build_model(prep.site, effects, cfg)?;
-    let model = build_model(prep.site, &with, cfg)?;
-    let added = daily.params().len();
+    let added = DriftDaily::default().params().len();
     let nominal: Vec<DVector<f64>> = id
         .trajectory
         .iter()
         .map(|x| x.clone().resize_vertically(x.len() + added, 0.0))
         .collect();
-    let cov_of = |m: &Model<'_>, nominal: &[DVector<f64>]| {
+    let pass = |m: &Model<'_>, nominal: &[DVector<f64>]| {
         let (x0, p0) = start_prior(m, prep, &prep.start_sigma());
         linearised_pass(m, &prep.measurements, nominal, &x0, &p0, false)
     };
-    let (without, with) = rayon::join(
-        || cov_of(&base, &id.trajectory),
-        || cov_of(&model, &nominal),
-    );
-    let (without, with) = (without?, with?);
+    let with_daily = |sigma: f64| -> anyhow::Result<_> {
+        let daily = DriftDaily { sigma_degph: sigma };
+        let mut with: Vec<&dyn Effect> = effects.iter().map(|e| *e as &dyn Effect).collect();
+        with.push(&daily);
+        Ok(pass(&build_model(prep.site, &with, cfg)?, &nominal)?)
+    };
+    let base = build_model(prep.site, effects, cfg)?;
+    let (without, with) = rayon::join(|| pass(&base, &id.trajectory), || with_daily(sigma0));
+    let (without, mut with) = (without?, with?);
+    let sigma = daily_size(&with, ANGLES + n, sigma0);
+    if sigma > sigma0 {
+        with = with_daily(sigma)?;
+    }
     // The parameters where the daily drift's prior and the data put them: one Gauss–Newton step
     // of the augmented model from the converged fit (exact to first order: the drift is linear
     // in its components), against the same pass without it.
@@ -708,7 +715,16 @@ fn daily_drift(
     let shift: Vec<f64> = (0..n).map(|k| b[ANGLES + k] - a[ANGLES + k]).collect();
     let (without, with) = (without.final_cov, with.final_cov);
     let cov = with.view((ANGLES, ANGLES), (n, n)) - without.view((ANGLES, ANGLES), (n, n));
-    let mut c = Contribution::new("daily drift", prior, cov);
+    let label = if sigma > sigma0 {
+        format!(
+            "{}; the data's {}",
+            prior(sigma0),
+            crate::format::sig(sigma, 2)
+        )
+    } else {
+        prior(sigma0)
+    };
+    let mut c = Contribution::new("daily drift", label, cov);
     let post = (0..added)
         .map(|k| with[(ANGLES + n + k, ANGLES + n + k)].sqrt())
         .fold(0.0, f64::max);
@@ -716,6 +732,42 @@ fn daily_drift(
     c.data_sigma =
         (post < 0.99 * sigma).then(|| 1.0 / (1.0 / (post * post) - 1.0 / (sigma * sigma)).sqrt());
     Ok((c, shift))
+}
+
+/// The daily drift's size: its prior 1σ `sigma0`, or a larger one where the data's evidence for
+/// it is higher (the size is not known in advance; the thermal prior is where it starts, not a
+/// cap — as `drift-markov`'s σ, the marginal likelihood decides).
+///
+/// From the pass at `sigma0` (the components are the states from `first` on): the components'
+/// information from the data alone `J = P⁻¹ − σ0⁻²` and their score `h = P⁻¹ m` (P, m their
+/// posterior); for a prior σ the evidence is `G(σ) = σ² hᵀ(1 + σ²J)⁻¹h − ln det(1 + σ²J)`,
+/// maximised over σ0·1.5^k, k = 0…10.
+fn daily_size(pass: &super::smoother::Smoothed, first: usize, sigma0: f64) -> f64 {
+    let (Some(last), q) = (pass.states.last(), pass.final_cov.nrows() - first) else {
+        return sigma0;
+    };
+    let p = pass.final_cov.view((first, first), (q, q)).into_owned();
+    let Some(p_inv) = p.clone().try_inverse() else {
+        return sigma0;
+    };
+    let m = last.rows(first, q).into_owned();
+    let h = &p_inv * m;
+    let j = p_inv - DMatrix::identity(q, q) / (sigma0 * sigma0);
+    let evidence = |sigma: f64| -> f64 {
+        let a = DMatrix::identity(q, q) + &j * (sigma * sigma);
+        match a.clone().lu().solve(&h) {
+            Some(x) => sigma * sigma * h.dot(&x) - a.determinant().max(1e-300).ln(),
+            None => f64::NEG_INFINITY,
+        }
+    };
+    (0..=10)
+        .map(|k| sigma0 * 1.5f64.powi(k))
+        .map(|s| (s, evidence(s)))
+        .fold(
+            (sigma0, f64::NEG_INFINITY),
+            |b, x| if x.1 > b.1 { x } else { b },
+        )
+        .0
 }
 
 /// The coefficients' uncertainty with the set-up priors of `cfg` (see the module docs). `id` is
