@@ -16,7 +16,7 @@ pub const ANGLES: usize = 3;
 /// Largest state the model accepts (the host's capacity; the firmware uses less).
 pub const MAX_STATES: usize = 64;
 /// Largest number of effects in one model.
-pub const MAX_EFFECTS: usize = 8;
+pub const MAX_EFFECTS: usize = 12;
 /// Largest number of states with dynamics (3 angles + Gauss–Markov states).
 pub const MAX_DYNAMIC: usize = 6;
 

@@ -688,6 +688,60 @@ fn a_joint_fit_is_not_trusted_when_one_runs_set_up_is_contradicted() {
     let _ = std::fs::remove_dir_all(&dir);
 }
 
+/// Issue 26 through a joint fit: the joint 1σ carries each run's set-up (latitude, clock rate,
+/// gravity, the daily tilt and drift), not the fit's alone. Two runs written at "39.1": DXx is
+/// limited by the latitude's digits (one run's total is ~30× its noise 1σ; the joint fit's own
+/// 1σ is at the noise), so its total must exceed the fit's by far — 5× is a margin below what
+/// the latitude alone gives — and no total may be below the fit's.
+#[test]
+fn a_joint_fits_total_sigma_carries_the_runs_set_up() {
+    let dir = temp_dir("joint-total");
+    let a = simulate_to(
+        &dir,
+        "a.csv",
+        &["--rate-s", "10", "--hours", "36", "--seed", "2"],
+    );
+    let b = simulate_to(
+        &dir,
+        "b.csv",
+        &[
+            "--rate-s",
+            "10",
+            "--hours",
+            "36",
+            "--seed",
+            "3",
+            "--initial-orientation-deg",
+            "0,0,90",
+        ],
+    );
+    let out = driftid()
+        .arg("identify")
+        .args([a.as_os_str(), b.as_os_str()])
+        .arg("--json")
+        .output()
+        .unwrap();
+    assert_eq!(
+        out.status.code(),
+        Some(0),
+        "{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    let v: serde_json::Value = serde_json::from_slice(&out.stdout).unwrap();
+    let c = &v["coefficients"];
+    for (name, o) in c.as_object().unwrap() {
+        let (t, s) = (
+            o["sigma_total"].as_f64().unwrap(),
+            o["sigma"].as_f64().unwrap(),
+        );
+        assert!(t >= s, "{name}: total {t} below the fit's {s}");
+    }
+    let dxx = &c["DXx"];
+    let ratio = dxx["sigma_total"].as_f64().unwrap() / dxx["sigma"].as_f64().unwrap();
+    assert!(ratio > 5.0, "DXx total / fit 1σ = {ratio:.2}");
+    let _ = std::fs::remove_dir_all(&dir);
+}
+
 /// The page's structure (issue 29): the verdict as its own block before everything else, a table
 /// of contents whose links all land, no table cut at 800 px (each scrolls in a wrapper, numbers
 /// never wrap, a base font of at least 14 px), every clipped point marked and counted, long lists

@@ -334,11 +334,13 @@ pub fn identify_runs(
     let mut reasons = runs_untrusted(&runs, &joint.runs, &checks);
     // Each run's own fit assessed as `identify` assesses one run (the set-up against its priors,
     // the alternatives on one evidence scale): a run whose set-up the data contradict, or that
-    // prefers an effect the joint model lacks, makes the joint result untrusted too. The joint
-    // 1σ itself carries the start attitude, not yet the latitude, clock and gravity.
+    // prefers an effect the joint model lacks, makes the joint result untrusted too. Each run's
+    // set-up uncertainty joins the joint 1σ (the start attitude is in the fit's own).
     let spin = crate::progress::spinner("each run's set-up and alternatives");
+    let mut setups = vec![];
     for (r, fit) in runs.iter().zip(&joint.runs) {
         let a = crate::assess::assess(&effects, r.prep.clone(), &cfg, fit.alone.clone())?;
+        setups.push((fit.alone.best().cov.clone(), a.unc.setup_cov.clone()));
         reasons.extend(
             a.reasons
                 .into_iter()
@@ -346,11 +348,19 @@ pub fn identify_runs(
         );
     }
     spin.finish_and_clear();
-    let mut out = to_json(&joint, &runs, &checks, &bound, truth.as_deref());
+    let setup_cov = crate::identify::joint::setup_covariance(&joint.estimate, &setups)?;
+    let total: Vec<f64> = (0..joint.params.len())
+        .map(|k| {
+            (joint.estimate.cov[(k, k)] + setup_cov[(k, k)])
+                .max(0.0)
+                .sqrt()
+        })
+        .collect();
+    let mut out = to_json(&joint, &runs, &checks, &bound, &total, truth.as_deref());
     out["trusted"] = json!(reasons.is_empty());
     out["untrusted_reasons"] = json!(reasons);
     if !as_json {
-        print_text(&joint, &runs, &checks, &bound, truth.as_deref());
+        print_text(&joint, &runs, &checks, &bound, &total, truth.as_deref());
         if !reasons.is_empty() {
             println!(
                 "NOT TRUSTED: the numbers above are computed but the tool does not trust them:"
@@ -372,6 +382,7 @@ fn print_text(
     runs: &[LoadedRun],
     checks: &[Consistency],
     bound: &[f64],
+    total: &[f64],
     truth: Option<&[f64]>,
 ) {
     for ((r, fit), c) in runs.iter().zip(&joint.runs).zip(checks) {
@@ -403,8 +414,8 @@ fn print_text(
         .map(|p| p.name.chars().count())
         .fold(6, usize::max);
     print!(
-        "{:<w$} {:<16} {:>12} {:>10} {:>10} {:>12}",
-        "coef", "unit", "estimate", "1σ", "CRB 1σ", "best run 1σ"
+        "{:<w$} {:<16} {:>12} {:>10} {:>10} {:>10} {:>12}",
+        "coef", "unit", "estimate", "1σ total", "fit 1σ", "CRB 1σ", "best run 1σ"
     );
     if truth.is_some() {
         print!(" {:>10} {:>10} {:>7}", "truth", "error", "err/σ");
@@ -418,17 +429,18 @@ fn print_text(
             .map(|f| f.alone.best().sigma(k))
             .fold(f64::INFINITY, f64::min);
         print!(
-            "{:<w$} {:<16} {:>12} {:>10} {:>10} {:>12}",
+            "{:<w$} {:<16} {:>12} {:>10} {:>10} {:>10} {:>12}",
             p.name,
             p.unit,
-            with_sigma(e.value[k], e.sigma(k)),
+            with_sigma(e.value[k], total[k]),
+            sci(total[k]),
             sci(e.sigma(k)),
             sci(bound[k]),
             sci(alone)
         );
         if let Some(t) = truth {
             let err = e.value[k] - t[k];
-            print!(" {:>10} {:>10} {:>7.2}", t[k], sci(err), err / e.sigma(k));
+            print!(" {:>10} {:>10} {:>7.2}", t[k], sci(err), err / total[k]);
         }
         println!();
     }
@@ -456,12 +468,13 @@ fn to_json(
     runs: &[LoadedRun],
     checks: &[Consistency],
     bound: &[f64],
+    total: &[f64],
     truth: Option<&[f64]>,
 ) -> Value {
     let mut coefs = Map::new();
     let e = &joint.estimate;
     for (k, p) in joint.params.iter().enumerate() {
-        let mut o = json!({ "value": e.value[k], "sigma": e.sigma(k), "bound": bound[k], "unit": p.unit,
+        let mut o = json!({ "value": e.value[k], "sigma_total": total[k], "sigma": e.sigma(k), "bound": bound[k], "unit": p.unit,
             "alone_sigma": joint.runs.iter().map(|f| f.alone.best().sigma(k)).collect::<Vec<_>>() });
         if let Some(t) = truth {
             o["truth"] = json!(t[k]);

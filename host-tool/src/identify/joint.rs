@@ -110,6 +110,27 @@ pub fn fuse(posteriors: &[Estimate], p0: &DMatrix<f64>) -> anyhow::Result<Estima
     })
 }
 
+/// What the runs' set-ups leave uncertain in the joint estimate. The joint estimate is
+/// `p̂ = Λ⁻¹ Σ_r P_r⁻¹ p_r` (Λ⁻¹ the joint covariance, P_r run r's own posterior), so an error of
+/// run r's estimate from its set-up (covariance `C_r`: latitude, clock rate, gravity, the
+/// vertical's daily tilt, the daily drift — [`super::setup::Uncertainty::setup_cov`]) moves it by
+/// `Λ⁻¹ P_r⁻¹ δp_r`. The runs' set-up errors are taken as independent (each run's own logger
+/// set-up, its own days; a latitude common to runs at one site is not correlated here).
+/// `runs`: per run `(P_r, C_r)`.
+pub fn setup_covariance(
+    joint: &Estimate,
+    runs: &[(DMatrix<f64>, DMatrix<f64>)],
+) -> anyhow::Result<DMatrix<f64>> {
+    let n = joint.cov.nrows();
+    let mut out = DMatrix::zeros(n, n);
+    for (p_r, c_r) in runs {
+        let (info, _) = information(p_r, &vec![0.0; n])?;
+        let w = &joint.cov * info;
+        out += &w * c_r * w.transpose();
+    }
+    Ok(out)
+}
+
 /// The parameter block of the wide prior (the same for every run).
 fn parameter_prior(model: &Model<'_>) -> DMatrix<f64> {
     let (_, p0) = wide_prior(model, &vec![0.0; model.dim()], &[0.0; 3]);

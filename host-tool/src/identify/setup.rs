@@ -185,6 +185,11 @@ pub struct Uncertainty {
     /// The total covariance of the parameters.
     #[serde(skip)]
     pub total_cov: DMatrix<f64>,
+    /// The set-up's share of it beyond the fit's own covariance (latitude, clock rate, gravity,
+    /// the vertical's daily tilt, the daily drift; the start attitude is in the fit): what a
+    /// joint fit of several runs carries from each ([`super::joint::setup_covariance`]).
+    #[serde(skip)]
+    pub setup_cov: DMatrix<f64>,
     /// Where prior and data put the latitude (deg), clock rate (ppm) and gravity (ppm) against
     /// the stated values: [`settle`] refits there.
     pub setup_shift: [f64; 3],
@@ -305,6 +310,7 @@ impl Uncertainty {
             total_sigma: s,
             contributions: vec![],
             total_cov: cov.clone(),
+            setup_cov: DMatrix::zeros(cov.nrows(), cov.ncols()),
             setup_shift: [0.0; 3],
             setup_check: None,
             model_spread: vec![],
@@ -699,6 +705,15 @@ fn daily_drift(
         Ok(pass(&build_model(prep.site, &with, cfg)?, &nominal)?)
     };
     let base = build_model(prep.site, effects, cfg)?;
+    if let Err(e) = with_daily_fits(effects, prep, cfg) {
+        // Said in the set-up table, not hidden: the 1σ then lacks this term.
+        let none = Contribution::new(
+            "daily drift",
+            format!("not carried: {e}"),
+            DMatrix::zeros(n, n),
+        );
+        return Ok((none, vec![0.0; n]));
+    }
     let (without, with) = rayon::join(|| pass(&base, &id.trajectory), || with_daily(sigma0));
     let (without, mut with) = (without?, with?);
     let sigma = daily_size(&with, ANGLES + n, sigma0);
@@ -732,6 +747,19 @@ fn daily_drift(
     c.data_sigma =
         (post < 0.99 * sigma).then(|| 1.0 / (1.0 / (post * post) - 1.0 / (sigma * sigma)).sqrt());
     Ok((c, shift))
+}
+
+/// Whether the model of `effects` with the daily drift appended can be built (it may exceed the
+/// model's capacity of states or effects).
+fn with_daily_fits(
+    effects: &[&'static dyn Effect],
+    prep: &Prepared,
+    cfg: &Config,
+) -> anyhow::Result<()> {
+    let daily = DriftDaily::default();
+    let mut with: Vec<&dyn Effect> = effects.iter().map(|e| *e as &dyn Effect).collect();
+    with.push(&daily);
+    build_model(prep.site, &with, cfg).map(|_| ())
 }
 
 /// The daily drift's size: its prior 1σ `sigma0`, or a larger one where the data's evidence for
@@ -855,14 +883,14 @@ pub fn uncertainty(
     contributions.push(daily);
     // The knobs' joint covariance (their correlations kept), the start's, the tilt's and the
     // daily drift's.
-    let mut total_cov = &noise_cov + &contributions[0].cov + &marginal.cov;
-    total_cov += &contributions[4].cov;
-    total_cov += &contributions[5].cov;
+    let setup_cov = &marginal.cov + &contributions[4].cov + &contributions[5].cov;
+    let total_cov = &noise_cov + &contributions[0].cov + &setup_cov;
     Ok(Uncertainty {
         noise_sigma: (0..n).map(|k| noise_cov[(k, k)].sqrt()).collect(),
         total_sigma: (0..n).map(|k| total_cov[(k, k)].sqrt()).collect(),
         contributions,
         total_cov,
+        setup_cov,
         setup_shift: marginal.shift,
         setup_check: Some(marginal.check),
         model_spread: vec![],
