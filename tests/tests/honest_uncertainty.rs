@@ -341,7 +341,7 @@ fn a_daily_drift_is_carried_in_the_total_sigma_or_named() {
             let mut sc = scenario(seed, 60.0, 10.0);
             let phase = |i: u64| (seed * 7 + i * 3) as f64;
             sc.setup_errors.daily_drift_deg_h = [0, 1, 2]
-                .map(|i| phase(i))
+                .map(phase)
                 .map(|p| [p.cos(), p.sin()])
                 .as_flattened()
                 .try_into()

@@ -680,7 +680,8 @@ fn daily_drift(
     let sigma0 = cfg.setup.daily_drift_deg_h;
     let n = id.best().value.len();
     let prior = |s: f64| format!("{} deg/h per component", crate::format::sig(s, 2));
-    if !(sigma0 > 0.0)
+    if sigma0.is_nan()
+        || sigma0 <= 0.0
         || effects
             .iter()
             .any(|e| e.name() == DriftDaily::default().name())
