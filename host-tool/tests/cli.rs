@@ -823,7 +823,11 @@ fn a_joint_report_shows_each_run_and_the_shared_coefficients() {
         }
     }
     assert_eq!(page.matches("<svg").count(), 8, "4 figures per run");
-    assert_eq!(page.matches("Ljung–Box Q = ").count(), 2);
+    assert_eq!(
+        page.matches("<p>Whiteness of the whitened innovations: Ljung–Box Q = ")
+            .count(),
+        2
+    );
     // The shared coefficients: identify's estimate ± 1σ, written by the one formatting rule.
     let section = &page[page.find("<h2 id=\"coefficients\">").expect("coefficients")..];
     let coefs = v["coefficients"].as_object().unwrap();
@@ -859,7 +863,7 @@ fn a_joint_report_shows_each_run_and_the_shared_coefficients() {
 
 /// Issue 28 item 6: time stamps no clock's jitter explains (intervals of 1.25, 1, 1.5, 0.7 s
 /// after six regular samples: no run of four within 10 % of equal spacing) are refused naming
-/// the file and the CSV line of the first irregular row — sample 7, t = 6.25 s, on line 9 after
+/// the file and the CSV line of the first irregular row — sample 7, t = 6.25 s, on line 10 after
 /// a metadata line, a comment and the header — not a sample index; exit 2, for every command
 /// that prepares the recording.
 #[test]
@@ -878,6 +882,7 @@ fn irregular_time_stamps_are_refused_naming_the_line() {
         let n = |a: f64| 1e-4 * (k as f64 * a).sin();
         text += &format!("{t:.3},{},{},{}\n", n(1.7), n(2.3), 9.8 + n(3.1));
     }
+    assert!(text.lines().nth(9).unwrap().starts_with("6.250,"));
     std::fs::write(&csv, text).unwrap();
     for cmd in ["identify", "diagnose", "report"] {
         let mut args: Vec<std::ffi::OsString> = vec![cmd.into(), csv.clone().into()];
@@ -888,7 +893,7 @@ fn irregular_time_stamps_are_refused_naming_the_line() {
         assert_eq!(code, Some(2), "{cmd}: {all}");
         assert!(
             all.contains(&format!(
-                "{}:9: the recording cannot support an estimate",
+                "{}:10: the recording cannot support an estimate",
                 csv.display()
             )) && all.contains("the times are irregular from t = 6.25 s"),
             "{cmd}: {all}"
