@@ -808,3 +808,152 @@ fn page_structure(page: &str) {
     assert!(!page.contains('`'), "a backtick left as text");
     assert!(page.contains("<code>acc-bias</code>"));
 }
+
+/// Issue 29 item 7: `report A.csv B.csv` shows the joint fit `identify A.csv B.csv` makes — two
+/// short runs of the paper's system, level and at (90°, 0°, 90°). The page has each run's
+/// section (its residual, whitened innovations, NIS and ACF figures, its whiteness and a row of
+/// the consistency table), the shared coefficients as `identify` computes them (the same
+/// estimate ± 1σ, digit for digit: one fit, one formatting rule), the verdict and the
+/// provenance; it exits as `identify` does on the same runs.
+#[test]
+fn a_joint_report_shows_each_run_and_the_shared_coefficients() {
+    let dir = temp_dir("joint-report");
+    let args = |o: &'static str, seed: &'static str| {
+        [
+            "--hours",
+            "12",
+            "--rate-s",
+            "30",
+            "--seed",
+            seed,
+            "--initial-orientation-deg",
+            o,
+        ]
+    };
+    let a = simulate_to(&dir, "a.csv", &args("0,0,0", "21"));
+    let b = simulate_to(&dir, "b.csv", &args("90,0,90", "22"));
+    let id = driftid()
+        .arg("identify")
+        .args([&a, &b])
+        .arg("--json")
+        .output()
+        .unwrap();
+    let v: serde_json::Value = serde_json::from_slice(&id.stdout).unwrap();
+    let html = dir.join("joint.html");
+    let out = driftid()
+        .arg("report")
+        .args([&a, &b])
+        .arg("-o")
+        .arg(&html)
+        .output()
+        .unwrap();
+    let stderr = String::from_utf8_lossy(&out.stderr);
+    assert!(matches!(out.status.code(), Some(0 | 3)), "{stderr}");
+    assert_eq!(out.status.code(), id.status.code(), "{stderr}");
+    let page = std::fs::read_to_string(&html).unwrap();
+    // The verdict block first, as trusted as identify's result.
+    let state = if v["trusted"] == serde_json::json!(true) {
+        "class=\"headline trusted\"><p class=\"state\">TRUSTED</p>"
+    } else {
+        "class=\"headline untrusted\"><p class=\"state\">NOT TRUSTED</p>"
+    };
+    let verdict = page.find(state).expect("the verdict block");
+    assert!(
+        verdict < page.find("<h2").unwrap(),
+        "the verdict comes first"
+    );
+    // Both runs' sections, each with its four figures and its whiteness; a consistency row each.
+    for (k, name) in [(1, "a.csv"), (2, "b.csv")] {
+        assert!(
+            page.contains(&format!("<h2 id=\"run{k}\">Run {k}: {name}</h2>")),
+            "no section of run {k}"
+        );
+        assert!(page.contains(&format!("<tr><td class=\"l\">{name}</td>")));
+        for stem in ["residual", "whitened", "nis", "acf"] {
+            assert!(
+                page.contains(&format!("{stem}-run{k}]")),
+                "{stem} of run {k}"
+            );
+        }
+    }
+    assert_eq!(page.matches("<svg").count(), 8, "4 figures per run");
+    assert_eq!(
+        page.matches("<p>Whiteness of the whitened innovations: Ljung–Box Q = ")
+            .count(),
+        2
+    );
+    // The shared coefficients: identify's estimate ± 1σ total, written by the one formatting rule.
+    let section = &page[page.find("<h2 id=\"coefficients\">").expect("coefficients")..];
+    let coefs = v["coefficients"].as_object().unwrap();
+    assert_eq!(coefs.len(), 12);
+    for (name, c) in coefs {
+        let cell = host_tool::format::pm(
+            c["value"].as_f64().unwrap(),
+            c["sigma_total"].as_f64().unwrap(),
+        );
+        assert!(
+            section.contains(&format!(
+                "<td class=\"l\">{name}</td><td class=\"l\">{}</td><td>{cell}</td>",
+                c["unit"].as_str().unwrap()
+            )),
+            "{name}: {cell} not in the table"
+        );
+    }
+    // Every link of the contents lands; the provenance names the command.
+    let toc = &page[page.find("<nav class=\"toc\">").unwrap()..];
+    let toc = &toc[..toc.find("</nav>").unwrap()];
+    for id in toc
+        .split("href=\"#")
+        .skip(1)
+        .map(|l| &l[..l.find('"').unwrap()])
+    {
+        assert!(page.contains(&format!(" id=\"{id}\"")), "no #{id}");
+    }
+    assert!(page.contains("How this page was made") && page.contains("report "));
+    assert_eq!(
+        page.matches("<div class=\"scroll\"><table>").count(),
+        page.matches("<table>").count()
+    );
+    let _ = std::fs::remove_dir_all(&dir);
+}
+
+/// Issue 28 item 6: time stamps no clock's jitter explains (intervals of 1.25, 1, 1.5, 0.7 s
+/// after six regular samples: no run of four within 10 % of equal spacing) are refused naming
+/// the file and the CSV line of the first irregular row — sample 7, t = 6.25 s, on line 10 after
+/// a metadata line, a comment and the header — not a sample index; exit 2, for every command
+/// that prepares the recording.
+#[test]
+fn irregular_time_stamps_are_refused_naming_the_line() {
+    let dir = temp_dir("irregular");
+    let csv = dir.join("irregular.csv");
+    let mut text =
+        String::from("# latitude_deg: 39.1\n# a logger's file\nt_s,ax_mps2,ay_mps2,az_mps2\n");
+    let steps = [1.25, 1.0, 1.5, 0.7];
+    let mut t: f64 = 0.0;
+    for k in 0..60 {
+        if k > 0 {
+            t += if k < 6 { 1.0 } else { steps[(k - 6) % 4] };
+        }
+        // Noise-like readings of about 1e-4 m/s² around a level platform's gravity.
+        let n = |a: f64| 1e-4 * (k as f64 * a).sin();
+        text += &format!("{t:.3},{},{},{}\n", n(1.7), n(2.3), 9.8 + n(3.1));
+    }
+    assert!(text.lines().nth(9).unwrap().starts_with("6.250,"));
+    std::fs::write(&csv, text).unwrap();
+    for cmd in ["identify", "diagnose", "report"] {
+        let mut args: Vec<std::ffi::OsString> = vec![cmd.into(), csv.clone().into()];
+        if cmd == "report" {
+            args.extend(["-o".into(), dir.join("r.html").into()]);
+        }
+        let (code, all) = run_driftid(&args);
+        assert_eq!(code, Some(2), "{cmd}: {all}");
+        assert!(
+            all.contains(&format!(
+                "{}:10: the recording cannot support an estimate",
+                csv.display()
+            )) && all.contains("the times are irregular from t = 6.25 s"),
+            "{cmd}: {all}"
+        );
+    }
+    let _ = std::fs::remove_dir_all(&dir);
+}

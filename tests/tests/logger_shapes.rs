@@ -168,8 +168,9 @@ fn jittered_and_rounded_stamps_estimate_the_noise() {
 }
 
 /// Times that are no clock's jitter — intervals of 1, 1 and 1.5 s in turn, so no run of four
-/// samples is within 10 % of equal spacing — are refused, naming the first irregular sample
-/// (the fourth, t = 3.5 s: 1.5 s after the third against the median 1 s).
+/// samples is within 10 % of equal spacing — are refused, naming the first irregular sample by
+/// its time (the fourth, t = 3.5 s: 1.5 s after the third against the median 1 s), which the
+/// refusal carries for the CLI to name its file line (`host-tool/tests/cli.rs`).
 #[test]
 fn really_irregular_times_are_refused_naming_the_sample() {
     let (sc, mut s) = recording(1, 1.0, 1.0, Logger::default());
@@ -182,9 +183,8 @@ fn really_irregular_times_are_refused_naming_the_sample() {
     let r = err.downcast::<Refusal>().expect("a refusal");
     let msg = r.to_string();
     assert!(
-        msg.contains(
-            "cannot estimate the noise; the times are irregular from sample 4 (t = 3.5 s)"
-        ),
+        msg.contains("cannot estimate the noise; the times are irregular from t = 3.5 s: 1.500000 s after the previous sample"),
         "{msg}"
     );
+    assert_eq!(r.at_s, Some(3.5));
 }

@@ -140,6 +140,38 @@ pub struct Loaded {
     /// ([`super::joint::refuse_same_data`]); two different recordings collide with probability
     /// 2⁻⁶⁴.
     pub fingerprint: u64,
+    /// 1-based file line of each sample: a refusal that blames one sample names it.
+    pub lines: Vec<u32>,
+}
+
+impl Loaded {
+    /// The file line of the sample stamped `t_s` (on the samples' time axis), if there is one.
+    pub fn line_at(&self, t_s: f64) -> Option<u32> {
+        let k = self.samples.iter().position(|s| s.t_s == t_s)?;
+        self.lines.get(k).copied()
+    }
+}
+
+/// The recording at `path`, loaded, prepared at its stated orientation
+/// ([`crate::identify::prepare_oriented`]); an error names the file, and a refusal that blames
+/// one sample (irregular time stamps) its line, `FILE:LINE: …`, as the reader's errors do.
+pub fn prepare_loaded(path: &Path, loaded: &Loaded, cfg: &Config) -> anyhow::Result<Prepared> {
+    crate::identify::prepare_oriented(
+        loaded.site,
+        &loaded.samples,
+        cfg,
+        loaded.initial_orientation_rad,
+    )
+    .map_err(|e| {
+        let line = e
+            .downcast_ref::<crate::quality::Refusal>()
+            .and_then(|r| r.at_s)
+            .and_then(|t| loaded.line_at(t));
+        match line {
+            Some(line) => e.context(format!("{}:{line}", path.display())),
+            None => e.context(format!("{}", path.display())),
+        }
+    })
 }
 
 /// The longest span a recording may have, s (about 3.2 years; a drift identification run lasts
@@ -344,6 +376,7 @@ fn load_with(path: &Path, latitude_override: Option<f64>, warn: bool) -> anyhow:
         samples,
         description: rec.meta.description.clone(),
         initial_orientation_rad,
+        lines: rec.lines,
     })
 }
 

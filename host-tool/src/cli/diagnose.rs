@@ -11,7 +11,6 @@ use super::common::{load, print_findings, trusted_or, ModelArgs};
 use crate::catalog;
 use crate::diagnose::{ladder_from, DiagnoseConfig, Diagnosis, Ladder, Rung};
 use crate::format::{p_value, pm, sci};
-use crate::identify::prepare_oriented;
 
 /// Arguments of `driftid diagnose`.
 #[derive(clap::Args, Debug)]
@@ -316,13 +315,7 @@ pub fn diagnose_one(
     );
     let loaded = load(recording, args.model.latitude_deg)?;
     let effects = catalog::model_effects(&args.model.with)?;
-    let prep = prepare_oriented(
-        loaded.site,
-        &loaded.samples,
-        &cfg.identify,
-        loaded.initial_orientation_rad,
-    )
-    .with_context(|| format!("{}", recording.display()))?;
+    let prep = super::common::prepare_loaded(recording, &loaded, &cfg.identify)?;
     let mut cfg = cfg;
     let mut prep = prep;
     let mut stated = None;

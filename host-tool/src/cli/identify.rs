@@ -4,14 +4,12 @@ use std::path::PathBuf;
 
 use serde_json::{json, Map, Value};
 
-use anyhow::Context as _;
-
 use super::common::{build_model, load, print_findings, trusted_or, ModelArgs};
 use crate::catalog;
 use crate::consistency::{assess, Consistency, Thresholds};
 use crate::format::{sci, with_sigma};
 use crate::identify::setup::Uncertainty;
-use crate::identify::{identify, prepare_oriented, try_cramer_rao_bound, Identification, Prepared};
+use crate::identify::{identify, try_cramer_rao_bound, Identification, Prepared};
 use crate::simulate::read_truth;
 
 /// Arguments of `driftid identify`.
@@ -328,13 +326,7 @@ pub fn run(args: &IdentifyArgs) -> anyhow::Result<()> {
     let cfg = args.model.config()?;
     let loaded = load(recording, args.model.latitude_deg)?;
     let effects = catalog::model_effects(&args.model.with)?;
-    let prep = prepare_oriented(
-        loaded.site,
-        &loaded.samples,
-        &cfg,
-        loaded.initial_orientation_rad,
-    )
-    .with_context(|| format!("{}", recording.display()))?;
+    let prep = super::common::prepare_loaded(recording, &loaded, &cfg)?;
     // The raw samples are done with (the measurements are their means): freed now, their
     // ~10 MB (60 h at 1 s) serve the smoother's buffers instead of fresh pages faulted in.
     drop(loaded);

@@ -2,7 +2,6 @@
 
 use std::path::PathBuf;
 
-use anyhow::Context as _;
 use serde_json::{json, Map, Value};
 
 use super::common::{build_model, load, print_findings, trusted_or, ModelArgs};
@@ -14,7 +13,7 @@ use crate::format::{sci, with_sigma};
 use crate::identify::joint::{
     fit_alone, identify_joint_from, joint_bound, JointIdentification, Run, RunFit,
 };
-use crate::identify::{prepare_oriented, Config, Prepared};
+use crate::identify::{Config, Prepared};
 use crate::simulate::read_truth;
 
 /// One run as loaded and prepared.
@@ -25,6 +24,8 @@ pub struct LoadedRun {
     pub prep: Prepared,
     /// Stated initial orientation (ENU Euler angles), rad.
     pub orientation_rad: [f64; 3],
+    /// The recording's free-text description, if any.
+    pub description: Option<String>,
 }
 
 /// Refuses the same data given twice (issue 28): counted twice, it would narrow every 1σ by
@@ -73,17 +74,12 @@ pub fn load_runs(
             let loaded = load(path, latitude_deg)?;
             refuse_same_data(&seen, path, Some(loaded.fingerprint))?;
             seen.push((path.as_path(), loaded.fingerprint));
-            let prep = prepare_oriented(
-                loaded.site,
-                &loaded.samples,
-                cfg,
-                loaded.initial_orientation_rad,
-            )
-            .with_context(|| format!("{}", path.display()))?;
+            let prep = super::common::prepare_loaded(path, &loaded, cfg)?;
             Ok(LoadedRun {
                 path: path.clone(),
                 prep,
                 orientation_rad: loaded.initial_orientation_rad,
+                description: loaded.description,
             })
         })
         .collect()
@@ -286,15 +282,33 @@ fn refuse_wrong_latitudes(
     Ok(())
 }
 
-/// Identifies `paths` jointly with the paper's model plus `with`; prints the text unless `json`
-/// and returns the JSON object and the reasons not to trust it.
-pub fn identify_runs(
+/// A joint fit as `identify` makes it, ready to print or show: the runs, the fit, its bound,
+/// each run's consistency under it, the truth and the reasons not to trust it.
+pub struct JointFit {
+    /// The runs as loaded and prepared.
+    pub runs: Vec<LoadedRun>,
+    /// The joint identification.
+    pub joint: JointIdentification,
+    /// The joint Cramér–Rao bound (1σ per parameter; NaN when it could not be computed).
+    pub bound: Vec<f64>,
+    /// The 1σ with each run's set-up uncertainty ([`crate::identify::joint::setup_covariance`]).
+    pub total_sigma: Vec<f64>,
+    /// Each run's consistency under the joint estimate ([`run_consistency`]).
+    pub checks: Vec<Consistency>,
+    /// The true parameters (from `--truth`), in the joint fit's order.
+    pub truth: Option<Vec<f64>>,
+    /// Why the result is not trusted (empty: trusted).
+    pub reasons: Vec<String>,
+}
+
+/// Identifies `paths` jointly with the paper's model plus `with`: the fit, the bound, each run's
+/// consistency and each run's own fit assessed ([`crate::assess`]).
+pub fn fit_runs(
     paths: &[PathBuf],
     model_args: &ModelArgs,
     with: &[String],
     truth_path: Option<&std::path::Path>,
-    as_json: bool,
-) -> anyhow::Result<(Value, Vec<String>)> {
+) -> anyhow::Result<JointFit> {
     let cfg = model_args.config()?;
     let effects = catalog::model_effects(with)?;
     let mut runs = load_runs(paths, model_args.latitude_deg, &cfg)?;
@@ -349,13 +363,43 @@ pub fn identify_runs(
     }
     spin.finish_and_clear();
     let setup_cov = crate::identify::joint::setup_covariance(&joint.estimate, &setups)?;
-    let total: Vec<f64> = (0..joint.params.len())
+    let total_sigma: Vec<f64> = (0..joint.params.len())
         .map(|k| {
             (joint.estimate.cov[(k, k)] + setup_cov[(k, k)])
                 .max(0.0)
                 .sqrt()
         })
         .collect();
+    drop(joint_runs);
+    Ok(JointFit {
+        runs,
+        joint,
+        bound,
+        total_sigma,
+        checks,
+        truth,
+        reasons,
+    })
+}
+
+/// Identifies `paths` jointly with the paper's model plus `with` ([`fit_runs`]); prints the text
+/// unless `json` and returns the JSON object and the reasons not to trust it.
+pub fn identify_runs(
+    paths: &[PathBuf],
+    model_args: &ModelArgs,
+    with: &[String],
+    truth_path: Option<&std::path::Path>,
+    as_json: bool,
+) -> anyhow::Result<(Value, Vec<String>)> {
+    let JointFit {
+        runs,
+        joint,
+        bound,
+        total_sigma: total,
+        checks,
+        truth,
+        reasons,
+    } = fit_runs(paths, model_args, with, truth_path)?;
     let mut out = to_json(&joint, &runs, &checks, &bound, &total, truth.as_deref());
     out["trusted"] = json!(reasons.is_empty());
     out["untrusted_reasons"] = json!(reasons);
@@ -373,7 +417,27 @@ pub fn identify_runs(
     Ok((out, reasons))
 }
 
-fn deg3(a: &[f64; 3]) -> [f64; 3] {
+/// The weakest combination of one axis in words (`identify`'s line and the report's).
+pub fn weak_line(w: &crate::identify::WeakCombination) -> String {
+    format!(
+        "axis {}: weakest combination {:.2}·D0 {:+.2}·g·Dx {:+.2}·g·Dy {:+.2}·g·Dz, 1σ {} deg/h, {:.1}x weaker than the next{}",
+        w.axis,
+        w.direction[0],
+        w.direction[1],
+        w.direction[2],
+        w.direction[3],
+        sci(w.sigma_degph),
+        w.ratio_to_next,
+        if w.ratio_to_next >= 10.0 {
+            " — the runs do not separate it: `driftid plan` recommends the next orientation"
+        } else {
+            ""
+        }
+    )
+}
+
+/// Initial orientation in degrees, rounded to 1e-4 deg.
+pub fn deg3(a: &[f64; 3]) -> [f64; 3] {
     a.map(|v| (v.to_degrees() * 1e4).round() / 1e4)
 }
 
@@ -445,21 +509,7 @@ fn print_text(
         println!();
     }
     for w in &joint.weak {
-        println!(
-            "axis {}: weakest combination {:.2}·D0 {:+.2}·g·Dx {:+.2}·g·Dy {:+.2}·g·Dz, 1σ {} deg/h, {:.1}x weaker than the next{}",
-            w.axis,
-            w.direction[0],
-            w.direction[1],
-            w.direction[2],
-            w.direction[3],
-            sci(w.sigma_degph),
-            w.ratio_to_next,
-            if w.ratio_to_next >= 10.0 {
-                " — the runs do not separate it: `driftid plan` recommends the next orientation"
-            } else {
-                ""
-            }
-        );
+        println!("{}", weak_line(w));
     }
 }
 

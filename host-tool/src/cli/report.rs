@@ -6,7 +6,6 @@ use super::common::{load, ModelArgs};
 use super::identify::rows;
 use crate::catalog;
 use crate::diagnose::{ladder_from, DiagnoseConfig, Ladder};
-use crate::identify::prepare_oriented;
 use crate::output;
 use crate::report::{draw_pngs, render_html, CoefRow, ReportInput};
 use crate::simulate::read_truth;
@@ -14,8 +13,11 @@ use crate::simulate::read_truth;
 /// Arguments of `driftid report`.
 #[derive(clap::Args, Debug)]
 pub struct ReportArgs {
-    /// Recording (CSV).
-    pub recording: PathBuf,
+    /// Recording(s) (CSV). Several runs of one system: a report of their joint fit, the fit of
+    /// `driftid identify A.csv B.csv` (each run's residual and consistency, the shared
+    /// coefficients).
+    #[arg(required = true, num_args = 1..)]
+    pub recordings: Vec<PathBuf>,
     /// Output HTML file.
     #[arg(short = 'o', long, default_value = "report.html")]
     pub out: PathBuf,
@@ -35,10 +37,14 @@ pub struct ReportArgs {
 /// Runs `driftid report`.
 pub fn run(args: &ReportArgs) -> anyhow::Result<()> {
     super::common::load_effects_args(&args.model)?; // --effects FILE: user effects join the catalog
-                                                    // Every output is checked before the long computation, and all are drawn before any is
-                                                    // moved into place: never over an input or a file driftid did not write, and no HTML left
-                                                    // behind when a PNG cannot be written.
-    let mut inputs: Vec<&std::path::Path> = vec![&args.recording];
+    if args.recordings.len() > 1 {
+        return super::joint_report::run(args);
+    }
+    let recording = &args.recordings[0];
+    // Every output is checked before the long computation, and all are drawn before any is
+    // moved into place: never over an input or a file driftid did not write, and no HTML left
+    // behind when a PNG cannot be written.
+    let mut inputs: Vec<&std::path::Path> = vec![recording];
     inputs.extend(args.truth.as_deref());
     inputs.extend(args.model.effects.iter().map(|p| p.as_path()));
     let mut outputs = output::Outputs::new(&inputs, args.force);
@@ -54,15 +60,9 @@ pub fn run(args: &ReportArgs) -> anyhow::Result<()> {
         cfg.identify.smoother_iterations > 0,
         "report needs the converged identification; drop --single-pass"
     );
-    let loaded = load(&args.recording, args.model.latitude_deg)?;
+    let loaded = load(recording, args.model.latitude_deg)?;
     let effects = catalog::model_effects(&args.model.with)?;
-    let prep = prepare_oriented(
-        loaded.site,
-        &loaded.samples,
-        &cfg.identify,
-        loaded.initial_orientation_rad,
-    )?;
-    let mut prep = prep;
+    let mut prep = super::common::prepare_loaded(recording, &loaded, &cfg.identify)?;
     let mut stated = None;
     let spin = crate::progress::spinner("fitting the starting model");
     let first = super::common::starting_fit(
@@ -131,8 +131,7 @@ pub fn run(args: &ReportArgs) -> anyhow::Result<()> {
                 .filter(|v| v.is_finite()),
         })
         .collect();
-    let name = args
-        .recording
+    let name = recording
         .file_name()
         .map(|s| s.to_string_lossy().to_string())
         .unwrap_or_default();
@@ -146,6 +145,7 @@ pub fn run(args: &ReportArgs) -> anyhow::Result<()> {
         findings: prep.findings.clone(),
         untrusted: untrusted.clone(),
         provenance: provenance(&args.model.effects),
+        markov: id.markov,
     };
     let html = render_html(&input)?;
     let pngs = match &args.png {
@@ -168,7 +168,7 @@ pub fn run(args: &ReportArgs) -> anyhow::Result<()> {
 }
 
 /// The command line as given and each effects file's text (what made the page).
-fn provenance(effects: &[std::path::PathBuf]) -> crate::report::Provenance {
+pub fn provenance(effects: &[std::path::PathBuf]) -> crate::report::Provenance {
     let quote = |a: String| {
         if a.is_empty() || a.contains(|c: char| c.is_whitespace() || "'\"$`\\".contains(c)) {
             format!("'{}'", a.replace('\'', "'\\''"))

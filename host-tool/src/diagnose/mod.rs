@@ -220,7 +220,15 @@ fn series(
     id: &Identification,
     innovations: &[Residual],
 ) -> Series {
-    let residual = smoothed_residuals(model, meas, &id.trajectory);
+    series_of(
+        meas,
+        smoothed_residuals(model, meas, &id.trajectory),
+        innovations,
+    )
+}
+
+/// [`series`] from the residual (measured − predicted, m/s²) and the innovations of a fit.
+fn series_of(meas: &[Measurement], residual: Vec<[f64; 3]>, innovations: &[Residual]) -> Series {
     Series {
         t_h: meas.iter().map(|m| m.t_s / S_PER_H).collect(),
         measured: meas.iter().map(|m| m.specific_force).collect(),
@@ -264,4 +272,59 @@ fn choose(
         }
     }
     select::choose(&refits)
+}
+
+/// One run of a joint fit ([`crate::identify::joint`]) as a [`Diagnosis`], for the joint report:
+/// its residual at the joint estimate and the innovations of its pass with the joint posterior
+/// as the prior (`fit`), their whiteness (`lags`), failure windows, correlations and the one
+/// definition of consistent. No candidate is scored (the joint fit tests none): the ranking is
+/// empty and the verdict says whether the joint model explains the run.
+pub fn of_joint_run(
+    prep: &Prepared,
+    model: Vec<String>,
+    fit: &crate::identify::joint::RunFit,
+    lags: usize,
+) -> Diagnosis {
+    let meas = &prep.measurements;
+    let series = series_of(meas, fit.residuals.clone(), &fit.innovations);
+    let stats = statistics::fit(
+        &series,
+        prep.floor_mps2(),
+        prep.residual_rms_mps2(&series.residual),
+    );
+    let whiteness = whiteness(&series.whitened, lags);
+    let consistency = assess(
+        stats.nis_mean,
+        meas.len(),
+        whiteness.p_value,
+        stats.residual_rms_over_floor,
+        prep.floor_rel_sd(),
+        &Thresholds::default(),
+    );
+    let verdict = if consistency.is_consistent() {
+        "The joint model explains this run: its residual sits at the noise floor and its innovations are consistent and white.".to_string()
+    } else {
+        format!(
+            "The joint model does not explain this run: {}; run `driftid diagnose` on it.",
+            consistency.failures.join("; ")
+        )
+    };
+    Diagnosis {
+        model,
+        floor_mps2: prep.floor_mps2(),
+        residual_rms_mps2: stats.residual_rms_mps2,
+        residual_rms_over_floor: stats.residual_rms_over_floor,
+        nis_mean: stats.nis_mean,
+        nis_band95: stats.nis_band95,
+        whiteness,
+        failures: failure_windows(&series),
+        correlations: correlations(&series, &temp_devs(meas)),
+        ranking: vec![],
+        confounding: vec![],
+        consistency,
+        choice: None,
+        verdict,
+        convergence: fit.alone.convergence,
+        series,
+    }
 }

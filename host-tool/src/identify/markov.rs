@@ -428,7 +428,8 @@ pub fn tune(
 }
 
 impl MarkovFit {
-    /// One line for the text output: the estimates with their 1σ, or the bound they ended on.
+    /// One line for the text output: the estimates ± their 1σ (digits from the 1σ,
+    /// [`crate::format::pm`]) and their profile-likelihood intervals, or the bound they ended on.
     pub fn line(&self) -> String {
         use crate::format::sig;
         let head = format!(
@@ -450,14 +451,46 @@ impl MarkovFit {
         let [t0, t1] = self.tau_interval_h;
         format!(
             "{head}: σ = {} deg/h (1σ interval {}–{}), τ = {} h (1σ interval {}–{}; correlation of ln σ, ln τ {:.2}); −2 ln L {:.1} below the catalog's σ 0.01 deg/h, τ 5 h",
-            sig(self.sigma_degph, 3),
+            crate::format::pm(self.sigma_degph, self.sigma_sd_degph),
             sig(s0, 2),
             sig(s1, 2),
-            sig(self.tau_h, 3),
+            crate::format::pm(self.tau_h, self.tau_sd_h),
             sig(t0, 2),
             sig(t1, 2),
             self.correlation,
             self.evidence_gain
         )
+    }
+}
+
+#[cfg(test)]
+mod line_tests {
+    use super::MarkovFit;
+
+    /// `identify`'s line prints σ and τ as every other estimate: value ± 1σ with the digits the
+    /// 1σ gives (two significant digits of it) and their units, then the profile interval.
+    #[test]
+    fn sigma_and_tau_are_printed_with_their_one_sigma() {
+        let gm = MarkovFit {
+            sigma_degph: 0.0123,
+            sigma_sd_degph: 0.0021,
+            sigma_interval_degph: [0.0095, 0.0161],
+            tau_h: 4.87,
+            tau_sd_h: 1.3,
+            tau_interval_h: [3.6, 7.1],
+            correlation: 0.42,
+            at_bound: false,
+            evidence_gain: 3.2,
+            passes: 40,
+        };
+        let line = gm.line();
+        assert!(
+            line.contains("σ = 0.0123 ± 0.0021 deg/h (1σ interval 0.0095–0.016)"),
+            "{line}"
+        );
+        assert!(
+            line.contains("τ = 4.9 ± 1.3 h (1σ interval 3.6–7.1;"),
+            "{line}"
+        );
     }
 }

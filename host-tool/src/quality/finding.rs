@@ -164,6 +164,9 @@ impl Finding {
 pub struct Refusal {
     /// Every finding so far, the refused ones included.
     pub findings: Vec<Finding>,
+    /// The time stamp of the sample where the recording fails, when one sample is to blame (the
+    /// first irregular time), s on the samples' time axis: the CLI names its file line.
+    pub at_s: Option<f64>,
 }
 
 impl std::fmt::Display for Refusal {

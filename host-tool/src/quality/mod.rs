@@ -99,7 +99,7 @@ pub fn screen_excluding<'s>(
 ) -> Result<Screened<'s>, Refusal> {
     let (kept, mut findings) = exclusion::exclude(all, period_s, exclude_s);
     let samples: &[Sample] = kept.as_deref().unwrap_or(all);
-    let refuse = |mut findings: Vec<Finding>, kind, message: String| {
+    let refuse_at = |mut findings: Vec<Finding>, kind, message: String, at_s| {
         findings.push(Finding {
             kind,
             message,
@@ -108,8 +108,9 @@ pub fn screen_excluding<'s>(
             samples: 0,
             action: Action::Refused,
         });
-        Err(Refusal { findings })
+        Err(Refusal { findings, at_s })
     };
+    let refuse = |findings, kind, message| refuse_at(findings, kind, message, None);
     if samples.len() < 16 {
         return refuse(
             findings,
@@ -122,22 +123,25 @@ pub fn screen_excluding<'s>(
     let cfg = ScreenConfig::default();
     let mut flags = vec![0u8; samples.len()];
     let Some(sigma0) = robust_sigma(samples, &flags) else {
-        let place = match noise::first_irregular(samples) {
+        // Named by its time (the CLI adds the file's line): an index would count the samples
+        // left after `--exclude`, not the file's rows.
+        let irregular = noise::first_irregular(samples);
+        let place = match irregular {
             Some((k, d, med)) => format!(
-                "; the times are irregular from sample {} (t = {} s): {d:.6} s after the previous one against a median interval of {med:.6} s (more than {:.0} % off: no clock jitter)",
-                k + 1,
+                "; the times are irregular from t = {} s: {d:.6} s after the previous sample against a median interval of {med:.6} s (more than {:.0} % off: no clock jitter)",
                 samples[k].t_s,
                 100.0 * noise::MAX_JITTER
             ),
             None => String::new(),
         };
-        return refuse(
+        return refuse_at(
             findings,
             Kind::TooFewSamples,
             format!(
                 "fewer than 8 runs of 4 finite samples equally spaced to within {:.0} % of their interval (clock jitter): cannot estimate the noise{place}",
                 100.0 * noise::MAX_JITTER
             ),
+            irregular.map(|(k, _, _)| samples[k].t_s),
         );
     };
     // The glitch test screens the residual of a model of the slow signal where a line through

@@ -6,6 +6,7 @@
 //! font); the page loads nothing from the network and needs no system font. The same figures can
 //! be written as PNG files ([`draw_pngs`]).
 
+mod joint;
 pub mod plots;
 mod sections;
 mod story;
@@ -19,6 +20,7 @@ use anyhow::Result;
 use crate::consistency::Thresholds;
 use crate::diagnose::types::{Diagnosis, Rung};
 use crate::format::{pm, with_sigma};
+pub use joint::{draw_joint_pngs, render_joint_html, JointCoef, JointReportInput, JointRun};
 use plots::{Figure, Kind};
 use tables::*;
 
@@ -64,6 +66,8 @@ pub struct ReportInput {
     pub untrusted: Vec<String>,
     /// What produced the page: the command line, and each effects file with its text.
     pub provenance: Provenance,
+    /// `drift-markov`'s σ and τ fitted to the data, when it is in the final model.
+    pub markov: Option<crate::identify::markov::MarkovFit>,
 }
 
 /// What produced a page (issue: a page must say which command, version, effects file and
@@ -277,6 +281,16 @@ pub fn draw_pngs(
 ) -> Result<Vec<crate::output::TempPath>> {
     anyhow::ensure!(!input.diagnoses.is_empty(), "report: no diagnosis to plot");
     let figures = plots::figures(input);
+    write_pngs(&figures, dir, outputs, |_, f, p| plots::png(f, input, p))
+}
+
+/// [`draw_pngs`] of these figures, each drawn by `draw(index, figure, path)`.
+fn write_pngs(
+    figures: &[Figure],
+    dir: &Path,
+    outputs: &mut crate::output::Outputs,
+    draw: impl Fn(usize, &Figure, &Path) -> Result<()>,
+) -> Result<Vec<crate::output::TempPath>> {
     let paths: Vec<PathBuf> = figures
         .iter()
         .map(|f| dir.join(format!("{}.png", f.file)))
@@ -287,10 +301,10 @@ pub fn draw_pngs(
         outputs.check(p, "--png", crate::output::Made::Png)?;
     }
     let mut out = vec![];
-    for (f, p) in figures.iter().zip(paths) {
+    for (k, (f, p)) in figures.iter().zip(paths).enumerate() {
         // Drawn under a temporary name: never a partial PNG under the real one.
         let tmp = crate::output::TempPath::new(&p)?;
-        plots::png(f, input, tmp.path()).map_err(|e| anyhow::anyhow!("{}: {e:#}", p.display()))?;
+        draw(k, f, tmp.path()).map_err(|e| anyhow::anyhow!("{}: {e:#}", p.display()))?;
         let bytes =
             std::fs::read(tmp.path()).map_err(|e| anyhow::anyhow!("{}: {e}", p.display()))?;
         std::fs::write(tmp.path(), crate::output::tag_png(&bytes))

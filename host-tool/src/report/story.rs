@@ -20,7 +20,7 @@ fn fit_word(d: &Diagnosis) -> &'static str {
 
 /// One model's fit in words: mean NIS/3 against its 99.9 % band, Ljung–Box p against the
 /// whiteness level.
-fn fit_words(d: &Diagnosis) -> String {
+pub(super) fn fit_words(d: &Diagnosis) -> String {
     let band = d.consistency.nis_band;
     let inside = d.nis_mean >= band[0] && d.nis_mean <= band[1];
     format!(
@@ -76,17 +76,23 @@ pub(super) fn verdict_block(h: &mut String, input: &ReportInput) {
             fit_words(last)
         );
     }
-    if !trusted {
-        let _ = writeln!(
-            h,
-            "<p>The numbers below are computed, but the tool does not trust them:</p><ul>"
-        );
-        for r in &input.untrusted {
-            let _ = writeln!(h, "<li>{}</li>", text(r));
-        }
-        let _ = writeln!(h, "</ul>");
-    }
+    untrusted_list(h, &input.untrusted);
     let _ = writeln!(h, "</section>");
+}
+
+/// The reasons not to trust the numbers, as a list (nothing when there are none).
+pub(super) fn untrusted_list(h: &mut String, untrusted: &[String]) {
+    if untrusted.is_empty() {
+        return;
+    }
+    let _ = writeln!(
+        h,
+        "<p>The numbers below are computed, but the tool does not trust them:</p><ul>"
+    );
+    for r in untrusted {
+        let _ = writeln!(h, "<li>{}</li>", text(r));
+    }
+    let _ = writeln!(h, "</ul>");
 }
 
 /// What the ladder added (each parameter ± 1σ and its size in σ) and the drift coefficients

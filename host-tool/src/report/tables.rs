@@ -17,19 +17,29 @@ fn physics(about: &str) -> String {
 const SIZES_SHOWN: usize = 6;
 
 pub(super) fn fit_table(h: &mut String, ds: &[Diagnosis]) {
+    let rows: Vec<(String, &Diagnosis)> = ds.iter().map(|d| (model_name(&d.model), d)).collect();
+    fit_rows(h, "model", &rows);
+    if let Some(d) = ds.first() {
+        floor_line(h, d);
+    }
+}
+
+/// One row per fit, labelled in the first column (`what`: model, run): RMS/floor, mean NIS/3
+/// and its band, Ljung–Box p, failure windows and whether it is consistent.
+pub(super) fn fit_rows(h: &mut String, what: &str, rows: &[(String, &Diagnosis)]) {
     let _ = writeln!(
         h,
-        "<table><tr><th class=\"l\">model</th><th>RMS/floor x</th><th>y</th><th>z</th><th>mean NIS/3</th><th>{:.1} % band</th><th>Ljung–Box p</th><th>failure windows</th><th>consistent</th></tr>",
+        "<table><tr><th class=\"l\">{what}</th><th>RMS/floor x</th><th>y</th><th>z</th><th>mean NIS/3</th><th>{:.1} % band</th><th>Ljung–Box p</th><th>failure windows</th><th>consistent</th></tr>",
         100.0 * Thresholds::default().nis_band_prob
     );
-    for d in ds {
+    for (label, d) in rows {
         // Coloured by the one definition of consistent (crate::consistency).
         let band = d.consistency.nis_band;
         let in_band = d.nis_mean >= band[0] && d.nis_mean <= band[1];
         let _ = writeln!(
             h,
             "<tr><td class=\"l\">{}</td><td>{:.3}</td><td>{:.3}</td><td>{:.3}</td><td class=\"{}\">{:.3}</td><td>[{:.3}, {:.3}]</td><td class=\"{}\">{}</td><td>{}</td><td class=\"{}\">{}</td></tr>",
-            esc(&model_name(&d.model)),
+            esc(label),
             d.residual_rms_over_floor[0],
             d.residual_rms_over_floor[1],
             d.residual_rms_over_floor[2],
@@ -45,13 +55,15 @@ pub(super) fn fit_table(h: &mut String, ds: &[Diagnosis]) {
         );
     }
     let _ = writeln!(h, "</table>");
-    if let Some(d) = ds.first() {
-        let _ = writeln!(
-            h,
-            "<p class=\"small\">Noise floor of one filter-period mean (from raw-sample differences): x {:.3e}, y {:.3e}, z {:.3e} m/s².</p>",
-            d.floor_mps2[0], d.floor_mps2[1], d.floor_mps2[2]
-        );
-    }
+}
+
+/// The noise floor of one filter-period mean of `d`'s recording.
+pub(super) fn floor_line(h: &mut String, d: &Diagnosis) {
+    let _ = writeln!(
+        h,
+        "<p class=\"small\">Noise floor of one filter-period mean (from raw-sample differences): x {:.3e}, y {:.3e}, z {:.3e} m/s².</p>",
+        d.floor_mps2[0], d.floor_mps2[1], d.floor_mps2[2]
+    );
 }
 
 pub(super) fn ranking_table(h: &mut String, d: &Diagnosis) {
@@ -197,25 +209,92 @@ pub(super) fn coefficient_table(h: &mut String, rows: &[CoefRow]) {
             esc(&r.dominant)
         );
         if truth {
-            match r.truth {
-                Some(t) => {
-                    let e = r.value - t;
-                    let z = e / r.sigma_total;
-                    let _ = write!(
-                        h,
-                        "<td>{}</td><td>{}</td><td class=\"{}\">{:+.2}</td>",
-                        num(t),
-                        with_sigma(e, r.sigma_total),
-                        if z.abs() > 3.0 { "bad" } else { "ok" },
-                        z
-                    );
-                }
-                None => {
-                    let _ = write!(h, "<td>—</td><td>—</td><td>—</td>");
-                }
-            }
+            truth_cells(h, r.value, r.sigma_total, r.truth);
         }
         let _ = writeln!(h, "</tr>");
     }
     let _ = writeln!(h, "</table>");
+}
+
+/// `drift-markov`'s σ and τ, each ± its 1σ (the curvature's) with its 1σ interval from the
+/// profile likelihood (the honest one where the likelihood's ridge bends), as `identify` prints
+/// them ([`crate::identify::markov::MarkovFit::line`]).
+pub(super) fn markov_table(h: &mut String, gm: &crate::identify::markov::MarkovFit) {
+    let _ = writeln!(
+        h,
+        "<h3>The Gauss–Markov drift (drift-markov): σ and τ from the data</h3><p>Fitted by marginal likelihood, shared by the three axes; −2 ln L {:.1} below the catalog's σ 0.01 deg/h, τ 5 h.{}</p>",
+        gm.evidence_gain,
+        if gm.at_bound {
+            " <span class=\"bad\">At the edge of the range: no Gauss–Markov wander this run can measure (no 1σ).</span>"
+        } else {
+            ""
+        }
+    );
+    let _ = writeln!(
+        h,
+        "<table><tr><th class=\"l\">parameter</th><th class=\"l\">unit</th><th>estimate ± 1σ</th><th>1σ interval (profile likelihood)</th></tr>"
+    );
+    let rows = [
+        (
+            "σ (stationary 1σ of each axis' drift)",
+            "deg/h",
+            gm.sigma_degph,
+            gm.sigma_sd_degph,
+            gm.sigma_interval_degph,
+        ),
+        (
+            "τ (correlation time)",
+            "h",
+            gm.tau_h,
+            gm.tau_sd_h,
+            gm.tau_interval_h,
+        ),
+    ];
+    for (name, unit, v, sd, [lo, hi]) in rows {
+        let (est, interval) = if gm.at_bound {
+            (crate::format::sig(v, 2), "—".to_string())
+        } else {
+            (
+                pm(v, sd),
+                format!(
+                    "{}–{}",
+                    crate::format::sig(lo, 2),
+                    crate::format::sig(hi, 2)
+                ),
+            )
+        };
+        let _ = writeln!(
+            h,
+            "<tr><td class=\"l\">{}</td><td class=\"l\">{unit}</td><td>{}</td><td>{}</td></tr>",
+            esc(name),
+            esc(&est),
+            esc(&interval)
+        );
+    }
+    let _ = writeln!(
+        h,
+        "</table><p class=\"small\">Correlation of the estimates of ln σ and ln τ: {:.2}.</p>",
+        gm.correlation
+    );
+}
+
+/// The truth, error and error / 1σ cells of an estimate `value` ± `sigma` (dashes without truth).
+pub(super) fn truth_cells(h: &mut String, value: f64, sigma: f64, truth: Option<f64>) {
+    match truth {
+        Some(t) => {
+            let e = value - t;
+            let z = e / sigma;
+            let _ = write!(
+                h,
+                "<td>{}</td><td>{}</td><td class=\"{}\">{:+.2}</td>",
+                num(t),
+                with_sigma(e, sigma),
+                if z.abs() > 3.0 { "bad" } else { "ok" },
+                z
+            );
+        }
+        None => {
+            let _ = write!(h, "<td>—</td><td>—</td><td>—</td>");
+        }
+    }
 }

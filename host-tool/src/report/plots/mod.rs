@@ -138,57 +138,47 @@ pub fn figure(kind: Kind, input: &ReportInput) -> Figure {
     }
 }
 
+/// File stem, what it shows and height (px) of the figures that show one diagnosis alone, titled
+/// "WHAT — model M" in the report and "WHAT — run R" in the joint report; `None` for the others.
+fn one_diagnosis(kind: Kind) -> Option<(&'static str, &'static str, u32, usize)> {
+    Some(match kind {
+        Kind::Residual(d) => ("residual", "Residual (measured − predicted)", 640, d),
+        Kind::Innovations(d) => (
+            "innovations",
+            "Filter innovations with ±1σ and ±3σ bands",
+            640,
+            d,
+        ),
+        Kind::Whitened(d) => (
+            "whitened",
+            "Whitened innovations (unit variance if the model holds)",
+            640,
+            d,
+        ),
+        Kind::Nis(d) => ("nis", "NIS/3 over time with its χ² band", 380, d),
+        Kind::Acf(d) => ("acf", "Autocorrelation of the whitened innovations", 330, d),
+        Kind::Correlations(d) => (
+            "correlations",
+            "Residual correlation with candidate regressors",
+            380,
+            d,
+        ),
+        _ => return None,
+    })
+}
+
 /// File stem, title and height (px) of the figure of `kind`.
 fn spec(kind: Kind, input: &ReportInput) -> (&'static str, String, u32) {
     let name = |d: usize| model_name(&input.diagnoses[d]);
     let last = input.diagnoses.len() - 1;
+    if let Some((stem, what, h, d)) = one_diagnosis(kind) {
+        return (stem, format!("{what} — model {}", name(d)), h);
+    }
     match kind {
         Kind::Story => (
             "what-changed",
             format!("What changed from {} to {}", name(0), name(last)),
             400,
-        ),
-        Kind::Residual(d) => (
-            "residual",
-            format!("Residual (measured − predicted) — model {}", name(d)),
-            640,
-        ),
-        Kind::Innovations(d) => (
-            "innovations",
-            format!(
-                "Filter innovations with ±1σ and ±3σ bands — model {}",
-                name(d)
-            ),
-            640,
-        ),
-        Kind::Whitened(d) => (
-            "whitened",
-            format!(
-                "Whitened innovations (unit variance if the model holds) — model {}",
-                name(d)
-            ),
-            640,
-        ),
-        Kind::Nis(d) => (
-            "nis",
-            format!("NIS/3 over time with its χ² band — model {}", name(d)),
-            380,
-        ),
-        Kind::Acf(d) => (
-            "acf",
-            format!(
-                "Autocorrelation of the whitened innovations — model {}",
-                name(d)
-            ),
-            330,
-        ),
-        Kind::Correlations(d) => (
-            "correlations",
-            format!(
-                "Residual correlation with candidate regressors — model {}",
-                name(d)
-            ),
-            380,
         ),
         Kind::Temperature(d) => (
             "temperature",
@@ -221,7 +211,21 @@ fn spec(kind: Kind, input: &ReportInput) -> (&'static str, String, u32) {
             ),
             360,
         ),
+        // Shown by one diagnosis alone: returned above.
+        _ => ("", String::new(), 0),
     }
+}
+
+/// A figure of the joint report that shows run `r` alone (`kind` one of [`one_diagnosis`]'s,
+/// its index `r`), titled with the run's `label`: `None` for the other kinds.
+pub fn run_figure(kind: Kind, label: &str) -> Option<Figure> {
+    let (stem, what, h, r) = one_diagnosis(kind)?;
+    Some(Figure {
+        kind,
+        file: format!("{stem}-run{}", r + 1),
+        title: format!("{what} — run {label}"),
+        size: (WIDTH, h),
+    })
 }
 
 /// Every figure of the report, in the report's order.
@@ -276,21 +280,41 @@ fn err<E: std::fmt::Debug>(e: E) -> anyhow::Error {
 
 /// The figure as an SVG document (for inlining in HTML).
 pub fn svg(fig: &Figure, input: &ReportInput) -> Result<String> {
+    svg_of(fig, Source::Report(input))
+}
+
+/// The figure as a PNG file.
+pub fn png(fig: &Figure, input: &ReportInput, path: &Path) -> Result<()> {
+    png_of(fig, Source::Report(input), path)
+}
+
+/// What a figure is drawn from: the report's whole input, or one diagnosis alone (a run of the
+/// joint report, [`run_figure`]).
+#[derive(Clone, Copy)]
+pub enum Source<'a> {
+    /// The single-run report's input.
+    Report(&'a ReportInput),
+    /// One diagnosis: the figures of [`one_diagnosis`]'s kinds.
+    One(&'a Diagnosis),
+}
+
+/// The figure, drawn from `src`, as an SVG document.
+pub fn svg_of(fig: &Figure, src: Source<'_>) -> Result<String> {
     ensure_font();
     let mut out = String::new();
     {
         let root = SVGBackend::with_string(&mut out, fig.size).into_drawing_area();
-        draw(&root, fig, input)?;
+        draw(&root, fig, src)?;
         root.present().map_err(err)?;
     }
     Ok(out)
 }
 
-/// The figure as a PNG file.
-pub fn png(fig: &Figure, input: &ReportInput, path: &Path) -> Result<()> {
+/// The figure, drawn from `src`, as a PNG file.
+pub fn png_of(fig: &Figure, src: Source<'_>, path: &Path) -> Result<()> {
     ensure_font();
     let root = BitMapBackend::new(path, fig.size).into_drawing_area();
-    draw(&root, fig, input)?;
+    draw(&root, fig, src)?;
     root.present().map_err(err)?;
     Ok(())
 }
@@ -298,20 +322,21 @@ pub fn png(fig: &Figure, input: &ReportInput, path: &Path) -> Result<()> {
 fn draw<DB: DrawingBackend>(
     root: &DrawingArea<DB, Shift>,
     fig: &Figure,
-    input: &ReportInput,
+    src: Source<'_>,
 ) -> Result<()> {
     root.fill(&WHITE).map_err(err)?;
     let area = root
         .titled(&fig.title, (FONT, 18).into_font().style(FontStyle::Bold))
         .map_err(err)?;
+    let input = match src {
+        Source::One(d) => return draw_one(&area, fig.kind, d),
+        Source::Report(input) => input,
+    };
+    if let Some((_, _, _, d)) = one_diagnosis(fig.kind) {
+        return draw_one(&area, fig.kind, &input.diagnoses[d]);
+    }
     let last = input.diagnoses.len() - 1;
     match fig.kind {
-        Kind::Residual(d) => residual(&area, &input.diagnoses[d]),
-        Kind::Innovations(d) => innovations(&area, &input.diagnoses[d]),
-        Kind::Whitened(d) => whitened(&area, &input.diagnoses[d]),
-        Kind::Nis(d) => nis(&area, &[&input.diagnoses[d]], true),
-        Kind::Acf(d) => acf(&area, &input.diagnoses[d]),
-        Kind::Correlations(d) => correlations(&area, &input.diagnoses[d]),
         Kind::Temperature(d) => temperature(&area, input, d),
         Kind::Ladder => ladder(&area, input),
         Kind::Story => what_changed(&area, input),
@@ -319,6 +344,24 @@ fn draw<DB: DrawingBackend>(
             residual_means(&area, &input.diagnoses[0], &input.diagnoses[last])
         }
         Kind::NisBeforeAfter => nis(&area, &[&input.diagnoses[0], &input.diagnoses[last]], false),
+        other => Err(anyhow!("{other:?}: not a figure of the whole report")),
+    }
+}
+
+/// Draws a figure that shows one diagnosis alone ([`one_diagnosis`]'s kinds).
+fn draw_one<DB: DrawingBackend>(
+    area: &DrawingArea<DB, Shift>,
+    kind: Kind,
+    d: &Diagnosis,
+) -> Result<()> {
+    match kind {
+        Kind::Residual(_) => residual(area, d),
+        Kind::Innovations(_) => innovations(area, d),
+        Kind::Whitened(_) => whitened(area, d),
+        Kind::Nis(_) => nis(area, &[d], true),
+        Kind::Acf(_) => acf(area, d),
+        Kind::Correlations(_) => correlations(area, d),
+        other => Err(anyhow!("{other:?}: not a figure of one diagnosis")),
     }
 }
 

@@ -92,6 +92,7 @@ fn input() -> ReportInput {
         findings: vec![],
         untrusted: vec![],
         provenance: Default::default(),
+        markov: None,
     }
 }
 
@@ -344,4 +345,45 @@ fn a_final_model_that_does_not_fit_is_outside_the_catalog_in_the_verdict_block()
     // The reason with its backticks as <code>, its markup escaped.
     assert!(block.contains("<li>define it in <code>--effects FILE.toml</code> &lt;here&gt;</li>"));
     assert!(block.contains("The ladder added <code>temp-drift</code>"));
+}
+
+/// A fitted `drift-markov` (issue 29): its σ and τ in the coefficients section, each ± its 1σ
+/// with the digits the 1σ gives ([`crate::format::pm`]: 2 significant digits of the 1σ) and its
+/// profile-likelihood interval; without it the section has no such table.
+#[test]
+fn the_gauss_markov_sigma_and_tau_are_shown_with_their_one_sigma() {
+    let mut input = input();
+    let plain = crate::report::render_html(&input).unwrap();
+    assert!(!plain.contains("drift-markov"));
+    input.markov = Some(markov_fit(false));
+    let page = crate::report::render_html(&input).unwrap();
+    let section = &page[page.find("<h2 id=\"coefficients\"").unwrap()..];
+    assert!(
+        section.contains("σ and τ from the data"),
+        "no drift-markov table"
+    );
+    assert!(
+        section.contains("<td class=\"l\">deg/h</td><td>0.0123 ± 0.0021</td><td>0.0095–0.016</td>")
+    );
+    assert!(section.contains("<td class=\"l\">h</td><td>4.9 ± 1.3</td><td>3.6–7.1</td>"));
+    // At a bound of its range there is no 1σ to show, and the page says why.
+    input.markov = Some(markov_fit(true));
+    let page = crate::report::render_html(&input).unwrap();
+    assert!(page.contains("At the edge of the range"));
+    assert!(page.contains("<td class=\"l\">deg/h</td><td>0.012</td><td>—</td>"));
+}
+
+fn markov_fit(at_bound: bool) -> crate::identify::markov::MarkovFit {
+    crate::identify::markov::MarkovFit {
+        sigma_degph: 0.0123,
+        sigma_sd_degph: 0.0021,
+        sigma_interval_degph: [0.0095, 0.0161],
+        tau_h: 4.87,
+        tau_sd_h: 1.3,
+        tau_interval_h: [3.6, 7.1],
+        correlation: 0.42,
+        at_bound,
+        evidence_gain: 3.2,
+        passes: 40,
+    }
 }
