@@ -76,6 +76,9 @@ pub struct Model<'m> {
     /// Gravity and Earth rate in the site's chart frame (computed once: every f and h uses them).
     gravity_r: Vector3<f64>,
     earth_rate_r: Vector3<f64>,
+    /// Local north in the chart frame (unit), for [`Context::north`]; NaN when no effect
+    /// [`Effect::uses_north`] (then neither north nor its chain is computed).
+    north_r: Vector3<f64>,
     effects: &'m [&'m dyn Effect],
     offsets: [usize; MAX_EFFECTS + 1],
     /// Indices of states with dynamics (angles first, then Gauss–Markov states).
@@ -142,6 +145,11 @@ impl<'m> Model<'m> {
             site,
             gravity_r: site.gravity_r(),
             earth_rate_r: site.earth_rate_r(),
+            north_r: if effects.iter().any(|e| e.uses_north()) {
+                site.north_r()
+            } else {
+                Vector3::repeat(f64::NAN)
+            },
             effects,
             offsets,
             dynamic,
@@ -228,7 +236,43 @@ impl<'m> Model<'m> {
             t_s,
             specific_force: att.specific_force(&self.gravity_r),
             temp_dev_c,
+            north: if self.north_r.x.is_nan() {
+                self.north_r
+            } else {
+                att.c * self.north_r
+            },
         }
+    }
+
+    /// The effects' ∂value/∂θ_j through north (drift terms when `drift`, deg/h per rad, else
+    /// accelerometer terms, m/s² per rad): `Σ ∂value/∂north · ∂north/∂θ_j`, north = C·north_r.
+    /// `None` when no effect uses north (the paper's model: nothing computed). Not inlined: one
+    /// copy for F and H (the firmware's flash).
+    #[inline(never)]
+    fn through_north(
+        &self,
+        x: &[f64],
+        att: &Attitude,
+        ctx: &Context,
+        drift: bool,
+    ) -> Option<[Vector3<f64>; 3]> {
+        if self.north_r.x.is_nan() {
+            return None;
+        }
+        let mut d_north = Matrix3::zeros();
+        for (e, effect) in self.effects.iter().enumerate() {
+            let touches = if drift {
+                effect.touches_drift()
+            } else {
+                effect.touches_accel()
+            };
+            if touches && effect.uses_north() {
+                let p = &x[self.offsets[e]..self.offsets[e + 1]];
+                effect.d_north(p, ctx, drift, &mut d_north);
+            }
+        }
+        let dn = d_rotated(att, &ctx.north, &self.north_r);
+        Some([d_north * dn[0], d_north * dn[1], d_north * dn[2]])
     }
 
     /// Total gyro drift rate at state `x`, deg/h along the platform axes (for reports).
@@ -342,8 +386,12 @@ impl<'m> Model<'m> {
         let da = d_rotated(&att, &ctx.specific_force, &g);
         let dwe = d_rotated(&att, &c_we0, &we0);
         let d_force_rad = d_force * RADPS_PER_DEGPH;
+        let north = self.through_north(x, &att, &ctx, true);
         for j in 0..ANGLES {
-            let dw = d_force_rad * da[j] - dwe[j];
+            let mut dw = d_force_rad * da[j] - dwe[j];
+            if let Some(n) = &north {
+                dw += n[j] * RADPS_PER_DEGPH;
+            }
             d_dx[j] = dk[j] + k * dw;
         }
         rate
@@ -375,8 +423,12 @@ impl<'m> Model<'m> {
         let c_curv = att.c * curvature_0;
         let da = d_rotated(&att, &ctx.specific_force, &g);
         let dcurv = d_rotated(&att, &c_curv, &curvature_0);
+        let north = self.through_north(x, &att, &ctx, false);
         for j in 0..ANGLES {
             d_dx[j] = d_total * da[j] + dcurv[j];
+            if let Some(n) = &north {
+                d_dx[j] += n[j];
+            }
         }
         ctx.specific_force + error + c_curv
     }

@@ -208,6 +208,7 @@ fn contexts() -> Vec<Context> {
         t_s: t_h * 3600.0,
         specific_force: Vector3::from(a),
         temp_dev_c: temp,
+        north: Vector3::new(0.6, 0.8, 0.0),
     })
     .collect()
 }
