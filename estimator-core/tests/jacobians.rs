@@ -361,6 +361,9 @@ impl Effect for NorthTerm {
     }
 }
 
+/// A function of the state (with scratch space for the effects' partials), for differences.
+type StateFn<'a> = dyn FnMut(&[f64], &mut [Vector3<f64>]) -> Vector3<f64> + 'a;
+
 static NORTH_EFFECTS: [&dyn Effect; 3] = [
     &PaperDrift,
     &NorthTerm { accel: false },
@@ -386,7 +389,7 @@ fn north_dependent_effects_jacobians_match_finite_differences() {
         for k in 0..3 {
             let x = test_state(&m, k);
             let mut scratch = [Vector3::zeros(); CAP];
-            let mut numeric = |f: &mut dyn FnMut(&[f64], &mut [Vector3<f64>]) -> Vector3<f64>| {
+            let mut numeric = |f: &mut StateFn<'_>| {
                 (0..m.dim())
                     .map(|j| {
                         let h = step_for(j);

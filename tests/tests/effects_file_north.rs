@@ -97,3 +97,79 @@ fn an_unknown_direction_is_refused_by_name() {
         );
     }
 }
+
+/// `east_*` is north × up (ENU is right-handed: east × north = up), and the partial derivatives
+/// a file effect reports by A (through up and east) and by north match central differences of
+/// its own value, A and north varied as independent variables.
+///
+/// Tolerances: the value against north × A/|A| computed here, 1e-15 (a few roundings of unit
+/// vectors' products); the derivatives, 1e-7 of the largest: central differences with steps of
+/// 1e-6 (north, unit) and 1e-5 m/s² (A, |A| ≈ 10) have truncation ~h²·f''' < 1e-11 and rounding
+/// ~ε·f/h < 1e-9 relative, while a wrong or missing term changes a derivative by O(1).
+#[test]
+fn east_is_north_cross_up_and_its_derivatives_match_finite_differences() {
+    use estimator_core::effects::{Context, Partials};
+    use nalgebra::{Matrix3, Vector3};
+    let src = "[[effect]]\nname = \"e1\"\napplies_to = \"drift\"\n\
+        params = [ { name = \"KE\", unit = \"deg/h\", prior_sigma = 0.1 },\n\
+                   { name = \"KN\", unit = \"deg/h\", prior_sigma = 0.1 } ]\n\
+        x = \"KE*east_x + KN*north_y*east_z\"\ny = \"KE*east_y\"\nz = \"KE*east_z*up_x + KN*north_z\"\n";
+    let e = parse_effects(std::path::Path::new("e.toml"), src).unwrap();
+    let e = &e[0];
+    assert!(e.uses_north());
+    let p = [0.7, -1.3];
+    let eval = |a: Vector3<f64>, n: Vector3<f64>| {
+        let ctx = Context {
+            t_s: 3600.0,
+            specific_force: a,
+            temp_dev_c: 0.0,
+            north: n,
+        };
+        let (mut value, mut d_force, mut d_north) =
+            (Vector3::zeros(), Matrix3::zeros(), Matrix3::zeros());
+        let mut cols = [Vector3::zeros(); 2];
+        e.drift(
+            &p,
+            &ctx,
+            Partials {
+                value: &mut value,
+                d_params: &mut cols,
+                d_force: &mut d_force,
+            },
+        );
+        e.d_north(&p, &ctx, true, &mut d_north);
+        (value, d_force, d_north)
+    };
+    for (a, n) in [
+        (
+            Vector3::<f64>::new(3.1, -5.2, 7.3),
+            Vector3::<f64>::new(0.8, 0.6, 0.0),
+        ),
+        (
+            Vector3::new(-0.4, 7.6, 6.2),
+            Vector3::new(0.0, -0.6329, 0.7742),
+        ),
+    ] {
+        let n = (n - a * (n.dot(&a) / a.norm_squared())).normalize(); // ⟂ A, as north to up
+        let east = n.cross(&(a / a.norm()));
+        let (v, df, dn) = eval(a, n);
+        assert!(
+            (v.y - p[0] * east.y).abs() < 1e-15,
+            "{v:?} vs east {east:?}"
+        );
+        // East completes a right-handed frame: east × north = up.
+        assert!((east.cross(&n) - a / a.norm()).amax() < 1e-15);
+        let scale = df.amax().max(dn.amax());
+        for j in 0..3 {
+            let (mut ap, mut am, mut np, mut nm) = (a, a, n, n);
+            ap[j] += 1e-5;
+            am[j] -= 1e-5;
+            np[j] += 1e-6;
+            nm[j] -= 1e-6;
+            let num_a = (eval(ap, n).0 - eval(am, n).0) / 2e-5;
+            let num_n = (eval(a, np).0 - eval(a, nm).0) / 2e-6;
+            assert!((df.column(j) - num_a).amax() < 1e-7 * scale, "∂/∂A_{j}");
+            assert!((dn.column(j) - num_n).amax() < 1e-7 * scale, "∂/∂north_{j}");
+        }
+    }
+}
