@@ -22,12 +22,12 @@ fn example_file() -> PathBuf {
 ///
 /// Why 3σ: with the right model the estimate is Gaussian about the truth with the 1σ the
 /// identification reports, so |error| < 3σ holds with 99.7 % (measured at this seed: within
-/// 0.2σ for KN, 1.3σ for the drift coefficients). The run resolves KN only to ~1.9e-4 m/s² (1σ,
-/// all three axes; on a space-stable platform north is affine in A, so KN reaches the
-/// accelerometers as a bias and scale factor, docs/effect-files.md), hence a large truth, 2e-3
-/// and -1.5e-3 m/s² on x and y: a north of the wrong sign or the wrong column of C moves them by
-/// ≥ 10σ. The 1σ bound (< 3e-4 m/s², x and y) keeps the first check from passing by width;
-/// KNz (north_z ≈ tan L·(1 − A_z/g), nearly 0) is not bounded.
+/// 0.2σ for KN, 1.3σ for the drift coefficients). The run resolves KN only to ~1.9e-4 m/s² (1σ
+/// total, all three axes; the noise alone, 2e-5): north's constant part acts like an
+/// accelerometer bias, which the start attitude's prior tilt (5″ ≈ 2.4e-4 m/s² of g) mimics —
+/// hence a large truth, 2e-3 and -1.5e-3 m/s² on x and y: a north of the wrong sign or the
+/// wrong column of C moves them by ≥ 10σ (east in place of north: DX0 off by 6σ). The 1σ bound
+/// (< 3e-4 m/s², x and y) keeps the first check from passing by width.
 #[test]
 fn a_north_term_is_identified_with_the_shipped_file() {
     let dir = std::env::temp_dir().join(format!("driftid-north-{}", std::process::id()));
