@@ -236,29 +236,34 @@ impl<'m> Model<'m> {
             t_s,
             specific_force: att.specific_force(&self.gravity_r),
             temp_dev_c,
-            north: if self.north_r.x.is_nan() {
-                self.north_r
-            } else {
+            north: if self.uses_north() {
                 att.c * self.north_r
+            } else {
+                self.north_r
             },
         }
     }
 
-    /// The effects' ∂value/∂θ_j through north (drift terms when `drift`, deg/h per rad, else
-    /// accelerometer terms, m/s² per rad): `Σ ∂value/∂north · ∂north/∂θ_j`, north = C·north_r.
-    /// `None` when no effect uses north (the paper's model: nothing computed). Not inlined: one
-    /// copy for F and H (the firmware's flash).
+    /// Whether an effect of the model uses north ([`Effect::uses_north`]).
+    fn uses_north(&self) -> bool {
+        !self.north_r.x.is_nan()
+    }
+
+    /// Adds the effects' ∂value/∂θ_j through north to the angle columns `d_dx[0..3]`: drift
+    /// terms (`drift`, deg/h) mapped by `map` (K in rad/s per deg/h: F's angle rows), else
+    /// accelerometer terms (m/s²: H's angle columns). `Σ ∂value/∂north · ∂north/∂θ_j`, north =
+    /// C·north_r. Not inlined and called only when [`Model::uses_north`]: F and H of the
+    /// paper's model carry one test for it (the firmware's flash and time).
     #[inline(never)]
-    fn through_north(
+    fn add_through_north(
         &self,
         x: &[f64],
         att: &Attitude,
         ctx: &Context,
-        drift: bool,
-    ) -> Option<[Vector3<f64>; 3]> {
-        if self.north_r.x.is_nan() {
-            return None;
-        }
+        map: Option<&Matrix3<f64>>,
+        d_dx: &mut [Vector3<f64>],
+    ) {
+        let drift = map.is_some();
         let mut d_north = Matrix3::zeros();
         for (e, effect) in self.effects.iter().enumerate() {
             let touches = if drift {
@@ -272,7 +277,13 @@ impl<'m> Model<'m> {
             }
         }
         let dn = d_rotated(att, &ctx.north, &self.north_r);
-        Some([d_north * dn[0], d_north * dn[1], d_north * dn[2]])
+        for j in 0..ANGLES {
+            let through = d_north * dn[j];
+            d_dx[j] += match map {
+                Some(m) => m * through,
+                None => through,
+            };
+        }
     }
 
     /// Total gyro drift rate at state `x`, deg/h along the platform axes (for reports).
@@ -386,13 +397,12 @@ impl<'m> Model<'m> {
         let da = d_rotated(&att, &ctx.specific_force, &g);
         let dwe = d_rotated(&att, &c_we0, &we0);
         let d_force_rad = d_force * RADPS_PER_DEGPH;
-        let north = self.through_north(x, &att, &ctx, true);
         for j in 0..ANGLES {
-            let mut dw = d_force_rad * da[j] - dwe[j];
-            if let Some(n) = &north {
-                dw += n[j] * RADPS_PER_DEGPH;
-            }
+            let dw = d_force_rad * da[j] - dwe[j];
             d_dx[j] = dk[j] + k * dw;
+        }
+        if self.uses_north() {
+            self.add_through_north(x, &att, &ctx, Some(&k_deg), d_dx);
         }
         rate
     }
@@ -423,12 +433,11 @@ impl<'m> Model<'m> {
         let c_curv = att.c * curvature_0;
         let da = d_rotated(&att, &ctx.specific_force, &g);
         let dcurv = d_rotated(&att, &c_curv, &curvature_0);
-        let north = self.through_north(x, &att, &ctx, false);
         for j in 0..ANGLES {
             d_dx[j] = d_total * da[j] + dcurv[j];
-            if let Some(n) = &north {
-                d_dx[j] += n[j];
-            }
+        }
+        if self.uses_north() {
+            self.add_through_north(x, &att, &ctx, None, d_dx);
         }
         ctx.specific_force + error + c_curv
     }
