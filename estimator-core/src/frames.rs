@@ -130,6 +130,15 @@ impl Site {
         }
     }
 
+    /// Local north in the chart frame r (unit): `R·[0, 1, 0]`.
+    #[inline] // cold set-up: compiled in its (opt-level "z") caller in the firmware, issue 10
+    pub fn north_r(&self) -> Vector3<f64> {
+        match self.chart {
+            Chart::Enu => Vector3::new(0.0, 1.0, 0.0),
+            _ => self.chart_rotation() * Vector3::new(0.0, 1.0, 0.0),
+        }
+    }
+
     /// Earth rate in frame 0 (ENU), rad/s: `[0, Ω cos L, Ω sin L]`.
     pub fn earth_rate_0(&self) -> Vector3<f64> {
         let (s, c) = crate::trig::sincos(self.latitude_rad);

@@ -76,6 +76,9 @@ pub struct Model<'m> {
     /// Gravity and Earth rate in the site's chart frame (computed once: every f and h uses them).
     gravity_r: Vector3<f64>,
     earth_rate_r: Vector3<f64>,
+    /// Local north in the chart frame (unit), for [`Context::north`]; NaN when no effect
+    /// [`Effect::uses_north`] (then neither north nor its chain is computed).
+    north_r: Vector3<f64>,
     effects: &'m [&'m dyn Effect],
     offsets: [usize; MAX_EFFECTS + 1],
     /// Indices of states with dynamics (angles first, then Gauss–Markov states).
@@ -142,6 +145,11 @@ impl<'m> Model<'m> {
             site,
             gravity_r: site.gravity_r(),
             earth_rate_r: site.earth_rate_r(),
+            north_r: if effects.iter().any(|e| e.uses_north()) {
+                site.north_r()
+            } else {
+                Vector3::repeat(f64::NAN)
+            },
             effects,
             offsets,
             dynamic,
@@ -228,6 +236,53 @@ impl<'m> Model<'m> {
             t_s,
             specific_force: att.specific_force(&self.gravity_r),
             temp_dev_c,
+            north: if self.uses_north() {
+                att.c * self.north_r
+            } else {
+                self.north_r
+            },
+        }
+    }
+
+    /// Whether an effect of the model uses north ([`Effect::uses_north`]).
+    fn uses_north(&self) -> bool {
+        !self.north_r.x.is_nan()
+    }
+
+    /// Adds the effects' ∂value/∂θ_j through north to the angle columns `d_dx[0..3]`: drift
+    /// terms (`drift`, deg/h) mapped by `map` (K in rad/s per deg/h: F's angle rows), else
+    /// accelerometer terms (m/s²: H's angle columns). `Σ ∂value/∂north · ∂north/∂θ_j`, north =
+    /// C·north_r. Not inlined and called only when [`Model::uses_north`]: F and H of the
+    /// paper's model carry one test for it (the firmware's flash and time).
+    #[inline(never)]
+    fn add_through_north(
+        &self,
+        x: &[f64],
+        att: &Attitude,
+        ctx: &Context,
+        map: Option<&Matrix3<f64>>,
+        d_dx: &mut [Vector3<f64>],
+    ) {
+        let drift = map.is_some();
+        let mut d_north = Matrix3::zeros();
+        for (e, effect) in self.effects.iter().enumerate() {
+            let touches = if drift {
+                effect.touches_drift()
+            } else {
+                effect.touches_accel()
+            };
+            if touches && effect.uses_north() {
+                let p = &x[self.offsets[e]..self.offsets[e + 1]];
+                effect.d_north(p, ctx, drift, &mut d_north);
+            }
+        }
+        let dn = d_rotated(att, &ctx.north, &self.north_r);
+        for j in 0..ANGLES {
+            let through = d_north * dn[j];
+            d_dx[j] += match map {
+                Some(m) => m * through,
+                None => through,
+            };
         }
     }
 
@@ -346,6 +401,9 @@ impl<'m> Model<'m> {
             let dw = d_force_rad * da[j] - dwe[j];
             d_dx[j] = dk[j] + k * dw;
         }
+        if self.uses_north() {
+            self.add_through_north(x, &att, &ctx, Some(&k_deg), d_dx);
+        }
         rate
     }
 
@@ -377,6 +435,9 @@ impl<'m> Model<'m> {
         let dcurv = d_rotated(&att, &c_curv, &curvature_0);
         for j in 0..ANGLES {
             d_dx[j] = d_total * da[j] + dcurv[j];
+        }
+        if self.uses_north() {
+            self.add_through_north(x, &att, &ctx, None, d_dx);
         }
         ctx.specific_force + error + c_curv
     }

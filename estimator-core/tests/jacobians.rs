@@ -7,13 +7,13 @@
 
 use estimator_core::effects::{
     AccBias, AccMisalign, AccScale, DriftDaily, DriftMarkov, DriftTrend, Effect, G2Drift,
-    PaperDrift, TempDrift,
+    PaperDrift, Partials, TempDrift,
 };
 use estimator_core::model::{Model, Propagation};
 use estimator_core::propagate::{propagate, Transition};
 use estimator_core::units::arw_deg2ph_to_rad2ps;
 use estimator_core::Site;
-use nalgebra::Vector3;
+use nalgebra::{Matrix3, Vector3};
 
 const CAP: usize = 64;
 
@@ -270,4 +270,165 @@ fn attitude_is_rz_ry_rx() {
             assert!((att.dc()[j] - num).amax() < 1e-9, "∂C/∂θ{j}");
         }
     }
+}
+
+/// A test effect that depends on north (`Context::north`) nonlinearly, on every axis, so every
+/// entry of ∂value/∂north and its chain to the angles is exercised: drift (deg/h) or
+/// accelerometer error (m/s²) `[k0·n_x·n_y, k1·n_z·A_x, k2·n_x²]`.
+struct NorthTerm {
+    accel: bool,
+}
+
+static NORTH_PARAMS: [estimator_core::effects::Param; 3] = [
+    estimator_core::effects::Param {
+        name: "N0",
+        unit: "1",
+        prior_sigma: 0.1,
+    },
+    estimator_core::effects::Param {
+        name: "N1",
+        unit: "1",
+        prior_sigma: 0.1,
+    },
+    estimator_core::effects::Param {
+        name: "N2",
+        unit: "1",
+        prior_sigma: 0.1,
+    },
+];
+
+impl NorthTerm {
+    fn add(&self, p: &[f64], ctx: &estimator_core::effects::Context, out: Partials<'_>) {
+        let (n, a) = (ctx.north, ctx.specific_force);
+        *out.value += Vector3::new(p[0] * n.x * n.y, p[1] * n.z * a.x, p[2] * n.x * n.x);
+        out.d_params[0] = Vector3::new(n.x * n.y, 0.0, 0.0);
+        out.d_params[1] = Vector3::new(0.0, n.z * a.x, 0.0);
+        out.d_params[2] = Vector3::new(0.0, 0.0, n.x * n.x);
+        out.d_force[(1, 0)] += p[1] * n.z;
+    }
+    fn north_partials(
+        &self,
+        p: &[f64],
+        ctx: &estimator_core::effects::Context,
+        d: &mut Matrix3<f64>,
+    ) {
+        let (n, a) = (ctx.north, ctx.specific_force);
+        d[(0, 0)] += p[0] * n.y;
+        d[(0, 1)] += p[0] * n.x;
+        d[(1, 2)] += p[1] * a.x;
+        d[(2, 0)] += 2.0 * p[2] * n.x;
+    }
+}
+
+impl Effect for NorthTerm {
+    fn name(&self) -> &'static str {
+        if self.accel {
+            "test-acc-north"
+        } else {
+            "test-drift-north"
+        }
+    }
+    fn about(&self) -> &'static str {
+        "test only"
+    }
+    fn params(&self) -> &[estimator_core::effects::Param] {
+        &NORTH_PARAMS
+    }
+    fn drift(&self, p: &[f64], ctx: &estimator_core::effects::Context, out: Partials<'_>) {
+        self.add(p, ctx, out);
+    }
+    fn accel_error(&self, p: &[f64], ctx: &estimator_core::effects::Context, out: Partials<'_>) {
+        self.add(p, ctx, out);
+    }
+    fn touches_drift(&self) -> bool {
+        !self.accel
+    }
+    fn touches_accel(&self) -> bool {
+        self.accel
+    }
+    fn uses_north(&self) -> bool {
+        true
+    }
+    fn d_north(
+        &self,
+        p: &[f64],
+        ctx: &estimator_core::effects::Context,
+        drift: bool,
+        d: &mut Matrix3<f64>,
+    ) {
+        if drift != self.accel {
+            self.north_partials(p, ctx, d);
+        }
+    }
+}
+
+/// A function of the state (with scratch space for the effects' partials), for differences.
+type StateFn<'a> = dyn FnMut(&[f64], &mut [Vector3<f64>]) -> Vector3<f64> + 'a;
+
+static NORTH_EFFECTS: [&dyn Effect; 3] = [
+    &PaperDrift,
+    &NorthTerm { accel: false },
+    &NorthTerm { accel: true },
+];
+
+/// F and H of a model whose effects depend on north match central differences, in both charts
+/// (north = C·R·[0, 1, 0]; the polar chart's R is not the identity). Tolerance as in the module
+/// doc: 1e-6 of the column's scale.
+#[test]
+fn north_dependent_effects_jacobians_match_finite_differences() {
+    use estimator_core::frames::Chart;
+    for chart in [Chart::Enu, Chart::Polar] {
+        let mut site = Site::new(39.1, None);
+        site.chart = chart;
+        let m = Model::new(
+            site,
+            &NORTH_EFFECTS,
+            arw_deg2ph_to_rad2ps(1e-8),
+            Propagation::default(),
+        )
+        .unwrap();
+        for k in 0..3 {
+            let x = test_state(&m, k);
+            let mut scratch = [Vector3::zeros(); CAP];
+            let mut numeric = |f: &mut StateFn<'_>| {
+                (0..m.dim())
+                    .map(|j| {
+                        let h = step_for(j);
+                        let (mut xp, mut xm) = (x.clone(), x.clone());
+                        xp[j] += h;
+                        xm[j] -= h;
+                        (f(&xp, &mut scratch) - f(&xm, &mut scratch)) / (2.0 * h)
+                    })
+                    .collect::<Vec<_>>()
+            };
+            let mut jac = [Vector3::zeros(); CAP];
+            m.angle_rate(&x, 3600.0, 0.4, &mut jac);
+            let num = numeric(&mut |x, s| m.angle_rate(x, 3600.0, 0.4, s));
+            assert_columns_close(&format!("F ({chart:?})"), &jac[..m.dim()], &num);
+            m.measurement(&x, 0.0, 0.0, 300.0, &mut jac);
+            let num = numeric(&mut |x, s| m.measurement(x, 0.0, 0.0, 300.0, s));
+            assert_columns_close(&format!("H ({chart:?})"), &jac[..m.dim()], &num);
+        }
+    }
+}
+
+/// North is C_0^p·[0, 1, 0] in either chart: at the same physical attitude (ENU angles θ, their
+/// polar-chart angles from `angles_to_chart`) both models give the same north, a unit vector
+/// orthogonal to A (exact up to rounding of a few products: 1e-14).
+#[test]
+fn north_is_the_same_unit_vector_in_both_charts_and_orthogonal_to_up() {
+    use estimator_core::frames::{Attitude, Chart};
+    let mut polar = Site::new(39.1, None);
+    polar.chart = Chart::Polar;
+    let enu = Site::new(39.1, None);
+    let theta_enu = [0.3, -0.7, 2.1];
+    let theta_r = polar.angles_to_chart(&theta_enu);
+    let c_enu = Attitude::new(&Vector3::from(theta_enu)).c;
+    let c_r = Attitude::new(&Vector3::from(theta_r)).c;
+    let (n1, n2) = (c_enu * enu.north_r(), c_r * polar.north_r());
+    assert!((n1 - n2).amax() < 1e-14, "{n1:?} vs {n2:?}");
+    assert!((n1.norm() - 1.0).abs() < 1e-14);
+    assert!(n1.dot(&(c_enu * enu.gravity_r())).abs() < 1e-13);
+    // Column 1 of C_0^p (frame 0 is ENU: its y axis is north).
+    assert!((n1 - c_enu.column(1)).amax() < 1e-15);
 }

@@ -58,7 +58,7 @@ fn bad_files_are_errors_naming_file_effect_and_position() {
         (
             k2_file("K2x * B_x^2", "K2y * A_y^2", Some("K2z * A_z^2")),
             "bad.toml:8:5: effect `acc-k2`: x = \"K2x * B_x^2\": unknown variable `B_x` (character 7 of the expression)",
-            &["a recording column must be declared: columns = [\"B_x\"]", "A_x, A_y, A_z, up_x, up_y, up_z, t_h, temp_c"],
+            &["a recording column must be declared: columns = [\"B_x\"]", "A_x, A_y, A_z, up_x, up_y, up_z, north_x, north_y, north_z, east_x, east_y, east_z, t_h, temp_c"],
         ),
         (
             k2_file("K2x * A_x^2", "K2y * A_y^2", None),
@@ -208,6 +208,7 @@ fn contexts() -> Vec<Context> {
         t_s: t_h * 3600.0,
         specific_force: Vector3::from(a),
         temp_dev_c: temp,
+        north: Vector3::new(0.6, 0.8, 0.0),
     })
     .collect()
 }

@@ -164,6 +164,7 @@ fn ctx(t_h: f64, a: [f64; 3]) -> Context {
         t_s: t_h * 3600.0,
         specific_force: Vector3::from(a),
         temp_dev_c: 0.0,
+        north: Vector3::new(0.6, 0.8, 0.0),
     }
 }
 

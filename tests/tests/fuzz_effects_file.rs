@@ -182,6 +182,7 @@ fn contexts() -> Vec<Context> {
             t_s: 3600.0 * 15.0 * n as f64,
             specific_force: Vector3::from(*f),
             temp_dev_c: -3.0 + 1.5 * n as f64,
+            north: Vector3::new(0.6, 0.8, 0.0),
         })
         .collect()
 }

@@ -43,6 +43,12 @@ pub struct Context {
     pub specific_force: Vector3<f64>,
     /// Platform temperature minus its value at the start of the run, °C (0 when not recorded).
     pub temp_dev_c: f64,
+    /// Local north (horizontal, Earth-fixed) as a unit vector along the platform axes,
+    /// `C_0^p·[0, 1, 0]`. With up `= A/|A|` and east `= north × up` it makes the columns of the
+    /// attitude C_0^p (frame 0 is ENU): an effect may depend on the platform's turn about the
+    /// vertical too, e.g. an azimuth-dependent term. Computed only when an effect of the model
+    /// says [`Effect::uses_north`]; NaN otherwise (so a forgotten declaration fails loudly).
+    pub north: Vector3<f64>,
 }
 
 /// One parameter of an effect: its name, unit and default prior 1σ.
@@ -100,6 +106,18 @@ pub trait Effect: Sync {
     fn touches_drift(&self) -> bool;
     /// Whether [`Effect::accel_error`] is non-trivial.
     fn touches_accel(&self) -> bool;
+    /// Whether the effect reads [`Context::north`] (default: no). The model computes north and
+    /// chains ∂/∂north into F and H only for models with such an effect (the firmware's paper
+    /// model pays nothing for it); such an effect implements [`Effect::d_north`].
+    fn uses_north(&self) -> bool {
+        false
+    }
+    /// Adds ∂value/∂north of the effect's drift (`drift = true`, deg/h per unit) or
+    /// accelerometer term (m/s² per unit) at parameters `p` to `d_north` (row: axis of the
+    /// value, column: component of north). Called only for effects that say
+    /// [`Effect::uses_north`], after [`Effect::drift`] or [`Effect::accel_error`] at the same
+    /// point. Kept apart from [`Partials`] so that the models without north pay nothing.
+    fn d_north(&self, _p: &[f64], _ctx: &Context, _drift: bool, _d_north: &mut Matrix3<f64>) {}
     /// Dynamics of parameter `k`: `None` (constant, the default) or first-order Gauss–Markov.
     fn markov(&self, _k: usize) -> Option<Markov> {
         None
@@ -130,6 +148,7 @@ mod tests {
             t_s: 7200.0,
             specific_force: Vector3::new(0.3, -0.2, 9.8),
             temp_dev_c: 1.5,
+            north: Vector3::new(0.0, 0.9, 0.0),
         };
         for effect in effects {
             let n = effect.params().len();

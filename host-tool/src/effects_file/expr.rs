@@ -16,15 +16,15 @@ pub const MAX_EXPR_CHARS: usize = 300;
 /// size; 8 levels is beyond any physical formula.
 pub const MAX_EXPR_DEPTH: usize = 8;
 /// Most differentiation work of one effect: Σ over its three expressions of (variables
-/// differentiated: parameters and A components)² × (characters once `up_*` and `abs` are
-/// rewritten). exmex's time per derivative grows with the expression's length and its number of
+/// differentiated: parameters, A and north components)² × (characters once `up_*`, `east_*`
+/// and `abs` are rewritten). exmex's time per derivative grows with the expression's length and its number of
 /// variables (~5 µs per unit of this measure, from 2 to 49 variables and 80 to 300
 /// characters), so the costliest effect admitted compiles in about a second (49 parameters in
 /// one 225-character sum took 2.7 s).
 pub const MAX_DERIVATIVE_WORK: usize = 200_000;
 
 /// The variables every expression may use besides the effect's parameters, with their meaning.
-pub const VARIABLES: [(&str, &str); 8] = [
+pub const VARIABLES: [(&str, &str); 14] = [
     ("A_x", "specific force along platform x, m/s^2"),
     ("A_y", "specific force along platform y, m/s^2"),
     ("A_z", "specific force along platform z, m/s^2"),
@@ -40,6 +40,30 @@ pub const VARIABLES: [(&str, &str); 8] = [
         "up_z",
         "platform-z component of the local vertical (up, unit vector, A/|A|)",
     ),
+    (
+        "north_x",
+        "platform-x component of local north (unit vector)",
+    ),
+    (
+        "north_y",
+        "platform-y component of local north (unit vector)",
+    ),
+    (
+        "north_z",
+        "platform-z component of local north (unit vector)",
+    ),
+    (
+        "east_x",
+        "platform-x component of local east (unit vector, north x up)",
+    ),
+    (
+        "east_y",
+        "platform-y component of local east (unit vector, north x up)",
+    ),
+    (
+        "east_z",
+        "platform-z component of local east (unit vector, north x up)",
+    ),
     ("t_h", "hours since the start of the run"),
     (
         "temp_c",
@@ -47,9 +71,14 @@ pub const VARIABLES: [(&str, &str); 8] = [
     ),
 ];
 
-/// Derived variables, replaced by their definition before parsing so that exmex differentiates
-/// them through the specific force (their ∂/∂A then reaches the attitude chain like A's).
-const DERIVED: [(&str, &str); 3] = [
+/// Derived variables, replaced by their definition before parsing (in this order: east uses up)
+/// so that exmex differentiates them through the specific force and north (their ∂/∂A and
+/// ∂/∂north then reach the attitude chain like A's). East is north × up: frame 0 is ENU
+/// (x east, y north, z up, right-handed), and a rotation keeps cross products.
+const DERIVED: [(&str, &str); 6] = [
+    ("east_x", "(north_y*up_z-north_z*up_y)"),
+    ("east_y", "(north_z*up_x-north_x*up_z)"),
+    ("east_z", "(north_x*up_y-north_y*up_x)"),
     ("up_x", "(A_x/sqrt(A_x^2+A_y^2+A_z^2))"),
     ("up_y", "(A_y/sqrt(A_x^2+A_y^2+A_z^2))"),
     ("up_z", "(A_z/sqrt(A_x^2+A_y^2+A_z^2))"),
@@ -77,6 +106,8 @@ pub fn parse_expr(s: &str) -> exmex::ExResult<Expr> {
 #[derive(Clone, Copy, Debug)]
 enum Slot {
     Force(usize),
+    /// Component `j` of local north in platform axes ([`Context::north`]).
+    North(usize),
     TimeH,
     TempC,
     Param(usize),
@@ -102,6 +133,7 @@ impl Bound {
             .iter()
             .map(|s| match *s {
                 Slot::Force(j) => ctx.specific_force[j],
+                Slot::North(j) => ctx.north[j],
                 Slot::TimeH => ctx.t_s / S_PER_H,
                 Slot::TempC => ctx.temp_dev_c,
                 Slot::Param(k) => p[k],
@@ -130,6 +162,8 @@ pub struct AxisExpr {
     pub d_params: Vec<(usize, Expr)>,
     /// ∂/∂A_j, for the force components the expression uses.
     pub d_force: Vec<(usize, Expr)>,
+    /// ∂/∂north_j, for the north components the expression uses (east and up included).
+    pub d_north: Vec<(usize, Expr)>,
 }
 
 impl AxisExpr {
@@ -148,6 +182,10 @@ impl AxisExpr {
             });
         }
         self.value.bind(p, ctx, cols, &signs)
+    }
+    /// Whether the expression reads local north (`north_*`, or `east_*` through it).
+    pub fn uses_north(&self) -> bool {
+        self.value.slots.iter().any(|s| matches!(s, Slot::North(_)))
     }
     /// The value for variables from [`AxisExpr::bind`].
     pub fn value(&self, vars: &[f64]) -> f64 {
@@ -277,6 +315,9 @@ fn bind_vars(expr: Expr, params: &[&str], columns: &[&str]) -> Result<Bound, Str
             "A_x" => Slot::Force(0),
             "A_y" => Slot::Force(1),
             "A_z" => Slot::Force(2),
+            "north_x" => Slot::North(0),
+            "north_y" => Slot::North(1),
+            "north_z" => Slot::North(2),
             "t_h" => Slot::TimeH,
             "temp_c" => Slot::TempC,
             _ => match params.iter().position(|p| p == v) {
@@ -373,7 +414,7 @@ fn compile_here(
     let n_diff = value
         .slots
         .iter()
-        .filter(|s| matches!(s, Slot::Param(_) | Slot::Force(_)))
+        .filter(|s| matches!(s, Slot::Param(_) | Slot::Force(_) | Slot::North(_)))
         .count();
     let work = n_diff * n_diff * text.chars().count();
     if work > budget {
@@ -386,7 +427,7 @@ fn compile_here(
             budget
         ));
     }
-    let (mut d_params, mut d_force) = (Vec::new(), Vec::new());
+    let (mut d_params, mut d_force, mut d_north) = (Vec::new(), Vec::new(), Vec::new());
     for (idx, slot) in value.slots.iter().enumerate() {
         let d = || {
             value.expr.clone().partial(idx).map_err(|e| {
@@ -400,6 +441,7 @@ fn compile_here(
         match *slot {
             Slot::Param(k) => d_params.push((k, d()?)),
             Slot::Force(j) => d_force.push((j, d()?)),
+            Slot::North(j) => d_north.push((j, d()?)),
             Slot::TimeH | Slot::TempC | Slot::Column(_) | Slot::Sign(_) => {}
         }
     }
@@ -409,6 +451,7 @@ fn compile_here(
         abs_args,
         d_params,
         d_force,
+        d_north,
     };
     Ok((ax, work))
 }
@@ -422,6 +465,7 @@ mod tests {
             t_s: 7200.0,
             specific_force: nalgebra::Vector3::from(a),
             temp_dev_c: 0.5,
+            north: nalgebra::Vector3::new(0.8, -0.6, 0.0),
         }
     }
 

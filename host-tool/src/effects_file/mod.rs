@@ -23,6 +23,10 @@
 //!   `Context::specific_force`, `A = C·g0`);
 //! - `up_x`, `up_y`, `up_z`: the local vertical as a unit vector in platform axes, `A/|A|`
 //!   (replaced by that formula before parsing, so its derivative reaches the attitude chain);
+//! - `north_x`, `north_y`, `north_z`: local north as a unit vector in platform axes
+//!   (`Context::north`, differentiated like A: ∂/∂north reaches the attitude chain), and
+//!   `east_x`, `east_y`, `east_z` = north × up (replaced by that formula). Up, north and east are
+//!   the columns of the attitude C_0^p (frame 0 is ENU);
 //! - `t_h`: hours since the start of the run (θ = 0), `Context::t_s / 3600`;
 //! - `temp_c`: the platform temperature's *deviation from its value at the first measurement*,
 //!   °C (`Context::temp_dev_c`; 0 when the recording has no `temp_c` column). A constant
@@ -31,8 +35,8 @@
 //! - the effect's own parameters, by name.
 //!
 //! `abs(u)` is rewritten as `u·s`, `s` the sign of `u` evaluated first (exmex has no derivative
-//! of `abs`). Extra recording columns, north, east and the attitude are not available yet: the
-//! core's `Context` does not carry them, and naming one is an error at load time.
+//! of `abs`). A variable not listed here, not a parameter and not a declared recording column is
+//! an error at load time.
 //!
 //! A file is code handed to the tool: it is read and compiled within checked limits
 //! ([`MAX_FILE_BYTES`], [`MAX_EFFECTS`], [`MAX_PARAMS`], [`MAX_EXPR_CHARS`], [`MAX_EXPR_DEPTH`],
@@ -56,6 +60,7 @@ use estimator_core::model::MAX_STATES;
 use estimator_core::units::S_PER_H;
 use estimator_core::PAPER_STATES;
 use exmex::Express as _;
+use nalgebra::Matrix3;
 use serde::Deserialize;
 use toml::Spanned;
 
@@ -260,6 +265,28 @@ impl UserEffect {
     }
 }
 
+impl UserEffect {
+    /// Adds ∂value/∂north of each axis (rows) to `d_north` (the model asks for it apart from
+    /// the value: [`Effect::d_north`]).
+    fn add_d_north(&self, p: &[f64], ctx: &Context, d_north: &mut Matrix3<f64>) {
+        let cols = self.column_values(p, ctx);
+        for (i, ax) in self.axes.iter().enumerate() {
+            if ax.d_north.is_empty() {
+                continue;
+            }
+            let vars = ax.bind(p, ctx, &cols);
+            for (j, d) in &ax.d_north {
+                let v = eval(d, &vars);
+                if !v.is_finite() {
+                    let what = format!("derivative by north_{}", AXES[*j]);
+                    self.check_value(i, &what, v, 1.0, p, ctx);
+                }
+                d_north[(i, *j)] += v;
+            }
+        }
+    }
+}
+
 impl Effect for UserEffect {
     fn name(&self) -> &'static str {
         self.name
@@ -285,6 +312,14 @@ impl Effect for UserEffect {
     }
     fn touches_accel(&self) -> bool {
         self.applies_to == AppliesTo::Accelerometer
+    }
+    fn uses_north(&self) -> bool {
+        self.axes.iter().any(AxisExpr::uses_north)
+    }
+    fn d_north(&self, p: &[f64], ctx: &Context, drift: bool, d_north: &mut Matrix3<f64>) {
+        if drift == (self.applies_to == AppliesTo::Drift) {
+            self.add_d_north(p, ctx, d_north);
+        }
     }
 }
 
@@ -410,10 +445,17 @@ fn probe_contexts() -> Vec<Context> {
     forces
         .iter()
         .enumerate()
-        .map(|(n, f)| Context {
-            t_s: 3600.0 * (1.7 + 13.0 * n as f64),
-            specific_force: nalgebra::Vector3::from(*f),
-            temp_dev_c: -2.3 + 1.9 * n as f64,
+        .map(|(n, f)| {
+            let a = nalgebra::Vector3::from(*f);
+            Context {
+                t_s: 3600.0 * (1.7 + 13.0 * n as f64),
+                specific_force: a,
+                temp_dev_c: -2.3 + 1.9 * n as f64,
+                // A unit vector orthogonal to A, as north is to up.
+                north: a
+                    .cross(&nalgebra::Vector3::new(0.36, -0.48, 0.8))
+                    .normalize(),
+            }
         })
         .collect()
 }

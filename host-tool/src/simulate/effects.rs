@@ -5,7 +5,7 @@ use std::fmt;
 use std::str::FromStr;
 
 /// Names of the injectable effects, as on the command line and in the truth file.
-pub const EFFECT_NAMES: [&str; 11] = [
+pub const EFFECT_NAMES: [&str; 12] = [
     "g2",
     "acc-bias",
     "acc-scale",
@@ -17,6 +17,7 @@ pub const EFFECT_NAMES: [&str; 11] = [
     "drift-transient",
     "acc-temp",
     "drift-step",
+    "acc-north",
 ];
 
 /// Help text describing the `--effect` syntax.
@@ -36,6 +37,9 @@ NAME=v1,v2,... (repeatable; the same effect twice adds up). Effects:
   drift-transient=ax,ay,az:tau   turn-on transient: drift += a*exp(-t/tau), deg/h, tau in h (not in the catalog)
   acc-temp=kx,ky,kz     accelerometer bias += k*(T(t)-T(0)), m/s^2 per deg C; adds a temp_c column (not in the catalog)
   drift-step=ax,ay,az:T0 drift step: drift += a from T0 hours on, deg/h (not in the catalog)
+  acc-north=kx,ky,kz    z_i += k_i*north_i, m/s^2 per unit, north the local north in platform axes: an
+                        Earth-fixed horizontal disturbance, e.g. the field's pull on the accelerometers
+                        (not in the catalog; an effects file names it: docs/effect-files.md)
 Example: --effect acc-bias=1e-4,0,0 --effect drift-markov=0.01,0.01,0.01:5,5,5";
 
 /// An effect the truth simulator can inject. Serialised as `{"name": "acc-bias", "params": {…}}`.
@@ -71,6 +75,9 @@ pub enum InjectedEffect {
     /// Drift step (not in the catalog): w_d,i += a_i for t ≥ T0, deg/h, T0 in h (a sudden change
     /// of a gyro's constant drift: a kink, not a jump, in the accelerometers).
     DriftStep { a_deg_h: [f64; 3], t0_h: f64 },
+    /// Accelerometer error along local north (not in the catalog): z_i += k_i·north_i, m/s²
+    /// per unit, north = C_0^p·[0, 1, 0] the local north in platform axes.
+    AccNorth { k_mps2: [f64; 3] },
 }
 
 impl InjectedEffect {
@@ -88,6 +95,7 @@ impl InjectedEffect {
             InjectedEffect::DriftTransient { .. } => "drift-transient",
             InjectedEffect::AccTemp { .. } => "acc-temp",
             InjectedEffect::DriftStep { .. } => "drift-step",
+            InjectedEffect::AccNorth { .. } => "acc-north",
         }
     }
 
@@ -140,6 +148,7 @@ impl InjectedEffect {
             }
             InjectedEffect::TempDrift { c_deg_h_per_c } => vec![c_deg_h_per_c.to_vec()],
             InjectedEffect::AccTemp { k_mps2_per_c } => vec![k_mps2_per_c.to_vec()],
+            InjectedEffect::AccNorth { k_mps2 } => vec![k_mps2.to_vec()],
             InjectedEffect::DriftSine {
                 a_deg_h,
                 period_h: t,
@@ -264,6 +273,9 @@ impl FromStr for InjectedEffect {
             "drift-transient" => InjectedEffect::DriftTransient {
                 a_deg_h: parse_list(name, "amplitudes (deg/h)", groups[0])?,
                 tau_h: parse_list::<1>(name, "time constant (h)", groups[1])?[0],
+            },
+            "acc-north" => InjectedEffect::AccNorth {
+                k_mps2: parse_list(name, "values (m/s^2 per unit of north)", groups[0])?,
             },
             "drift-step" => InjectedEffect::DriftStep {
                 a_deg_h: parse_list(name, "step sizes (deg/h)", groups[0])?,

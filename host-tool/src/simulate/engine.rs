@@ -172,6 +172,7 @@ impl Simulator {
                 }
                 InjectedEffect::AccBias { .. }
                 | InjectedEffect::AccTemp { .. }
+                | InjectedEffect::AccNorth { .. }
                 | InjectedEffect::AccScale { .. }
                 | InjectedEffect::AccMisalign { .. } => {}
             }
@@ -202,6 +203,11 @@ impl Simulator {
     /// C_0^p = C_i^p·C_0^i: Earth frame 0 → platform.
     pub fn c_0p(&self) -> Matrix3<f64> {
         self.c_ip * self.c_0i
+    }
+
+    /// Local north in platform axes, C_0^p [0, 1, 0] (frame 0 is ENU).
+    pub fn north(&self) -> Vector3<f64> {
+        self.c_0p().column(1).into_owned()
     }
 
     /// True specific force in platform axes, A = C_0^p [0, 0, g], m/s².

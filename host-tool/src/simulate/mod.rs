@@ -512,6 +512,7 @@ impl Truth {
                 | InjectedEffect::DriftSine { .. }
                 | InjectedEffect::DriftTransient { .. }
                 | InjectedEffect::AccTemp { .. }
+                | InjectedEffect::AccNorth { .. }
                 | InjectedEffect::DriftStep { .. } => {}
             }
         }
@@ -637,6 +638,14 @@ pub fn simulate(s: &Scenario) -> Simulation {
             _ => None,
         })
         .sum();
+    let acc_north: Option<Vector3<f64>> = s
+        .effects
+        .iter()
+        .filter_map(|e| match e {
+            InjectedEffect::AccNorth { k_mps2 } => Some(Vector3::from(*k_mps2)),
+            _ => None,
+        })
+        .reduce(|a, b| a + b);
     let has_temp = s.has_temp();
     let max_sub = s.max_substep_s.min(1.0);
     let n = s.sample_count();
@@ -644,6 +653,7 @@ pub fn simulate(s: &Scenario) -> Simulation {
     for i in 0..n {
         let t_stamp = i as f64 * s.rate_s;
         let t = t_stamp / clock;
+        let north_before = acc_north.map(|_| sim.north());
         let a = if s.logger.averaged {
             let half = 0.5 * s.rate_s / clock;
             if i == 0 {
@@ -662,6 +672,15 @@ pub fn simulate(s: &Scenario) -> Simulation {
             force_at(&mut sim, err, g, t, max_sub)
         };
         let mut z = k * a + b + acc_temp * (s.temp_profile.at(t) - s.temp_profile.at(0.0));
+        if let Some(kn) = acc_north {
+            // North at the sample's time; over an averaging window the mean of its ends
+            // (trapezoid: off by (ω·window)²/12 ≈ 2e-6 of k for a 60-s window).
+            let north = match north_before {
+                Some(n0) if s.logger.averaged => (n0 + sim.north()) * 0.5,
+                _ => sim.north(),
+            };
+            z += kn.component_mul(&north);
+        }
         if sigma > 0.0 {
             for j in 0..3 {
                 let e: f64 = StandardNormal.sample(&mut rng_acc);
