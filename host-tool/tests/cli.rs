@@ -742,6 +742,28 @@ fn a_joint_fits_total_sigma_carries_the_runs_set_up() {
     let _ = std::fs::remove_dir_all(&dir);
 }
 
+/// Issue 26 through `diagnose`: a clock 300 ppm fast on a latitude written "39.1" fits within
+/// its noise at the start (the data move the latitude within its digits); the ladder then added
+/// `drift-daily`, which absorbs the move, and exited 0 with DXx 8σ off. The set-up within its
+/// priors is weighed before the ladder as for a misfit: not trusted, the assumed clock named (as
+/// `identify` says).
+#[test]
+fn diagnose_does_not_hide_a_fast_clock_behind_an_effect() {
+    let dir = temp_dir("diagnose-clock");
+    let csv = simulate_to(
+        &dir,
+        "run.csv",
+        &["--seed", "11", "--clock-error-ppm", "300"],
+    );
+    let (code, all) = run_driftid(&["diagnose".into(), csv.into()]);
+    assert_eq!(code, Some(3), "{all}");
+    assert!(
+        all.contains("misstated clock rate") && all.contains("rests on the assumed"),
+        "{all}"
+    );
+    let _ = std::fs::remove_dir_all(&dir);
+}
+
 /// The page's structure (issue 29): the verdict as its own block before everything else, a table
 /// of contents whose links all land, no table cut at 800 px (each scrolls in a wrapper, numbers
 /// never wrap, a base font of at least 14 px), every clipped point marked and counted, long lists
