@@ -383,65 +383,119 @@ impl<'a, 'm, const CAP: usize> Forward<'a, 'm, CAP> {
         let model = self.model;
         let n = model.dim();
         let dynamic = model.dynamic_states();
-        let nd = dynamic.len();
         let z = &self.meas[j];
+        st.predict_mean(dynamic, lin, m_prev);
+        let p_pred = p_out;
+        st.predict_covariance(dynamic, lin, p_prev, p_pred);
+        let xbar = match self.given {
+            Some(v) => v[j + 1].as_slice(),
+            None => &lin.f[..n],
+        };
+        let (predicted, nu) = st.innovation(j, z, lin, xbar)?;
+        let (s, s_inv, chol_l) = st.gain(j, z, lin, p_pred, nu)?;
+        st.joseph_update(p_pred);
+        st.nu = nu;
+        st.s_inv_nu = s_inv * nu;
+        st.whitened = chol_l.solve_lower_triangular(&nu).unwrap_or(nu);
+        st.chol_l = chol_l;
+        st.s = s;
+        st.s_inv = s_inv;
+        st.predicted = predicted;
+        Ok(())
+    }
+}
+
+/// The parts of [`Forward::step`], in its order; inlined into both of its builds.
+impl Step {
+    /// Φ's dynamic rows from the linearisation, and the predicted mean m⁻ = f(x̄) + Φ (m − x̄).
+    #[inline(always)]
+    fn predict_mean<const CAP: usize>(
+        &mut self,
+        dynamic: &[usize],
+        lin: &Linearisation<CAP>,
+        m_prev: &[f64],
+    ) {
+        let n = self.m.len();
+        let nd = dynamic.len();
         let xbar_prev = &lin.xbar_prev[..n];
         for r in 0..nd {
-            st.phi[r * n..(r + 1) * n].copy_from_slice(&lin.tr.rows[r][..n]);
-        }
-        // m⁻ = f(x̄) + Φ (m − x̄).
-        for i in 0..n {
-            st.dm[i] = m_prev[i] - xbar_prev[i];
+            self.phi[r * n..(r + 1) * n].copy_from_slice(&lin.tr.rows[r][..n]);
         }
         for i in 0..n {
-            st.m_pred[i] = lin.f[i] + st.dm[i];
+            self.dm[i] = m_prev[i] - xbar_prev[i];
+        }
+        for i in 0..n {
+            self.m_pred[i] = lin.f[i] + self.dm[i];
         }
         for (r, &d) in dynamic.iter().enumerate() {
-            st.m_pred[d] = lin.f[d] + dot(&st.phi[r * n..(r + 1) * n], &st.dm);
+            self.m_pred[d] = lin.f[d] + dot(&self.phi[r * n..(r + 1) * n], &self.dm);
         }
-        // P⁻ = Φ P Φᵀ + Q. With A = rows `dynamic` of Φ P (= columns of P Φᵀ, P symmetric):
-        // P⁻ is P outside the dynamic rows and columns, A there, and A Φ_Dᵀ + Q where both are
-        // dynamic (symmetrised).
+    }
+
+    /// P⁻ = Φ P Φᵀ + Q into `p_pred`. With A = rows `dynamic` of Φ P (= columns of P Φᵀ, P
+    /// symmetric): P⁻ is P outside the dynamic rows and columns, A there, and A Φ_Dᵀ + Q where
+    /// both are dynamic (symmetrised).
+    #[inline(always)]
+    fn predict_covariance<const CAP: usize>(
+        &mut self,
+        dynamic: &[usize],
+        lin: &Linearisation<CAP>,
+        p_prev: &[f64],
+        p_pred: &mut [f64],
+    ) {
+        let n = self.m.len();
         // A = Φ_D P three rows at a time (the core's kernel: the sums of a block of columns
         // in registers; an axpy per row and state was a third of this step in loop overhead).
-        for (f, a) in st.phi.chunks_exact(3 * n).zip(st.a.chunks_exact_mut(3 * n)) {
+        for (f, a) in self
+            .phi
+            .chunks_exact(3 * n)
+            .zip(self.a.chunks_exact_mut(3 * n))
+        {
             let (a0, rest) = a.split_at_mut(n);
             let (a1, a2) = rest.split_at_mut(n);
             let f = [&f[..n], &f[n..2 * n], &f[2 * n..]];
             three_rows_times(f, p_prev, n, [a0, a1, a2]);
         }
-        let p_pred = p_out;
         p_pred.copy_from_slice(&p_prev[..n * n]);
         for (r, &d) in dynamic.iter().enumerate() {
             for c in 0..n {
-                let v = st.a[r * n + c];
+                let v = self.a[r * n + c];
                 p_pred[d * n + c] = v;
                 p_pred[c * n + d] = v;
             }
         }
         for (r, &d) in dynamic.iter().enumerate() {
             for (s, &e) in dynamic.iter().enumerate().skip(r) {
-                let ar = &st.a[r * n..(r + 1) * n];
-                let as_ = &st.a[s * n..(s + 1) * n];
+                let ar = &self.a[r * n..(r + 1) * n];
+                let as_ = &self.a[s * n..(s + 1) * n];
                 let v = 0.5
-                    * (dot(ar, &st.phi[s * n..(s + 1) * n])
-                        + dot(as_, &st.phi[r * n..(r + 1) * n]))
+                    * (dot(ar, &self.phi[s * n..(s + 1) * n])
+                        + dot(as_, &self.phi[r * n..(r + 1) * n]))
                     + 0.5 * (lin.tr.q[r][s] + lin.tr.q[s][r]);
                 p_pred[d * n + e] = v;
                 p_pred[e * n + d] = v;
             }
         }
-        let xbar = match self.given {
-            Some(v) => v[j + 1].as_slice(),
-            None => &lin.f[..n],
-        };
+    }
+
+    /// H's non-zero columns, the prediction h(x̄) + H (m⁻ − x̄) of measurement `z` (update `j`)
+    /// and the innovation ν; an error when ν is not finite.
+    #[inline(always)]
+    fn innovation<const CAP: usize>(
+        &mut self,
+        j: usize,
+        z: &Measurement,
+        lin: &Linearisation<CAP>,
+        xbar: &[f64],
+    ) -> Result<([f64; 3], Vector3<f64>), SmootherError> {
+        let n = self.m.len();
         let predicted_at_nominal = lin.h_at_nominal;
-        st.cols.clear();
-        st.cols
+        self.cols.clear();
+        self.cols
             .extend((0..n).filter(|&c| lin.hcols[c] != Vector3::zeros()));
         let mut hdx = Vector3::zeros();
-        for &c in &st.cols {
-            hdx += lin.hcols[c] * (st.m_pred[c] - xbar[c]);
+        for &c in &self.cols {
+            hdx += lin.hcols[c] * (self.m_pred[c] - xbar[c]);
         }
         let predicted = predicted_at_nominal + hdx;
         let predicted = [predicted[0], predicted[1], predicted[2]];
@@ -454,18 +508,35 @@ impl<'a, 'm, const CAP: usize> Forward<'a, 'm, CAP> {
                 predicted,
             });
         }
+        Ok((predicted, nu))
+    }
+
+    /// U = P⁻ Hᵀ, S = H U + R (symmetrised), its Cholesky factor, the gain K = U S⁻¹,
+    /// W = U − K S and the updated mean m = m⁻ + K ν; returns (S, S⁻¹, L). An error when S is
+    /// not finite or not positive definite (bad data, see the module's doc).
+    #[inline(always)]
+    #[allow(clippy::type_complexity)]
+    fn gain<const CAP: usize>(
+        &mut self,
+        j: usize,
+        z: &Measurement,
+        lin: &Linearisation<CAP>,
+        p_pred: &[f64],
+        nu: Vector3<f64>,
+    ) -> Result<(Matrix3<f64>, Matrix3<f64>, Matrix3<f64>), SmootherError> {
+        let n = self.m.len();
         // U = P⁻ Hᵀ (row i: Σ_c P⁻[i, c] h_c), S = H U + R.
         for i in 0..n {
             let row = &p_pred[i * n..(i + 1) * n];
             let mut acc = Vector3::zeros();
-            for &c in &st.cols {
+            for &c in &self.cols {
                 acc += lin.hcols[c] * row[c];
             }
-            st.u[i] = acc;
+            self.u[i] = acc;
         }
         let mut s_dyn = Matrix3::from_diagonal(&Vector3::from(z.variance));
-        for &c in &st.cols {
-            s_dyn += lin.hcols[c] * st.u[c].transpose();
+        for &c in &self.cols {
+            s_dyn += lin.hcols[c] * self.u[c].transpose();
         }
         let s = Matrix3::from_fn(|a, b| 0.5 * (s_dyn[(a, b)] + s_dyn[(b, a)]));
         let chol = s
@@ -482,24 +553,30 @@ impl<'a, 'm, const CAP: usize> Forward<'a, 'm, CAP> {
         let chol_l = chol.l();
         let s_inv_t = s_inv.transpose();
         for i in 0..n {
-            st.k[i] = s_inv_t * st.u[i];
-            st.w[i] = st.u[i] - s * st.k[i];
-            st.m[i] = st.m_pred[i] + st.k[i].dot(&nu);
+            self.k[i] = s_inv_t * self.u[i];
+            self.w[i] = self.u[i] - s * self.k[i];
+            self.m[i] = self.m_pred[i] + self.k[i].dot(&nu);
             for a in 0..3 {
-                st.k_cols[a][i] = st.k[i][a];
-                st.w_cols[a][i] = st.w[i][a];
+                self.k_cols[a][i] = self.k[i][a];
+                self.w_cols[a][i] = self.w[i][a];
             }
         }
-        // Joseph: P = (I − KH) P⁻ (I − KH)ᵀ + K R Kᵀ = P⁻ − K Uᵀ − U Kᵀ + K S Kᵀ (S = H U + R)
-        //          = P⁻ − K Wᵀ − U Kᵀ with W = U − K S (valid for any gain, as the Joseph form is).
-        // In place over P⁻: the upper triangle row by row (entry (i, jj ≥ i) reads only itself),
-        // then mirrored into the lower one.
-        // Along a row the entries are Kᵢ·Wⱼ + Uᵢ·Kⱼ over contiguous columns of K and W (the
-        // products and sums of the two 3-vector dot products, in their order).
-        let p = p_pred;
-        let ([kx, ky, kz], [wx, wy, wz]) = (&st.k_cols, &st.w_cols);
+        Ok((s, s_inv, chol_l))
+    }
+
+    /// The Joseph update of P⁻ into P, in place:
+    /// P = (I − KH) P⁻ (I − KH)ᵀ + K R Kᵀ = P⁻ − K Uᵀ − U Kᵀ + K S Kᵀ (S = H U + R)
+    ///   = P⁻ − K Wᵀ − U Kᵀ with W = U − K S (valid for any gain, as the Joseph form is).
+    #[inline(always)]
+    fn joseph_update(&self, p: &mut [f64]) {
+        let n = self.m.len();
+        // The upper triangle row by row (entry (i, jj ≥ i) reads only itself), then mirrored
+        // into the lower one. Along a row the entries are Kᵢ·Wⱼ + Uᵢ·Kⱼ over contiguous
+        // columns of K and W (the products and sums of the two 3-vector dot products, in
+        // their order).
+        let ([kx, ky, kz], [wx, wy, wz]) = (&self.k_cols, &self.w_cols);
         for i in 0..n {
-            let (ki, ui) = (st.k[i], st.u[i]);
+            let (ki, ui) = (self.k[i], self.u[i]);
             let row = &mut p[i * n + i..(i + 1) * n];
             let len = row.len();
             let (kx, ky, kz) = (&kx[i..i + len], &ky[i..i + len], &kz[i..i + len]);
@@ -514,14 +591,6 @@ impl<'a, 'm, const CAP: usize> Forward<'a, 'm, CAP> {
                 p[jj * n + i] = p[i * n + jj];
             }
         }
-        st.nu = nu;
-        st.s_inv_nu = s_inv * nu;
-        st.whitened = chol_l.solve_lower_triangular(&nu).unwrap_or(nu);
-        st.chol_l = chol_l;
-        st.s = s;
-        st.s_inv = s_inv;
-        st.predicted = predicted;
-        Ok(())
     }
 }
 
