@@ -345,6 +345,18 @@ impl Scenario {
         for e in &self.effects {
             e.validate()?;
         }
+        self.validate_setup_errors()?;
+        self.validate_logger()?;
+        let n = (self.hours * 3600.0) / self.rate_s;
+        if n > 1e8 {
+            return Err(format!("{n:.0} samples is too many (at most 1e8)"));
+        }
+        Ok(())
+    }
+
+    /// The set-up errors within their ranges (clock ±1e5 ppm, latitude ±10°, gravity ±1e5 ppm,
+    /// angles ±3600″).
+    fn validate_setup_errors(&self) -> Result<(), String> {
         let se = &self.setup_errors;
         if !(se.clock_ppm.abs() < 1e5
             && se.latitude_deg.abs() <= 10.0
@@ -357,6 +369,12 @@ impl Scenario {
                 "set-up errors out of range (clock ±1e5 ppm, latitude ±10 deg, gravity ±1e5 ppm, angles ±3600 arcsec): {se:?}"
             ));
         }
+        Ok(())
+    }
+
+    /// The logger's time-stamp jitter and rounding below a quarter of the sample interval (else
+    /// stamps could swap order), at most 15 decimals.
+    fn validate_logger(&self) -> Result<(), String> {
         let lg = &self.logger;
         let rounding = lg
             .time_decimals
@@ -369,10 +387,6 @@ impl Scenario {
                 "time-stamp jitter {} s and rounding to {:?} decimals must stay below a quarter of the interval {} s (decimals at most 15)",
                 lg.time_jitter_s, lg.time_decimals, self.rate_s
             ));
-        }
-        let n = (self.hours * 3600.0) / self.rate_s;
-        if n > 1e8 {
-            return Err(format!("{n:.0} samples is too many (at most 1e8)"));
         }
         Ok(())
     }
