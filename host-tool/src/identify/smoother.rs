@@ -220,8 +220,9 @@ enum Nominal<'a> {
 
 /// What update j takes from the model about the nominal: the nominal propagated over the
 /// interval (`f`), Φ's dynamic rows and Q (`tr`), and H's columns and h at the next node. None
-/// of it depends on the filter, so for a given nominal [`run_cap`] computes it ahead, on another
-/// core, while the filter steps (the same calls on the same inputs: the same bits).
+/// of it depends on the filter, so for a given nominal [`for_each_linearisation`] computes it
+/// ahead, on another core, while the filter steps (the same calls on the same inputs: the same
+/// bits).
 struct Linearisation<const CAP: usize> {
     /// The nominal at node j, where the interval starts.
     xbar_prev: [f64; CAP],
