@@ -448,6 +448,8 @@ impl<'m, const CAP: usize> Ekf<'m, CAP> {
         }
     }
 
+    /// The measurement update after the prediction: the residual (with `rejected` set when the
+    /// gate refuses it: then the state and P stay predicted), or an error writing nothing.
     #[inline(always)] // into both builds of `step`
     fn update(&mut self, m: &Measurement, temp_dev: f64) -> Result<Residual, FilterError> {
         let step = self.steps;
@@ -478,16 +480,7 @@ impl<'m, const CAP: usize> Ekf<'m, CAP> {
                 p2[i] += hj.z * pij;
             }
         }
-        let r = Vector3::from(m.variance);
-        let mut s = Matrix3::from_diagonal(&r);
-        let mut measured = self.model.measured_mask();
-        while measured != 0 {
-            let j = measured.trailing_zeros() as usize;
-            measured &= measured - 1;
-            let pj = Vector3::new(pht[0][j], pht[1][j], pht[2][j]);
-            s += h[j] * pj.transpose();
-        }
-        s = (s + s.transpose()) * 0.5;
+        let s = self.innovation_covariance(&h, &pht, Vector3::from(m.variance));
         // S = L Lᵀ in closed form (3×3), S⁻¹ = L⁻ᵀ L⁻¹ and the whitened innovation L⁻¹ ν.
         let l = cholesky3(&s).ok_or(FilterError::SingularInnovation { step })?;
         let l_inv = lower_inverse3(&l);
@@ -514,31 +507,11 @@ impl<'m, const CAP: usize> Ekf<'m, CAP> {
                 });
             }
         }
-        // Gain K = P Hᵀ S⁻¹, and M = K S − P Hᵀ.
         let mut k = [[0.0; CAP]; 3];
         let mut mm = [[0.0; CAP]; 3];
-        {
-            let (p0, p1, p2) = (&pht[0][..n], &pht[1][..n], &pht[2][..n]);
-            let [k0, k1, k2] = &mut k;
-            let (k0, k1, k2) = (&mut k0[..n], &mut k1[..n], &mut k2[..n]);
-            let [m0, m1, m2] = &mut mm;
-            let (m0, m1, m2) = (&mut m0[..n], &mut m1[..n], &mut m2[..n]);
-            for i in 0..n {
-                let p = Vector3::new(p0[i], p1[i], p2[i]);
-                let ki = s_inv * p;
-                let mi = s * ki - p;
-                (k0[i], k1[i], k2[i]) = (ki.x, ki.y, ki.z);
-                (m0[i], m1[i], m2[i]) = (mi.x, mi.y, mi.z);
-            }
-        }
-        // Joseph form P⁺ = (I−KH) P (I−KH)ᵀ + K R Kᵀ, multiplied out:
-        //   P⁺ = P − K (HP) − (PHᵀ) Kᵀ + K S Kᵀ   (S = HPHᵀ + R)
-        //      = P − K (PHᵀ)ᵀ + M Kᵀ              (M = K S − PHᵀ),
-        // the same function of K (valid for any gain, not only the optimal one), 6 products
-        // per entry. We evaluate the upper triangle and mirror it. Only the measured columns of
-        // H entered PHᵀ and S above; K and P⁺ are dense.
-        // The diagonal and the state first: a refused update (unhealthy) writes nothing, and the
-        // caller undoes the prediction.
+        gain(n, &pht, &s, &s_inv, &mut k, &mut mm);
+        // P⁺ in Joseph form (see `joseph_update`). The diagonal and the state first: a refused
+        // update (unhealthy) writes nothing, and the caller undoes the prediction.
         let mut diag = [0.0; CAP];
         let mut x_new = [0.0; CAP];
         for i in 0..n {
@@ -560,31 +533,92 @@ impl<'m, const CAP: usize> Ekf<'m, CAP> {
             let index = (0..n).find(|&i| !healthy(i)).unwrap_or(0);
             return Err(FilterError::Unhealthy { step, index });
         }
-        let data = self.p.as_mut_slice();
-        for c in 0..n {
-            let kc = [k[0][c], k[1][c], k[2][c]];
-            let phc = [pht[0][c], pht[1][c], pht[2][c]];
-            let col = &mut data[c * CAP..c * CAP + c];
-            let (k0, k1, k2) = (&k[0][..c], &k[1][..c], &k[2][..c]);
-            let (m0, m1, m2) = (&mm[0][..c], &mm[1][..c], &mm[2][..c]);
-            for i in 0..c {
-                col[i] = joseph(
-                    col[i],
-                    [k0[i], k1[i], k2[i]],
-                    [m0[i], m1[i], m2[i]],
-                    phc,
-                    kc,
-                );
-            }
-        }
-        for c in 0..n {
-            for i in 0..c {
-                data[i * CAP + c] = data[c * CAP + i];
-            }
-            data[c * CAP + c] = diag[c];
-        }
+        joseph_update(self.p.as_mut_slice(), n, &pht, &k, &mm, &diag);
         self.x[..n].copy_from_slice(&x_new[..n]);
         Ok(residual)
+    }
+
+    /// S = H P Hᵀ + R (R diagonal, `r`), symmetrised; H's measured columns only.
+    #[inline(always)]
+    fn innovation_covariance(
+        &self,
+        h: &[Vector3<f64>; CAP],
+        pht: &[[f64; CAP]; 3],
+        r: Vector3<f64>,
+    ) -> Matrix3<f64> {
+        let mut s = Matrix3::from_diagonal(&r);
+        let mut measured = self.model.measured_mask();
+        while measured != 0 {
+            let j = measured.trailing_zeros() as usize;
+            measured &= measured - 1;
+            let pj = Vector3::new(pht[0][j], pht[1][j], pht[2][j]);
+            s += h[j] * pj.transpose();
+        }
+        (s + s.transpose()) * 0.5
+    }
+}
+
+/// The gain K = P Hᵀ S⁻¹ and M = K S − P Hᵀ (the Joseph form's second factor, see
+/// [`joseph`]) over the first `n` states, columns as `pht`.
+#[inline(always)]
+fn gain<const CAP: usize>(
+    n: usize,
+    pht: &[[f64; CAP]; 3],
+    s: &Matrix3<f64>,
+    s_inv: &Matrix3<f64>,
+    k: &mut [[f64; CAP]; 3],
+    mm: &mut [[f64; CAP]; 3],
+) {
+    let (p0, p1, p2) = (&pht[0][..n], &pht[1][..n], &pht[2][..n]);
+    let [k0, k1, k2] = k;
+    let (k0, k1, k2) = (&mut k0[..n], &mut k1[..n], &mut k2[..n]);
+    let [m0, m1, m2] = mm;
+    let (m0, m1, m2) = (&mut m0[..n], &mut m1[..n], &mut m2[..n]);
+    for i in 0..n {
+        let p = Vector3::new(p0[i], p1[i], p2[i]);
+        let ki = s_inv * p;
+        let mi = s * ki - p;
+        (k0[i], k1[i], k2[i]) = (ki.x, ki.y, ki.z);
+        (m0[i], m1[i], m2[i]) = (mi.x, mi.y, mi.z);
+    }
+}
+
+/// P⁺ in place over P (`data`, column-major, `CAP` rows) given its diagonal `diag`: the
+/// Joseph form's entries above the diagonal ([`joseph`]), mirrored below. Multiplied out,
+///   P⁺ = (I−KH) P (I−KH)ᵀ + K R Kᵀ = P − K (HP) − (PHᵀ) Kᵀ + K S Kᵀ   (S = HPHᵀ + R)
+///      = P − K (PHᵀ)ᵀ + M Kᵀ                                          (M = K S − PHᵀ),
+/// the same function of K (valid for any gain, not only the optimal one), 6 products per
+/// entry. Only the measured columns of H entered PHᵀ and S; K and P⁺ are dense.
+#[inline(always)]
+fn joseph_update<const CAP: usize>(
+    data: &mut [f64],
+    n: usize,
+    pht: &[[f64; CAP]; 3],
+    k: &[[f64; CAP]; 3],
+    mm: &[[f64; CAP]; 3],
+    diag: &[f64; CAP],
+) {
+    for c in 0..n {
+        let kc = [k[0][c], k[1][c], k[2][c]];
+        let phc = [pht[0][c], pht[1][c], pht[2][c]];
+        let col = &mut data[c * CAP..c * CAP + c];
+        let (k0, k1, k2) = (&k[0][..c], &k[1][..c], &k[2][..c]);
+        let (m0, m1, m2) = (&mm[0][..c], &mm[1][..c], &mm[2][..c]);
+        for i in 0..c {
+            col[i] = joseph(
+                col[i],
+                [k0[i], k1[i], k2[i]],
+                [m0[i], m1[i], m2[i]],
+                phc,
+                kc,
+            );
+        }
+    }
+    for c in 0..n {
+        for i in 0..c {
+            data[i * CAP + c] = data[c * CAP + i];
+        }
+        data[c * CAP + c] = diag[c];
     }
 }
 

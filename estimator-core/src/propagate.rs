@@ -261,10 +261,23 @@ pub fn propagate<const CAP: usize>(
             }
         }
     }
-    // Process noise: gyro rate noise mapped to Euler rates through K(θ) at mid-interval; exact
-    // discrete variance for the Gauss–Markov states.
+    process_noise(model, theta0, Vector3::new(x[0], x[1], x[2]), dt_s, tr);
+}
+
+/// Q of an interval of `dt_s` from attitude `theta0` to `theta1` into `tr`: gyro rate noise
+/// mapped to Euler rates through K(θ) at mid-interval; exact discrete variance for the
+/// Gauss–Markov states.
+#[inline(always)]
+fn process_noise<const CAP: usize>(
+    model: &Model<'_>,
+    theta0: Vector3<f64>,
+    theta1: Vector3<f64>,
+    dt_s: f64,
+    tr: &mut Transition<CAP>,
+) {
+    let nd = model.dynamic_states().len();
     tr.q = [[0.0; MAX_DYNAMIC]; MAX_DYNAMIC];
-    let theta_mid = (theta0 + Vector3::new(x[0], x[1], x[2])) * 0.5;
+    let theta_mid = (theta0 + theta1) * 0.5;
     // K(θ) depends on ty and tz only: two sines and cosines, not a whole attitude.
     let kk = rate_to_euler_yz(
         crate::trig::sincos(theta_mid.y),

@@ -370,25 +370,7 @@ pub fn flag_outliers(
                 sort(&mut right[..h]);
             }
             sorted_for = Some(i);
-            // The medians `judge` would take: of the sorted values, and of the times, which
-            // are in order (checked above), so the middle ones — added in the order
-            // `median_of_ordered` adds them (the left side is collected backwards).
-            let t = |k: usize| s[k].t_s;
-            let (ml, mr, tl, tr) = if h % 2 == 1 {
-                (
-                    left[h / 2],
-                    right[h / 2],
-                    t(i - 1 - h / 2),
-                    t(i + 1 + h / 2),
-                )
-            } else {
-                (
-                    0.5 * (left[h / 2 - 1] + left[h / 2]),
-                    0.5 * (right[h / 2 - 1] + right[h / 2]),
-                    0.5 * (t(i - h / 2) + t(i - 1 - h / 2)),
-                    0.5 * (t(i + h / 2) + t(i + 1 + h / 2)),
-                )
-            };
+            let (ml, mr, tl, tr) = sides_medians(s, i, h, &left[..h], &right[..h]);
             !surely_inlier(&s[i], a, sigma, cfg, ml, tl, mr, tr)
                 && two_sided(&s[i], a, sigma, cfg, (ml, tl, h), (mr, tr, h))
         };
@@ -398,6 +380,37 @@ pub fn flag_outliers(
         }
     }
     count
+}
+
+/// The medians `judge` would take of a regular window's two sides around sample `i` (`h`
+/// each): of the sorted values `left` and `right`, and of the times, which are in order
+/// (checked by the caller), so the middle ones — added in the order `median_of_ordered` adds
+/// them (the left side is collected backwards). Returns (left value, right value, left time,
+/// right time).
+#[inline(always)]
+fn sides_medians(
+    s: &[Sample],
+    i: usize,
+    h: usize,
+    left: &[f64],
+    right: &[f64],
+) -> (f64, f64, f64, f64) {
+    let t = |k: usize| s[k].t_s;
+    if h % 2 == 1 {
+        (
+            left[h / 2],
+            right[h / 2],
+            t(i - 1 - h / 2),
+            t(i + 1 + h / 2),
+        )
+    } else {
+        (
+            0.5 * (left[h / 2 - 1] + left[h / 2]),
+            0.5 * (right[h / 2 - 1] + right[h / 2]),
+            0.5 * (t(i - h / 2) + t(i - 1 - h / 2)),
+            0.5 * (t(i + h / 2) + t(i + 1 + h / 2)),
+        )
+    }
 }
 
 /// The batch screening's quickest accept, before any median: whether sample `i` lies within

@@ -82,7 +82,7 @@ type CandidateP = (String, f64, f64, f64);
 /// False alarms of the diagnosis on clean runs (paper model, no hidden effect): per candidate the
 /// fraction of seeds with p < 1 %, and the family-wise rate after Holm's adjustment.
 fn calibration(args: &BenchArgs) -> anyhow::Result<()> {
-    use crate::diagnose::{diagnose, DiagnoseConfig};
+    use crate::diagnose::DiagnoseConfig;
     let hours = args.hours.iter().cloned().fold(0.0, f64::max);
     let t0 = std::time::Instant::now();
     let cfg = DiagnoseConfig::default();
@@ -90,47 +90,7 @@ fn calibration(args: &BenchArgs) -> anyhow::Result<()> {
     let per_seed: Vec<anyhow::Result<Vec<CandidateP>>> = (1..=args.seeds)
         .into_par_iter()
         .progress_with(pb.clone())
-        .map(|seed| {
-            let mut sc = Scenario::paper();
-            sc.seed = 1000 + seed;
-            sc.hours = hours;
-            sc.rate_s = args.rate_s;
-            sc.write_temp = true;
-            let sim = simulate(&sc);
-            let samples: Vec<Sample> = sim
-                .samples
-                .iter()
-                .map(|s| Sample {
-                    t_s: s.t_s,
-                    specific_force: s.specific_force_mps2,
-                    temp_c: s.temp_c.unwrap_or(f64::NAN),
-                })
-                .collect();
-            let site = estimator_core::Site::new(sc.latitude_deg, sc.gravity_mps2);
-            let prep = prepare(site, &samples, &cfg.identify)?;
-            let (d, _) = diagnose(&prep, &[catalog::paper()], &cfg)?;
-            Ok(d.ranking
-                .iter()
-                .filter(|c| c.untestable.is_none())
-                .map(|c| {
-                    (
-                        c.effect.clone(),
-                        c.p_value,
-                        c.p_adjusted,
-                        c.params
-                            .iter()
-                            .map(|p| p.min_detectable / p.sigma.max(1e-300))
-                            .fold(0.0, f64::max),
-                    )
-                })
-                .chain(std::iter::once((
-                    "(whiteness)".to_string(),
-                    d.whiteness.p_value,
-                    d.whiteness.p_value,
-                    0.0,
-                )))
-                .collect())
-        })
+        .map(|seed| calibration_seed(args, seed, hours, &cfg))
         .collect();
     let per_seed: Vec<_> = per_seed.into_iter().collect::<anyhow::Result<_>>()?;
     let n = per_seed.len() as f64;
@@ -182,6 +142,56 @@ fn calibration(args: &BenchArgs) -> anyhow::Result<()> {
         );
     }
     Ok(())
+}
+
+/// One clean seed of the calibration (seed 1000 + `seed`, `hours` long, temperature written):
+/// every testable candidate's p, Holm-adjusted p and largest detection limit in σ, and the
+/// whiteness test's p.
+fn calibration_seed(
+    args: &BenchArgs,
+    seed: u64,
+    hours: f64,
+    cfg: &crate::diagnose::DiagnoseConfig,
+) -> anyhow::Result<Vec<CandidateP>> {
+    let mut sc = Scenario::paper();
+    sc.seed = 1000 + seed;
+    sc.hours = hours;
+    sc.rate_s = args.rate_s;
+    sc.write_temp = true;
+    let sim = simulate(&sc);
+    let samples: Vec<Sample> = sim
+        .samples
+        .iter()
+        .map(|s| Sample {
+            t_s: s.t_s,
+            specific_force: s.specific_force_mps2,
+            temp_c: s.temp_c.unwrap_or(f64::NAN),
+        })
+        .collect();
+    let site = estimator_core::Site::new(sc.latitude_deg, sc.gravity_mps2);
+    let prep = prepare(site, &samples, &cfg.identify)?;
+    let (d, _) = crate::diagnose::diagnose(&prep, &[catalog::paper()], cfg)?;
+    Ok(d.ranking
+        .iter()
+        .filter(|c| c.untestable.is_none())
+        .map(|c| {
+            (
+                c.effect.clone(),
+                c.p_value,
+                c.p_adjusted,
+                c.params
+                    .iter()
+                    .map(|p| p.min_detectable / p.sigma.max(1e-300))
+                    .fold(0.0, f64::max),
+            )
+        })
+        .chain(std::iter::once((
+            "(whiteness)".to_string(),
+            d.whiteness.p_value,
+            d.whiteness.p_value,
+            0.0,
+        )))
+        .collect())
 }
 
 /// False alarms of the data-quality screening (what every command runs first) on clean runs of
@@ -355,37 +365,7 @@ fn accuracy(args: &BenchArgs) -> anyhow::Result<()> {
     let results: Vec<anyhow::Result<SeedResult>> = (1..=args.seeds)
         .into_par_iter()
         .progress_with(pb.clone())
-        .map(|seed| {
-            let mut sc = Scenario::paper();
-            sc.seed = seed;
-            sc.hours = max_h;
-            sc.rate_s = args.rate_s;
-            let sim = simulate(&sc);
-            let truth = DVector::from_row_slice(&sim.truth.coefficient_array());
-            let samples: Vec<Sample> = sim
-                .samples
-                .iter()
-                .map(|s| Sample {
-                    t_s: s.t_s,
-                    specific_force: s.specific_force_mps2,
-                    temp_c: f64::NAN,
-                })
-                .collect();
-            let site = estimator_core::Site::new(sc.latitude_deg, sc.gravity_mps2);
-            let model = build_model(site, &effects, &cfg)?;
-            let prep = prepare(site, &samples, &cfg)?;
-            let mut at = vec![];
-            for &h in &args.hours {
-                let id = identify(&model, &truncated(&prep, h), &cfg)?;
-                let best = id.best();
-                at.push((
-                    DVector::from_row_slice(&best.value) - &truth,
-                    best.cov.clone(),
-                    DVector::from_row_slice(&id.single_pass.value) - &truth,
-                ));
-            }
-            Ok(SeedResult { at })
-        })
+        .map(|seed| accuracy_seed(args, seed, max_h, &effects, &cfg))
         .collect();
     let results: Vec<SeedResult> = results.into_iter().collect::<anyhow::Result<_>>()?;
     let elapsed = t0.elapsed().as_secs_f64();
@@ -395,74 +375,15 @@ fn accuracy(args: &BenchArgs) -> anyhow::Result<()> {
     let site = estimator_core::Site::new(sc.latitude_deg, sc.gravity_mps2);
     let model = build_model(site, &effects, &cfg)?;
     let names: Vec<&str> = (3..15).map(|i| model.param(i).name).collect();
-    let n = args.seeds as f64;
     let mut report = vec![];
     for (c, &h) in args.hours.iter().enumerate() {
-        // Mean-time tags of 60-s windows of 1-s samples: the bound needs only the geometry.
-        let meas: Vec<Measurement> = (0..)
-            .map(|k| Measurement {
-                t_s: 60.0 * k as f64 + 29.5,
-                specific_force: [0.0; 3],
-                temp_c: f64::NAN,
-                count: 60,
-                variance: [(1e-5 * site.gravity_mps2).powi(2); 3],
-                time_var_s2: (60.0f64 * 60.0 - 1.0) / 12.0,
-            })
-            .take_while(|m| m.t_s <= h * 3600.0)
-            .collect();
-        let geometry = Prepared::level(site, meas, [1e-5 * site.gravity_mps2; 3]);
-        let bound = try_cramer_rao_bound(&model, &geometry, &truth)?;
-        let mut rms = [0.0; 12];
-        let mut rms_single = [0.0; 12];
-        let mut worst = [0.0f64; 12];
-        let mut nees = 0.0;
-        for r in &results {
-            let (e, p, es) = &r.at[c];
-            for k in 0..12 {
-                rms[k] += e[k] * e[k] / n;
-                rms_single[k] += es[k] * es[k] / n;
-                worst[k] = worst[k].max((e[k] / truth[k]).abs() * 100.0);
-            }
-            nees += p
-                .clone()
-                .cholesky()
-                .map(|ch| e.dot(&ch.solve(e)))
-                .unwrap_or(f64::NAN)
-                / n;
-        }
-        let dof = 12.0 * n;
-        let band = (chi2_quantile(0.025, dof) / n, chi2_quantile(0.975, dof) / n);
-        let rms: Vec<f64> = rms.iter().map(|v| v.sqrt()).collect();
-        let rms_single: Vec<f64> = rms_single.iter().map(|v| v.sqrt()).collect();
-        let ratios: Vec<f64> = rms.iter().zip(&bound).map(|(r, b)| r / b).collect();
-        let rms_ratio = (ratios.iter().map(|r| r * r).sum::<f64>() / 12.0).sqrt();
-        let worst_all = worst.iter().cloned().fold(0.0, f64::max);
+        let bound = try_cramer_rao_bound(&model, &bound_geometry(site, h), &truth)?;
+        let at = AccuracyAt::over_seeds(&results, c, &bound, &truth);
         if !args.json {
-            println!("\n== {h} h ({} seeds) ==", args.seeds);
-            println!(
-                "{:<5} {:>11} {:>11} {:>7} {:>9} {:>12}",
-                "coef", "RMS error", "CRB 1σ", "ratio", "worst %", "1-pass RMS"
-            );
-            for k in 0..12 {
-                println!(
-                    "{:<5} {:>11.3e} {:>11.3e} {:>7.2} {:>9.3} {:>12.3e}",
-                    names[k], rms[k], bound[k], ratios[k], worst[k], rms_single[k]
-                );
-            }
-            println!(
-                "RMS(ratio) {:.2}, max ratio {:.2}; worst coefficient error {:.3} %; mean NEES {:.2} (12 states; 95% band for the mean of {} seeds [{:.2}, {:.2}]) {}",
-                rms_ratio,
-                ratios.iter().cloned().fold(0.0, f64::max),
-                worst_all,
-                nees,
-                args.seeds,
-                band.0,
-                band.1,
-                if nees >= band.0 && nees <= band.1 { "inside" } else { "OUTSIDE" }
-            );
+            at.print(h, args.seeds, &names, &bound);
         }
-        report.push(serde_json::json!({ "hours": h, "rms_error": rms, "bound": bound, "ratio": ratios, "rms_ratio": rms_ratio,
-            "worst_percent": worst_all, "nees_mean": nees, "nees_band95": [band.0, band.1], "single_pass_rms_error": rms_single }));
+        report.push(serde_json::json!({ "hours": h, "rms_error": at.rms, "bound": bound, "ratio": at.ratios, "rms_ratio": at.rms_ratio,
+            "worst_percent": at.worst_all, "nees_mean": at.nees, "nees_band95": [at.band.0, at.band.1], "single_pass_rms_error": at.rms_single }));
     }
     if args.json {
         println!(
@@ -480,4 +401,143 @@ fn accuracy(args: &BenchArgs) -> anyhow::Result<()> {
         );
     }
     Ok(())
+}
+
+/// One seed of the accuracy benchmark: the paper's scenario simulated for `max_h` hours,
+/// identified on its first `--hours` of each checkpoint; the errors against the truth.
+fn accuracy_seed(
+    args: &BenchArgs,
+    seed: u64,
+    max_h: f64,
+    effects: &[&dyn estimator_core::Effect],
+    cfg: &Config,
+) -> anyhow::Result<SeedResult> {
+    let mut sc = Scenario::paper();
+    sc.seed = seed;
+    sc.hours = max_h;
+    sc.rate_s = args.rate_s;
+    let sim = simulate(&sc);
+    let truth = DVector::from_row_slice(&sim.truth.coefficient_array());
+    let samples: Vec<Sample> = sim
+        .samples
+        .iter()
+        .map(|s| Sample {
+            t_s: s.t_s,
+            specific_force: s.specific_force_mps2,
+            temp_c: f64::NAN,
+        })
+        .collect();
+    let site = estimator_core::Site::new(sc.latitude_deg, sc.gravity_mps2);
+    let model = build_model(site, effects, cfg)?;
+    let prep = prepare(site, &samples, cfg)?;
+    let mut at = vec![];
+    for &h in &args.hours {
+        let id = identify(&model, &truncated(&prep, h), cfg)?;
+        let best = id.best();
+        at.push((
+            DVector::from_row_slice(&best.value) - &truth,
+            best.cov.clone(),
+            DVector::from_row_slice(&id.single_pass.value) - &truth,
+        ));
+    }
+    Ok(SeedResult { at })
+}
+
+/// The measurement geometry of an `h`-hour level run for the Cramér–Rao bound: mean-time tags
+/// of 60-s windows of 1-s samples (the bound needs only the geometry, not the values).
+fn bound_geometry(site: estimator_core::Site, h: f64) -> Prepared {
+    let meas: Vec<Measurement> = (0..)
+        .map(|k| Measurement {
+            t_s: 60.0 * k as f64 + 29.5,
+            specific_force: [0.0; 3],
+            temp_c: f64::NAN,
+            count: 60,
+            variance: [(1e-5 * site.gravity_mps2).powi(2); 3],
+            time_var_s2: (60.0f64 * 60.0 - 1.0) / 12.0,
+        })
+        .take_while(|m| m.t_s <= h * 3600.0)
+        .collect();
+    Prepared::level(site, meas, [1e-5 * site.gravity_mps2; 3])
+}
+
+/// The accuracy at one checkpoint over the seeds: RMS errors against the bound, the worst
+/// relative error and the mean NEES with its 95 % band.
+struct AccuracyAt {
+    rms: Vec<f64>,
+    rms_single: Vec<f64>,
+    worst: [f64; 12],
+    ratios: Vec<f64>,
+    rms_ratio: f64,
+    worst_all: f64,
+    nees: f64,
+    band: (f64, f64),
+}
+
+impl AccuracyAt {
+    /// Checkpoint `c` of every seed's `results`, against `bound` and the `truth`.
+    fn over_seeds(results: &[SeedResult], c: usize, bound: &[f64], truth: &[f64]) -> Self {
+        let n = results.len() as f64;
+        let mut rms = [0.0; 12];
+        let mut rms_single = [0.0; 12];
+        let mut worst = [0.0f64; 12];
+        let mut nees = 0.0;
+        for r in results {
+            let (e, p, es) = &r.at[c];
+            for k in 0..12 {
+                rms[k] += e[k] * e[k] / n;
+                rms_single[k] += es[k] * es[k] / n;
+                worst[k] = worst[k].max((e[k] / truth[k]).abs() * 100.0);
+            }
+            nees += p
+                .clone()
+                .cholesky()
+                .map(|ch| e.dot(&ch.solve(e)))
+                .unwrap_or(f64::NAN)
+                / n;
+        }
+        let dof = 12.0 * n;
+        let band = (chi2_quantile(0.025, dof) / n, chi2_quantile(0.975, dof) / n);
+        let rms: Vec<f64> = rms.iter().map(|v| v.sqrt()).collect();
+        let rms_single: Vec<f64> = rms_single.iter().map(|v| v.sqrt()).collect();
+        let ratios: Vec<f64> = rms.iter().zip(bound).map(|(r, b)| r / b).collect();
+        let rms_ratio = (ratios.iter().map(|r| r * r).sum::<f64>() / 12.0).sqrt();
+        let worst_all = worst.iter().cloned().fold(0.0, f64::max);
+        AccuracyAt {
+            rms,
+            rms_single,
+            worst,
+            ratios,
+            rms_ratio,
+            worst_all,
+            nees,
+            band,
+        }
+    }
+
+    /// The checkpoint's table (`h` hours, `seeds` runs) and its summary line.
+    fn print(&self, h: f64, seeds: u64, names: &[&str], bound: &[f64]) {
+        println!("\n== {h} h ({seeds} seeds) ==");
+        println!(
+            "{:<5} {:>11} {:>11} {:>7} {:>9} {:>12}",
+            "coef", "RMS error", "CRB 1σ", "ratio", "worst %", "1-pass RMS"
+        );
+        for k in 0..12 {
+            println!(
+                "{:<5} {:>11.3e} {:>11.3e} {:>7.2} {:>9.3} {:>12.3e}",
+                names[k], self.rms[k], bound[k], self.ratios[k], self.worst[k], self.rms_single[k]
+            );
+        }
+        let (nees, band) = (self.nees, self.band);
+        println!(
+            "RMS(ratio) {:.2}, max ratio {:.2}; worst coefficient error {:.3} %; mean NEES {:.2} (12 states; 95% band for the mean of {} seeds [{:.2}, {:.2}]) {}",
+            self.rms_ratio,
+            self.ratios.iter().cloned().fold(0.0, f64::max),
+            self.worst_all,
+            nees,
+            seeds,
+            band.0,
+            band.1,
+            if nees >= band.0 && nees <= band.1 { "inside" } else { "OUTSIDE" }
+        );
+    }
 }

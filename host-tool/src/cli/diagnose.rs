@@ -72,6 +72,21 @@ pub fn print_diagnosis(d: &Diagnosis) {
             crate::stats::chi2_ln_sf(d.whiteness.ljung_box_q, d.whiteness.dof)
         )
     );
+    print_where_it_fails(d);
+    print_ranking(&d.ranking);
+    for cf in &d.confounding {
+        if cf.separated {
+            println!("  similar signatures: {} vs {} (canonical correlation {:.3}) — but the data prefer {} (−2 ln p lower by {:.1})", cf.a, cf.b, cf.canonical_correlation, cf.a, cf.statistic_gap);
+        } else {
+            println!("  NOT SEPARATED: {} vs {} (canonical correlation {:.3}, −2 ln p apart by only {:.1}); what would separate them: {}", cf.a, cf.b, cf.canonical_correlation, cf.statistic_gap, cf.separate_by);
+        }
+    }
+    println!("  verdict: {}", d.verdict);
+}
+
+/// Where the fit fails (the first 8 windows of high NIS) and the regressors the residual
+/// correlates with beyond the 99 % bound.
+fn print_where_it_fails(d: &Diagnosis) {
     if !d.failures.is_empty() {
         let w: Vec<String> = d
             .failures
@@ -108,11 +123,16 @@ pub fn print_diagnosis(d: &Diagnosis) {
     if !strong.is_empty() {
         println!("  residual correlates with: {}", strong.join(", "));
     }
+}
+
+/// The candidates' table: score test, Holm-adjusted p, evidence and refit of each missing
+/// effect, with its largest parameter.
+fn print_ranking(ranking: &[crate::diagnose::Candidate]) {
     println!(
         "  {:<13} {:>10} {:>4} {:>11} {:>11}  {:>9} {:>21}  largest parameter (estimate ± 1σ; detectable from)",
         "candidate", "statistic", "dof", "p", "p (Holm)", "evidence", "refit RMS/floor"
     );
-    for c in &d.ranking {
+    for c in ranking {
         if let Some(why) = &c.untestable {
             println!("  {:<13} not tested: {why}", c.effect);
             continue;
@@ -154,14 +174,6 @@ pub fn print_diagnosis(d: &Diagnosis) {
             after
         );
     }
-    for cf in &d.confounding {
-        if cf.separated {
-            println!("  similar signatures: {} vs {} (canonical correlation {:.3}) — but the data prefer {} (−2 ln p lower by {:.1})", cf.a, cf.b, cf.canonical_correlation, cf.a, cf.statistic_gap);
-        } else {
-            println!("  NOT SEPARATED: {} vs {} (canonical correlation {:.3}, −2 ln p apart by only {:.1}); what would separate them: {}", cf.a, cf.b, cf.canonical_correlation, cf.statistic_gap, cf.separate_by);
-        }
-    }
-    println!("  verdict: {}", d.verdict);
 }
 
 /// Prints the ladder.
@@ -304,7 +316,7 @@ pub fn diagnose_one(
     args: &DiagnoseArgs,
     export_dir: Option<&std::path::Path>,
 ) -> anyhow::Result<OneDiagnosis> {
-    let cfg = DiagnoseConfig {
+    let mut cfg = DiagnoseConfig {
         identify: args.model.config()?,
         max_rungs: if args.no_ladder { 1 } else { 4 },
         ..Default::default()
@@ -313,11 +325,67 @@ pub fn diagnose_one(
         cfg.identify.smoother_iterations > 0,
         "diagnose needs the converged identification; drop --single-pass"
     );
+    let c = climb(recording, args, &mut cfg)?;
+    let mut reasons = ladder_untrusted(&c.faults, &c.diagnoses);
+    reasons.extend(c.assessed.reasons.iter().cloned());
+    let truth = match &args.truth {
+        Some(p) => Some(super::identify::truth_of(
+            &crate::simulate::read_truth(p)?,
+            &c.assessed.id,
+        )),
+        None => None,
+    };
+    let final_rows = super::identify::rows(
+        &c.assessed.id,
+        &c.assessed.unc,
+        &super::common::build_model(c.assessed.prep.site, &c.final_effects, &cfg.identify)?,
+        &c.assessed.prep,
+        truth.as_deref(),
+    );
+    if let Some(dir) = export_dir {
+        check_export(dir, c.diagnoses.len(), args)?;
+        export(dir, &c.diagnoses, &final_rows)?;
+    }
+    let final_model = c
+        .diagnoses
+        .last()
+        .map(|d| d.model.clone())
+        .unwrap_or_default();
+    let out = one_json(recording, &c, &final_rows, &reasons)?;
+    if !args.json {
+        print_one(recording, &c, cfg.identify.period_s, &final_rows, &reasons);
+    }
+    Ok(OneDiagnosis {
+        json: out,
+        reasons,
+        final_model,
+    })
+}
+
+/// One recording taken up the model ladder and assessed: the prepared run, the data's faults,
+/// every rung's diagnosis, the final model's effects and its assessment (its honest 1σ and the
+/// alternatives it cannot rule out).
+struct Climbed {
+    prep: crate::identify::Prepared,
+    faults: Vec<String>,
+    diagnoses: Vec<Diagnosis>,
+    rungs: Vec<Rung>,
+    final_effects: Vec<&'static dyn estimator_core::effects::Effect>,
+    assessed: crate::assess::Assessment,
+}
+
+/// Loads and prepares `recording`, fits the starting model (`cfg.identify` takes what the
+/// starting fit settles), climbs the ladder (one rung when the data have faults: a fault is
+/// named as a fault, never explained by a physical effect) and assesses the final model by
+/// the one path shared with identify and report.
+fn climb(
+    recording: &std::path::Path,
+    args: &DiagnoseArgs,
+    cfg: &mut DiagnoseConfig,
+) -> anyhow::Result<Climbed> {
     let loaded = load(recording, args.model.latitude_deg)?;
     let effects = catalog::model_effects(&args.model.with)?;
-    let prep = super::common::prepare_loaded(recording, &loaded, &cfg.identify)?;
-    let mut cfg = cfg;
-    let mut prep = prep;
+    let mut prep = super::common::prepare_loaded(recording, &loaded, &cfg.identify)?;
     let mut stated = None;
     let spin = crate::progress::spinner("fitting the starting model");
     let first = super::common::starting_fit(
@@ -330,7 +398,6 @@ pub fn diagnose_one(
     spin.finish_and_clear();
     let faults = prep.untrusted_reasons();
     if !faults.is_empty() {
-        // A data fault is named as a fault, never explained by a physical effect: no ladder.
         cfg.max_rungs = 1;
     }
     let spin = crate::progress::spinner("climbing the model ladder");
@@ -340,10 +407,8 @@ pub fn diagnose_one(
         rungs,
         identification,
         effects: final_effects,
-    } = ladder_from(&prep, &effects, &cfg, first)?;
+    } = ladder_from(&prep, &effects, cfg, first)?;
     spin.finish_and_clear();
-    // The final model's honest 1σ and the alternatives it cannot rule out (one path with
-    // identify and report).
     let spin =
         crate::progress::spinner("the set-up's uncertainty and the alternative explanations");
     let (at, identification) = super::common::for_assessment(
@@ -361,32 +426,26 @@ pub fn diagnose_one(
         &crate::progress::follow(&spin),
     )?;
     spin.finish_and_clear();
-    let last = diagnoses.last().map(|d| d.consistency.clone());
-    let mut reasons = ladder_untrusted(&faults, &diagnoses);
-    reasons.extend(assessed.reasons.iter().cloned());
-    let truth = match &args.truth {
-        Some(p) => Some(super::identify::truth_of(
-            &crate::simulate::read_truth(p)?,
-            &assessed.id,
-        )),
-        None => None,
-    };
-    let final_rows = super::identify::rows(
-        &assessed.id,
-        &assessed.unc,
-        &super::common::build_model(assessed.prep.site, &final_effects, &cfg.identify)?,
-        &assessed.prep,
-        truth.as_deref(),
-    );
-    if let Some(dir) = export_dir {
-        check_export(dir, diagnoses.len(), args)?;
-        export(dir, &diagnoses, &final_rows)?;
-    }
+    Ok(Climbed {
+        prep,
+        faults,
+        diagnoses,
+        rungs,
+        final_effects,
+        assessed,
+    })
+}
+
+/// The JSON object of one recording's diagnosis (`--json`): the starting model's diagnosis,
+/// the ladder, the final model's verdict, coefficients, set-up uncertainty and alternatives.
+fn one_json(
+    recording: &std::path::Path,
+    c: &Climbed,
+    final_rows: &[super::identify::Row],
+    reasons: &[String],
+) -> anyhow::Result<serde_json::Value> {
+    let (diagnoses, assessed) = (&c.diagnoses, &c.assessed);
     let d = &diagnoses[0];
-    let final_model = diagnoses
-        .last()
-        .map(|d| d.model.clone())
-        .unwrap_or_default();
     let mut out = json!({
         "recording": recording.display().to_string(),
         "model": d.model,
@@ -401,11 +460,11 @@ pub fn diagnose_one(
         "confounding": d.confounding,
         "failures": d.failures,
         "verdict": d.verdict,
-        "ladder": rungs,
+        "ladder": c.rungs,
         "final_verdict": diagnoses.last().map(|d| d.verdict.clone()),
-        "final_consistency": last,
+        "final_consistency": diagnoses.last().map(|d| d.consistency.clone()),
         "data_quality": { "findings": assessed.prep.findings },
-        "coefficients": super::identify::coefficients_json(&final_rows),
+        "coefficients": super::identify::coefficients_json(final_rows),
         "setup_uncertainty": assessed.unc.contributions,
         "alternatives": assessed.alternatives,
         "trusted": reasons.is_empty(),
@@ -414,45 +473,52 @@ pub fn diagnose_one(
     if let Some(gm) = &assessed.id.markov {
         out["drift_markov"] = serde_json::to_value(gm)?;
     }
-    if !args.json {
-        print_findings(&assessed.prep.findings);
-        if !faults.is_empty() {
-            println!("the data have faults the tool did not repair: they are named above as faults; no physical effect is added to explain them (no model ladder)");
-        }
-        println!(
-            "{}: {} updates of {} s",
-            recording.display(),
-            prep.measurements.len(),
-            cfg.identify.period_s
-        );
-        print_diagnosis(d);
-        if diagnoses.len() > 1 {
-            for d in &diagnoses[1..] {
-                println!();
-                print_diagnosis(d);
-            }
-        }
-        print_ladder(&rungs);
-        println!();
-        println!("final model's coefficients with the 1σ this run supports:");
-        super::identify::print_table(&final_rows, true);
-        if let Some(gm) = &assessed.id.markov {
-            println!("{}", gm.line());
-        }
-        super::identify::print_setup(&assessed.unc, &assessed.id);
-        super::identify::print_alternatives(&assessed.alternatives, &assessed.unc, &assessed.id);
-        if !reasons.is_empty() {
-            println!("NOT TRUSTED:");
-            for r in &reasons {
-                println!("  - {r}");
-            }
+    Ok(out)
+}
+
+/// One recording's diagnosis as text: findings, every rung's diagnosis, the ladder, the final
+/// model's coefficients (filter period `period_s`), set-up and alternatives, and why it is not
+/// trusted.
+fn print_one(
+    recording: &std::path::Path,
+    c: &Climbed,
+    period_s: f64,
+    final_rows: &[super::identify::Row],
+    reasons: &[String],
+) {
+    let assessed = &c.assessed;
+    print_findings(&assessed.prep.findings);
+    if !c.faults.is_empty() {
+        println!("the data have faults the tool did not repair: they are named above as faults; no physical effect is added to explain them (no model ladder)");
+    }
+    println!(
+        "{}: {} updates of {} s",
+        recording.display(),
+        c.prep.measurements.len(),
+        period_s
+    );
+    print_diagnosis(&c.diagnoses[0]);
+    if c.diagnoses.len() > 1 {
+        for d in &c.diagnoses[1..] {
+            println!();
+            print_diagnosis(d);
         }
     }
-    Ok(OneDiagnosis {
-        json: out,
-        reasons,
-        final_model,
-    })
+    print_ladder(&c.rungs);
+    println!();
+    println!("final model's coefficients with the 1σ this run supports:");
+    super::identify::print_table(final_rows, true);
+    if let Some(gm) = &assessed.id.markov {
+        println!("{}", gm.line());
+    }
+    super::identify::print_setup(&assessed.unc, &assessed.id);
+    super::identify::print_alternatives(&assessed.alternatives, &assessed.unc, &assessed.id);
+    if !reasons.is_empty() {
+        println!("NOT TRUSTED:");
+        for r in reasons {
+            println!("  - {r}");
+        }
+    }
 }
 
 /// The header of `rungs.csv`.

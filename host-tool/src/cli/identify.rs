@@ -349,39 +349,63 @@ pub fn run(args: &IdentifyArgs) -> anyhow::Result<()> {
     };
     let spin =
         crate::progress::spinner("the set-up's uncertainty and the alternative explanations");
-    let crate::assess::Assessment {
-        prep,
-        id,
-        unc,
-        alternatives: alts,
-        reasons: assessed,
-        ..
-    } = crate::assess::assess_with(&effects, prep, &cfg, id, &crate::progress::follow(&spin))?;
+    let assessed =
+        crate::assess::assess_with(&effects, prep, &cfg, id, &crate::progress::follow(&spin))?;
     spin.finish_and_clear();
-    let model = build_model(prep.site, &effects, &cfg)?;
-    let rows = rows(&id, &unc, &model, &prep, truth.as_deref());
-    let check = consistency_of(&id, &prep);
-    let mut prep = prep;
+    let model = build_model(assessed.prep.site, &effects, &cfg)?;
+    let rows = rows(
+        &assessed.id,
+        &assessed.unc,
+        &model,
+        &assessed.prep,
+        truth.as_deref(),
+    );
+    let check = consistency_of(&assessed.id, &assessed.prep);
+    let mut assessed = assessed;
     if check.as_ref().is_some_and(|c| !c.is_consistent()) {
         // A model that does not fit: first ask whether the metadata latitude is the culprit.
         let spin = crate::progress::spinner("the model does not fit");
         let progress = crate::progress::follow(&spin);
-        let rivals = super::common::rivals(&prep, &effects, &cfg, &id, &progress);
-        super::common::name_a_wrong_latitude(&mut prep, &effects, &cfg, &rivals, &progress);
+        let (prep, id) = (&mut assessed.prep, &assessed.id);
+        let rivals = super::common::rivals(prep, &effects, &cfg, id, &progress);
+        super::common::name_a_wrong_latitude(prep, &effects, &cfg, &rivals, &progress);
         spin.finish_and_clear();
     }
-    let mut reasons = prep.untrusted_reasons();
-    reasons.extend(id.convergence.and_then(|c| c.untrusted_reason()));
-    reasons.extend(assessed);
-    let metadata_named = prep
+    let (reasons, step) = untrusted(&mut assessed, step, check.as_ref());
+    let a = &assessed;
+    if args.json {
+        let out = identify_json(a, &rows, check.as_ref(), step.as_ref(), &reasons)?;
+        println!("{}", serde_json::to_string_pretty(&out)?);
+    } else {
+        print_text(recording, a, &rows, &reasons);
+    }
+    trusted_or(reasons)
+}
+
+/// Why the estimate is not trusted (empty: trusted): the data's faults, convergence, the
+/// assessment's reasons (taken from `a`), a drift step when it beats every alternative and no
+/// wrong latitude was named (returned, else `None`), a misfit, or a single pass.
+fn untrusted(
+    a: &mut crate::assess::Assessment,
+    step: Option<crate::diagnose::drift_step::DriftStepFit>,
+    check: Option<&Consistency>,
+) -> (
+    Vec<String>,
+    Option<crate::diagnose::drift_step::DriftStepFit>,
+) {
+    let mut reasons = a.prep.untrusted_reasons();
+    reasons.extend(a.id.convergence.and_then(|c| c.untrusted_reason()));
+    reasons.append(&mut a.reasons);
+    let metadata_named = a
+        .prep
         .findings
         .iter()
         .any(|f| f.kind == crate::quality::Kind::Latitude);
-    let step = step.filter(|s| !metadata_named && s.beats(&alts));
+    let step = step.filter(|s| !metadata_named && s.beats(&a.alternatives));
     if let Some(s) = &step {
         reasons.push(s.reason());
     }
-    match &check {
+    match check {
         Some(c) if !c.is_consistent() && !metadata_named => reasons.push(format!(
             "the model does not explain the measurements: {}; run `driftid diagnose` to find the missing effect",
             c.failures.join("; ")
@@ -391,49 +415,65 @@ pub fn run(args: &IdentifyArgs) -> anyhow::Result<()> {
             "single EKF pass (the paper's method): its 1σ claims far more than it knows; drop --single-pass for a trusted estimate".into(),
         ),
     }
-    if args.json {
-        let mut out = to_json(&rows, &id, &prep);
-        out["consistency"] = serde_json::to_value(&check)?;
-        out["setup_uncertainty"] = serde_json::to_value(&unc.contributions)?;
-        out["alternatives"] = serde_json::to_value(&alts)?;
-        out["convergence"] = serde_json::to_value(id.convergence)?;
-        if let Some(gm) = &id.markov {
-            out["drift_markov"] = serde_json::to_value(gm)?;
+    (reasons, step)
+}
+
+/// The identification as one JSON object (`--json`).
+fn identify_json(
+    a: &crate::assess::Assessment,
+    rows: &[Row],
+    check: Option<&Consistency>,
+    step: Option<&crate::diagnose::drift_step::DriftStepFit>,
+    reasons: &[String],
+) -> anyhow::Result<Value> {
+    let mut out = to_json(rows, &a.id, &a.prep);
+    out["consistency"] = serde_json::to_value(check)?;
+    out["setup_uncertainty"] = serde_json::to_value(&a.unc.contributions)?;
+    out["alternatives"] = serde_json::to_value(&a.alternatives)?;
+    out["convergence"] = serde_json::to_value(a.id.convergence)?;
+    if let Some(gm) = &a.id.markov {
+        out["drift_markov"] = serde_json::to_value(gm)?;
+    }
+    if let Some(s) = step {
+        out["drift_step"] = serde_json::to_value(s)?;
+    }
+    out["trusted"] = json!(reasons.is_empty());
+    out["untrusted_reasons"] = json!(reasons);
+    Ok(out)
+}
+
+/// The identification as text: findings, the coefficients' table, the fit's summary, the
+/// set-up's uncertainty, the alternatives and why it is not trusted.
+fn print_text(
+    recording: &std::path::Path,
+    a: &crate::assess::Assessment,
+    rows: &[Row],
+    reasons: &[String],
+) {
+    let (id, prep) = (&a.id, &a.prep);
+    print_findings(&prep.findings);
+    println!(
+        "{}: drift coefficients ({})",
+        recording.display(),
+        if id.refined.is_some() {
+            "converged: 2 EKF passes + iterated RTS smoother"
+        } else {
+            "single EKF pass"
         }
-        if let Some(s) = &step {
-            out["drift_step"] = serde_json::to_value(s)?;
-        }
-        out["trusted"] = json!(reasons.is_empty());
-        out["untrusted_reasons"] = json!(reasons);
-        println!("{}", serde_json::to_string_pretty(&out)?);
-    } else {
-        print_findings(&prep.findings);
-        println!(
-            "{}: drift coefficients ({})",
-            recording.display(),
-            if id.refined.is_some() {
-                "converged: 2 EKF passes + iterated RTS smoother"
-            } else {
-                "single EKF pass"
-            }
-        );
-        print_table(&rows, id.refined.is_some());
-        print_summary(&id, &prep);
-        if let Some(gm) = &id.markov {
-            println!("{}", gm.line());
-        }
-        print_setup(&unc, &id);
-        print_alternatives(&alts, &unc, &id);
-        if !reasons.is_empty() {
-            println!(
-                "NOT TRUSTED: the numbers above are computed but the tool does not trust them:"
-            );
-            for r in &reasons {
-                println!("  - {r}");
-            }
+    );
+    print_table(rows, id.refined.is_some());
+    print_summary(id, prep);
+    if let Some(gm) = &id.markov {
+        println!("{}", gm.line());
+    }
+    print_setup(&a.unc, id);
+    print_alternatives(&a.alternatives, &a.unc, id);
+    if !reasons.is_empty() {
+        println!("NOT TRUSTED: the numbers above are computed but the tool does not trust them:");
+        for r in reasons {
+            println!("  - {r}");
         }
     }
-    trusted_or(reasons)
 }
 
 /// The consistency of the converged identification (`None` for a single pass).

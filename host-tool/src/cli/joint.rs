@@ -449,24 +449,7 @@ fn print_text(
     total: &[f64],
     truth: Option<&[f64]>,
 ) {
-    for ((r, fit), c) in runs.iter().zip(&joint.runs).zip(checks) {
-        print_findings(&r.prep.findings);
-        let rms = fit.residual_rms_mps2(&r.prep);
-        let floor = r.prep.floor_mps2();
-        println!(
-            "run {}: {:.2} h, {} updates, initial orientation {:?} deg ({:?} chart); residual/floor [{:.3}, {:.3}, {:.3}]; NIS/3 {:.3}; {}",
-            r.path.display(),
-            fit.alone.final_time_h,
-            r.prep.measurements.len(),
-            deg3(&r.orientation_rad),
-            r.prep.site.chart,
-            rms[0] / floor[0],
-            rms[1] / floor[1],
-            rms[2] / floor[2],
-            fit.nis_mean(),
-            if c.is_consistent() { "consistent" } else { "NOT consistent" }
-        );
-    }
+    print_runs(joint, runs, checks);
     println!(
         "joint drift coefficients from {} runs (each run's smoother relinearised about the joint estimate)",
         runs.len()
@@ -508,7 +491,35 @@ fn print_text(
         }
         println!();
     }
-    for w in &joint.weak {
+    print_weak(&joint.weak);
+}
+
+/// Each run's line: findings, length, orientation, residual over the floor, NIS/3 and whether
+/// it is consistent with the joint fit.
+fn print_runs(joint: &JointIdentification, runs: &[LoadedRun], checks: &[Consistency]) {
+    for ((r, fit), c) in runs.iter().zip(&joint.runs).zip(checks) {
+        print_findings(&r.prep.findings);
+        let rms = fit.residual_rms_mps2(&r.prep);
+        let floor = r.prep.floor_mps2();
+        println!(
+            "run {}: {:.2} h, {} updates, initial orientation {:?} deg ({:?} chart); residual/floor [{:.3}, {:.3}, {:.3}]; NIS/3 {:.3}; {}",
+            r.path.display(),
+            fit.alone.final_time_h,
+            r.prep.measurements.len(),
+            deg3(&r.orientation_rad),
+            r.prep.site.chart,
+            rms[0] / floor[0],
+            rms[1] / floor[1],
+            rms[2] / floor[2],
+            fit.nis_mean(),
+            if c.is_consistent() { "consistent" } else { "NOT consistent" }
+        );
+    }
+}
+
+/// Each axis's weakest combination of drift coefficients ([`weak_line`]).
+fn print_weak(weak: &[crate::identify::WeakCombination]) {
+    for w in weak {
         println!("{}", weak_line(w));
     }
 }

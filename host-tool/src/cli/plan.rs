@@ -6,7 +6,7 @@ use std::path::PathBuf;
 use serde_json::json;
 
 use super::common::{build_model, trusted_or, ModelArgs};
-use super::joint::{fit_jointly, load_runs, run_consistency, runs_untrusted};
+use super::joint::{fit_jointly, load_runs, run_consistency, runs_untrusted, LoadedRun};
 use crate::catalog;
 use crate::format::sci;
 use crate::identify::{Estimate, Prepared};
@@ -42,74 +42,20 @@ pub struct PlanArgs {
 pub fn run(args: &PlanArgs) -> anyhow::Result<()> {
     super::common::load_effects_args(&args.model)?;
     let cfg = args.model.config()?;
-    let mut with = args.model.with.clone();
-    if let Some(pair) = &args.separate {
-        if pair.len() != 2 || pair[0] == pair[1] {
-            anyhow::bail!(
-                "--separate takes two different effects, e.g. acc-bias,acc-scale; got {pair:?}"
-            );
-        }
-        for name in pair {
-            if name != "paper" && !with.contains(name) {
-                with.push(name.clone());
-            }
-        }
-    }
-    let effects = catalog::model_effects(&with)?;
-    let mut runs = load_runs(&args.recordings, args.model.latitude_deg, &cfg)?;
-    let defaults = Scenario::paper();
-    // Why the runs so far do not support a trusted plan (their faults, a misfit): exit 3.
-    let mut reasons = vec![];
-    let (site, template, before, params) = if runs.is_empty() {
-        let lat = args.model.latitude_deg.unwrap_or(defaults.latitude_deg);
-        let site = estimator_core::Site::new(lat, None);
-        let sigma = cfg.raw_sigma_mps2.unwrap_or([1e-5 * site.gravity_mps2; 3]);
-        let template = Design {
-            orientation_deg: [0.0; 3],
-            hours: args.hours.unwrap_or(defaults.hours),
-            rate_s: args.rate_s.unwrap_or(defaults.rate_s),
-            raw_sigma_mps2: sigma,
-        };
-        let model = build_model(site, &effects, &cfg)?;
-        let mut params = vec![0.0; model.dim() - 3];
-        params[..12].copy_from_slice(&defaults.coefficients);
-        (site, template, None, params)
+    let effects = catalog::model_effects(&effects_named(args)?)?;
+    let runs = load_runs(&args.recordings, args.model.latitude_deg, &cfg)?;
+    let start = if runs.is_empty() {
+        Start::defaults(args, &effects, &cfg)?
     } else {
-        let models = runs
-            .iter()
-            .map(|r| build_model(r.prep.site, &effects, &cfg))
-            .collect::<anyhow::Result<Vec<_>>>()?;
-        let joint = fit_jointly(
-            &mut runs,
-            &models,
-            &effects,
-            &cfg,
-            "identifying the runs so far",
-        )?;
-        let checks: Vec<_> = joint
-            .runs
-            .iter()
-            .zip(&runs)
-            .map(|(fit, r)| run_consistency(fit, &r.prep))
-            .collect();
-        reasons = runs_untrusted(&runs, &joint.runs, &checks);
-        let last = &runs[runs.len() - 1].prep;
-        let mean_hours = runs
-            .iter()
-            .map(|r| r.prep.measurements.last().map_or(0.0, |m| m.t_s) / 3600.0)
-            .sum::<f64>()
-            / runs.len() as f64;
-        let template = Design {
-            orientation_deg: [0.0; 3],
-            hours: args.hours.unwrap_or(mean_hours),
-            rate_s: args.rate_s.unwrap_or_else(|| rate_of(last, cfg.period_s)),
-            raw_sigma_mps2: last.noise.raw_sigma_mps2,
-        };
-        let mut site = last.site;
-        site.chart = Default::default();
-        let params = joint.estimate.value.clone();
-        (site, template, Some(joint.estimate), params)
+        Start::after_runs(args, runs, &effects, &cfg)?
     };
+    let Start {
+        site,
+        template,
+        before,
+        params,
+        reasons,
+    } = start;
     let model = build_model(site, &effects, &cfg)?;
     let criterion = match &args.separate {
         Some(p) => Criterion::separate(&model, &p[0], &p[1])?,
@@ -127,9 +73,9 @@ pub fn run(args: &PlanArgs) -> anyhow::Result<()> {
     );
     spin.finish_and_clear();
     let ranked = ranked?;
-    let Some(best) = ranked.first() else {
+    if ranked.is_empty() {
         anyhow::bail!("no candidate orientation could be evaluated");
-    };
+    }
     let before_score = before.as_ref().map(|b| criterion.score(&model, &b.cov));
     let names: Vec<&str> = (3..model.dim()).map(|i| model.param(i).name).collect();
     let units: Vec<&str> = (3..model.dim()).map(|i| model.param(i).unit).collect();
@@ -139,38 +85,171 @@ pub fn run(args: &PlanArgs) -> anyhow::Result<()> {
             format!("canonical correlation of {} and {}", names[0], names[1])
         }
     };
-    if args.json {
-        let sig = |e: &nalgebra::DMatrix<f64>| {
-            (0..e.nrows()).map(|k| e[(k, k)].sqrt()).collect::<Vec<_>>()
-        };
-        let out = json!({
-            "criterion": what,
-            "runs_so_far": args.recordings.iter().map(|p| p.display().to_string()).collect::<Vec<_>>(),
-            "recommended": best.designs,
-            "score_before": before_score,
-            "score_after": best.score,
-            "parameters": names,
-            "units": units,
-            "sigma_before": before.as_ref().map(|b| sig(&b.cov)),
-            "sigma_after": sig(&best.cov),
-            "alternatives": ranked.iter().skip(1).take(args.alternatives)
-                .map(|c| json!({ "designs": c.designs, "score": c.score })).collect::<Vec<_>>(),
-            "trusted": reasons.is_empty(),
-            "untrusted_reasons": reasons,
-        });
-        println!("{}", serde_json::to_string_pretty(&out)?);
-        return trusted_or(reasons);
-    }
-    print_plan(
-        &names,
-        &units,
-        &what,
-        before.as_ref(),
+    let shown = Shown {
+        names: &names,
+        units: &units,
+        what: &what,
+        before: before.as_ref(),
         before_score,
-        &ranked,
-        args.alternatives,
-    );
+        ranked: &ranked,
+        alternatives: args.alternatives,
+    };
+    if args.json {
+        print_plan_json(&shown, &args.recordings, &reasons)?;
+    } else {
+        print_plan(&shown);
+    }
     trusted_or(reasons)
+}
+
+/// The model's effects: `--with`, plus the two of `--separate` (checked: two different ones).
+fn effects_named(args: &PlanArgs) -> anyhow::Result<Vec<String>> {
+    let mut with = args.model.with.clone();
+    if let Some(pair) = &args.separate {
+        if pair.len() != 2 || pair[0] == pair[1] {
+            anyhow::bail!(
+                "--separate takes two different effects, e.g. acc-bias,acc-scale; got {pair:?}"
+            );
+        }
+        for name in pair {
+            if name != "paper" && !with.contains(name) {
+                with.push(name.clone());
+            }
+        }
+    }
+    Ok(with)
+}
+
+/// Where a plan starts: the site, the planned run's template, the estimate of the runs so far
+/// (none for a first pair), the parameters at which the information is evaluated, and why the
+/// runs so far do not support a trusted plan (their faults, a misfit: exit 3).
+struct Start {
+    site: estimator_core::Site,
+    template: Design,
+    before: Option<Estimate>,
+    params: Vec<f64>,
+    reasons: Vec<String>,
+}
+
+impl Start {
+    /// No runs yet: the simulator's defaults (the paper's coefficients, its latitude, length
+    /// and rate unless given).
+    fn defaults(
+        args: &PlanArgs,
+        effects: &[&'static dyn estimator_core::effects::Effect],
+        cfg: &crate::identify::Config,
+    ) -> anyhow::Result<Self> {
+        let defaults = Scenario::paper();
+        let lat = args.model.latitude_deg.unwrap_or(defaults.latitude_deg);
+        let site = estimator_core::Site::new(lat, None);
+        let sigma = cfg.raw_sigma_mps2.unwrap_or([1e-5 * site.gravity_mps2; 3]);
+        let template = Design {
+            orientation_deg: [0.0; 3],
+            hours: args.hours.unwrap_or(defaults.hours),
+            rate_s: args.rate_s.unwrap_or(defaults.rate_s),
+            raw_sigma_mps2: sigma,
+        };
+        let model = build_model(site, effects, cfg)?;
+        let mut params = vec![0.0; model.dim() - 3];
+        params[..12].copy_from_slice(&defaults.coefficients);
+        Ok(Start {
+            site,
+            template,
+            before: None,
+            params,
+            reasons: vec![],
+        })
+    }
+
+    /// After `runs`: their joint estimate, the last run's site, rate and noise, their mean
+    /// length (unless given).
+    fn after_runs(
+        args: &PlanArgs,
+        mut runs: Vec<LoadedRun>,
+        effects: &[&'static dyn estimator_core::effects::Effect],
+        cfg: &crate::identify::Config,
+    ) -> anyhow::Result<Self> {
+        let models = runs
+            .iter()
+            .map(|r| build_model(r.prep.site, effects, cfg))
+            .collect::<anyhow::Result<Vec<_>>>()?;
+        let joint = fit_jointly(
+            &mut runs,
+            &models,
+            effects,
+            cfg,
+            "identifying the runs so far",
+        )?;
+        let checks: Vec<_> = joint
+            .runs
+            .iter()
+            .zip(&runs)
+            .map(|(fit, r)| run_consistency(fit, &r.prep))
+            .collect();
+        let reasons = runs_untrusted(&runs, &joint.runs, &checks);
+        let last = &runs[runs.len() - 1].prep;
+        let mean_hours = runs
+            .iter()
+            .map(|r| r.prep.measurements.last().map_or(0.0, |m| m.t_s) / 3600.0)
+            .sum::<f64>()
+            / runs.len() as f64;
+        let template = Design {
+            orientation_deg: [0.0; 3],
+            hours: args.hours.unwrap_or(mean_hours),
+            rate_s: args.rate_s.unwrap_or_else(|| rate_of(last, cfg.period_s)),
+            raw_sigma_mps2: last.noise.raw_sigma_mps2,
+        };
+        let mut site = last.site;
+        site.chart = Default::default();
+        let params = joint.estimate.value.clone();
+        Ok(Start {
+            site,
+            template,
+            before: Some(joint.estimate),
+            params,
+            reasons,
+        })
+    }
+}
+
+/// What a plan shows: the parameters' names and units, the criterion's words, the estimate so
+/// far and its score, the ranked candidates (best first) and how many alternatives to list.
+struct Shown<'a> {
+    names: &'a [&'a str],
+    units: &'a [&'a str],
+    what: &'a str,
+    before: Option<&'a Estimate>,
+    before_score: Option<f64>,
+    ranked: &'a [crate::plan::Candidate],
+    alternatives: usize,
+}
+
+/// The plan as one JSON object (`--json`).
+fn print_plan_json(
+    s: &Shown<'_>,
+    recordings: &[PathBuf],
+    reasons: &[String],
+) -> anyhow::Result<()> {
+    let best = &s.ranked[0];
+    let sig =
+        |e: &nalgebra::DMatrix<f64>| (0..e.nrows()).map(|k| e[(k, k)].sqrt()).collect::<Vec<_>>();
+    let out = json!({
+        "criterion": s.what,
+        "runs_so_far": recordings.iter().map(|p| p.display().to_string()).collect::<Vec<_>>(),
+        "recommended": best.designs,
+        "score_before": s.before_score,
+        "score_after": best.score,
+        "parameters": s.names,
+        "units": s.units,
+        "sigma_before": s.before.map(|b| sig(&b.cov)),
+        "sigma_after": sig(&best.cov),
+        "alternatives": s.ranked.iter().skip(1).take(s.alternatives)
+            .map(|c| json!({ "designs": c.designs, "score": c.score })).collect::<Vec<_>>(),
+        "trusted": reasons.is_empty(),
+        "untrusted_reasons": reasons,
+    });
+    println!("{}", serde_json::to_string_pretty(&out)?);
+    Ok(())
 }
 
 /// Mean sample interval of a prepared run, s (from the samples per filter period).
@@ -183,28 +262,48 @@ fn rate_of(prep: &Prepared, period_s: f64) -> f64 {
     period_s / f64::from((*counts.select_nth_unstable(mid).1).max(1))
 }
 
-fn print_plan(
-    names: &[&str],
-    units: &[&str],
-    what: &str,
-    before: Option<&Estimate>,
-    before_score: Option<f64>,
-    ranked: &[crate::plan::Candidate],
-    alternatives: usize,
-) {
-    let best = &ranked[0];
-    let runs = |c: &crate::plan::Candidate| {
-        c.designs
-            .iter()
-            .map(|d| {
-                format!(
-                    "({:.0}, {:.0}, {:.0}) deg",
-                    d.orientation_deg[0], d.orientation_deg[1], d.orientation_deg[2]
-                )
-            })
-            .collect::<Vec<_>>()
-            .join(" and ")
+/// The plan as text: the recommendation, ready `driftid simulate` lines, the criterion before
+/// and after, each parameter's 1σ now and after, and the alternatives.
+fn print_plan(s: &Shown<'_>) {
+    let best = &s.ranked[0];
+    print_recommendation(best, s.before.is_some());
+    let show = |v: f64| {
+        if s.what.starts_with("canonical") {
+            format!("{v:.3}")
+        } else {
+            sci(v)
+        }
     };
+    match s.before_score {
+        Some(b) => println!("{}: {} now, {} after", s.what, show(b), show(best.score)),
+        None => println!("{}: {} after the pair", s.what, show(best.score)),
+    }
+    print_sigmas(s.names, s.units, s.before, best);
+    if s.alternatives > 0 {
+        println!("alternatives ({}):", s.what);
+        for c in s.ranked.iter().skip(1).take(s.alternatives) {
+            println!("  {} → {}", orientations(c), show(c.score));
+        }
+    }
+}
+
+/// A candidate's start orientations, e.g. "(0, 90, 0) deg and (90, 0, 0) deg".
+fn orientations(c: &crate::plan::Candidate) -> String {
+    c.designs
+        .iter()
+        .map(|d| {
+            format!(
+                "({:.0}, {:.0}, {:.0}) deg",
+                d.orientation_deg[0], d.orientation_deg[1], d.orientation_deg[2]
+            )
+        })
+        .collect::<Vec<_>>()
+        .join(" and ")
+}
+
+/// The recommended run(s) (`after_runs`: after the runs so far, else from the simulator's
+/// defaults) and, per run, the `driftid simulate` line that makes it.
+fn print_recommendation(best: &crate::plan::Candidate, after_runs: bool) {
     let d = &best.designs[0];
     println!(
         "plan: {} {}: initial orientation tx, ty, tz = {} ({:.1} h at {} s per sample)",
@@ -213,12 +312,12 @@ fn print_plan(
         } else {
             "next run"
         },
-        if before.is_some() {
+        if after_runs {
             "after the runs so far"
         } else {
             "from the simulator's defaults"
         },
-        runs(best),
+        orientations(best),
         d.hours,
         d.rate_s
     );
@@ -234,17 +333,15 @@ fn print_plan(
             if best.designs.len() > 1 { format!("-{}", k + 1) } else { String::new() }
         );
     }
-    let show = |v: f64| {
-        if what.starts_with("canonical") {
-            format!("{v:.3}")
-        } else {
-            sci(v)
-        }
-    };
-    match before_score {
-        Some(b) => println!("{what}: {} now, {} after", show(b), show(best.score)),
-        None => println!("{what}: {} after the pair", show(best.score)),
-    }
+}
+
+/// Each parameter's 1σ now (when there are runs so far) and after the recommended run(s).
+fn print_sigmas(
+    names: &[&str],
+    units: &[&str],
+    before: Option<&Estimate>,
+    best: &crate::plan::Candidate,
+) {
     println!(
         "{:<6} {:<16} {:>12} {:>12} {:>8}",
         "coef", "unit", "1σ now", "1σ after", "ratio"
@@ -270,12 +367,6 @@ fn print_plan(
                 "—",
                 sci(after)
             ),
-        }
-    }
-    if alternatives > 0 {
-        println!("alternatives ({what}):");
-        for c in ranked.iter().skip(1).take(alternatives) {
-            println!("  {} → {}", runs(c), show(c.score));
         }
     }
 }

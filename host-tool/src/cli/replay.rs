@@ -105,23 +105,7 @@ pub fn run(a: &ReplayArgs) -> anyhow::Result<()> {
     let timeout = super::args::to_duration(a.timeout_s, "--timeout-s")?;
     let silence = super::args::to_duration(a.silence_s, "--silence-s")?;
     let rec = recording::read_recording(&a.recording)?;
-    let rate_s = if rec.samples.len() > 1 {
-        (rec.samples[rec.samples.len() - 1].t_s - rec.samples[0].t_s)
-            / (rec.samples.len() - 1) as f64
-    } else {
-        1.0
-    };
-    let g = rec.meta.gravity_mps2.unwrap_or(9.80665);
-    let sigma = a.raw_sigma.unwrap_or(1e-5 * g * (60.0 / rate_s).sqrt());
-    let base = Config {
-        filter_period_s: a.period_s,
-        raw_sigma_mps2: [sigma; 3],
-        arw_deg2_per_h: a.arw,
-        gate_nis: a.gate_nis,
-        status_every: 0,
-        ..Config::default()
-    };
-    let config = replay::config_for(&rec.meta, base)?;
+    let config = firmware_config(a, &rec)?;
     let samples = replay::link_samples(&rec.samples);
     let port = port::open(&a.port, a.baud)?;
     let writer = port::writer_of(&port)?;
@@ -184,6 +168,36 @@ pub fn run(a: &ReplayArgs) -> anyhow::Result<()> {
     }
     let outcome = outcome?;
     w.commit()?;
+    print_outcome(&outcome, &out_path);
+    super::common::trusted_or(fault_reasons(&outcome.faults))
+}
+
+/// The firmware's filter configuration for recording `rec`: `--period-s`, `--arw`,
+/// `--gate-nis`, and the raw noise from `--raw-sigma` or 1e-5 g per 60-s mean at the
+/// recording's mean sample interval; the site from its metadata.
+fn firmware_config(a: &ReplayArgs, rec: &recording::Recording) -> anyhow::Result<Config> {
+    let rate_s = if rec.samples.len() > 1 {
+        (rec.samples[rec.samples.len() - 1].t_s - rec.samples[0].t_s)
+            / (rec.samples.len() - 1) as f64
+    } else {
+        1.0
+    };
+    let g = rec.meta.gravity_mps2.unwrap_or(9.80665);
+    let sigma = a.raw_sigma.unwrap_or(1e-5 * g * (60.0 / rate_s).sqrt());
+    let base = Config {
+        filter_period_s: a.period_s,
+        raw_sigma_mps2: [sigma; 3],
+        arw_deg2_per_h: a.arw,
+        gate_nis: a.gate_nis,
+        status_every: 0,
+        ..Config::default()
+    };
+    replay::config_for(&rec.meta, base)
+}
+
+/// The replay's outcome on stderr: the firmware's final status, what was written where, and
+/// the last estimate's coefficients with their 1σ.
+fn print_outcome(outcome: &replay::ReplayOutcome, out_path: &std::path::Path) {
     if let Some(s) = outcome.final_status() {
         eprintln!("{}", link::describe(&protocol::Message::Status(*s)));
     }
@@ -200,7 +214,6 @@ pub fn run(a: &ReplayArgs) -> anyhow::Result<()> {
             eprintln!("  {n:>4} = {}", crate::format::pm(v, s));
         }
     }
-    super::common::trusted_or(fault_reasons(&outcome.faults))
 }
 
 /// The firmware's faults as reasons not to trust the estimates. A refused checkpoint is not one:

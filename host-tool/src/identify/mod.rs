@@ -583,33 +583,47 @@ pub fn identify(
                 cfg.smoother_iterations + GN_EXTRA_ITERATIONS,
             )
         });
-    // A single pass that lost the trajectory (its linearisation far off in the first hours)
-    // leaves the smoother a nominal it cannot recover from: NIS/3 of 1e3–1e9 where a missing
-    // effect gives at most a few hundred. Whenever the fit is not clearly consistent, the
-    // record is also fitted by continuation (short windows first, see `continuation`), and the
-    // fit with the larger likelihood wins.
+    let fit = or_by_continuation(model, meas, &zeros, &x0w, &p0w, cfg, from_pass2)?;
+    converged(model, meas, single_pass, fit)
+}
+
+/// The fit from the second pass, or one by continuation where that fits better.
+///
+/// A single pass that lost the trajectory (its linearisation far off in the first hours)
+/// leaves the smoother a nominal it cannot recover from: NIS/3 of 1e3–1e9 where a missing
+/// effect gives at most a few hundred. Whenever the fit is not clearly consistent, the
+/// record is also fitted by continuation (short windows first, see `continuation`), and the
+/// fit with the larger likelihood wins.
+fn or_by_continuation(
+    model: &Model<'_>,
+    meas: &[Measurement],
+    zeros: &[f64],
+    x0w: &DVector<f64>,
+    p0w: &DMatrix<f64>,
+    cfg: &Config,
+    from_pass2: anyhow::Result<GaussNewton>,
+) -> anyhow::Result<GaussNewton> {
     let needs_check = match &from_pass2 {
         Ok(f) => mean_nis(&f.innovations) > CONTINUATION_NIS,
         Err(_) => true,
     };
-    let fit = if needs_check {
-        let alt = continuation(model, meas, &zeros, &x0w, &p0w, cfg.smoother_iterations);
+    if needs_check {
+        let alt = continuation(model, meas, zeros, x0w, p0w, cfg.smoother_iterations);
         match (from_pass2, alt) {
-            (Ok(a), Ok(b)) => {
+            (Ok(a), Ok(b)) => Ok(
                 if neg2_log_evidence(&b.innovations) < neg2_log_evidence(&a.innovations) {
                     b
                 } else {
                     a
-                }
-            }
-            (Ok(a), Err(_)) => a,
-            (Err(_), Ok(b)) => b,
-            (Err(e), Err(_)) => return Err(e),
+                },
+            ),
+            (Ok(a), Err(_)) => Ok(a),
+            (Err(_), Ok(b)) => Ok(b),
+            (Err(e), Err(_)) => Err(e),
         }
     } else {
-        from_pass2?
-    };
-    converged(model, meas, single_pass, fit)
+        from_pass2
+    }
 }
 
 /// The identification a converged Gauss–Newton fit gives (`single_pass`: the paper's pass, kept

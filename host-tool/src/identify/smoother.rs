@@ -220,8 +220,9 @@ enum Nominal<'a> {
 
 /// What update j takes from the model about the nominal: the nominal propagated over the
 /// interval (`f`), Φ's dynamic rows and Q (`tr`), and H's columns and h at the next node. None
-/// of it depends on the filter, so for a given nominal [`run_cap`] computes it ahead, on another
-/// core, while the filter steps (the same calls on the same inputs: the same bits).
+/// of it depends on the filter, so for a given nominal [`for_each_linearisation`] computes it
+/// ahead, on another core, while the filter steps (the same calls on the same inputs: the same
+/// bits).
 struct Linearisation<const CAP: usize> {
     /// The nominal at node j, where the interval starts.
     xbar_prev: [f64; CAP],
@@ -383,65 +384,119 @@ impl<'a, 'm, const CAP: usize> Forward<'a, 'm, CAP> {
         let model = self.model;
         let n = model.dim();
         let dynamic = model.dynamic_states();
-        let nd = dynamic.len();
         let z = &self.meas[j];
+        st.predict_mean(dynamic, lin, m_prev);
+        let p_pred = p_out;
+        st.predict_covariance(dynamic, lin, p_prev, p_pred);
+        let xbar = match self.given {
+            Some(v) => v[j + 1].as_slice(),
+            None => &lin.f[..n],
+        };
+        let (predicted, nu) = st.innovation(j, z, lin, xbar)?;
+        let (s, s_inv, chol_l) = st.gain(j, z, lin, p_pred, nu)?;
+        st.joseph_update(p_pred);
+        st.nu = nu;
+        st.s_inv_nu = s_inv * nu;
+        st.whitened = chol_l.solve_lower_triangular(&nu).unwrap_or(nu);
+        st.chol_l = chol_l;
+        st.s = s;
+        st.s_inv = s_inv;
+        st.predicted = predicted;
+        Ok(())
+    }
+}
+
+/// The parts of [`Forward::step`], in its order; inlined into both of its builds.
+impl Step {
+    /// Φ's dynamic rows from the linearisation, and the predicted mean m⁻ = f(x̄) + Φ (m − x̄).
+    #[inline(always)]
+    fn predict_mean<const CAP: usize>(
+        &mut self,
+        dynamic: &[usize],
+        lin: &Linearisation<CAP>,
+        m_prev: &[f64],
+    ) {
+        let n = self.m.len();
+        let nd = dynamic.len();
         let xbar_prev = &lin.xbar_prev[..n];
         for r in 0..nd {
-            st.phi[r * n..(r + 1) * n].copy_from_slice(&lin.tr.rows[r][..n]);
-        }
-        // m⁻ = f(x̄) + Φ (m − x̄).
-        for i in 0..n {
-            st.dm[i] = m_prev[i] - xbar_prev[i];
+            self.phi[r * n..(r + 1) * n].copy_from_slice(&lin.tr.rows[r][..n]);
         }
         for i in 0..n {
-            st.m_pred[i] = lin.f[i] + st.dm[i];
+            self.dm[i] = m_prev[i] - xbar_prev[i];
+        }
+        for i in 0..n {
+            self.m_pred[i] = lin.f[i] + self.dm[i];
         }
         for (r, &d) in dynamic.iter().enumerate() {
-            st.m_pred[d] = lin.f[d] + dot(&st.phi[r * n..(r + 1) * n], &st.dm);
+            self.m_pred[d] = lin.f[d] + dot(&self.phi[r * n..(r + 1) * n], &self.dm);
         }
-        // P⁻ = Φ P Φᵀ + Q. With A = rows `dynamic` of Φ P (= columns of P Φᵀ, P symmetric):
-        // P⁻ is P outside the dynamic rows and columns, A there, and A Φ_Dᵀ + Q where both are
-        // dynamic (symmetrised).
+    }
+
+    /// P⁻ = Φ P Φᵀ + Q into `p_pred`. With A = rows `dynamic` of Φ P (= columns of P Φᵀ, P
+    /// symmetric): P⁻ is P outside the dynamic rows and columns, A there, and A Φ_Dᵀ + Q where
+    /// both are dynamic (symmetrised).
+    #[inline(always)]
+    fn predict_covariance<const CAP: usize>(
+        &mut self,
+        dynamic: &[usize],
+        lin: &Linearisation<CAP>,
+        p_prev: &[f64],
+        p_pred: &mut [f64],
+    ) {
+        let n = self.m.len();
         // A = Φ_D P three rows at a time (the core's kernel: the sums of a block of columns
         // in registers; an axpy per row and state was a third of this step in loop overhead).
-        for (f, a) in st.phi.chunks_exact(3 * n).zip(st.a.chunks_exact_mut(3 * n)) {
+        for (f, a) in self
+            .phi
+            .chunks_exact(3 * n)
+            .zip(self.a.chunks_exact_mut(3 * n))
+        {
             let (a0, rest) = a.split_at_mut(n);
             let (a1, a2) = rest.split_at_mut(n);
             let f = [&f[..n], &f[n..2 * n], &f[2 * n..]];
             three_rows_times(f, p_prev, n, [a0, a1, a2]);
         }
-        let p_pred = p_out;
         p_pred.copy_from_slice(&p_prev[..n * n]);
         for (r, &d) in dynamic.iter().enumerate() {
             for c in 0..n {
-                let v = st.a[r * n + c];
+                let v = self.a[r * n + c];
                 p_pred[d * n + c] = v;
                 p_pred[c * n + d] = v;
             }
         }
         for (r, &d) in dynamic.iter().enumerate() {
             for (s, &e) in dynamic.iter().enumerate().skip(r) {
-                let ar = &st.a[r * n..(r + 1) * n];
-                let as_ = &st.a[s * n..(s + 1) * n];
+                let ar = &self.a[r * n..(r + 1) * n];
+                let as_ = &self.a[s * n..(s + 1) * n];
                 let v = 0.5
-                    * (dot(ar, &st.phi[s * n..(s + 1) * n])
-                        + dot(as_, &st.phi[r * n..(r + 1) * n]))
+                    * (dot(ar, &self.phi[s * n..(s + 1) * n])
+                        + dot(as_, &self.phi[r * n..(r + 1) * n]))
                     + 0.5 * (lin.tr.q[r][s] + lin.tr.q[s][r]);
                 p_pred[d * n + e] = v;
                 p_pred[e * n + d] = v;
             }
         }
-        let xbar = match self.given {
-            Some(v) => v[j + 1].as_slice(),
-            None => &lin.f[..n],
-        };
+    }
+
+    /// H's non-zero columns, the prediction h(x̄) + H (m⁻ − x̄) of measurement `z` (update `j`)
+    /// and the innovation ν; an error when ν is not finite.
+    #[inline(always)]
+    fn innovation<const CAP: usize>(
+        &mut self,
+        j: usize,
+        z: &Measurement,
+        lin: &Linearisation<CAP>,
+        xbar: &[f64],
+    ) -> Result<([f64; 3], Vector3<f64>), SmootherError> {
+        let n = self.m.len();
         let predicted_at_nominal = lin.h_at_nominal;
-        st.cols.clear();
-        st.cols
+        self.cols.clear();
+        self.cols
             .extend((0..n).filter(|&c| lin.hcols[c] != Vector3::zeros()));
         let mut hdx = Vector3::zeros();
-        for &c in &st.cols {
-            hdx += lin.hcols[c] * (st.m_pred[c] - xbar[c]);
+        for &c in &self.cols {
+            hdx += lin.hcols[c] * (self.m_pred[c] - xbar[c]);
         }
         let predicted = predicted_at_nominal + hdx;
         let predicted = [predicted[0], predicted[1], predicted[2]];
@@ -454,18 +509,35 @@ impl<'a, 'm, const CAP: usize> Forward<'a, 'm, CAP> {
                 predicted,
             });
         }
+        Ok((predicted, nu))
+    }
+
+    /// U = P⁻ Hᵀ, S = H U + R (symmetrised), its Cholesky factor, the gain K = U S⁻¹,
+    /// W = U − K S and the updated mean m = m⁻ + K ν; returns (S, S⁻¹, L). An error when S is
+    /// not finite or not positive definite (bad data, see the module's doc).
+    #[inline(always)]
+    #[allow(clippy::type_complexity)]
+    fn gain<const CAP: usize>(
+        &mut self,
+        j: usize,
+        z: &Measurement,
+        lin: &Linearisation<CAP>,
+        p_pred: &[f64],
+        nu: Vector3<f64>,
+    ) -> Result<(Matrix3<f64>, Matrix3<f64>, Matrix3<f64>), SmootherError> {
+        let n = self.m.len();
         // U = P⁻ Hᵀ (row i: Σ_c P⁻[i, c] h_c), S = H U + R.
         for i in 0..n {
             let row = &p_pred[i * n..(i + 1) * n];
             let mut acc = Vector3::zeros();
-            for &c in &st.cols {
+            for &c in &self.cols {
                 acc += lin.hcols[c] * row[c];
             }
-            st.u[i] = acc;
+            self.u[i] = acc;
         }
         let mut s_dyn = Matrix3::from_diagonal(&Vector3::from(z.variance));
-        for &c in &st.cols {
-            s_dyn += lin.hcols[c] * st.u[c].transpose();
+        for &c in &self.cols {
+            s_dyn += lin.hcols[c] * self.u[c].transpose();
         }
         let s = Matrix3::from_fn(|a, b| 0.5 * (s_dyn[(a, b)] + s_dyn[(b, a)]));
         let chol = s
@@ -482,24 +554,30 @@ impl<'a, 'm, const CAP: usize> Forward<'a, 'm, CAP> {
         let chol_l = chol.l();
         let s_inv_t = s_inv.transpose();
         for i in 0..n {
-            st.k[i] = s_inv_t * st.u[i];
-            st.w[i] = st.u[i] - s * st.k[i];
-            st.m[i] = st.m_pred[i] + st.k[i].dot(&nu);
+            self.k[i] = s_inv_t * self.u[i];
+            self.w[i] = self.u[i] - s * self.k[i];
+            self.m[i] = self.m_pred[i] + self.k[i].dot(&nu);
             for a in 0..3 {
-                st.k_cols[a][i] = st.k[i][a];
-                st.w_cols[a][i] = st.w[i][a];
+                self.k_cols[a][i] = self.k[i][a];
+                self.w_cols[a][i] = self.w[i][a];
             }
         }
-        // Joseph: P = (I − KH) P⁻ (I − KH)ᵀ + K R Kᵀ = P⁻ − K Uᵀ − U Kᵀ + K S Kᵀ (S = H U + R)
-        //          = P⁻ − K Wᵀ − U Kᵀ with W = U − K S (valid for any gain, as the Joseph form is).
-        // In place over P⁻: the upper triangle row by row (entry (i, jj ≥ i) reads only itself),
-        // then mirrored into the lower one.
-        // Along a row the entries are Kᵢ·Wⱼ + Uᵢ·Kⱼ over contiguous columns of K and W (the
-        // products and sums of the two 3-vector dot products, in their order).
-        let p = p_pred;
-        let ([kx, ky, kz], [wx, wy, wz]) = (&st.k_cols, &st.w_cols);
+        Ok((s, s_inv, chol_l))
+    }
+
+    /// The Joseph update of P⁻ into P, in place:
+    /// P = (I − KH) P⁻ (I − KH)ᵀ + K R Kᵀ = P⁻ − K Uᵀ − U Kᵀ + K S Kᵀ (S = H U + R)
+    ///   = P⁻ − K Wᵀ − U Kᵀ with W = U − K S (valid for any gain, as the Joseph form is).
+    #[inline(always)]
+    fn joseph_update(&self, p: &mut [f64]) {
+        let n = self.m.len();
+        // The upper triangle row by row (entry (i, jj ≥ i) reads only itself), then mirrored
+        // into the lower one. Along a row the entries are Kᵢ·Wⱼ + Uᵢ·Kⱼ over contiguous
+        // columns of K and W (the products and sums of the two 3-vector dot products, in
+        // their order).
+        let ([kx, ky, kz], [wx, wy, wz]) = (&self.k_cols, &self.w_cols);
         for i in 0..n {
-            let (ki, ui) = (st.k[i], st.u[i]);
+            let (ki, ui) = (self.k[i], self.u[i]);
             let row = &mut p[i * n + i..(i + 1) * n];
             let len = row.len();
             let (kx, ky, kz) = (&kx[i..i + len], &ky[i..i + len], &kz[i..i + len]);
@@ -514,14 +592,6 @@ impl<'a, 'm, const CAP: usize> Forward<'a, 'm, CAP> {
                 p[jj * n + i] = p[i * n + jj];
             }
         }
-        st.nu = nu;
-        st.s_inv_nu = s_inv * nu;
-        st.whitened = chol_l.solve_lower_triangular(&nu).unwrap_or(nu);
-        st.chol_l = chol_l;
-        st.s = s;
-        st.s_inv = s_inv;
-        st.predicted = predicted;
-        Ok(())
     }
 }
 
@@ -930,174 +1000,294 @@ fn run_cap<const CAP: usize>(
     };
     debug_assert!(observer.is_none() || !given.is_empty());
     let fwd = Forward::<CAP>::new(model, meas, &nominal)?;
-    let dynamic = model.dynamic_states();
-    let nd = dynamic.len();
     let updates = meas.len();
-    let keep_all = mode == Mode::Smooth
-        && updates.saturating_mul(Nodes::bytes_per_node(n, nd)) <= keep_nodes_bytes;
-    let seg = if keep_all {
-        updates.max(1)
-    } else {
-        segment_len(updates)
-    };
-    let keep_innovations = mode != Mode::CovarianceOnly;
-    let mut innovations = Vec::with_capacity(if keep_innovations { updates } else { 0 });
-    let mut states = Vec::new();
-    if mode == Mode::Filter {
-        states.reserve_exact(updates + 1);
-        states.push(x0.clone());
-    }
-    // The filter's mean, and its covariance (exactly symmetric) at every node or in turn.
-    let mut m = x0.as_slice().to_vec();
-    let mut cov = CovSlots::new(n, updates + 1, keep_all);
-    for (k, v) in cov.get_mut(0).iter_mut().enumerate() {
-        let (i, j) = (k / n, k % n);
-        *v = 0.5 * (p0[(i, j)] + p0[(j, i)]);
-    }
-    // Filter (m, P) at nodes 0, seg, 2·seg, … (checkpointed smoothing only).
-    let mut checkpoints: Vec<(Vec<f64>, Vec<f64>)> = Vec::new();
-    if mode == Mode::Smooth && !keep_all {
-        checkpoints.reserve_exact(updates.div_ceil(seg).max(1));
-        checkpoints.push((m.clone(), cov.get(0).to_vec()));
-    }
-    let mut nodes = if mode == Mode::Smooth {
-        Nodes::new(n, nd, seg.min(updates))
-    } else {
-        Nodes::new(n, nd, 0)
-    };
-    let mut st = Step::new(n, nd);
+    let mut run = ForwardRun::new(model, meas, x0, p0, mode, updates, keep_nodes_bytes);
     // Dense Φ, H and K for an observer (the score tests), built only when there is one.
-    let mut view_mats = observer.as_ref().map(|_| {
-        (
-            DMatrix::identity(n, n),
-            DMatrix::zeros(3, n),
-            DMatrix::zeros(n, 3),
-        )
-    });
-    {
-        // One update: the filter step, the observer, what the pass keeps.
-        let mut visit = |j: usize, lin: &Linearisation<CAP>| -> Result<(), SmootherError> {
-            let (p_prev, p_next) = cov.pair(j);
-            fwd.step(j, lin, &m, p_prev, &mut st, p_next)?;
-            let z = &meas[j];
-            if let (Some(obs), Some((phi, h, k))) = (observer.as_mut(), view_mats.as_mut()) {
-                for (r, &d) in dynamic.iter().enumerate() {
-                    for c in 0..n {
-                        phi[(d, c)] = st.phi[r * n + c];
-                    }
-                }
-                h.fill(0.0);
-                for &c in &st.cols {
-                    h.set_column(c, &lin.hcols[c]);
-                }
-                for i in 0..n {
-                    for a in 0..3 {
-                        k[(i, a)] = st.k[i][a];
-                    }
-                }
-                let (t_prev, temp_prev) = fwd.before(j);
-                obs(&StepView {
-                    j,
-                    t_prev_s: t_prev,
-                    t_s: z.t_s,
-                    temp_prev,
-                    temp: fwd.temps[j],
-                    time_var_s2: z.time_var_s2,
-                    nominal_prev: &given[j],
-                    nominal: &given[j + 1],
-                    phi,
-                    h,
-                    k,
-                    nu: st.nu,
-                    chol_l: st.chol_l,
-                    s_inv: st.s_inv,
-                });
-            }
-            if keep_innovations {
-                innovations.push(Residual {
-                    step: j as u32,
-                    t_s: z.t_s,
-                    measured: z.specific_force,
-                    predicted: st.predicted,
-                    innovation: st.nu.into(),
-                    s: st.s.transpose().into(),
-                    whitened: st.whitened.into(),
-                    nis: st.nu.dot(&(st.s_inv * st.nu)),
-                    rejected: false,
-                });
-            }
-            if keep_all {
-                nodes.push(&m, &st, &lin.hcols);
-            }
-            std::mem::swap(&mut m, &mut st.m);
-            match mode {
-                Mode::Filter => states.push(DVector::from_column_slice(&m)),
-                Mode::Smooth if !keep_all && (j + 1).is_multiple_of(seg) && j + 1 < updates => {
-                    checkpoints.push((m.clone(), cov.get(j + 1).to_vec()));
-                }
-                _ => {}
-            }
-            Ok(())
-        };
-        let mut lins = Linearisations::new(&fwd, &nominal);
-        // Not inside a rayon pool (Monte Carlo, the model ladder, the plan): its tasks already
-        // use every core, and a thread more per pass would only contend with them.
-        let ahead = linearise_ahead
-            && updates >= LINEARISE_AHEAD_MIN
-            && rayon::current_thread_index().is_none();
-        if ahead {
-            // The linearisation does not depend on the filter: another core computes it a
-            // chunk ahead while this one steps the filter.
-            // Chunks go back to be filled again: no clearing, moving or faulting in of ~1 MB
-            // per chunk (that was ~8 % of the process's CPU time). A linearisation overwrites
-            // every entry the filter reads.
-            // On rayon's pool (this thread is outside it, see `ahead`), not on a thread of its
-            // own: see `crate::beside`.
-            rayon::in_place_scope(|scope| {
-                type Chunk<const CAP: usize> = Vec<Linearisation<CAP>>;
-                let (tx, rx) = std::sync::mpsc::sync_channel::<(Chunk<CAP>, usize)>(2);
-                let (back, returned) = std::sync::mpsc::channel::<Chunk<CAP>>();
-                scope.spawn(move |_| loop {
-                    let size = linearise_chunk(updates);
-                    let mut chunk = returned.try_recv().unwrap_or_default();
-                    chunk.resize_with(size, Linearisation::default);
-                    let mut filled = 0;
-                    while filled < size && lins.next_into(&mut chunk[filled]) {
-                        filled += 1;
-                    }
-                    if filled == 0 || tx.send((chunk, filled)).is_err() {
-                        return; // the end, or the filter stopped at an error
-                    }
-                });
-                let mut j = 0;
-                for (chunk, filled) in rx.iter() {
-                    for lin in &chunk[..filled] {
-                        visit(j, lin)?;
-                        j += 1;
-                    }
-                    // The linearising thread may have ended: then the chunk is simply dropped.
-                    let _ = back.send(chunk);
-                }
-                Ok::<(), SmootherError>(())
-            })?;
-        } else {
-            let mut lin = Box::<Linearisation<CAP>>::default();
-            let mut j = 0;
-            while lins.next_into(&mut lin) {
-                visit(j, &lin)?;
-                j += 1;
-            }
+    let mut view = observer.as_ref().map(|_| ObserverMats::new(n));
+    let visit = |j: usize, lin: &Linearisation<CAP>| -> Result<(), SmootherError> {
+        run.step(&fwd, j, lin)?;
+        if let (Some(obs), Some(view)) = (observer.as_mut(), view.as_mut()) {
+            view.show(obs, &fwd, j, lin, &run.st, given);
+        }
+        run.keep(j, lin);
+        Ok(())
+    };
+    let ahead = linearise_ahead && updates >= LINEARISE_AHEAD_MIN;
+    for_each_linearisation(Linearisations::new(&fwd, &nominal), updates, ahead, visit)?;
+    let final_cov = DMatrix::from_row_slice(n, n, run.cov.get(updates));
+    if mode == Mode::Smooth {
+        run.states = run.smooth_back(&fwd, given)?;
+    }
+    Ok(Smoothed {
+        states: run.states,
+        final_cov,
+        innovations: run.innovations,
+    })
+}
+
+/// Dense Φ, H and K of one update for an observer (the score tests), in buffers allocated once
+/// per pass; the pass itself keeps them structured.
+struct ObserverMats {
+    phi: DMatrix<f64>,
+    h: DMatrix<f64>,
+    k: DMatrix<f64>,
+}
+
+impl ObserverMats {
+    fn new(n: usize) -> Self {
+        ObserverMats {
+            phi: DMatrix::identity(n, n),
+            h: DMatrix::zeros(3, n),
+            k: DMatrix::zeros(n, 3),
         }
     }
-    let final_cov = DMatrix::from_row_slice(n, n, cov.get(updates));
-    if mode == Mode::Smooth {
+
+    /// Shows update `j` (just stepped into `st`) to `obs`, with Φ, H and K made dense.
+    fn show<const CAP: usize>(
+        &mut self,
+        obs: &mut impl FnMut(&StepView<'_>),
+        fwd: &Forward<'_, '_, CAP>,
+        j: usize,
+        lin: &Linearisation<CAP>,
+        st: &Step,
+        given: &[DVector<f64>],
+    ) {
+        let n = fwd.model.dim();
+        let ObserverMats { phi, h, k } = self;
+        for (r, &d) in fwd.model.dynamic_states().iter().enumerate() {
+            for c in 0..n {
+                phi[(d, c)] = st.phi[r * n + c];
+            }
+        }
+        h.fill(0.0);
+        for &c in &st.cols {
+            h.set_column(c, &lin.hcols[c]);
+        }
+        for i in 0..n {
+            for a in 0..3 {
+                k[(i, a)] = st.k[i][a];
+            }
+        }
+        let z = &fwd.meas[j];
+        let (t_prev, temp_prev) = fwd.before(j);
+        obs(&StepView {
+            j,
+            t_prev_s: t_prev,
+            t_s: z.t_s,
+            temp_prev,
+            temp: fwd.temps[j],
+            time_var_s2: z.time_var_s2,
+            nominal_prev: &given[j],
+            nominal: &given[j + 1],
+            phi,
+            h,
+            k,
+            nu: st.nu,
+            chol_l: st.chol_l,
+            s_inv: st.s_inv,
+        });
+    }
+}
+
+/// Calls `visit` with every update's linearisation in order. With `ahead` (a long pass over a
+/// given nominal, not inside a rayon pool) another core computes them a chunk ahead while this
+/// one steps the filter: the linearisation does not depend on the filter, and the same calls
+/// on the same inputs give the same bits.
+fn for_each_linearisation<const CAP: usize>(
+    mut lins: Linearisations<'_, '_, '_, CAP>,
+    updates: usize,
+    ahead: bool,
+    mut visit: impl FnMut(usize, &Linearisation<CAP>) -> Result<(), SmootherError>,
+) -> Result<(), SmootherError> {
+    // Not inside a rayon pool (Monte Carlo, the model ladder, the plan): its tasks already
+    // use every core, and a thread more per pass would only contend with them.
+    if !(ahead && rayon::current_thread_index().is_none()) {
+        let mut lin = Box::<Linearisation<CAP>>::default();
+        let mut j = 0;
+        while lins.next_into(&mut lin) {
+            visit(j, &lin)?;
+            j += 1;
+        }
+        return Ok(());
+    }
+    // Chunks go back to be filled again: no clearing, moving or faulting in of ~1 MB
+    // per chunk (that was ~8 % of the process's CPU time). A linearisation overwrites
+    // every entry the filter reads.
+    // On rayon's pool (this thread is outside it, see above), not on a thread of its
+    // own: see `crate::beside`.
+    rayon::in_place_scope(|scope| {
+        type Chunk<const CAP: usize> = Vec<Linearisation<CAP>>;
+        let (tx, rx) = std::sync::mpsc::sync_channel::<(Chunk<CAP>, usize)>(2);
+        let (back, returned) = std::sync::mpsc::channel::<Chunk<CAP>>();
+        scope.spawn(move |_| loop {
+            let size = linearise_chunk(updates);
+            let mut chunk = returned.try_recv().unwrap_or_default();
+            chunk.resize_with(size, Linearisation::default);
+            let mut filled = 0;
+            while filled < size && lins.next_into(&mut chunk[filled]) {
+                filled += 1;
+            }
+            if filled == 0 || tx.send((chunk, filled)).is_err() {
+                return; // the end, or the filter stopped at an error
+            }
+        });
+        let mut j = 0;
+        for (chunk, filled) in rx.iter() {
+            for lin in &chunk[..filled] {
+                visit(j, lin)?;
+                j += 1;
+            }
+            // The linearising thread may have ended: then the chunk is simply dropped.
+            let _ = back.send(chunk);
+        }
+        Ok::<(), SmootherError>(())
+    })
+}
+
+/// The filter's state through a pass — its mean, and its covariance at every node or in turn —
+/// and what the pass keeps of each update for its output and for the backward pass.
+struct ForwardRun<'a> {
+    meas: &'a [Measurement],
+    mode: Mode,
+    updates: usize,
+    /// Every node kept for the backward pass (else checkpoints every `seg` updates).
+    keep_all: bool,
+    seg: usize,
+    /// The filter's mean at the current node.
+    m: Vec<f64>,
+    /// Its covariances (exactly symmetric).
+    cov: CovSlots,
+    st: Step,
+    innovations: Vec<Residual>,
+    /// Filtered states ([`Mode::Filter`]) or, after [`ForwardRun::smooth_back`], smoothed ones.
+    states: Vec<DVector<f64>>,
+    /// Filter (m, P) at nodes 0, seg, 2·seg, … (checkpointed smoothing only).
+    checkpoints: Vec<(Vec<f64>, Vec<f64>)>,
+    nodes: Nodes,
+}
+
+impl<'a> ForwardRun<'a> {
+    /// At node 0, from the prior `x0`, `p0` (symmetrised); whether every node is kept follows
+    /// from the node memory `keep_nodes_bytes` allows.
+    fn new(
+        model: &Model<'_>,
+        meas: &'a [Measurement],
+        x0: &DVector<f64>,
+        p0: &DMatrix<f64>,
+        mode: Mode,
+        updates: usize,
+        keep_nodes_bytes: usize,
+    ) -> Self {
+        debug_assert_eq!(updates, meas.len());
+        let n = model.dim();
+        let nd = model.dynamic_states().len();
+        let keep_all = mode == Mode::Smooth
+            && updates.saturating_mul(Nodes::bytes_per_node(n, nd)) <= keep_nodes_bytes;
+        let seg = if keep_all {
+            updates.max(1)
+        } else {
+            segment_len(updates)
+        };
+        let keep_innovations = mode != Mode::CovarianceOnly;
+        let innovations = Vec::with_capacity(if keep_innovations { updates } else { 0 });
+        let mut states = Vec::new();
+        if mode == Mode::Filter {
+            states.reserve_exact(updates + 1);
+            states.push(x0.clone());
+        }
+        let m = x0.as_slice().to_vec();
+        let mut cov = CovSlots::new(n, updates + 1, keep_all);
+        for (k, v) in cov.get_mut(0).iter_mut().enumerate() {
+            let (i, j) = (k / n, k % n);
+            *v = 0.5 * (p0[(i, j)] + p0[(j, i)]);
+        }
+        let mut checkpoints: Vec<(Vec<f64>, Vec<f64>)> = Vec::new();
+        if mode == Mode::Smooth && !keep_all {
+            checkpoints.reserve_exact(updates.div_ceil(seg).max(1));
+            checkpoints.push((m.clone(), cov.get(0).to_vec()));
+        }
+        let nodes = if mode == Mode::Smooth {
+            Nodes::new(n, nd, seg.min(updates))
+        } else {
+            Nodes::new(n, nd, 0)
+        };
+        ForwardRun {
+            meas,
+            mode,
+            updates,
+            keep_all,
+            seg,
+            m,
+            cov,
+            st: Step::new(n, nd),
+            innovations,
+            states,
+            checkpoints,
+            nodes,
+        }
+    }
+
+    /// The filter through update `j` (its factors into `st`, the covariance into node j+1's slot).
+    fn step<const CAP: usize>(
+        &mut self,
+        fwd: &Forward<'_, '_, CAP>,
+        j: usize,
+        lin: &Linearisation<CAP>,
+    ) -> Result<(), SmootherError> {
+        let (p_prev, p_next) = self.cov.pair(j);
+        fwd.step(j, lin, &self.m, p_prev, &mut self.st, p_next)
+    }
+
+    /// Keeps what the pass needs of update `j` (just stepped) and moves the mean to node j+1.
+    fn keep<const CAP: usize>(&mut self, j: usize, lin: &Linearisation<CAP>) {
+        let st = &self.st;
+        if self.mode != Mode::CovarianceOnly {
+            let z = &self.meas[j];
+            self.innovations.push(Residual {
+                step: j as u32,
+                t_s: z.t_s,
+                measured: z.specific_force,
+                predicted: st.predicted,
+                innovation: st.nu.into(),
+                s: st.s.transpose().into(),
+                whitened: st.whitened.into(),
+                nis: st.nu.dot(&(st.s_inv * st.nu)),
+                rejected: false,
+            });
+        }
+        if self.keep_all {
+            self.nodes.push(&self.m, &self.st, &lin.hcols);
+        }
+        std::mem::swap(&mut self.m, &mut self.st.m);
+        match self.mode {
+            Mode::Filter => self.states.push(DVector::from_column_slice(&self.m)),
+            Mode::Smooth
+                if !self.keep_all && (j + 1).is_multiple_of(self.seg) && j + 1 < self.updates =>
+            {
+                self.checkpoints
+                    .push((self.m.clone(), self.cov.get(j + 1).to_vec()));
+            }
+            _ => {}
+        }
+    }
+
+    /// The backward pass (see [`run`]) from the last node: the smoothed states, node 0 first.
+    /// A checkpointed pass recomputes each segment's nodes from its checkpoint first.
+    fn smooth_back<const CAP: usize>(
+        &mut self,
+        fwd: &Forward<'_, '_, CAP>,
+        given: &[DVector<f64>],
+    ) -> Result<Vec<DVector<f64>>, SmootherError> {
+        let n = self.m.len();
+        let (updates, seg, keep_all) = (self.updates, self.seg, self.keep_all);
+        let dynamic = fwd.model.dynamic_states();
         // Built from the last node back, reversed at the end.
-        states.reserve_exact(updates + 1);
-        states.push(DVector::from_column_slice(&m));
+        let mut states = Vec::with_capacity(updates + 1);
+        states.push(DVector::from_column_slice(&self.m));
         let mut lam = vec![0.0; n];
         let mut w = vec![0.0; n];
         let mut ms = vec![0.0; n];
-        let segments = if keep_all { 1 } else { checkpoints.len() };
+        let segments = if keep_all { 1 } else { self.checkpoints.len() };
         // A checkpointed segment's covariances, recomputed from its checkpoint.
         let mut seg_cov = CovSlots::new(n, if keep_all { 0 } else { seg + 1 }, true);
         let mut mc = vec![0.0; n];
@@ -1106,12 +1296,12 @@ fn run_cap<const CAP: usize>(
             let start = sgi * seg;
             let end = (start + seg).min(updates);
             let (covs, base) = if keep_all {
-                (&cov, 0)
+                (&self.cov, 0)
             } else {
-                let (cm, cp) = checkpoints.pop().unwrap_or_default();
+                let (cm, cp) = self.checkpoints.pop().unwrap_or_default();
                 mc.copy_from_slice(&cm);
                 seg_cov.get_mut(0).copy_from_slice(&cp);
-                nodes.clear();
+                self.nodes.clear();
                 for j in start..end {
                     let (p_prev, p_next) = seg_cov.pair(j - start);
                     // Smoothing is over a given nominal (the public passes).
@@ -1123,17 +1313,17 @@ fn run_cap<const CAP: usize>(
                     };
                     lin_back.xbar_prev[..n].copy_from_slice(xbar_prev.as_slice());
                     fwd.linearise(j, &mut lin_back);
-                    fwd.step(j, &lin_back, &mc, p_prev, &mut st, p_next)?;
-                    nodes.push(&mc, &st, &lin_back.hcols);
-                    std::mem::swap(&mut mc, &mut st.m);
+                    fwd.step(j, &lin_back, &mc, p_prev, &mut self.st, p_next)?;
+                    self.nodes.push(&mc, &self.st, &lin_back.hcols);
+                    std::mem::swap(&mut mc, &mut self.st.m);
                 }
                 (&seg_cov, start)
             };
             for j in (start..end).rev() {
                 let at = j - start;
-                nodes.adjoint_back(at, dynamic, &mut lam, &mut w);
+                self.nodes.adjoint_back(at, dynamic, &mut lam, &mut w);
                 let pj = covs.get(j - base);
-                let mj = &nodes.m[at * n..(at + 1) * n];
+                let mj = &self.nodes.m[at * n..(at + 1) * n];
                 // m + P λ, as P's rows times λ's entries: P is exactly symmetric, so these are
                 // the sums of row i · λ in the same order (the same bits), without a chain of
                 // dependent additions per entry.
@@ -1150,10 +1340,6 @@ fn run_cap<const CAP: usize>(
             }
         }
         states.reverse();
+        Ok(states)
     }
-    Ok(Smoothed {
-        states,
-        final_cov,
-        innovations,
-    })
 }

@@ -46,72 +46,14 @@ pub fn exclude(
     let mut findings = vec![];
     let mut drop: Vec<Stretch> = vec![];
     for &(a, b) in user_s {
-        let n = samples.iter().filter(|s| s.t_s >= a && s.t_s <= b).count();
-        findings.push(Finding {
-            kind: Kind::Excluded,
-            message: format!(
-                "t = {:.4}–{:.4} h excluded as asked (--exclude): {n} samples left out{}",
-                a / 3600.0,
-                b / 3600.0,
-                if n == 0 {
-                    " (no sample lies in that window)"
-                } else {
-                    ""
-                }
-            ),
-            start_s: Some(a),
-            end_s: Some(b),
-            samples: n,
-            action: Action::Rejected,
-        });
+        findings.push(excluded_as_asked(samples, a, b));
         drop.push(Stretch {
             t0: a,
             t1: b.next_up(),
         });
     }
     for (axis, rail, stretches, pinned) in saturated(samples, period_s) {
-        let shown = stretches.len().min(10);
-        for (i, st) in stretches.iter().enumerate() {
-            let n = samples
-                .iter()
-                .filter(|s| s.t_s >= st.t0 && s.t_s < st.t1)
-                .count();
-            if i == shown {
-                let rest: Vec<String> = stretches[shown..]
-                    .iter()
-                    .map(|s| format!("{:.3}–{:.3} h", s.t0 / 3600.0, s.t1 / 3600.0))
-                    .collect();
-                findings.push(Finding {
-                    kind: Kind::Saturated,
-                    message: format!(
-                        "axis {}: {} more stretches at the rail {rail:+} m/s^2 excluded ({})",
-                        axis_name(axis),
-                        stretches.len() - shown,
-                        rest.join(", ")
-                    ),
-                    start_s: Some(st.t0),
-                    end_s: stretches.last().map(|s| s.t1),
-                    samples: 0,
-                    action: Action::Rejected,
-                });
-                break;
-            }
-            findings.push(Finding {
-                kind: Kind::Saturated,
-                message: format!(
-                    "axis {} is pinned at its rail {rail:+} m/s^2 ({} reading): {pinned} readings in the run repeat that extreme value exactly \
-                     (a flat top: the sensor or its converter cannot read beyond it); the filter periods of t = {:.3}–{:.3} h ({n} samples) are excluded",
-                    axis_name(axis),
-                    if rail > 0.0 { "its largest" } else { "its smallest" },
-                    st.t0 / 3600.0,
-                    st.t1 / 3600.0
-                ),
-                start_s: Some(st.t0),
-                end_s: Some(st.t1),
-                samples: n,
-                action: Action::Rejected,
-            });
-        }
+        findings.extend(saturation_findings(samples, axis, rail, &stretches, pinned));
         drop.extend(stretches);
     }
     if drop.is_empty() {
@@ -123,6 +65,83 @@ pub fn exclude(
         .copied()
         .collect();
     (Some(kept), findings)
+}
+
+/// The finding for a window [a, b] s excluded by `--exclude`, with the samples it leaves out.
+fn excluded_as_asked(samples: &[Sample], a: f64, b: f64) -> Finding {
+    let n = samples.iter().filter(|s| s.t_s >= a && s.t_s <= b).count();
+    Finding {
+        kind: Kind::Excluded,
+        message: format!(
+            "t = {:.4}–{:.4} h excluded as asked (--exclude): {n} samples left out{}",
+            a / 3600.0,
+            b / 3600.0,
+            if n == 0 {
+                " (no sample lies in that window)"
+            } else {
+                ""
+            }
+        ),
+        start_s: Some(a),
+        end_s: Some(b),
+        samples: n,
+        action: Action::Rejected,
+    }
+}
+
+/// The findings for the stretches excluded at `axis`'s rail `rail`, m/s² (`pinned` readings at
+/// it): one per stretch for the first ten, one for the rest.
+fn saturation_findings(
+    samples: &[Sample],
+    axis: usize,
+    rail: f64,
+    stretches: &[Stretch],
+    pinned: usize,
+) -> Vec<Finding> {
+    let mut findings = vec![];
+    let shown = stretches.len().min(10);
+    for (i, st) in stretches.iter().enumerate() {
+        let n = samples
+            .iter()
+            .filter(|s| s.t_s >= st.t0 && s.t_s < st.t1)
+            .count();
+        if i == shown {
+            let rest: Vec<String> = stretches[shown..]
+                .iter()
+                .map(|s| format!("{:.3}–{:.3} h", s.t0 / 3600.0, s.t1 / 3600.0))
+                .collect();
+            findings.push(Finding {
+                kind: Kind::Saturated,
+                message: format!(
+                    "axis {}: {} more stretches at the rail {rail:+} m/s^2 excluded ({})",
+                    axis_name(axis),
+                    stretches.len() - shown,
+                    rest.join(", ")
+                ),
+                start_s: Some(st.t0),
+                end_s: stretches.last().map(|s| s.t1),
+                samples: 0,
+                action: Action::Rejected,
+            });
+            break;
+        }
+        findings.push(Finding {
+            kind: Kind::Saturated,
+            message: format!(
+                "axis {} is pinned at its rail {rail:+} m/s^2 ({} reading): {pinned} readings in the run repeat that extreme value exactly \
+                 (a flat top: the sensor or its converter cannot read beyond it); the filter periods of t = {:.3}–{:.3} h ({n} samples) are excluded",
+                axis_name(axis),
+                if rail > 0.0 { "its largest" } else { "its smallest" },
+                st.t0 / 3600.0,
+                st.t1 / 3600.0
+            ),
+            start_s: Some(st.t0),
+            end_s: Some(st.t1),
+            samples: n,
+            action: Action::Rejected,
+        });
+    }
+    findings
 }
 
 /// Rails found: (axis, rail value, stretches excluded, readings pinned at it).

@@ -445,20 +445,8 @@ pub fn axis_name(a: usize) -> char {
 /// glitches, one for dropouts, one for non-finite samples.
 fn group_flags(samples: &[Sample], flags: &[u8], sum: &ScreenSummary) -> Vec<Finding> {
     let mut out = vec![];
-    let times = |pred: &dyn Fn(u8) -> bool| -> (usize, Option<f64>, Option<f64>) {
-        let mut n = 0;
-        let (mut a, mut b) = (None, None);
-        for (s, f) in samples.iter().zip(flags) {
-            if pred(*f) {
-                n += 1;
-                a = a.or(Some(s.t_s));
-                b = Some(s.t_s);
-            }
-        }
-        (n, a, b)
-    };
     if sum.non_finite > 0 {
-        let (n, a, b) = times(&|f| f & flag::NON_FINITE != 0);
+        let (n, a, b) = flagged_span(samples, flags, flag::NON_FINITE);
         out.push(Finding {
             kind: Kind::NonFinite,
             message: format!("{n} samples with a NaN or infinite value"),
@@ -469,7 +457,7 @@ fn group_flags(samples: &[Sample], flags: &[u8], sum: &ScreenSummary) -> Vec<Fin
         });
     }
     if sum.zero > 0 {
-        let (n, a, b) = times(&|f| f & flag::ZERO != 0);
+        let (n, a, b) = flagged_span(samples, flags, flag::ZERO);
         out.push(Finding {
             kind: Kind::Dropout,
             message: format!(
@@ -482,86 +470,117 @@ fn group_flags(samples: &[Sample], flags: &[u8], sum: &ScreenSummary) -> Vec<Fin
         });
     }
     for ax in 0..3 {
-        let bit = screening::axis_bit(ax);
-        // A dropout (every axis exactly 0) is reported as a dropout, not also as a stuck run
-        // on each axis.
-        let stuck_here = |f: u8| f & flag::STUCK != 0 && f & bit != 0 && f & flag::ZERO == 0;
-        let mut runs = vec![];
-        let mut k = 0;
-        while k < samples.len() {
-            if stuck_here(flags[k]) {
-                let start = k;
-                while k < samples.len() && stuck_here(flags[k]) {
-                    k += 1;
-                }
-                runs.push((start, k));
-            } else {
-                k += 1;
-            }
-        }
-        runs.sort_by_key(|(a, b)| std::cmp::Reverse(b - a));
-        let min_run =
-            screening::min_stuck_run(samples.len(), sum.repeat_rate[ax], &ScreenConfig::default());
-        for (i, &(a, b)) in runs.iter().enumerate() {
-            if i == 10 {
-                let rest: usize = runs[10..].iter().map(|(a, b)| b - a).sum();
-                out.push(Finding {
-                    kind: Kind::Stuck,
-                    message: format!(
-                        "axis {}: {} more stuck runs, {rest} samples",
-                        axis_name(ax),
-                        runs.len() - 10
-                    ),
-                    start_s: None,
-                    end_s: None,
-                    samples: rest,
-                    action: Action::Rejected,
-                });
-                break;
-            }
-            out.push(Finding {
-                kind: Kind::Stuck,
-                message: format!(
-                    "axis {} repeats {} m/s^2 for {} samples (noise makes a run of {} already improbable)",
-                    axis_name(ax),
-                    samples[a].specific_force[ax],
-                    b - a,
-                    min_run
-                ),
-                start_s: Some(samples[a].t_s),
-                end_s: Some(samples[b - 1].t_s),
-                samples: b - a,
-                action: Action::Rejected,
-            });
-        }
+        out.extend(stuck_findings(samples, flags, sum, ax));
     }
     let glitches: usize = sum.outliers.iter().sum();
     if glitches > 0 {
-        let (n, a, b) = times(&|f| f & flag::OUTLIER != 0);
-        let first: Vec<String> = samples
-            .iter()
-            .zip(flags)
-            .filter(|(_, f)| **f & flag::OUTLIER != 0)
-            .take(5)
-            .map(|(s, _)| format!("{:.1} s", s.t_s))
-            .collect();
+        out.push(glitch_finding(samples, flags, sum));
+    }
+    out
+}
+
+/// How many samples carry flag `bit`, and the times of the first and last, s.
+fn flagged_span(samples: &[Sample], flags: &[u8], bit: u8) -> (usize, Option<f64>, Option<f64>) {
+    let mut n = 0;
+    let (mut a, mut b) = (None, None);
+    for (s, f) in samples.iter().zip(flags) {
+        if f & bit != 0 {
+            n += 1;
+            a = a.or(Some(s.t_s));
+            b = Some(s.t_s);
+        }
+    }
+    (n, a, b)
+}
+
+/// Axis `ax`'s stuck runs, longest first: one finding each for the ten longest, one for the rest.
+fn stuck_findings(
+    samples: &[Sample],
+    flags: &[u8],
+    sum: &ScreenSummary,
+    ax: usize,
+) -> Vec<Finding> {
+    let mut out = vec![];
+    let bit = screening::axis_bit(ax);
+    // A dropout (every axis exactly 0) is reported as a dropout, not also as a stuck run
+    // on each axis.
+    let stuck_here = |f: u8| f & flag::STUCK != 0 && f & bit != 0 && f & flag::ZERO == 0;
+    let mut runs = vec![];
+    let mut k = 0;
+    while k < samples.len() {
+        if stuck_here(flags[k]) {
+            let start = k;
+            while k < samples.len() && stuck_here(flags[k]) {
+                k += 1;
+            }
+            runs.push((start, k));
+        } else {
+            k += 1;
+        }
+    }
+    runs.sort_by_key(|(a, b)| std::cmp::Reverse(b - a));
+    let min_run =
+        screening::min_stuck_run(samples.len(), sum.repeat_rate[ax], &ScreenConfig::default());
+    for (i, &(a, b)) in runs.iter().enumerate() {
+        if i == 10 {
+            let rest: usize = runs[10..].iter().map(|(a, b)| b - a).sum();
+            out.push(Finding {
+                kind: Kind::Stuck,
+                message: format!(
+                    "axis {}: {} more stuck runs, {rest} samples",
+                    axis_name(ax),
+                    runs.len() - 10
+                ),
+                start_s: None,
+                end_s: None,
+                samples: rest,
+                action: Action::Rejected,
+            });
+            break;
+        }
         out.push(Finding {
-            kind: Kind::Glitch,
+            kind: Kind::Stuck,
             message: format!(
-                "{n} samples depart from their neighbours by more than {}σ of the raw noise (x {}, y {}, z {}; first at {})",
-                ScreenConfig::default().outlier_k,
-                sum.outliers[0],
-                sum.outliers[1],
-                sum.outliers[2],
-                first.join(", ")
+                "axis {} repeats {} m/s^2 for {} samples (noise makes a run of {} already improbable)",
+                axis_name(ax),
+                samples[a].specific_force[ax],
+                b - a,
+                min_run
             ),
-            start_s: a,
-            end_s: b,
-            samples: n,
+            start_s: Some(samples[a].t_s),
+            end_s: Some(samples[b - 1].t_s),
+            samples: b - a,
             action: Action::Rejected,
         });
     }
     out
+}
+
+/// The glitches (samples departing from their neighbours), with the first five times.
+fn glitch_finding(samples: &[Sample], flags: &[u8], sum: &ScreenSummary) -> Finding {
+    let (n, a, b) = flagged_span(samples, flags, flag::OUTLIER);
+    let first: Vec<String> = samples
+        .iter()
+        .zip(flags)
+        .filter(|(_, f)| **f & flag::OUTLIER != 0)
+        .take(5)
+        .map(|(s, _)| format!("{:.1} s", s.t_s))
+        .collect();
+    Finding {
+        kind: Kind::Glitch,
+        message: format!(
+            "{n} samples depart from their neighbours by more than {}σ of the raw noise (x {}, y {}, z {}; first at {})",
+            ScreenConfig::default().outlier_k,
+            sum.outliers[0],
+            sum.outliers[1],
+            sum.outliers[2],
+            first.join(", ")
+        ),
+        start_s: a,
+        end_s: b,
+        samples: n,
+        action: Action::Rejected,
+    }
 }
 
 /// Filter-period means of accepted samples (the core's averager; raw noise `sigma`).

@@ -484,25 +484,11 @@ fn local_fit(means: &[Measurement], a: usize, idx: &[usize], t: f64) -> f64 {
 /// step to 3.9e-5 m/s² (1σ), ±6 h to 3.1e-5, and found one of 2.5e-4 in 17 of 20 seeds, not 10.
 pub const REFINE_HALF_S: f64 = 6.0 * 3600.0;
 
-/// The size of a bias step at mean `c` of axis `a` and its 1σ, from the means within
-/// [`REFINE_HALF_S`] of it (not across a gap), the transitional mean and those of `other`
-/// steps' windows left out. A space-stable platform sees gravity turn at the Earth's rate: each
-/// axis is a + b·cos Ωt + c·sin Ωt, modulated slowly as the drift turns the platform, so
-/// {1, cos Ωτ, sin Ωτ} × {1, u, u², u³} (τ from the step, u = τ/half-width) plus the step fits
-/// hours of signal to far below the noise: the local cubic's 1σ (~1.3σ of a mean) would leave
-/// the later half of the run offset by a bias the model then reads as a misfit.
-pub fn refine_step(
-    means: &[Measurement],
-    a: usize,
-    c: usize,
-    other: &[usize],
-    sigma_full: f64,
-) -> Option<(f64, f64)> {
-    const N: usize = 13;
+/// The means refine_step fits about the candidate mean `c`: contiguous ones within
+/// `REFINE_HALF_S` on each side (a gap of more than 3 spacings ends a side), earlier side first
+/// (from `c` outwards), without the `other` candidates.
+fn refine_window(means: &[Measurement], c: usize, other: &[usize]) -> Vec<usize> {
     let tc = means[c].t_s;
-    let typical = typical_count(means);
-    let omega = estimator_core::units::EARTH_RATE_RADPS;
-    // Contiguous means on each side (a gap of more than 3 spacings ends a side).
     let h = if c + 1 < means.len() {
         means[c + 1].t_s - means[c].t_s
     } else {
@@ -526,6 +512,28 @@ pub fn refine_step(
         idx.push(j);
     }
     idx.retain(|j| !other.contains(j));
+    idx
+}
+
+/// The size of a bias step at mean `c` of axis `a` and its 1σ, from the means within
+/// [`REFINE_HALF_S`] of it (not across a gap), the transitional mean and those of `other`
+/// steps' windows left out. A space-stable platform sees gravity turn at the Earth's rate: each
+/// axis is a + b·cos Ωt + c·sin Ωt, modulated slowly as the drift turns the platform, so
+/// {1, cos Ωτ, sin Ωτ} × {1, u, u², u³} (τ from the step, u = τ/half-width) plus the step fits
+/// hours of signal to far below the noise: the local cubic's 1σ (~1.3σ of a mean) would leave
+/// the later half of the run offset by a bias the model then reads as a misfit.
+pub fn refine_step(
+    means: &[Measurement],
+    a: usize,
+    c: usize,
+    other: &[usize],
+    sigma_full: f64,
+) -> Option<(f64, f64)> {
+    const N: usize = 13;
+    let tc = means[c].t_s;
+    let typical = typical_count(means);
+    let omega = estimator_core::units::EARTH_RATE_RADPS;
+    let idx = refine_window(means, c, other);
     let row = |j: usize| {
         let tau = means[j].t_s - tc;
         let u = tau / REFINE_HALF_S;

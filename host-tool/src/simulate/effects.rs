@@ -200,6 +200,27 @@ fn parse_list<const N: usize>(name: &str, what: &str, s: &str) -> Result<[f64; N
     Ok(out)
 }
 
+/// Whether an effect's values `rest` come in the groups its name takes (`groups` of them,
+/// split at `:`): one list, or values and time constants or times for the drift processes.
+fn check_groups(name: &str, rest: &str, groups: usize) -> Result<(), String> {
+    let want_groups = match name {
+        "drift-markov" | "drift-sine" | "drift-transient" | "drift-step" => 2,
+        _ => 1,
+    };
+    if EFFECT_NAMES.contains(&name) && groups != want_groups {
+        return Err(
+            if ["drift-sine", "drift-transient", "drift-step"].contains(&name) {
+                format!("{name}: expected a_x,a_y,a_z:time (h), got {rest:?}")
+            } else if want_groups == 2 {
+                format!("{name}: expected sigma_x,sigma_y,sigma_z:tau_x,tau_y,tau_z, got {rest:?}")
+            } else {
+                format!("{name}: expected one comma-separated list, got {rest:?}")
+            },
+        );
+    }
+    Ok(())
+}
+
 impl FromStr for InjectedEffect {
     type Err = String;
 
@@ -212,23 +233,7 @@ impl FromStr for InjectedEffect {
         })?;
         let name = name.trim();
         let groups: Vec<&str> = rest.split(':').collect();
-        let want_groups = match name {
-            "drift-markov" | "drift-sine" | "drift-transient" | "drift-step" => 2,
-            _ => 1,
-        };
-        if EFFECT_NAMES.contains(&name) && groups.len() != want_groups {
-            return Err(
-                if ["drift-sine", "drift-transient", "drift-step"].contains(&name) {
-                    format!("{name}: expected a_x,a_y,a_z:time (h), got {rest:?}")
-                } else if want_groups == 2 {
-                    format!(
-                        "{name}: expected sigma_x,sigma_y,sigma_z:tau_x,tau_y,tau_z, got {rest:?}"
-                    )
-                } else {
-                    format!("{name}: expected one comma-separated list, got {rest:?}")
-                },
-            );
-        }
+        check_groups(name, rest, groups.len())?;
         let e = match name {
             "g2" => {
                 let v: [f64; 18] = parse_list(

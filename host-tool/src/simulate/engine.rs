@@ -124,60 +124,67 @@ impl Simulator {
             rng_markov: rng(s.seed, stream::MARKOV),
         };
         for e in &s.effects {
-            match e {
-                InjectedEffect::G2 {
-                    d_deg_h_per_mps2_sq,
-                } => {
-                    sim.has_g2 = true;
-                    for i in 0..3 {
-                        for k in 0..6 {
-                            sim.g2[i][k] += d_deg_h_per_mps2_sq[i][k] * RADPS_PER_DEG_H;
-                        }
-                    }
-                }
-                InjectedEffect::DriftTrend { k_deg_h_per_h } => {
-                    for i in 0..3 {
-                        sim.trend[i] += k_deg_h_per_h[i] * RADPS_PER_DEG_H / 3600.0;
-                    }
-                }
-                InjectedEffect::TempDrift { c_deg_h_per_c } => {
-                    sim.has_temp_drift = true;
-                    for i in 0..3 {
-                        sim.temp_coef[i] += c_deg_h_per_c[i] * RADPS_PER_DEG_H;
-                    }
-                }
-                InjectedEffect::DriftMarkov { sigma_deg_h, tau_h } => {
-                    let sigma = sigma_deg_h.map(|x| x * RADPS_PER_DEG_H);
-                    let mut m = [0.0; 3];
-                    for i in 0..3 {
-                        m[i] = sigma[i] * normal(&mut sim.rng_markov);
-                    }
-                    sim.markov.push(Markov {
-                        sigma,
-                        tau_s: tau_h.map(|x| x * 3600.0),
-                        m,
-                    });
-                }
-                InjectedEffect::DriftSine { a_deg_h, period_h } => {
-                    sim.sines
-                        .push((a_deg_h.map(|a| a * RADPS_PER_DEG_H), period_h * 3600.0));
-                }
-                InjectedEffect::DriftTransient { a_deg_h, tau_h } => {
-                    sim.transients
-                        .push((a_deg_h.map(|a| a * RADPS_PER_DEG_H), tau_h * 3600.0));
-                }
-                InjectedEffect::DriftStep { a_deg_h, t0_h } => {
-                    sim.drift_steps
-                        .push((a_deg_h.map(|a| a * RADPS_PER_DEG_H), t0_h * 3600.0));
-                }
-                InjectedEffect::AccBias { .. }
-                | InjectedEffect::AccTemp { .. }
-                | InjectedEffect::AccNorth { .. }
-                | InjectedEffect::AccScale { .. }
-                | InjectedEffect::AccMisalign { .. } => {}
-            }
+            sim.inject(e);
         }
         sim
+    }
+
+    /// Adds injected effect `e` to the truth model's gyro drift (the accelerometer effects act
+    /// on the written samples instead; a drift-markov state starts at a draw from its
+    /// stationary distribution).
+    fn inject(&mut self, e: &InjectedEffect) {
+        match e {
+            InjectedEffect::G2 {
+                d_deg_h_per_mps2_sq,
+            } => {
+                self.has_g2 = true;
+                for i in 0..3 {
+                    for k in 0..6 {
+                        self.g2[i][k] += d_deg_h_per_mps2_sq[i][k] * RADPS_PER_DEG_H;
+                    }
+                }
+            }
+            InjectedEffect::DriftTrend { k_deg_h_per_h } => {
+                for i in 0..3 {
+                    self.trend[i] += k_deg_h_per_h[i] * RADPS_PER_DEG_H / 3600.0;
+                }
+            }
+            InjectedEffect::TempDrift { c_deg_h_per_c } => {
+                self.has_temp_drift = true;
+                for i in 0..3 {
+                    self.temp_coef[i] += c_deg_h_per_c[i] * RADPS_PER_DEG_H;
+                }
+            }
+            InjectedEffect::DriftMarkov { sigma_deg_h, tau_h } => {
+                let sigma = sigma_deg_h.map(|x| x * RADPS_PER_DEG_H);
+                let mut m = [0.0; 3];
+                for i in 0..3 {
+                    m[i] = sigma[i] * normal(&mut self.rng_markov);
+                }
+                self.markov.push(Markov {
+                    sigma,
+                    tau_s: tau_h.map(|x| x * 3600.0),
+                    m,
+                });
+            }
+            InjectedEffect::DriftSine { a_deg_h, period_h } => {
+                self.sines
+                    .push((a_deg_h.map(|a| a * RADPS_PER_DEG_H), period_h * 3600.0));
+            }
+            InjectedEffect::DriftTransient { a_deg_h, tau_h } => {
+                self.transients
+                    .push((a_deg_h.map(|a| a * RADPS_PER_DEG_H), tau_h * 3600.0));
+            }
+            InjectedEffect::DriftStep { a_deg_h, t0_h } => {
+                self.drift_steps
+                    .push((a_deg_h.map(|a| a * RADPS_PER_DEG_H), t0_h * 3600.0));
+            }
+            InjectedEffect::AccBias { .. }
+            | InjectedEffect::AccTemp { .. }
+            | InjectedEffect::AccNorth { .. }
+            | InjectedEffect::AccScale { .. }
+            | InjectedEffect::AccMisalign { .. } => {}
+        }
     }
 
     /// Current time, s.

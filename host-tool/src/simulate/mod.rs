@@ -350,6 +350,18 @@ impl Scenario {
         for e in &self.effects {
             e.validate()?;
         }
+        self.validate_setup_errors()?;
+        self.validate_logger()?;
+        let n = (self.hours * 3600.0) / self.rate_s;
+        if n > 1e8 {
+            return Err(format!("{n:.0} samples is too many (at most 1e8)"));
+        }
+        Ok(())
+    }
+
+    /// The set-up errors within their ranges (clock ±1e5 ppm, latitude ±10°, gravity ±1e5 ppm,
+    /// angles ±3600″).
+    fn validate_setup_errors(&self) -> Result<(), String> {
         let se = &self.setup_errors;
         if !(se.clock_ppm.abs() < 1e5
             && se.latitude_deg.abs() <= 10.0
@@ -363,6 +375,12 @@ impl Scenario {
                 "set-up errors out of range (clock ±1e5 ppm, latitude ±10 deg, gravity ±1e5 ppm, angles ±3600 arcsec, daily drift ±1 deg/h): {se:?}"
             ));
         }
+        Ok(())
+    }
+
+    /// The logger's time-stamp jitter and rounding below a quarter of the sample interval (else
+    /// stamps could swap order), at most 15 decimals.
+    fn validate_logger(&self) -> Result<(), String> {
         let lg = &self.logger;
         let rounding = lg
             .time_decimals
@@ -375,10 +393,6 @@ impl Scenario {
                 "time-stamp jitter {} s and rounding to {:?} decimals must stay below a quarter of the interval {} s (decimals at most 15)",
                 lg.time_jitter_s, lg.time_decimals, self.rate_s
             ));
-        }
-        let n = (self.hours * 3600.0) / self.rate_s;
-        if n > 1e8 {
-            return Err(format!("{n:.0} samples is too many (at most 1e8)"));
         }
         Ok(())
     }
@@ -654,23 +668,7 @@ pub fn simulate(s: &Scenario) -> Simulation {
         let t_stamp = i as f64 * s.rate_s;
         let t = t_stamp / clock;
         let north_before = acc_north.map(|_| sim.north());
-        let a = if s.logger.averaged {
-            let half = 0.5 * s.rate_s / clock;
-            if i == 0 {
-                // [−Δ/2, Δ/2] reaches before the run's start: to second order its mean is
-                // f(0) + (A₂ − 3A₁ + 2f(0))/4, A₁ and A₂ the means over [0, Δ/2] and [Δ/2, Δ]
-                // (exact on a parabola), taken on a copy of the simulator.
-                let f0 = force_at(&mut sim, err, g, 0.0, max_sub);
-                let mut probe = sim.clone();
-                let a1 = interval_mean(&mut probe, err, g, 0.0, half, max_sub);
-                let a2 = interval_mean(&mut probe, err, g, half, 2.0 * half, max_sub);
-                f0 + (a2 - 3.0 * a1 + 2.0 * f0) / 4.0
-            } else {
-                interval_mean(&mut sim, err, g, t - half, t + half, max_sub)
-            }
-        } else {
-            force_at(&mut sim, err, g, t, max_sub)
-        };
+        let a = logged_force(&mut sim, s, err, g, i == 0, t, clock, max_sub);
         let mut z = k * a + b + acc_temp * (s.temp_profile.at(t) - s.temp_profile.at(0.0));
         if let Some(kn) = acc_north {
             // North at the sample's time; over an averaging window the mean of its ends
@@ -706,12 +704,57 @@ pub fn simulate(s: &Scenario) -> Simulation {
             temp_c,
         });
     }
+    let truth = truth_of(s, &sim, g, n);
+    let meta = metadata_of(s, g);
+    Simulation {
+        meta,
+        samples,
+        truth,
+    }
+}
+
+/// What the logger writes for the sample at true time `t` (clock rate `clock`): the mean over
+/// its interval when the logger averages (the run's `first` sample: from a second-order
+/// expansion, its interval reaching before the start), else the value at `t`.
+#[allow(clippy::too_many_arguments)]
+fn logged_force(
+    sim: &mut Simulator,
+    s: &Scenario,
+    err: SetupErrors,
+    g: f64,
+    first: bool,
+    t: f64,
+    clock: f64,
+    max_sub: f64,
+) -> Vector3<f64> {
+    if s.logger.averaged {
+        let half = 0.5 * s.rate_s / clock;
+        if first {
+            // [−Δ/2, Δ/2] reaches before the run's start: to second order its mean is
+            // f(0) + (A₂ − 3A₁ + 2f(0))/4, A₁ and A₂ the means over [0, Δ/2] and [Δ/2, Δ]
+            // (exact on a parabola), taken on a copy of the simulator.
+            let f0 = force_at(sim, err, g, 0.0, max_sub);
+            let mut probe = sim.clone();
+            let a1 = interval_mean(&mut probe, err, g, 0.0, half, max_sub);
+            let a2 = interval_mean(&mut probe, err, g, half, 2.0 * half, max_sub);
+            f0 + (a2 - 3.0 * a1 + 2.0 * f0) / 4.0
+        } else {
+            interval_mean(sim, err, g, t - half, t + half, max_sub)
+        }
+    } else {
+        force_at(sim, err, g, t, max_sub)
+    }
+}
+
+/// The truth of a simulated run: its scenario and coefficients, and the platform's state at
+/// the end (`n` samples simulated by `sim`; `g` the true gravity).
+fn truth_of(s: &Scenario, sim: &Simulator, g: f64, n: u64) -> Truth {
     let coefficients = COEFFICIENT_NAMES
         .iter()
         .zip(s.coefficients)
         .map(|(n, v)| (n.to_string(), v))
         .collect();
-    let truth = Truth {
+    Truth {
         scenario: s.clone(),
         coefficients,
         units: units(),
@@ -721,7 +764,13 @@ pub fn simulate(s: &Scenario) -> Simulation {
         final_t_s: sim.time_s(),
         final_theta_rad: sim.theta_rad(),
         final_c_0p: to_rows(&sim.c_0p()),
-    };
+    }
+}
+
+/// The recording's metadata: the stated latitude and gravity (a misstatement in
+/// `setup_errors` included), its description, and driftid's own mark.
+fn metadata_of(s: &Scenario, g: f64) -> Metadata {
+    let err = s.setup_errors;
     // Marks the file as driftid's own: a later `simulate --out` may replace it without --force
     // ([`crate::output::Made::SimulatedRecording`]); a recording of real data is never replaced.
     let (k, v) = crate::output::SIMULATED_KEY;
@@ -733,16 +782,11 @@ pub fn simulate(s: &Scenario) -> Simulation {
             format!("{tx:?}, {ty:?}, {tz:?}"),
         ));
     }
-    let meta = Metadata {
+    Metadata {
         latitude_deg: Some(s.latitude_deg),
         gravity_mps2: Some(g * (1.0 + err.gravity_ppm * 1e-6)),
         description: Some(describe(s)),
         extra,
-    };
-    Simulation {
-        meta,
-        samples,
-        truth,
     }
 }
 
