@@ -33,15 +33,17 @@ report() { # $1 = label
 }
 
 section() { "$sizetool" -A "$ELF" | awk -v s="$1" '$1 == s {print $2}'; }
-budget() { # $1 = what, $2 = measured, $3 = target, $4 = ratchet (enforced when above target)
+budget() { # $1 = what, $2 = measured, $3 = target, $4 = ratchet (the enforced limit; default: the target)
   local what=$1 v=$2 target=$3 ratchet=${4:-$3}
-  if [ "$v" -le "$target" ]; then
-    echo "budget: $what = $v <= target $target: ok"
-  elif [ "$v" -le "$ratchet" ]; then
-    echo "budget: $what = $v: over the target $target by $((v - target)) (not met; ratchet $ratchet holds)"
-  else
+  # The ratchet is enforced whether it lies above the target (a gap not yet closed) or below it
+  # (a guard against regressions where the target is met: 21 200 instructions once passed here).
+  if [ "$v" -gt "$ratchet" ]; then
     echo "qemu.sh: budget exceeded: $what = $v > ratchet $ratchet (target $target)" >&2
     exit 1
+  elif [ "$v" -le "$target" ]; then
+    echo "budget: $what = $v <= target $target (ratchet $ratchet): ok"
+  else
+    echo "budget: $what = $v: over the target $target by $((v - target)) (not met; ratchet $ratchet holds)"
   fi
 }
 
