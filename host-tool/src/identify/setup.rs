@@ -667,9 +667,9 @@ fn vertical_tilt(
 }
 
 /// A daily periodic drift marginalised at its prior (six components): the model with
-/// [`DriftDaily`] appended, linearised about the fit with the components at zero, against the
-/// fit's model by the same pass; what it adds is the difference of the parameters' covariances,
-/// and where it puts them the difference of the passes' estimates. Nothing when the model
+/// [`DriftDaily`] appended, linearised about the fit with the components at zero; what it adds
+/// is the difference of the parameters' covariances from the fit's, and where it puts them the
+/// difference of the estimates. Nothing when the model
 /// already holds `drift-daily`.
 fn daily_drift(
     effects: &[&'static dyn Effect],
@@ -705,7 +705,6 @@ fn daily_drift(
         with.push(&daily);
         Ok(pass(&build_model(prep.site, &with, cfg)?, &nominal)?)
     };
-    let base = build_model(prep.site, effects, cfg)?;
     if let Err(e) = with_daily_fits(effects, prep, cfg) {
         // Said in the set-up table, not hidden: the 1σ then lacks this term.
         let none = Contribution::new(
@@ -715,22 +714,20 @@ fn daily_drift(
         );
         return Ok((none, vec![0.0; n]));
     }
-    let (without, with) = rayon::join(|| pass(&base, &id.trajectory), || with_daily(sigma0));
-    let (without, mut with) = (without?, with?);
+    let mut with = with_daily(sigma0)?;
     let sigma = daily_size(&with, ANGLES + n, sigma0);
     if sigma > sigma0 {
         with = with_daily(sigma)?;
     }
     // The parameters where the daily drift's prior and the data put them: one Gauss–Newton step
     // of the augmented model from the converged fit (exact to first order: the drift is linear
-    // in its components), against the same pass without it.
-    let (a, b) = (
-        without.states.last().context("no states")?,
-        with.states.last().context("no states")?,
-    );
-    let shift: Vec<f64> = (0..n).map(|k| b[ANGLES + k] - a[ANGLES + k]).collect();
-    let (without, with) = (without.final_cov, with.final_cov);
-    let cov = with.view((ANGLES, ANGLES), (n, n)) - without.view((ANGLES, ANGLES), (n, n));
+    // in its components; the fit itself moves by less than its convergence tolerance, 0.01σ,
+    // in such a step), against the fit.
+    let fit = id.best();
+    let b = with.states.last().context("no states")?;
+    let shift: Vec<f64> = (0..n).map(|k| b[ANGLES + k] - fit.value[k]).collect();
+    let with = with.final_cov;
+    let cov = with.view((ANGLES, ANGLES), (n, n)) - &fit.cov;
     let label = if sigma > sigma0 {
         format!(
             "{}; the data's {}",
