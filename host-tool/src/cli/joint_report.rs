@@ -39,18 +39,7 @@ pub fn run(args: &ReportArgs) -> anyhow::Result<()> {
         Some(dir) => draw_joint_pngs(&input, dir, &mut outputs)?,
         None => vec![],
     };
-    let mut page = output::AtomicFile::create(&args.out)?;
-    std::io::Write::write_all(&mut page, html.as_bytes())
-        .map_err(|e| anyhow::anyhow!("writing {}: {e}", args.out.display()))?;
-    page.commit()?;
-    println!("wrote {}", args.out.display());
-    if let Some(dir) = &args.png {
-        let n = pngs.len();
-        for p in pngs {
-            p.commit()?;
-        }
-        println!("wrote {n} PNG plots to {}", dir.display());
-    }
+    super::report::write_page(args, &html, pngs)?;
     super::common::trusted_or(fit.reasons)
 }
 

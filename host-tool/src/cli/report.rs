@@ -152,6 +152,17 @@ pub fn run(args: &ReportArgs) -> anyhow::Result<()> {
         Some(dir) => draw_pngs(&input, dir, &mut outputs)?,
         None => vec![],
     };
+    write_page(args, &html, pngs)?;
+    super::common::trusted_or(untrusted)
+}
+
+/// Writes the page to `args.out` and commits the PNG plots drawn for `args.png` (each whole or
+/// not at all), saying what was written.
+pub fn write_page(
+    args: &ReportArgs,
+    html: &str,
+    pngs: Vec<output::TempPath>,
+) -> anyhow::Result<()> {
     let mut page = output::AtomicFile::create(&args.out)?;
     std::io::Write::write_all(&mut page, html.as_bytes())
         .map_err(|e| anyhow::anyhow!("writing {}: {e}", args.out.display()))?;
@@ -164,7 +175,7 @@ pub fn run(args: &ReportArgs) -> anyhow::Result<()> {
         }
         println!("wrote {n} PNG plots to {}", dir.display());
     }
-    super::common::trusted_or(untrusted)
+    Ok(())
 }
 
 /// The command line as given and each effects file's text (what made the page).
