@@ -192,7 +192,11 @@ pub fn print_ladder(rungs: &[Rung]) {
         let next = r
             .next
             .as_ref()
-            .map(|(e, p)| format!("{e} (p = {})", p_value(*p, f64::NAN)))
+            .map(|(e, p)| match p.is_nan() {
+                // A drift step has no score test: its profile's evidence chose it.
+                true => e.clone(),
+                false => format!("{e} (p = {})", p_value(*p, f64::NAN)),
+            })
             .unwrap_or_else(|| "—".into());
         println!(
             "  {:<40} [{:>5.3}, {:>5.3}, {:>5.3}] {:>9.3} {:>10}  {next}",

@@ -336,22 +336,40 @@ pub fn run(args: &IdentifyArgs) -> anyhow::Result<()> {
     spin.finish_and_clear();
     // drift-markov in the model: its σ and τ from the data, the model refitted there.
     let (effects, id) = crate::identify::markov::tune(&prep, &effects, &cfg, id)?;
-    let truth = match &args.truth {
-        Some(p) => Some(truth_of(&read_truth(p)?, &id)),
-        None => None,
-    };
-    // A misfit at the stated set-up: is it a step of the gyro drift at one time?
-    let step = match consistency_of(&id, &prep) {
+    let spin =
+        crate::progress::spinner("the set-up's uncertainty and the alternative explanations");
+    let progress = crate::progress::follow(&spin);
+    // The measurements at the stated set-up: a repair starts again from them.
+    let stated = prep.clone();
+    let assessed = crate::assess::assess_with(&effects, prep, &cfg, id, &progress)?;
+    // A misfit at the settled set-up: is it a step of the gyro drift at one time? Profiled on
+    // the fit the alternatives were weighed against, so its evidence is on their scale.
+    let step = match consistency_of(&assessed.id, &assessed.prep) {
         Some(c) if !c.is_consistent() => {
-            crate::diagnose::drift_step::profile(&prep, &effects, &cfg, &id)
+            progress.note(|| "profiling a gyro drift step".into());
+            crate::diagnose::drift_step::profile(&assessed.prep, &effects, &cfg, &assessed.id)
         }
         _ => None,
     };
-    let spin =
-        crate::progress::spinner("the set-up's uncertainty and the alternative explanations");
-    let assessed =
-        crate::assess::assess_with(&effects, prep, &cfg, id, &crate::progress::follow(&spin))?;
+    // A step that beats every other explanation on the same evidence is repaired: modelled from
+    // its time on, the model refitted at the stated set-up and assessed again (the set-up
+    // settled with the step, not before it: a settled latitude had bent to absorb the step).
+    let (effects, assessed, step) = match step {
+        Some(s) if s.beats(&assessed.alternatives) => {
+            let (with_step, id) =
+                crate::diagnose::drift_step::repair(&stated, &effects, &cfg, &s)?;
+            let mut prep = stated;
+            prep.findings.push(s.repaired());
+            let a = crate::assess::assess_with(&with_step, prep, &cfg, id, &progress)?;
+            (with_step, a, None)
+        }
+        other => (effects, assessed, other),
+    };
     spin.finish_and_clear();
+    let truth = match &args.truth {
+        Some(p) => Some(truth_of(&read_truth(p)?, &assessed.id)),
+        None => None,
+    };
     let model = build_model(assessed.prep.site, &effects, &cfg)?;
     let rows = rows(
         &assessed.id,

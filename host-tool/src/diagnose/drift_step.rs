@@ -79,6 +79,8 @@ impl Effect for DriftStep {
 /// The best drift step found.
 #[derive(Clone, Debug, Serialize)]
 pub struct DriftStepFit {
+    /// Time of the step, s (a measurement's time: the effect is made for it).
+    pub t0_s: f64,
     /// Time of the step, h.
     pub t0_h: f64,
     /// Step per gyro axis X, Y, Z, deg/h.
@@ -170,6 +172,7 @@ pub fn profile(
     let (t0, ..) = best(eval(&fine))?;
     let (f, size, sigma) = refit(prep, effects, cfg, id, t0)?;
     Some(DriftStepFit {
+        t0_s: t0,
         t0_h: t0 / S_PER_H,
         size_degph: size,
         sigma_degph: sigma,
@@ -210,6 +213,89 @@ fn refit(
     Some((neg2_log_evidence(&fit.innovations), size, sigma))
 }
 
+/// The drift-step effect at `t0_s`, for a model's effect list. Leaked: a model's effects are
+/// `'static` (the catalog's are statics), and a step is made once per rung or run that adopts it
+/// (24 bytes each).
+pub fn effect_at(t0_s: f64) -> &'static dyn Effect {
+    Box::leak(Box::new(DriftStep { t0_s }))
+}
+
+/// `effects` plus the step, and the model refitted with it: the repair of a run whose misfit a
+/// drift step explains best (`driftid identify`).
+pub fn repair(
+    prep: &Prepared,
+    effects: &[&'static dyn Effect],
+    cfg: &Config,
+    step: &DriftStepFit,
+) -> anyhow::Result<(Vec<&'static dyn Effect>, Identification)> {
+    let mut list = effects.to_vec();
+    list.push(effect_at(step.t0_s));
+    let model = build_model(prep.site, &list, cfg)?;
+    let id = crate::identify::identify(&model, prep, cfg)?;
+    Ok((list, id))
+}
+
+/// The drift step as a candidate of a diagnosis rung, on the evidence scale of the catalog's
+/// refits ([`crate::diagnose::select::refit_effect`]): profiled over its time, then the model
+/// with it converged, its evidence gain charged the look-elsewhere penalty of the times tried.
+/// `None` when a step is in the model already, the run is too short, or it gains nothing.
+pub fn candidate(
+    prep: &Prepared,
+    effects: &[&'static dyn Effect],
+    id: &Identification,
+    base_evidence: f64,
+    cfg: &crate::diagnose::DiagnoseConfig,
+) -> Option<crate::diagnose::select::Refit> {
+    if effects.iter().any(|e| e.name() == "drift-step") {
+        return None;
+    }
+    cfg.progress.note(|| "profiling a gyro drift step".into());
+    let fit = profile(prep, effects, &cfg.identify, id)?;
+    if fit.evidence_gain <= crate::diagnose::select::MIN_EVIDENCE_GAIN {
+        return None;
+    }
+    let penalty = 2.0 * (fit.times_tried.max(1) as f64).ln();
+    let e = effect_at(fit.t0_s);
+    let mut r =
+        crate::diagnose::select::refit_effect(prep, effects, base_evidence, e, penalty, cfg)?;
+    r.step_t0_s = Some(fit.t0_s);
+    Some(r)
+}
+
+impl DriftStepFit {
+    /// The finding of a step repaired by modelling it: when, how large, the evidence.
+    pub fn repaired(&self) -> crate::quality::Finding {
+        crate::quality::Finding {
+            kind: crate::quality::Kind::DriftStep,
+            message: format!(
+                "the gyro drift steps at t = {:.2} h by {} deg/h (evidence gain {:.1} after the look-elsewhere penalty of {} times tried, more than any other explanation); modelled from then on (`drift-step`)",
+                self.t0_h,
+                self.sizes(),
+                self.evidence_gain,
+                self.times_tried
+            ),
+            start_s: Some(self.t0_s),
+            end_s: None,
+            samples: 0,
+            action: crate::quality::Action::Repaired,
+        }
+    }
+
+    /// "X a ± σ, Y …, Z …" (deg/h).
+    fn sizes(&self) -> String {
+        (0..3)
+            .map(|i| {
+                format!(
+                    "{} {}",
+                    ["X", "Y", "Z"][i],
+                    crate::format::pm(self.size_degph[i], self.sigma_degph[i])
+                )
+            })
+            .collect::<Vec<_>>()
+            .join(", ")
+    }
+}
+
 /// `id`'s trajectory with the step sizes (the last states of an `n`-state model) at zero.
 fn extended(id: &Identification, n: usize) -> Vec<DVector<f64>> {
     id.trajectory
@@ -236,15 +322,6 @@ impl DriftStepFit {
     /// The words of a step the data prefer: when, how large on each axis, the evidence.
     pub fn reason(&self) -> String {
         let (axis, z) = self.main_axis();
-        let sizes: Vec<String> = (0..3)
-            .map(|i| {
-                format!(
-                    "{} {}",
-                    ["X", "Y", "Z"][i],
-                    crate::format::pm(self.size_degph[i], self.sigma_degph[i])
-                )
-            })
-            .collect();
         format!(
             "a gyro drift step explains the misfit (drift-step, evidence gain {:.1} after the look-elsewhere penalty of {} times tried): \
              at t = {:.2} h, largest on axis {} ({z:.0}σ); step per axis {} deg/h — not repaired: split the run at that time, or exclude it and identify each part",
@@ -252,7 +329,7 @@ impl DriftStepFit {
             self.times_tried,
             self.t0_h,
             ["X", "Y", "Z"][axis],
-            sizes.join(", ")
+            self.sizes()
         )
     }
 }

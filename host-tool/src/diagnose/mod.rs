@@ -128,7 +128,14 @@ pub fn diagnose_identified(
     let ranked = candidates::rank(&setups, &sigs, cfg.alpha);
     let confounding = candidates::confounding(&ranked, cfg.alpha);
     let mut ranking: Vec<Candidate> = ranked.into_iter().map(|(c, _)| c).collect();
-    let choice = choose(prep, effects, &id, &mut ranking, cfg);
+    let choice = choose(
+        prep,
+        effects,
+        &id,
+        &mut ranking,
+        consistency.is_consistent(),
+        cfg,
+    );
     let mut d = Diagnosis {
         model: model_names(effects),
         floor_mps2: prep.floor_mps2(),
@@ -249,13 +256,15 @@ fn series_of(meas: &[Measurement], residual: Vec<[f64; 3]>, innovations: &[Resid
     }
 }
 
-/// The leading significant candidates refitted (their refits recorded in `ranking`); the
+/// The leading significant candidates refitted (their refits recorded in `ranking`) and, when
+/// the model does not fit, a drift step profiled over its time ([`drift_step::candidate`]); the
 /// evidence chooses among them ([`select`]).
 fn choose(
     prep: &Prepared,
     effects: &[&'static dyn Effect],
     id: &Identification,
     ranking: &mut [Candidate],
+    consistent: bool,
     cfg: &DiagnoseConfig,
 ) -> Option<select::Choice> {
     let leaders: Vec<String> = ranking
@@ -265,7 +274,10 @@ fn choose(
         .map(|c| c.effect.clone())
         .collect();
     let base_evidence = select::neg2_log_evidence(id);
-    let refits = select::refit(prep, effects, base_evidence, &leaders, cfg);
+    let mut refits = select::refit(prep, effects, base_evidence, &leaders, cfg);
+    if !consistent {
+        refits.extend(drift_step::candidate(prep, effects, id, base_evidence, cfg));
+    }
     for r in &refits {
         if let Some(c) = ranking.iter_mut().find(|c| c.effect == r.effect) {
             c.refit = Some(r.clone());

@@ -48,6 +48,9 @@ pub struct Refit {
     pub consistent: bool,
     /// Estimated parameters of the added effect: (name, unit, value, 1σ).
     pub params: Vec<(String, String, f64, f64)>,
+    /// For a drift step ([`super::drift_step`]): its time, s (the effect is made for it).
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub step_t0_s: Option<f64>,
 }
 
 /// The effect chosen for the next rung, and why.
@@ -57,6 +60,9 @@ pub struct Choice {
     pub effect: String,
     /// Why it won, in words with the numbers.
     pub reason: String,
+    /// For a drift step: its time, s.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub step_t0_s: Option<f64>,
 }
 
 /// −2 ln p(y) of an identification's final forward pass.
@@ -101,7 +107,27 @@ fn refit_one(
     name: &str,
     cfg: &DiagnoseConfig,
 ) -> Option<Refit> {
-    let e = catalog::by_name(name)?;
+    refit_effect(
+        prep,
+        effects,
+        base_evidence,
+        catalog::by_name(name)?,
+        0.0,
+        cfg,
+    )
+}
+
+/// The current model plus `e`, converged, as a [`Refit`]; `penalty` (−2 ln units) is charged to
+/// its evidence gain on top of the Occam factor of its parameters (a drift step pays for the
+/// times its profile tried).
+pub fn refit_effect(
+    prep: &Prepared,
+    effects: &[&'static dyn Effect],
+    base_evidence: f64,
+    e: &'static dyn Effect,
+    penalty: f64,
+    cfg: &DiagnoseConfig,
+) -> Option<Refit> {
     let mut list = effects.to_vec();
     list.push(e);
     let model = build_model(prep.site, &list, &cfg.identify).ok()?;
@@ -119,9 +145,9 @@ fn refit_one(
     let offset = id.params.len() - e.params().len();
     let best = id.best();
     Some(Refit {
-        effect: name.to_string(),
+        effect: e.name().to_string(),
         neg2_log_evidence: ev,
-        evidence_gain: base_evidence - ev,
+        evidence_gain: base_evidence - ev - penalty,
         rms_over_floor: rms,
         nis_mean: nis,
         whiteness_p: white,
@@ -139,6 +165,7 @@ fn refit_one(
                 )
             })
             .collect(),
+        step_t0_s: None,
     })
 }
 
@@ -161,6 +188,7 @@ pub fn choose(refits: &[Refit]) -> Option<Choice> {
         if let Some(d) = det {
             if d.consistent || best.evidence_gain - d.evidence_gain < MIN_EVIDENCE_GAIN {
                 return Some(Choice {
+                    step_t0_s: d.step_t0_s,
                     effect: d.effect.clone(),
                     reason: format!(
                         "`{}` (deterministic) explains the data {}: evidence gain {:.1} against {:.1} for the stochastic catch-all `{}`, which is adopted only when no physical law does as well",
@@ -174,19 +202,27 @@ pub fn choose(refits: &[Refit]) -> Option<Choice> {
             }
         }
     }
+    let step = match best.step_t0_s {
+        Some(t0) => format!(
+            " (a step at t = {:.2} h: its time profiled, the gain net of the look-elsewhere penalty)",
+            t0 / estimator_core::units::S_PER_H
+        ),
+        None => String::new(),
+    };
     let reason = match runner {
         Some(r) => format!(
-            "`{}` has the largest evidence gain after refitting, {:.1} (−2 ln of the marginal likelihood, which charges every added parameter), against {:.1} for `{}`",
+            "`{}`{step} has the largest evidence gain after refitting, {:.1} (−2 ln of the marginal likelihood, which charges every added parameter), against {:.1} for `{}`",
             best.effect, best.evidence_gain, r.evidence_gain, r.effect
         ),
         None => format!(
-            "`{}` is the only candidate whose refit gains evidence ({:.1})",
+            "`{}`{step} is the only candidate whose refit gains evidence ({:.1})",
             best.effect, best.evidence_gain
         ),
     };
     Some(Choice {
         effect: best.effect.clone(),
         reason,
+        step_t0_s: best.step_t0_s,
     })
 }
 
@@ -204,6 +240,7 @@ mod tests {
             whiteness_p: 0.5,
             consistent,
             params: vec![],
+            step_t0_s: None,
         }
     }
 

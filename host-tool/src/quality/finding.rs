@@ -37,6 +37,8 @@ pub enum Kind {
     AccBiasStep,
     /// A short disturbance (burst) on one axis, excluded.
     Disturbance,
+    /// A step of the gyros' drift at one time, modelled (`drift-step`).
+    DriftStep,
     /// A time column in other units than seconds.
     TimeUnits,
     /// A gap in the time axis.
@@ -80,6 +82,7 @@ impl Kind {
             Kind::Step => "step",
             Kind::AccBiasStep => "acc-bias-step",
             Kind::Disturbance => "disturbance",
+            Kind::DriftStep => "drift-step",
             Kind::TimeUnits => "time-units",
             Kind::TimeGap => "time-gap",
             Kind::SampleRateChange => "sample-rate-change",

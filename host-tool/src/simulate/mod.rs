@@ -521,13 +521,18 @@ impl Truth {
                         put(format!("K{}", xyz[i]), *v);
                     }
                 }
+                // Found as a drift step (`diagnose::drift_step`) when it explains a misfit.
+                InjectedEffect::DriftStep { a_deg_h, .. } => {
+                    for (i, v) in a_deg_h.iter().enumerate() {
+                        put(format!("DS{}", xyz[i]), *v);
+                    }
+                }
                 // Outside the catalog: no parameter of an identified model is theirs.
                 InjectedEffect::DriftMarkov { .. }
                 | InjectedEffect::DriftSine { .. }
                 | InjectedEffect::DriftTransient { .. }
                 | InjectedEffect::AccTemp { .. }
-                | InjectedEffect::AccNorth { .. }
-                | InjectedEffect::DriftStep { .. } => {}
+                | InjectedEffect::AccNorth { .. } => {}
             }
         }
         out
