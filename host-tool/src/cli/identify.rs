@@ -354,8 +354,23 @@ pub fn run(args: &IdentifyArgs) -> anyhow::Result<()> {
     // A step that beats every other explanation on the same evidence is repaired: modelled from
     // its time on, the model refitted at the stated set-up and assessed again (the set-up
     // settled with the step, not before it: a settled latitude had bent to absorb the step).
+    // A warm-up transient is followed by a step too: the step must beat it as well.
+    let warmup = step
+        .as_ref()
+        .filter(|s| s.beats(&assessed.alternatives))
+        .and_then(|_| {
+            crate::diagnose::warmup::profile(&assessed.prep, &effects, &cfg, &assessed.id)
+        });
     let (effects, assessed, step) = match step {
-        Some(s) if s.beats(&assessed.alternatives) => {
+        Some(s) if !s.beats(&assessed.alternatives) => (effects, assessed, Some(s)),
+        // The warm-up explains it as well or better: the misfit stands, `diagnose` weighs both.
+        Some(s) if warmup.is_some_and(|(_, g)| {
+            g + crate::diagnose::alternatives::PLAUSIBLE_MARGIN >= s.evidence_gain
+        }) =>
+        {
+            (effects, assessed, None)
+        }
+        Some(s) => {
             let (with_step, id) =
                 crate::diagnose::drift_step::repair(&stated, &effects, &cfg, &s)?;
             let mut prep = stated;

@@ -102,8 +102,7 @@ impl DriftStepFit {
     }
 }
 
-/// −2 ln L and the step sizes' estimate with 1σ for the step at `t0_s`: one forward pass
-/// linearised about `id`'s trajectory.
+/// −2 ln L and the step sizes' estimate with 1σ for the step at `t0_s`.
 fn at(
     prep: &Prepared,
     effects: &[&'static dyn Effect],
@@ -111,9 +110,21 @@ fn at(
     id: &Identification,
     t0_s: f64,
 ) -> Option<(f64, [f64; 3], [f64; 3])> {
-    let step = DriftStep { t0_s };
+    with_extra(prep, effects, cfg, id, &DriftStep { t0_s })
+}
+
+/// −2 ln L and the estimates with 1σ of the three parameters of `extra`, appended to the model:
+/// one forward pass linearised about `id`'s trajectory (the parameters enter linearly and are
+/// small; the last filtered state is their estimate from the whole run).
+pub(crate) fn with_extra(
+    prep: &Prepared,
+    effects: &[&'static dyn Effect],
+    cfg: &Config,
+    id: &Identification,
+    extra: &dyn Effect,
+) -> Option<(f64, [f64; 3], [f64; 3])> {
     let mut list: Vec<&dyn Effect> = effects.iter().map(|e| *e as &dyn Effect).collect();
-    list.push(&step);
+    list.push(extra);
     let model = build_model(prep.site, &list, cfg).ok()?;
     let n = model.dim();
     let nominal = extended(id, n);
@@ -255,10 +266,16 @@ pub fn candidate(
         return None;
     }
     let penalty = 2.0 * (fit.times_tried.max(1) as f64).ln();
-    let e = effect_at(fit.t0_s);
-    let mut r =
-        crate::diagnose::select::refit_effect(prep, effects, base_evidence, e, penalty, cfg)?;
-    r.step_t0_s = Some(fit.t0_s);
+    let made = crate::diagnose::select::Profiled::StepAtS(fit.t0_s);
+    let mut r = crate::diagnose::select::refit_effect(
+        prep,
+        effects,
+        base_evidence,
+        made.effect(),
+        penalty,
+        cfg,
+    )?;
+    r.profiled = Some(made);
     Some(r)
 }
 

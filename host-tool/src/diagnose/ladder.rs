@@ -135,8 +135,8 @@ fn next_effect(d: &Diagnosis) -> Option<(&'static dyn Effect, f64, String)> {
         .find(|r| r.effect == c.effect)
         .map(|r| r.p_adjusted)
         .unwrap_or(f64::NAN);
-    let e = match c.step_t0_s {
-        Some(t0_s) => Some(super::drift_step::effect_at(t0_s)),
+    let e = match c.profiled {
+        Some(made) => Some(made.effect()),
         None => catalog::by_name(&c.effect),
     };
     e.map(|e| (e, p, c.reason.clone()))

@@ -26,6 +26,7 @@ pub mod statistics;
 pub mod types;
 pub mod verdict;
 pub mod wander;
+pub mod warmup;
 
 use estimator_core::effects::Effect;
 use estimator_core::residual::Residual;
@@ -257,8 +258,9 @@ fn series_of(meas: &[Measurement], residual: Vec<[f64; 3]>, innovations: &[Resid
 }
 
 /// The leading significant candidates refitted (their refits recorded in `ranking`) and, when
-/// the model does not fit, a drift step profiled over its time ([`drift_step::candidate`]); the
-/// evidence chooses among them ([`select`]).
+/// the model does not fit, a drift step profiled over its time ([`drift_step::candidate`]) and
+/// a warm-up over its time constant ([`warmup::candidate`]); the evidence chooses among them
+/// ([`select`]).
 fn choose(
     prep: &Prepared,
     effects: &[&'static dyn Effect],
@@ -277,6 +279,7 @@ fn choose(
     let mut refits = select::refit(prep, effects, base_evidence, &leaders, cfg);
     if !consistent {
         refits.extend(drift_step::candidate(prep, effects, id, base_evidence, cfg));
+        refits.extend(warmup::candidate(prep, effects, id, base_evidence, cfg));
     }
     for r in &refits {
         if let Some(c) = ranking.iter_mut().find(|c| c.effect == r.effect) {

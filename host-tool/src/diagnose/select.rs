@@ -48,9 +48,40 @@ pub struct Refit {
     pub consistent: bool,
     /// Estimated parameters of the added effect: (name, unit, value, 1σ).
     pub params: Vec<(String, String, f64, f64)>,
-    /// For a drift step ([`super::drift_step`]): its time, s (the effect is made for it).
+    /// A candidate made for this run, not a catalog effect: its profiled parameter.
     #[serde(skip_serializing_if = "Option::is_none")]
-    pub step_t0_s: Option<f64>,
+    pub profiled: Option<Profiled>,
+}
+
+/// A candidate made for this run by profiling one parameter the filter cannot estimate, its
+/// evidence charged the look-elsewhere penalty of the values tried.
+#[derive(Clone, Copy, Debug, PartialEq, Serialize)]
+#[serde(rename_all = "kebab-case")]
+pub enum Profiled {
+    /// A drift step at this time, s ([`super::drift_step`]).
+    StepAtS(f64),
+    /// A warm-up transient of this time constant, s ([`super::warmup`]).
+    WarmupTauS(f64),
+}
+
+impl Profiled {
+    /// The effect, made for this value.
+    pub fn effect(self) -> &'static dyn Effect {
+        match self {
+            Profiled::StepAtS(t0_s) => super::drift_step::effect_at(t0_s),
+            Profiled::WarmupTauS(tau_s) => super::warmup::effect_with(tau_s),
+        }
+    }
+
+    /// " (a step at t = 29.96 h: …)": the profiled value in words, for a choice's reason.
+    pub fn words(self) -> String {
+        let h = estimator_core::units::S_PER_H;
+        let what = match self {
+            Profiled::StepAtS(t0_s) => format!("a step at t = {:.2} h", t0_s / h),
+            Profiled::WarmupTauS(tau_s) => format!("a time constant of {:.2} h", tau_s / h),
+        };
+        format!(" ({what}: profiled, the gain net of the look-elsewhere penalty)")
+    }
 }
 
 /// The effect chosen for the next rung, and why.
@@ -60,9 +91,9 @@ pub struct Choice {
     pub effect: String,
     /// Why it won, in words with the numbers.
     pub reason: String,
-    /// For a drift step: its time, s.
+    /// A candidate made for this run: its profiled parameter.
     #[serde(skip_serializing_if = "Option::is_none")]
-    pub step_t0_s: Option<f64>,
+    pub profiled: Option<Profiled>,
 }
 
 /// −2 ln p(y) of an identification's final forward pass.
@@ -165,7 +196,7 @@ pub fn refit_effect(
                 )
             })
             .collect(),
-        step_t0_s: None,
+        profiled: None,
     })
 }
 
@@ -188,7 +219,7 @@ pub fn choose(refits: &[Refit]) -> Option<Choice> {
         if let Some(d) = det {
             if d.consistent || best.evidence_gain - d.evidence_gain < MIN_EVIDENCE_GAIN {
                 return Some(Choice {
-                    step_t0_s: d.step_t0_s,
+                    profiled: d.profiled,
                     effect: d.effect.clone(),
                     reason: format!(
                         "`{}` (deterministic) explains the data {}: evidence gain {:.1} against {:.1} for the stochastic catch-all `{}`, which is adopted only when no physical law does as well",
@@ -202,13 +233,7 @@ pub fn choose(refits: &[Refit]) -> Option<Choice> {
             }
         }
     }
-    let step = match best.step_t0_s {
-        Some(t0) => format!(
-            " (a step at t = {:.2} h: its time profiled, the gain net of the look-elsewhere penalty)",
-            t0 / estimator_core::units::S_PER_H
-        ),
-        None => String::new(),
-    };
+    let step = best.profiled.map(Profiled::words).unwrap_or_default();
     let reason = match runner {
         Some(r) => format!(
             "`{}`{step} has the largest evidence gain after refitting, {:.1} (−2 ln of the marginal likelihood, which charges every added parameter), against {:.1} for `{}`",
@@ -222,7 +247,7 @@ pub fn choose(refits: &[Refit]) -> Option<Choice> {
     Some(Choice {
         effect: best.effect.clone(),
         reason,
-        step_t0_s: best.step_t0_s,
+        profiled: best.profiled,
     })
 }
 
@@ -240,7 +265,7 @@ mod tests {
             whiteness_p: 0.5,
             consistent,
             params: vec![],
-            step_t0_s: None,
+            profiled: None,
         }
     }
 

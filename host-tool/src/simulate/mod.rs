@@ -527,10 +527,16 @@ impl Truth {
                         put(format!("DS{}", xyz[i]), *v);
                     }
                 }
+                // Found as a warm-up (`diagnose::warmup`): its amplitudes, exact when the
+                // profiled time constant is the injected one.
+                InjectedEffect::DriftTransient { a_deg_h, .. } => {
+                    for (i, v) in a_deg_h.iter().enumerate() {
+                        put(format!("AW{}", xyz[i]), *v);
+                    }
+                }
                 // Outside the catalog: no parameter of an identified model is theirs.
                 InjectedEffect::DriftMarkov { .. }
                 | InjectedEffect::DriftSine { .. }
-                | InjectedEffect::DriftTransient { .. }
                 | InjectedEffect::AccTemp { .. }
                 | InjectedEffect::AccNorth { .. } => {}
             }

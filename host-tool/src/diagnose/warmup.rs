@@ -1,0 +1,131 @@
+//! A gyro warm-up transient: after turn-on a gyro's drift settles exponentially,
+//! `w_i += A_i e^{−t/τ}` (deg/h), as its rotor, suspension and electronics reach their working
+//! temperatures. Without a temperature column (`temp-drift` needs one) it is a candidate of its
+//! own, found like the drift step ([`super::drift_step`]): the amplitudes enter linearly, so each
+//! time constant τ costs one forward pass linearised about the current fit, τ runs over
+//! [`TAUS_H`], and the best is refitted and charged the look-elsewhere penalty 2 ln N of the N
+//! values tried.
+
+use estimator_core::effects::{Context, Effect, Param, Partials};
+use estimator_core::units::S_PER_H;
+use nalgebra::Vector3;
+
+use super::select::{refit_effect, Profiled, Refit};
+use super::DiagnoseConfig;
+use crate::identify::{Identification, Prepared};
+
+/// Prior 1σ of each axis' amplitude, deg/h.
+pub const PRIOR_SIGMA_DEGPH: f64 = 0.01;
+/// Time constants tried, h: ×1.5 from half an hour to a day (a warm-up outlasting the run is a
+/// trend, and one shorter than a filter period or two is not seen).
+pub const TAUS_H: [f64; 10] = [0.5, 0.75, 1.125, 1.69, 2.53, 3.8, 5.7, 8.5, 12.8, 19.2];
+
+const PARAMS: [Param; 3] = [
+    Param {
+        name: "AWX",
+        unit: "deg/h",
+        prior_sigma: PRIOR_SIGMA_DEGPH,
+    },
+    Param {
+        name: "AWY",
+        unit: "deg/h",
+        prior_sigma: PRIOR_SIGMA_DEGPH,
+    },
+    Param {
+        name: "AWZ",
+        unit: "deg/h",
+        prior_sigma: PRIOR_SIGMA_DEGPH,
+    },
+];
+
+/// The warm-up transient of time constant `tau_s`: `w_i += A_i e^{−t/τ}` (deg/h).
+#[derive(Clone, Copy, Debug)]
+pub struct DriftWarmup {
+    /// Time constant, s.
+    pub tau_s: f64,
+}
+
+impl Effect for DriftWarmup {
+    fn name(&self) -> &'static str {
+        "drift-warmup"
+    }
+    fn about(&self) -> &'static str {
+        "A gyro warm-up transient: the drift settles exponentially after turn-on (the platform \
+         turns faster or slower in the first hours, then steadies)."
+    }
+    fn params(&self) -> &[Param] {
+        &PARAMS
+    }
+    fn drift(&self, p: &[f64], ctx: &Context, out: Partials<'_>) {
+        let e = (-ctx.t_s.max(0.0) / self.tau_s).exp();
+        for i in 0..3 {
+            out.value[i] += p[i] * e;
+            out.d_params[i] = Vector3::ith(i, e);
+        }
+    }
+    fn touches_drift(&self) -> bool {
+        true
+    }
+    fn touches_accel(&self) -> bool {
+        false
+    }
+}
+
+/// The warm-up effect of time constant `tau_s`, for a model's effect list. Leaked like a drift
+/// step ([`super::drift_step::effect_at`]): once per rung that adopts it.
+pub fn effect_with(tau_s: f64) -> &'static dyn Effect {
+    Box::leak(Box::new(DriftWarmup { tau_s }))
+}
+
+/// The best time constant for `id`'s fit and its evidence gain after the look-elsewhere penalty
+/// (`None`: the run is too short — under 3 h — or every pass failed).
+pub fn profile(
+    prep: &Prepared,
+    effects: &[&'static dyn Effect],
+    cfg: &crate::identify::Config,
+    id: &Identification,
+) -> Option<(f64, f64)> {
+    use rayon::prelude::*;
+    let end_s = prep.measurements.last()?.t_s;
+    if id.trajectory.len() != prep.measurements.len() + 1 || end_s < 3.0 * S_PER_H {
+        return None;
+    }
+    let base = crate::identify::neg2_log_evidence(&id.innovations);
+    let (tau_s, f) = TAUS_H
+        .par_iter()
+        .filter_map(|&h| {
+            let w = DriftWarmup { tau_s: h * S_PER_H };
+            super::drift_step::with_extra(prep, effects, cfg, id, &w).map(|(f, ..)| (w.tau_s, f))
+        })
+        .min_by(|a, b| a.1.total_cmp(&b.1))?;
+    Some((tau_s, base - f - penalty()))
+}
+
+/// The look-elsewhere penalty of the time constants tried, −2 ln units.
+pub fn penalty() -> f64 {
+    2.0 * (TAUS_H.len() as f64).ln()
+}
+
+/// The warm-up as a candidate of a diagnosis rung, on the evidence scale of the catalog's refits:
+/// its best time constant, the model with it converged. `None` when a warm-up is in the model
+/// already, the run is too short, or it gains nothing.
+pub fn candidate(
+    prep: &Prepared,
+    effects: &[&'static dyn Effect],
+    id: &Identification,
+    base_evidence: f64,
+    cfg: &DiagnoseConfig,
+) -> Option<Refit> {
+    if effects.iter().any(|e| e.name() == "drift-warmup") {
+        return None;
+    }
+    cfg.progress.note(|| "profiling a gyro warm-up".into());
+    let (tau_s, gain) = profile(prep, effects, &cfg.identify, id)?;
+    if gain <= super::select::MIN_EVIDENCE_GAIN {
+        return None;
+    }
+    let made = Profiled::WarmupTauS(tau_s);
+    let mut r = refit_effect(prep, effects, base_evidence, made.effect(), penalty(), cfg)?;
+    r.profiled = Some(made);
+    Some(r)
+}
