@@ -364,15 +364,15 @@ pub fn run(args: &IdentifyArgs) -> anyhow::Result<()> {
     let (effects, assessed, step) = match step {
         Some(s) if !s.beats(&assessed.alternatives) => (effects, assessed, Some(s)),
         // The warm-up explains it as well or better: the misfit stands, `diagnose` weighs both.
-        Some(s) if warmup.is_some_and(|(_, g)| {
-            g + crate::diagnose::alternatives::PLAUSIBLE_MARGIN >= s.evidence_gain
-        }) =>
+        Some(s)
+            if warmup.is_some_and(|(_, g)| {
+                g + crate::diagnose::alternatives::PLAUSIBLE_MARGIN >= s.evidence_gain
+            }) =>
         {
             (effects, assessed, None)
         }
         Some(s) => {
-            let (with_step, id) =
-                crate::diagnose::drift_step::repair(&stated, &effects, &cfg, &s)?;
+            let (with_step, id) = crate::diagnose::drift_step::repair(&stated, &effects, &cfg, &s)?;
             let mut prep = stated;
             prep.findings.push(s.repaired());
             let a = crate::assess::assess_with(&with_step, prep, &cfg, id, &progress)?;

@@ -3,8 +3,8 @@
 //! temperatures. Without a temperature column (`temp-drift` needs one) it is a candidate of its
 //! own, found like the drift step ([`super::drift_step`]): the amplitudes enter linearly, so each
 //! time constant τ costs one forward pass linearised about the current fit, τ runs over
-//! [`TAUS_H`], and the best is refitted and charged the look-elsewhere penalty 2 ln N of the N
-//! values tried.
+//! [`TAUS_H`] and then every ×1.05 within the best cell, and the best is refitted and charged the
+//! look-elsewhere penalty 2 ln N of the N coarse values tried.
 
 use estimator_core::effects::{Context, Effect, Param, Partials};
 use estimator_core::units::S_PER_H;
@@ -91,15 +91,28 @@ pub fn profile(
         return None;
     }
     let base = crate::identify::neg2_log_evidence(&id.innovations);
-    let (tau_s, f) = TAUS_H
-        .par_iter()
-        .filter_map(|&h| {
-            let w = DriftWarmup { tau_s: h * S_PER_H };
-            super::drift_step::with_extra(prep, effects, cfg, id, &w).map(|(f, ..)| (w.tau_s, f))
-        })
-        .min_by(|a, b| a.1.total_cmp(&b.1))?;
-    Some((tau_s, base - f - penalty()))
+    let best = |taus_h: Vec<f64>| {
+        taus_h
+            .par_iter()
+            .filter_map(|&h| {
+                let w = DriftWarmup { tau_s: h * S_PER_H };
+                super::drift_step::with_extra(prep, effects, cfg, id, &w).map(|(f, ..)| (h, f))
+            })
+            .min_by(|a, b| a.1.total_cmp(&b.1))
+    };
+    let (coarse_h, _) = best(TAUS_H.to_vec())?;
+    // Within the best coarse cell, every ×FINE_RATIO: the amplitudes depend on τ, and the coarse
+    // grid's τ left them ~3σ off on a 3-h transient.
+    let fine: Vec<f64> = (-FINE_STEPS..=FINE_STEPS)
+        .map(|k| coarse_h * FINE_RATIO.powi(k))
+        .collect();
+    let (tau_h, f) = best(fine)?;
+    Some((tau_h * S_PER_H, base - f - penalty()))
 }
+
+/// The fine grid within a coarse cell of [`TAUS_H`]: ×1.05, 8 steps each way (1.05⁸ ≈ 1.48).
+const FINE_RATIO: f64 = 1.05;
+const FINE_STEPS: i32 = 8;
 
 /// The look-elsewhere penalty of the time constants tried, −2 ln units.
 pub fn penalty() -> f64 {
