@@ -218,6 +218,17 @@ fn move_confounded(
     out
 }
 
+/// "a longer run (a day at least), " for a run under a day; "a longer run, " otherwise (a 60-h
+/// run told to last a day was the generic phrase).
+fn longer(id: &Identification) -> &'static str {
+    let hours = id.innovations.last().map_or(0.0, |r| r.t_s) / estimator_core::units::S_PER_H;
+    if hours < 24.0 {
+        "a longer run (a day at least), "
+    } else {
+        "a longer run, "
+    }
+}
+
 /// Why the alternatives make the result untrusted: one the data prefer, or a plausible one that
 /// moves a coefficient beyond its total 1σ.
 pub fn alternatives_untrusted(
@@ -262,8 +273,8 @@ pub fn alternatives_untrusted(
                 None => format!("a bench value of `{}`", a.effect),
             };
             out.push(format!(
-                "{what} explains the data {how} (evidence gain {:.1}) and would move {} by {:+.1}σ: this run cannot tell them apart — a longer run (a day at least), a second run from another orientation (`driftid plan`) or {settle} would",
-                a.evidence_gain, id.params[k].name, z
+                "{what} explains the data {how} (evidence gain {:.1}) and would move {} by {:+.1}σ: this run cannot tell them apart — {}a second run from another orientation (`driftid plan`) or {settle} would",
+                a.evidence_gain, id.params[k].name, z, longer(id)
             ));
         }
     }
