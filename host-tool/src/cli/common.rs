@@ -6,6 +6,7 @@ use std::path::Path;
 use anyhow::Context as _;
 use estimator_core::{Propagation, Sample, Site};
 
+use crate::catalog::Catalog;
 use crate::identify::{Config, Prepared};
 use crate::recording::{read_recording, RawSample};
 
@@ -307,19 +308,33 @@ fn fingerprint(samples: &[Sample]) -> u64 {
     h.finish()
 }
 
-/// Reads a recording; a bad file is an error naming file and line.
-pub fn load(path: &Path, latitude_override: Option<f64>) -> anyhow::Result<Loaded> {
-    load_with(path, latitude_override, true)
+/// Reads a recording (and the columns `catalog`'s file effects use); a bad file is an error
+/// naming file and line.
+pub fn load(
+    catalog: &Catalog,
+    path: &Path,
+    latitude_override: Option<f64>,
+) -> anyhow::Result<Loaded> {
+    load_with(catalog, path, latitude_override, true)
 }
 
 /// [`load`] without its warnings on stderr (a repaired last line, relative time stamps): for a
 /// first look at a recording that is loaded again, with its warnings, later (the joint
 /// `diagnose`'s check for the same data twice).
-pub fn load_quietly(path: &Path, latitude_override: Option<f64>) -> anyhow::Result<Loaded> {
-    load_with(path, latitude_override, false)
+pub fn load_quietly(
+    catalog: &Catalog,
+    path: &Path,
+    latitude_override: Option<f64>,
+) -> anyhow::Result<Loaded> {
+    load_with(catalog, path, latitude_override, false)
 }
 
-fn load_with(path: &Path, latitude_override: Option<f64>, warn: bool) -> anyhow::Result<Loaded> {
+fn load_with(
+    catalog: &Catalog,
+    path: &Path,
+    latitude_override: Option<f64>,
+    warn: bool,
+) -> anyhow::Result<Loaded> {
     let spin = crate::progress::spinner(&format!("reading {}", path.display()));
     let rec = read_recording(path);
     spin.finish_and_clear();
@@ -329,7 +344,7 @@ fn load_with(path: &Path, latitude_override: Option<f64>, warn: bool) -> anyhow:
     }
     relative_times(path, &mut rec.samples, &rec.lines, warn)?;
     // File effects that use extra columns of the recording (`columns = [...]`) read them now.
-    crate::effects_file::bind_columns(path, &rec.samples, &rec.lines)?;
+    catalog.bind_columns(path, &rec.samples, &rec.lines)?;
     let latitude_deg = latitude_override
         .or(rec.meta.latitude_deg)
         .with_context(|| {
@@ -389,7 +404,7 @@ pub use crate::identify::build_model;
 /// physical effect is added to explain it). Call it once a fit is inconsistent.
 pub fn name_a_wrong_latitude(
     prep: &mut Prepared,
-    effects: &[&'static dyn estimator_core::effects::Effect],
+    effects: &[&dyn estimator_core::effects::Effect],
     cfg: &Config,
     rivals: &[(String, f64)],
     progress: &Progress,
@@ -405,7 +420,8 @@ pub fn name_a_wrong_latitude(
 /// one-step evidence overstates what a refit gains.
 pub fn rivals(
     prep: &Prepared,
-    effects: &[&'static dyn estimator_core::effects::Effect],
+    catalog: &Catalog,
+    effects: &[&dyn estimator_core::effects::Effect],
     cfg: &Config,
     id: &crate::identify::Identification,
     progress: &Progress,
@@ -416,7 +432,7 @@ pub fn rivals(
         ..Default::default()
     };
     progress.note(|| "the model does not fit: weighing the catalog effects".into());
-    let Ok(alts) = crate::diagnose::alternatives::weigh(prep, effects, &dcfg, id) else {
+    let Ok(alts) = crate::diagnose::alternatives::weigh(prep, catalog, effects, &dcfg, id) else {
         return vec![];
     };
     let leaders: Vec<String> = alts
@@ -425,7 +441,7 @@ pub fn rivals(
         .map(|a| a.effect.clone())
         .collect();
     let base = crate::diagnose::select::neg2_log_evidence(id);
-    crate::diagnose::select::refit(prep, effects, base, &leaders, &dcfg)
+    crate::diagnose::select::refit(prep, catalog, effects, base, &leaders, &dcfg)
         .into_iter()
         .map(|r| (r.effect, r.evidence_gain))
         .collect()
@@ -438,7 +454,8 @@ pub fn rivals(
 /// fit ([`crate::diagnose::ladder_from`]).
 pub fn starting_fit(
     prep: &mut Prepared,
-    effects: &[&'static dyn estimator_core::effects::Effect],
+    catalog: &Catalog,
+    effects: &[&dyn estimator_core::effects::Effect],
     cfg: &mut Config,
     stated: &mut Option<Prepared>,
     progress: &Progress,
@@ -463,7 +480,7 @@ pub fn starting_fit(
     if consistent && weighed.stated_gain.is_none_or(|g| g <= 0.0) {
         return Ok(Some(id));
     }
-    let mut rivals = rivals(prep, effects, cfg, &id, progress);
+    let mut rivals = rivals(prep, catalog, effects, cfg, &id, progress);
     // On the scale of the rivals, refitted at the stated set-up: the misstatements' gains over
     // that fit, and the stated set-up within its priors as one more rival.
     let (mis, within_priors) = weighed.on_the_stated_fit();
@@ -500,7 +517,7 @@ pub fn starting_fit(
 pub fn for_assessment(
     stated: Option<Prepared>,
     prep: &Prepared,
-    effects: &[&'static dyn estimator_core::effects::Effect],
+    effects: &[&dyn estimator_core::effects::Effect],
     cfg: &Config,
     id: crate::identify::Identification,
 ) -> anyhow::Result<(Prepared, crate::identify::Identification)> {
@@ -579,10 +596,18 @@ pub fn keep_freed_memory() {
 #[cfg(all(target_os = "linux", target_env = "gnu"))]
 const PREADVISED_HEAP_BYTES: usize = 64 << 20;
 
-/// What `identify`, `diagnose` and `report` call first: loads and registers `--effects` files.
-pub fn load_effects_args(args: &ModelArgs) -> anyhow::Result<()> {
-    if !args.effects.is_empty() {
-        crate::effects_file::load_and_register(&args.effects)?;
+/// What `identify`, `diagnose`, `report` and `plan` call first: the catalog of this run, the
+/// built-in effects plus those of the `--effects` files.
+pub fn catalog(args: &ModelArgs) -> anyhow::Result<Catalog> {
+    Catalog::load(&args.effects)
+}
+
+/// How a command that used `catalog` ends: a file effect that evaluated to NaN or infinity
+/// spoiled the numbers, whatever the command concluded, so its message (naming the file, line,
+/// effect and expression) replaces the `result` (exit 2).
+pub fn unless_numeric_failure(catalog: &Catalog, result: anyhow::Result<()>) -> anyhow::Result<()> {
+    match catalog.numeric_failure() {
+        Some(failure) => Err(anyhow::anyhow!("{failure}")),
+        None => result,
     }
-    Ok(())
 }

@@ -3,7 +3,7 @@
 use estimator_core::Sample;
 
 use super::common::build_model;
-use crate::catalog;
+use crate::catalog::{self, Catalog};
 use crate::format::sci;
 use crate::identify::{identify, prepare, try_cramer_rao_bound, Config};
 use crate::simulate::{simulate, Scenario};
@@ -127,7 +127,7 @@ fn hidden_effect_story(seed: u64) -> anyhow::Result<()> {
     let prep = prepare(site, &samples, &cfg.identify)?;
     let Ladder {
         diagnoses, rungs, ..
-    } = ladder(&prep, &[catalog::paper()], &cfg)?;
+    } = ladder(&prep, Catalog::builtin(), &[catalog::paper()], &cfg)?;
     for d in &diagnoses {
         print_diagnosis(d);
         println!();

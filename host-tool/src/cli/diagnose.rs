@@ -8,7 +8,7 @@ use serde_json::json;
 use anyhow::Context as _;
 
 use super::common::{load, print_findings, trusted_or, ModelArgs};
-use crate::catalog;
+use crate::catalog::Catalog;
 use crate::diagnose::{ladder_from, DiagnoseConfig, Diagnosis, Ladder, Rung};
 use crate::format::{p_value, pm, sci};
 
@@ -259,7 +259,14 @@ const WIDENED_POINT_TO_PLAN: f64 = 3.0;
 
 /// Runs `driftid diagnose`.
 pub fn run(args: &DiagnoseArgs) -> anyhow::Result<()> {
-    super::common::load_effects_args(&args.model)?; // --effects FILE: user effects join the catalog
+    // --effects FILE: the user's effects join the catalog of this run.
+    let catalog = super::common::catalog(&args.model)?;
+    let result = run_with(args, &catalog);
+    super::common::unless_numeric_failure(&catalog, result)
+}
+
+/// `driftid diagnose` with the run's `catalog`.
+fn run_with(args: &DiagnoseArgs, catalog: &Catalog) -> anyhow::Result<()> {
     if args.truth.is_some() && args.recordings.len() > 1 {
         anyhow::bail!("--truth takes one recording (a truth file describes one simulated run)");
     }
@@ -275,9 +282,9 @@ pub fn run(args: &DiagnoseArgs) -> anyhow::Result<()> {
         }
     }
     if args.recordings.len() > 1 {
-        return super::joint::diagnose(args);
+        return super::joint::diagnose(args, catalog);
     }
-    let one = diagnose_one(&args.recordings[0], args, args.export.as_deref())?;
+    let one = diagnose_one(catalog, &args.recordings[0], args, args.export.as_deref())?;
     if args.json {
         println!("{}", serde_json::to_string_pretty(&one.json)?);
     }
@@ -312,6 +319,7 @@ pub fn ladder_untrusted(faults: &[String], diagnoses: &[Diagnosis]) -> Vec<Strin
 
 /// Diagnoses one recording: prints the text unless `--json`, returns the JSON and the reasons.
 pub fn diagnose_one(
+    catalog: &Catalog,
     recording: &std::path::Path,
     args: &DiagnoseArgs,
     export_dir: Option<&std::path::Path>,
@@ -325,7 +333,7 @@ pub fn diagnose_one(
         cfg.identify.smoother_iterations > 0,
         "diagnose needs the converged identification; drop --single-pass"
     );
-    let c = climb(recording, args, &mut cfg)?;
+    let c = climb(catalog, recording, args, &mut cfg)?;
     let mut reasons = ladder_untrusted(&c.faults, &c.diagnoses);
     reasons.extend(c.assessed.reasons.iter().cloned());
     let truth = match &args.truth {
@@ -365,12 +373,12 @@ pub fn diagnose_one(
 /// One recording taken up the model ladder and assessed: the prepared run, the data's faults,
 /// every rung's diagnosis, the final model's effects and its assessment (its honest 1σ and the
 /// alternatives it cannot rule out).
-struct Climbed {
+struct Climbed<'c> {
     prep: crate::identify::Prepared,
     faults: Vec<String>,
     diagnoses: Vec<Diagnosis>,
     rungs: Vec<Rung>,
-    final_effects: Vec<&'static dyn estimator_core::effects::Effect>,
+    final_effects: Vec<&'c dyn estimator_core::effects::Effect>,
     assessed: crate::assess::Assessment,
 }
 
@@ -378,18 +386,20 @@ struct Climbed {
 /// starting fit settles), climbs the ladder (one rung when the data have faults: a fault is
 /// named as a fault, never explained by a physical effect) and assesses the final model by
 /// the one path shared with identify and report.
-fn climb(
+fn climb<'c>(
+    catalog: &'c Catalog,
     recording: &std::path::Path,
     args: &DiagnoseArgs,
     cfg: &mut DiagnoseConfig,
-) -> anyhow::Result<Climbed> {
-    let loaded = load(recording, args.model.latitude_deg)?;
-    let effects = catalog::model_effects(&args.model.with)?;
+) -> anyhow::Result<Climbed<'c>> {
+    let loaded = load(catalog, recording, args.model.latitude_deg)?;
+    let effects = catalog.model_effects(&args.model.with)?;
     let mut prep = super::common::prepare_loaded(recording, &loaded, &cfg.identify)?;
     let mut stated = None;
     let spin = crate::progress::spinner("fitting the starting model");
     let first = super::common::starting_fit(
         &mut prep,
+        catalog,
         &effects,
         &mut cfg.identify,
         &mut stated,
@@ -407,7 +417,7 @@ fn climb(
         rungs,
         identification,
         effects: final_effects,
-    } = ladder_from(&prep, &effects, cfg, first)?;
+    } = ladder_from(&prep, catalog, &effects, cfg, first)?;
     spin.finish_and_clear();
     let spin =
         crate::progress::spinner("the set-up's uncertainty and the alternative explanations");
@@ -419,6 +429,7 @@ fn climb(
         identification,
     )?;
     let assessed = crate::assess::assess_with(
+        catalog,
         &final_effects,
         at,
         &cfg.identify,

@@ -5,7 +5,7 @@ use std::path::PathBuf;
 use serde_json::{json, Map, Value};
 
 use super::common::{build_model, load, print_findings, trusted_or, ModelArgs};
-use crate::catalog;
+use crate::catalog::Catalog;
 use crate::consistency::{assess, Consistency, Thresholds};
 use crate::format::{sci, with_sigma};
 use crate::identify::setup::Uncertainty;
@@ -318,14 +318,22 @@ pub fn coefficients_json(rows: &[Row]) -> Value {
 
 /// Runs `driftid identify`.
 pub fn run(args: &IdentifyArgs) -> anyhow::Result<()> {
-    super::common::load_effects_args(&args.model)?; // --effects FILE: user effects join the catalog
-    if args.recordings.len() > 1 {
-        return super::joint::run(args);
-    }
+    // --effects FILE: the user's effects join the catalog of this run.
+    let catalog = super::common::catalog(&args.model)?;
+    let result = if args.recordings.len() > 1 {
+        super::joint::run(args, &catalog)
+    } else {
+        run_one(args, &catalog)
+    };
+    super::common::unless_numeric_failure(&catalog, result)
+}
+
+/// `driftid identify` of one recording.
+fn run_one(args: &IdentifyArgs, catalog: &Catalog) -> anyhow::Result<()> {
     let recording = &args.recordings[0];
     let cfg = args.model.config()?;
-    let loaded = load(recording, args.model.latitude_deg)?;
-    let effects = catalog::model_effects(&args.model.with)?;
+    let loaded = load(catalog, recording, args.model.latitude_deg)?;
+    let effects = catalog.model_effects(&args.model.with)?;
     let prep = super::common::prepare_loaded(recording, &loaded, &cfg)?;
     // The raw samples are done with (the measurements are their means): freed now, their
     // ~10 MB (60 h at 1 s) serve the smoother's buffers instead of fresh pages faulted in.
@@ -349,8 +357,14 @@ pub fn run(args: &IdentifyArgs) -> anyhow::Result<()> {
     };
     let spin =
         crate::progress::spinner("the set-up's uncertainty and the alternative explanations");
-    let assessed =
-        crate::assess::assess_with(&effects, prep, &cfg, id, &crate::progress::follow(&spin))?;
+    let assessed = crate::assess::assess_with(
+        catalog,
+        &effects,
+        prep,
+        &cfg,
+        id,
+        &crate::progress::follow(&spin),
+    )?;
     spin.finish_and_clear();
     let model = build_model(assessed.prep.site, &effects, &cfg)?;
     let rows = rows(
@@ -367,7 +381,7 @@ pub fn run(args: &IdentifyArgs) -> anyhow::Result<()> {
         let spin = crate::progress::spinner("the model does not fit");
         let progress = crate::progress::follow(&spin);
         let (prep, id) = (&mut assessed.prep, &assessed.id);
-        let rivals = super::common::rivals(prep, &effects, &cfg, id, &progress);
+        let rivals = super::common::rivals(prep, catalog, &effects, &cfg, id, &progress);
         super::common::name_a_wrong_latitude(prep, &effects, &cfg, &rivals, &progress);
         spin.finish_and_clear();
     }

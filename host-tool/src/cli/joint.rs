@@ -7,7 +7,7 @@ use serde_json::{json, Map, Value};
 use super::common::{build_model, load, print_findings, trusted_or, ModelArgs};
 use super::diagnose::{diagnose_one, DiagnoseArgs};
 use super::identify::IdentifyArgs;
-use crate::catalog;
+use crate::catalog::Catalog;
 use crate::consistency::Consistency;
 use crate::format::{sci, with_sigma};
 use crate::identify::joint::{
@@ -58,6 +58,7 @@ pub fn refuse_same_data(
 /// Loads and prepares every recording; an unreadable or refused one names its file, and so does
 /// one that repeats another's data ([`refuse_same_data`]), before it is prepared.
 pub fn load_runs(
+    catalog: &Catalog,
     paths: &[PathBuf],
     latitude_deg: Option<f64>,
     cfg: &Config,
@@ -71,7 +72,7 @@ pub fn load_runs(
     paths
         .iter()
         .map(|path| {
-            let loaded = load(path, latitude_deg)?;
+            let loaded = load(catalog, path, latitude_deg)?;
             refuse_same_data(&seen, path, Some(loaded.fingerprint))?;
             seen.push((path.as_path(), loaded.fingerprint));
             let prep = super::common::prepare_loaded(path, &loaded, cfg)?;
@@ -119,8 +120,9 @@ pub fn run_consistency(fit: &RunFit, prep: &Prepared) -> Consistency {
 }
 
 /// Runs the joint `driftid identify`.
-pub fn run(args: &IdentifyArgs) -> anyhow::Result<()> {
+pub fn run(args: &IdentifyArgs, catalog: &Catalog) -> anyhow::Result<()> {
     let (out, reasons) = identify_runs(
+        catalog,
         &args.recordings,
         &args.model,
         &args.model.with,
@@ -136,7 +138,7 @@ pub fn run(args: &IdentifyArgs) -> anyhow::Result<()> {
 /// `driftid diagnose A.csv B.csv …`: each run diagnosed (its own ladder), then the effects the
 /// ladders chose, together, identified jointly from all runs. Effects with Gauss–Markov states
 /// are per run and stay out of the joint model (said so).
-pub fn diagnose(args: &DiagnoseArgs) -> anyhow::Result<()> {
+pub fn diagnose(args: &DiagnoseArgs, catalog: &Catalog) -> anyhow::Result<()> {
     // The same data twice is refused before any run is diagnosed (reading is quick next to a
     // diagnosis; each run is read again by its diagnosis).
     let mut seen: Vec<(&std::path::Path, u64)> = Vec::new();
@@ -148,7 +150,8 @@ pub fn diagnose(args: &DiagnoseArgs) -> anyhow::Result<()> {
         refuse_same_data(&before, path, None)?;
     }
     for path in &args.recordings {
-        let fingerprint = super::common::load_quietly(path, args.model.latitude_deg)?.fingerprint;
+        let fingerprint =
+            super::common::load_quietly(catalog, path, args.model.latitude_deg)?.fingerprint;
         refuse_same_data(&seen, path, Some(fingerprint))?;
         seen.push((path.as_path(), fingerprint));
     }
@@ -163,7 +166,7 @@ pub fn diagnose(args: &DiagnoseArgs) -> anyhow::Result<()> {
             .export
             .as_ref()
             .map(|d| d.join(format!("run{}", i + 1)));
-        let one = diagnose_one(path, args, dir.as_deref())?;
+        let one = diagnose_one(catalog, path, args, dir.as_deref())?;
         reasons.extend(
             one.reasons
                 .iter()
@@ -177,7 +180,9 @@ pub fn diagnose(args: &DiagnoseArgs) -> anyhow::Result<()> {
         per_run.push(one.json);
     }
     let (shared, per_run_only): (Vec<String>, Vec<String>) = with.into_iter().partition(|e| {
-        catalog::by_name(e).is_none_or(|x| (0..x.params().len()).all(|k| x.markov(k).is_none()))
+        catalog
+            .by_name(e)
+            .is_none_or(|x| (0..x.params().len()).all(|k| x.markov(k).is_none()))
     });
     if !args.json {
         println!(
@@ -192,8 +197,14 @@ pub fn diagnose(args: &DiagnoseArgs) -> anyhow::Result<()> {
             );
         }
     }
-    let (joint, joint_reasons) =
-        identify_runs(&args.recordings, &args.model, &shared, None, args.json)?;
+    let (joint, joint_reasons) = identify_runs(
+        catalog,
+        &args.recordings,
+        &args.model,
+        &shared,
+        None,
+        args.json,
+    )?;
     reasons.extend(joint_reasons);
     if args.json {
         let out = json!({
@@ -213,16 +224,17 @@ pub fn diagnose(args: &DiagnoseArgs) -> anyhow::Result<()> {
 /// metadata latitude the data contradict is refused ([`refuse_wrong_latitudes`]). `models[r]` is
 /// run r's model; `label` is what the spinner says meanwhile.
 pub fn fit_jointly(
+    catalog: &Catalog,
     runs: &mut [LoadedRun],
     models: &[estimator_core::model::Model<'_>],
-    effects: &[&'static dyn estimator_core::effects::Effect],
+    effects: &[&dyn estimator_core::effects::Effect],
     cfg: &crate::identify::Config,
     label: &str,
 ) -> anyhow::Result<JointIdentification> {
     let spin = crate::progress::spinner(label);
     let alone = fit_alone(&as_runs(models, runs), cfg);
     spin.finish_and_clear();
-    refuse_wrong_latitudes(runs, &alone, effects, cfg)?;
+    refuse_wrong_latitudes(catalog, runs, &alone, effects, cfg)?;
     let spin = crate::progress::spinner(label);
     let joint = identify_joint_from(&as_runs(models, runs), alone);
     spin.finish_and_clear();
@@ -248,9 +260,10 @@ fn as_runs<'a, 'm>(
 /// latitude is the culprit ([`super::common::name_a_wrong_latitude`]). A run whose site is wrong
 /// cannot join the others: refused, naming each such file and the data's latitude.
 fn refuse_wrong_latitudes(
+    catalog: &Catalog,
     runs: &mut [LoadedRun],
     alone: &[anyhow::Result<crate::identify::Identification>],
-    effects: &[&'static dyn estimator_core::effects::Effect],
+    effects: &[&dyn estimator_core::effects::Effect],
     cfg: &crate::identify::Config,
 ) -> anyhow::Result<()> {
     let mut named = vec![];
@@ -261,7 +274,7 @@ fn refuse_wrong_latitudes(
         if let Some(id) = misfit {
             let spin = crate::progress::spinner("the model does not fit");
             let progress = crate::progress::follow(&spin);
-            let rivals = super::common::rivals(&r.prep, effects, cfg, id, &progress);
+            let rivals = super::common::rivals(&r.prep, catalog, effects, cfg, id, &progress);
             super::common::name_a_wrong_latitude(&mut r.prep, effects, cfg, &rivals, &progress);
             spin.finish_and_clear();
         }
@@ -304,20 +317,21 @@ pub struct JointFit {
 /// Identifies `paths` jointly with the paper's model plus `with`: the fit, the bound, each run's
 /// consistency and each run's own fit assessed ([`crate::assess`]).
 pub fn fit_runs(
+    catalog: &Catalog,
     paths: &[PathBuf],
     model_args: &ModelArgs,
     with: &[String],
     truth_path: Option<&std::path::Path>,
 ) -> anyhow::Result<JointFit> {
     let cfg = model_args.config()?;
-    let effects = catalog::model_effects(with)?;
-    let mut runs = load_runs(paths, model_args.latitude_deg, &cfg)?;
+    let effects = catalog.model_effects(with)?;
+    let mut runs = load_runs(catalog, paths, model_args.latitude_deg, &cfg)?;
     let models = runs
         .iter()
         .map(|r| build_model(r.prep.site, &effects, &cfg))
         .collect::<anyhow::Result<Vec<_>>>()?;
     let label = format!("identifying {} runs jointly", runs.len());
-    let joint = fit_jointly(&mut runs, &models, &effects, &cfg, &label)?;
+    let joint = fit_jointly(catalog, &mut runs, &models, &effects, &cfg, &label)?;
     let joint_runs = as_runs(&models, &runs);
     let truth: Option<Vec<f64>> = match truth_path {
         Some(p) => {
@@ -353,7 +367,7 @@ pub fn fit_runs(
     let spin = crate::progress::spinner("each run's set-up and alternatives");
     let mut setups = vec![];
     for (r, fit) in runs.iter().zip(&joint.runs) {
-        let a = crate::assess::assess(&effects, r.prep.clone(), &cfg, fit.alone.clone())?;
+        let a = crate::assess::assess(catalog, &effects, r.prep.clone(), &cfg, fit.alone.clone())?;
         setups.push((fit.alone.best().cov.clone(), a.unc.setup_cov.clone()));
         reasons.extend(
             a.reasons
@@ -385,6 +399,7 @@ pub fn fit_runs(
 /// Identifies `paths` jointly with the paper's model plus `with` ([`fit_runs`]); prints the text
 /// unless `json` and returns the JSON object and the reasons not to trust it.
 pub fn identify_runs(
+    catalog: &Catalog,
     paths: &[PathBuf],
     model_args: &ModelArgs,
     with: &[String],
@@ -399,7 +414,7 @@ pub fn identify_runs(
         checks,
         truth,
         reasons,
-    } = fit_runs(paths, model_args, with, truth_path)?;
+    } = fit_runs(catalog, paths, model_args, with, truth_path)?;
     let mut out = to_json(&joint, &runs, &checks, &bound, &total, truth.as_deref());
     out["trusted"] = json!(reasons.is_empty());
     out["untrusted_reasons"] = json!(reasons);

@@ -4,7 +4,7 @@ use std::path::PathBuf;
 
 use super::common::{load, ModelArgs};
 use super::identify::rows;
-use crate::catalog;
+use crate::catalog::Catalog;
 use crate::diagnose::{ladder_from, DiagnoseConfig, Ladder};
 use crate::output;
 use crate::report::{draw_pngs, render_html, CoefRow, ReportInput};
@@ -36,10 +36,18 @@ pub struct ReportArgs {
 
 /// Runs `driftid report`.
 pub fn run(args: &ReportArgs) -> anyhow::Result<()> {
-    super::common::load_effects_args(&args.model)?; // --effects FILE: user effects join the catalog
-    if args.recordings.len() > 1 {
-        return super::joint_report::run(args);
-    }
+    // --effects FILE: the user's effects join the catalog of this run.
+    let catalog = super::common::catalog(&args.model)?;
+    let result = if args.recordings.len() > 1 {
+        super::joint_report::run(args, &catalog)
+    } else {
+        run_one(args, &catalog)
+    };
+    super::common::unless_numeric_failure(&catalog, result)
+}
+
+/// `driftid report` of one recording.
+fn run_one(args: &ReportArgs, catalog: &Catalog) -> anyhow::Result<()> {
     let recording = &args.recordings[0];
     // Every output is checked before the long computation, and all are drawn before any is
     // moved into place: never over an input or a file driftid did not write, and no HTML left
@@ -60,13 +68,14 @@ pub fn run(args: &ReportArgs) -> anyhow::Result<()> {
         cfg.identify.smoother_iterations > 0,
         "report needs the converged identification; drop --single-pass"
     );
-    let loaded = load(recording, args.model.latitude_deg)?;
-    let effects = catalog::model_effects(&args.model.with)?;
+    let loaded = load(catalog, recording, args.model.latitude_deg)?;
+    let effects = catalog.model_effects(&args.model.with)?;
     let mut prep = super::common::prepare_loaded(recording, &loaded, &cfg.identify)?;
     let mut stated = None;
     let spin = crate::progress::spinner("fitting the starting model");
     let first = super::common::starting_fit(
         &mut prep,
+        catalog,
         &effects,
         &mut cfg.identify,
         &mut stated,
@@ -86,7 +95,7 @@ pub fn run(args: &ReportArgs) -> anyhow::Result<()> {
         rungs,
         identification: id,
         effects: final_effects,
-    } = ladder_from(&prep, &effects, &cfg, first)?;
+    } = ladder_from(&prep, catalog, &effects, &cfg, first)?;
     spin.finish_and_clear();
     let model = super::common::build_model(prep.site, &final_effects, &cfg.identify)?;
     let untrusted = super::diagnose::ladder_untrusted(&faults, &diagnoses);
@@ -104,6 +113,7 @@ pub fn run(args: &ReportArgs) -> anyhow::Result<()> {
         reasons: assessed,
         ..
     } = crate::assess::assess_with(
+        catalog,
         &final_effects,
         at,
         &cfg.identify,

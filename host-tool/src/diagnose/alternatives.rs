@@ -28,6 +28,7 @@ use serde::Serialize;
 
 use super::candidates::{setups, Setup};
 use super::DiagnoseConfig;
+use crate::catalog::Catalog;
 use crate::identify::{build_model, Identification, Prepared};
 
 /// Evidence (−2 ln units) within which an explanation stays plausible: 6 is "strong" evidence
@@ -84,14 +85,15 @@ impl Alternative {
 /// The alternatives to the model of `effects` fitted as `id` on `prep`.
 pub fn weigh(
     prep: &Prepared,
-    effects: &[&'static dyn Effect],
+    catalog: &Catalog,
+    effects: &[&dyn Effect],
     cfg: &DiagnoseConfig,
     id: &Identification,
 ) -> anyhow::Result<Vec<Alternative>> {
     let model = build_model(prep.site, effects, &cfg.identify)?;
     let run_s = prep.measurements.last().map_or(0.0, |m| m.t_s);
     let has_temp = super::temp_varies(&prep.measurements);
-    let setups = setups(effects, model.dim(), run_s, has_temp, cfg);
+    let setups = setups(catalog, effects, model.dim(), run_s, has_temp, cfg);
     let (_, sigs, _) = super::replay(prep, &model, effects, &setups, id, cfg)?;
     let n = model.dim() - estimator_core::model::ANGLES;
     let mut out: Vec<Alternative> = setups

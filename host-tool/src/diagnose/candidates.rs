@@ -10,7 +10,7 @@ use super::score::{canonical_correlation, Signature};
 use super::types::{Candidate, Confounding, ParamEstimate};
 use super::wander::DriftWander;
 use super::DiagnoseConfig;
-use crate::catalog;
+use crate::catalog::Catalog;
 use crate::stats::{chi2_ln_sf, chi2_quantile, chi2_sf};
 
 /// Gap of −2 ln p below which two similar candidates are "not clearly separated": a ratio of
@@ -25,7 +25,7 @@ pub const DETECTION_POWER: f64 = 0.9;
 
 /// One catalog effect as a candidate for this model: the effect scored (the catalog's, or a
 /// stand-in built for this run), or why it cannot be tested.
-pub struct Setup {
+pub struct Setup<'c> {
     /// Catalog name.
     pub name: &'static str,
     /// Physical explanation.
@@ -33,12 +33,12 @@ pub struct Setup {
     /// A stand-in built for this run (`drift-markov`'s piecewise-constant blocks).
     pub effect: Option<Box<dyn Effect>>,
     /// The catalog's effect.
-    pub catalog: Option<&'static dyn Effect>,
+    pub catalog: Option<&'c dyn Effect>,
     /// Why it cannot be tested here.
     pub untestable: Option<String>,
 }
 
-impl Setup {
+impl Setup<'_> {
     /// The effect that is scored (the stand-in when there is one).
     pub fn scored(&self) -> &dyn Effect {
         match &self.effect {
@@ -50,15 +50,16 @@ impl Setup {
 
 /// Every catalog effect not among `effects`, set up for a model of `dim` states over a run of
 /// `run_s` seconds; `has_temp`: the recording has a varying temperature.
-pub fn setups(
-    effects: &[&'static dyn Effect],
+pub fn setups<'c>(
+    catalog: &'c Catalog,
+    effects: &[&dyn Effect],
     dim: usize,
     run_s: f64,
     has_temp: bool,
     cfg: &DiagnoseConfig,
-) -> Vec<Setup> {
+) -> Vec<Setup<'c>> {
     let mut out = vec![];
-    for c in catalog::candidates() {
+    for c in catalog.candidates() {
         if effects.iter().any(|e| e.name() == c.name()) {
             continue;
         }
@@ -91,8 +92,8 @@ pub fn setups(
 
 /// The model's effects followed by each testable candidate's (`None`: untestable).
 pub fn extended_lists<'a>(
-    effects: &[&'static dyn Effect],
-    setups: &'a [Setup],
+    effects: &[&'a dyn Effect],
+    setups: &'a [Setup<'a>],
 ) -> Vec<Option<Vec<&'a dyn Effect>>> {
     setups
         .iter()

@@ -104,7 +104,7 @@ impl DriftStepFit {
 /// linearised about `id`'s trajectory.
 fn at(
     prep: &Prepared,
-    effects: &[&'static dyn Effect],
+    effects: &[&dyn Effect],
     cfg: &Config,
     id: &Identification,
     t0_s: f64,
@@ -135,7 +135,7 @@ fn at(
 /// module docs); `None` when the run is too short (under 3 h) or every pass fails.
 pub fn profile(
     prep: &Prepared,
-    effects: &[&'static dyn Effect],
+    effects: &[&dyn Effect],
     cfg: &Config,
     id: &Identification,
 ) -> Option<DriftStepFit> {
@@ -183,7 +183,7 @@ pub fn profile(
 /// with their 1σ.
 fn refit(
     prep: &Prepared,
-    effects: &[&'static dyn Effect],
+    effects: &[&dyn Effect],
     cfg: &Config,
     id: &Identification,
     t0_s: f64,

@@ -38,7 +38,7 @@ pub struct LatitudeFit {
 /// cannot be fitted there).
 pub(crate) fn fit_at(
     prep: &Prepared,
-    effects: &[&'static dyn Effect],
+    effects: &[&dyn Effect],
     cfg: &Config,
     lat: f64,
 ) -> Option<(f64, Identification, Prepared)> {
@@ -49,7 +49,7 @@ pub(crate) fn fit_at(
 }
 
 /// −2 ln p(y) at latitude `lat`, +∞ where the model cannot be fitted.
-fn evidence_at(prep: &Prepared, effects: &[&'static dyn Effect], cfg: &Config, lat: f64) -> f64 {
+fn evidence_at(prep: &Prepared, effects: &[&dyn Effect], cfg: &Config, lat: f64) -> f64 {
     fit_at(prep, effects, cfg, lat).map_or(f64::INFINITY, |(e, _, _)| e)
 }
 
@@ -96,7 +96,7 @@ fn latitude_of_gravity(g: f64) -> f64 {
 /// refinement. Also returns the fit at the best latitude.
 pub fn profile(
     prep: &Prepared,
-    effects: &[&'static dyn Effect],
+    effects: &[&dyn Effect],
     cfg: &Config,
 ) -> Option<(LatitudeFit, Identification)> {
     let l0 = prep.site.latitude_rad.to_degrees();
@@ -191,7 +191,7 @@ pub fn occam(sigma_deg: f64) -> f64 {
 /// rival as good makes it a confounded finding without advice; a better rival, no finding.
 pub fn check(
     prep: &Prepared,
-    effects: &[&'static dyn Effect],
+    effects: &[&dyn Effect],
     cfg: &Config,
     rivals: &[(String, f64)],
 ) -> Option<Finding> {

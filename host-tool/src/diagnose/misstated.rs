@@ -85,7 +85,7 @@ impl Weighed {
 /// Each knob misstated, as an alternative explanation of the fit `id` of `effects` on `prep` (the
 /// stated set-up, the one `unc` was computed about). Empty for a single pass.
 pub fn weigh(
-    effects: &[&'static dyn Effect],
+    effects: &[&dyn Effect],
     prep: &Prepared,
     cfg: &Config,
     id: &Identification,
@@ -272,7 +272,7 @@ impl Laplace {
 /// its priors, its parameters `c0`).
 fn profiled_latitude(
     km: &KnobModel,
-    effects: &[&'static dyn Effect],
+    effects: &[&dyn Effect],
     prep: &Prepared,
     cfg: &Config,
     (c0, base): (&DVector<f64>, f64),

@@ -39,6 +39,7 @@ use self::statistics::per_axis;
 pub use self::statistics::{correlations, failure_windows, whiteness};
 pub use self::types::*;
 pub use self::verdict::is_consistent;
+use crate::catalog::Catalog;
 use crate::consistency::{assess, Thresholds};
 use crate::identify::smoother::temp_devs;
 use crate::identify::{
@@ -78,21 +79,23 @@ impl Default for DiagnoseConfig {
 /// Diagnoses one model (the paper's drift plus `effects`) on prepared measurements.
 pub fn diagnose(
     prep: &Prepared,
-    effects: &[&'static dyn Effect],
+    catalog: &Catalog,
+    effects: &[&dyn Effect],
     cfg: &DiagnoseConfig,
 ) -> anyhow::Result<(Diagnosis, Identification)> {
     let model = build_model(prep.site, effects, &cfg.identify)?;
     cfg.progress
         .note(|| format!("fitting {}", model_label(effects)));
     let id = identify(&model, prep, &cfg.identify)?;
-    diagnose_identified(prep, effects, cfg, id)
+    diagnose_identified(prep, catalog, effects, cfg, id)
 }
 
 /// [`diagnose`] from the model's identification on `prep` with `cfg.identify`, made already
 /// (`driftid diagnose` fits the starting model first to decide whether to profile the latitude).
 pub fn diagnose_identified(
     prep: &Prepared,
-    effects: &[&'static dyn Effect],
+    catalog: &Catalog,
+    effects: &[&dyn Effect],
     cfg: &DiagnoseConfig,
     id: Identification,
 ) -> anyhow::Result<(Diagnosis, Identification)> {
@@ -104,7 +107,7 @@ pub fn diagnose_identified(
     let meas = &prep.measurements;
     // Candidates: every catalog effect not in the model, scored from one replay.
     let run_s = meas.last().map(|m| m.t_s).unwrap_or(0.0);
-    let setups = candidates::setups(effects, model.dim(), run_s, temp_varies(meas), cfg);
+    let setups = candidates::setups(catalog, effects, model.dim(), run_s, temp_varies(meas), cfg);
     cfg.progress
         .note(|| format!("score tests of {} candidates", setups.len()));
     let (pass, sigs, _) = replay(prep, &model, effects, &setups, &id, cfg)?;
@@ -128,7 +131,7 @@ pub fn diagnose_identified(
     let ranked = candidates::rank(&setups, &sigs, cfg.alpha);
     let confounding = candidates::confounding(&ranked, cfg.alpha);
     let mut ranking: Vec<Candidate> = ranked.into_iter().map(|(c, _)| c).collect();
-    let choice = choose(prep, effects, &id, &mut ranking, cfg);
+    let choice = choose(prep, catalog, effects, &id, &mut ranking, cfg);
     let mut d = Diagnosis {
         model: model_names(effects),
         floor_mps2: prep.floor_mps2(),
@@ -156,7 +159,7 @@ pub fn diagnose_identified(
 pub(crate) fn replay(
     prep: &Prepared,
     model: &Model<'_>,
-    effects: &[&'static dyn Effect],
+    effects: &[&dyn Effect],
     setups: &[candidates::Setup],
     id: &Identification,
     cfg: &DiagnoseConfig,
@@ -195,7 +198,7 @@ pub(crate) fn temp_varies(meas: &[Measurement]) -> bool {
 
 /// The model's effects beyond the paper's drift, by name.
 /// "paper + acc-bias + …": the model of `effects` for a progress note.
-pub(super) fn model_label(effects: &[&'static dyn Effect]) -> String {
+pub(super) fn model_label(effects: &[&dyn Effect]) -> String {
     ["paper".to_string()]
         .iter()
         .chain(&model_names(effects))
@@ -204,7 +207,7 @@ pub(super) fn model_label(effects: &[&'static dyn Effect]) -> String {
         .join(" + ")
 }
 
-fn model_names(effects: &[&'static dyn Effect]) -> Vec<String> {
+fn model_names(effects: &[&dyn Effect]) -> Vec<String> {
     effects
         .iter()
         .filter(|e| e.name() != "paper")
@@ -253,7 +256,8 @@ fn series_of(meas: &[Measurement], residual: Vec<[f64; 3]>, innovations: &[Resid
 /// evidence chooses among them ([`select`]).
 fn choose(
     prep: &Prepared,
-    effects: &[&'static dyn Effect],
+    catalog: &Catalog,
+    effects: &[&dyn Effect],
     id: &Identification,
     ranking: &mut [Candidate],
     cfg: &DiagnoseConfig,
@@ -265,7 +269,7 @@ fn choose(
         .map(|c| c.effect.clone())
         .collect();
     let base_evidence = select::neg2_log_evidence(id);
-    let refits = select::refit(prep, effects, base_evidence, &leaders, cfg);
+    let refits = select::refit(prep, catalog, effects, base_evidence, &leaders, cfg);
     for r in &refits {
         if let Some(c) = ranking.iter_mut().find(|c| c.effect == r.effect) {
             c.refit = Some(r.clone());

@@ -18,7 +18,7 @@ use rayon::prelude::*;
 use serde::Serialize;
 
 use super::DiagnoseConfig;
-use crate::catalog;
+use crate::catalog::Catalog;
 use crate::consistency::{assess, Thresholds};
 use crate::identify::{build_model, identify, Identification, Prepared};
 
@@ -77,7 +77,8 @@ pub fn fit_stats(id: &Identification, prep: &Prepared, lags: usize) -> ([f64; 3]
 /// run in parallel (rayon), in the order of `names`.
 pub fn refit(
     prep: &Prepared,
-    effects: &[&'static dyn Effect],
+    catalog: &Catalog,
+    effects: &[&dyn Effect],
     base_evidence: f64,
     names: &[String],
     cfg: &DiagnoseConfig,
@@ -89,19 +90,20 @@ pub fn refit(
             let k = 1 + started.fetch_add(1, std::sync::atomic::Ordering::Relaxed);
             cfg.progress
                 .note(|| format!("refitting {name} ({k}/{})", names.len()));
-            refit_one(prep, effects, base_evidence, name, cfg)
+            refit_one(prep, catalog, effects, base_evidence, name, cfg)
         })
         .collect()
 }
 
 fn refit_one(
     prep: &Prepared,
-    effects: &[&'static dyn Effect],
+    catalog: &Catalog,
+    effects: &[&dyn Effect],
     base_evidence: f64,
     name: &str,
     cfg: &DiagnoseConfig,
 ) -> Option<Refit> {
-    let e = catalog::by_name(name)?;
+    let e = catalog.by_name(name)?;
     let mut list = effects.to_vec();
     list.push(e);
     let model = build_model(prep.site, &list, &cfg.identify).ok()?;

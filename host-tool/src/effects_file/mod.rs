@@ -98,8 +98,8 @@ pub enum AppliesTo {
     Drift,
 }
 
-/// An effect read from a TOML file. Its strings are leaked once per run (see `leak`); the
-/// registered effect itself is leaked by [`load_and_register`].
+/// An effect read from a TOML file, owned by the run's [`crate::catalog::Catalog`]. Its name and
+/// about strings are leaked once per run (see `leak`).
 #[derive(Debug)]
 pub struct UserEffect {
     name: &'static str,
@@ -426,9 +426,9 @@ fn is_identifier(s: &str) -> bool {
         && ch.all(|c| c.is_ascii_alphanumeric() || c == '_')
 }
 
-/// Leaks a string for the `&'static str` the [`Effect`] trait asks for. Acceptable on the host:
-/// a run loads each user file once, and the few names it leaks live as long as the process
-/// anyway (the catalog is static).
+/// Leaks a string for the `&'static str` the [`Effect`] trait asks for (`name`, `about`, a
+/// parameter's name and unit). Acceptable on the host: a run loads each user file once, and the
+/// catalog that holds the effect lives until the command ends.
 fn leak(s: &str) -> &'static str {
     Box::leak(s.to_owned().into_boxed_str())
 }
@@ -832,9 +832,13 @@ pub fn load_file(path: &Path) -> anyhow::Result<Vec<UserEffect>> {
     parse_effects(path, &src)
 }
 
-/// Refuses an effect whose name or a parameter's name is taken by the catalog or by an effect
-/// loaded before it (`loaded`), naming the file and line of both.
-fn check_clash(e: &UserEffect, loaded: &[&UserEffect]) -> anyhow::Result<()> {
+/// Refuses an effect whose name or a parameter's name is taken by a `builtin` effect or by an
+/// effect loaded before it (`loaded`), naming the file and line of both.
+fn check_clash(
+    e: &UserEffect,
+    loaded: &[UserEffect],
+    builtin: &[&dyn Effect],
+) -> anyhow::Result<()> {
     if let Some(o) = loaded.iter().find(|o| o.name == e.name) {
         let same = if o.name_at == e.name_at {
             " (the same file given twice)"
@@ -848,9 +852,7 @@ fn check_clash(e: &UserEffect, loaded: &[&UserEffect]) -> anyhow::Result<()> {
             o.name_at
         );
     }
-    let mut catalog = vec![crate::catalog::paper()];
-    catalog.extend(crate::catalog::candidates());
-    if catalog.iter().any(|c| c.name() == e.name) {
+    if builtin.iter().any(|c| c.name() == e.name) {
         anyhow::bail!(
             "{}: effect `{}`: the name is taken by a built-in effect of the catalog; rename it",
             e.name_at,
@@ -858,7 +860,7 @@ fn check_clash(e: &UserEffect, loaded: &[&UserEffect]) -> anyhow::Result<()> {
         );
     }
     for (p, at) in e.params.iter().zip(&e.params_at) {
-        if let Some(c) = catalog
+        if let Some(c) = builtin
             .iter()
             .find(|c| c.params().iter().any(|q| q.name == p.name))
         {
@@ -886,28 +888,18 @@ fn check_clash(e: &UserEffect, loaded: &[&UserEffect]) -> anyhow::Result<()> {
     Ok(())
 }
 
-/// The effects loaded from files in this process (for [`numeric_failure`]).
-static LOADED: std::sync::RwLock<Vec<&'static UserEffect>> = std::sync::RwLock::new(Vec::new());
-
-/// Loads the given effects files and adds their effects to the catalog for this run
-/// ([`crate::catalog::register`]): they are then candidates of the diagnosis, usable with
-/// `--with`, and reported like built-in effects. The effects are leaked (`&'static`, one per
-/// file and run). A name clash names the file and line of both definitions.
-pub fn load_and_register(paths: &[PathBuf]) -> anyhow::Result<Vec<&'static dyn Effect>> {
-    let mut loaded: Vec<&'static UserEffect> =
-        LOADED.read().unwrap_or_else(|e| e.into_inner()).clone();
-    let mut all: Vec<&'static dyn Effect> = Vec::new();
+/// Loads the given effects files, in order, for [`crate::catalog::Catalog::load`]: an effect
+/// whose name or a parameter's name is taken by one of the `builtin` effects or by an effect
+/// loaded before it is refused, naming the file and line of both.
+pub fn load_files(paths: &[PathBuf], builtin: &[&dyn Effect]) -> anyhow::Result<Vec<UserEffect>> {
+    let mut loaded: Vec<UserEffect> = Vec::new();
     for p in paths {
         for e in load_file(p)? {
-            check_clash(&e, &loaded)?;
-            let e: &'static UserEffect = Box::leak(Box::new(e));
+            check_clash(&e, &loaded, builtin)?;
             loaded.push(e);
-            all.push(e);
         }
     }
-    crate::catalog::register(all.clone())?;
-    *LOADED.write().unwrap_or_else(|e| e.into_inner()) = loaded;
-    Ok(all)
+    Ok(loaded)
 }
 
 /// The values of an effect's recording columns over one run, interpolated linearly in time.
@@ -943,11 +935,11 @@ impl ColumnTable {
 /// value is an error naming the effect and the recording's line; a second recording is refused
 /// (the effect holds one run's columns: joint fits with extra columns are not supported yet).
 pub fn bind_columns(
+    loaded: &[UserEffect],
     path: &Path,
     samples: &[crate::recording::RawSample],
     lines: &[u32],
 ) -> anyhow::Result<()> {
-    let loaded = LOADED.read().unwrap_or_else(|e| e.into_inner()).clone();
     for e in loaded.iter().filter(|e| !e.columns.is_empty()) {
         let mut table = e.table.write().unwrap_or_else(|e| e.into_inner());
         if let Some(t) = table.as_ref() {
@@ -974,10 +966,9 @@ pub fn bind_columns(
     Ok(())
 }
 
-/// The first numeric failure of an effect loaded from a file in this process (see
+/// The first numeric failure of the `loaded` file effects (see
 /// [`UserEffect::numeric_failure`]); the CLI ends with it (exit 2).
-pub fn numeric_failure() -> Option<String> {
-    let loaded = LOADED.read().unwrap_or_else(|e| e.into_inner());
+pub fn numeric_failure(loaded: &[UserEffect]) -> Option<String> {
     loaded
         .iter()
         .find_map(|e| e.numeric_failure().map(str::to_string))

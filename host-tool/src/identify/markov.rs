@@ -48,7 +48,7 @@ pub const TAU_RANGE_H: (f64, f64) = (0.25, 100.0);
 /// `id` (one forward pass).
 pub fn neg2_ln_l(
     prep: &Prepared,
-    effects: &[&'static dyn Effect],
+    effects: &[&dyn Effect],
     cfg: &Config,
     id: &Identification,
     sigma_degph: f64,
@@ -328,7 +328,7 @@ fn profile_interval(
 /// `drift-markov`): the coarse grid, then Newton on the stencil (see the module docs).
 pub fn fit(
     prep: &Prepared,
-    effects: &[&'static dyn Effect],
+    effects: &[&dyn Effect],
     cfg: &Config,
     id: &Identification,
 ) -> anyhow::Result<MarkovFit> {
@@ -406,18 +406,18 @@ pub fn interned(sigma_degph: f64, tau_h: f64) -> &'static DriftMarkov {
 /// When `effects` hold `drift-markov` and `id` is converged: σ and τ fitted ([`fit`]), the
 /// effect replaced by one with them and the model refitted there (from `id`'s trajectory).
 /// Otherwise everything is returned as it is (the clean path does no work here).
-pub fn tune(
+pub fn tune<'e>(
     prep: &Prepared,
-    effects: &[&'static dyn Effect],
+    effects: &[&'e dyn Effect],
     cfg: &Config,
     id: Identification,
-) -> anyhow::Result<(Vec<&'static dyn Effect>, Identification)> {
+) -> anyhow::Result<(Vec<&'e dyn Effect>, Identification)> {
     if id.trajectory.is_empty() || !effects.iter().any(|e| e.name() == NAME) {
         return Ok((effects.to_vec(), id));
     }
     let gm = fit(prep, effects, cfg, &id)?;
     let tuned: &'static dyn Effect = interned(gm.sigma_degph, gm.tau_h);
-    let list: Vec<&'static dyn Effect> = effects
+    let list: Vec<&dyn Effect> = effects
         .iter()
         .map(|e| if e.name() == NAME { tuned } else { *e })
         .collect();
