@@ -97,36 +97,8 @@ pub fn weigh(
             stated_gain: None,
         });
     };
-    // A gravity derived from the stated latitude (normal gravity) that the data find far off
-    // says the site is elsewhere (another latitude or altitude), not that a gravity value was
-    // mistaken: that is the latitude's profile to name ([`crate::diagnose::latitude`]).
-    let derived = (prep.site.gravity_mps2
-        - estimator_core::frames::normal_gravity(prep.site.latitude_rad))
-    .abs()
-        < 1e-12;
-    let live: Vec<usize> = (0..3)
-        .filter(|&k| km.unit[k] > 0.0 && !(k == 2 && derived))
-        .collect();
-    // The priors: as stated (first), then each live knob broad.
-    let lambdas: Vec<[f64; 3]> = std::iter::once([1.0; 3])
-        .chain(live.iter().map(|&k| {
-            let mut l = [1.0; 3];
-            l[k] = (BROAD[k] / km.unit[k]).powi(2);
-            l
-        }))
-        .collect();
-    // The latitude's own prior is uniform within its written digits: the Gaussian stand-in must
-    // not let it wander beyond them (a clock 1000 ppm off would hide in a latitude 0.06° off
-    // one written "39.1").
-    let bound = unc
-        .contributions
-        .iter()
-        .find(|c| c.source == "latitude")
-        .and_then(|c| c.bound);
-    let laplace: Vec<Laplace> = lambdas
-        .iter()
-        .map(|l| Laplace::new(km, *l, bound))
-        .collect();
+    let live = live_knobs(prep, km);
+    let laplace = hypotheses(km, &live, unc);
     let fits: Vec<anyhow::Result<(f64, DVector<f64>)>> = laplace
         .par_iter()
         .map(|l| refit(&moved(prep, l.delta(km)), effects, cfg, id))
@@ -141,60 +113,144 @@ pub fn weigh(
     } else {
         laplace[0].neg2_ln_z(fits[0].0)
     };
-    let stated = stated_values(prep);
-    let mut out = vec![];
-    for (j, &k) in live.iter().enumerate() {
-        let (l, (f, c)) = (&laplace[j + 1], &fits[j + 1]);
-        let (u, var) = (l.u[k], l.var[k]);
-        let (name, unit) = KNOBS[k];
-        let sens = km.sens.column(k);
-        let shift = c - &fits[0].1;
-        let mut a = Alternative {
-            effect: format!("{name} misstated"),
-            evidence_gain: base - l.neg2_ln_z(*f) - PRIOR_ODDS,
-            weight: 0.0,
-            reach: (0..shift.len())
-                .map(|i| shift[i].abs() + 2.0 * var.sqrt() * sens[i].abs())
-                .collect(),
-            shift: shift.iter().copied().collect(),
-            instead_of_setup: false,
-            misstated: Some(Misstated {
-                knob: name,
-                unit,
-                stated: stated[k],
-                value: stated[k] + u * km.unit[k],
-                sigma: var.sqrt() * km.unit[k],
-                index: k,
-            }),
-        };
-        // A latitude the broad prior puts beyond 3σ of where its own prior does is weighed by
-        // full fits with gravity kept: the quadratic model moves normal gravity with the latitude
-        // (4.4 ppm per 0.05°, 26σ of what the data know of gravity) and misses far from the
-        // stated latitude.
-        if k == 0 && ((u - laplace[0].u[0]) * km.unit[0]).abs() > 3.0 * var.sqrt() * km.unit[0] {
-            let start = stated[0] + u * km.unit[0];
-            // The other knobs' share of −2 ln Z under this hypothesis, so that the profiled
-            // latitude is weighed on the scale of the others.
-            let others = l.ln_det - (1.0 + l.lambda[0] * km.hess[(0, 0)] / 2.0).ln()
-                + (1..3).map(|i| l.u[i] * l.u[i] / l.lambda[i]).sum::<f64>();
-            if let Some(p) = profiled_latitude(
-                km,
-                effects,
-                prep,
-                cfg,
-                (&fits[0].1, base - others),
-                stated[0],
-                start,
-            ) {
-                a = p;
+    let reference = Reference {
+        km,
+        laplace: &laplace[0],
+        params: &fits[0].1,
+        base,
+        stated: stated_values(prep),
+    };
+    let out = live
+        .iter()
+        .enumerate()
+        .map(|(j, &k)| {
+            let (l, (f, c)) = (&laplace[j + 1], &fits[j + 1]);
+            let a = knob_misstated(&reference, k, l, *f, c);
+            if k == 0 {
+                latitude_far_off(&reference, l, effects, prep, cfg).unwrap_or(a)
+            } else {
+                a
             }
-        }
-        out.push(a);
-    }
+        })
+        .collect();
     Ok(Weighed {
         alternatives: out,
         stated_gain: (!contradicted).then_some(km.f0 - base),
     })
+}
+
+/// What each misstated knob is weighed against: the stated set-up with its priors (the first
+/// hypothesis, `laplace`), its fit's parameters, its −2 ln Z (`base`) and the stated knob values.
+struct Reference<'a> {
+    km: &'a KnobModel,
+    laplace: &'a Laplace,
+    params: &'a DVector<f64>,
+    base: f64,
+    stated: [f64; 3],
+}
+
+/// The knobs that can be misstated here (with a prior). A gravity derived from the stated
+/// latitude (normal gravity) that the data find far off says the site is elsewhere (another
+/// latitude or altitude), not that a gravity value was mistaken: that is the latitude's profile
+/// to name ([`crate::diagnose::latitude`]).
+fn live_knobs(prep: &Prepared, km: &KnobModel) -> Vec<usize> {
+    let derived = (prep.site.gravity_mps2
+        - estimator_core::frames::normal_gravity(prep.site.latitude_rad))
+    .abs()
+        < 1e-12;
+    (0..3)
+        .filter(|&k| km.unit[k] > 0.0 && !(k == 2 && derived))
+        .collect()
+}
+
+/// The hypotheses' Laplace approximations: the priors as stated (first), then each `live` knob
+/// broad. The latitude's own prior is uniform within its written digits: the Gaussian stand-in
+/// must not let it wander beyond them (a clock 1000 ppm off would hide in a latitude 0.06° off
+/// one written "39.1").
+fn hypotheses(km: &KnobModel, live: &[usize], unc: &Uncertainty) -> Vec<Laplace> {
+    let lambdas: Vec<[f64; 3]> = std::iter::once([1.0; 3])
+        .chain(live.iter().map(|&k| {
+            let mut l = [1.0; 3];
+            l[k] = (BROAD[k] / km.unit[k]).powi(2);
+            l
+        }))
+        .collect();
+    let bound = unc
+        .contributions
+        .iter()
+        .find(|c| c.source == "latitude")
+        .and_then(|c| c.bound);
+    lambdas
+        .iter()
+        .map(|l| Laplace::new(km, *l, bound))
+        .collect()
+}
+
+/// Knob `k` misstated as an alternative: its hypothesis `l` with broad prior, fitted to
+/// −2 ln p(y) `f` with parameters `c`, against the `reference`.
+fn knob_misstated(
+    reference: &Reference,
+    k: usize,
+    l: &Laplace,
+    f: f64,
+    c: &DVector<f64>,
+) -> Alternative {
+    let km = reference.km;
+    let (u, var) = (l.u[k], l.var[k]);
+    let (name, unit) = KNOBS[k];
+    let sens = km.sens.column(k);
+    let shift = c - reference.params;
+    Alternative {
+        effect: format!("{name} misstated"),
+        evidence_gain: reference.base - l.neg2_ln_z(f) - PRIOR_ODDS,
+        weight: 0.0,
+        reach: (0..shift.len())
+            .map(|i| shift[i].abs() + 2.0 * var.sqrt() * sens[i].abs())
+            .collect(),
+        shift: shift.iter().copied().collect(),
+        instead_of_setup: false,
+        misstated: Some(Misstated {
+            knob: name,
+            unit,
+            stated: reference.stated[k],
+            value: reference.stated[k] + u * km.unit[k],
+            sigma: var.sqrt() * km.unit[k],
+            index: k,
+        }),
+    }
+}
+
+/// A latitude the broad prior `l` puts beyond 3σ of where its own prior does, weighed by full
+/// fits with gravity kept ([`profiled_latitude`]); `None` when it is not that far (or the profile
+/// fails). The quadratic model moves normal gravity with the latitude (4.4 ppm per 0.05°, 26σ of
+/// what the data know of gravity) and misses far from the stated latitude.
+fn latitude_far_off(
+    reference: &Reference,
+    l: &Laplace,
+    effects: &[&dyn Effect],
+    prep: &Prepared,
+    cfg: &Config,
+) -> Option<Alternative> {
+    let km = reference.km;
+    let (u, var) = (l.u[0], l.var[0]);
+    let far = ((u - reference.laplace.u[0]) * km.unit[0]).abs() > 3.0 * var.sqrt() * km.unit[0];
+    if !far {
+        return None;
+    }
+    let start = reference.stated[0] + u * km.unit[0];
+    // The other knobs' share of −2 ln Z under this hypothesis, so that the profiled latitude is
+    // weighed on the scale of the others.
+    let others = l.ln_det - (1.0 + l.lambda[0] * km.hess[(0, 0)] / 2.0).ln()
+        + (1..3).map(|i| l.u[i] * l.u[i] / l.lambda[i]).sum::<f64>();
+    profiled_latitude(
+        km,
+        effects,
+        prep,
+        cfg,
+        (reference.params, reference.base - others),
+        reference.stated[0],
+        start,
+    )
 }
 
 /// The knobs' Laplace approximation under prior covariance Λ (diagonal, prior units).
