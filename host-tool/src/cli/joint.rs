@@ -135,12 +135,9 @@ pub fn run(args: &IdentifyArgs, catalog: &Catalog) -> anyhow::Result<()> {
     trusted_or(reasons)
 }
 
-/// `driftid diagnose A.csv B.csv …`: each run diagnosed (its own ladder), then the effects the
-/// ladders chose, together, identified jointly from all runs. Effects with Gauss–Markov states
-/// are per run and stay out of the joint model (said so).
-pub fn diagnose(args: &DiagnoseArgs, catalog: &Catalog) -> anyhow::Result<()> {
-    // The same data twice is refused before any run is diagnosed (reading is quick next to a
-    // diagnosis; each run is read again by its diagnosis).
+/// The same data twice is refused before any run is diagnosed ([`refuse_same_data`]; reading is
+/// quick next to a diagnosis; each run is read again by its diagnosis).
+fn refuse_repeated_recordings(args: &DiagnoseArgs, catalog: &Catalog) -> anyhow::Result<()> {
     let mut seen: Vec<(&std::path::Path, u64)> = Vec::new();
     for (i, path) in args.recordings.iter().enumerate() {
         let before: Vec<(&std::path::Path, u64)> = args.recordings[..i]
@@ -155,6 +152,14 @@ pub fn diagnose(args: &DiagnoseArgs, catalog: &Catalog) -> anyhow::Result<()> {
         refuse_same_data(&seen, path, Some(fingerprint))?;
         seen.push((path.as_path(), fingerprint));
     }
+    Ok(())
+}
+
+/// `driftid diagnose A.csv B.csv …`: each run diagnosed (its own ladder), then the effects the
+/// ladders chose, together, identified jointly from all runs. Effects with Gauss–Markov states
+/// are per run and stay out of the joint model (said so).
+pub fn diagnose(args: &DiagnoseArgs, catalog: &Catalog) -> anyhow::Result<()> {
+    refuse_repeated_recordings(args, catalog)?;
     let mut per_run = vec![];
     let mut reasons = vec![];
     let mut with: Vec<String> = args.model.with.clone();
