@@ -50,7 +50,7 @@ pub fn assess(
 }
 
 /// [`assess`], its steps noted to `progress` (the set-up, the alternatives, a repair).
-pub fn assess_with(
+pub(crate) fn assess_with(
     catalog: &Catalog,
     effects: &[&dyn Effect],
     prep: Prepared,
@@ -227,7 +227,7 @@ fn move_confounded(
 
 /// Why the alternatives make the result untrusted: one the data prefer, or a plausible one that
 /// moves a coefficient beyond its total 1σ.
-pub fn alternatives_untrusted(
+pub(crate) fn alternatives_untrusted(
     alts: &[Alternative],
     unc: &Uncertainty,
     id: &Identification,

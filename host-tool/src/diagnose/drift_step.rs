@@ -21,9 +21,9 @@ use crate::identify::{
 };
 
 /// Prior 1σ of each axis' step, deg/h.
-pub const PRIOR_SIGMA_DEGPH: f64 = 0.01;
+pub(crate) const PRIOR_SIGMA_DEGPH: f64 = 0.01;
 /// Spacing of the coarse profile over t₀, h.
-pub const COARSE_STEP_H: f64 = 0.5;
+pub(crate) const COARSE_STEP_H: f64 = 0.5;
 
 const PARAMS: [Param; 3] = [
     Param {
@@ -45,7 +45,7 @@ const PARAMS: [Param; 3] = [
 
 /// The drift step at `t0_s`: `w_i += s_i` for t ≥ t₀ (deg/h).
 #[derive(Clone, Copy, Debug)]
-pub struct DriftStep {
+pub(crate) struct DriftStep {
     /// Time of the step, s.
     pub t0_s: f64,
 }

@@ -16,9 +16,9 @@ use crate::quality::{Action, Finding, Kind};
 use rayon::prelude::*;
 
 /// Half-width of each searched interval ([`search_grid`]), deg.
-pub const SEARCH_HALF_WIDTH_DEG: f64 = 12.0;
+pub(crate) const SEARCH_HALF_WIDTH_DEG: f64 = 12.0;
 /// Evidence gain (−2 ln units) a latitude must bring to be reported.
-pub const MIN_GAIN: f64 = 100.0;
+pub(crate) const MIN_GAIN: f64 = 100.0;
 
 /// The data's latitude for a model: estimate, 1σ (deg), evidence gain over the metadata latitude,
 /// and whether the model is consistent there.
@@ -180,7 +180,7 @@ pub fn profile(
 /// a latitude anywhere in the profile's search windows (4 × [`SEARCH_HALF_WIDTH_DEG`]) against
 /// the data's 1σ, `2 ln(W / (√(2π) σ))` — the scale on which catalog effects are weighed
 /// ([`crate::diagnose::alternatives`]).
-pub fn occam(sigma_deg: f64) -> f64 {
+pub(crate) fn occam(sigma_deg: f64) -> f64 {
     let w = 4.0 * SEARCH_HALF_WIDTH_DEG;
     (2.0 * (w / ((2.0 * std::f64::consts::PI).sqrt() * sigma_deg.max(1e-9))).ln()).max(0.0)
 }

@@ -40,24 +40,24 @@ use crate::quality::{Action, Finding};
 /// sample interval or clock set wrong by 0.1 %: a quartz crystal is good to 20 ppm, so 1000 is a
 /// fault, not a tolerance), gravity 1000 ppm (a gravity value of another place or formula: normal
 /// gravity differs by 0.5 % from equator to pole).
-pub const BROAD: [f64; 3] = [0.5, 1000.0, 1000.0];
+pub(crate) const BROAD: [f64; 3] = [0.5, 1000.0, 1000.0];
 
 /// Prior odds against a misstated set-up, −2 ln units: a stated set-up is taken as 100 times
 /// likelier than a misstated one before the data are seen (a gross metadata fault in about one
 /// recording in a hundred). Without them a clean run's 2.5σ clock estimate would make a
 /// misstated clock a plausible rival, and on a day's run (where the data know the clock only to
 /// ~600 ppm) one in six clean runs would be distrusted for it (measured with 20:1: 7 of 40).
-pub const PRIOR_ODDS: f64 = 9.210_340_371_976_184; // 2 ln 100
+pub(crate) const PRIOR_ODDS: f64 = 9.210_340_371_976_184; // 2 ln 100
 
 /// The knobs' names and units, in the [`KnobModel`]'s order.
-pub const KNOBS: [(&str, &str); 3] = [
+pub(crate) const KNOBS: [(&str, &str); 3] = [
     ("latitude", "deg"),
     ("clock rate", "ppm"),
     ("gravity", "ppm"),
 ];
 
 /// The misstatements weighed ([`weigh`]).
-pub struct Weighed {
+pub(crate) struct Weighed {
     /// Each knob misstated, its evidence gain over the stated set-up with its priors (or over
     /// the stated set-up's own fit when the data contradict those priors).
     pub alternatives: Vec<Alternative>,
@@ -70,7 +70,7 @@ pub struct Weighed {
 impl Weighed {
     /// The alternatives with gains over the stated set-up's own fit, and the stated set-up with
     /// its priors as one more rival (what the catalog's refits at the stated set-up compare to).
-    pub fn on_the_stated_fit(mut self) -> (Vec<Alternative>, Option<(String, f64)>) {
+    pub(crate) fn on_the_stated_fit(mut self) -> (Vec<Alternative>, Option<(String, f64)>) {
         let g0 = self.stated_gain.unwrap_or(0.0);
         for a in &mut self.alternatives {
             a.evidence_gain += g0;
@@ -84,7 +84,7 @@ impl Weighed {
 
 /// Each knob misstated, as an alternative explanation of the fit `id` of `effects` on `prep` (the
 /// stated set-up, the one `unc` was computed about). Empty for a single pass.
-pub fn weigh(
+pub(crate) fn weigh(
     effects: &[&dyn Effect],
     prep: &Prepared,
     cfg: &Config,
@@ -418,7 +418,7 @@ fn stated_values(prep: &Prepared) -> [f64; 3] {
 /// set-up's) and `rivals` (further explanations' gains, e.g. refitted catalog effects): the best
 /// of all, ahead of every other by [`PLAUSIBLE_MARGIN`] and of the stated set-up by
 /// [`MIN_EVIDENCE_GAIN`].
-pub fn to_repair(alts: &[Alternative], rivals: &[(String, f64)]) -> Option<Misstated> {
+pub(crate) fn to_repair(alts: &[Alternative], rivals: &[(String, f64)]) -> Option<Misstated> {
     let best = alts
         .iter()
         .max_by(|a, b| a.evidence_gain.total_cmp(&b.evidence_gain))?;
@@ -437,7 +437,7 @@ pub fn to_repair(alts: &[Alternative], rivals: &[(String, f64)]) -> Option<Misst
 /// (a clock 1000 ppm fast and a latitude 0.07° off fit 60 h alike): the set-up is wrong, which
 /// part the run cannot tell. A finding that is not repaired (no physical effect is then added
 /// to explain it), naming them and what would tell them apart.
-pub fn confounded(mis: &[Alternative], rivals: &[(String, f64)]) -> Option<Finding> {
+pub(crate) fn confounded(mis: &[Alternative], rivals: &[(String, f64)]) -> Option<Finding> {
     let best = mis
         .iter()
         .map(|a| a.evidence_gain)

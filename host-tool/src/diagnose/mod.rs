@@ -22,8 +22,8 @@ pub mod latitude;
 pub mod misstated;
 pub mod score;
 pub mod select;
-pub mod statistics;
-pub mod types;
+pub(crate) mod statistics;
+pub(crate) mod types;
 pub mod verdict;
 pub mod wander;
 
@@ -32,11 +32,11 @@ use estimator_core::residual::Residual;
 use estimator_core::units::S_PER_H;
 use estimator_core::{Measurement, Model};
 
-pub use self::candidates::{noncentrality_for_power, SEPARATION_GAP};
 pub use self::ladder::{ladder, ladder_from, Ladder};
 use self::score::signatures;
 use self::statistics::per_axis;
-pub use self::statistics::{correlations, failure_windows, whiteness};
+pub use self::statistics::whiteness;
+pub(crate) use self::statistics::{correlations, failure_windows};
 pub use self::types::*;
 pub use self::verdict::is_consistent;
 use crate::catalog::Catalog;
@@ -92,7 +92,7 @@ pub fn diagnose(
 
 /// [`diagnose`] from the model's identification on `prep` with `cfg.identify`, made already
 /// (`driftid diagnose` fits the starting model first to decide whether to profile the latitude).
-pub fn diagnose_identified(
+pub(crate) fn diagnose_identified(
     prep: &Prepared,
     catalog: &Catalog,
     effects: &[&dyn Effect],
@@ -283,7 +283,7 @@ fn choose(
 /// as the prior (`fit`), their whiteness (`lags`), failure windows, correlations and the one
 /// definition of consistent. No candidate is scored (the joint fit tests none): the ranking is
 /// empty and the verdict says whether the joint model explains the run.
-pub fn of_joint_run(
+pub(crate) fn of_joint_run(
     prep: &Prepared,
     model: Vec<String>,
     fit: &crate::identify::joint::RunFit,

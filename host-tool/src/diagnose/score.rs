@@ -278,7 +278,7 @@ pub type Replay = (Smoothed, Vec<Option<Signature>>, Vec<f64>);
 /// extends the current one). Returns the pass and, per candidate, its signature (`None` when
 /// the extended model does not fit in the state capacity), or the pass's error (naming the
 /// update) when the linearised filter breaks down on these measurements.
-pub fn signatures(
+pub(crate) fn signatures(
     model: &Model<'_>,
     extended: &[Option<Model<'_>>],
     meas: &[Measurement],

@@ -25,9 +25,9 @@ use crate::identify::{build_model, identify, Identification, Prepared};
 /// Evidence gain (in −2 ln units) a candidate must bring to be adopted.
 pub const MIN_EVIDENCE_GAIN: f64 = 10.0;
 /// How many leading candidates are refitted at each rung.
-pub const REFIT_LEADERS: usize = 3;
+pub(crate) const REFIT_LEADERS: usize = 3;
 /// Effects that are stochastic catch-alls rather than a deterministic physical law.
-pub const STOCHASTIC: [&str; 1] = ["drift-markov"];
+pub(crate) const STOCHASTIC: [&str; 1] = ["drift-markov"];
 
 /// One candidate refitted: the current model plus that effect, converged.
 #[derive(Clone, Debug, Serialize)]
@@ -60,12 +60,12 @@ pub struct Choice {
 }
 
 /// −2 ln p(y) of an identification's final forward pass.
-pub fn neg2_log_evidence(id: &Identification) -> f64 {
+pub(crate) fn neg2_log_evidence(id: &Identification) -> f64 {
     crate::identify::neg2_log_evidence(&id.innovations)
 }
 
 /// Fit statistics of a converged identification: RMS/floor, NIS/3, Ljung–Box p.
-pub fn fit_stats(id: &Identification, prep: &Prepared, lags: usize) -> ([f64; 3], f64, f64) {
+pub(crate) fn fit_stats(id: &Identification, prep: &Prepared, lags: usize) -> ([f64; 3], f64, f64) {
     let rms = id.residual_rms_mps2(prep);
     let floor = prep.floor_mps2();
     let w: Vec<[f64; 3]> = id.innovations.iter().map(|r| r.whitened).collect();
@@ -145,7 +145,7 @@ fn refit_one(
 }
 
 /// Chooses the next effect among refits (see the module docs); `None`: nothing earns its place.
-pub fn choose(refits: &[Refit]) -> Option<Choice> {
+pub(crate) fn choose(refits: &[Refit]) -> Option<Choice> {
     let is_stochastic = |r: &Refit| STOCHASTIC.contains(&r.effect.as_str());
     let best = refits
         .iter()

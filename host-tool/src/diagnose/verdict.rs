@@ -5,7 +5,7 @@
 use super::types::Diagnosis;
 
 /// Failure windows named in an "outside the catalog" verdict (the longest list stays readable).
-pub const NAMED_WINDOWS: usize = 5;
+pub(crate) const NAMED_WINDOWS: usize = 5;
 
 /// Whether the model explains the data: the one definition ([`crate::consistency`]).
 pub fn is_consistent(d: &Diagnosis) -> bool {

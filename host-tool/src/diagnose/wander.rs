@@ -12,10 +12,10 @@ use estimator_core::effects::{Context, Effect, Param, Partials};
 use nalgebra::Vector3;
 
 /// Most blocks per axis.
-pub const MAX_BLOCKS: usize = 12;
+pub(crate) const MAX_BLOCKS: usize = 12;
 
 /// Piecewise-constant drift, `blocks` levels per axis, each `block_s` long (deg/h).
-pub struct DriftWander {
+pub(crate) struct DriftWander {
     /// Block length, s.
     pub block_s: f64,
     /// Blocks per axis.
