@@ -102,7 +102,7 @@ impl Catalog {
 
     /// Binds the recording columns the file effects use to the recording at `path`
     /// ([`crate::effects_file::bind_columns`]).
-    pub fn bind_columns(
+    pub(crate) fn bind_columns(
         &self,
         path: &Path,
         samples: &[crate::recording::RawSample],

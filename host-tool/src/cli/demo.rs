@@ -9,7 +9,7 @@ use crate::identify::{identify, prepare, try_cramer_rao_bound, Config};
 use crate::simulate::{simulate, Scenario};
 
 /// The paper's Table 2: its single-pass estimates at 60 h.
-pub const PAPER_TABLE2: [f64; 12] = [
+pub(crate) const PAPER_TABLE2: [f64; 12] = [
     0.49518, -0.10013, -0.05150, -0.04874, -0.49490, 0.05096, 0.10076, 0.04862, 0.49531, -0.05150,
     0.04953, -0.10088,
 ];

@@ -292,7 +292,7 @@ fn run_with(args: &DiagnoseArgs, catalog: &Catalog) -> anyhow::Result<()> {
 }
 
 /// The outcome of one recording's diagnosis.
-pub struct OneDiagnosis {
+pub(crate) struct OneDiagnosis {
     /// The JSON object (`--json`).
     pub json: serde_json::Value,
     /// Reasons not to trust it (empty: trusted).
@@ -303,7 +303,7 @@ pub struct OneDiagnosis {
 
 /// Why a ladder's result is not trusted (empty when it is): the data's faults, then its final
 /// model's fit — not converged, or not explaining the measurements. `diagnose` and `report` both.
-pub fn ladder_untrusted(faults: &[String], diagnoses: &[Diagnosis]) -> Vec<String> {
+pub(crate) fn ladder_untrusted(faults: &[String], diagnoses: &[Diagnosis]) -> Vec<String> {
     let mut reasons = faults.to_vec();
     if let Some(d) = diagnoses.last() {
         reasons.extend(d.convergence.and_then(|c| c.untrusted_reason()));
@@ -318,7 +318,7 @@ pub fn ladder_untrusted(faults: &[String], diagnoses: &[Diagnosis]) -> Vec<Strin
 }
 
 /// Diagnoses one recording: prints the text unless `--json`, returns the JSON and the reasons.
-pub fn diagnose_one(
+pub(crate) fn diagnose_one(
     catalog: &Catalog,
     recording: &std::path::Path,
     args: &DiagnoseArgs,
@@ -560,7 +560,7 @@ fn rung_header() -> String {
 /// Checks the files an export of `rungs` rungs writes into `dir` ([`crate::output::Outputs`]):
 /// none is one of the command's inputs (recordings, effects files), and none replaces a file
 /// driftid did not write there, unless `--force`.
-pub fn check_export(
+pub(crate) fn check_export(
     dir: &std::path::Path,
     rungs: usize,
     args: &DiagnoseArgs,

@@ -107,7 +107,7 @@ pub fn rows(
 }
 
 /// Prints the coefficient table.
-pub fn print_table(rows: &[Row], refined: bool) {
+pub(crate) fn print_table(rows: &[Row], refined: bool) {
     let has_truth = rows.iter().any(|r| r.truth.is_some());
     // Columns that do not shift with a long parameter name (`GXxx-zz`): the name column is as
     // wide as the longest name, 6 at least (the paper's names keep their layout).
@@ -168,7 +168,7 @@ pub fn print_table(rows: &[Row], refined: bool) {
 }
 
 /// Prints the run summary and weak-combination warnings.
-pub fn print_summary(id: &Identification, prep: &Prepared) {
+pub(crate) fn print_summary(id: &Identification, prep: &Prepared) {
     let rms = id.residual_rms_mps2(prep);
     let floor = prep.floor_mps2();
     let mut counts: Vec<u32> = prep.measurements.iter().map(|m| m.count).collect();
@@ -203,7 +203,7 @@ pub fn print_summary(id: &Identification, prep: &Prepared) {
 
 /// Prints the alternative explanations: evidence, weight, and the coefficients each could move
 /// beyond their total 1σ at a size the run cannot rule out.
-pub fn print_alternatives(
+pub(crate) fn print_alternatives(
     alts: &[crate::diagnose::alternatives::Alternative],
     unc: &Uncertainty,
     id: &Identification,
@@ -247,7 +247,7 @@ pub fn print_alternatives(
 }
 
 /// Prints what each set-up prior adds (the largest share over the coefficients).
-pub fn print_setup(unc: &Uncertainty, id: &Identification) {
+pub(crate) fn print_setup(unc: &Uncertainty, id: &Identification) {
     if unc.contributions.is_empty() {
         return;
     }
@@ -284,7 +284,7 @@ pub fn print_setup(unc: &Uncertainty, id: &Identification) {
 }
 
 /// The JSON object of an identification.
-pub fn to_json(rows: &[Row], id: &Identification, prep: &Prepared) -> Value {
+pub(crate) fn to_json(rows: &[Row], id: &Identification, prep: &Prepared) -> Value {
     let coefs = coefficients_json(rows);
     json!({
         "coefficients": coefs,
@@ -301,7 +301,7 @@ pub fn to_json(rows: &[Row], id: &Identification, prep: &Prepared) -> Value {
 
 /// The coefficients as JSON: value, `sigma` (noise only), `sigma_total` (the headline), the
 /// bound, the unit, the single pass and the truth where known.
-pub fn coefficients_json(rows: &[Row]) -> Value {
+pub(crate) fn coefficients_json(rows: &[Row]) -> Value {
     let mut coefs = Map::new();
     for r in rows {
         let mut o = json!({ "value": r.value, "sigma": r.sigma, "sigma_total": r.sigma_total,
@@ -502,7 +502,7 @@ pub fn consistency_of(id: &Identification, prep: &Prepared) -> Option<Consistenc
 
 /// The consistency ([`crate::consistency`]) of a fit's innovations and residual RMS against the
 /// run's noise floor.
-pub fn fit_consistency(
+pub(crate) fn fit_consistency(
     innovations: &[estimator_core::Residual],
     rms_mps2: [f64; 3],
     prep: &Prepared,

@@ -17,7 +17,7 @@ use crate::identify::{Config, Prepared};
 use crate::simulate::read_truth;
 
 /// One run as loaded and prepared.
-pub struct LoadedRun {
+pub(crate) struct LoadedRun {
     /// Where it came from.
     pub path: PathBuf,
     /// Its prepared measurements (site and chart its own).
@@ -33,7 +33,7 @@ pub struct LoadedRun {
 /// fingerprints ([`super::common::Loaded::fingerprint`]); `path` is the next one. The same file
 /// under any name (hard or symbolic link, another spelling) is caught without reading it
 /// (`fingerprint` `None`); a copy, or the same samples in another file, by the fingerprint.
-pub fn refuse_same_data(
+pub(crate) fn refuse_same_data(
     seen: &[(&std::path::Path, u64)],
     path: &std::path::Path,
     fingerprint: Option<u64>,
@@ -57,7 +57,7 @@ pub fn refuse_same_data(
 
 /// Loads and prepares every recording; an unreadable or refused one names its file, and so does
 /// one that repeats another's data ([`refuse_same_data`]), before it is prepared.
-pub fn load_runs(
+pub(crate) fn load_runs(
     catalog: &Catalog,
     paths: &[PathBuf],
     latitude_deg: Option<f64>,
@@ -89,7 +89,11 @@ pub fn load_runs(
 /// Why a joint fit is not trusted, run by run (empty when it is): each run's data faults, its
 /// own fit not converged, the joint model not explaining it (`checks`, [`run_consistency`]).
 /// `identify` with several runs and `plan` both.
-pub fn runs_untrusted(runs: &[LoadedRun], fits: &[RunFit], checks: &[Consistency]) -> Vec<String> {
+pub(crate) fn runs_untrusted(
+    runs: &[LoadedRun],
+    fits: &[RunFit],
+    checks: &[Consistency],
+) -> Vec<String> {
     let mut reasons = vec![];
     for ((r, c), fit) in runs.iter().zip(checks).zip(fits) {
         let name = r.path.display();
@@ -115,7 +119,7 @@ pub fn runs_untrusted(runs: &[LoadedRun], fits: &[RunFit], checks: &[Consistency
 
 /// The consistency of one run under the joint estimate (the one definition in
 /// [`crate::consistency`]).
-pub fn run_consistency(fit: &RunFit, prep: &Prepared) -> Consistency {
+pub(crate) fn run_consistency(fit: &RunFit, prep: &Prepared) -> Consistency {
     super::identify::fit_consistency(&fit.innovations, fit.residual_rms_mps2(prep), prep)
 }
 
@@ -228,7 +232,7 @@ pub fn diagnose(args: &DiagnoseArgs, catalog: &Catalog) -> anyhow::Result<()> {
 /// The runs identified jointly ([`crate::identify::joint`]), each first alone; a run whose
 /// metadata latitude the data contradict is refused ([`refuse_wrong_latitudes`]). `models[r]` is
 /// run r's model; `label` is what the spinner says meanwhile.
-pub fn fit_jointly(
+pub(crate) fn fit_jointly(
     catalog: &Catalog,
     runs: &mut [LoadedRun],
     models: &[estimator_core::model::Model<'_>],
@@ -302,7 +306,7 @@ fn refuse_wrong_latitudes(
 
 /// A joint fit as `identify` makes it, ready to print or show: the runs, the fit, its bound,
 /// each run's consistency under it, the truth and the reasons not to trust it.
-pub struct JointFit {
+pub(crate) struct JointFit {
     /// The runs as loaded and prepared.
     pub runs: Vec<LoadedRun>,
     /// The joint identification.
@@ -321,7 +325,7 @@ pub struct JointFit {
 
 /// Identifies `paths` jointly with the paper's model plus `with`: the fit, the bound, each run's
 /// consistency and each run's own fit assessed ([`crate::assess`]).
-pub fn fit_runs(
+pub(crate) fn fit_runs(
     catalog: &Catalog,
     paths: &[PathBuf],
     model_args: &ModelArgs,
@@ -403,7 +407,7 @@ pub fn fit_runs(
 
 /// Identifies `paths` jointly with the paper's model plus `with` ([`fit_runs`]); prints the text
 /// unless `json` and returns the JSON object and the reasons not to trust it.
-pub fn identify_runs(
+pub(crate) fn identify_runs(
     catalog: &Catalog,
     paths: &[PathBuf],
     model_args: &ModelArgs,
@@ -438,7 +442,7 @@ pub fn identify_runs(
 }
 
 /// The weakest combination of one axis in words (`identify`'s line and the report's).
-pub fn weak_line(w: &crate::identify::WeakCombination) -> String {
+pub(crate) fn weak_line(w: &crate::identify::WeakCombination) -> String {
     format!(
         "axis {}: weakest combination {:.2}·D0 {:+.2}·g·Dx {:+.2}·g·Dy {:+.2}·g·Dz, 1σ {} deg/h, {:.1}x weaker than the next{}",
         w.axis,
@@ -457,7 +461,7 @@ pub fn weak_line(w: &crate::identify::WeakCombination) -> String {
 }
 
 /// Initial orientation in degrees, rounded to 1e-4 deg.
-pub fn deg3(a: &[f64; 3]) -> [f64; 3] {
+pub(crate) fn deg3(a: &[f64; 3]) -> [f64; 3] {
     a.map(|v| (v.to_degrees() * 1e4).round() / 1e4)
 }
 

@@ -190,7 +190,7 @@ fn coefficient_rows(table: &[super::identify::Row], truth: Option<&[f64]>) -> Ve
 
 /// Writes the page to `args.out` and commits the PNG plots drawn for `args.png` (each whole or
 /// not at all), saying what was written.
-pub fn write_page(
+pub(crate) fn write_page(
     args: &ReportArgs,
     html: &str,
     pngs: Vec<output::TempPath>,

@@ -32,7 +32,7 @@ use crate::recording::{
 };
 
 /// Opens the link for one connection; `Ok(None)`: no more connections (tests).
-pub type Opener<'a, P> = dyn FnMut() -> anyhow::Result<Option<P>> + 'a;
+pub(crate) type Opener<'a, P> = dyn FnMut() -> anyhow::Result<Option<P>> + 'a;
 
 /// How to record.
 #[derive(Clone, Debug)]

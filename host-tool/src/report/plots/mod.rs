@@ -218,7 +218,7 @@ fn spec(kind: Kind, input: &ReportInput) -> (&'static str, String, u32) {
 
 /// A figure of the joint report that shows run `r` alone (`kind` one of [`one_diagnosis`]'s,
 /// its index `r`), titled with the run's `label`: `None` for the other kinds.
-pub fn run_figure(kind: Kind, label: &str) -> Option<Figure> {
+pub(crate) fn run_figure(kind: Kind, label: &str) -> Option<Figure> {
     let (stem, what, h, r) = one_diagnosis(kind)?;
     Some(Figure {
         kind,
@@ -299,7 +299,7 @@ pub enum Source<'a> {
 }
 
 /// The figure, drawn from `src`, as an SVG document.
-pub fn svg_of(fig: &Figure, src: Source<'_>) -> Result<String> {
+pub(crate) fn svg_of(fig: &Figure, src: Source<'_>) -> Result<String> {
     ensure_font();
     let mut out = String::new();
     {
@@ -311,7 +311,7 @@ pub fn svg_of(fig: &Figure, src: Source<'_>) -> Result<String> {
 }
 
 /// The figure, drawn from `src`, as a PNG file.
-pub fn png_of(fig: &Figure, src: Source<'_>, path: &Path) -> Result<()> {
+pub(crate) fn png_of(fig: &Figure, src: Source<'_>, path: &Path) -> Result<()> {
     ensure_font();
     let root = BitMapBackend::new(path, fig.size).into_drawing_area();
     draw(&root, fig, src)?;
@@ -366,6 +366,6 @@ fn draw_one<DB: DrawingBackend>(
 }
 
 /// p-value for display ([`crate::format::p_value`]: one style everywhere).
-pub fn fmt_p(p: f64) -> String {
+pub(crate) fn fmt_p(p: f64) -> String {
     crate::format::p_value(p, f64::NAN)
 }
