@@ -66,28 +66,29 @@ use toml::Spanned;
 
 use crate::recording::{read_columns, REQUIRED_COLUMNS, TEMP_COLUMN};
 use expr::{eval, excerpt, parse_expr, AxisExpr, HIDDEN_PREFIX};
-pub use expr::{MAX_DERIVATIVE_WORK, MAX_EXPR_CHARS, MAX_EXPR_DEPTH, VARIABLES};
+pub(crate) use expr::{MAX_DERIVATIVE_WORK, VARIABLES};
+pub use expr::{MAX_EXPR_CHARS, MAX_EXPR_DEPTH};
 
 const AXES: [&str; 3] = ["x", "y", "z"];
 
 /// Largest effects file read, bytes: a file of effects is a few kilobytes; `/dev/zero` or a
 /// recording given by mistake must not be read forever or into memory whole.
-pub const MAX_FILE_BYTES: u64 = 1 << 20;
+pub(crate) const MAX_FILE_BYTES: u64 = 1 << 20;
 /// Most effects in one file (each is a candidate the diagnosis refits).
-pub const MAX_EFFECTS: usize = 32;
+pub(crate) const MAX_EFFECTS: usize = 32;
 /// Most parameters of one effect: the filter holds [`MAX_STATES`] states, the paper's model takes
 /// [`PAPER_STATES`] of them (1 000 parameters grew to 24 GB, 3 000 overflowed the stack).
-pub const MAX_PARAMS: usize = MAX_STATES - PAPER_STATES;
+pub(crate) const MAX_PARAMS: usize = MAX_STATES - PAPER_STATES;
 /// Range of a parameter's `prior_sigma` (in its unit): the filter squares it and multiplies
 /// squares (1e300 overflowed to infinity, 1e-300 underflows to zero). What the prior lets the
 /// effect reach is checked too ([`MAX_REACH`]).
-pub const PRIOR_SIGMA_RANGE: (f64, f64) = (1e-30, 1e30);
+pub(crate) const PRIOR_SIGMA_RANGE: (f64, f64) = (1e-30, 1e30);
 /// Largest size an effect may reach, in its unit (m/s² or deg/h): its value, or a derivative
 /// times the parameter's prior 1σ. The recording reader refuses |a| > 1000 m/s²; a paper run
 /// identified with an effect of reach 1e6 m/s², failed at 1e7 (not positive definite).
-pub const MAX_REACH: f64 = 1e3;
+pub(crate) const MAX_REACH: f64 = 1e3;
 /// Most recording columns one effect may use.
-pub const MAX_COLUMNS: usize = 8;
+pub(crate) const MAX_COLUMNS: usize = 8;
 
 /// Where an effect adds its value.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
@@ -131,10 +132,6 @@ impl UserEffect {
     /// The file the effect was defined in.
     pub fn file(&self) -> &Path {
         &self.file
-    }
-    /// `file:line:column` of the effect's name.
-    pub fn location(&self) -> &str {
-        &self.name_at
     }
     /// The expression of axis `i` (0 = x) as written in the file.
     pub fn expression(&self, i: usize) -> &str {
@@ -891,7 +888,10 @@ fn check_clash(
 /// Loads the given effects files, in order, for [`crate::catalog::Catalog::load`]: an effect
 /// whose name or a parameter's name is taken by one of the `builtin` effects or by an effect
 /// loaded before it is refused, naming the file and line of both.
-pub fn load_files(paths: &[PathBuf], builtin: &[&dyn Effect]) -> anyhow::Result<Vec<UserEffect>> {
+pub(crate) fn load_files(
+    paths: &[PathBuf],
+    builtin: &[&dyn Effect],
+) -> anyhow::Result<Vec<UserEffect>> {
     let mut loaded: Vec<UserEffect> = Vec::new();
     for p in paths {
         for e in load_file(p)? {
@@ -934,7 +934,7 @@ impl ColumnTable {
 /// the columns by header name. Nothing to do without such effects. A missing column or a bad
 /// value is an error naming the effect and the recording's line; a second recording is refused
 /// (the effect holds one run's columns: joint fits with extra columns are not supported yet).
-pub fn bind_columns(
+pub(crate) fn bind_columns(
     loaded: &[UserEffect],
     path: &Path,
     samples: &[crate::recording::RawSample],
