@@ -113,7 +113,7 @@ impl Catalog {
 
     /// The first value a file effect computed that was not a finite number, described
     /// ([`crate::effects_file::numeric_failure`]); the CLI ends with it (exit 2).
-    pub fn numeric_failure(&self) -> Option<String> {
+    pub(crate) fn numeric_failure(&self) -> Option<String> {
         crate::effects_file::numeric_failure(&self.user)
     }
 }

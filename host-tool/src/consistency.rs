@@ -22,7 +22,7 @@ use crate::stats::chi2_quantile;
 
 /// The thresholds of consistency.
 #[derive(Clone, Copy, Debug, PartialEq, Serialize)]
-pub struct Thresholds {
+pub(crate) struct Thresholds {
     /// Probability content of the two-sided NIS band.
     pub nis_band_prob: f64,
     /// Smallest Ljung–Box p-value accepted as white.
@@ -64,7 +64,7 @@ impl Consistency {
 }
 
 /// The NIS/3 band for `updates` three-axis updates at probability `prob`.
-pub fn nis_band(updates: usize, prob: f64) -> [f64; 2] {
+pub(crate) fn nis_band(updates: usize, prob: f64) -> [f64; 2] {
     let dof = 3.0 * updates.max(1) as f64;
     [
         chi2_quantile(0.5 * (1.0 - prob), dof) / dof,
@@ -101,7 +101,7 @@ pub(crate) fn rms_limit(t: &Thresholds, floor_rel_sd: f64, updates: usize) -> f6
 
 /// Assesses the statistics of one converged model; `floor_rel_sd` is the relative 1σ of the
 /// noise floor estimate (0 when the floor is given).
-pub fn assess(
+pub(crate) fn assess(
     nis_mean: f64,
     updates: usize,
     whiteness_p: f64,

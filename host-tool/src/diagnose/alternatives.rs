@@ -77,7 +77,7 @@ pub struct Misstated {
 impl Alternative {
     /// Whether it is within [`PLAUSIBLE_MARGIN`] of the best explanation (`best_gain`: the
     /// largest gain, 0 when the current model is best).
-    pub fn plausible(&self, best_gain: f64) -> bool {
+    pub(crate) fn plausible(&self, best_gain: f64) -> bool {
         self.evidence_gain > best_gain - PLAUSIBLE_MARGIN
     }
 }

@@ -25,7 +25,7 @@ pub(crate) const DETECTION_POWER: f64 = 0.9;
 
 /// One catalog effect as a candidate for this model: the effect scored (the catalog's, or a
 /// stand-in built for this run), or why it cannot be tested.
-pub struct Setup<'c> {
+pub(crate) struct Setup<'c> {
     /// Catalog name.
     pub name: &'static str,
     /// Physical explanation.
@@ -171,7 +171,7 @@ fn scored(s: &Setup, sig: &Signature, alpha: f64) -> Candidate {
 
 /// The candidates scored and ranked: testable ones by log p-value (ties: fewer degrees of
 /// freedom first), untestable ones last; p-values Holm-adjusted. Each keeps its signature.
-pub fn rank<'s>(
+pub(crate) fn rank<'s>(
     setups: &[Setup],
     sigs: &'s [Option<Signature>],
     alpha: f64,

@@ -224,7 +224,10 @@ impl DriftStepFit {
     /// by [`crate::diagnose::alternatives::PLAUSIBLE_MARGIN`] (a Gauss–Markov wander or a trend
     /// is partly followed by a step too: on such runs a step gained 1.3e6 where `drift-markov`
     /// gained 2.0e6).
-    pub fn beats(&self, alternatives: &[crate::diagnose::alternatives::Alternative]) -> bool {
+    pub(crate) fn beats(
+        &self,
+        alternatives: &[crate::diagnose::alternatives::Alternative],
+    ) -> bool {
         let best = alternatives
             .iter()
             .map(|a| a.evidence_gain)

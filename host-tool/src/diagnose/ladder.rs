@@ -92,7 +92,7 @@ pub fn ladder_from<'c>(
 }
 
 /// The rung of diagnosis `d` with its identification's estimates (no next step yet).
-pub fn rung(d: &Diagnosis, id: &Identification) -> Rung {
+pub(crate) fn rung(d: &Diagnosis, id: &Identification) -> Rung {
     let best = id.best();
     let coefficients = id
         .params

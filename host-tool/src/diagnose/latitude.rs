@@ -23,7 +23,7 @@ pub(crate) const MIN_GAIN: f64 = 100.0;
 /// The data's latitude for a model: estimate, 1σ (deg), evidence gain over the metadata latitude,
 /// and whether the model is consistent there.
 #[derive(Clone, Copy, Debug, PartialEq)]
-pub struct LatitudeFit {
+pub(crate) struct LatitudeFit {
     /// Best latitude, deg.
     pub latitude_deg: f64,
     /// Its 1σ from the curvature of −2 ln p(y), deg.
@@ -94,7 +94,7 @@ fn latitude_of_gravity(g: f64) -> f64 {
 
 /// Profiles the evidence over latitude: a grid of 2° ([`search_grid`]) then a golden-section
 /// refinement. Also returns the fit at the best latitude.
-pub fn profile(
+pub(crate) fn profile(
     prep: &Prepared,
     effects: &[&dyn Effect],
     cfg: &Config,

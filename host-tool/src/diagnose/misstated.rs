@@ -478,7 +478,7 @@ pub(crate) fn confounded(mis: &[Alternative], rivals: &[(String, f64)]) -> Optio
 /// `prep` and `cfg` with the misstated knob repaired: moved to the data's value, its prior the
 /// data's 1σ, and the finding that names it among the measurements' findings (`alts`, `rivals`:
 /// what it beat).
-pub fn repair(
+pub(crate) fn repair(
     prep: &Prepared,
     cfg: &Config,
     m: &Misstated,

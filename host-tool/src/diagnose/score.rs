@@ -16,7 +16,6 @@
 //! core's own propagation and measurement Jacobians of the model extended by the candidate,
 //! evaluated on the nominal (smoothed) trajectory with β = 0: no model code is duplicated here.
 
-use estimator_core::effects::Effect;
 use estimator_core::model::{Model, MAX_STATES};
 use estimator_core::propagate::{propagate, Transition};
 use estimator_core::Measurement;
@@ -25,7 +24,7 @@ use nalgebra::{DMatrix, DVector, SymmetricEigen, Vector3};
 use crate::identify::smoother::{linearised_pass_observed, Smoothed, SmootherError, StepView};
 
 /// The signature of one candidate and its test.
-pub struct Signature {
+pub(crate) struct Signature {
     /// Parameters tested.
     pub q: usize,
     /// Score Σ D̃ᵀ ν̃.
@@ -40,7 +39,7 @@ pub struct Signature {
 }
 
 /// Result of a score test.
-pub struct ScoreTest {
+pub(crate) struct ScoreTest {
     /// Statistic sᵀ I⁺ s.
     pub statistic: f64,
     /// Rank of I (identifiable directions).
@@ -54,7 +53,7 @@ pub struct ScoreTest {
 impl Signature {
     /// Pseudo-inverse test: I is scaled to unit diagonal, directions with eigenvalue below 1e-9
     /// of the largest are unidentifiable on this run and dropped from the test.
-    pub fn test(&self) -> ScoreTest {
+    pub(crate) fn test(&self) -> ScoreTest {
         let q = self.q;
         let scale: Vec<f64> = (0..q).map(|k| self.info[(k, k)].sqrt()).collect();
         let inv_scale: Vec<f64> = scale
@@ -271,7 +270,7 @@ impl<'m> Tracker<'m> {
 
 /// What [`signatures`] returns: the pass, each candidate's signature, the whitened innovations
 /// (3 per update).
-pub type Replay = (Smoothed, Vec<Option<Signature>>, Vec<f64>);
+pub(crate) type Replay = (Smoothed, Vec<Option<Signature>>, Vec<f64>);
 
 /// Replays the current model's final forward pass once and carries every candidate's signature.
 /// `extended[c]` is the current model's effects followed by candidate c's (its state layout
@@ -326,7 +325,7 @@ fn basis(w: &DMatrix<f64>) -> DMatrix<f64> {
 
 /// Largest canonical correlation between two whitened signatures: how alike their footprints
 /// in the innovations are (1 = indistinguishable on this run).
-pub fn canonical_correlation(a: &Signature, b: &Signature) -> f64 {
+pub(crate) fn canonical_correlation(a: &Signature, b: &Signature) -> f64 {
     let (qa, qb) = (basis(&a.whitened), basis(&b.whitened));
     if qa.ncols() == 0 || qb.ncols() == 0 {
         return 0.0;
@@ -337,11 +336,4 @@ pub fn canonical_correlation(a: &Signature, b: &Signature) -> f64 {
         .cloned()
         .fold(0.0, f64::max)
         .min(1.0)
-}
-
-/// Adds `effect` to a copy of the current effect list (helper for building `extended`).
-pub fn extend<'a>(current: &[&'a dyn Effect], effect: &'a dyn Effect) -> Vec<&'a dyn Effect> {
-    let mut v = current.to_vec();
-    v.push(effect);
-    v
 }

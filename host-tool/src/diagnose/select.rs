@@ -23,7 +23,7 @@ use crate::consistency::{assess, Thresholds};
 use crate::identify::{build_model, identify, Identification, Prepared};
 
 /// Evidence gain (in −2 ln units) a candidate must bring to be adopted.
-pub const MIN_EVIDENCE_GAIN: f64 = 10.0;
+pub(crate) const MIN_EVIDENCE_GAIN: f64 = 10.0;
 /// How many leading candidates are refitted at each rung.
 pub(crate) const REFIT_LEADERS: usize = 3;
 /// Effects that are stochastic catch-alls rather than a deterministic physical law.
@@ -75,7 +75,7 @@ pub(crate) fn fit_stats(id: &Identification, prep: &Prepared, lags: usize) -> ([
 
 /// Refits the current model plus each named candidate. The refits are independent fits: they
 /// run in parallel (rayon), in the order of `names`.
-pub fn refit(
+pub(crate) fn refit(
     prep: &Prepared,
     catalog: &Catalog,
     effects: &[&dyn Effect],

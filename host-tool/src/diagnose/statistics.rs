@@ -43,7 +43,7 @@ pub(crate) struct Fit {
 /// RMS/floor, mean NIS/3 and its display band of a series against the noise floor;
 /// `residual_rms_mps2` is the series' residual RMS on the floor's scale
 /// ([`crate::identify::Prepared::residual_rms_mps2`], the one definition).
-pub fn fit(s: &Series, floor_mps2: [f64; 3], residual_rms_mps2: [f64; 3]) -> Fit {
+pub(crate) fn fit(s: &Series, floor_mps2: [f64; 3], residual_rms_mps2: [f64; 3]) -> Fit {
     let n_upd = s.residual.len();
     let residual_rms_over_floor = per_axis(|i| residual_rms_mps2[i] / floor_mps2[i]);
     let nis_mean = s.nis.iter().sum::<f64>() / (3.0 * n_upd as f64);

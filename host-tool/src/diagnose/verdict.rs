@@ -13,7 +13,7 @@ pub fn is_consistent(d: &Diagnosis) -> bool {
 }
 
 /// The verdict of diagnosis `d` whose candidates were tested at level `alpha`.
-pub fn verdict(d: &Diagnosis, alpha: f64) -> String {
+pub(crate) fn verdict(d: &Diagnosis, alpha: f64) -> String {
     let state = state(d);
     if d.choice.is_some() {
         return missing_effect(d, &state);
