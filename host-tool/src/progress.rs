@@ -18,7 +18,7 @@ pub(crate) fn bar(len: u64, msg: &str) -> ProgressBar {
 
 /// Notes of the library's steps ([`crate::steps::Progress`]) as `pb`'s message; nothing when
 /// `pb` is hidden (stderr not a terminal), so a redirected run formats no message at all.
-pub fn follow(pb: &ProgressBar) -> crate::steps::Progress {
+pub(crate) fn follow(pb: &ProgressBar) -> crate::steps::Progress {
     if pb.is_hidden() {
         return crate::steps::Progress::default();
     }

@@ -36,7 +36,7 @@ use serde::Serialize;
 use super::{build_model, neg2_log_evidence, start_prior, Config, Identification, Prepared};
 
 /// The effect whose σ and τ are estimated.
-pub const NAME: &str = "drift-markov";
+pub(crate) const NAME: &str = "drift-markov";
 /// Range of σ searched, deg/h: from far below a detectable wander to a wander larger than the
 /// paper's whole constant drift.
 pub(crate) const SIGMA_RANGE_DEGPH: (f64, f64) = (1e-4, 0.3);
@@ -326,7 +326,7 @@ fn profile_interval(
 
 /// Maximises the marginal likelihood over σ and τ about the fit `id` of `effects` (which hold
 /// `drift-markov`): the coarse grid, then Newton on the stencil (see the module docs).
-pub fn fit(
+pub(crate) fn fit(
     prep: &Prepared,
     effects: &[&dyn Effect],
     cfg: &Config,

@@ -89,7 +89,11 @@ pub struct Prepared {
 
 impl Prepared {
     /// Measurements of a level start with no data-quality findings (synthetic geometry, benches).
-    pub fn level(site: Site, measurements: Vec<Measurement>, raw_sigma_mps2: [f64; 3]) -> Self {
+    pub(crate) fn level(
+        site: Site,
+        measurements: Vec<Measurement>,
+        raw_sigma_mps2: [f64; 3],
+    ) -> Self {
         Prepared {
             site,
             measurements,
@@ -130,7 +134,7 @@ impl Prepared {
     /// last, partial one; one with rejected samples) has a noisier mean; unscaled, the one
     /// sample of a 26-h run's last period (13.6 × the floor) raised a clean run's RMS/floor from
     /// 1.014 to 1.071. On a consistent fit this is the floor whatever the counts.
-    pub fn residual_rms_mps2(&self, residuals: &[[f64; 3]]) -> [f64; 3] {
+    pub(crate) fn residual_rms_mps2(&self, residuals: &[[f64; 3]]) -> [f64; 3] {
         let floor = self.floor_mps2();
         let aligned = residuals.len() == self.measurements.len();
         rms_per_axis(residuals, |k, i| {
@@ -672,7 +676,7 @@ fn converged(
 /// The model refitted on `prep` by Gauss–Newton from `start`'s trajectory (a fit of the same
 /// model on measurements alike: another latitude, clock or gravity), converged as [`identify`]
 /// converges.
-pub fn identify_from(
+pub(crate) fn identify_from(
     model: &Model<'_>,
     prep: &Prepared,
     cfg: &Config,

@@ -38,7 +38,7 @@ pub(crate) struct Stretch {
 }
 
 /// The samples left after the exclusions (`None`: all of them), and the findings.
-pub fn exclude(
+pub(crate) fn exclude(
     samples: &[Sample],
     period_s: f64,
     user_s: &[(f64, f64)],
@@ -145,7 +145,10 @@ fn saturation_findings(
 }
 
 /// Rails found: (axis, rail value, stretches excluded, readings pinned at it).
-pub fn saturated(samples: &[Sample], period_s: f64) -> Vec<(usize, f64, Vec<Stretch>, usize)> {
+pub(crate) fn saturated(
+    samples: &[Sample],
+    period_s: f64,
+) -> Vec<(usize, f64, Vec<Stretch>, usize)> {
     let mut out = vec![];
     for a in 0..3 {
         let v = |s: &Sample| s.specific_force[a];

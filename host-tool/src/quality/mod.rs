@@ -56,17 +56,6 @@ pub struct Screened<'s> {
     pub means: Vec<estimator_core::Measurement>,
 }
 
-impl Screened<'_> {
-    /// Whether any finding makes the estimate untrusted.
-    pub fn untrusted_reasons(&self) -> Vec<String> {
-        self.findings
-            .iter()
-            .filter(|f| f.action == Action::NotRepaired)
-            .map(|f| f.line())
-            .collect()
-    }
-}
-
 /// Fraction of rejected samples beyond which the recording is refused.
 pub(crate) const MAX_REJECTED_FRACTION: f64 = 0.5;
 

@@ -21,7 +21,7 @@ pub(crate) const MIN_RAW_SIGMA_MPS2: f64 = 1e-8;
 /// Estimates the raw-sample noise from samples in time order (their times and specific forces;
 /// finite). Returns `None` when fewer than 8 runs of 4 samples within [`MAX_JITTER`] of equal
 /// spacing exist.
-pub fn estimate(samples: &[Sample]) -> Option<NoiseFloor> {
+pub(crate) fn estimate(samples: &[Sample]) -> Option<NoiseFloor> {
     // Each axis on its own, the first here and the others on the pool (`crate::beside`): the
     // differences and their median are most of the screening's noise estimate, ~2 ms of a 60-h
     // recording.
