@@ -156,7 +156,7 @@ pub(crate) struct TempPath {
 
 impl TempPath {
     /// A fresh temporary path in the target's directory (nothing is created yet).
-    pub fn new(target: &Path) -> anyhow::Result<Self> {
+    pub(crate) fn new(target: &Path) -> anyhow::Result<Self> {
         let temp = temp_path_for(target)?;
         temporaries().push(temp.clone());
         Ok(TempPath {
@@ -187,17 +187,17 @@ impl TempPath {
     }
 
     /// Where to write.
-    pub fn path(&self) -> &Path {
+    pub(crate) fn path(&self) -> &Path {
         &self.temp
     }
 
     /// The final destination.
-    pub fn target(&self) -> &Path {
+    pub(crate) fn target(&self) -> &Path {
         &self.target
     }
 
     /// Moves the finished file into place.
-    pub fn commit(mut self) -> anyhow::Result<()> {
+    pub(crate) fn commit(mut self) -> anyhow::Result<()> {
         finish(&self.temp, &self.target)?;
         self.committed = true;
         unregister(&self.temp);
@@ -225,7 +225,7 @@ pub(crate) struct AtomicFile {
 
 impl AtomicFile {
     /// Creates the temporary file beside `target`.
-    pub fn create(target: &Path) -> anyhow::Result<Self> {
+    pub(crate) fn create(target: &Path) -> anyhow::Result<Self> {
         let (path, f) = TempPath::create(target)?;
         Ok(AtomicFile {
             w: BufWriter::with_capacity(1 << 16, f),
@@ -234,7 +234,7 @@ impl AtomicFile {
     }
 
     /// Flushes, syncs and renames the file over its target.
-    pub fn commit(mut self) -> anyhow::Result<()> {
+    pub(crate) fn commit(mut self) -> anyhow::Result<()> {
         self.w
             .flush()
             .with_context(|| format!("writing {}", self.path.target().display()))?;
@@ -503,7 +503,7 @@ pub(crate) struct Outputs {
 
 impl Outputs {
     /// The command's input files and its `--force`.
-    pub fn new(inputs: &[&Path], force: bool) -> Self {
+    pub(crate) fn new(inputs: &[&Path], force: bool) -> Self {
         Outputs {
             inputs: inputs.iter().map(|p| p.to_path_buf()).collect(),
             force,
@@ -512,7 +512,7 @@ impl Outputs {
     }
 
     /// Checks one output (given as `option`) and claims it.
-    pub fn check(&mut self, target: &Path, option: &str, made: Made) -> anyhow::Result<()> {
+    pub(crate) fn check(&mut self, target: &Path, option: &str, made: Made) -> anyhow::Result<()> {
         let inputs: Vec<&Path> = self.inputs.iter().map(|p| p.as_path()).collect();
         ensure_not_input(target, option, &inputs)?;
         if let Some((p, o)) = self.claimed.iter().find(|(p, _)| same_file(p, target)) {

@@ -61,7 +61,7 @@ pub(crate) fn hours_window(s: &str) -> Result<(f64, f64), String> {
 }
 
 /// A latitude in degrees, in the range the recording format accepts (the reader's own check).
-pub fn latitude_deg(s: &str) -> Result<f64, String> {
+pub(crate) fn latitude_deg(s: &str) -> Result<f64, String> {
     check_latitude_deg(number(s)?)
 }
 
@@ -104,7 +104,7 @@ pub(crate) const MAX_HOURS: f64 = 1e4;
 /// Sample interval `--rate-s` accepts, s: 0.1 ms to one day.
 pub(crate) const RATE_S: (f64, f64) = (1e-4, 86_400.0);
 /// Filter period `--period-s` accepts, s: 1 ms to one day.
-pub const PERIOD_S: (f64, f64) = (1e-3, 86_400.0);
+pub(crate) const PERIOD_S: (f64, f64) = (1e-3, 86_400.0);
 /// `--arw` (gyro angle random walk variance density), deg²/h: 1 deg²/h is a random walk of
 /// 1 deg/√h, some 10⁴× an INS gyro's.
 pub(crate) const MAX_ARW: f64 = 1.0;
@@ -152,7 +152,7 @@ pub(crate) fn range_f64(
 }
 
 /// `--hours` of a run to be made (plan, bench): (0, [`MAX_HOURS`]].
-pub fn hours(s: &str) -> Result<f64, String> {
+pub(crate) fn hours(s: &str) -> Result<f64, String> {
     range_f64(0.0, MAX_HOURS, true, "h")(s)
 }
 
@@ -162,7 +162,7 @@ pub(crate) fn hours_or_zero(s: &str) -> Result<f64, String> {
 }
 
 /// `--rate-s`: [`RATE_S`].
-pub fn rate_s(s: &str) -> Result<f64, String> {
+pub(crate) fn rate_s(s: &str) -> Result<f64, String> {
     range_f64(RATE_S.0, RATE_S.1, false, "s")(s)
 }
 
@@ -172,7 +172,7 @@ pub(crate) fn period_s(s: &str) -> Result<f64, String> {
 }
 
 /// `--arw`: [0, [`MAX_ARW`]].
-pub fn arw(s: &str) -> Result<f64, String> {
+pub(crate) fn arw(s: &str) -> Result<f64, String> {
     range_f64(0.0, MAX_ARW, false, "deg^2/h")(s)
 }
 
@@ -187,7 +187,7 @@ pub(crate) fn gate_nis(s: &str) -> Result<f64, String> {
 }
 
 /// `--alternatives`: an integer in 0..=[`MAX_ALTERNATIVES`].
-pub fn alternatives(s: &str) -> Result<usize, String> {
+pub(crate) fn alternatives(s: &str) -> Result<usize, String> {
     match s.trim().parse::<usize>() {
         Ok(v) if v <= MAX_ALTERNATIVES => Ok(v),
         _ => Err(format!(

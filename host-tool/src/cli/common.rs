@@ -67,7 +67,7 @@ pub struct ModelArgs {
 
 impl ModelArgs {
     /// The identification settings these options give.
-    pub fn config(&self) -> anyhow::Result<Config> {
+    pub(crate) fn config(&self) -> anyhow::Result<Config> {
         let raw_sigma_mps2 = match self.raw_sigma.as_deref() {
             None => None,
             Some([s]) => Some([*s; 3]),
@@ -602,7 +602,7 @@ const PREADVISED_HEAP_BYTES: usize = 64 << 20;
 
 /// What `identify`, `diagnose`, `report` and `plan` call first: the catalog of this run, the
 /// built-in effects plus those of the `--effects` files.
-pub fn catalog(args: &ModelArgs) -> anyhow::Result<Catalog> {
+pub(crate) fn catalog(args: &ModelArgs) -> anyhow::Result<Catalog> {
     Catalog::load(&args.effects)
 }
 

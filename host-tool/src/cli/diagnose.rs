@@ -41,7 +41,7 @@ pub struct DiagnoseArgs {
 }
 
 /// Prints one diagnosis as text.
-pub fn print_diagnosis(d: &Diagnosis) {
+pub(crate) fn print_diagnosis(d: &Diagnosis) {
     let model = if d.model.is_empty() {
         "paper".to_string()
     } else {
@@ -177,7 +177,7 @@ fn print_ranking(ranking: &[crate::diagnose::Candidate]) {
 }
 
 /// Prints the ladder.
-pub fn print_ladder(rungs: &[Rung]) {
+pub(crate) fn print_ladder(rungs: &[Rung]) {
     println!("\nmodel ladder (watch the error fall):");
     println!(
         "  {:<40} {:>22} {:>9} {:>10}  added next",
@@ -593,7 +593,7 @@ pub(crate) fn check_export(
 
 /// Writes each rung's series (`rungK.csv`) and a summary (`rungs.csv`) into `dir`, all whole
 /// or none (checked first by [`check_export`]).
-pub fn export(
+pub(crate) fn export(
     dir: &std::path::Path,
     diagnoses: &[Diagnosis],
     coefficients: &[super::identify::Row],

@@ -30,7 +30,7 @@ pub struct IdentifyArgs {
 }
 
 /// One coefficient row of the output.
-pub struct Row {
+pub(crate) struct Row {
     /// Parameter name.
     pub name: &'static str,
     /// Unit.
@@ -53,7 +53,7 @@ pub struct Row {
 
 /// The true value of each of the identification's parameters (NaN where the truth file has none:
 /// an effect not injected is 0, a Gauss–Markov state has no fixed truth).
-pub fn truth_of(truth: &crate::simulate::Truth, id: &Identification) -> Vec<f64> {
+pub(crate) fn truth_of(truth: &crate::simulate::Truth, id: &Identification) -> Vec<f64> {
     let values = truth.parameter_values();
     id.params
         .iter()
@@ -67,7 +67,7 @@ pub fn truth_of(truth: &crate::simulate::Truth, id: &Identification) -> Vec<f64>
 
 /// Builds the rows of an identification (bound at `truth` where it is known, NaN entries
 /// meaning unknown).
-pub fn rows(
+pub(crate) fn rows(
     id: &Identification,
     unc: &Uncertainty,
     model: &estimator_core::Model<'_>,

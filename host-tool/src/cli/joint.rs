@@ -124,7 +124,7 @@ pub(crate) fn run_consistency(fit: &RunFit, prep: &Prepared) -> Consistency {
 }
 
 /// Runs the joint `driftid identify`.
-pub fn run(args: &IdentifyArgs, catalog: &Catalog) -> anyhow::Result<()> {
+pub(crate) fn run(args: &IdentifyArgs, catalog: &Catalog) -> anyhow::Result<()> {
     let (out, reasons) = identify_runs(
         catalog,
         &args.recordings,
@@ -162,7 +162,7 @@ fn refuse_repeated_recordings(args: &DiagnoseArgs, catalog: &Catalog) -> anyhow:
 /// `driftid diagnose A.csv B.csv …`: each run diagnosed (its own ladder), then the effects the
 /// ladders chose, together, identified jointly from all runs. Effects with Gauss–Markov states
 /// are per run and stay out of the joint model (said so).
-pub fn diagnose(args: &DiagnoseArgs, catalog: &Catalog) -> anyhow::Result<()> {
+pub(crate) fn diagnose(args: &DiagnoseArgs, catalog: &Catalog) -> anyhow::Result<()> {
     refuse_repeated_recordings(args, catalog)?;
     let mut per_run = vec![];
     let mut reasons = vec![];

@@ -9,7 +9,7 @@ use crate::report::{draw_joint_pngs, render_joint_html, JointCoef, JointReportIn
 
 /// Runs `driftid report` on several recordings: exit status as the joint `identify`'s (0
 /// trusted, 3 untrusted, 2 bad input).
-pub fn run(args: &ReportArgs, catalog: &Catalog) -> anyhow::Result<()> {
+pub(crate) fn run(args: &ReportArgs, catalog: &Catalog) -> anyhow::Result<()> {
     // Every output checked before the long computation (never over an input or a file driftid
     // did not write), as for one run.
     let mut inputs: Vec<&std::path::Path> = args.recordings.iter().map(|p| p.as_path()).collect();

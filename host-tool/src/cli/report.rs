@@ -211,7 +211,7 @@ pub(crate) fn write_page(
 }
 
 /// The command line as given and each effects file's text (what made the page).
-pub fn provenance(effects: &[std::path::PathBuf]) -> crate::report::Provenance {
+pub(crate) fn provenance(effects: &[std::path::PathBuf]) -> crate::report::Provenance {
     let quote = |a: String| {
         if a.is_empty() || a.contains(|c: char| c.is_whitespace() || "'\"$`\\".contains(c)) {
             format!("'{}'", a.replace('\'', "'\\''"))

@@ -146,7 +146,7 @@ impl Bound {
 
 /// Evaluates a compiled expression. The variable count is fixed at load time, so exmex cannot
 /// fail here; should it ever, the value is NaN, which the effect reports (see `UserEffect`).
-pub fn eval(e: &Expr, vars: &[f64]) -> f64 {
+pub(crate) fn eval(e: &Expr, vars: &[f64]) -> f64 {
     e.eval(vars).unwrap_or(f64::NAN)
 }
 
@@ -184,17 +184,17 @@ impl AxisExpr {
         self.value.bind(p, ctx, cols, &signs)
     }
     /// Whether the expression reads local north (`north_*`, or `east_*` through it).
-    pub fn uses_north(&self) -> bool {
+    pub(crate) fn uses_north(&self) -> bool {
         self.value.slots.iter().any(|s| matches!(s, Slot::North(_)))
     }
     /// The value for variables from [`AxisExpr::bind`].
-    pub fn value(&self, vars: &[f64]) -> f64 {
+    pub(crate) fn value(&self, vars: &[f64]) -> f64 {
         eval(&self.value.expr, vars)
     }
 }
 
 /// Why an expression is refused (the caller adds file, line and effect).
-pub type Refusal = String;
+pub(crate) type Refusal = String;
 
 /// The expression shortened for a message (a refused expression may be megabytes long).
 pub(crate) fn excerpt(src: &str) -> String {
@@ -349,7 +349,7 @@ const COMPILE_STACK_BYTES: usize = 256 << 20;
 /// names, `columns` the recording columns it declares. A refusal says what is wrong with the
 /// expression (the caller names file and place). Runs on a thread of its own with
 /// [`COMPILE_STACK_BYTES`] of stack, whatever the caller's.
-pub fn compile(
+pub(crate) fn compile(
     src: &str,
     params: &[&str],
     columns: &[&str],

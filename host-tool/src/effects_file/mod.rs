@@ -92,7 +92,7 @@ pub(crate) const MAX_COLUMNS: usize = 8;
 
 /// Where an effect adds its value.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
-pub enum AppliesTo {
+pub(crate) enum AppliesTo {
     /// Accelerometer output, m/s².
     Accelerometer,
     /// Gyro drift rate, deg/h.
@@ -108,8 +108,6 @@ pub struct UserEffect {
     applies_to: AppliesTo,
     params: Vec<Param>,
     axes: [AxisExpr; 3],
-    /// The file it came from (for messages).
-    file: PathBuf,
     /// `file:line:column` of the name, of each parameter's name and of each axis expression.
     name_at: String,
     params_at: Vec<String>,
@@ -125,18 +123,6 @@ pub struct UserEffect {
 }
 
 impl UserEffect {
-    /// Where the effect adds its value.
-    pub fn applies_to(&self) -> AppliesTo {
-        self.applies_to
-    }
-    /// The file the effect was defined in.
-    pub fn file(&self) -> &Path {
-        &self.file
-    }
-    /// The expression of axis `i` (0 = x) as written in the file.
-    pub fn expression(&self, i: usize) -> &str {
-        &self.axes[i].source
-    }
     /// The first evaluation that gave a value or derivative that is not a finite number (the
     /// square root or logarithm of a negative number, ln(0), an overflowing exp, …), as a
     /// message naming the file, line, effect, expression and the values of its variables. The
@@ -747,7 +733,6 @@ fn build_effect(
             })
             .collect(),
         axes,
-        file: loc.file.to_path_buf(),
         name_at: loc.at(name.span()),
         params_at,
         axes_at,
@@ -968,7 +953,7 @@ pub(crate) fn bind_columns(
 
 /// The first numeric failure of the `loaded` file effects (see
 /// [`UserEffect::numeric_failure`]); the CLI ends with it (exit 2).
-pub fn numeric_failure(loaded: &[UserEffect]) -> Option<String> {
+pub(crate) fn numeric_failure(loaded: &[UserEffect]) -> Option<String> {
     loaded
         .iter()
         .find_map(|e| e.numeric_failure().map(str::to_string))

@@ -95,7 +95,7 @@ impl Receiver {
     }
 
     /// Counts so far.
-    pub fn stats(&self) -> LinkStats {
+    pub(crate) fn stats(&self) -> LinkStats {
         LinkStats {
             decoder: *self.decoder.stats(),
             missing: self.seq.missing,

@@ -28,7 +28,7 @@ pub fn writer_of(port: &TTYPort) -> anyhow::Result<TTYPort> {
 }
 
 /// Opens a serial port (a tty device or a pty's slave side) in raw mode.
-pub fn open(path: &str, baud: u32) -> anyhow::Result<TTYPort> {
+pub(crate) fn open(path: &str, baud: u32) -> anyhow::Result<TTYPort> {
     serialport::new(path, baud)
         .timeout(POLL)
         .open_native()

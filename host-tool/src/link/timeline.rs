@@ -78,7 +78,7 @@ fn print(s: &RawSample) -> (u64, [u64; 3]) {
 
 impl Timeline {
     /// An empty recording.
-    pub fn new() -> Self {
+    pub(crate) fn new() -> Self {
         Self::default()
     }
 
@@ -88,7 +88,7 @@ impl Timeline {
     }
 
     /// Records that `s` was written (also for samples already in a resumed file).
-    pub fn written(&mut self, s: &RawSample) {
+    pub(crate) fn written(&mut self, s: &RawSample) {
         if let Some(t) = self.last_t() {
             self.last_dt = Some(s.t_s - t);
         }
@@ -120,7 +120,7 @@ impl Timeline {
 
     /// The verdicts on `s` and on a sample held before it, in order. Every
     /// [`Verdict::Write`] is taken as written (the caller writes it or stops).
-    pub fn push(&mut self, s: &RawSample) -> Vec<Verdict> {
+    pub(crate) fn push(&mut self, s: &RawSample) -> Vec<Verdict> {
         let mut out = Vec::new();
         if s.t_s.abs() > MAX_T_S {
             out.push(Verdict::Absurd(format!(

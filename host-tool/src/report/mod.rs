@@ -26,7 +26,7 @@ use tables::*;
 
 /// One identified parameter for the report's coefficient table.
 #[derive(Clone, Debug)]
-pub struct CoefRow {
+pub(crate) struct CoefRow {
     /// Parameter name (`DX0`, `GXxx-zz`, …).
     pub name: String,
     /// Unit (`deg/h`, …).
@@ -47,7 +47,7 @@ pub struct CoefRow {
 
 /// Everything the report shows.
 #[derive(Clone, Debug)]
-pub struct ReportInput {
+pub(crate) struct ReportInput {
     /// Page title.
     pub title: String,
     /// Recording file name.
@@ -73,7 +73,7 @@ pub struct ReportInput {
 /// What produced a page (issue: a page must say which command, version, effects file and
 /// options made it).
 #[derive(Clone, Debug, Default)]
-pub struct Provenance {
+pub(crate) struct Provenance {
     /// The command line as given.
     pub command: String,
     /// Each `--effects` file: its path and its text.

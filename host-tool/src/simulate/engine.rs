@@ -192,11 +192,6 @@ impl Simulator {
         self.t
     }
 
-    /// Magnitude of gravity used, m/s².
-    pub fn gravity_mps2(&self) -> f64 {
-        self.g
-    }
-
     /// C_i^p: inertial → platform.
     pub fn c_ip(&self) -> Matrix3<f64> {
         self.c_ip
@@ -208,7 +203,7 @@ impl Simulator {
     }
 
     /// Local north in platform axes, C_0^p [0, 1, 0] (frame 0 is ENU).
-    pub fn north(&self) -> Vector3<f64> {
+    pub(crate) fn north(&self) -> Vector3<f64> {
         self.c_0p().column(1).into_owned()
     }
 

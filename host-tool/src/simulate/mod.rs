@@ -156,7 +156,7 @@ impl Logger {
     }
 
     /// The stamp written for sampling time `t` (s), `jitter` a draw in [−1, 1].
-    pub fn stamp(&self, t: f64, jitter: f64) -> f64 {
+    pub(crate) fn stamp(&self, t: f64, jitter: f64) -> f64 {
         let t = if t == 0.0 {
             t
         } else {
@@ -283,12 +283,12 @@ impl Scenario {
     }
 
     /// Number of samples: t = 0, rate_s, … up to hours·3600 inclusive.
-    pub fn sample_count(&self) -> u64 {
+    pub(crate) fn sample_count(&self) -> u64 {
         ((self.hours * 3600.0) / self.rate_s + 1e-9).floor() as u64 + 1
     }
 
     /// Whether the recording gets a `temp_c` column.
-    pub fn has_temp(&self) -> bool {
+    pub(crate) fn has_temp(&self) -> bool {
         self.write_temp
             || self.effects.iter().any(|e| {
                 matches!(
