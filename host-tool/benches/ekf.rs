@@ -147,7 +147,8 @@ fn read(c: &mut Criterion) {
 }
 
 fn identify_from_csv(path: &Path, smoother_iterations: usize) -> usize {
-    let loaded = host_tool::cli::common::load(path, None).unwrap();
+    let loaded =
+        host_tool::cli::common::load(host_tool::catalog::Catalog::builtin(), path, None).unwrap();
     let cfg = Config {
         smoother_iterations,
         ..Config::default()
@@ -187,7 +188,8 @@ fn identify_60h_csv(c: &mut Criterion) {
 
 /// `diagnose`'s ladder on the recording at `path`, from the CSV: the number of rungs.
 fn diagnose_from_csv(path: &Path) -> usize {
-    let loaded = host_tool::cli::common::load(path, None).unwrap();
+    let loaded =
+        host_tool::cli::common::load(host_tool::catalog::Catalog::builtin(), path, None).unwrap();
     let cfg = DiagnoseConfig::default();
     let prep = prepare_oriented(
         loaded.site,
@@ -196,8 +198,9 @@ fn diagnose_from_csv(path: &Path) -> usize {
         loaded.initial_orientation_rad,
     )
     .unwrap();
-    let effects = host_tool::catalog::model_effects(&[]).unwrap();
-    ladder(&prep, &effects, &cfg).unwrap().rungs.len()
+    let catalog = host_tool::catalog::Catalog::builtin();
+    let effects = catalog.model_effects(&[]).unwrap();
+    ladder(&prep, catalog, &effects, &cfg).unwrap().rungs.len()
 }
 
 fn diagnose_60h_csv(c: &mut Criterion) {

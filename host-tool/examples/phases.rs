@@ -22,7 +22,8 @@ fn main() -> anyhow::Result<()> {
     let mut best = [f64::INFINITY; 6];
     for _ in 0..runs.max(1) {
         let t0 = Instant::now();
-        let loaded = host_tool::cli::common::load(&path, None)?;
+        let loaded =
+            host_tool::cli::common::load(host_tool::catalog::Catalog::builtin(), &path, None)?;
         let t1 = Instant::now();
         let cfg = Config::default();
         let prep = prepare_oriented(
@@ -33,7 +34,8 @@ fn main() -> anyhow::Result<()> {
         )?;
         drop(loaded); // as `driftid identify` does
         let t2 = Instant::now();
-        let effects = host_tool::catalog::model_effects(&[])?;
+        let catalog = host_tool::catalog::Catalog::builtin();
+        let effects = catalog.model_effects(&[])?;
         let model = build_model(prep.site, &effects, &cfg)?;
         let id = identify(&model, &prep, &cfg)?;
         let t3 = Instant::now();

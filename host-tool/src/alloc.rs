@@ -23,7 +23,7 @@ pub struct HugePages;
 /// Size of a transparent huge page on x86-64 and aarch64 (4-KiB base pages).
 const HUGE_PAGE_BYTES: usize = 2 << 20;
 /// Blocks from this size are placed on huge pages.
-pub const LARGE_BYTES: usize = 2 * HUGE_PAGE_BYTES;
+pub(crate) const LARGE_BYTES: usize = 2 * HUGE_PAGE_BYTES;
 /// The alignment `malloc` guarantees (glibc: twice a pointer's size).
 const MALLOC_ALIGN: usize = 2 * std::mem::size_of::<usize>();
 

@@ -11,6 +11,7 @@
 use crate::steps::Progress;
 use estimator_core::effects::Effect;
 
+use crate::catalog::Catalog;
 use crate::diagnose::alternatives::{self, Alternative, PLAUSIBLE_MARGIN};
 use crate::diagnose::misstated;
 use crate::diagnose::select::MIN_EVIDENCE_GAIN;
@@ -39,30 +40,32 @@ pub struct Assessment {
 /// ([`misstated::to_repair`]) is repaired, named among the findings, and the model refitted and
 /// assessed there (once).
 pub fn assess(
-    effects: &[&'static dyn Effect],
+    catalog: &Catalog,
+    effects: &[&dyn Effect],
     prep: Prepared,
     cfg: &Config,
     id: Identification,
 ) -> anyhow::Result<Assessment> {
-    assess_with(effects, prep, cfg, id, &Progress::default())
+    assess_with(catalog, effects, prep, cfg, id, &Progress::default())
 }
 
 /// [`assess`], its steps noted to `progress` (the set-up, the alternatives, a repair).
-pub fn assess_with(
-    effects: &[&'static dyn Effect],
+pub(crate) fn assess_with(
+    catalog: &Catalog,
+    effects: &[&dyn Effect],
     prep: Prepared,
     cfg: &Config,
     id: Identification,
     progress: &Progress,
 ) -> anyhow::Result<Assessment> {
-    let (first, repair) = assess_as_stated(effects, prep, cfg, id, true, progress)?;
+    let (first, repair) = assess_as_stated(catalog, effects, prep, cfg, id, true, progress)?;
     let Some((prep, cfg, start)) = repair else {
         return Ok(first);
     };
     progress.note(|| "refitting at the repaired set-up".into());
     let model = build_model(prep.site, effects, &cfg)?;
     let id = identify_from(&model, &prep, &cfg, &start)?;
-    let (mut again, _) = assess_as_stated(effects, prep, &cfg, id, false, progress)?;
+    let (mut again, _) = assess_as_stated(catalog, effects, prep, &cfg, id, false, progress)?;
     again.cfg = cfg;
     Ok(again)
 }
@@ -74,7 +77,8 @@ type Repair = (Prepared, Config, Identification);
 /// [`assess`] with the set-up as `prep` and `cfg` state it; with the repaired set-up and the
 /// fit to start from where a misstatement is to be repaired (and `may_repair`).
 fn assess_as_stated(
-    effects: &[&'static dyn Effect],
+    catalog: &Catalog,
+    effects: &[&dyn Effect],
     prep: Prepared,
     cfg: &Config,
     id: Identification,
@@ -102,7 +106,7 @@ fn assess_as_stated(
         ..Default::default()
     };
     progress.note(|| "weighing the catalog effects not in the model".into());
-    let mut alts = alternatives::weigh(&out.prep, effects, &dcfg, &out.id)?;
+    let mut alts = alternatives::weigh(&out.prep, catalog, effects, &dcfg, &out.id)?;
     progress.note(|| "weighing a misstated latitude, clock rate or gravity".into());
     let weighed = misstated::weigh(effects, &stated.0, cfg, &stated.1, &unc)?;
     // The data prefer the set-up moved within its priors to the set-up as stated.
@@ -112,7 +116,9 @@ fn assess_as_stated(
     alts.extend(weighed.alternatives);
     if let Some(g0) = moved {
         let to_final = offset(&stated.1, &out.id);
-        alts.extend(rivals_of_the_move(effects, &stated, &dcfg, g0, &to_final)?);
+        alts.extend(rivals_of_the_move(
+            catalog, effects, &stated, &dcfg, g0, &to_final,
+        )?);
     }
     alternatives::weight(&mut alts);
     if let Some(m) = misstated::to_repair(&alts, &[]).filter(|_| may_repair) {
@@ -154,13 +160,14 @@ fn rebased(mut a: Alternative, offset: &[f64]) -> Alternative {
 /// a drift trend or a clock running fast can look like a latitude a few hundredths of a degree
 /// off. Each is put on the final fit's scale (gain minus `moved`; shift about the final fit).
 fn rivals_of_the_move(
-    effects: &[&'static dyn Effect],
+    catalog: &Catalog,
+    effects: &[&dyn Effect],
     stated: &(Prepared, Identification),
     dcfg: &DiagnoseConfig,
     moved: f64,
     to_final: &[f64],
 ) -> anyhow::Result<Vec<Alternative>> {
-    let at_stated = alternatives::weigh(&stated.0, effects, dcfg, &stated.1)?;
+    let at_stated = alternatives::weigh(&stated.0, catalog, effects, dcfg, &stated.1)?;
     Ok(at_stated
         .into_iter()
         .map(|mut a| {
@@ -231,7 +238,7 @@ fn longer(id: &Identification) -> &'static str {
 
 /// Why the alternatives make the result untrusted: one the data prefer, or a plausible one that
 /// moves a coefficient beyond its total 1σ.
-pub fn alternatives_untrusted(
+pub(crate) fn alternatives_untrusted(
     alts: &[Alternative],
     unc: &Uncertainty,
     id: &Identification,

@@ -9,7 +9,7 @@
 
 /// Runs `f` on every item: the first on this thread, the others as jobs on rayon's pool
 /// (`rayon::in_place_scope`); returns when all are done.
-pub fn first_here<I>(items: I, f: impl Fn(I::Item) + Sync)
+pub(crate) fn first_here<I>(items: I, f: impl Fn(I::Item) + Sync)
 where
     I: IntoIterator,
     I::Item: Send,

@@ -1,9 +1,13 @@
 //! The catalog of physical effects the host can add to the model by name (`--with a,b`).
 
+use std::path::{Path, PathBuf};
+
 use estimator_core::effects::{
     AccBias, AccMisalign, AccScale, DriftDaily, DriftMarkov, DriftTrend, Effect, G2Drift,
     PaperDrift, TempDrift,
 };
+
+use crate::effects_file::UserEffect;
 
 static PAPER: PaperDrift = PaperDrift;
 static ACC_BIAS: AccBias = AccBias;
@@ -18,15 +22,137 @@ static DRIFT_MARKOV: DriftMarkov = DriftMarkov {
     tau_h: 5.0,
 };
 
-/// Every catalog effect beyond the paper's drift model, in the order they are listed: the
-/// built-in ones, then those registered for this run ([`register`], `--effects FILE`).
-pub fn candidates() -> Vec<&'static dyn Effect> {
-    let mut v = builtin_candidates();
-    v.extend(user_effects());
-    v
+/// The effects a model can be built from in one run: the built-in ones (statics) and those
+/// defined in `--effects` files, which the catalog owns. The CLI builds it once per command
+/// ([`Catalog::load`]) and passes it by reference to what picks effects by name (the model's
+/// `--with`, the diagnosis' candidates, the ladder, the plan); effects borrowed from it live as
+/// long as it does.
+#[derive(Debug, Default)]
+pub struct Catalog {
+    /// Effects from `--effects` files, in the order they were defined.
+    user: Vec<UserEffect>,
 }
 
-fn builtin_candidates() -> Vec<&'static dyn Effect> {
+impl Catalog {
+    /// The built-in effects only.
+    pub fn builtin() -> &'static Self {
+        static BUILTIN: Catalog = Catalog { user: Vec::new() };
+        &BUILTIN
+    }
+
+    /// The built-in effects plus those of the given effects files (none: the built-in ones). A
+    /// clash of names names the file and line of both definitions.
+    pub fn load(paths: &[PathBuf]) -> anyhow::Result<Self> {
+        let mut known = vec![paper()];
+        known.extend(builtin_candidates());
+        Self::with_user(crate::effects_file::load_files(paths, &known)?)
+    }
+
+    /// The built-in effects plus `user`. Refuses an effect whose name is already in the catalog
+    /// (built-in or earlier in `user`), an empty parameter list, and a parameter name already
+    /// used by the paper's model or another catalog effect (results are keyed by it).
+    pub fn with_user(user: Vec<UserEffect>) -> anyhow::Result<Self> {
+        let mut known: Vec<&dyn Effect> = vec![paper()];
+        known.extend(builtin_candidates());
+        let builtin = known.len();
+        for e in &user {
+            check_new(e, &known, builtin)?;
+            known.push(e);
+        }
+        Ok(Self { user })
+    }
+
+    /// The effects from `--effects` files.
+    pub fn user(&self) -> &[UserEffect] {
+        &self.user
+    }
+
+    /// Every catalog effect beyond the paper's drift model, in the order they are listed: the
+    /// built-in ones, then those from `--effects` files.
+    pub fn candidates(&self) -> Vec<&dyn Effect> {
+        let mut v: Vec<&dyn Effect> = builtin_candidates();
+        v.extend(self.user.iter().map(|e| e as &dyn Effect));
+        v
+    }
+
+    /// Looks up an effect by its catalog name.
+    pub fn by_name(&self, name: &str) -> Option<&dyn Effect> {
+        self.candidates().into_iter().find(|e| e.name() == name)
+    }
+
+    /// The paper's model plus the named effects, in order; an unknown name is an error listing
+    /// the catalog.
+    pub fn model_effects(&self, with: &[String]) -> anyhow::Result<Vec<&dyn Effect>> {
+        let mut effects = vec![paper()];
+        for name in with {
+            let e = self.by_name(name).ok_or_else(|| {
+                let known: Vec<_> = self.candidates().iter().map(|e| e.name()).collect();
+                anyhow::anyhow!(
+                    "unknown effect `{name}`; the catalog has: {} (effects defined in a file need --effects FILE)",
+                    known.join(", ")
+                )
+            })?;
+            if effects.iter().any(|x| x.name() == e.name()) {
+                anyhow::bail!("effect `{name}` given twice");
+            }
+            effects.push(e);
+        }
+        Ok(effects)
+    }
+
+    /// Binds the recording columns the file effects use to the recording at `path`
+    /// ([`crate::effects_file::bind_columns`]).
+    pub(crate) fn bind_columns(
+        &self,
+        path: &Path,
+        samples: &[crate::recording::RawSample],
+        lines: &[u32],
+    ) -> anyhow::Result<()> {
+        crate::effects_file::bind_columns(&self.user, path, samples, lines)
+    }
+
+    /// The first value a file effect computed that was not a finite number, described
+    /// ([`crate::effects_file::numeric_failure`]); the CLI ends with it (exit 2).
+    pub(crate) fn numeric_failure(&self) -> Option<String> {
+        crate::effects_file::numeric_failure(&self.user)
+    }
+}
+
+/// Refuses `e` when its name or a parameter's name is taken by `known` (its first `builtin`
+/// entries are the built-in effects) or it has no parameters.
+fn check_new(e: &UserEffect, known: &[&dyn Effect], builtin: usize) -> anyhow::Result<()> {
+    if let Some(k) = known.iter().position(|o| o.name() == e.name()) {
+        let what = if k < builtin {
+            "a built-in effect"
+        } else {
+            "an effect already added"
+        };
+        anyhow::bail!("effect `{}`: the name is taken by {what}", e.name());
+    }
+    if e.params().is_empty() {
+        anyhow::bail!("effect `{}` has no parameters", e.name());
+    }
+    for (k, p) in e.params().iter().enumerate() {
+        if e.params()[..k].iter().any(|q| q.name == p.name) {
+            anyhow::bail!("effect `{}`: parameter `{}` given twice", e.name(), p.name);
+        }
+        if let Some(o) = known
+            .iter()
+            .find(|o| o.params().iter().any(|q| q.name == p.name))
+        {
+            anyhow::bail!(
+                "effect `{}`: parameter name `{}` is already used by effect `{}`; rename it",
+                e.name(),
+                p.name,
+                o.name()
+            );
+        }
+    }
+    Ok(())
+}
+
+/// The built-in effects beyond the paper's drift model, in the order they are listed.
+pub fn builtin_candidates() -> Vec<&'static dyn Effect> {
     vec![
         &G2,
         &ACC_BIAS,
@@ -39,90 +165,12 @@ fn builtin_candidates() -> Vec<&'static dyn Effect> {
     ]
 }
 
-// ---- user effects (`--effects FILE`, see crate::effects_file) -------------------------------
-
-/// Effects added to the catalog for this run (process-wide).
-static USER: std::sync::RwLock<Vec<&'static dyn Effect>> = std::sync::RwLock::new(Vec::new());
-
-fn user_effects() -> Vec<&'static dyn Effect> {
-    USER.read().unwrap_or_else(|e| e.into_inner()).clone()
-}
-
-/// Adds effects to the catalog for the rest of the process: from then on [`candidates`],
-/// [`by_name`] and [`model_effects`] offer them like built-in ones. Refuses an effect whose name
-/// is already in the catalog (built-in or registered), an empty parameter list, and a parameter
-/// name already used by the paper's model or another catalog effect (results are keyed by it).
-pub fn register(effects: Vec<&'static dyn Effect>) -> anyhow::Result<()> {
-    let mut user = USER.write().unwrap_or_else(|e| e.into_inner());
-    let mut known: Vec<&'static dyn Effect> = vec![paper()];
-    known.extend(builtin_candidates());
-    known.extend(user.iter().copied());
-    let mut added: Vec<&'static dyn Effect> = Vec::new();
-    for e in effects {
-        if let Some(o) = known.iter().chain(&added).find(|o| o.name() == e.name()) {
-            let what = if builtin_candidates().iter().any(|b| b.name() == o.name())
-                || o.name() == paper().name()
-            {
-                "a built-in effect"
-            } else {
-                "an effect already added"
-            };
-            anyhow::bail!("effect `{}`: the name is taken by {what}", e.name());
-        }
-        if e.params().is_empty() {
-            anyhow::bail!("effect `{}` has no parameters", e.name());
-        }
-        for (k, p) in e.params().iter().enumerate() {
-            if e.params()[..k].iter().any(|q| q.name == p.name) {
-                anyhow::bail!("effect `{}`: parameter `{}` given twice", e.name(), p.name);
-            }
-            if let Some(o) = known
-                .iter()
-                .chain(&added)
-                .find(|o| o.params().iter().any(|q| q.name == p.name))
-            {
-                anyhow::bail!(
-                    "effect `{}`: parameter name `{}` is already used by effect `{}`; rename it",
-                    e.name(),
-                    p.name,
-                    o.name()
-                );
-            }
-        }
-        added.push(e);
-    }
-    user.extend(added);
-    Ok(())
-}
-
-// ---- end of user effects --------------------------------------------------------------------
-
 /// The paper's drift model.
 pub fn paper() -> &'static dyn Effect {
     &PAPER
 }
 
-/// Looks up an effect by its catalog name.
-pub fn by_name(name: &str) -> Option<&'static dyn Effect> {
-    candidates().into_iter().find(|e| e.name() == name)
-}
-
-/// The paper's model plus the named effects, in order; an unknown name is an error listing the
-/// catalog.
-pub fn model_effects(with: &[String]) -> anyhow::Result<Vec<&'static dyn Effect>> {
-    let mut effects = vec![paper()];
-    for name in with {
-        let e = by_name(name).ok_or_else(|| {
-            let known: Vec<_> = candidates().iter().map(|e| e.name()).collect();
-            anyhow::anyhow!(
-                "unknown effect `{name}`; the catalog has: {} (effects defined in a file need --effects FILE)",
-                known.join(", ")
-            )
-        })?;
-        if effects.iter().any(|x| x.name() == e.name()) {
-            anyhow::bail!("effect `{name}` given twice");
-        }
-        effects.push(e);
-    }
-    Ok(effects)
+/// Looks up a built-in effect by its catalog name (no catalog needed: they are statics).
+pub fn builtin(name: &str) -> Option<&'static dyn Effect> {
+    builtin_candidates().into_iter().find(|e| e.name() == name)
 }

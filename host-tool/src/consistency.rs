@@ -22,7 +22,7 @@ use crate::stats::chi2_quantile;
 
 /// The thresholds of consistency.
 #[derive(Clone, Copy, Debug, PartialEq, Serialize)]
-pub struct Thresholds {
+pub(crate) struct Thresholds {
     /// Probability content of the two-sided NIS band.
     pub nis_band_prob: f64,
     /// Smallest Ljung–Box p-value accepted as white.
@@ -64,7 +64,7 @@ impl Consistency {
 }
 
 /// The NIS/3 band for `updates` three-axis updates at probability `prob`.
-pub fn nis_band(updates: usize, prob: f64) -> [f64; 2] {
+pub(crate) fn nis_band(updates: usize, prob: f64) -> [f64; 2] {
     let dof = 3.0 * updates.max(1) as f64;
     [
         chi2_quantile(0.5 * (1.0 - prob), dof) / dof,
@@ -77,7 +77,7 @@ pub fn nis_band(updates: usize, prob: f64) -> [f64; 2] {
 /// 2·`floor_rel_sd` — independently of the χ² scatter; the two half-widths add in quadrature.
 /// On a long record at a short period the χ² band alone (±0.6 % at 216 000 updates) is narrower
 /// than the floor can be known (±0.8 % at 1σ from 216 000 raw samples).
-pub fn nis_band_with_floor(updates: usize, prob: f64, floor_rel_sd: f64) -> [f64; 2] {
+pub(crate) fn nis_band_with_floor(updates: usize, prob: f64, floor_rel_sd: f64) -> [f64; 2] {
     let [lo, hi] = nis_band(updates, prob);
     let z = crate::stats::normal_quantile(0.5 * (1.0 + prob));
     let extra = z * 2.0 * floor_rel_sd.max(0.0);
@@ -92,7 +92,7 @@ pub fn nis_band_with_floor(updates: usize, prob: f64, floor_rel_sd: f64) -> [f64
 /// add: the floor estimate's (`floor_rel_sd`) and the residual RMS's own over `updates`
 /// residuals, `1/√(2N)` (N·RMS²/σ² ~ χ²(N)). Without the second, a clean 24-h run (N = 1 441,
 /// 1.9 %) fails the 1.05 limit on one axis in a few percent of runs.
-pub fn rms_limit(t: &Thresholds, floor_rel_sd: f64, updates: usize) -> f64 {
+pub(crate) fn rms_limit(t: &Thresholds, floor_rel_sd: f64, updates: usize) -> f64 {
     let z = crate::stats::normal_quantile(0.5 + 0.5 * t.nis_band_prob);
     let rms_rel_sd = 1.0 / (2.0 * updates.max(1) as f64).sqrt();
     let sd = floor_rel_sd.hypot(rms_rel_sd);
@@ -101,7 +101,7 @@ pub fn rms_limit(t: &Thresholds, floor_rel_sd: f64, updates: usize) -> f64 {
 
 /// Assesses the statistics of one converged model; `floor_rel_sd` is the relative 1σ of the
 /// noise floor estimate (0 when the floor is given).
-pub fn assess(
+pub(crate) fn assess(
     nis_mean: f64,
     updates: usize,
     whiteness_p: f64,

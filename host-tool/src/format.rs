@@ -4,7 +4,7 @@
 //! for tables whose 1σ has its own column.
 
 /// Decimals needed to show two significant digits of `sigma`.
-pub fn decimals_for(sigma: f64) -> usize {
+pub(crate) fn decimals_for(sigma: f64) -> usize {
     if !(sigma.is_finite() && sigma > 0.0) {
         return 6;
     }
@@ -14,7 +14,7 @@ pub fn decimals_for(sigma: f64) -> usize {
 /// `value` with the decimals that two significant digits of `sigma` need; in scientific
 /// notation, as [`pm`] writes it, when the numbers are very small or large (`2.942e-6`, not
 /// `0.000002942`).
-pub fn with_sigma(value: f64, sigma: f64) -> String {
+pub(crate) fn with_sigma(value: f64, sigma: f64) -> String {
     match sci_digits(value, sigma) {
         Some(d) => format!("{value:.d$e}"),
         None => format!("{:.*}", decimals_for(sigma), value),
@@ -41,7 +41,7 @@ fn sci_digits(value: f64, sigma: f64) -> Option<usize> {
 }
 
 /// `v` to `digits` significant digits, without trailing zeros (`0.4903942405116055` → `0.4903942`).
-pub fn sig(v: f64, digits: usize) -> String {
+pub(crate) fn sig(v: f64, digits: usize) -> String {
     if !v.is_finite() || v == 0.0 {
         return format!("{v}");
     }
@@ -60,7 +60,7 @@ pub fn sig(v: f64, digits: usize) -> String {
 }
 
 /// A number in short scientific notation, e.g. `3.1e-4`.
-pub fn sci(v: f64) -> String {
+pub(crate) fn sci(v: f64) -> String {
     format!("{v:.2e}")
 }
 
@@ -86,7 +86,7 @@ pub fn pm(value: f64, sigma: f64) -> String {
 /// A p-value, the one way every command and the page print it: two decimals in scientific
 /// notation (`4.21e-1`), also below the smallest double, from its natural log `ln_p` when given
 /// (`3.72e-2083`); `< 1e-308` when it underflowed without one, `n/a` when undefined.
-pub fn p_value(p: f64, ln_p: f64) -> String {
+pub(crate) fn p_value(p: f64, ln_p: f64) -> String {
     if p.is_nan() {
         "n/a".into()
     } else if p > 0.0 || (p == 0.0 && ln_p == f64::NEG_INFINITY) {

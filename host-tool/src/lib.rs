@@ -41,7 +41,7 @@ pub mod cli {
     pub mod diagnose;
     pub mod identify;
     pub mod joint;
-    pub mod joint_report;
+    pub(crate) mod joint_report;
     pub mod plan;
     pub mod record;
     pub mod replay;

@@ -148,7 +148,7 @@ fn finish(temp: &Path, target: &Path) -> anyhow::Result<()> {
 /// bitmap backend). [`TempPath::commit`] renames it over the target; dropping it uncommitted
 /// removes it.
 #[derive(Debug)]
-pub struct TempPath {
+pub(crate) struct TempPath {
     target: PathBuf,
     temp: PathBuf,
     committed: bool,
@@ -156,7 +156,7 @@ pub struct TempPath {
 
 impl TempPath {
     /// A fresh temporary path in the target's directory (nothing is created yet).
-    pub fn new(target: &Path) -> anyhow::Result<Self> {
+    pub(crate) fn new(target: &Path) -> anyhow::Result<Self> {
         let temp = temp_path_for(target)?;
         temporaries().push(temp.clone());
         Ok(TempPath {
@@ -187,17 +187,17 @@ impl TempPath {
     }
 
     /// Where to write.
-    pub fn path(&self) -> &Path {
+    pub(crate) fn path(&self) -> &Path {
         &self.temp
     }
 
     /// The final destination.
-    pub fn target(&self) -> &Path {
+    pub(crate) fn target(&self) -> &Path {
         &self.target
     }
 
     /// Moves the finished file into place.
-    pub fn commit(mut self) -> anyhow::Result<()> {
+    pub(crate) fn commit(mut self) -> anyhow::Result<()> {
         finish(&self.temp, &self.target)?;
         self.committed = true;
         unregister(&self.temp);
@@ -218,14 +218,14 @@ impl Drop for TempPath {
 /// Dropped without a commit (an error on the way, a panic), the temporary file is removed and
 /// the target left as it was.
 #[derive(Debug)]
-pub struct AtomicFile {
+pub(crate) struct AtomicFile {
     w: BufWriter<File>,
     path: TempPath,
 }
 
 impl AtomicFile {
     /// Creates the temporary file beside `target`.
-    pub fn create(target: &Path) -> anyhow::Result<Self> {
+    pub(crate) fn create(target: &Path) -> anyhow::Result<Self> {
         let (path, f) = TempPath::create(target)?;
         Ok(AtomicFile {
             w: BufWriter::with_capacity(1 << 16, f),
@@ -233,13 +233,8 @@ impl AtomicFile {
         })
     }
 
-    /// The final destination.
-    pub fn target(&self) -> &Path {
-        self.path.target()
-    }
-
     /// Flushes, syncs and renames the file over its target.
-    pub fn commit(mut self) -> anyhow::Result<()> {
+    pub(crate) fn commit(mut self) -> anyhow::Result<()> {
         self.w
             .flush()
             .with_context(|| format!("writing {}", self.path.target().display()))?;
@@ -261,14 +256,6 @@ impl Write for AtomicFile {
     }
 }
 
-/// Writes `bytes` to `target` atomically.
-pub fn write_atomic(target: &Path, bytes: &[u8]) -> anyhow::Result<()> {
-    let mut f = AtomicFile::create(target)?;
-    f.write_all(bytes)
-        .with_context(|| format!("writing {}", target.display()))?;
-    f.commit()
-}
-
 /// `path` resolved: canonical if it exists, else its canonical directory joined with its name.
 fn resolve(path: &Path) -> Option<PathBuf> {
     if let Ok(p) = fs::canonicalize(path) {
@@ -279,7 +266,7 @@ fn resolve(path: &Path) -> Option<PathBuf> {
 }
 
 /// Whether `a` and `b` name the same file (existing or not).
-pub fn same_file(a: &Path, b: &Path) -> bool {
+pub(crate) fn same_file(a: &Path, b: &Path) -> bool {
     #[cfg(unix)]
     if let (Ok(ma), Ok(mb)) = (fs::metadata(a), fs::metadata(b)) {
         use std::os::unix::fs::MetadataExt as _;
@@ -289,7 +276,11 @@ pub fn same_file(a: &Path, b: &Path) -> bool {
 }
 
 /// Refuses to write `output` (given on the command line as `option`) over one of `inputs`.
-pub fn ensure_not_input(output: &Path, option: &str, inputs: &[&Path]) -> anyhow::Result<()> {
+pub(crate) fn ensure_not_input(
+    output: &Path,
+    option: &str,
+    inputs: &[&Path],
+) -> anyhow::Result<()> {
     for input in inputs {
         if same_file(output, input) {
             anyhow::bail!(
@@ -344,16 +335,16 @@ fn describe_type(ft: &fs::FileType) -> &'static str {
 }
 
 /// The generator tag of `report`'s HTML, by which a later run recognises its own page.
-pub const HTML_GENERATOR: &str = "<meta name=\"generator\" content=\"driftid\">";
+pub(crate) const HTML_GENERATOR: &str = "<meta name=\"generator\" content=\"driftid\">";
 /// The `tEXt` chunk's keyword and text in `report --png`'s plots.
-pub const PNG_SOFTWARE: &[u8] = b"Software\0driftid";
+pub(crate) const PNG_SOFTWARE: &[u8] = b"Software\0driftid";
 /// The metadata key and value of a simulated recording.
-pub const SIMULATED_KEY: (&str, &str) = ("generator", "driftid simulate");
+pub(crate) const SIMULATED_KEY: (&str, &str) = ("generator", "driftid simulate");
 
 /// What `driftid` writes at a target; an existing file there is recognised as one `driftid`
 /// wrote by its content (module docs), and only then replaced without `--force`.
 #[derive(Clone, Debug, PartialEq, Eq)]
-pub enum Made {
+pub(crate) enum Made {
     /// `report`'s HTML page.
     Html,
     /// A `report --png` plot.
@@ -420,7 +411,12 @@ impl Made {
 /// not exist, or it is a FIFO or a character device (written into), or a regular file `driftid`
 /// wrote as `made` (or any regular file with `force`); else an error naming `option`, the file
 /// and what to do. Its directory must exist.
-pub fn check_output(target: &Path, option: &str, made: &Made, force: bool) -> anyhow::Result<()> {
+pub(crate) fn check_output(
+    target: &Path,
+    option: &str,
+    made: &Made,
+    force: bool,
+) -> anyhow::Result<()> {
     let shown = target.display();
     if target.file_name().is_none() {
         anyhow::bail!("{option} {shown}: not a file name");
@@ -477,7 +473,7 @@ pub fn check_output(target: &Path, option: &str, made: &Made, force: bool) -> an
 
 /// `--png DIR`-like options: a folder that exists, or can be made (its nearest existing
 /// ancestor is a folder).
-pub fn check_output_dir(dir: &Path, option: &str) -> anyhow::Result<()> {
+pub(crate) fn check_output_dir(dir: &Path, option: &str) -> anyhow::Result<()> {
     let mut p = dir;
     loop {
         match fs::metadata(p) {
@@ -499,7 +495,7 @@ pub fn check_output_dir(dir: &Path, option: &str) -> anyhow::Result<()> {
 /// The outputs of one command, checked before anything is written: each against every input
 /// ([`ensure_not_input`]), against the outputs claimed before it, and by [`check_output`].
 #[derive(Debug)]
-pub struct Outputs {
+pub(crate) struct Outputs {
     inputs: Vec<PathBuf>,
     force: bool,
     claimed: Vec<(PathBuf, String)>,
@@ -507,7 +503,7 @@ pub struct Outputs {
 
 impl Outputs {
     /// The command's input files and its `--force`.
-    pub fn new(inputs: &[&Path], force: bool) -> Self {
+    pub(crate) fn new(inputs: &[&Path], force: bool) -> Self {
         Outputs {
             inputs: inputs.iter().map(|p| p.to_path_buf()).collect(),
             force,
@@ -516,7 +512,7 @@ impl Outputs {
     }
 
     /// Checks one output (given as `option`) and claims it.
-    pub fn check(&mut self, target: &Path, option: &str, made: Made) -> anyhow::Result<()> {
+    pub(crate) fn check(&mut self, target: &Path, option: &str, made: Made) -> anyhow::Result<()> {
         let inputs: Vec<&Path> = self.inputs.iter().map(|p| p.as_path()).collect();
         ensure_not_input(target, option, &inputs)?;
         if let Some((p, o)) = self.claimed.iter().find(|(p, _)| same_file(p, target)) {
@@ -537,7 +533,7 @@ impl Outputs {
 /// a raw frame log driftid wrote (or an empty file) is appended to; any other existing regular
 /// file is refused, or with `force` replaced (truncated) — never appended to; a FIFO or a
 /// character device is written into.
-pub fn open_log(target: &Path, option: &str, force: bool) -> anyhow::Result<File> {
+pub(crate) fn open_log(target: &Path, option: &str, force: bool) -> anyhow::Result<File> {
     check_output(target, option, &Made::RawLog, force)?;
     let foreign = force && check_output(target, option, &Made::RawLog, false).is_err();
     let mut o = OpenOptions::new();
@@ -552,7 +548,7 @@ pub fn open_log(target: &Path, option: &str, force: bool) -> anyhow::Result<File
 
 /// Adds the `tEXt` chunk `Software: driftid` after a PNG's header chunk, by which
 /// [`Made::Png`] recognises the plot later. Bytes that are not a PNG are returned unchanged.
-pub fn tag_png(png: &[u8]) -> Vec<u8> {
+pub(crate) fn tag_png(png: &[u8]) -> Vec<u8> {
     // Signature (8) + IHDR chunk (4 length + 4 type + 13 data + 4 CRC).
     const AFTER_IHDR: usize = 33;
     if png.len() < AFTER_IHDR || !png.starts_with(b"\x89PNG\r\n\x1a\n") || &png[12..16] != b"IHDR" {

@@ -5,7 +5,7 @@ use std::time::Duration;
 use indicatif::{ProgressBar, ProgressDrawTarget, ProgressStyle};
 
 /// A bar of `len` steps with a message; hidden unless stderr is a terminal.
-pub fn bar(len: u64, msg: &str) -> ProgressBar {
+pub(crate) fn bar(len: u64, msg: &str) -> ProgressBar {
     let pb = ProgressBar::with_draw_target(Some(len), ProgressDrawTarget::stderr());
     pb.set_style(
         ProgressStyle::with_template("{msg} [{bar:30}] {pos}/{len} ({elapsed}, eta {eta})")
@@ -18,7 +18,7 @@ pub fn bar(len: u64, msg: &str) -> ProgressBar {
 
 /// Notes of the library's steps ([`crate::steps::Progress`]) as `pb`'s message; nothing when
 /// `pb` is hidden (stderr not a terminal), so a redirected run formats no message at all.
-pub fn follow(pb: &ProgressBar) -> crate::steps::Progress {
+pub(crate) fn follow(pb: &ProgressBar) -> crate::steps::Progress {
     if pb.is_hidden() {
         return crate::steps::Progress::default();
     }
@@ -27,7 +27,7 @@ pub fn follow(pb: &ProgressBar) -> crate::steps::Progress {
 }
 
 /// A spinner with a message that the caller updates; hidden unless stderr is a terminal.
-pub fn spinner(msg: &str) -> ProgressBar {
+pub(crate) fn spinner(msg: &str) -> ProgressBar {
     let pb = ProgressBar::with_draw_target(None, ProgressDrawTarget::stderr());
     pb.set_style(ProgressStyle::with_template("{spinner} {msg} ({elapsed})").unwrap());
     pb.set_message(msg.to_string());

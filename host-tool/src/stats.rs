@@ -7,7 +7,7 @@
 //! none).
 
 /// Standard normal quantile (statrs: `√2·erfc⁻¹(2(1−p))`, exact to rounding).
-pub fn normal_quantile(p: f64) -> f64 {
+pub(crate) fn normal_quantile(p: f64) -> f64 {
     use statrs::distribution::{ContinuousCDF, Normal};
     match Normal::new(0.0, 1.0) {
         Ok(d) if (0.0..=1.0).contains(&p) => d.inverse_cdf(p),
@@ -25,7 +25,7 @@ pub fn chi2_quantile(p: f64, k: f64) -> f64 {
 }
 
 /// Upper tail probability of χ²(k) at `x`: the p-value of a χ² statistic (statrs).
-pub fn chi2_sf(x: f64, k: f64) -> f64 {
+pub(crate) fn chi2_sf(x: f64, k: f64) -> f64 {
     use statrs::distribution::{ChiSquared, ContinuousCDF};
     match ChiSquared::new(k) {
         Ok(d) if x.is_finite() => d.sf(x.max(0.0)).clamp(0.0, 1.0),
@@ -45,7 +45,7 @@ pub fn chi2_sf(x: f64, k: f64) -> f64 {
 /// exact to rounding too, not an asymptotic approximation: the fraction converges fastest
 /// exactly there (x ≫ a). Tested against scipy's `logsf` where both are finite and against the
 /// leading terms of the asymptotic series beyond.
-pub fn chi2_ln_sf(x: f64, k: f64) -> f64 {
+pub(crate) fn chi2_ln_sf(x: f64, k: f64) -> f64 {
     let p = chi2_sf(x, k);
     if p > 1e-300 {
         return p.ln();

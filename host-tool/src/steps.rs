@@ -35,7 +35,7 @@ impl Progress {
     }
 
     /// Says which step the work is on; `step` is formatted only when someone listens.
-    pub fn note(&self, step: impl FnOnce() -> String) {
+    pub(crate) fn note(&self, step: impl FnOnce() -> String) {
         if let Some(sink) = &self.sink {
             let step = step();
             if self.prefix.is_empty() {
@@ -47,7 +47,7 @@ impl Progress {
     }
 
     /// The same sink, its notes prefixed by `part` (`rung 2: …`).
-    pub fn within(&self, part: impl Into<String>) -> Progress {
+    pub(crate) fn within(&self, part: impl Into<String>) -> Progress {
         let part = part.into();
         Progress {
             sink: self.sink.clone(),

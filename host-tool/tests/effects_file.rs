@@ -2,8 +2,8 @@
 //! equal to the built-in Rust effect of the same physics, and an effect outside the built-in
 //! catalog found by the diagnosis once the file defines it.
 //!
-//! Only `acc_k2_from_the_file_is_found_by_diagnose` registers effects in the (process-wide)
-//! catalog; the other tests use the parsed effects directly, so the tests can run in parallel.
+//! Each test builds its own catalog (a value, not a process-wide registry), so the tests can run
+//! in parallel.
 
 use std::path::{Path, PathBuf};
 
@@ -11,10 +11,10 @@ use estimator_core::effects::{
     AccBias, AccScale, Context, DriftTrend, Effect, G2Drift, Partials, TempDrift,
 };
 use estimator_core::{Sample, Site};
-use host_tool::catalog;
+use host_tool::catalog::{self, Catalog};
 use host_tool::cli::common::build_model;
 use host_tool::diagnose::{ladder, DiagnoseConfig};
-use host_tool::effects_file::{load_and_register, load_file, parse_effects, UserEffect};
+use host_tool::effects_file::{load_file, parse_effects, UserEffect};
 use host_tool::identify::{identify, prepare, Config};
 use host_tool::simulate::{simulate, InjectedEffect, Scenario};
 use nalgebra::{Matrix3, Vector3};
@@ -486,7 +486,7 @@ fn file_effects_identify_like_the_builtin_effects() {
 
 /// (4) The acc-k2 effect of the example file, outside the built-in catalog, injected into a
 /// simulated run as host-tool/examples/custom_effect.rs does: without the file the diagnosis
-/// cannot name it; once the file is registered the diagnosis ranks it first and the ladder adds
+/// cannot name it; once the file is in the catalog the diagnosis ranks it first and the ladder adds
 /// it, bringing the residual to the floor with the injected K2 recovered.
 ///
 /// Tolerances as in tests/tests/hidden_effects.rs: leading candidate Holm-adjusted p < 1 %;
@@ -518,28 +518,31 @@ fn acc_k2_from_the_file_is_found_by_diagnose() {
     };
     let prep = prepare(site, &samples, &cfg.identify).unwrap();
 
-    // Registration is refused for a clash with a built-in name (and leaves the catalog as is).
+    // A catalog is refused for a clash with a built-in name.
     let clash = parse(
         "[[effect]]\nname = \"acc-bias\"\napplies_to = \"accelerometer\"\nparams = [ { name = \"Q\", prior_sigma = 1 } ]\nx = \"Q\"\ny = \"0\"\nz = \"0\"\n",
     );
-    let clash: &'static UserEffect = Box::leak(Box::new(clash.into_iter().next().unwrap()));
-    let e = catalog::register(vec![clash]).unwrap_err().to_string();
+    let e = Catalog::with_user(clash).unwrap_err().to_string();
     assert!(e.contains("`acc-bias`") && e.contains("built-in"), "{e}");
-    assert!(catalog::by_name("acc-k2").is_none());
+    assert!(Catalog::builtin().by_name("acc-k2").is_none());
 
-    let registered = load_and_register(&[example_file()]).unwrap();
-    assert_eq!(registered.len(), 1);
-    assert!(catalog::by_name("acc-k2").is_some());
-    assert!(catalog::model_effects(&["acc-k2".to_string()]).is_ok());
-    // Registering the same file twice is a name clash.
-    assert!(load_and_register(&[example_file()]).is_err());
+    let catalog = Catalog::load(&[example_file()]).unwrap();
+    assert_eq!(catalog.user().len(), 1);
+    assert!(catalog.by_name("acc-k2").is_some());
+    assert!(catalog.model_effects(&["acc-k2".to_string()]).is_ok());
+    // The same file twice is a name clash.
+    let twice = Catalog::load(&[example_file(), example_file()]).unwrap_err();
+    assert!(
+        format!("{twice:#}").contains("the same file given twice"),
+        "{twice:#}"
+    );
 
     let host_tool::diagnose::Ladder {
         diagnoses,
         rungs,
         identification: id,
         effects,
-    } = ladder(&prep, &[catalog::paper()], &cfg).unwrap();
+    } = ladder(&prep, &catalog, &[catalog::paper()], &cfg).unwrap();
     let first = &diagnoses[0];
     assert!(
         first.residual_rms_over_floor.iter().any(|r| *r > 1.1),
@@ -604,20 +607,48 @@ fn acc_k2_from_the_file_is_found_by_diagnose() {
 }
 
 /// The catalog refuses a file effect whose parameter name is already used by a built-in effect
-/// (results are keyed by parameter name) and leaves the catalog unchanged (the refusal happens
-/// before anything is added, so this test cannot disturb the one that registers acc-k2).
+/// (results are keyed by parameter name).
 #[test]
-fn registering_a_clashing_parameter_name_is_refused() {
+fn a_catalog_with_a_clashing_parameter_name_is_refused() {
     let e = parse(
         "[[effect]]\nname = \"my-bias\"\napplies_to = \"accelerometer\"\nparams = [ { name = \"BAx\", prior_sigma = 1e-3 } ]\nx = \"BAx\"\ny = \"0\"\nz = \"0\"\n",
     );
-    let e: &'static UserEffect = Box::leak(Box::new(e.into_iter().next().unwrap()));
-    let err = catalog::register(vec![e]).unwrap_err().to_string();
+    let err = Catalog::with_user(e).unwrap_err().to_string();
     assert_eq!(
         err,
         "effect `my-bias`: parameter name `BAx` is already used by effect `acc-bias`; rename it"
     );
-    assert!(catalog::by_name("my-bias").is_none());
+}
+
+/// The catalog is a value: two catalogs in one process are independent. Under the former
+/// process-wide registry the second load of the same file was refused as a clash with the first,
+/// and the file's effect leaked into every later lookup (the built-in catalog included).
+#[test]
+fn two_catalogs_in_one_process_are_independent() {
+    let first = Catalog::load(&[example_file()]).unwrap();
+    let second = Catalog::load(&[example_file()]).unwrap();
+    for c in [&first, &second] {
+        assert_eq!(c.user().len(), 1);
+        assert_eq!(c.by_name("acc-k2").map(|e| e.name()), Some("acc-k2"));
+        // The built-in effects, then the file's: 8 + 1 candidates.
+        assert_eq!(
+            c.candidates().len(),
+            catalog::builtin_candidates().len() + 1
+        );
+    }
+    // The two hold distinct effects (each owns its own), and the built-in catalog has none.
+    let (a, b) = (
+        first.by_name("acc-k2").unwrap(),
+        second.by_name("acc-k2").unwrap(),
+    );
+    assert!(!std::ptr::addr_eq(a, b));
+    assert!(Catalog::builtin().by_name("acc-k2").is_none());
+    assert!(Catalog::builtin().user().is_empty());
+    let err = match Catalog::builtin().model_effects(&["acc-k2".to_string()]) {
+        Ok(_) => panic!("the built-in catalog offered acc-k2"),
+        Err(e) => e.to_string(),
+    };
+    assert!(err.contains("unknown effect `acc-k2`"), "{err}");
 }
 
 /// The binary: `--effects` with a bad file is a located error (exit code 1) on each of identify,

@@ -458,7 +458,7 @@ fn segment_boundaries_and_gauss_markov_rows_match_the_dense_smoother() {
     // Record lengths around the segment length ⌈√N⌉ (perfect squares, one more, one less, tiny),
     // on a model with Gauss–Markov drift states (Φ has more dynamic rows than the three angles).
     let prep = paper_run(3.0);
-    let markov = catalog::by_name("drift-markov").unwrap();
+    let markov = catalog::builtin("drift-markov").unwrap();
     let lists: [Vec<&dyn Effect>; 2] = [vec![catalog::paper()], vec![catalog::paper(), markov]];
     for effects in &lists {
         let model = Model::new(

@@ -1,14 +1,13 @@
 //! An effect driven by an extra column of the recording (issue 27 item 5): a spin-motor current
 //! `I_spin` that the accelerometers pick up, written into a simulated paper run beside the
-//! samples; the effects file declares `columns = ["I_spin"]`. Registers file effects in the
-//! process-wide catalog, so it is the only test of this file (its own process).
+//! samples; the effects file declares `columns = ["I_spin"]`. The column table is bound to one
+//! recording per loaded effect, so the whole story is one test.
 
 use std::path::{Path, PathBuf};
 
-use host_tool::catalog;
+use host_tool::catalog::{self, Catalog};
 use host_tool::cli::common::load;
 use host_tool::diagnose::{ladder, DiagnoseConfig};
-use host_tool::effects_file::load_and_register;
 use host_tool::identify::prepare;
 use host_tool::recording::write_recording;
 use host_tool::simulate::{simulate, Scenario};
@@ -71,7 +70,7 @@ fn a_current_column_effect_is_found_once_the_file_defines_it() {
     std::fs::create_dir_all(&dir).unwrap();
     let effects: PathBuf = dir.join("spin.toml");
     std::fs::write(&effects, SPIN).unwrap();
-    load_and_register(std::slice::from_ref(&effects)).unwrap();
+    let catalog = Catalog::load(std::slice::from_ref(&effects)).unwrap();
 
     // A recording without the column: refused at load, naming the effect's `columns` key and
     // the recording's header line.
@@ -80,7 +79,7 @@ fn a_current_column_effect_is_found_once_the_file_defines_it() {
     sc.rate_s = 60.0;
     let sim = simulate(&sc);
     write_recording(&plain, &sim.meta, &sim.samples).unwrap();
-    let e = format!("{:#}", load(&plain, None).err().unwrap());
+    let e = format!("{:#}", load(&catalog, &plain, None).err().unwrap());
     let expected = format!(
         "{}:5:11: effect `acc-spin`: {}:5: no column I_spin (header has: t_s, ax_mps2, ay_mps2, az_mps2)",
         effects.display(),
@@ -91,13 +90,13 @@ fn a_current_column_effect_is_found_once_the_file_defines_it() {
     let k = [3e-4, -2e-4, 0.0];
     let run = dir.join("spin.csv");
     write_with_current(&run, 7, k);
-    let loaded = load(&run, None).unwrap();
+    let loaded = load(&catalog, &run, None).unwrap();
     let cfg = DiagnoseConfig {
         max_rungs: 2,
         ..Default::default()
     };
     let prep = prepare(loaded.site, &loaded.samples, &cfg.identify).unwrap();
-    let l = ladder(&prep, &[catalog::paper()], &cfg).unwrap();
+    let l = ladder(&prep, &catalog, &[catalog::paper()], &cfg).unwrap();
     let lead = &l.diagnoses[0].ranking[0];
     assert_eq!(lead.effect, "acc-spin");
     assert_eq!(l.effects.last().unwrap().name(), "acc-spin");
@@ -120,7 +119,7 @@ fn a_current_column_effect_is_found_once_the_file_defines_it() {
     // The effect holds one run's column: a second recording is refused by name.
     let other = dir.join("other.csv");
     write_with_current(&other, 8, k);
-    let e = format!("{:#}", load(&other, None).err().unwrap());
+    let e = format!("{:#}", load(&catalog, &other, None).err().unwrap());
     assert!(
         e.contains("effect `acc-spin` uses the recording columns I_spin of")
             && e.contains("joint fits with extra columns are not supported yet"),

@@ -44,7 +44,7 @@ fn a_north_term_is_identified_with_the_shipped_file() {
     let file = load_file(&example_file()).unwrap();
     assert_eq!(file[0].name(), "acc-north");
     assert!(file[0].uses_north());
-    let loaded = load(&run, None).unwrap();
+    let loaded = load(catalog::Catalog::builtin(), &run, None).unwrap();
     let cfg = Config::default();
     let prep = prepare(loaded.site, &loaded.samples, &cfg).unwrap();
     let effects: Vec<&dyn Effect> = vec![catalog::paper(), &file[0]];

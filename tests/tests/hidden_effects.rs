@@ -14,7 +14,7 @@
 //!   g²·D(i)_zz, which a static run cannot separate from it: see `G2Drift`).
 
 use estimator_core::Sample;
-use host_tool::catalog;
+use host_tool::catalog::{self, Catalog};
 use host_tool::diagnose::{ladder, DiagnoseConfig};
 use host_tool::identify::{prepare, Config};
 use host_tool::simulate::{simulate, InjectedEffect, Scenario};
@@ -47,7 +47,7 @@ fn check(effect: &str, spec: &str, seed: u64) {
         rungs,
         identification: id,
         ..
-    } = ladder(&prep, &[catalog::paper()], &cfg).unwrap();
+    } = ladder(&prep, Catalog::builtin(), &[catalog::paper()], &cfg).unwrap();
     let first = &diagnoses[0];
     assert!(
         first.residual_rms_over_floor.iter().any(|r| *r > 1.3),
@@ -173,7 +173,13 @@ fn clean_data_raises_no_alarm() {
     let prep = prepare(site, &samples, &Config::default()).unwrap();
     let host_tool::diagnose::Ladder {
         diagnoses, rungs, ..
-    } = ladder(&prep, &[catalog::paper()], &DiagnoseConfig::default()).unwrap();
+    } = ladder(
+        &prep,
+        Catalog::builtin(),
+        &[catalog::paper()],
+        &DiagnoseConfig::default(),
+    )
+    .unwrap();
     assert_eq!(rungs.len(), 1, "a clean run must not climb the ladder");
     let d = &diagnoses[0];
     for c in d.ranking.iter().filter(|c| c.untestable.is_none()) {

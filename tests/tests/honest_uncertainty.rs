@@ -14,7 +14,7 @@
 
 use estimator_core::Sample;
 use host_tool::assess::{assess, Assessment};
-use host_tool::catalog;
+use host_tool::catalog::{self, Catalog};
 use host_tool::identify::{build_model, identify, prepare, Config};
 use host_tool::simulate::{simulate, Scenario, SetupErrors};
 
@@ -43,7 +43,7 @@ fn run_with(sc: &Scenario, cfg: Config) -> (Assessment, [f64; 12]) {
     let model = build_model(prep.site, &effects, &cfg).unwrap();
     let id = identify(&model, &prep, &cfg).unwrap();
     (
-        assess(&effects, prep, &cfg, id).unwrap(),
+        assess(Catalog::builtin(), &effects, prep, &cfg, id).unwrap(),
         sim.truth.coefficient_array(),
     )
 }
@@ -300,14 +300,14 @@ fn an_alternatives_shift_is_what_refitting_with_it_gives() {
     let prep = prepare(site, &samples, &cfg).unwrap();
     let paper = [catalog::paper()];
     let id = identify(&build_model(prep.site, &paper, &cfg).unwrap(), &prep, &cfg).unwrap();
-    let a = assess(&paper, prep.clone(), &cfg, id.clone()).unwrap();
+    let a = assess(Catalog::builtin(), &paper, prep.clone(), &cfg, id.clone()).unwrap();
     let alt = a
         .alternatives
         .iter()
         .find(|x| x.effect == "drift-trend" && !x.instead_of_setup)
         .expect("drift-trend weighed");
     assert!(alt.evidence_gain > 10.0, "gain {}", alt.evidence_gain);
-    let with = [catalog::paper(), catalog::by_name("drift-trend").unwrap()];
+    let with = [catalog::paper(), catalog::builtin("drift-trend").unwrap()];
     // About the assessed fit: the set-up where prior and data put it.
     let refit = identify(
         &build_model(a.prep.site, &with, &cfg).unwrap(),

@@ -88,8 +88,8 @@ fn accelerometer_bias_and_scale_come_apart_with_a_second_orientation() {
     let cfg = Config::default();
     let effects = [
         catalog::paper(),
-        catalog::by_name("acc-bias").unwrap(),
-        catalog::by_name("acc-scale").unwrap(),
+        catalog::builtin("acc-bias").unwrap(),
+        catalog::builtin("acc-scale").unwrap(),
     ];
     let preps = [
         prepared(&scenario(3, [0.0; 3], 60.0), &cfg),

@@ -21,7 +21,7 @@
 //!   which gains ~200 in −2 ln L over the catalog's values, far above chance).
 
 use estimator_core::{Sample, Site};
-use host_tool::catalog;
+use host_tool::catalog::Catalog;
 use host_tool::diagnose::{whiteness, DiagnoseConfig};
 use host_tool::identify::markov::{tune, MarkovFit};
 use host_tool::identify::{build_model, identify, prepare, Identification};
@@ -48,7 +48,9 @@ fn fit_markov(seed: u64, effect: Option<&str>) -> (f64, MarkovFit, Identificatio
     let samples: Vec<Sample> = sim.samples.iter().map(Sample::from).collect();
     let cfg = DiagnoseConfig::default().identify;
     let prep = prepare(Site::new(sc.latitude_deg, sc.gravity_mps2), &samples, &cfg).unwrap();
-    let effects = catalog::model_effects(&["drift-markov".to_string()]).unwrap();
+    let effects = Catalog::builtin()
+        .model_effects(&["drift-markov".to_string()])
+        .unwrap();
     let model = build_model(prep.site, &effects, &cfg).unwrap();
     let id = identify(&model, &prep, &cfg).unwrap();
     let before = whiteness_p(&id);

@@ -8,10 +8,10 @@ use crate::recording::check_latitude_deg;
 
 /// Longest duration accepted by `--duration-s`/`--timeout-s`, s (about 31.7 years): far beyond
 /// any run, and well inside what `std::time::Duration` holds.
-pub const MAX_DURATION_S: f64 = 1e9;
+pub(crate) const MAX_DURATION_S: f64 = 1e9;
 
 /// Most seeds a benchmark accepts.
-pub const MAX_SEEDS: u64 = 1_000_000;
+pub(crate) const MAX_SEEDS: u64 = 1_000_000;
 
 fn number(s: &str) -> Result<f64, String> {
     let v: f64 = s
@@ -28,12 +28,12 @@ fn number(s: &str) -> Result<f64, String> {
 }
 
 /// Any finite number.
-pub fn finite_f64(s: &str) -> Result<f64, String> {
+pub(crate) fn finite_f64(s: &str) -> Result<f64, String> {
     number(s)
 }
 
 /// A finite number > 0.
-pub fn positive_f64(s: &str) -> Result<f64, String> {
+pub(crate) fn positive_f64(s: &str) -> Result<f64, String> {
     match number(s)? {
         v if v > 0.0 => Ok(v),
         v => Err(format!("{v} is not > 0 (must be a finite number > 0)")),
@@ -41,7 +41,7 @@ pub fn positive_f64(s: &str) -> Result<f64, String> {
 }
 
 /// A finite number ≥ 0.
-pub fn nonneg_f64(s: &str) -> Result<f64, String> {
+pub(crate) fn nonneg_f64(s: &str) -> Result<f64, String> {
     match number(s)? {
         v if v >= 0.0 => Ok(v),
         v => Err(format!("{v} is negative (must be a finite number >= 0)")),
@@ -49,7 +49,7 @@ pub fn nonneg_f64(s: &str) -> Result<f64, String> {
 }
 
 /// A window of hours `T0..T1` (`--exclude`): finite, T0 ≤ T1.
-pub fn hours_window(s: &str) -> Result<(f64, f64), String> {
+pub(crate) fn hours_window(s: &str) -> Result<(f64, f64), String> {
     let (a, b) = s
         .split_once("..")
         .ok_or_else(|| format!("{s:?} is not a window T0..T1 in hours (e.g. 12.5..13)"))?;
@@ -61,13 +61,13 @@ pub fn hours_window(s: &str) -> Result<(f64, f64), String> {
 }
 
 /// A latitude in degrees, in the range the recording format accepts (the reader's own check).
-pub fn latitude_deg(s: &str) -> Result<f64, String> {
+pub(crate) fn latitude_deg(s: &str) -> Result<f64, String> {
     check_latitude_deg(number(s)?)
 }
 
 /// A duration in seconds: finite, > 0 and at most [`MAX_DURATION_S`] (so converting it to a
 /// `Duration` cannot fail).
-pub fn duration_s(s: &str) -> Result<f64, String> {
+pub(crate) fn duration_s(s: &str) -> Result<f64, String> {
     match positive_f64(s)? {
         v if v <= MAX_DURATION_S => Ok(v),
         v => Err(format!(
@@ -77,7 +77,7 @@ pub fn duration_s(s: &str) -> Result<f64, String> {
 }
 
 /// An integer ≥ 1 that fits a u32 (e.g. a baud rate).
-pub fn positive_u32(s: &str) -> Result<u32, String> {
+pub(crate) fn positive_u32(s: &str) -> Result<u32, String> {
     match s.trim().parse::<u32>() {
         Ok(0) => Err("0 is not allowed (must be an integer >= 1)".into()),
         Ok(v) => Ok(v),
@@ -89,7 +89,7 @@ pub fn positive_u32(s: &str) -> Result<u32, String> {
 }
 
 /// A number of seeds: an integer in 1..=[`MAX_SEEDS`].
-pub fn seed_count(s: &str) -> Result<u64, String> {
+pub(crate) fn seed_count(s: &str) -> Result<u64, String> {
     match s.trim().parse::<u64>() {
         Ok(v) if (1..=MAX_SEEDS).contains(&v) => Ok(v),
         _ => Err(format!(
@@ -100,20 +100,20 @@ pub fn seed_count(s: &str) -> Result<u64, String> {
 
 /// Longest run `--hours` accepts (simulate, plan, bench), h: about 14 months — far beyond a
 /// drift identification run (hours to weeks); `plan --hours 1e9` aborted on a 14-TB allocation.
-pub const MAX_HOURS: f64 = 1e4;
+pub(crate) const MAX_HOURS: f64 = 1e4;
 /// Sample interval `--rate-s` accepts, s: 0.1 ms to one day.
-pub const RATE_S: (f64, f64) = (1e-4, 86_400.0);
+pub(crate) const RATE_S: (f64, f64) = (1e-4, 86_400.0);
 /// Filter period `--period-s` accepts, s: 1 ms to one day.
-pub const PERIOD_S: (f64, f64) = (1e-3, 86_400.0);
+pub(crate) const PERIOD_S: (f64, f64) = (1e-3, 86_400.0);
 /// `--arw` (gyro angle random walk variance density), deg²/h: 1 deg²/h is a random walk of
 /// 1 deg/√h, some 10⁴× an INS gyro's.
-pub const MAX_ARW: f64 = 1.0;
+pub(crate) const MAX_ARW: f64 = 1.0;
 /// `--raw-sigma` (1σ of one accelerometer sample), m/s²: 1 ng to 0.1 g.
-pub const RAW_SIGMA_MPS2: (f64, f64) = (1e-8, 1.0);
+pub(crate) const RAW_SIGMA_MPS2: (f64, f64) = (1e-8, 1.0);
 /// `--gate-nis` (χ² gate on the NIS; 0: off).
-pub const MAX_GATE_NIS: f64 = 1e6;
+pub(crate) const MAX_GATE_NIS: f64 = 1e6;
 /// `--alternatives` (plan).
-pub const MAX_ALTERNATIVES: usize = 100;
+pub(crate) const MAX_ALTERNATIVES: usize = 100;
 
 /// `v` as a person writes it: 0, 60, 86400, 1e-8, 1e9.
 fn short(v: f64) -> String {
@@ -127,7 +127,7 @@ fn short(v: f64) -> String {
 /// A parser of a finite number in `lo..=hi` (`lo` itself excluded when `open_low`), `unit` for
 /// the message: `invalid value '1e9' for '--hours <HOURS>': 1e9 is outside (0, 10000] h (the
 /// option's range)`.
-pub fn range_f64(
+pub(crate) fn range_f64(
     lo: f64,
     hi: f64,
     open_low: bool,
@@ -152,42 +152,42 @@ pub fn range_f64(
 }
 
 /// `--hours` of a run to be made (plan, bench): (0, [`MAX_HOURS`]].
-pub fn hours(s: &str) -> Result<f64, String> {
+pub(crate) fn hours(s: &str) -> Result<f64, String> {
     range_f64(0.0, MAX_HOURS, true, "h")(s)
 }
 
 /// `--hours` of `simulate` (0 allowed: one sample): [0, [`MAX_HOURS`]].
-pub fn hours_or_zero(s: &str) -> Result<f64, String> {
+pub(crate) fn hours_or_zero(s: &str) -> Result<f64, String> {
     range_f64(0.0, MAX_HOURS, false, "h")(s)
 }
 
 /// `--rate-s`: [`RATE_S`].
-pub fn rate_s(s: &str) -> Result<f64, String> {
+pub(crate) fn rate_s(s: &str) -> Result<f64, String> {
     range_f64(RATE_S.0, RATE_S.1, false, "s")(s)
 }
 
 /// `--period-s`: [`PERIOD_S`].
-pub fn period_s(s: &str) -> Result<f64, String> {
+pub(crate) fn period_s(s: &str) -> Result<f64, String> {
     range_f64(PERIOD_S.0, PERIOD_S.1, false, "s")(s)
 }
 
 /// `--arw`: [0, [`MAX_ARW`]].
-pub fn arw(s: &str) -> Result<f64, String> {
+pub(crate) fn arw(s: &str) -> Result<f64, String> {
     range_f64(0.0, MAX_ARW, false, "deg^2/h")(s)
 }
 
 /// `--raw-sigma`: [`RAW_SIGMA_MPS2`].
-pub fn raw_sigma(s: &str) -> Result<f64, String> {
+pub(crate) fn raw_sigma(s: &str) -> Result<f64, String> {
     range_f64(RAW_SIGMA_MPS2.0, RAW_SIGMA_MPS2.1, false, "m/s^2")(s)
 }
 
 /// `--gate-nis`: [0, [`MAX_GATE_NIS`]].
-pub fn gate_nis(s: &str) -> Result<f64, String> {
+pub(crate) fn gate_nis(s: &str) -> Result<f64, String> {
     range_f64(0.0, MAX_GATE_NIS, false, "")(s)
 }
 
 /// `--alternatives`: an integer in 0..=[`MAX_ALTERNATIVES`].
-pub fn alternatives(s: &str) -> Result<usize, String> {
+pub(crate) fn alternatives(s: &str) -> Result<usize, String> {
     match s.trim().parse::<usize>() {
         Ok(v) if v <= MAX_ALTERNATIVES => Ok(v),
         _ => Err(format!(
@@ -197,7 +197,7 @@ pub fn alternatives(s: &str) -> Result<usize, String> {
 }
 
 /// `secs` (already checked by [`duration_s`]) as a `Duration`, without a panic path.
-pub fn to_duration(secs: f64, option: &str) -> anyhow::Result<std::time::Duration> {
+pub(crate) fn to_duration(secs: f64, option: &str) -> anyhow::Result<std::time::Duration> {
     std::time::Duration::try_from_secs_f64(secs)
         .map_err(|e| anyhow::anyhow!("{option} {secs}: not a valid duration ({e})"))
 }

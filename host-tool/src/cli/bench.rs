@@ -7,7 +7,7 @@ use nalgebra::{DMatrix, DVector};
 use rayon::prelude::*;
 
 use super::common::build_model;
-use crate::catalog;
+use crate::catalog::{self, Catalog};
 use crate::identify::{identify, prepare, try_cramer_rao_bound, Config, Prepared};
 use crate::simulate::{simulate, Scenario};
 use crate::stats::chi2_quantile;
@@ -170,7 +170,7 @@ fn calibration_seed(
         .collect();
     let site = estimator_core::Site::new(sc.latitude_deg, sc.gravity_mps2);
     let prep = prepare(site, &samples, &cfg.identify)?;
-    let (d, _) = crate::diagnose::diagnose(&prep, &[catalog::paper()], cfg)?;
+    let (d, _) = crate::diagnose::diagnose(&prep, Catalog::builtin(), &[catalog::paper()], cfg)?;
     Ok(d.ranking
         .iter()
         .filter(|c| c.untestable.is_none())
@@ -276,7 +276,7 @@ fn diagnose_run(sc: &Scenario) -> anyhow::Result<crate::diagnose::Diagnosis> {
     let site = estimator_core::Site::new(sc.latitude_deg, sc.gravity_mps2);
     let cfg = DiagnoseConfig::default();
     let prep = prepare(site, &samples, &cfg.identify)?;
-    Ok(diagnose(&prep, &[catalog::paper()], &cfg)?.0)
+    Ok(diagnose(&prep, Catalog::builtin(), &[catalog::paper()], &cfg)?.0)
 }
 
 /// Detection limits checked empirically: for one parameter of each effect, the size the score

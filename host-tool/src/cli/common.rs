@@ -6,6 +6,7 @@ use std::path::Path;
 use anyhow::Context as _;
 use estimator_core::{Propagation, Sample, Site};
 
+use crate::catalog::Catalog;
 use crate::identify::{Config, Prepared};
 use crate::recording::{read_recording, RawSample};
 
@@ -66,7 +67,7 @@ pub struct ModelArgs {
 
 impl ModelArgs {
     /// The identification settings these options give.
-    pub fn config(&self) -> anyhow::Result<Config> {
+    pub(crate) fn config(&self) -> anyhow::Result<Config> {
         let raw_sigma_mps2 = match self.raw_sigma.as_deref() {
             None => None,
             Some([s]) => Some([*s; 3]),
@@ -146,7 +147,7 @@ pub struct Loaded {
 
 impl Loaded {
     /// The file line of the sample stamped `t_s` (on the samples' time axis), if there is one.
-    pub fn line_at(&self, t_s: f64) -> Option<u32> {
+    pub(crate) fn line_at(&self, t_s: f64) -> Option<u32> {
         let k = self.samples.iter().position(|s| s.t_s == t_s)?;
         self.lines.get(k).copied()
     }
@@ -155,7 +156,11 @@ impl Loaded {
 /// The recording at `path`, loaded, prepared at its stated orientation
 /// ([`crate::identify::prepare_oriented`]); an error names the file, and a refusal that blames
 /// one sample (irregular time stamps) its line, `FILE:LINE: …`, as the reader's errors do.
-pub fn prepare_loaded(path: &Path, loaded: &Loaded, cfg: &Config) -> anyhow::Result<Prepared> {
+pub(crate) fn prepare_loaded(
+    path: &Path,
+    loaded: &Loaded,
+    cfg: &Config,
+) -> anyhow::Result<Prepared> {
     crate::identify::prepare_oriented(
         loaded.site,
         &loaded.samples,
@@ -177,17 +182,17 @@ pub fn prepare_loaded(path: &Path, loaded: &Loaded, cfg: &Config) -> anyhow::Res
 /// The longest span a recording may have, s (about 3.2 years; a drift identification run lasts
 /// hours to weeks). A longer one — typically one stray stamp far in the future — would make the
 /// filter propagate across it step by step for hours.
-pub const MAX_SPAN_S: f64 = 1e8;
+pub(crate) const MAX_SPAN_S: f64 = 1e8;
 
 /// The longest gap between two samples, s (11.6 days). Measured: a 2-h run with its last
 /// sample 1e6 s later is identified; 1e7 s later the attitude's uncertainty grown across the gap
 /// (the drift integrated over months) makes the filter fail with a covariance error.
-pub const MAX_GAP_S: f64 = 1e6;
+pub(crate) const MAX_GAP_S: f64 = 1e6;
 
 /// The coarsest float resolution a time stamp may have, as a fraction of the interval since the
 /// previous sample. Beyond it the stamps' offset has eaten their fraction: at 1e15 s a double
 /// resolves only 0.125 s, so 1-s stamps come out 0.875, 1 or 1.125 s apart.
-pub const MAX_STAMP_RESOLUTION: f64 = 1e-3;
+pub(crate) const MAX_STAMP_RESOLUTION: f64 = 1e-3;
 
 /// Absolute time stamps (Unix time, a clock's uptime, a negative start): times are taken
 /// relative to the first sample, said once on stderr (a recording starting at t_s = 0 is left
@@ -307,19 +312,33 @@ fn fingerprint(samples: &[Sample]) -> u64 {
     h.finish()
 }
 
-/// Reads a recording; a bad file is an error naming file and line.
-pub fn load(path: &Path, latitude_override: Option<f64>) -> anyhow::Result<Loaded> {
-    load_with(path, latitude_override, true)
+/// Reads a recording (and the columns `catalog`'s file effects use); a bad file is an error
+/// naming file and line.
+pub fn load(
+    catalog: &Catalog,
+    path: &Path,
+    latitude_override: Option<f64>,
+) -> anyhow::Result<Loaded> {
+    load_with(catalog, path, latitude_override, true)
 }
 
 /// [`load`] without its warnings on stderr (a repaired last line, relative time stamps): for a
 /// first look at a recording that is loaded again, with its warnings, later (the joint
 /// `diagnose`'s check for the same data twice).
-pub fn load_quietly(path: &Path, latitude_override: Option<f64>) -> anyhow::Result<Loaded> {
-    load_with(path, latitude_override, false)
+pub(crate) fn load_quietly(
+    catalog: &Catalog,
+    path: &Path,
+    latitude_override: Option<f64>,
+) -> anyhow::Result<Loaded> {
+    load_with(catalog, path, latitude_override, false)
 }
 
-fn load_with(path: &Path, latitude_override: Option<f64>, warn: bool) -> anyhow::Result<Loaded> {
+fn load_with(
+    catalog: &Catalog,
+    path: &Path,
+    latitude_override: Option<f64>,
+    warn: bool,
+) -> anyhow::Result<Loaded> {
     let spin = crate::progress::spinner(&format!("reading {}", path.display()));
     let rec = read_recording(path);
     spin.finish_and_clear();
@@ -329,7 +348,7 @@ fn load_with(path: &Path, latitude_override: Option<f64>, warn: bool) -> anyhow:
     }
     relative_times(path, &mut rec.samples, &rec.lines, warn)?;
     // File effects that use extra columns of the recording (`columns = [...]`) read them now.
-    crate::effects_file::bind_columns(path, &rec.samples, &rec.lines)?;
+    catalog.bind_columns(path, &rec.samples, &rec.lines)?;
     let latitude_deg = latitude_override
         .or(rec.meta.latitude_deg)
         .with_context(|| {
@@ -387,9 +406,9 @@ pub use crate::identify::build_model;
 /// against `rivals` (the catalog effects' evidence gains on the same scale): the profile's
 /// finding, if any, joins `prep.findings`, where it is a fault (the result is not trusted, and no
 /// physical effect is added to explain it). Call it once a fit is inconsistent.
-pub fn name_a_wrong_latitude(
+pub(crate) fn name_a_wrong_latitude(
     prep: &mut Prepared,
-    effects: &[&'static dyn estimator_core::effects::Effect],
+    effects: &[&dyn estimator_core::effects::Effect],
     cfg: &Config,
     rivals: &[(String, f64)],
     progress: &Progress,
@@ -403,9 +422,10 @@ pub fn name_a_wrong_latitude(
 /// rivals of a wrong latitude. The leaders by the linearised evidence
 /// ([`crate::diagnose::alternatives`]) are refitted, as the latitude is: far from the fit the
 /// one-step evidence overstates what a refit gains.
-pub fn rivals(
+pub(crate) fn rivals(
     prep: &Prepared,
-    effects: &[&'static dyn estimator_core::effects::Effect],
+    catalog: &Catalog,
+    effects: &[&dyn estimator_core::effects::Effect],
     cfg: &Config,
     id: &crate::identify::Identification,
     progress: &Progress,
@@ -416,7 +436,7 @@ pub fn rivals(
         ..Default::default()
     };
     progress.note(|| "the model does not fit: weighing the catalog effects".into());
-    let Ok(alts) = crate::diagnose::alternatives::weigh(prep, effects, &dcfg, id) else {
+    let Ok(alts) = crate::diagnose::alternatives::weigh(prep, catalog, effects, &dcfg, id) else {
         return vec![];
     };
     let leaders: Vec<String> = alts
@@ -425,7 +445,7 @@ pub fn rivals(
         .map(|a| a.effect.clone())
         .collect();
     let base = crate::diagnose::select::neg2_log_evidence(id);
-    crate::diagnose::select::refit(prep, effects, base, &leaders, &dcfg)
+    crate::diagnose::select::refit(prep, catalog, effects, base, &leaders, &dcfg)
         .into_iter()
         .map(|r| (r.effect, r.evidence_gain))
         .collect()
@@ -436,9 +456,10 @@ pub fn rivals(
 /// explanation is repaired in `prep` and `cfg` and the model refitted there), then against the
 /// latitude ([`name_a_wrong_latitude`]). `diagnose` and `report` start their ladder from this
 /// fit ([`crate::diagnose::ladder_from`]).
-pub fn starting_fit(
+pub(crate) fn starting_fit(
     prep: &mut Prepared,
-    effects: &[&'static dyn estimator_core::effects::Effect],
+    catalog: &Catalog,
+    effects: &[&dyn estimator_core::effects::Effect],
     cfg: &mut Config,
     stated: &mut Option<Prepared>,
     progress: &Progress,
@@ -463,7 +484,7 @@ pub fn starting_fit(
     if consistent && weighed.stated_gain.is_none_or(|g| g <= 0.0) {
         return Ok(Some(id));
     }
-    let mut rivals = rivals(prep, effects, cfg, &id, progress);
+    let mut rivals = rivals(prep, catalog, effects, cfg, &id, progress);
     // On the scale of the rivals, refitted at the stated set-up: the misstatements' gains over
     // that fit, and the stated set-up within its priors as one more rival.
     let (mis, within_priors) = weighed.on_the_stated_fit();
@@ -497,10 +518,10 @@ pub fn starting_fit(
 
 /// The final fit `id` of `effects` where it is to be assessed: on `stated` when the ladder ran on
 /// a settled set-up ([`starting_fit`]), refitted there; else on `prep` as it is.
-pub fn for_assessment(
+pub(crate) fn for_assessment(
     stated: Option<Prepared>,
     prep: &Prepared,
-    effects: &[&'static dyn estimator_core::effects::Effect],
+    effects: &[&dyn estimator_core::effects::Effect],
     cfg: &Config,
     id: crate::identify::Identification,
 ) -> anyhow::Result<(Prepared, crate::identify::Identification)> {
@@ -528,7 +549,7 @@ impl std::fmt::Display for Untrusted {
 impl std::error::Error for Untrusted {}
 
 /// Ends a command: `Ok` when there is no reason for distrust, else [`Untrusted`].
-pub fn trusted_or(reasons: Vec<String>) -> anyhow::Result<()> {
+pub(crate) fn trusted_or(reasons: Vec<String>) -> anyhow::Result<()> {
     if reasons.is_empty() {
         Ok(())
     } else {
@@ -537,7 +558,7 @@ pub fn trusted_or(reasons: Vec<String>) -> anyhow::Result<()> {
 }
 
 /// Prints the data-quality findings (first, before any number).
-pub fn print_findings(findings: &[crate::quality::Finding]) {
+pub(crate) fn print_findings(findings: &[crate::quality::Finding]) {
     if findings.is_empty() {
         println!("data quality: no finding");
         return;
@@ -579,10 +600,21 @@ pub fn keep_freed_memory() {
 #[cfg(all(target_os = "linux", target_env = "gnu"))]
 const PREADVISED_HEAP_BYTES: usize = 64 << 20;
 
-/// What `identify`, `diagnose` and `report` call first: loads and registers `--effects` files.
-pub fn load_effects_args(args: &ModelArgs) -> anyhow::Result<()> {
-    if !args.effects.is_empty() {
-        crate::effects_file::load_and_register(&args.effects)?;
+/// What `identify`, `diagnose`, `report` and `plan` call first: the catalog of this run, the
+/// built-in effects plus those of the `--effects` files.
+pub(crate) fn catalog(args: &ModelArgs) -> anyhow::Result<Catalog> {
+    Catalog::load(&args.effects)
+}
+
+/// How a command that used `catalog` ends: a file effect that evaluated to NaN or infinity
+/// spoiled the numbers, whatever the command concluded, so its message (naming the file, line,
+/// effect and expression) replaces the `result` (exit 2).
+pub(crate) fn unless_numeric_failure(
+    catalog: &Catalog,
+    result: anyhow::Result<()>,
+) -> anyhow::Result<()> {
+    match catalog.numeric_failure() {
+        Some(failure) => Err(anyhow::anyhow!("{failure}")),
+        None => result,
     }
-    Ok(())
 }

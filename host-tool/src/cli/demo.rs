@@ -3,13 +3,13 @@
 use estimator_core::Sample;
 
 use super::common::build_model;
-use crate::catalog;
+use crate::catalog::{self, Catalog};
 use crate::format::sci;
 use crate::identify::{identify, prepare, try_cramer_rao_bound, Config};
 use crate::simulate::{simulate, Scenario};
 
 /// The paper's Table 2: its single-pass estimates at 60 h.
-pub const PAPER_TABLE2: [f64; 12] = [
+pub(crate) const PAPER_TABLE2: [f64; 12] = [
     0.49518, -0.10013, -0.05150, -0.04874, -0.49490, 0.05096, 0.10076, 0.04862, 0.49531, -0.05150,
     0.04953, -0.10088,
 ];
@@ -127,7 +127,7 @@ fn hidden_effect_story(seed: u64) -> anyhow::Result<()> {
     let prep = prepare(site, &samples, &cfg.identify)?;
     let Ladder {
         diagnoses, rungs, ..
-    } = ladder(&prep, &[catalog::paper()], &cfg)?;
+    } = ladder(&prep, Catalog::builtin(), &[catalog::paper()], &cfg)?;
     for d in &diagnoses {
         print_diagnosis(d);
         println!();

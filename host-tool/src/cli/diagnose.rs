@@ -8,7 +8,7 @@ use serde_json::json;
 use anyhow::Context as _;
 
 use super::common::{load, print_findings, trusted_or, ModelArgs};
-use crate::catalog;
+use crate::catalog::Catalog;
 use crate::diagnose::{ladder_from, DiagnoseConfig, Diagnosis, Ladder, Rung};
 use crate::format::{p_value, pm, sci};
 
@@ -41,7 +41,7 @@ pub struct DiagnoseArgs {
 }
 
 /// Prints one diagnosis as text.
-pub fn print_diagnosis(d: &Diagnosis) {
+pub(crate) fn print_diagnosis(d: &Diagnosis) {
     let model = if d.model.is_empty() {
         "paper".to_string()
     } else {
@@ -177,7 +177,7 @@ fn print_ranking(ranking: &[crate::diagnose::Candidate]) {
 }
 
 /// Prints the ladder.
-pub fn print_ladder(rungs: &[Rung]) {
+pub(crate) fn print_ladder(rungs: &[Rung]) {
     println!("\nmodel ladder (watch the error fall):");
     println!(
         "  {:<40} {:>22} {:>9} {:>10}  added next",
@@ -263,7 +263,14 @@ const WIDENED_POINT_TO_PLAN: f64 = 3.0;
 
 /// Runs `driftid diagnose`.
 pub fn run(args: &DiagnoseArgs) -> anyhow::Result<()> {
-    super::common::load_effects_args(&args.model)?; // --effects FILE: user effects join the catalog
+    // --effects FILE: the user's effects join the catalog of this run.
+    let catalog = super::common::catalog(&args.model)?;
+    let result = run_with(args, &catalog);
+    super::common::unless_numeric_failure(&catalog, result)
+}
+
+/// `driftid diagnose` with the run's `catalog`.
+fn run_with(args: &DiagnoseArgs, catalog: &Catalog) -> anyhow::Result<()> {
     if args.truth.is_some() && args.recordings.len() > 1 {
         anyhow::bail!("--truth takes one recording (a truth file describes one simulated run)");
     }
@@ -279,9 +286,9 @@ pub fn run(args: &DiagnoseArgs) -> anyhow::Result<()> {
         }
     }
     if args.recordings.len() > 1 {
-        return super::joint::diagnose(args);
+        return super::joint::diagnose(args, catalog);
     }
-    let one = diagnose_one(&args.recordings[0], args, args.export.as_deref())?;
+    let one = diagnose_one(catalog, &args.recordings[0], args, args.export.as_deref())?;
     if args.json {
         println!("{}", serde_json::to_string_pretty(&one.json)?);
     }
@@ -289,7 +296,7 @@ pub fn run(args: &DiagnoseArgs) -> anyhow::Result<()> {
 }
 
 /// The outcome of one recording's diagnosis.
-pub struct OneDiagnosis {
+pub(crate) struct OneDiagnosis {
     /// The JSON object (`--json`).
     pub json: serde_json::Value,
     /// Reasons not to trust it (empty: trusted).
@@ -300,7 +307,7 @@ pub struct OneDiagnosis {
 
 /// Why a ladder's result is not trusted (empty when it is): the data's faults, then its final
 /// model's fit — not converged, or not explaining the measurements. `diagnose` and `report` both.
-pub fn ladder_untrusted(faults: &[String], diagnoses: &[Diagnosis]) -> Vec<String> {
+pub(crate) fn ladder_untrusted(faults: &[String], diagnoses: &[Diagnosis]) -> Vec<String> {
     let mut reasons = faults.to_vec();
     if let Some(d) = diagnoses.last() {
         reasons.extend(d.convergence.and_then(|c| c.untrusted_reason()));
@@ -315,7 +322,8 @@ pub fn ladder_untrusted(faults: &[String], diagnoses: &[Diagnosis]) -> Vec<Strin
 }
 
 /// Diagnoses one recording: prints the text unless `--json`, returns the JSON and the reasons.
-pub fn diagnose_one(
+pub(crate) fn diagnose_one(
+    catalog: &Catalog,
     recording: &std::path::Path,
     args: &DiagnoseArgs,
     export_dir: Option<&std::path::Path>,
@@ -329,7 +337,7 @@ pub fn diagnose_one(
         cfg.identify.smoother_iterations > 0,
         "diagnose needs the converged identification; drop --single-pass"
     );
-    let c = climb(recording, args, &mut cfg)?;
+    let c = climb(catalog, recording, args, &mut cfg)?;
     let mut reasons = ladder_untrusted(&c.faults, &c.diagnoses);
     reasons.extend(c.assessed.reasons.iter().cloned());
     let truth = match &args.truth {
@@ -369,12 +377,12 @@ pub fn diagnose_one(
 /// One recording taken up the model ladder and assessed: the prepared run, the data's faults,
 /// every rung's diagnosis, the final model's effects and its assessment (its honest 1σ and the
 /// alternatives it cannot rule out).
-struct Climbed {
+struct Climbed<'c> {
     prep: crate::identify::Prepared,
     faults: Vec<String>,
     diagnoses: Vec<Diagnosis>,
     rungs: Vec<Rung>,
-    final_effects: Vec<&'static dyn estimator_core::effects::Effect>,
+    final_effects: Vec<&'c dyn estimator_core::effects::Effect>,
     assessed: crate::assess::Assessment,
 }
 
@@ -382,18 +390,20 @@ struct Climbed {
 /// starting fit settles), climbs the ladder (one rung when the data have faults: a fault is
 /// named as a fault, never explained by a physical effect) and assesses the final model by
 /// the one path shared with identify and report.
-fn climb(
+fn climb<'c>(
+    catalog: &'c Catalog,
     recording: &std::path::Path,
     args: &DiagnoseArgs,
     cfg: &mut DiagnoseConfig,
-) -> anyhow::Result<Climbed> {
-    let loaded = load(recording, args.model.latitude_deg)?;
-    let effects = catalog::model_effects(&args.model.with)?;
+) -> anyhow::Result<Climbed<'c>> {
+    let loaded = load(catalog, recording, args.model.latitude_deg)?;
+    let effects = catalog.model_effects(&args.model.with)?;
     let mut prep = super::common::prepare_loaded(recording, &loaded, &cfg.identify)?;
     let mut stated = None;
     let spin = crate::progress::spinner("fitting the starting model");
     let first = super::common::starting_fit(
         &mut prep,
+        catalog,
         &effects,
         &mut cfg.identify,
         &mut stated,
@@ -411,7 +421,7 @@ fn climb(
         rungs,
         identification,
         effects: final_effects,
-    } = ladder_from(&prep, &effects, cfg, first)?;
+    } = ladder_from(&prep, catalog, &effects, cfg, first)?;
     spin.finish_and_clear();
     let spin =
         crate::progress::spinner("the set-up's uncertainty and the alternative explanations");
@@ -423,6 +433,7 @@ fn climb(
         identification,
     )?;
     let assessed = crate::assess::assess_with(
+        catalog,
         &final_effects,
         at,
         &cfg.identify,
@@ -553,7 +564,7 @@ fn rung_header() -> String {
 /// Checks the files an export of `rungs` rungs writes into `dir` ([`crate::output::Outputs`]):
 /// none is one of the command's inputs (recordings, effects files), and none replaces a file
 /// driftid did not write there, unless `--force`.
-pub fn check_export(
+pub(crate) fn check_export(
     dir: &std::path::Path,
     rungs: usize,
     args: &DiagnoseArgs,
@@ -586,7 +597,7 @@ pub fn check_export(
 
 /// Writes each rung's series (`rungK.csv`) and a summary (`rungs.csv`) into `dir`, all whole
 /// or none (checked first by [`check_export`]).
-pub fn export(
+pub(crate) fn export(
     dir: &std::path::Path,
     diagnoses: &[Diagnosis],
     coefficients: &[super::identify::Row],

@@ -5,7 +5,7 @@ use std::path::PathBuf;
 use serde_json::{json, Map, Value};
 
 use super::common::{build_model, load, print_findings, trusted_or, ModelArgs};
-use crate::catalog;
+use crate::catalog::Catalog;
 use crate::consistency::{assess, Consistency, Thresholds};
 use crate::format::{sci, with_sigma};
 use crate::identify::setup::Uncertainty;
@@ -30,7 +30,7 @@ pub struct IdentifyArgs {
 }
 
 /// One coefficient row of the output.
-pub struct Row {
+pub(crate) struct Row {
     /// Parameter name.
     pub name: &'static str,
     /// Unit.
@@ -53,7 +53,7 @@ pub struct Row {
 
 /// The true value of each of the identification's parameters (NaN where the truth file has none:
 /// an effect not injected is 0, a Gauss–Markov state has no fixed truth).
-pub fn truth_of(truth: &crate::simulate::Truth, id: &Identification) -> Vec<f64> {
+pub(crate) fn truth_of(truth: &crate::simulate::Truth, id: &Identification) -> Vec<f64> {
     let values = truth.parameter_values();
     id.params
         .iter()
@@ -67,7 +67,7 @@ pub fn truth_of(truth: &crate::simulate::Truth, id: &Identification) -> Vec<f64>
 
 /// Builds the rows of an identification (bound at `truth` where it is known, NaN entries
 /// meaning unknown).
-pub fn rows(
+pub(crate) fn rows(
     id: &Identification,
     unc: &Uncertainty,
     model: &estimator_core::Model<'_>,
@@ -107,7 +107,7 @@ pub fn rows(
 }
 
 /// Prints the coefficient table.
-pub fn print_table(rows: &[Row], refined: bool) {
+pub(crate) fn print_table(rows: &[Row], refined: bool) {
     let has_truth = rows.iter().any(|r| r.truth.is_some());
     // Columns that do not shift with a long parameter name (`GXxx-zz`): the name column is as
     // wide as the longest name, 6 at least (the paper's names keep their layout).
@@ -168,7 +168,7 @@ pub fn print_table(rows: &[Row], refined: bool) {
 }
 
 /// Prints the run summary and weak-combination warnings.
-pub fn print_summary(id: &Identification, prep: &Prepared) {
+pub(crate) fn print_summary(id: &Identification, prep: &Prepared) {
     let rms = id.residual_rms_mps2(prep);
     let floor = prep.floor_mps2();
     let mut counts: Vec<u32> = prep.measurements.iter().map(|m| m.count).collect();
@@ -203,7 +203,7 @@ pub fn print_summary(id: &Identification, prep: &Prepared) {
 
 /// Prints the alternative explanations: evidence, weight, and the coefficients each could move
 /// beyond their total 1σ at a size the run cannot rule out.
-pub fn print_alternatives(
+pub(crate) fn print_alternatives(
     alts: &[crate::diagnose::alternatives::Alternative],
     unc: &Uncertainty,
     id: &Identification,
@@ -247,7 +247,7 @@ pub fn print_alternatives(
 }
 
 /// Prints what each set-up prior adds (the largest share over the coefficients).
-pub fn print_setup(unc: &Uncertainty, id: &Identification) {
+pub(crate) fn print_setup(unc: &Uncertainty, id: &Identification) {
     if unc.contributions.is_empty() {
         return;
     }
@@ -284,7 +284,7 @@ pub fn print_setup(unc: &Uncertainty, id: &Identification) {
 }
 
 /// The JSON object of an identification.
-pub fn to_json(rows: &[Row], id: &Identification, prep: &Prepared) -> Value {
+pub(crate) fn to_json(rows: &[Row], id: &Identification, prep: &Prepared) -> Value {
     let coefs = coefficients_json(rows);
     json!({
         "coefficients": coefs,
@@ -301,7 +301,7 @@ pub fn to_json(rows: &[Row], id: &Identification, prep: &Prepared) -> Value {
 
 /// The coefficients as JSON: value, `sigma` (noise only), `sigma_total` (the headline), the
 /// bound, the unit, the single pass and the truth where known.
-pub fn coefficients_json(rows: &[Row]) -> Value {
+pub(crate) fn coefficients_json(rows: &[Row]) -> Value {
     let mut coefs = Map::new();
     for r in rows {
         let mut o = json!({ "value": r.value, "sigma": r.sigma, "sigma_total": r.sigma_total,
@@ -318,14 +318,22 @@ pub fn coefficients_json(rows: &[Row]) -> Value {
 
 /// Runs `driftid identify`.
 pub fn run(args: &IdentifyArgs) -> anyhow::Result<()> {
-    super::common::load_effects_args(&args.model)?; // --effects FILE: user effects join the catalog
-    if args.recordings.len() > 1 {
-        return super::joint::run(args);
-    }
+    // --effects FILE: the user's effects join the catalog of this run.
+    let catalog = super::common::catalog(&args.model)?;
+    let result = if args.recordings.len() > 1 {
+        super::joint::run(args, &catalog)
+    } else {
+        run_one(args, &catalog)
+    };
+    super::common::unless_numeric_failure(&catalog, result)
+}
+
+/// `driftid identify` of one recording.
+fn run_one(args: &IdentifyArgs, catalog: &Catalog) -> anyhow::Result<()> {
     let recording = &args.recordings[0];
     let cfg = args.model.config()?;
-    let loaded = load(recording, args.model.latitude_deg)?;
-    let effects = catalog::model_effects(&args.model.with)?;
+    let loaded = load(catalog, recording, args.model.latitude_deg)?;
+    let effects = catalog.model_effects(&args.model.with)?;
     let prep = super::common::prepare_loaded(recording, &loaded, &cfg)?;
     // The raw samples are done with (the measurements are their means): freed now, their
     // ~10 MB (60 h at 1 s) serve the smoother's buffers instead of fresh pages faulted in.
@@ -341,7 +349,7 @@ pub fn run(args: &IdentifyArgs) -> anyhow::Result<()> {
     let progress = crate::progress::follow(&spin);
     // The measurements at the stated set-up: a repair starts again from them.
     let stated = prep.clone();
-    let assessed = crate::assess::assess_with(&effects, prep, &cfg, id, &progress)?;
+    let assessed = crate::assess::assess_with(catalog, &effects, prep, &cfg, id, &progress)?;
     // A misfit at the settled set-up: is it a step of the gyro drift at one time? Profiled on
     // the fit the alternatives were weighed against, so its evidence is on their scale.
     let step = match consistency_of(&assessed.id, &assessed.prep) {
@@ -375,7 +383,7 @@ pub fn run(args: &IdentifyArgs) -> anyhow::Result<()> {
             let (with_step, id) = crate::diagnose::drift_step::repair(&stated, &effects, &cfg, &s)?;
             let mut prep = stated;
             prep.findings.push(s.repaired());
-            let a = crate::assess::assess_with(&with_step, prep, &cfg, id, &progress)?;
+            let a = crate::assess::assess_with(catalog, &with_step, prep, &cfg, id, &progress)?;
             (with_step, a, None)
         }
         other => (effects, assessed, other),
@@ -400,7 +408,7 @@ pub fn run(args: &IdentifyArgs) -> anyhow::Result<()> {
         let spin = crate::progress::spinner("the model does not fit");
         let progress = crate::progress::follow(&spin);
         let (prep, id) = (&mut assessed.prep, &assessed.id);
-        let rivals = super::common::rivals(prep, &effects, &cfg, id, &progress);
+        let rivals = super::common::rivals(prep, catalog, &effects, &cfg, id, &progress);
         super::common::name_a_wrong_latitude(prep, &effects, &cfg, &rivals, &progress);
         spin.finish_and_clear();
     }
@@ -521,7 +529,7 @@ pub fn consistency_of(id: &Identification, prep: &Prepared) -> Option<Consistenc
 
 /// The consistency ([`crate::consistency`]) of a fit's innovations and residual RMS against the
 /// run's noise floor.
-pub fn fit_consistency(
+pub(crate) fn fit_consistency(
     innovations: &[estimator_core::Residual],
     rms_mps2: [f64; 3],
     prep: &Prepared,

@@ -7,7 +7,7 @@ use serde_json::{json, Map, Value};
 use super::common::{build_model, load, print_findings, trusted_or, ModelArgs};
 use super::diagnose::{diagnose_one, DiagnoseArgs};
 use super::identify::IdentifyArgs;
-use crate::catalog;
+use crate::catalog::Catalog;
 use crate::consistency::Consistency;
 use crate::format::{sci, with_sigma};
 use crate::identify::joint::{
@@ -17,7 +17,7 @@ use crate::identify::{Config, Prepared};
 use crate::simulate::read_truth;
 
 /// One run as loaded and prepared.
-pub struct LoadedRun {
+pub(crate) struct LoadedRun {
     /// Where it came from.
     pub path: PathBuf,
     /// Its prepared measurements (site and chart its own).
@@ -33,7 +33,7 @@ pub struct LoadedRun {
 /// fingerprints ([`super::common::Loaded::fingerprint`]); `path` is the next one. The same file
 /// under any name (hard or symbolic link, another spelling) is caught without reading it
 /// (`fingerprint` `None`); a copy, or the same samples in another file, by the fingerprint.
-pub fn refuse_same_data(
+pub(crate) fn refuse_same_data(
     seen: &[(&std::path::Path, u64)],
     path: &std::path::Path,
     fingerprint: Option<u64>,
@@ -57,7 +57,8 @@ pub fn refuse_same_data(
 
 /// Loads and prepares every recording; an unreadable or refused one names its file, and so does
 /// one that repeats another's data ([`refuse_same_data`]), before it is prepared.
-pub fn load_runs(
+pub(crate) fn load_runs(
+    catalog: &Catalog,
     paths: &[PathBuf],
     latitude_deg: Option<f64>,
     cfg: &Config,
@@ -71,7 +72,7 @@ pub fn load_runs(
     paths
         .iter()
         .map(|path| {
-            let loaded = load(path, latitude_deg)?;
+            let loaded = load(catalog, path, latitude_deg)?;
             refuse_same_data(&seen, path, Some(loaded.fingerprint))?;
             seen.push((path.as_path(), loaded.fingerprint));
             let prep = super::common::prepare_loaded(path, &loaded, cfg)?;
@@ -88,7 +89,11 @@ pub fn load_runs(
 /// Why a joint fit is not trusted, run by run (empty when it is): each run's data faults, its
 /// own fit not converged, the joint model not explaining it (`checks`, [`run_consistency`]).
 /// `identify` with several runs and `plan` both.
-pub fn runs_untrusted(runs: &[LoadedRun], fits: &[RunFit], checks: &[Consistency]) -> Vec<String> {
+pub(crate) fn runs_untrusted(
+    runs: &[LoadedRun],
+    fits: &[RunFit],
+    checks: &[Consistency],
+) -> Vec<String> {
     let mut reasons = vec![];
     for ((r, c), fit) in runs.iter().zip(checks).zip(fits) {
         let name = r.path.display();
@@ -114,13 +119,14 @@ pub fn runs_untrusted(runs: &[LoadedRun], fits: &[RunFit], checks: &[Consistency
 
 /// The consistency of one run under the joint estimate (the one definition in
 /// [`crate::consistency`]).
-pub fn run_consistency(fit: &RunFit, prep: &Prepared) -> Consistency {
+pub(crate) fn run_consistency(fit: &RunFit, prep: &Prepared) -> Consistency {
     super::identify::fit_consistency(&fit.innovations, fit.residual_rms_mps2(prep), prep)
 }
 
 /// Runs the joint `driftid identify`.
-pub fn run(args: &IdentifyArgs) -> anyhow::Result<()> {
+pub(crate) fn run(args: &IdentifyArgs, catalog: &Catalog) -> anyhow::Result<()> {
     let (out, reasons) = identify_runs(
+        catalog,
         &args.recordings,
         &args.model,
         &args.model.with,
@@ -133,12 +139,9 @@ pub fn run(args: &IdentifyArgs) -> anyhow::Result<()> {
     trusted_or(reasons)
 }
 
-/// `driftid diagnose A.csv B.csv …`: each run diagnosed (its own ladder), then the effects the
-/// ladders chose, together, identified jointly from all runs. Effects with Gauss–Markov states
-/// are per run and stay out of the joint model (said so).
-pub fn diagnose(args: &DiagnoseArgs) -> anyhow::Result<()> {
-    // The same data twice is refused before any run is diagnosed (reading is quick next to a
-    // diagnosis; each run is read again by its diagnosis).
+/// The same data twice is refused before any run is diagnosed ([`refuse_same_data`]; reading is
+/// quick next to a diagnosis; each run is read again by its diagnosis).
+fn refuse_repeated_recordings(args: &DiagnoseArgs, catalog: &Catalog) -> anyhow::Result<()> {
     let mut seen: Vec<(&std::path::Path, u64)> = Vec::new();
     for (i, path) in args.recordings.iter().enumerate() {
         let before: Vec<(&std::path::Path, u64)> = args.recordings[..i]
@@ -148,10 +151,19 @@ pub fn diagnose(args: &DiagnoseArgs) -> anyhow::Result<()> {
         refuse_same_data(&before, path, None)?;
     }
     for path in &args.recordings {
-        let fingerprint = super::common::load_quietly(path, args.model.latitude_deg)?.fingerprint;
+        let fingerprint =
+            super::common::load_quietly(catalog, path, args.model.latitude_deg)?.fingerprint;
         refuse_same_data(&seen, path, Some(fingerprint))?;
         seen.push((path.as_path(), fingerprint));
     }
+    Ok(())
+}
+
+/// `driftid diagnose A.csv B.csv …`: each run diagnosed (its own ladder), then the effects the
+/// ladders chose, together, identified jointly from all runs. Effects with Gauss–Markov states
+/// are per run and stay out of the joint model (said so).
+pub(crate) fn diagnose(args: &DiagnoseArgs, catalog: &Catalog) -> anyhow::Result<()> {
+    refuse_repeated_recordings(args, catalog)?;
     let mut per_run = vec![];
     let mut reasons = vec![];
     let mut with: Vec<String> = args.model.with.clone();
@@ -163,7 +175,7 @@ pub fn diagnose(args: &DiagnoseArgs) -> anyhow::Result<()> {
             .export
             .as_ref()
             .map(|d| d.join(format!("run{}", i + 1)));
-        let one = diagnose_one(path, args, dir.as_deref())?;
+        let one = diagnose_one(catalog, path, args, dir.as_deref())?;
         reasons.extend(
             one.reasons
                 .iter()
@@ -177,7 +189,9 @@ pub fn diagnose(args: &DiagnoseArgs) -> anyhow::Result<()> {
         per_run.push(one.json);
     }
     let (shared, per_run_only): (Vec<String>, Vec<String>) = with.into_iter().partition(|e| {
-        catalog::by_name(e).is_none_or(|x| (0..x.params().len()).all(|k| x.markov(k).is_none()))
+        catalog
+            .by_name(e)
+            .is_none_or(|x| (0..x.params().len()).all(|k| x.markov(k).is_none()))
     });
     if !args.json {
         println!(
@@ -192,8 +206,14 @@ pub fn diagnose(args: &DiagnoseArgs) -> anyhow::Result<()> {
             );
         }
     }
-    let (joint, joint_reasons) =
-        identify_runs(&args.recordings, &args.model, &shared, None, args.json)?;
+    let (joint, joint_reasons) = identify_runs(
+        catalog,
+        &args.recordings,
+        &args.model,
+        &shared,
+        None,
+        args.json,
+    )?;
     reasons.extend(joint_reasons);
     if args.json {
         let out = json!({
@@ -212,17 +232,18 @@ pub fn diagnose(args: &DiagnoseArgs) -> anyhow::Result<()> {
 /// The runs identified jointly ([`crate::identify::joint`]), each first alone; a run whose
 /// metadata latitude the data contradict is refused ([`refuse_wrong_latitudes`]). `models[r]` is
 /// run r's model; `label` is what the spinner says meanwhile.
-pub fn fit_jointly(
+pub(crate) fn fit_jointly(
+    catalog: &Catalog,
     runs: &mut [LoadedRun],
     models: &[estimator_core::model::Model<'_>],
-    effects: &[&'static dyn estimator_core::effects::Effect],
+    effects: &[&dyn estimator_core::effects::Effect],
     cfg: &crate::identify::Config,
     label: &str,
 ) -> anyhow::Result<JointIdentification> {
     let spin = crate::progress::spinner(label);
     let alone = fit_alone(&as_runs(models, runs), cfg);
     spin.finish_and_clear();
-    refuse_wrong_latitudes(runs, &alone, effects, cfg)?;
+    refuse_wrong_latitudes(catalog, runs, &alone, effects, cfg)?;
     let spin = crate::progress::spinner(label);
     let joint = identify_joint_from(&as_runs(models, runs), alone);
     spin.finish_and_clear();
@@ -248,9 +269,10 @@ fn as_runs<'a, 'm>(
 /// latitude is the culprit ([`super::common::name_a_wrong_latitude`]). A run whose site is wrong
 /// cannot join the others: refused, naming each such file and the data's latitude.
 fn refuse_wrong_latitudes(
+    catalog: &Catalog,
     runs: &mut [LoadedRun],
     alone: &[anyhow::Result<crate::identify::Identification>],
-    effects: &[&'static dyn estimator_core::effects::Effect],
+    effects: &[&dyn estimator_core::effects::Effect],
     cfg: &crate::identify::Config,
 ) -> anyhow::Result<()> {
     let mut named = vec![];
@@ -261,7 +283,7 @@ fn refuse_wrong_latitudes(
         if let Some(id) = misfit {
             let spin = crate::progress::spinner("the model does not fit");
             let progress = crate::progress::follow(&spin);
-            let rivals = super::common::rivals(&r.prep, effects, cfg, id, &progress);
+            let rivals = super::common::rivals(&r.prep, catalog, effects, cfg, id, &progress);
             super::common::name_a_wrong_latitude(&mut r.prep, effects, cfg, &rivals, &progress);
             spin.finish_and_clear();
         }
@@ -284,7 +306,7 @@ fn refuse_wrong_latitudes(
 
 /// A joint fit as `identify` makes it, ready to print or show: the runs, the fit, its bound,
 /// each run's consistency under it, the truth and the reasons not to trust it.
-pub struct JointFit {
+pub(crate) struct JointFit {
     /// The runs as loaded and prepared.
     pub runs: Vec<LoadedRun>,
     /// The joint identification.
@@ -303,21 +325,22 @@ pub struct JointFit {
 
 /// Identifies `paths` jointly with the paper's model plus `with`: the fit, the bound, each run's
 /// consistency and each run's own fit assessed ([`crate::assess`]).
-pub fn fit_runs(
+pub(crate) fn fit_runs(
+    catalog: &Catalog,
     paths: &[PathBuf],
     model_args: &ModelArgs,
     with: &[String],
     truth_path: Option<&std::path::Path>,
 ) -> anyhow::Result<JointFit> {
     let cfg = model_args.config()?;
-    let effects = catalog::model_effects(with)?;
-    let mut runs = load_runs(paths, model_args.latitude_deg, &cfg)?;
+    let effects = catalog.model_effects(with)?;
+    let mut runs = load_runs(catalog, paths, model_args.latitude_deg, &cfg)?;
     let models = runs
         .iter()
         .map(|r| build_model(r.prep.site, &effects, &cfg))
         .collect::<anyhow::Result<Vec<_>>>()?;
     let label = format!("identifying {} runs jointly", runs.len());
-    let joint = fit_jointly(&mut runs, &models, &effects, &cfg, &label)?;
+    let joint = fit_jointly(catalog, &mut runs, &models, &effects, &cfg, &label)?;
     let joint_runs = as_runs(&models, &runs);
     let truth: Option<Vec<f64>> = match truth_path {
         Some(p) => {
@@ -353,7 +376,7 @@ pub fn fit_runs(
     let spin = crate::progress::spinner("each run's set-up and alternatives");
     let mut setups = vec![];
     for (r, fit) in runs.iter().zip(&joint.runs) {
-        let a = crate::assess::assess(&effects, r.prep.clone(), &cfg, fit.alone.clone())?;
+        let a = crate::assess::assess(catalog, &effects, r.prep.clone(), &cfg, fit.alone.clone())?;
         setups.push((fit.alone.best().cov.clone(), a.unc.setup_cov.clone()));
         reasons.extend(
             a.reasons
@@ -384,7 +407,8 @@ pub fn fit_runs(
 
 /// Identifies `paths` jointly with the paper's model plus `with` ([`fit_runs`]); prints the text
 /// unless `json` and returns the JSON object and the reasons not to trust it.
-pub fn identify_runs(
+pub(crate) fn identify_runs(
+    catalog: &Catalog,
     paths: &[PathBuf],
     model_args: &ModelArgs,
     with: &[String],
@@ -399,7 +423,7 @@ pub fn identify_runs(
         checks,
         truth,
         reasons,
-    } = fit_runs(paths, model_args, with, truth_path)?;
+    } = fit_runs(catalog, paths, model_args, with, truth_path)?;
     let mut out = to_json(&joint, &runs, &checks, &bound, &total, truth.as_deref());
     out["trusted"] = json!(reasons.is_empty());
     out["untrusted_reasons"] = json!(reasons);
@@ -418,7 +442,7 @@ pub fn identify_runs(
 }
 
 /// The weakest combination of one axis in words (`identify`'s line and the report's).
-pub fn weak_line(w: &crate::identify::WeakCombination) -> String {
+pub(crate) fn weak_line(w: &crate::identify::WeakCombination) -> String {
     format!(
         "axis {}: weakest combination {:.2}·D0 {:+.2}·g·Dx {:+.2}·g·Dy {:+.2}·g·Dz, 1σ {} deg/h, {:.1}x weaker than the next{}",
         w.axis,
@@ -437,7 +461,7 @@ pub fn weak_line(w: &crate::identify::WeakCombination) -> String {
 }
 
 /// Initial orientation in degrees, rounded to 1e-4 deg.
-pub fn deg3(a: &[f64; 3]) -> [f64; 3] {
+pub(crate) fn deg3(a: &[f64; 3]) -> [f64; 3] {
     a.map(|v| (v.to_degrees() * 1e4).round() / 1e4)
 }
 

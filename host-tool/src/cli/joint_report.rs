@@ -3,12 +3,13 @@
 
 use super::joint::{deg3, fit_runs, weak_line, JointFit};
 use super::report::{provenance, ReportArgs};
+use crate::catalog::Catalog;
 use crate::output;
 use crate::report::{draw_joint_pngs, render_joint_html, JointCoef, JointReportInput, JointRun};
 
 /// Runs `driftid report` on several recordings: exit status as the joint `identify`'s (0
 /// trusted, 3 untrusted, 2 bad input).
-pub fn run(args: &ReportArgs) -> anyhow::Result<()> {
+pub(crate) fn run(args: &ReportArgs, catalog: &Catalog) -> anyhow::Result<()> {
     // Every output checked before the long computation (never over an input or a file driftid
     // did not write), as for one run.
     let mut inputs: Vec<&std::path::Path> = args.recordings.iter().map(|p| p.as_path()).collect();
@@ -24,6 +25,7 @@ pub fn run(args: &ReportArgs) -> anyhow::Result<()> {
         "report needs the converged identification; drop --single-pass"
     );
     let fit = fit_runs(
+        catalog,
         &args.recordings,
         &args.model,
         &args.model.with,

@@ -7,7 +7,7 @@ use serde_json::json;
 
 use super::common::{build_model, trusted_or, ModelArgs};
 use super::joint::{fit_jointly, load_runs, run_consistency, runs_untrusted, LoadedRun};
-use crate::catalog;
+use crate::catalog::Catalog;
 use crate::format::sci;
 use crate::identify::{Estimate, Prepared};
 use crate::plan::{rank, Criterion, Design};
@@ -40,14 +40,21 @@ pub struct PlanArgs {
 
 /// Runs `driftid plan`.
 pub fn run(args: &PlanArgs) -> anyhow::Result<()> {
-    super::common::load_effects_args(&args.model)?;
+    // --effects FILE: the user's effects join the catalog of this run.
+    let catalog = super::common::catalog(&args.model)?;
+    let result = run_with(args, &catalog);
+    super::common::unless_numeric_failure(&catalog, result)
+}
+
+/// `driftid plan` with the run's `catalog`.
+fn run_with(args: &PlanArgs, catalog: &Catalog) -> anyhow::Result<()> {
     let cfg = args.model.config()?;
-    let effects = catalog::model_effects(&effects_named(args)?)?;
-    let runs = load_runs(&args.recordings, args.model.latitude_deg, &cfg)?;
+    let effects = catalog.model_effects(&effects_named(args)?)?;
+    let runs = load_runs(catalog, &args.recordings, args.model.latitude_deg, &cfg)?;
     let start = if runs.is_empty() {
         Start::defaults(args, &effects, &cfg)?
     } else {
-        Start::after_runs(args, runs, &effects, &cfg)?
+        Start::after_runs(args, catalog, runs, &effects, &cfg)?
     };
     let Start {
         site,
@@ -136,7 +143,7 @@ impl Start {
     /// and rate unless given).
     fn defaults(
         args: &PlanArgs,
-        effects: &[&'static dyn estimator_core::effects::Effect],
+        effects: &[&dyn estimator_core::effects::Effect],
         cfg: &crate::identify::Config,
     ) -> anyhow::Result<Self> {
         let defaults = Scenario::paper();
@@ -165,8 +172,9 @@ impl Start {
     /// length (unless given).
     fn after_runs(
         args: &PlanArgs,
+        catalog: &Catalog,
         mut runs: Vec<LoadedRun>,
-        effects: &[&'static dyn estimator_core::effects::Effect],
+        effects: &[&dyn estimator_core::effects::Effect],
         cfg: &crate::identify::Config,
     ) -> anyhow::Result<Self> {
         let models = runs
@@ -174,6 +182,7 @@ impl Start {
             .map(|r| build_model(r.prep.site, effects, cfg))
             .collect::<anyhow::Result<Vec<_>>>()?;
         let joint = fit_jointly(
+            catalog,
             &mut runs,
             &models,
             effects,

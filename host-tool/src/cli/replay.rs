@@ -61,7 +61,7 @@ pub struct ReplayArgs {
 }
 
 /// Estimates CSV header: step, time, samples, NIS, innovation, 15 states, 15 sigmas.
-pub fn estimates_header() -> String {
+pub(crate) fn estimates_header() -> String {
     let names: Vec<String> = ["tx_rad", "ty_rad", "tz_rad"]
         .iter()
         .map(|s| s.to_string())
@@ -80,7 +80,7 @@ pub fn estimates_header() -> String {
 }
 
 /// One estimates CSV row (shortest round-trip float formatting: exact).
-pub fn estimate_row(e: &Estimate) -> String {
+pub(crate) fn estimate_row(e: &Estimate) -> String {
     let mut r = format!(
         "{},{:?},{},{:?},{:?},{:?},{:?}",
         e.step, e.t_s, e.samples, e.nis, e.innovation[0], e.innovation[1], e.innovation[2]

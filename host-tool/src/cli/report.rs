@@ -4,7 +4,7 @@ use std::path::PathBuf;
 
 use super::common::{load, ModelArgs};
 use super::identify::rows;
-use crate::catalog;
+use crate::catalog::Catalog;
 use crate::diagnose::{ladder_from, DiagnoseConfig, Ladder};
 use crate::output;
 use crate::report::{draw_pngs, render_html, CoefRow, ReportInput};
@@ -36,22 +36,20 @@ pub struct ReportArgs {
 
 /// Runs `driftid report`.
 pub fn run(args: &ReportArgs) -> anyhow::Result<()> {
-    super::common::load_effects_args(&args.model)?; // --effects FILE: user effects join the catalog
-    if args.recordings.len() > 1 {
-        return super::joint_report::run(args);
-    }
+    // --effects FILE: the user's effects join the catalog of this run.
+    let catalog = super::common::catalog(&args.model)?;
+    let result = if args.recordings.len() > 1 {
+        super::joint_report::run(args, &catalog)
+    } else {
+        run_one(args, &catalog)
+    };
+    super::common::unless_numeric_failure(&catalog, result)
+}
+
+/// `driftid report` of one recording.
+fn run_one(args: &ReportArgs, catalog: &Catalog) -> anyhow::Result<()> {
     let recording = &args.recordings[0];
-    // Every output is checked before the long computation, and all are drawn before any is
-    // moved into place: never over an input or a file driftid did not write, and no HTML left
-    // behind when a PNG cannot be written.
-    let mut inputs: Vec<&std::path::Path> = vec![recording];
-    inputs.extend(args.truth.as_deref());
-    inputs.extend(args.model.effects.iter().map(|p| p.as_path()));
-    let mut outputs = output::Outputs::new(&inputs, args.force);
-    outputs.check(&args.out, "--out", output::Made::Html)?;
-    if let Some(dir) = &args.png {
-        output::check_output_dir(dir, "--png")?;
-    }
+    let mut outputs = checked_outputs(args)?;
     let mut cfg = DiagnoseConfig {
         identify: args.model.config()?,
         ..Default::default()
@@ -60,13 +58,14 @@ pub fn run(args: &ReportArgs) -> anyhow::Result<()> {
         cfg.identify.smoother_iterations > 0,
         "report needs the converged identification; drop --single-pass"
     );
-    let loaded = load(recording, args.model.latitude_deg)?;
-    let effects = catalog::model_effects(&args.model.with)?;
+    let loaded = load(catalog, recording, args.model.latitude_deg)?;
+    let effects = catalog.model_effects(&args.model.with)?;
     let mut prep = super::common::prepare_loaded(recording, &loaded, &cfg.identify)?;
     let mut stated = None;
     let spin = crate::progress::spinner("fitting the starting model");
     let first = super::common::starting_fit(
         &mut prep,
+        catalog,
         &effects,
         &mut cfg.identify,
         &mut stated,
@@ -86,35 +85,92 @@ pub fn run(args: &ReportArgs) -> anyhow::Result<()> {
         rungs,
         identification: id,
         effects: final_effects,
-    } = ladder_from(&prep, &effects, &cfg, first)?;
+    } = ladder_from(&prep, catalog, &effects, &cfg, first)?;
     spin.finish_and_clear();
     let model = super::common::build_model(prep.site, &final_effects, &cfg.identify)?;
-    let untrusted = super::diagnose::ladder_untrusted(&faults, &diagnoses);
+    let mut untrusted = super::diagnose::ladder_untrusted(&faults, &diagnoses);
     let truth = match &args.truth {
         Some(p) => Some(super::identify::truth_of(&read_truth(p)?, &id)),
         None => None,
     };
+    let assessed = final_assessment(catalog, stated, &prep, &final_effects, &cfg.identify, id)?;
+    untrusted.extend(assessed.reasons.iter().cloned());
+    let table = rows(
+        &assessed.id,
+        &assessed.unc,
+        &model,
+        &assessed.prep,
+        truth.as_deref(),
+    );
+    let name = recording
+        .file_name()
+        .map(|s| s.to_string_lossy().to_string())
+        .unwrap_or_default();
+    let input = ReportInput {
+        title: format!("Gyro drift identification — {name}"),
+        recording: name,
+        description: loaded.description,
+        diagnoses,
+        ladder: rungs,
+        coefficients: coefficient_rows(&table, truth.as_deref()),
+        findings: assessed.prep.findings.clone(),
+        untrusted: untrusted.clone(),
+        provenance: provenance(&args.model.effects),
+        markov: assessed.id.markov,
+    };
+    let html = render_html(&input)?;
+    let pngs = match &args.png {
+        Some(dir) => draw_pngs(&input, dir, &mut outputs)?,
+        None => vec![],
+    };
+    write_page(args, &html, pngs)?;
+    super::common::trusted_or(untrusted)
+}
+
+/// Every output checked before the long computation, and all are drawn before any is moved
+/// into place: never over an input or a file driftid did not write, and no HTML left behind
+/// when a PNG cannot be written.
+fn checked_outputs(args: &ReportArgs) -> anyhow::Result<output::Outputs> {
+    let mut inputs: Vec<&std::path::Path> = vec![&args.recordings[0]];
+    inputs.extend(args.truth.as_deref());
+    inputs.extend(args.model.effects.iter().map(|p| p.as_path()));
+    let mut outputs = output::Outputs::new(&inputs, args.force);
+    outputs.check(&args.out, "--out", output::Made::Html)?;
+    if let Some(dir) = &args.png {
+        output::check_output_dir(dir, "--png")?;
+    }
+    Ok(outputs)
+}
+
+/// The final model's fit `id` assessed ([`crate::assess`]) where it is to be
+/// ([`super::common::for_assessment`]: on the set-up as `stated` when the ladder ran on a
+/// settled one, else on `prep`), behind its spinner.
+fn final_assessment(
+    catalog: &Catalog,
+    stated: Option<crate::identify::Prepared>,
+    prep: &crate::identify::Prepared,
+    effects: &[&dyn estimator_core::effects::Effect],
+    cfg: &crate::identify::Config,
+    id: crate::identify::Identification,
+) -> anyhow::Result<crate::assess::Assessment> {
     let spin =
         crate::progress::spinner("the set-up's uncertainty and the alternative explanations");
-    let (at, id) = super::common::for_assessment(stated, &prep, &final_effects, &cfg.identify, id)?;
-    let crate::assess::Assessment {
-        prep,
-        id,
-        unc,
-        reasons: assessed,
-        ..
-    } = crate::assess::assess_with(
-        &final_effects,
+    let (at, id) = super::common::for_assessment(stated, prep, effects, cfg, id)?;
+    let assessed = crate::assess::assess_with(
+        catalog,
+        effects,
         at,
-        &cfg.identify,
+        cfg,
         id,
         &crate::progress::follow(&spin),
-    )?;
+    );
     spin.finish_and_clear();
-    let mut untrusted = untrusted;
-    untrusted.extend(assessed);
-    let table = rows(&id, &unc, &model, &prep, truth.as_deref());
-    let coefficients = table
+    assessed
+}
+
+/// The coefficient table's rows as the page shows them, with the truth where it is finite.
+fn coefficient_rows(table: &[super::identify::Row], truth: Option<&[f64]>) -> Vec<CoefRow> {
+    table
         .iter()
         .enumerate()
         .map(|(k, r)| CoefRow {
@@ -126,39 +182,15 @@ pub fn run(args: &ReportArgs) -> anyhow::Result<()> {
             dominant: r.dominant.to_string(),
             bound: r.bound,
             truth: truth
-                .as_ref()
                 .and_then(|t| t.get(k).copied())
                 .filter(|v| v.is_finite()),
         })
-        .collect();
-    let name = recording
-        .file_name()
-        .map(|s| s.to_string_lossy().to_string())
-        .unwrap_or_default();
-    let input = ReportInput {
-        title: format!("Gyro drift identification — {name}"),
-        recording: name,
-        description: loaded.description,
-        diagnoses,
-        ladder: rungs,
-        coefficients,
-        findings: prep.findings.clone(),
-        untrusted: untrusted.clone(),
-        provenance: provenance(&args.model.effects),
-        markov: id.markov,
-    };
-    let html = render_html(&input)?;
-    let pngs = match &args.png {
-        Some(dir) => draw_pngs(&input, dir, &mut outputs)?,
-        None => vec![],
-    };
-    write_page(args, &html, pngs)?;
-    super::common::trusted_or(untrusted)
+        .collect()
 }
 
 /// Writes the page to `args.out` and commits the PNG plots drawn for `args.png` (each whole or
 /// not at all), saying what was written.
-pub fn write_page(
+pub(crate) fn write_page(
     args: &ReportArgs,
     html: &str,
     pngs: Vec<output::TempPath>,
@@ -179,7 +211,7 @@ pub fn write_page(
 }
 
 /// The command line as given and each effects file's text (what made the page).
-pub fn provenance(effects: &[std::path::PathBuf]) -> crate::report::Provenance {
+pub(crate) fn provenance(effects: &[std::path::PathBuf]) -> crate::report::Provenance {
     let quote = |a: String| {
         if a.is_empty() || a.contains(|c: char| c.is_whitespace() || "'\"$`\\".contains(c)) {
             format!("'{}'", a.replace('\'', "'\\''"))

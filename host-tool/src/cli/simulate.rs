@@ -108,7 +108,7 @@ pub struct SimulateArgs {
 
 impl SimulateArgs {
     /// The scenario these arguments describe.
-    pub fn scenario(&self) -> anyhow::Result<Scenario> {
+    pub(crate) fn scenario(&self) -> anyhow::Result<Scenario> {
         let mut s = match self.scenario {
             Preset::Paper => Scenario::paper(),
         };

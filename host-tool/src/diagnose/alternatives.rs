@@ -28,11 +28,12 @@ use serde::Serialize;
 
 use super::candidates::{setups, Setup};
 use super::DiagnoseConfig;
+use crate::catalog::Catalog;
 use crate::identify::{build_model, Identification, Prepared};
 
 /// Evidence (−2 ln units) within which an explanation stays plausible: 6 is "strong" evidence
 /// against on the Kass–Raftery scale (a Bayes factor of 20); a weaker one cannot dismiss it.
-pub const PLAUSIBLE_MARGIN: f64 = 6.0;
+pub(crate) const PLAUSIBLE_MARGIN: f64 = 6.0;
 
 /// One alternative explanation.
 #[derive(Clone, Debug, Serialize)]
@@ -76,22 +77,23 @@ pub struct Misstated {
 impl Alternative {
     /// Whether it is within [`PLAUSIBLE_MARGIN`] of the best explanation (`best_gain`: the
     /// largest gain, 0 when the current model is best).
-    pub fn plausible(&self, best_gain: f64) -> bool {
+    pub(crate) fn plausible(&self, best_gain: f64) -> bool {
         self.evidence_gain > best_gain - PLAUSIBLE_MARGIN
     }
 }
 
 /// The alternatives to the model of `effects` fitted as `id` on `prep`.
-pub fn weigh(
+pub(crate) fn weigh(
     prep: &Prepared,
-    effects: &[&'static dyn Effect],
+    catalog: &Catalog,
+    effects: &[&dyn Effect],
     cfg: &DiagnoseConfig,
     id: &Identification,
 ) -> anyhow::Result<Vec<Alternative>> {
     let model = build_model(prep.site, effects, &cfg.identify)?;
     let run_s = prep.measurements.last().map_or(0.0, |m| m.t_s);
     let has_temp = super::temp_varies(&prep.measurements);
-    let setups = setups(effects, model.dim(), run_s, has_temp, cfg);
+    let setups = setups(catalog, effects, model.dim(), run_s, has_temp, cfg);
     let (_, sigs, _) = super::replay(prep, &model, effects, &setups, id, cfg)?;
     let n = model.dim() - estimator_core::model::ANGLES;
     let mut out: Vec<Alternative> = setups
@@ -105,7 +107,7 @@ pub fn weigh(
 
 /// Sets each alternative's model-averaging weight `e^{G/2}` among the plausible ones and the
 /// current model (gain 0), and sorts them by evidence, best first.
-pub fn weight(alts: &mut [Alternative]) {
+pub(crate) fn weight(alts: &mut [Alternative]) {
     let best = alts.iter().map(|a| a.evidence_gain).fold(0.0, f64::max);
     let norm: f64 = (-best / 2.0).exp()
         + alts
@@ -166,7 +168,7 @@ fn alternative(setup: &Setup, sig: &super::score::Signature, n: usize) -> Altern
 
 /// The 1σ per parameter of the estimate averaged over the plausible models (the current one with
 /// zero shift): the spread of their shifts about the average.
-pub fn averaging_spread(alts: &[Alternative], n: usize) -> Vec<f64> {
+pub(crate) fn averaging_spread(alts: &[Alternative], n: usize) -> Vec<f64> {
     let mean: Vec<f64> = (0..n)
         .map(|i| alts.iter().map(|a| a.weight * a.shift[i]).sum())
         .collect();

@@ -10,22 +10,22 @@ use super::score::{canonical_correlation, Signature};
 use super::types::{Candidate, Confounding, ParamEstimate};
 use super::wander::DriftWander;
 use super::DiagnoseConfig;
-use crate::catalog;
+use crate::catalog::Catalog;
 use crate::stats::{chi2_ln_sf, chi2_quantile, chi2_sf};
 
 /// Gap of −2 ln p below which two similar candidates are "not clearly separated": a ratio of
 /// p-values below e^5 ≈ 150 : 1.
-pub const SEPARATION_GAP: f64 = 10.0;
+pub(crate) const SEPARATION_GAP: f64 = 10.0;
 /// Canonical correlation above which two candidates' signatures count as confounded.
-pub const CONFOUNDING_CORRELATION: f64 = 0.9;
+pub(crate) const CONFOUNDING_CORRELATION: f64 = 0.9;
 /// How many of the leading candidates are compared for confounding.
-pub const CONFOUNDING_LEADERS: usize = 4;
+pub(crate) const CONFOUNDING_LEADERS: usize = 4;
 /// Power at which [`ParamEstimate::min_detectable`] is quoted.
-pub const DETECTION_POWER: f64 = 0.9;
+pub(crate) const DETECTION_POWER: f64 = 0.9;
 
 /// One catalog effect as a candidate for this model: the effect scored (the catalog's, or a
 /// stand-in built for this run), or why it cannot be tested.
-pub struct Setup {
+pub(crate) struct Setup<'c> {
     /// Catalog name.
     pub name: &'static str,
     /// Physical explanation.
@@ -33,14 +33,14 @@ pub struct Setup {
     /// A stand-in built for this run (`drift-markov`'s piecewise-constant blocks).
     pub effect: Option<Box<dyn Effect>>,
     /// The catalog's effect.
-    pub catalog: Option<&'static dyn Effect>,
+    pub catalog: Option<&'c dyn Effect>,
     /// Why it cannot be tested here.
     pub untestable: Option<String>,
 }
 
-impl Setup {
+impl Setup<'_> {
     /// The effect that is scored (the stand-in when there is one).
-    pub fn scored(&self) -> &dyn Effect {
+    pub(crate) fn scored(&self) -> &dyn Effect {
         match &self.effect {
             Some(b) => b.as_ref(),
             None => self.catalog.unwrap(),
@@ -50,15 +50,16 @@ impl Setup {
 
 /// Every catalog effect not among `effects`, set up for a model of `dim` states over a run of
 /// `run_s` seconds; `has_temp`: the recording has a varying temperature.
-pub fn setups(
-    effects: &[&'static dyn Effect],
+pub(crate) fn setups<'c>(
+    catalog: &'c Catalog,
+    effects: &[&dyn Effect],
     dim: usize,
     run_s: f64,
     has_temp: bool,
     cfg: &DiagnoseConfig,
-) -> Vec<Setup> {
+) -> Vec<Setup<'c>> {
     let mut out = vec![];
-    for c in catalog::candidates() {
+    for c in catalog.candidates() {
         if effects.iter().any(|e| e.name() == c.name()) {
             continue;
         }
@@ -90,9 +91,9 @@ pub fn setups(
 }
 
 /// The model's effects followed by each testable candidate's (`None`: untestable).
-pub fn extended_lists<'a>(
-    effects: &[&'static dyn Effect],
-    setups: &'a [Setup],
+pub(crate) fn extended_lists<'a>(
+    effects: &[&'a dyn Effect],
+    setups: &'a [Setup<'a>],
 ) -> Vec<Option<Vec<&'a dyn Effect>>> {
     setups
         .iter()
@@ -170,7 +171,7 @@ fn scored(s: &Setup, sig: &Signature, alpha: f64) -> Candidate {
 
 /// The candidates scored and ranked: testable ones by log p-value (ties: fewer degrees of
 /// freedom first), untestable ones last; p-values Holm-adjusted. Each keeps its signature.
-pub fn rank<'s>(
+pub(crate) fn rank<'s>(
     setups: &[Setup],
     sigs: &'s [Option<Signature>],
     alpha: f64,
@@ -213,7 +214,10 @@ fn holm<'c>(ranked: impl Iterator<Item = &'c mut Candidate>, tested: usize) {
 /// Pairs among the [`CONFOUNDING_LEADERS`] leading candidates whose signatures are nearly the
 /// same on this run (canonical correlation above [`CONFOUNDING_CORRELATION`]), when one of the
 /// two is significant at `alpha`.
-pub fn confounding(ranking: &[(Candidate, Option<&Signature>)], alpha: f64) -> Vec<Confounding> {
+pub(crate) fn confounding(
+    ranking: &[(Candidate, Option<&Signature>)],
+    alpha: f64,
+) -> Vec<Confounding> {
     let mut out = vec![];
     let leaders: Vec<(&Candidate, &Signature)> = ranking
         .iter()
@@ -243,7 +247,7 @@ pub fn confounding(ranking: &[(Candidate, Option<&Signature>)], alpha: f64) -> V
 }
 
 /// What experiment would separate effects `a` and `b`.
-pub fn separate_by(a: &str, b: &str) -> String {
+pub(crate) fn separate_by(a: &str, b: &str) -> String {
     let accel = |e: &str| e.starts_with("acc-");
     let slow = |e: &str| matches!(e, "g2" | "drift-trend" | "drift-markov");
     if accel(a) && accel(b) {
@@ -264,7 +268,7 @@ pub fn separate_by(a: &str, b: &str) -> String {
 /// c·χ²(h) with h = (k+λ)²/(k+2λ), c = (k+2λ)/(k+λ) (same mean and variance), whose tail is
 /// statrs' exact central one. The result is a planning figure (the detection limit quoted with
 /// each estimate), where Patnaik's few-percent error in λ does not matter.
-pub fn noncentrality_for_power(k: f64, alpha: f64, power: f64) -> f64 {
+pub(crate) fn noncentrality_for_power(k: f64, alpha: f64, power: f64) -> f64 {
     let crit = chi2_quantile(1.0 - alpha, k);
     let pw = |l: f64| {
         let h = (k + l).powi(2) / (k + 2.0 * l);

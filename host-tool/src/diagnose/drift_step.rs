@@ -21,9 +21,9 @@ use crate::identify::{
 };
 
 /// Prior 1σ of each axis' step, deg/h.
-pub const PRIOR_SIGMA_DEGPH: f64 = 0.01;
+pub(crate) const PRIOR_SIGMA_DEGPH: f64 = 0.01;
 /// Spacing of the coarse profile over t₀, h.
-pub const COARSE_STEP_H: f64 = 0.5;
+pub(crate) const COARSE_STEP_H: f64 = 0.5;
 
 const PARAMS: [Param; 3] = [
     Param {
@@ -45,7 +45,7 @@ const PARAMS: [Param; 3] = [
 
 /// The drift step at `t0_s`: `w_i += s_i` for t ≥ t₀ (deg/h).
 #[derive(Clone, Copy, Debug)]
-pub struct DriftStep {
+pub(crate) struct DriftStep {
     /// Time of the step, s.
     pub t0_s: f64,
 }
@@ -105,7 +105,7 @@ impl DriftStepFit {
 /// −2 ln L and the step sizes' estimate with 1σ for the step at `t0_s`.
 fn at(
     prep: &Prepared,
-    effects: &[&'static dyn Effect],
+    effects: &[&dyn Effect],
     cfg: &Config,
     id: &Identification,
     t0_s: f64,
@@ -118,7 +118,7 @@ fn at(
 /// small; the last filtered state is their estimate from the whole run).
 pub(crate) fn with_extra(
     prep: &Prepared,
-    effects: &[&'static dyn Effect],
+    effects: &[&dyn Effect],
     cfg: &Config,
     id: &Identification,
     extra: &dyn Effect,
@@ -148,7 +148,7 @@ pub(crate) fn with_extra(
 /// module docs); `None` when the run is too short (under 3 h) or every pass fails.
 pub fn profile(
     prep: &Prepared,
-    effects: &[&'static dyn Effect],
+    effects: &[&dyn Effect],
     cfg: &Config,
     id: &Identification,
 ) -> Option<DriftStepFit> {
@@ -197,7 +197,7 @@ pub fn profile(
 /// with their 1σ.
 fn refit(
     prep: &Prepared,
-    effects: &[&'static dyn Effect],
+    effects: &[&dyn Effect],
     cfg: &Config,
     id: &Identification,
     t0_s: f64,
@@ -233,12 +233,12 @@ pub fn effect_at(t0_s: f64) -> &'static dyn Effect {
 
 /// `effects` plus the step, and the model refitted with it: the repair of a run whose misfit a
 /// drift step explains best (`driftid identify`).
-pub fn repair(
+pub fn repair<'c>(
     prep: &Prepared,
-    effects: &[&'static dyn Effect],
+    effects: &[&'c dyn Effect],
     cfg: &Config,
     step: &DriftStepFit,
-) -> anyhow::Result<(Vec<&'static dyn Effect>, Identification)> {
+) -> anyhow::Result<(Vec<&'c dyn Effect>, Identification)> {
     let mut list = effects.to_vec();
     list.push(effect_at(step.t0_s));
     let model = build_model(prep.site, &list, cfg)?;
@@ -252,7 +252,7 @@ pub fn repair(
 /// `None` when a step is in the model already, the run is too short, or it gains nothing.
 pub fn candidate(
     prep: &Prepared,
-    effects: &[&'static dyn Effect],
+    effects: &[&dyn Effect],
     id: &Identification,
     base_evidence: f64,
     cfg: &crate::diagnose::DiagnoseConfig,
@@ -327,7 +327,10 @@ impl DriftStepFit {
     /// by [`crate::diagnose::alternatives::PLAUSIBLE_MARGIN`] (a Gauss–Markov wander or a trend
     /// is partly followed by a step too: on such runs a step gained 1.3e6 where `drift-markov`
     /// gained 2.0e6).
-    pub fn beats(&self, alternatives: &[crate::diagnose::alternatives::Alternative]) -> bool {
+    pub(crate) fn beats(
+        &self,
+        alternatives: &[crate::diagnose::alternatives::Alternative],
+    ) -> bool {
         let best = alternatives
             .iter()
             .map(|a| a.evidence_gain)

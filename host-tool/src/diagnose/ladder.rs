@@ -6,14 +6,14 @@ use estimator_core::effects::Effect;
 use super::types::{Diagnosis, Rung};
 use super::verdict::is_consistent;
 use super::{diagnose_identified, model_label, DiagnoseConfig};
-use crate::catalog;
+use crate::catalog::Catalog;
 use crate::identify::{build_model, identify, markov, Identification, Prepared};
 
 /// The 12 drift coefficients of the paper's model come first among the parameters.
 const DRIFT_COEFFICIENTS: usize = 12;
 
 /// What the model ladder produces.
-pub struct Ladder {
+pub struct Ladder<'c> {
     /// Every rung's diagnosis, the starting model first.
     pub diagnoses: Vec<Diagnosis>,
     /// The rung summaries (the same order).
@@ -21,27 +21,29 @@ pub struct Ladder {
     /// The final model's identification.
     pub identification: Identification,
     /// The final model's effects (the paper's drift first).
-    pub effects: Vec<&'static dyn Effect>,
+    pub effects: Vec<&'c dyn Effect>,
 }
 
 /// The model ladder: start from `start` effects, diagnose, add the effect the evidence chooses,
 /// repeat until nothing earns its place (or `max_rungs`).
-pub fn ladder(
+pub fn ladder<'c>(
     prep: &Prepared,
-    start: &[&'static dyn Effect],
+    catalog: &'c Catalog,
+    start: &[&'c dyn Effect],
     cfg: &DiagnoseConfig,
-) -> anyhow::Result<Ladder> {
-    ladder_from(prep, start, cfg, None)
+) -> anyhow::Result<Ladder<'c>> {
+    ladder_from(prep, catalog, start, cfg, None)
 }
 
 /// [`ladder`], its first rung from `first`, the identification of the `start` model on `prep`
 /// with `cfg.identify` when it was made already (else fitted here).
-pub fn ladder_from(
+pub fn ladder_from<'c>(
     prep: &Prepared,
-    start: &[&'static dyn Effect],
+    catalog: &'c Catalog,
+    start: &[&'c dyn Effect],
     cfg: &DiagnoseConfig,
     first: Option<Identification>,
-) -> anyhow::Result<Ladder> {
+) -> anyhow::Result<Ladder<'c>> {
     let mut effects = start.to_vec();
     let mut diagnoses = vec![];
     let mut rungs: Vec<Rung> = vec![];
@@ -65,10 +67,10 @@ pub fn ladder_from(
         // candidates' refits keep the catalog's: the choice of effect is unchanged).
         let (tuned, id) = markov::tune(prep, &effects, &cfg.identify, id)?;
         effects = tuned;
-        let (d, id) = diagnose_identified(prep, &effects, &at, id)?;
+        let (d, id) = diagnose_identified(prep, catalog, &effects, &at, id)?;
         rungs.push(rung(&d, &id));
         let next = if rungs.len() < cfg.max_rungs {
-            next_effect(&d)
+            next_effect(catalog, &d)
         } else {
             None
         };
@@ -90,7 +92,7 @@ pub fn ladder_from(
 }
 
 /// The rung of diagnosis `d` with its identification's estimates (no next step yet).
-pub fn rung(d: &Diagnosis, id: &Identification) -> Rung {
+pub(crate) fn rung(d: &Diagnosis, id: &Identification) -> Rung {
     let best = id.best();
     let coefficients = id
         .params
@@ -127,7 +129,7 @@ pub fn rung(d: &Diagnosis, id: &Identification) -> Rung {
 }
 
 /// The effect the evidence chose in `d`, with its Holm-adjusted p-value and the reason.
-fn next_effect(d: &Diagnosis) -> Option<(&'static dyn Effect, f64, String)> {
+fn next_effect<'c>(catalog: &'c Catalog, d: &Diagnosis) -> Option<(&'c dyn Effect, f64, String)> {
     let c = d.choice.as_ref()?;
     let p = d
         .ranking
@@ -137,7 +139,7 @@ fn next_effect(d: &Diagnosis) -> Option<(&'static dyn Effect, f64, String)> {
         .unwrap_or(f64::NAN);
     let e = match c.profiled {
         Some(made) => Some(made.effect()),
-        None => catalog::by_name(&c.effect),
+        None => catalog.by_name(&c.effect),
     };
     e.map(|e| (e, p, c.reason.clone()))
 }

@@ -16,14 +16,14 @@ use crate::quality::{Action, Finding, Kind};
 use rayon::prelude::*;
 
 /// Half-width of each searched interval ([`search_grid`]), deg.
-pub const SEARCH_HALF_WIDTH_DEG: f64 = 12.0;
+pub(crate) const SEARCH_HALF_WIDTH_DEG: f64 = 12.0;
 /// Evidence gain (−2 ln units) a latitude must bring to be reported.
-pub const MIN_GAIN: f64 = 100.0;
+pub(crate) const MIN_GAIN: f64 = 100.0;
 
 /// The data's latitude for a model: estimate, 1σ (deg), evidence gain over the metadata latitude,
 /// and whether the model is consistent there.
 #[derive(Clone, Copy, Debug, PartialEq)]
-pub struct LatitudeFit {
+pub(crate) struct LatitudeFit {
     /// Best latitude, deg.
     pub latitude_deg: f64,
     /// Its 1σ from the curvature of −2 ln p(y), deg.
@@ -38,7 +38,7 @@ pub struct LatitudeFit {
 /// cannot be fitted there).
 pub(crate) fn fit_at(
     prep: &Prepared,
-    effects: &[&'static dyn Effect],
+    effects: &[&dyn Effect],
     cfg: &Config,
     lat: f64,
 ) -> Option<(f64, Identification, Prepared)> {
@@ -49,7 +49,7 @@ pub(crate) fn fit_at(
 }
 
 /// −2 ln p(y) at latitude `lat`, +∞ where the model cannot be fitted.
-fn evidence_at(prep: &Prepared, effects: &[&'static dyn Effect], cfg: &Config, lat: f64) -> f64 {
+fn evidence_at(prep: &Prepared, effects: &[&dyn Effect], cfg: &Config, lat: f64) -> f64 {
     fit_at(prep, effects, cfg, lat).map_or(f64::INFINITY, |(e, _, _)| e)
 }
 
@@ -94,9 +94,9 @@ fn latitude_of_gravity(g: f64) -> f64 {
 
 /// Profiles the evidence over latitude: a grid of 2° ([`search_grid`]) then a golden-section
 /// refinement. Also returns the fit at the best latitude.
-pub fn profile(
+pub(crate) fn profile(
     prep: &Prepared,
-    effects: &[&'static dyn Effect],
+    effects: &[&dyn Effect],
     cfg: &Config,
 ) -> Option<(LatitudeFit, Identification)> {
     let l0 = prep.site.latitude_rad.to_degrees();
@@ -180,7 +180,7 @@ pub fn profile(
 /// a latitude anywhere in the profile's search windows (4 × [`SEARCH_HALF_WIDTH_DEG`]) against
 /// the data's 1σ, `2 ln(W / (√(2π) σ))` — the scale on which catalog effects are weighed
 /// ([`crate::diagnose::alternatives`]).
-pub fn occam(sigma_deg: f64) -> f64 {
+pub(crate) fn occam(sigma_deg: f64) -> f64 {
     let w = 4.0 * SEARCH_HALF_WIDTH_DEG;
     (2.0 * (w / ((2.0 * std::f64::consts::PI).sqrt() * sigma_deg.max(1e-9))).ln()).max(0.0)
 }
@@ -191,7 +191,7 @@ pub fn occam(sigma_deg: f64) -> f64 {
 /// rival as good makes it a confounded finding without advice; a better rival, no finding.
 pub fn check(
     prep: &Prepared,
-    effects: &[&'static dyn Effect],
+    effects: &[&dyn Effect],
     cfg: &Config,
     rivals: &[(String, f64)],
 ) -> Option<Finding> {

@@ -40,24 +40,24 @@ use crate::quality::{Action, Finding};
 /// sample interval or clock set wrong by 0.1 %: a quartz crystal is good to 20 ppm, so 1000 is a
 /// fault, not a tolerance), gravity 1000 ppm (a gravity value of another place or formula: normal
 /// gravity differs by 0.5 % from equator to pole).
-pub const BROAD: [f64; 3] = [0.5, 1000.0, 1000.0];
+pub(crate) const BROAD: [f64; 3] = [0.5, 1000.0, 1000.0];
 
 /// Prior odds against a misstated set-up, −2 ln units: a stated set-up is taken as 100 times
 /// likelier than a misstated one before the data are seen (a gross metadata fault in about one
 /// recording in a hundred). Without them a clean run's 2.5σ clock estimate would make a
 /// misstated clock a plausible rival, and on a day's run (where the data know the clock only to
 /// ~600 ppm) one in six clean runs would be distrusted for it (measured with 20:1: 7 of 40).
-pub const PRIOR_ODDS: f64 = 9.210_340_371_976_184; // 2 ln 100
+pub(crate) const PRIOR_ODDS: f64 = 9.210_340_371_976_184; // 2 ln 100
 
 /// The knobs' names and units, in the [`KnobModel`]'s order.
-pub const KNOBS: [(&str, &str); 3] = [
+pub(crate) const KNOBS: [(&str, &str); 3] = [
     ("latitude", "deg"),
     ("clock rate", "ppm"),
     ("gravity", "ppm"),
 ];
 
 /// The misstatements weighed ([`weigh`]).
-pub struct Weighed {
+pub(crate) struct Weighed {
     /// Each knob misstated, its evidence gain over the stated set-up with its priors (or over
     /// the stated set-up's own fit when the data contradict those priors).
     pub alternatives: Vec<Alternative>,
@@ -70,7 +70,7 @@ pub struct Weighed {
 impl Weighed {
     /// The alternatives with gains over the stated set-up's own fit, and the stated set-up with
     /// its priors as one more rival (what the catalog's refits at the stated set-up compare to).
-    pub fn on_the_stated_fit(mut self) -> (Vec<Alternative>, Option<(String, f64)>) {
+    pub(crate) fn on_the_stated_fit(mut self) -> (Vec<Alternative>, Option<(String, f64)>) {
         let g0 = self.stated_gain.unwrap_or(0.0);
         for a in &mut self.alternatives {
             a.evidence_gain += g0;
@@ -84,8 +84,8 @@ impl Weighed {
 
 /// Each knob misstated, as an alternative explanation of the fit `id` of `effects` on `prep` (the
 /// stated set-up, the one `unc` was computed about). Empty for a single pass.
-pub fn weigh(
-    effects: &[&'static dyn Effect],
+pub(crate) fn weigh(
+    effects: &[&dyn Effect],
     prep: &Prepared,
     cfg: &Config,
     id: &Identification,
@@ -97,36 +97,8 @@ pub fn weigh(
             stated_gain: None,
         });
     };
-    // A gravity derived from the stated latitude (normal gravity) that the data find far off
-    // says the site is elsewhere (another latitude or altitude), not that a gravity value was
-    // mistaken: that is the latitude's profile to name ([`crate::diagnose::latitude`]).
-    let derived = (prep.site.gravity_mps2
-        - estimator_core::frames::normal_gravity(prep.site.latitude_rad))
-    .abs()
-        < 1e-12;
-    let live: Vec<usize> = (0..3)
-        .filter(|&k| km.unit[k] > 0.0 && !(k == 2 && derived))
-        .collect();
-    // The priors: as stated (first), then each live knob broad.
-    let lambdas: Vec<[f64; 3]> = std::iter::once([1.0; 3])
-        .chain(live.iter().map(|&k| {
-            let mut l = [1.0; 3];
-            l[k] = (BROAD[k] / km.unit[k]).powi(2);
-            l
-        }))
-        .collect();
-    // The latitude's own prior is uniform within its written digits: the Gaussian stand-in must
-    // not let it wander beyond them (a clock 1000 ppm off would hide in a latitude 0.06° off
-    // one written "39.1").
-    let bound = unc
-        .contributions
-        .iter()
-        .find(|c| c.source == "latitude")
-        .and_then(|c| c.bound);
-    let laplace: Vec<Laplace> = lambdas
-        .iter()
-        .map(|l| Laplace::new(km, *l, bound))
-        .collect();
+    let live = live_knobs(prep, km);
+    let laplace = hypotheses(km, &live, unc);
     let fits: Vec<anyhow::Result<(f64, DVector<f64>)>> = laplace
         .par_iter()
         .map(|l| refit(&moved(prep, l.delta(km)), effects, cfg, id))
@@ -141,60 +113,144 @@ pub fn weigh(
     } else {
         laplace[0].neg2_ln_z(fits[0].0)
     };
-    let stated = stated_values(prep);
-    let mut out = vec![];
-    for (j, &k) in live.iter().enumerate() {
-        let (l, (f, c)) = (&laplace[j + 1], &fits[j + 1]);
-        let (u, var) = (l.u[k], l.var[k]);
-        let (name, unit) = KNOBS[k];
-        let sens = km.sens.column(k);
-        let shift = c - &fits[0].1;
-        let mut a = Alternative {
-            effect: format!("{name} misstated"),
-            evidence_gain: base - l.neg2_ln_z(*f) - PRIOR_ODDS,
-            weight: 0.0,
-            reach: (0..shift.len())
-                .map(|i| shift[i].abs() + 2.0 * var.sqrt() * sens[i].abs())
-                .collect(),
-            shift: shift.iter().copied().collect(),
-            instead_of_setup: false,
-            misstated: Some(Misstated {
-                knob: name,
-                unit,
-                stated: stated[k],
-                value: stated[k] + u * km.unit[k],
-                sigma: var.sqrt() * km.unit[k],
-                index: k,
-            }),
-        };
-        // A latitude the broad prior puts beyond 3σ of where its own prior does is weighed by
-        // full fits with gravity kept: the quadratic model moves normal gravity with the latitude
-        // (4.4 ppm per 0.05°, 26σ of what the data know of gravity) and misses far from the
-        // stated latitude.
-        if k == 0 && ((u - laplace[0].u[0]) * km.unit[0]).abs() > 3.0 * var.sqrt() * km.unit[0] {
-            let start = stated[0] + u * km.unit[0];
-            // The other knobs' share of −2 ln Z under this hypothesis, so that the profiled
-            // latitude is weighed on the scale of the others.
-            let others = l.ln_det - (1.0 + l.lambda[0] * km.hess[(0, 0)] / 2.0).ln()
-                + (1..3).map(|i| l.u[i] * l.u[i] / l.lambda[i]).sum::<f64>();
-            if let Some(p) = profiled_latitude(
-                km,
-                effects,
-                prep,
-                cfg,
-                (&fits[0].1, base - others),
-                stated[0],
-                start,
-            ) {
-                a = p;
+    let reference = Reference {
+        km,
+        laplace: &laplace[0],
+        params: &fits[0].1,
+        base,
+        stated: stated_values(prep),
+    };
+    let out = live
+        .iter()
+        .enumerate()
+        .map(|(j, &k)| {
+            let (l, (f, c)) = (&laplace[j + 1], &fits[j + 1]);
+            let a = knob_misstated(&reference, k, l, *f, c);
+            if k == 0 {
+                latitude_far_off(&reference, l, effects, prep, cfg).unwrap_or(a)
+            } else {
+                a
             }
-        }
-        out.push(a);
-    }
+        })
+        .collect();
     Ok(Weighed {
         alternatives: out,
         stated_gain: (!contradicted).then_some(km.f0 - base),
     })
+}
+
+/// What each misstated knob is weighed against: the stated set-up with its priors (the first
+/// hypothesis, `laplace`), its fit's parameters, its −2 ln Z (`base`) and the stated knob values.
+struct Reference<'a> {
+    km: &'a KnobModel,
+    laplace: &'a Laplace,
+    params: &'a DVector<f64>,
+    base: f64,
+    stated: [f64; 3],
+}
+
+/// The knobs that can be misstated here (with a prior). A gravity derived from the stated
+/// latitude (normal gravity) that the data find far off says the site is elsewhere (another
+/// latitude or altitude), not that a gravity value was mistaken: that is the latitude's profile
+/// to name ([`crate::diagnose::latitude`]).
+fn live_knobs(prep: &Prepared, km: &KnobModel) -> Vec<usize> {
+    let derived = (prep.site.gravity_mps2
+        - estimator_core::frames::normal_gravity(prep.site.latitude_rad))
+    .abs()
+        < 1e-12;
+    (0..3)
+        .filter(|&k| km.unit[k] > 0.0 && !(k == 2 && derived))
+        .collect()
+}
+
+/// The hypotheses' Laplace approximations: the priors as stated (first), then each `live` knob
+/// broad. The latitude's own prior is uniform within its written digits: the Gaussian stand-in
+/// must not let it wander beyond them (a clock 1000 ppm off would hide in a latitude 0.06° off
+/// one written "39.1").
+fn hypotheses(km: &KnobModel, live: &[usize], unc: &Uncertainty) -> Vec<Laplace> {
+    let lambdas: Vec<[f64; 3]> = std::iter::once([1.0; 3])
+        .chain(live.iter().map(|&k| {
+            let mut l = [1.0; 3];
+            l[k] = (BROAD[k] / km.unit[k]).powi(2);
+            l
+        }))
+        .collect();
+    let bound = unc
+        .contributions
+        .iter()
+        .find(|c| c.source == "latitude")
+        .and_then(|c| c.bound);
+    lambdas
+        .iter()
+        .map(|l| Laplace::new(km, *l, bound))
+        .collect()
+}
+
+/// Knob `k` misstated as an alternative: its hypothesis `l` with broad prior, fitted to
+/// −2 ln p(y) `f` with parameters `c`, against the `reference`.
+fn knob_misstated(
+    reference: &Reference,
+    k: usize,
+    l: &Laplace,
+    f: f64,
+    c: &DVector<f64>,
+) -> Alternative {
+    let km = reference.km;
+    let (u, var) = (l.u[k], l.var[k]);
+    let (name, unit) = KNOBS[k];
+    let sens = km.sens.column(k);
+    let shift = c - reference.params;
+    Alternative {
+        effect: format!("{name} misstated"),
+        evidence_gain: reference.base - l.neg2_ln_z(f) - PRIOR_ODDS,
+        weight: 0.0,
+        reach: (0..shift.len())
+            .map(|i| shift[i].abs() + 2.0 * var.sqrt() * sens[i].abs())
+            .collect(),
+        shift: shift.iter().copied().collect(),
+        instead_of_setup: false,
+        misstated: Some(Misstated {
+            knob: name,
+            unit,
+            stated: reference.stated[k],
+            value: reference.stated[k] + u * km.unit[k],
+            sigma: var.sqrt() * km.unit[k],
+            index: k,
+        }),
+    }
+}
+
+/// A latitude the broad prior `l` puts beyond 3σ of where its own prior does, weighed by full
+/// fits with gravity kept ([`profiled_latitude`]); `None` when it is not that far (or the profile
+/// fails). The quadratic model moves normal gravity with the latitude (4.4 ppm per 0.05°, 26σ of
+/// what the data know of gravity) and misses far from the stated latitude.
+fn latitude_far_off(
+    reference: &Reference,
+    l: &Laplace,
+    effects: &[&dyn Effect],
+    prep: &Prepared,
+    cfg: &Config,
+) -> Option<Alternative> {
+    let km = reference.km;
+    let (u, var) = (l.u[0], l.var[0]);
+    let far = ((u - reference.laplace.u[0]) * km.unit[0]).abs() > 3.0 * var.sqrt() * km.unit[0];
+    if !far {
+        return None;
+    }
+    let start = reference.stated[0] + u * km.unit[0];
+    // The other knobs' share of −2 ln Z under this hypothesis, so that the profiled latitude is
+    // weighed on the scale of the others.
+    let others = l.ln_det - (1.0 + l.lambda[0] * km.hess[(0, 0)] / 2.0).ln()
+        + (1..3).map(|i| l.u[i] * l.u[i] / l.lambda[i]).sum::<f64>();
+    profiled_latitude(
+        km,
+        effects,
+        prep,
+        cfg,
+        (reference.params, reference.base - others),
+        reference.stated[0],
+        start,
+    )
 }
 
 /// The knobs' Laplace approximation under prior covariance Λ (diagonal, prior units).
@@ -272,7 +328,7 @@ impl Laplace {
 /// its priors, its parameters `c0`).
 fn profiled_latitude(
     km: &KnobModel,
-    effects: &[&'static dyn Effect],
+    effects: &[&dyn Effect],
     prep: &Prepared,
     cfg: &Config,
     (c0, base): (&DVector<f64>, f64),
@@ -362,7 +418,7 @@ fn stated_values(prep: &Prepared) -> [f64; 3] {
 /// set-up's) and `rivals` (further explanations' gains, e.g. refitted catalog effects): the best
 /// of all, ahead of every other by [`PLAUSIBLE_MARGIN`] and of the stated set-up by
 /// [`MIN_EVIDENCE_GAIN`].
-pub fn to_repair(alts: &[Alternative], rivals: &[(String, f64)]) -> Option<Misstated> {
+pub(crate) fn to_repair(alts: &[Alternative], rivals: &[(String, f64)]) -> Option<Misstated> {
     let best = alts
         .iter()
         .max_by(|a, b| a.evidence_gain.total_cmp(&b.evidence_gain))?;
@@ -381,7 +437,7 @@ pub fn to_repair(alts: &[Alternative], rivals: &[(String, f64)]) -> Option<Misst
 /// (a clock 1000 ppm fast and a latitude 0.07° off fit 60 h alike): the set-up is wrong, which
 /// part the run cannot tell. A finding that is not repaired (no physical effect is then added
 /// to explain it), naming them and what would tell them apart.
-pub fn confounded(mis: &[Alternative], rivals: &[(String, f64)]) -> Option<Finding> {
+pub(crate) fn confounded(mis: &[Alternative], rivals: &[(String, f64)]) -> Option<Finding> {
     let best = mis
         .iter()
         .map(|a| a.evidence_gain)
@@ -422,7 +478,7 @@ pub fn confounded(mis: &[Alternative], rivals: &[(String, f64)]) -> Option<Findi
 /// `prep` and `cfg` with the misstated knob repaired: moved to the data's value, its prior the
 /// data's 1σ, and the finding that names it among the measurements' findings (`alts`, `rivals`:
 /// what it beat).
-pub fn repair(
+pub(crate) fn repair(
     prep: &Prepared,
     cfg: &Config,
     m: &Misstated,

@@ -22,8 +22,8 @@ pub mod latitude;
 pub mod misstated;
 pub mod score;
 pub mod select;
-pub mod statistics;
-pub mod types;
+pub(crate) mod statistics;
+pub(crate) mod types;
 pub mod verdict;
 pub mod wander;
 pub mod warmup;
@@ -33,13 +33,14 @@ use estimator_core::residual::Residual;
 use estimator_core::units::S_PER_H;
 use estimator_core::{Measurement, Model};
 
-pub use self::candidates::{noncentrality_for_power, SEPARATION_GAP};
 pub use self::ladder::{ladder, ladder_from, Ladder};
 use self::score::signatures;
 use self::statistics::per_axis;
-pub use self::statistics::{correlations, failure_windows, whiteness};
+pub use self::statistics::whiteness;
+pub(crate) use self::statistics::{correlations, failure_windows};
 pub use self::types::*;
 pub use self::verdict::is_consistent;
+use crate::catalog::Catalog;
 use crate::consistency::{assess, Thresholds};
 use crate::identify::smoother::temp_devs;
 use crate::identify::{
@@ -79,21 +80,23 @@ impl Default for DiagnoseConfig {
 /// Diagnoses one model (the paper's drift plus `effects`) on prepared measurements.
 pub fn diagnose(
     prep: &Prepared,
-    effects: &[&'static dyn Effect],
+    catalog: &Catalog,
+    effects: &[&dyn Effect],
     cfg: &DiagnoseConfig,
 ) -> anyhow::Result<(Diagnosis, Identification)> {
     let model = build_model(prep.site, effects, &cfg.identify)?;
     cfg.progress
         .note(|| format!("fitting {}", model_label(effects)));
     let id = identify(&model, prep, &cfg.identify)?;
-    diagnose_identified(prep, effects, cfg, id)
+    diagnose_identified(prep, catalog, effects, cfg, id)
 }
 
 /// [`diagnose`] from the model's identification on `prep` with `cfg.identify`, made already
 /// (`driftid diagnose` fits the starting model first to decide whether to profile the latitude).
-pub fn diagnose_identified(
+pub(crate) fn diagnose_identified(
     prep: &Prepared,
-    effects: &[&'static dyn Effect],
+    catalog: &Catalog,
+    effects: &[&dyn Effect],
     cfg: &DiagnoseConfig,
     id: Identification,
 ) -> anyhow::Result<(Diagnosis, Identification)> {
@@ -105,7 +108,7 @@ pub fn diagnose_identified(
     let meas = &prep.measurements;
     // Candidates: every catalog effect not in the model, scored from one replay.
     let run_s = meas.last().map(|m| m.t_s).unwrap_or(0.0);
-    let setups = candidates::setups(effects, model.dim(), run_s, temp_varies(meas), cfg);
+    let setups = candidates::setups(catalog, effects, model.dim(), run_s, temp_varies(meas), cfg);
     cfg.progress
         .note(|| format!("score tests of {} candidates", setups.len()));
     let (pass, sigs, _) = replay(prep, &model, effects, &setups, &id, cfg)?;
@@ -131,6 +134,7 @@ pub fn diagnose_identified(
     let mut ranking: Vec<Candidate> = ranked.into_iter().map(|(c, _)| c).collect();
     let choice = choose(
         prep,
+        catalog,
         effects,
         &id,
         &mut ranking,
@@ -164,7 +168,7 @@ pub fn diagnose_identified(
 pub(crate) fn replay(
     prep: &Prepared,
     model: &Model<'_>,
-    effects: &[&'static dyn Effect],
+    effects: &[&dyn Effect],
     setups: &[candidates::Setup],
     id: &Identification,
     cfg: &DiagnoseConfig,
@@ -203,7 +207,7 @@ pub(crate) fn temp_varies(meas: &[Measurement]) -> bool {
 
 /// The model's effects beyond the paper's drift, by name.
 /// "paper + acc-bias + …": the model of `effects` for a progress note.
-pub(super) fn model_label(effects: &[&'static dyn Effect]) -> String {
+pub(super) fn model_label(effects: &[&dyn Effect]) -> String {
     ["paper".to_string()]
         .iter()
         .chain(&model_names(effects))
@@ -212,7 +216,7 @@ pub(super) fn model_label(effects: &[&'static dyn Effect]) -> String {
         .join(" + ")
 }
 
-fn model_names(effects: &[&'static dyn Effect]) -> Vec<String> {
+fn model_names(effects: &[&dyn Effect]) -> Vec<String> {
     effects
         .iter()
         .filter(|e| e.name() != "paper")
@@ -263,7 +267,8 @@ fn series_of(meas: &[Measurement], residual: Vec<[f64; 3]>, innovations: &[Resid
 /// ([`select`]).
 fn choose(
     prep: &Prepared,
-    effects: &[&'static dyn Effect],
+    catalog: &Catalog,
+    effects: &[&dyn Effect],
     id: &Identification,
     ranking: &mut [Candidate],
     consistent: bool,
@@ -276,7 +281,7 @@ fn choose(
         .map(|c| c.effect.clone())
         .collect();
     let base_evidence = select::neg2_log_evidence(id);
-    let mut refits = select::refit(prep, effects, base_evidence, &leaders, cfg);
+    let mut refits = select::refit(prep, catalog, effects, base_evidence, &leaders, cfg);
     if !consistent {
         refits.extend(drift_step::candidate(prep, effects, id, base_evidence, cfg));
         refits.extend(warmup::candidate(prep, effects, id, base_evidence, cfg));
@@ -294,7 +299,7 @@ fn choose(
 /// as the prior (`fit`), their whiteness (`lags`), failure windows, correlations and the one
 /// definition of consistent. No candidate is scored (the joint fit tests none): the ranking is
 /// empty and the verdict says whether the joint model explains the run.
-pub fn of_joint_run(
+pub(crate) fn of_joint_run(
     prep: &Prepared,
     model: Vec<String>,
     fit: &crate::identify::joint::RunFit,

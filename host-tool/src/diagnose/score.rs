@@ -16,7 +16,6 @@
 //! core's own propagation and measurement Jacobians of the model extended by the candidate,
 //! evaluated on the nominal (smoothed) trajectory with β = 0: no model code is duplicated here.
 
-use estimator_core::effects::Effect;
 use estimator_core::model::{Model, MAX_STATES};
 use estimator_core::propagate::{propagate, Transition};
 use estimator_core::Measurement;
@@ -25,7 +24,7 @@ use nalgebra::{DMatrix, DVector, SymmetricEigen, Vector3};
 use crate::identify::smoother::{linearised_pass_observed, Smoothed, SmootherError, StepView};
 
 /// The signature of one candidate and its test.
-pub struct Signature {
+pub(crate) struct Signature {
     /// Parameters tested.
     pub q: usize,
     /// Score Σ D̃ᵀ ν̃.
@@ -40,7 +39,7 @@ pub struct Signature {
 }
 
 /// Result of a score test.
-pub struct ScoreTest {
+pub(crate) struct ScoreTest {
     /// Statistic sᵀ I⁺ s.
     pub statistic: f64,
     /// Rank of I (identifiable directions).
@@ -54,7 +53,7 @@ pub struct ScoreTest {
 impl Signature {
     /// Pseudo-inverse test: I is scaled to unit diagonal, directions with eigenvalue below 1e-9
     /// of the largest are unidentifiable on this run and dropped from the test.
-    pub fn test(&self) -> ScoreTest {
+    pub(crate) fn test(&self) -> ScoreTest {
         let q = self.q;
         let scale: Vec<f64> = (0..q).map(|k| self.info[(k, k)].sqrt()).collect();
         let inv_scale: Vec<f64> = scale
@@ -86,26 +85,199 @@ impl Signature {
     }
 }
 
+/// One candidate's signature recursion, carried along the replay of the current model.
 struct Tracker<'m> {
+    /// The current model extended by the candidate.
     model: Model<'m>,
+    /// The candidate's parameter count.
     q: usize,
+    /// Ψ: the sensitivity of the current model's filtered state to β (n × q).
     psi: DMatrix<f64>,
+    /// T: the sensitivity of β's own states to their start (q × q; identity for constants).
     t: DMatrix<f64>,
+    /// Σ D̃ᵀ ν̃.
     score: DVector<f64>,
+    /// Σ D̃ᵀ D̃.
     info: DMatrix<f64>,
+    /// The whitened signature's rows, 3 per update, q values each.
     rows: Vec<f64>,
+}
+
+/// The candidate's Jacobians over one step: Γ (n × q, ∂x_j/∂β over the interval), A (q × q, β's
+/// own dynamics) and H_β (3 × q).
+struct StepJacobians {
+    gamma: DMatrix<f64>,
+    a: DMatrix<f64>,
+    h_beta: DMatrix<f64>,
+}
+
+/// Scratch buffers of the core's propagation and measurement Jacobians, reused at every step.
+struct Scratch {
+    tr: Transition<MAX_STATES>,
+    cols: [Vector3<f64>; MAX_STATES],
+}
+
+impl<'m> Tracker<'m> {
+    /// The recursion's start for `model`, the current model of `n` states extended by the
+    /// candidate, over `updates` measurement updates.
+    fn new(model: Model<'m>, n: usize, updates: usize) -> Self {
+        let q = model.dim() - n;
+        Tracker {
+            model,
+            q,
+            psi: DMatrix::zeros(n, q),
+            t: DMatrix::identity(q, q),
+            score: DVector::zeros(q),
+            info: DMatrix::zeros(q, q),
+            rows: Vec::with_capacity(3 * q * updates),
+        }
+    }
+
+    /// One update of the replay: the signature D_j of this step, then Ψ and the score and
+    /// information with the whitened innovation `nu_w` (`dynamic`: the current model's dynamic
+    /// states).
+    fn step(
+        &mut self,
+        v: &StepView<'_>,
+        n: usize,
+        dynamic: &[usize],
+        nu_w: &Vector3<f64>,
+        scratch: &mut Scratch,
+    ) {
+        let jac = self.jacobians(v, n, scratch);
+        let psi_pred = self.predicted_psi(v, n, dynamic, &jac.gamma);
+        self.advance_own_dynamics(n, &jac.a);
+        let d = v.h * &psi_pred + jac.h_beta * &self.t;
+        self.psi = psi_pred - v.k * &d;
+        self.accumulate(&d, &v.chol_l, nu_w);
+    }
+
+    /// Γ, A and H_β from the core's propagation and measurement of the extended model on the
+    /// nominal trajectory with β = 0.
+    fn jacobians(&self, v: &StepView<'_>, n: usize, scratch: &mut Scratch) -> StepJacobians {
+        let q = self.q;
+        let tr = &mut scratch.tr;
+        let mut x = v.nominal_prev.as_slice().to_vec();
+        x.resize(n + q, 0.0);
+        propagate(
+            &self.model,
+            &mut x,
+            v.t_prev_s,
+            v.t_s - v.t_prev_s,
+            v.temp_prev,
+            v.temp,
+            tr,
+        );
+        let mut gamma = DMatrix::zeros(n, q);
+        let mut a = DMatrix::identity(q, q);
+        for (r, &d) in self.model.dynamic_states().iter().enumerate() {
+            for b in 0..q {
+                if d < n {
+                    gamma[(d, b)] = tr.rows[r][n + b];
+                } else {
+                    a[(d - n, b)] = tr.rows[r][n + b];
+                }
+            }
+        }
+        let mut xj = v.nominal.as_slice().to_vec();
+        xj.resize(n + q, 0.0);
+        let cols = &mut scratch.cols;
+        self.model
+            .measurement(&xj, v.t_s, v.temp, v.time_var_s2, cols);
+        let h_beta = DMatrix::from_fn(3, q, |i, b| cols[n + b][i]);
+        StepJacobians { gamma, a, h_beta }
+    }
+
+    /// Ψ⁻ = Φ Ψ + Γ T: Φ is the identity outside the current model's dynamic rows and Γ zero
+    /// outside the extended model's (below n): only those rows change.
+    fn predicted_psi(
+        &self,
+        v: &StepView<'_>,
+        n: usize,
+        dynamic: &[usize],
+        gamma: &DMatrix<f64>,
+    ) -> DMatrix<f64> {
+        let q = self.q;
+        let mut psi_pred = self.psi.clone();
+        let ext_rows = self.model.dynamic_states().iter().filter(|&&d| d < n);
+        let mut rows: Vec<usize> = dynamic.iter().chain(ext_rows).copied().collect();
+        rows.sort_unstable();
+        rows.dedup();
+        for &d in &rows {
+            for b in 0..q {
+                let mut acc = 0.0;
+                for k in 0..n {
+                    acc += v.phi[(d, k)] * self.psi[(k, b)];
+                }
+                for c in 0..q {
+                    acc += gamma[(d, c)] * self.t[(c, b)];
+                }
+                psi_pred[(d, b)] = acc;
+            }
+        }
+        psi_pred
+    }
+
+    /// T ← A T: A is the identity outside the candidate's Gauss–Markov rows.
+    fn advance_own_dynamics(&mut self, n: usize, a: &DMatrix<f64>) {
+        let q = self.q;
+        let markov_rows = self.model.dynamic_states().iter().filter(|&&d| d >= n);
+        let new_rows: Vec<(usize, Vec<f64>)> = markov_rows
+            .map(|&d| {
+                let r = d - n;
+                let row = (0..q)
+                    .map(|b| (0..q).fold(0.0, |acc, c| acc + a[(r, c)] * self.t[(c, b)]))
+                    .collect();
+                (r, row)
+            })
+            .collect();
+        for (r, row) in new_rows {
+            for (b, x) in row.into_iter().enumerate() {
+                self.t[(r, b)] = x;
+            }
+        }
+    }
+
+    /// Whitens the signature `d` (D̃ = L⁻¹ D column by column, L the 3×3 lower-triangular
+    /// factor of S) and adds it to the score, the information and the whitened rows.
+    fn accumulate(&mut self, d: &DMatrix<f64>, l: &nalgebra::Matrix3<f64>, nu_w: &Vector3<f64>) {
+        let q = self.q;
+        let mut dw = DMatrix::zeros(3, q);
+        for b in 0..q {
+            let c = Vector3::new(d[(0, b)], d[(1, b)], d[(2, b)]);
+            let w = l.solve_lower_triangular(&c).unwrap_or(c);
+            dw.set_column(b, &w);
+        }
+        self.score += dw.transpose() * DVector::from_row_slice(nu_w.as_slice());
+        self.info += dw.transpose() * &dw;
+        for i in 0..3 {
+            self.rows.extend(dw.row(i).iter());
+        }
+    }
+
+    /// The candidate's signature at the end of the replay.
+    fn into_signature(self) -> Signature {
+        let n_rows = self.rows.len() / self.q.max(1);
+        Signature {
+            q: self.q,
+            score: self.score,
+            info: self.info,
+            whitened: DMatrix::from_row_slice(n_rows, self.q, &self.rows),
+            psi_final: self.psi,
+        }
+    }
 }
 
 /// What [`signatures`] returns: the pass, each candidate's signature, the whitened innovations
 /// (3 per update).
-pub type Replay = (Smoothed, Vec<Option<Signature>>, Vec<f64>);
+pub(crate) type Replay = (Smoothed, Vec<Option<Signature>>, Vec<f64>);
 
 /// Replays the current model's final forward pass once and carries every candidate's signature.
 /// `extended[c]` is the current model's effects followed by candidate c's (its state layout
 /// extends the current one). Returns the pass and, per candidate, its signature (`None` when
 /// the extended model does not fit in the state capacity), or the pass's error (naming the
 /// update) when the linearised filter breaks down on these measurements.
-pub fn signatures(
+pub(crate) fn signatures(
     model: &Model<'_>,
     extended: &[Option<Model<'_>>],
     meas: &[Measurement],
@@ -116,124 +288,25 @@ pub fn signatures(
     let n = model.dim();
     let mut trackers: Vec<Option<Tracker<'_>>> = extended
         .iter()
-        .map(|m| {
-            m.map(|m| {
-                let q = m.dim() - n;
-                Tracker {
-                    model: m,
-                    q,
-                    psi: DMatrix::zeros(n, q),
-                    t: DMatrix::identity(q, q),
-                    score: DVector::zeros(q),
-                    info: DMatrix::zeros(q, q),
-                    rows: Vec::with_capacity(3 * q * meas.len()),
-                }
-            })
-        })
+        .map(|m| m.map(|m| Tracker::new(m, n, meas.len())))
         .collect();
     let mut nu_whitened = Vec::with_capacity(3 * meas.len());
-    let mut tr = Transition::<MAX_STATES>::default();
-    let mut cols = [Vector3::zeros(); MAX_STATES];
+    let mut scratch = Scratch {
+        tr: Transition::<MAX_STATES>::default(),
+        cols: [Vector3::zeros(); MAX_STATES],
+    };
     let dynamic = model.dynamic_states();
     let pass = linearised_pass_observed(model, meas, nominal, x0, p0, false, |v: &StepView<'_>| {
-        let l = v.chol_l;
-        let nu_w = l.solve_lower_triangular(&v.nu).unwrap_or(v.nu);
+        let nu_w = v.chol_l.solve_lower_triangular(&v.nu).unwrap_or(v.nu);
         nu_whitened.extend_from_slice(nu_w.as_slice());
         for tk in trackers.iter_mut().flatten() {
-            let q = tk.q;
-            let mut x = v.nominal_prev.as_slice().to_vec();
-            x.resize(n + q, 0.0);
-            propagate(
-                &tk.model,
-                &mut x,
-                v.t_prev_s,
-                v.t_s - v.t_prev_s,
-                v.temp_prev,
-                v.temp,
-                &mut tr,
-            );
-            let mut gamma = DMatrix::zeros(n, q);
-            let mut a = DMatrix::identity(q, q);
-            for (r, &d) in tk.model.dynamic_states().iter().enumerate() {
-                for b in 0..q {
-                    if d < n {
-                        gamma[(d, b)] = tr.rows[r][n + b];
-                    } else {
-                        a[(d - n, b)] = tr.rows[r][n + b];
-                    }
-                }
-            }
-            let mut xj = v.nominal.as_slice().to_vec();
-            xj.resize(n + q, 0.0);
-            tk.model
-                .measurement(&xj, v.t_s, v.temp, v.time_var_s2, &mut cols);
-            let h_beta = DMatrix::from_fn(3, q, |i, b| cols[n + b][i]);
-            // Ψ⁻ = Φ Ψ + Γ T: Φ is the identity outside the current model's dynamic rows and Γ zero
-            // outside the extended model's (below n): only those rows change.
-            let mut psi_pred = tk.psi.clone();
-            let ext_rows = tk.model.dynamic_states().iter().filter(|&&d| d < n);
-            let mut rows: Vec<usize> = dynamic.iter().chain(ext_rows).copied().collect();
-            rows.sort_unstable();
-            rows.dedup();
-            for &d in &rows {
-                for b in 0..q {
-                    let mut acc = 0.0;
-                    for k in 0..n {
-                        acc += v.phi[(d, k)] * tk.psi[(k, b)];
-                    }
-                    for c in 0..q {
-                        acc += gamma[(d, c)] * tk.t[(c, b)];
-                    }
-                    psi_pred[(d, b)] = acc;
-                }
-            }
-            // T ← A T: A is the identity outside the candidate's Gauss–Markov rows.
-            let markov_rows = tk.model.dynamic_states().iter().filter(|&&d| d >= n);
-            let new_rows: Vec<(usize, Vec<f64>)> = markov_rows
-                .map(|&d| {
-                    let r = d - n;
-                    let row = (0..q)
-                        .map(|b| (0..q).fold(0.0, |acc, c| acc + a[(r, c)] * tk.t[(c, b)]))
-                        .collect();
-                    (r, row)
-                })
-                .collect();
-            for (r, row) in new_rows {
-                for (b, x) in row.into_iter().enumerate() {
-                    tk.t[(r, b)] = x;
-                }
-            }
-            let d = v.h * &psi_pred + h_beta * &tk.t;
-            tk.psi = psi_pred - v.k * &d;
-            // Whiten: D̃ = L⁻¹ D column by column (L is 3×3 lower triangular).
-            let mut dw = DMatrix::zeros(3, q);
-            for b in 0..q {
-                let c = Vector3::new(d[(0, b)], d[(1, b)], d[(2, b)]);
-                let w = l.solve_lower_triangular(&c).unwrap_or(c);
-                dw.set_column(b, &w);
-            }
-            tk.score += dw.transpose() * DVector::from_row_slice(nu_w.as_slice());
-            tk.info += dw.transpose() * &dw;
-            for i in 0..3 {
-                tk.rows.extend(dw.row(i).iter());
-            }
+            tk.step(v, n, dynamic, &nu_w, &mut scratch);
         }
     });
     let pass = pass?;
     let sigs = trackers
         .into_iter()
-        .map(|tk| {
-            tk.map(|tk| {
-                let n_rows = tk.rows.len() / tk.q.max(1);
-                Signature {
-                    q: tk.q,
-                    score: tk.score,
-                    info: tk.info,
-                    whitened: DMatrix::from_row_slice(n_rows, tk.q, &tk.rows),
-                    psi_final: tk.psi,
-                }
-            })
-        })
+        .map(|tk| tk.map(Tracker::into_signature))
         .collect();
     Ok((pass, sigs, nu_whitened))
 }
@@ -252,7 +325,7 @@ fn basis(w: &DMatrix<f64>) -> DMatrix<f64> {
 
 /// Largest canonical correlation between two whitened signatures: how alike their footprints
 /// in the innovations are (1 = indistinguishable on this run).
-pub fn canonical_correlation(a: &Signature, b: &Signature) -> f64 {
+pub(crate) fn canonical_correlation(a: &Signature, b: &Signature) -> f64 {
     let (qa, qb) = (basis(&a.whitened), basis(&b.whitened));
     if qa.ncols() == 0 || qb.ncols() == 0 {
         return 0.0;
@@ -263,11 +336,4 @@ pub fn canonical_correlation(a: &Signature, b: &Signature) -> f64 {
         .cloned()
         .fold(0.0, f64::max)
         .min(1.0)
-}
-
-/// Adds `effect` to a copy of the current effect list (helper for building `extended`).
-pub fn extend<'a>(current: &[&'a dyn Effect], effect: &'a dyn Effect) -> Vec<&'a dyn Effect> {
-    let mut v = current.to_vec();
-    v.push(effect);
-    v
 }

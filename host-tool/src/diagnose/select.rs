@@ -18,16 +18,16 @@ use rayon::prelude::*;
 use serde::Serialize;
 
 use super::DiagnoseConfig;
-use crate::catalog;
+use crate::catalog::Catalog;
 use crate::consistency::{assess, Thresholds};
 use crate::identify::{build_model, identify, Identification, Prepared};
 
 /// Evidence gain (in −2 ln units) a candidate must bring to be adopted.
-pub const MIN_EVIDENCE_GAIN: f64 = 10.0;
+pub(crate) const MIN_EVIDENCE_GAIN: f64 = 10.0;
 /// How many leading candidates are refitted at each rung.
-pub const REFIT_LEADERS: usize = 3;
+pub(crate) const REFIT_LEADERS: usize = 3;
 /// Effects that are stochastic catch-alls rather than a deterministic physical law.
-pub const STOCHASTIC: [&str; 1] = ["drift-markov"];
+pub(crate) const STOCHASTIC: [&str; 1] = ["drift-markov"];
 
 /// One candidate refitted: the current model plus that effect, converged.
 #[derive(Clone, Debug, Serialize)]
@@ -97,12 +97,12 @@ pub struct Choice {
 }
 
 /// −2 ln p(y) of an identification's final forward pass.
-pub fn neg2_log_evidence(id: &Identification) -> f64 {
+pub(crate) fn neg2_log_evidence(id: &Identification) -> f64 {
     crate::identify::neg2_log_evidence(&id.innovations)
 }
 
 /// Fit statistics of a converged identification: RMS/floor, NIS/3, Ljung–Box p.
-pub fn fit_stats(id: &Identification, prep: &Prepared, lags: usize) -> ([f64; 3], f64, f64) {
+pub(crate) fn fit_stats(id: &Identification, prep: &Prepared, lags: usize) -> ([f64; 3], f64, f64) {
     let rms = id.residual_rms_mps2(prep);
     let floor = prep.floor_mps2();
     let w: Vec<[f64; 3]> = id.innovations.iter().map(|r| r.whitened).collect();
@@ -112,9 +112,10 @@ pub fn fit_stats(id: &Identification, prep: &Prepared, lags: usize) -> ([f64; 3]
 
 /// Refits the current model plus each named candidate. The refits are independent fits: they
 /// run in parallel (rayon), in the order of `names`.
-pub fn refit(
+pub(crate) fn refit(
     prep: &Prepared,
-    effects: &[&'static dyn Effect],
+    catalog: &Catalog,
+    effects: &[&dyn Effect],
     base_evidence: f64,
     names: &[String],
     cfg: &DiagnoseConfig,
@@ -126,14 +127,15 @@ pub fn refit(
             let k = 1 + started.fetch_add(1, std::sync::atomic::Ordering::Relaxed);
             cfg.progress
                 .note(|| format!("refitting {name} ({k}/{})", names.len()));
-            refit_one(prep, effects, base_evidence, name, cfg)
+            refit_one(prep, catalog, effects, base_evidence, name, cfg)
         })
         .collect()
 }
 
 fn refit_one(
     prep: &Prepared,
-    effects: &[&'static dyn Effect],
+    catalog: &Catalog,
+    effects: &[&dyn Effect],
     base_evidence: f64,
     name: &str,
     cfg: &DiagnoseConfig,
@@ -142,7 +144,7 @@ fn refit_one(
         prep,
         effects,
         base_evidence,
-        catalog::by_name(name)?,
+        catalog.by_name(name)?,
         0.0,
         cfg,
     )
@@ -151,11 +153,11 @@ fn refit_one(
 /// The current model plus `e`, converged, as a [`Refit`]; `penalty` (−2 ln units) is charged to
 /// its evidence gain on top of the Occam factor of its parameters (a drift step pays for the
 /// times its profile tried).
-pub fn refit_effect(
+pub fn refit_effect<'c>(
     prep: &Prepared,
-    effects: &[&'static dyn Effect],
+    effects: &[&'c dyn Effect],
     base_evidence: f64,
-    e: &'static dyn Effect,
+    e: &'c dyn Effect,
     penalty: f64,
     cfg: &DiagnoseConfig,
 ) -> Option<Refit> {
@@ -201,7 +203,7 @@ pub fn refit_effect(
 }
 
 /// Chooses the next effect among refits (see the module docs); `None`: nothing earns its place.
-pub fn choose(refits: &[Refit]) -> Option<Choice> {
+pub(crate) fn choose(refits: &[Refit]) -> Option<Choice> {
     let is_stochastic = |r: &Refit| STOCHASTIC.contains(&r.effect.as_str());
     let best = refits
         .iter()

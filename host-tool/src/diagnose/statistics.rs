@@ -10,26 +10,26 @@ use crate::stats::{chi2_quantile, chi2_sf, normal_quantile};
 
 /// χ² quantiles of the display band of the mean NIS/3, 95 % two-sided ([`Fit::nis_band95`]; the
 /// band that decides consistency is [`crate::consistency::Thresholds::nis_band_prob`]'s).
-pub const NIS_DISPLAY_QUANTILES: [f64; 2] = [0.025, 0.975];
+pub(crate) const NIS_DISPLAY_QUANTILES: [f64; 2] = [0.025, 0.975];
 /// Length of a failure-window block, h (a block is at least [`MIN_BLOCK_UPDATES`] updates).
-pub const FAILURE_BLOCK_H: f64 = 1.0;
+pub(crate) const FAILURE_BLOCK_H: f64 = 1.0;
 /// Fewest updates in a failure-window block.
-pub const MIN_BLOCK_UPDATES: usize = 5;
+pub(crate) const MIN_BLOCK_UPDATES: usize = 5;
 /// χ² quantiles of the band (99 % two-sided) a block's mean NIS/3 must leave to be a failure
 /// window.
-pub const FAILURE_QUANTILES: [f64; 2] = [0.005, 0.995];
+pub(crate) const FAILURE_QUANTILES: [f64; 2] = [0.005, 0.995];
 /// Normal quantile of the bound on a regressor correlation, 99 % two-sided
 /// ([`RegressorCorrelation::bound99`]).
-pub const CORRELATION_QUANTILE: f64 = 0.995;
+pub(crate) const CORRELATION_QUANTILE: f64 = 0.995;
 
 /// The three axes' values of `f`.
-pub fn per_axis<F: Fn(usize) -> f64>(f: F) -> [f64; 3] {
+pub(crate) fn per_axis<F: Fn(usize) -> f64>(f: F) -> [f64; 3] {
     [f(0), f(1), f(2)]
 }
 
 /// Summary numbers of one model against the measurements.
 #[derive(Clone, Debug, PartialEq)]
-pub struct Fit {
+pub(crate) struct Fit {
     /// RMS of the residual along the converged trajectory, m/s², per axis.
     pub residual_rms_mps2: [f64; 3],
     /// RMS over the noise floor, per axis.
@@ -43,7 +43,7 @@ pub struct Fit {
 /// RMS/floor, mean NIS/3 and its display band of a series against the noise floor;
 /// `residual_rms_mps2` is the series' residual RMS on the floor's scale
 /// ([`crate::identify::Prepared::residual_rms_mps2`], the one definition).
-pub fn fit(s: &Series, floor_mps2: [f64; 3], residual_rms_mps2: [f64; 3]) -> Fit {
+pub(crate) fn fit(s: &Series, floor_mps2: [f64; 3], residual_rms_mps2: [f64; 3]) -> Fit {
     let n_upd = s.residual.len();
     let residual_rms_over_floor = per_axis(|i| residual_rms_mps2[i] / floor_mps2[i]);
     let nis_mean = s.nis.iter().sum::<f64>() / (3.0 * n_upd as f64);
@@ -92,7 +92,7 @@ pub fn whiteness(w: &[[f64; 3]], lags: usize) -> Whiteness {
 
 /// [`FAILURE_BLOCK_H`] blocks whose mean NIS/3 leaves its [`FAILURE_QUANTILES`] band, merged into
 /// intervals (adjacent blocks with the same worst axis).
-pub fn failure_windows(s: &Series) -> Vec<FailureWindow> {
+pub(crate) fn failure_windows(s: &Series) -> Vec<FailureWindow> {
     let n = s.nis.len();
     if n < 2 {
         return vec![];
@@ -150,7 +150,7 @@ fn push_window(
 
 /// The candidate regressors of the residual: specific-force components and their products (from
 /// the prediction), time, and the temperature deviation when it varies.
-pub fn regressors(s: &Series, temp_dev: &[f64]) -> Vec<(String, Vec<f64>)> {
+pub(crate) fn regressors(s: &Series, temp_dev: &[f64]) -> Vec<(String, Vec<f64>)> {
     let a = |i: usize| s.predicted.iter().map(|p| p[i]).collect::<Vec<f64>>();
     let ab = |i: usize, k: usize| {
         s.predicted
@@ -176,7 +176,7 @@ pub fn regressors(s: &Series, temp_dev: &[f64]) -> Vec<(String, Vec<f64>)> {
 }
 
 /// Pearson correlation of `x` and `y` (0 when either is constant).
-pub fn pearson(x: &[f64], y: &[f64]) -> f64 {
+pub(crate) fn pearson(x: &[f64], y: &[f64]) -> f64 {
     let n = x.len();
     let mx = x.iter().sum::<f64>() / n as f64;
     let my = y.iter().sum::<f64>() / n as f64;
@@ -191,7 +191,7 @@ pub fn pearson(x: &[f64], y: &[f64]) -> f64 {
 
 /// Correlation of the smoothed residual of each axis with the candidate [`regressors`], with the
 /// [`CORRELATION_QUANTILE`] bound for no correlation.
-pub fn correlations(s: &Series, temp_dev: &[f64]) -> Vec<RegressorCorrelation> {
+pub(crate) fn correlations(s: &Series, temp_dev: &[f64]) -> Vec<RegressorCorrelation> {
     let n = s.residual.len();
     let res: [Vec<f64>; 3] = [0, 1, 2].map(|i| s.residual.iter().map(|r| r[i]).collect());
     let bound99 = normal_quantile(CORRELATION_QUANTILE) / (n as f64).sqrt();

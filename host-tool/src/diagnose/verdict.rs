@@ -5,7 +5,7 @@
 use super::types::Diagnosis;
 
 /// Failure windows named in an "outside the catalog" verdict (the longest list stays readable).
-pub const NAMED_WINDOWS: usize = 5;
+pub(crate) const NAMED_WINDOWS: usize = 5;
 
 /// Whether the model explains the data: the one definition ([`crate::consistency`]).
 pub fn is_consistent(d: &Diagnosis) -> bool {
@@ -13,7 +13,7 @@ pub fn is_consistent(d: &Diagnosis) -> bool {
 }
 
 /// The verdict of diagnosis `d` whose candidates were tested at level `alpha`.
-pub fn verdict(d: &Diagnosis, alpha: f64) -> String {
+pub(crate) fn verdict(d: &Diagnosis, alpha: f64) -> String {
     let state = state(d);
     if d.choice.is_some() {
         return missing_effect(d, &state);

@@ -12,10 +12,10 @@ use estimator_core::effects::{Context, Effect, Param, Partials};
 use nalgebra::Vector3;
 
 /// Most blocks per axis.
-pub const MAX_BLOCKS: usize = 12;
+pub(crate) const MAX_BLOCKS: usize = 12;
 
 /// Piecewise-constant drift, `blocks` levels per axis, each `block_s` long (deg/h).
-pub struct DriftWander {
+pub(crate) struct DriftWander {
     /// Block length, s.
     pub block_s: f64,
     /// Blocks per axis.
@@ -35,7 +35,7 @@ fn names() -> &'static [String] {
 
 impl DriftWander {
     /// Blocks of `block_s` covering `run_s`, at most `max_blocks` (≤ [`MAX_BLOCKS`]) per axis.
-    pub fn new(block_s: f64, run_s: f64, max_blocks: usize) -> Self {
+    pub(crate) fn new(block_s: f64, run_s: f64, max_blocks: usize) -> Self {
         let blocks = ((run_s / block_s).ceil() as usize).clamp(1, max_blocks.min(MAX_BLOCKS));
         let block_s = run_s / blocks as f64;
         let names = names();

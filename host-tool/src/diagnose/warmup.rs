@@ -81,7 +81,7 @@ pub fn effect_with(tau_s: f64) -> &'static dyn Effect {
 /// (`None`: the run is too short — under 3 h — or every pass failed).
 pub fn profile(
     prep: &Prepared,
-    effects: &[&'static dyn Effect],
+    effects: &[&dyn Effect],
     cfg: &crate::identify::Config,
     id: &Identification,
 ) -> Option<(f64, f64)> {
@@ -124,7 +124,7 @@ pub fn penalty() -> f64 {
 /// already, the run is too short, or it gains nothing.
 pub fn candidate(
     prep: &Prepared,
-    effects: &[&'static dyn Effect],
+    effects: &[&dyn Effect],
     id: &Identification,
     base_evidence: f64,
     cfg: &DiagnoseConfig,

@@ -21,10 +21,10 @@ pub const MAX_EXPR_DEPTH: usize = 8;
 /// variables (~5 µs per unit of this measure, from 2 to 49 variables and 80 to 300
 /// characters), so the costliest effect admitted compiles in about a second (49 parameters in
 /// one 225-character sum took 2.7 s).
-pub const MAX_DERIVATIVE_WORK: usize = 200_000;
+pub(crate) const MAX_DERIVATIVE_WORK: usize = 200_000;
 
 /// The variables every expression may use besides the effect's parameters, with their meaning.
-pub const VARIABLES: [(&str, &str); 14] = [
+pub(crate) const VARIABLES: [(&str, &str); 14] = [
     ("A_x", "specific force along platform x, m/s^2"),
     ("A_y", "specific force along platform y, m/s^2"),
     ("A_z", "specific force along platform z, m/s^2"),
@@ -85,7 +85,7 @@ const DERIVED: [(&str, &str); 6] = [
 ];
 
 /// Prefix of the hidden variables holding the sign of an `abs` argument (refused as a user name).
-pub const HIDDEN_PREFIX: &str = "__";
+pub(crate) const HIDDEN_PREFIX: &str = "__";
 
 // exmex's default number literal has no exponent (`1e-6` would not parse): numbers here are
 // decimal literals with an optional exponent, read by `f64::from_str`.
@@ -95,10 +95,10 @@ exmex::literal_matcher_from_pattern!(
 );
 
 /// A compiled expression: f64, exmex's float operators, numbers with exponents.
-pub type Expr = FlatEx<f64, exmex::FloatOpsFactory<f64>, SciNumber>;
+pub(crate) type Expr = FlatEx<f64, exmex::FloatOpsFactory<f64>, SciNumber>;
 
 /// Parses an expression (no checks; see [`compile`]).
-pub fn parse_expr(s: &str) -> exmex::ExResult<Expr> {
+pub(crate) fn parse_expr(s: &str) -> exmex::ExResult<Expr> {
     Expr::parse(s)
 }
 
@@ -125,7 +125,7 @@ struct Bound {
 }
 
 /// Most expressions have a handful of variables: evaluate them without allocating.
-pub type Vars = smallvec::SmallVec<[f64; 12]>;
+pub(crate) type Vars = smallvec::SmallVec<[f64; 12]>;
 
 impl Bound {
     fn bind(&self, p: &[f64], ctx: &Context, cols: &[f64], signs: &[f64]) -> Vars {
@@ -146,13 +146,13 @@ impl Bound {
 
 /// Evaluates a compiled expression. The variable count is fixed at load time, so exmex cannot
 /// fail here; should it ever, the value is NaN, which the effect reports (see `UserEffect`).
-pub fn eval(e: &Expr, vars: &[f64]) -> f64 {
+pub(crate) fn eval(e: &Expr, vars: &[f64]) -> f64 {
     e.eval(vars).unwrap_or(f64::NAN)
 }
 
 /// One axis: the expression, its variable bindings and its symbolic partial derivatives.
 #[derive(Debug)]
-pub struct AxisExpr {
+pub(crate) struct AxisExpr {
     /// The expression as written (for messages).
     pub source: String,
     value: Bound,
@@ -169,7 +169,7 @@ pub struct AxisExpr {
 impl AxisExpr {
     /// The values of the value's (and its derivatives') variables at parameters `p`, `cols`
     /// the values of the effect's recording columns at this instant.
-    pub fn bind(&self, p: &[f64], ctx: &Context, cols: &[f64]) -> Vars {
+    pub(crate) fn bind(&self, p: &[f64], ctx: &Context, cols: &[f64]) -> Vars {
         let mut signs: smallvec::SmallVec<[f64; 4]> = smallvec::SmallVec::new();
         for a in &self.abs_args {
             let u = eval(&a.expr, &a.bind(p, ctx, cols, &signs));
@@ -184,20 +184,20 @@ impl AxisExpr {
         self.value.bind(p, ctx, cols, &signs)
     }
     /// Whether the expression reads local north (`north_*`, or `east_*` through it).
-    pub fn uses_north(&self) -> bool {
+    pub(crate) fn uses_north(&self) -> bool {
         self.value.slots.iter().any(|s| matches!(s, Slot::North(_)))
     }
     /// The value for variables from [`AxisExpr::bind`].
-    pub fn value(&self, vars: &[f64]) -> f64 {
+    pub(crate) fn value(&self, vars: &[f64]) -> f64 {
         eval(&self.value.expr, vars)
     }
 }
 
 /// Why an expression is refused (the caller adds file, line and effect).
-pub type Refusal = String;
+pub(crate) type Refusal = String;
 
 /// The expression shortened for a message (a refused expression may be megabytes long).
-pub fn excerpt(src: &str) -> String {
+pub(crate) fn excerpt(src: &str) -> String {
     const SHOWN: usize = 60;
     if src.chars().count() <= SHOWN {
         src.to_string()
@@ -255,7 +255,7 @@ fn word_ranges(s: &str, word: &str) -> Vec<std::ops::Range<usize>> {
 }
 
 /// Character position (1-based) of the first whole-word occurrence of `word` in `expr`.
-pub fn word_position(expr: &str, word: &str) -> Option<usize> {
+pub(crate) fn word_position(expr: &str, word: &str) -> Option<usize> {
     word_ranges(expr, word)
         .first()
         .map(|r| expr[..r.start].chars().count() + 1)
@@ -349,7 +349,7 @@ const COMPILE_STACK_BYTES: usize = 256 << 20;
 /// names, `columns` the recording columns it declares. A refusal says what is wrong with the
 /// expression (the caller names file and place). Runs on a thread of its own with
 /// [`COMPILE_STACK_BYTES`] of stack, whatever the caller's.
-pub fn compile(
+pub(crate) fn compile(
     src: &str,
     params: &[&str],
     columns: &[&str],

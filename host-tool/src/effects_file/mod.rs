@@ -66,40 +66,41 @@ use toml::Spanned;
 
 use crate::recording::{read_columns, REQUIRED_COLUMNS, TEMP_COLUMN};
 use expr::{eval, excerpt, parse_expr, AxisExpr, HIDDEN_PREFIX};
-pub use expr::{MAX_DERIVATIVE_WORK, MAX_EXPR_CHARS, MAX_EXPR_DEPTH, VARIABLES};
+pub(crate) use expr::{MAX_DERIVATIVE_WORK, VARIABLES};
+pub use expr::{MAX_EXPR_CHARS, MAX_EXPR_DEPTH};
 
 const AXES: [&str; 3] = ["x", "y", "z"];
 
 /// Largest effects file read, bytes: a file of effects is a few kilobytes; `/dev/zero` or a
 /// recording given by mistake must not be read forever or into memory whole.
-pub const MAX_FILE_BYTES: u64 = 1 << 20;
+pub(crate) const MAX_FILE_BYTES: u64 = 1 << 20;
 /// Most effects in one file (each is a candidate the diagnosis refits).
-pub const MAX_EFFECTS: usize = 32;
+pub(crate) const MAX_EFFECTS: usize = 32;
 /// Most parameters of one effect: the filter holds [`MAX_STATES`] states, the paper's model takes
 /// [`PAPER_STATES`] of them (1 000 parameters grew to 24 GB, 3 000 overflowed the stack).
-pub const MAX_PARAMS: usize = MAX_STATES - PAPER_STATES;
+pub(crate) const MAX_PARAMS: usize = MAX_STATES - PAPER_STATES;
 /// Range of a parameter's `prior_sigma` (in its unit): the filter squares it and multiplies
 /// squares (1e300 overflowed to infinity, 1e-300 underflows to zero). What the prior lets the
 /// effect reach is checked too ([`MAX_REACH`]).
-pub const PRIOR_SIGMA_RANGE: (f64, f64) = (1e-30, 1e30);
+pub(crate) const PRIOR_SIGMA_RANGE: (f64, f64) = (1e-30, 1e30);
 /// Largest size an effect may reach, in its unit (m/s² or deg/h): its value, or a derivative
 /// times the parameter's prior 1σ. The recording reader refuses |a| > 1000 m/s²; a paper run
 /// identified with an effect of reach 1e6 m/s², failed at 1e7 (not positive definite).
-pub const MAX_REACH: f64 = 1e3;
+pub(crate) const MAX_REACH: f64 = 1e3;
 /// Most recording columns one effect may use.
-pub const MAX_COLUMNS: usize = 8;
+pub(crate) const MAX_COLUMNS: usize = 8;
 
 /// Where an effect adds its value.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
-pub enum AppliesTo {
+pub(crate) enum AppliesTo {
     /// Accelerometer output, m/s².
     Accelerometer,
     /// Gyro drift rate, deg/h.
     Drift,
 }
 
-/// An effect read from a TOML file. Its strings are leaked once per run (see `leak`); the
-/// registered effect itself is leaked by [`load_and_register`].
+/// An effect read from a TOML file, owned by the run's [`crate::catalog::Catalog`]. Its name and
+/// about strings are leaked once per run (see `leak`).
 #[derive(Debug)]
 pub struct UserEffect {
     name: &'static str,
@@ -107,8 +108,6 @@ pub struct UserEffect {
     applies_to: AppliesTo,
     params: Vec<Param>,
     axes: [AxisExpr; 3],
-    /// The file it came from (for messages).
-    file: PathBuf,
     /// `file:line:column` of the name, of each parameter's name and of each axis expression.
     name_at: String,
     params_at: Vec<String>,
@@ -124,22 +123,6 @@ pub struct UserEffect {
 }
 
 impl UserEffect {
-    /// Where the effect adds its value.
-    pub fn applies_to(&self) -> AppliesTo {
-        self.applies_to
-    }
-    /// The file the effect was defined in.
-    pub fn file(&self) -> &Path {
-        &self.file
-    }
-    /// `file:line:column` of the effect's name.
-    pub fn location(&self) -> &str {
-        &self.name_at
-    }
-    /// The expression of axis `i` (0 = x) as written in the file.
-    pub fn expression(&self, i: usize) -> &str {
-        &self.axes[i].source
-    }
     /// The first evaluation that gave a value or derivative that is not a finite number (the
     /// square root or logarithm of a negative number, ln(0), an overflowing exp, …), as a
     /// message naming the file, line, effect, expression and the values of its variables. The
@@ -426,9 +409,9 @@ fn is_identifier(s: &str) -> bool {
         && ch.all(|c| c.is_ascii_alphanumeric() || c == '_')
 }
 
-/// Leaks a string for the `&'static str` the [`Effect`] trait asks for. Acceptable on the host:
-/// a run loads each user file once, and the few names it leaks live as long as the process
-/// anyway (the catalog is static).
+/// Leaks a string for the `&'static str` the [`Effect`] trait asks for (`name`, `about`, a
+/// parameter's name and unit). Acceptable on the host: a run loads each user file once, and the
+/// catalog that holds the effect lives until the command ends.
 fn leak(s: &str) -> &'static str {
     Box::leak(s.to_owned().into_boxed_str())
 }
@@ -750,7 +733,6 @@ fn build_effect(
             })
             .collect(),
         axes,
-        file: loc.file.to_path_buf(),
         name_at: loc.at(name.span()),
         params_at,
         axes_at,
@@ -832,9 +814,13 @@ pub fn load_file(path: &Path) -> anyhow::Result<Vec<UserEffect>> {
     parse_effects(path, &src)
 }
 
-/// Refuses an effect whose name or a parameter's name is taken by the catalog or by an effect
-/// loaded before it (`loaded`), naming the file and line of both.
-fn check_clash(e: &UserEffect, loaded: &[&UserEffect]) -> anyhow::Result<()> {
+/// Refuses an effect whose name or a parameter's name is taken by a `builtin` effect or by an
+/// effect loaded before it (`loaded`), naming the file and line of both.
+fn check_clash(
+    e: &UserEffect,
+    loaded: &[UserEffect],
+    builtin: &[&dyn Effect],
+) -> anyhow::Result<()> {
     if let Some(o) = loaded.iter().find(|o| o.name == e.name) {
         let same = if o.name_at == e.name_at {
             " (the same file given twice)"
@@ -848,9 +834,7 @@ fn check_clash(e: &UserEffect, loaded: &[&UserEffect]) -> anyhow::Result<()> {
             o.name_at
         );
     }
-    let mut catalog = vec![crate::catalog::paper()];
-    catalog.extend(crate::catalog::candidates());
-    if catalog.iter().any(|c| c.name() == e.name) {
+    if builtin.iter().any(|c| c.name() == e.name) {
         anyhow::bail!(
             "{}: effect `{}`: the name is taken by a built-in effect of the catalog; rename it",
             e.name_at,
@@ -858,7 +842,7 @@ fn check_clash(e: &UserEffect, loaded: &[&UserEffect]) -> anyhow::Result<()> {
         );
     }
     for (p, at) in e.params.iter().zip(&e.params_at) {
-        if let Some(c) = catalog
+        if let Some(c) = builtin
             .iter()
             .find(|c| c.params().iter().any(|q| q.name == p.name))
         {
@@ -886,28 +870,21 @@ fn check_clash(e: &UserEffect, loaded: &[&UserEffect]) -> anyhow::Result<()> {
     Ok(())
 }
 
-/// The effects loaded from files in this process (for [`numeric_failure`]).
-static LOADED: std::sync::RwLock<Vec<&'static UserEffect>> = std::sync::RwLock::new(Vec::new());
-
-/// Loads the given effects files and adds their effects to the catalog for this run
-/// ([`crate::catalog::register`]): they are then candidates of the diagnosis, usable with
-/// `--with`, and reported like built-in effects. The effects are leaked (`&'static`, one per
-/// file and run). A name clash names the file and line of both definitions.
-pub fn load_and_register(paths: &[PathBuf]) -> anyhow::Result<Vec<&'static dyn Effect>> {
-    let mut loaded: Vec<&'static UserEffect> =
-        LOADED.read().unwrap_or_else(|e| e.into_inner()).clone();
-    let mut all: Vec<&'static dyn Effect> = Vec::new();
+/// Loads the given effects files, in order, for [`crate::catalog::Catalog::load`]: an effect
+/// whose name or a parameter's name is taken by one of the `builtin` effects or by an effect
+/// loaded before it is refused, naming the file and line of both.
+pub(crate) fn load_files(
+    paths: &[PathBuf],
+    builtin: &[&dyn Effect],
+) -> anyhow::Result<Vec<UserEffect>> {
+    let mut loaded: Vec<UserEffect> = Vec::new();
     for p in paths {
         for e in load_file(p)? {
-            check_clash(&e, &loaded)?;
-            let e: &'static UserEffect = Box::leak(Box::new(e));
+            check_clash(&e, &loaded, builtin)?;
             loaded.push(e);
-            all.push(e);
         }
     }
-    crate::catalog::register(all.clone())?;
-    *LOADED.write().unwrap_or_else(|e| e.into_inner()) = loaded;
-    Ok(all)
+    Ok(loaded)
 }
 
 /// The values of an effect's recording columns over one run, interpolated linearly in time.
@@ -942,12 +919,12 @@ impl ColumnTable {
 /// the columns by header name. Nothing to do without such effects. A missing column or a bad
 /// value is an error naming the effect and the recording's line; a second recording is refused
 /// (the effect holds one run's columns: joint fits with extra columns are not supported yet).
-pub fn bind_columns(
+pub(crate) fn bind_columns(
+    loaded: &[UserEffect],
     path: &Path,
     samples: &[crate::recording::RawSample],
     lines: &[u32],
 ) -> anyhow::Result<()> {
-    let loaded = LOADED.read().unwrap_or_else(|e| e.into_inner()).clone();
     for e in loaded.iter().filter(|e| !e.columns.is_empty()) {
         let mut table = e.table.write().unwrap_or_else(|e| e.into_inner());
         if let Some(t) = table.as_ref() {
@@ -974,10 +951,9 @@ pub fn bind_columns(
     Ok(())
 }
 
-/// The first numeric failure of an effect loaded from a file in this process (see
+/// The first numeric failure of the `loaded` file effects (see
 /// [`UserEffect::numeric_failure`]); the CLI ends with it (exit 2).
-pub fn numeric_failure() -> Option<String> {
-    let loaded = LOADED.read().unwrap_or_else(|e| e.into_inner());
+pub(crate) fn numeric_failure(loaded: &[UserEffect]) -> Option<String> {
     loaded
         .iter()
         .find_map(|e| e.numeric_failure().map(str::to_string))

@@ -36,19 +36,19 @@ use serde::Serialize;
 use super::{build_model, neg2_log_evidence, start_prior, Config, Identification, Prepared};
 
 /// The effect whose σ and τ are estimated.
-pub const NAME: &str = "drift-markov";
+pub(crate) const NAME: &str = "drift-markov";
 /// Range of σ searched, deg/h: from far below a detectable wander to a wander larger than the
 /// paper's whole constant drift.
-pub const SIGMA_RANGE_DEGPH: (f64, f64) = (1e-4, 0.3);
+pub(crate) const SIGMA_RANGE_DEGPH: (f64, f64) = (1e-4, 0.3);
 /// Range of τ searched, h: from a quarter hour (15 filter periods) to 100 h (beyond that a 60-h
 /// run sees a random walk: only σ²/τ is determined).
-pub const TAU_RANGE_H: (f64, f64) = (0.25, 100.0);
+pub(crate) const TAU_RANGE_H: (f64, f64) = (0.25, 100.0);
 
 /// −2 ln L of `effects` with `drift-markov`'s σ (deg/h) and τ (h) set, linearised about the fit
 /// `id` (one forward pass).
-pub fn neg2_ln_l(
+pub(crate) fn neg2_ln_l(
     prep: &Prepared,
-    effects: &[&'static dyn Effect],
+    effects: &[&dyn Effect],
     cfg: &Config,
     id: &Identification,
     sigma_degph: f64,
@@ -79,9 +79,9 @@ pub fn neg2_ln_l(
 }
 
 /// Coarse grid of σ, deg/h.
-pub const GRID_SIGMA_DEGPH: [f64; 4] = [3e-4, 2e-3, 1e-2, 5e-2];
+pub(crate) const GRID_SIGMA_DEGPH: [f64; 4] = [3e-4, 2e-3, 1e-2, 5e-2];
 /// Coarse grid of τ, h.
-pub const GRID_TAU_H: [f64; 4] = [0.5, 2.0, 8.0, 32.0];
+pub(crate) const GRID_TAU_H: [f64; 4] = [0.5, 2.0, 8.0, 32.0];
 
 /// The fitted hyperparameters.
 #[derive(Clone, Copy, Debug, Serialize)]
@@ -326,9 +326,9 @@ fn profile_interval(
 
 /// Maximises the marginal likelihood over σ and τ about the fit `id` of `effects` (which hold
 /// `drift-markov`): the coarse grid, then Newton on the stencil (see the module docs).
-pub fn fit(
+pub(crate) fn fit(
     prep: &Prepared,
-    effects: &[&'static dyn Effect],
+    effects: &[&dyn Effect],
     cfg: &Config,
     id: &Identification,
 ) -> anyhow::Result<MarkovFit> {
@@ -389,7 +389,7 @@ pub fn fit(
 
 /// `drift-markov` with σ and τ set, for the rest of the process: one leaked value per distinct
 /// (σ, τ) (effects are `&'static` throughout; a run tunes a handful at most).
-pub fn interned(sigma_degph: f64, tau_h: f64) -> &'static DriftMarkov {
+pub(crate) fn interned(sigma_degph: f64, tau_h: f64) -> &'static DriftMarkov {
     static TUNED: std::sync::Mutex<Vec<&'static DriftMarkov>> = std::sync::Mutex::new(Vec::new());
     let mut v = TUNED.lock().unwrap_or_else(|e| e.into_inner());
     if let Some(d) = v
@@ -406,18 +406,18 @@ pub fn interned(sigma_degph: f64, tau_h: f64) -> &'static DriftMarkov {
 /// When `effects` hold `drift-markov` and `id` is converged: σ and τ fitted ([`fit`]), the
 /// effect replaced by one with them and the model refitted there (from `id`'s trajectory).
 /// Otherwise everything is returned as it is (the clean path does no work here).
-pub fn tune(
+pub fn tune<'e>(
     prep: &Prepared,
-    effects: &[&'static dyn Effect],
+    effects: &[&'e dyn Effect],
     cfg: &Config,
     id: Identification,
-) -> anyhow::Result<(Vec<&'static dyn Effect>, Identification)> {
+) -> anyhow::Result<(Vec<&'e dyn Effect>, Identification)> {
     if id.trajectory.is_empty() || !effects.iter().any(|e| e.name() == NAME) {
         return Ok((effects.to_vec(), id));
     }
     let gm = fit(prep, effects, cfg, &id)?;
     let tuned: &'static dyn Effect = interned(gm.sigma_degph, gm.tau_h);
-    let list: Vec<&'static dyn Effect> = effects
+    let list: Vec<&dyn Effect> = effects
         .iter()
         .map(|e| if e.name() == NAME { tuned } else { *e })
         .collect();

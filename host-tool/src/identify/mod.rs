@@ -89,7 +89,11 @@ pub struct Prepared {
 
 impl Prepared {
     /// Measurements of a level start with no data-quality findings (synthetic geometry, benches).
-    pub fn level(site: Site, measurements: Vec<Measurement>, raw_sigma_mps2: [f64; 3]) -> Self {
+    pub(crate) fn level(
+        site: Site,
+        measurements: Vec<Measurement>,
+        raw_sigma_mps2: [f64; 3],
+    ) -> Self {
         Prepared {
             site,
             measurements,
@@ -130,7 +134,7 @@ impl Prepared {
     /// last, partial one; one with rejected samples) has a noisier mean; unscaled, the one
     /// sample of a 26-h run's last period (13.6 × the floor) raised a clean run's RMS/floor from
     /// 1.014 to 1.071. On a consistent fit this is the floor whatever the counts.
-    pub fn residual_rms_mps2(&self, residuals: &[[f64; 3]]) -> [f64; 3] {
+    pub(crate) fn residual_rms_mps2(&self, residuals: &[[f64; 3]]) -> [f64; 3] {
         let floor = self.floor_mps2();
         let aligned = residuals.len() == self.measurements.len();
         rms_per_axis(residuals, |k, i| {
@@ -150,7 +154,7 @@ impl Prepared {
     /// Relative 1σ of the noise floor estimate: 0 when the floor was given; else from the number
     /// of third differences it rests on, 1.75/√n — the median-based scale estimator's 1.17/√n
     /// for independent samples, times 1.5 for the correlation of overlapping third differences.
-    pub fn floor_rel_sd(&self) -> f64 {
+    pub(crate) fn floor_rel_sd(&self) -> f64 {
         if self.noise.count == 0 {
             0.0
         } else {
@@ -361,7 +365,7 @@ pub struct Convergence {
 
 impl Convergence {
     /// Why the fit is not trusted, if it did not converge.
-    pub fn untrusted_reason(&self) -> Option<String> {
+    pub(crate) fn untrusted_reason(&self) -> Option<String> {
         (!self.converged).then(|| {
             format!(
                 "the smoother did not converge: after {} Gauss–Newton iterations the estimate still moves by {:.2}σ per iteration \
@@ -388,7 +392,10 @@ impl Identification {
 }
 
 /// RMS per axis of residuals, m/s², each residual first multiplied by `scale[k][axis]`.
-pub fn rms_per_axis(residuals: &[[f64; 3]], scale: impl Fn(usize, usize) -> f64) -> [f64; 3] {
+pub(crate) fn rms_per_axis(
+    residuals: &[[f64; 3]],
+    scale: impl Fn(usize, usize) -> f64,
+) -> [f64; 3] {
     let n = residuals.len().max(1) as f64;
     let mut acc = [0.0; 3];
     for (k, r) in residuals.iter().enumerate() {
@@ -464,7 +471,7 @@ pub fn wide_prior(
 
 /// [`wide_prior`] about `prep`'s start: the angles at `prep.initial_angles` with `angle_sigma`,
 /// the parameters at zero.
-pub fn start_prior(
+pub(crate) fn start_prior(
     model: &Model<'_>,
     prep: &Prepared,
     angle_sigma: &[f64; 3],
@@ -669,7 +676,7 @@ fn converged(
 /// The model refitted on `prep` by Gauss–Newton from `start`'s trajectory (a fit of the same
 /// model on measurements alike: another latitude, clock or gravity), converged as [`identify`]
 /// converges.
-pub fn identify_from(
+pub(crate) fn identify_from(
     model: &Model<'_>,
     prep: &Prepared,
     cfg: &Config,
@@ -692,13 +699,13 @@ pub fn identify_from(
 }
 
 /// Mean NIS/3 beyond which a converged fit is checked against the continuation fit.
-pub const CONTINUATION_NIS: f64 = 3.0;
+pub(crate) const CONTINUATION_NIS: f64 = 3.0;
 /// First window of the continuation fit, h (the drift-induced turn stays a few degrees: the
 /// linearisation holds from zero drift).
-pub const CONTINUATION_FIRST_H: f64 = 6.0;
+pub(crate) const CONTINUATION_FIRST_H: f64 = 6.0;
 
 /// The outcome of Gauss–Newton iterations of the smoother.
-pub struct GaussNewton {
+pub(crate) struct GaussNewton {
     /// Smoothed states, node 0 at t = 0 then one per measurement.
     pub states: Vec<DVector<f64>>,
     /// Covariance at the last node.
@@ -712,17 +719,17 @@ pub struct GaussNewton {
 /// Gauss–Newton has converged when an iteration moves no state at the last node (the
 /// parameters, the final angles) by more than this fraction of its 1σ: the last pass was then
 /// linearised about the fit it returns, so its innovations are the fit's.
-pub const GN_TOLERANCE_SIGMA: f64 = 0.01;
+pub(crate) const GN_TOLERANCE_SIGMA: f64 = 0.01;
 /// Iterations allowed beyond the configured ones before a fit is declared unconverged. A 60-h
 /// run converges within the configured 3; a 10-h run at 10 s needed 5 (its 3rd iteration still
 /// moved DX0 by 0.4σ, and the innovations about the 2nd gave NIS/3 1.47 where the fit's own
 /// give 1.01).
-pub const GN_EXTRA_ITERATIONS: usize = 8;
+pub(crate) const GN_EXTRA_ITERATIONS: usize = 8;
 
 /// Smoother passes, each linearised about the previous one's states: at least `min_iterations`,
 /// then on until an iteration moves the last node by less than [`GN_TOLERANCE_SIGMA`], at most
 /// `max_iterations`.
-pub fn gauss_newton(
+pub(crate) fn gauss_newton(
     model: &Model<'_>,
     meas: &[Measurement],
     mut nominal: Vec<DVector<f64>>,
@@ -773,7 +780,7 @@ pub fn gauss_newton(
 /// Gauss–Newton by continuation: fit the first [`CONTINUATION_FIRST_H`] hours from zero drift,
 /// then windows twice as long, each linearised about the previous fit propagated forward, then
 /// the whole record. No step starts from a nominal far from the data.
-pub fn continuation(
+pub(crate) fn continuation(
     model: &Model<'_>,
     meas: &[Measurement],
     start: &[f64],
@@ -829,13 +836,13 @@ pub fn continuation(
 }
 
 /// Mean NIS/3 of innovations.
-pub fn mean_nis(innovations: &[Residual]) -> f64 {
+pub(crate) fn mean_nis(innovations: &[Residual]) -> f64 {
     innovations.iter().map(|r| r.nis).sum::<f64>() / (3.0 * innovations.len().max(1) as f64)
 }
 
 /// −2 ln p(y) of a pass's innovations (the filter's prediction-error decomposition):
 /// Σ (νᵀS⁻¹ν + ln det S + 3 ln 2π).
-pub fn neg2_log_evidence(innovations: &[Residual]) -> f64 {
+pub(crate) fn neg2_log_evidence(innovations: &[Residual]) -> f64 {
     innovations
         .iter()
         .map(|r| {
@@ -847,7 +854,7 @@ pub fn neg2_log_evidence(innovations: &[Residual]) -> f64 {
 }
 
 /// Measured minus h(smoothed state) at every measurement, m/s².
-pub fn smoothed_residuals(
+pub(crate) fn smoothed_residuals(
     model: &Model<'_>,
     meas: &[Measurement],
     states: &[DVector<f64>],
@@ -873,7 +880,7 @@ pub fn smoothed_residuals(
 }
 
 /// Weakest direction of each axis' four paper coefficients, in (D0, g·Dx, g·Dy, g·Dz).
-pub fn weak_combinations(model: &Model<'_>, est: &Estimate) -> Vec<WeakCombination> {
+pub(crate) fn weak_combinations(model: &Model<'_>, est: &Estimate) -> Vec<WeakCombination> {
     let Some(e) = model.effects().iter().position(|e| e.name() == "paper") else {
         return vec![];
     };

@@ -367,7 +367,7 @@ fn with_gravity(prep: &Prepared, ppm: f64) -> Prepared {
 /// the time).
 pub(crate) fn refit(
     p: &Prepared,
-    effects: &[&'static dyn Effect],
+    effects: &[&dyn Effect],
     cfg: &Config,
     id: &Identification,
 ) -> anyhow::Result<(f64, DVector<f64>)> {
@@ -456,7 +456,7 @@ fn marginalise(
     knobs: &[Knob; 3],
     f0: f64,
     prep: &Prepared,
-    effects: &[&'static dyn Effect],
+    effects: &[&dyn Effect],
     cfg: &Config,
     id: &Identification,
 ) -> anyhow::Result<Marginal> {
@@ -672,7 +672,7 @@ fn vertical_tilt(
 /// difference of the estimates. Nothing when the model
 /// already holds `drift-daily`.
 fn daily_drift(
-    effects: &[&'static dyn Effect],
+    effects: &[&dyn Effect],
     prep: &Prepared,
     cfg: &Config,
     id: &Identification,
@@ -749,11 +749,7 @@ fn daily_drift(
 
 /// Whether the model of `effects` with the daily drift appended can be built (it may exceed the
 /// model's capacity of states or effects).
-fn with_daily_fits(
-    effects: &[&'static dyn Effect],
-    prep: &Prepared,
-    cfg: &Config,
-) -> anyhow::Result<()> {
+fn with_daily_fits(effects: &[&dyn Effect], prep: &Prepared, cfg: &Config) -> anyhow::Result<()> {
     let daily = DriftDaily::default();
     let mut with: Vec<&dyn Effect> = effects.iter().map(|e| *e as &dyn Effect).collect();
     with.push(&daily);
@@ -799,7 +795,7 @@ fn daily_size(pass: &super::smoother::Smoothed, first: usize, sigma0: f64) -> f6
 /// The coefficients' uncertainty with the set-up priors of `cfg` (see the module docs). `id` is
 /// the converged fit of `effects` on `prep`.
 pub fn uncertainty(
-    effects: &[&'static dyn Effect],
+    effects: &[&dyn Effect],
     prep: &Prepared,
     cfg: &Config,
     id: &Identification,
@@ -914,7 +910,7 @@ pub const SETTLE_SHIFT_SIGMA: f64 = 0.1;
 /// The set-up estimated where the data can ([`settle_setup`]), and the coefficients moved where
 /// the daily drift's prior and the data put them ([`Uncertainty::daily_shift`]).
 pub fn settle(
-    effects: &[&'static dyn Effect],
+    effects: &[&dyn Effect],
     prep: Prepared,
     cfg: &Config,
     id: Identification,
@@ -940,7 +936,7 @@ pub fn settle(
 /// 0.2 ppm), the model refitted there. The estimate is then the posterior's, not the stated
 /// set-up's.
 fn settle_setup(
-    effects: &[&'static dyn Effect],
+    effects: &[&dyn Effect],
     prep: Prepared,
     cfg: &Config,
     id: Identification,

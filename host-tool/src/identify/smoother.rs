@@ -662,7 +662,7 @@ fn segment_len(updates: usize) -> usize {
 /// Node memory below which the forward pass keeps every node for the backward pass instead of
 /// checkpointing (no recomputation; the same bits either way). A 60-h run at the 60-s period
 /// with the paper's 15 states needs 11 MB (3.0 kB per update).
-pub const KEEP_NODES_BYTES: usize = 32 << 20;
+pub(crate) const KEEP_NODES_BYTES: usize = 32 << 20;
 
 /// Covariances of consecutive nodes in one flat buffer: every node's (`keep`, the backward
 /// pass reads them) or two slots used in turn. A step reads node j's slot and writes node j+1's:

@@ -10,7 +10,7 @@
 pub mod port;
 pub mod record;
 pub mod replay;
-pub mod timeline;
+pub(crate) mod timeline;
 
 use protocol::{DecodeError, Decoder, DecoderStats, Message, Packet, SeqEvent, SeqTracker};
 
@@ -78,7 +78,11 @@ impl Receiver {
     }
 
     /// Feeds bytes; calls `f` with every frame result (packets and drop reasons).
-    pub fn feed_with(&mut self, bytes: &[u8], mut f: impl FnMut(Result<Packet, DecodeError>)) {
+    pub(crate) fn feed_with(
+        &mut self,
+        bytes: &[u8],
+        mut f: impl FnMut(Result<Packet, DecodeError>),
+    ) {
         let seq = &mut self.seq;
         self.decoder.feed(bytes, |r| {
             if let Ok(p) = &r {
@@ -91,7 +95,7 @@ impl Receiver {
     }
 
     /// Counts so far.
-    pub fn stats(&self) -> LinkStats {
+    pub(crate) fn stats(&self) -> LinkStats {
         LinkStats {
             decoder: *self.decoder.stats(),
             missing: self.seq.missing,
@@ -101,7 +105,7 @@ impl Receiver {
 }
 
 /// One-line summary of a message for progress displays.
-pub fn describe(msg: &Message) -> String {
+pub(crate) fn describe(msg: &Message) -> String {
     match msg {
         Message::Hello(h) => format!(
             "firmware {}.{}.{} on {:?}, {} states, filter period {} s, latitude {} deg",

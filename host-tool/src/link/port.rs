@@ -7,7 +7,7 @@ use anyhow::Context as _;
 use serialport::{SerialPort, TTYPort};
 
 /// Default baud rate of the navigation computer's link (ignored by ptys).
-pub const DEFAULT_BAUD: u32 = 115_200;
+pub(crate) const DEFAULT_BAUD: u32 = 115_200;
 
 /// Read timeout used by the link loops: short, so they can watch deadlines and child processes.
 pub const POLL: Duration = Duration::from_millis(100);
@@ -16,7 +16,7 @@ pub const POLL: Duration = Duration::from_millis(100);
 /// reading for a while (an EKF update, QEMU busy) and a write that times out half-way through a
 /// frame would lose the rest of the stream. Only a receiver gone for this long is an error. (A
 /// replay does not wait for it: it ends at its own time-out, `replay::replay`.)
-pub const WRITE_TIMEOUT: Duration = Duration::from_secs(60);
+pub(crate) const WRITE_TIMEOUT: Duration = Duration::from_secs(60);
 
 /// A second handle on `port` for the sending side, with [`WRITE_TIMEOUT`] (reads keep [`POLL`]).
 pub fn writer_of(port: &TTYPort) -> anyhow::Result<TTYPort> {
@@ -28,7 +28,7 @@ pub fn writer_of(port: &TTYPort) -> anyhow::Result<TTYPort> {
 }
 
 /// Opens a serial port (a tty device or a pty's slave side) in raw mode.
-pub fn open(path: &str, baud: u32) -> anyhow::Result<TTYPort> {
+pub(crate) fn open(path: &str, baud: u32) -> anyhow::Result<TTYPort> {
     serialport::new(path, baud)
         .timeout(POLL)
         .open_native()
@@ -60,7 +60,7 @@ pub fn pty_pair() -> anyhow::Result<Pty> {
 }
 
 /// Whether an I/O error means "no data yet" rather than a broken link.
-pub fn is_timeout(e: &io::Error) -> bool {
+pub(crate) fn is_timeout(e: &io::Error) -> bool {
     matches!(
         e.kind(),
         io::ErrorKind::TimedOut | io::ErrorKind::WouldBlock | io::ErrorKind::Interrupted
@@ -68,7 +68,7 @@ pub fn is_timeout(e: &io::Error) -> bool {
 }
 
 /// Whether an I/O error means the other end went away (port unplugged, QEMU exited).
-pub fn is_gone(e: &io::Error) -> bool {
+pub(crate) fn is_gone(e: &io::Error) -> bool {
     matches!(
         e.kind(),
         io::ErrorKind::BrokenPipe

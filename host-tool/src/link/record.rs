@@ -32,7 +32,7 @@ use crate::recording::{
 };
 
 /// Opens the link for one connection; `Ok(None)`: no more connections (tests).
-pub type Opener<'a, P> = dyn FnMut() -> anyhow::Result<Option<P>> + 'a;
+pub(crate) type Opener<'a, P> = dyn FnMut() -> anyhow::Result<Option<P>> + 'a;
 
 /// How to record.
 #[derive(Clone, Debug)]
@@ -162,7 +162,10 @@ fn remember_recorded(path: &Path, timeline: &mut Timeline) -> anyhow::Result<()>
 }
 
 /// Records until the duration ends or the port is gone (and `reconnect` is off).
-pub fn record(opts: &RecordOptions, on_msg: impl FnMut(&Message)) -> anyhow::Result<RecordSummary> {
+pub(crate) fn record(
+    opts: &RecordOptions,
+    on_msg: impl FnMut(&Message),
+) -> anyhow::Result<RecordSummary> {
     let mut first = true;
     let t0 = Instant::now();
     let mut open = || -> anyhow::Result<Option<serialport::TTYPort>> {

@@ -48,7 +48,7 @@ pub struct ReplayOptions {
 
 /// Default of [`ReplayOptions::silence`]: the firmware answers every filter period's samples
 /// with an estimate, in well under a second on a link of 115 200 Bd with 1-Hz samples.
-pub const DEFAULT_SILENCE: Duration = Duration::from_secs(60);
+pub(crate) const DEFAULT_SILENCE: Duration = Duration::from_secs(60);
 
 impl Default for ReplayOptions {
     fn default() -> Self {
@@ -464,7 +464,7 @@ fn check_resume(samples: &[RawSample], r: &protocol::Resume) -> anyhow::Result<(
 
 /// Why an estimate from the firmware cannot be used, if it cannot: a time, state, 1σ,
 /// innovation or NIS that is not a finite number (a 1σ or NIS below 0 neither).
-pub fn estimate_problem(e: &Estimate) -> Option<String> {
+pub(crate) fn estimate_problem(e: &Estimate) -> Option<String> {
     let names = ["tx_rad", "ty_rad", "tz_rad"]
         .into_iter()
         .chain(crate::simulate::COEFFICIENT_NAMES);

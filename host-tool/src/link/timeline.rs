@@ -24,18 +24,18 @@ use std::collections::VecDeque;
 use protocol::RawSample;
 
 /// Latest plausible sample time, s (31.7 years after the gyros reached stable operation).
-pub const MAX_T_S: f64 = 1e9;
+pub(crate) const MAX_T_S: f64 = 1e9;
 
 /// A step forward by more than this many times the previous interval is checked against the
 /// next sample before it is written (a real gap costs one sample of delay, nothing else).
-pub const JUMP_FACTOR: f64 = 10.0;
+pub(crate) const JUMP_FACTOR: f64 = 10.0;
 
 /// Recorded samples remembered to recognise a resend (32 bytes each: 3.2 MB; 27 h at 1 Hz).
-pub const RECENT: usize = 100_000;
+pub(crate) const RECENT: usize = 100_000;
 
 /// What to do with a received sample (or with one held before it).
 #[derive(Clone, Debug, PartialEq)]
-pub enum Verdict {
+pub(crate) enum Verdict {
     /// Write it: it continues the recording.
     Write(RawSample),
     /// Already recorded (a resend, or a resumed run's overlap): skip, count.
@@ -56,7 +56,7 @@ struct Held {
 
 /// The time line of the recording being written.
 #[derive(Clone, Debug, Default)]
-pub struct Timeline {
+pub(crate) struct Timeline {
     /// (t, a) bit patterns of the last [`RECENT`] samples written, in time order.
     recent: VecDeque<(u64, [u64; 3])>,
     /// Interval between the last two samples written, s.
@@ -78,17 +78,17 @@ fn print(s: &RawSample) -> (u64, [u64; 3]) {
 
 impl Timeline {
     /// An empty recording.
-    pub fn new() -> Self {
+    pub(crate) fn new() -> Self {
         Self::default()
     }
 
     /// Time of the last sample written, s.
-    pub fn last_t(&self) -> Option<f64> {
+    pub(crate) fn last_t(&self) -> Option<f64> {
         self.recent.back().map(|p| f64::from_bits(p.0))
     }
 
     /// Records that `s` was written (also for samples already in a resumed file).
-    pub fn written(&mut self, s: &RawSample) {
+    pub(crate) fn written(&mut self, s: &RawSample) {
         if let Some(t) = self.last_t() {
             self.last_dt = Some(s.t_s - t);
         }
@@ -101,13 +101,13 @@ impl Timeline {
 
     /// The firmware rebooted: `resumed` says whether it goes on with the run from a checkpoint
     /// (its times then overlap the recording) or starts again (its clock restarts at 0).
-    pub fn firmware_reset(&mut self, resumed: bool) {
+    pub(crate) fn firmware_reset(&mut self, resumed: bool) {
         self.overlap = resumed;
         self.restarted = !resumed;
     }
 
     /// A sample held at the end of the recording, never confirmed by a later one.
-    pub fn unconfirmed(&self) -> Option<RawSample> {
+    pub(crate) fn unconfirmed(&self) -> Option<RawSample> {
         self.held.map(|h| h.s)
     }
 
@@ -120,7 +120,7 @@ impl Timeline {
 
     /// The verdicts on `s` and on a sample held before it, in order. Every
     /// [`Verdict::Write`] is taken as written (the caller writes it or stops).
-    pub fn push(&mut self, s: &RawSample) -> Vec<Verdict> {
+    pub(crate) fn push(&mut self, s: &RawSample) -> Vec<Verdict> {
         let mut out = Vec::new();
         if s.t_s.abs() > MAX_T_S {
             out.push(Verdict::Absurd(format!(

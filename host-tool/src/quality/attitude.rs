@@ -21,19 +21,19 @@ use nalgebra::{Matrix3, Rotation3, SymmetricEigen, Unit, Vector3};
 
 /// Span of the data used, h: long enough to sweep tens of degrees, short enough that the drift
 /// turn stays a few degrees.
-pub const FIT_HOURS: f64 = 6.0;
+pub(crate) const FIT_HOURS: f64 = 6.0;
 /// Shortest span that can fix the azimuth, h (a 30° arc of Earth rotation).
-pub const MIN_FIT_HOURS: f64 = 2.0;
+pub(crate) const MIN_FIT_HOURS: f64 = 2.0;
 /// Largest RMS angle (rad) between the fitted sweep and the data (drift of ≤ 2 deg/h over the
 /// span, plus margin); a reflected frame misses by tens of degrees.
-pub const MAX_FIT_RMS_RAD: f64 = 0.1;
+pub(crate) const MAX_FIT_RMS_RAD: f64 = 0.1;
 /// 1σ of each initial angle given to the filter, rad (8.6°: a drift of 2 deg/h against the
 /// Earth's 15 deg/h).
 pub const START_SIGMA_RAD: f64 = 0.15;
 
 /// An initial orientation estimated from the data.
 #[derive(Clone, Copy, Debug)]
-pub struct StartEstimate {
+pub(crate) struct StartEstimate {
     /// ENU Euler angles (tx, ty, tz), rad.
     pub theta_enu: [f64; 3],
     /// RMS angle between the fitted sweep and the data, rad.
@@ -87,7 +87,7 @@ fn triad(
 }
 
 /// Estimates the initial orientation (see the module docs), or says why it cannot.
-pub fn estimate_start(site: &Site, samples: &[Sample]) -> Result<StartEstimate, String> {
+pub(crate) fn estimate_start(site: &Site, samples: &[Sample]) -> Result<StartEstimate, String> {
     let (t_first, t_last) = match (samples.first(), samples.last()) {
         (Some(a), Some(b)) => (a.t_s, b.t_s),
         _ => return Err("no samples".into()),
@@ -155,7 +155,7 @@ pub fn estimate_start(site: &Site, samples: &[Sample]) -> Result<StartEstimate, 
 }
 
 /// Angle (deg) between the first `period_s` of specific force (per-axis medians) and +z.
-pub fn start_tilt_deg(samples: &[Sample], period_s: f64) -> f64 {
+pub(crate) fn start_tilt_deg(samples: &[Sample], period_s: f64) -> f64 {
     let hours = period_s.max(1e-9) / 3600.0;
     directions(samples, hours, 1)
         .first()

@@ -20,17 +20,17 @@ use estimator_core::Sample;
 use super::{axis_name, Action, Finding, Kind};
 
 /// Fewest readings at an extreme that can be a rail.
-pub const SAT_MIN_SAMPLES: usize = 5;
+pub(crate) const SAT_MIN_SAMPLES: usize = 5;
 /// The rail holds at least this many times as many readings as any other value.
-pub const SAT_PILE_FACTOR: usize = 3;
+pub(crate) const SAT_PILE_FACTOR: usize = 3;
 /// The readings beside a pinned run lie within this many raw 1σ of the rail.
-pub const SAT_NEAR_SIGMAS: f64 = 10.0;
+pub(crate) const SAT_NEAR_SIGMAS: f64 = 10.0;
 /// Pinned readings closer than this many filter periods form one stretch.
-pub const SAT_JOIN_PERIODS: f64 = 2.0;
+pub(crate) const SAT_JOIN_PERIODS: f64 = 2.0;
 
 /// One excluded stretch, [t0, t1) in the recording's time.
 #[derive(Clone, Copy, Debug, PartialEq)]
-pub struct Stretch {
+pub(crate) struct Stretch {
     /// Start, s.
     pub t0: f64,
     /// End (exclusive), s.
@@ -38,7 +38,7 @@ pub struct Stretch {
 }
 
 /// The samples left after the exclusions (`None`: all of them), and the findings.
-pub fn exclude(
+pub(crate) fn exclude(
     samples: &[Sample],
     period_s: f64,
     user_s: &[(f64, f64)],
@@ -145,7 +145,10 @@ fn saturation_findings(
 }
 
 /// Rails found: (axis, rail value, stretches excluded, readings pinned at it).
-pub fn saturated(samples: &[Sample], period_s: f64) -> Vec<(usize, f64, Vec<Stretch>, usize)> {
+pub(crate) fn saturated(
+    samples: &[Sample],
+    period_s: f64,
+) -> Vec<(usize, f64, Vec<Stretch>, usize)> {
     let mut out = vec![];
     for a in 0..3 {
         let v = |s: &Sample| s.specific_force[a];

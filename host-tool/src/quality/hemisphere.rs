@@ -21,7 +21,7 @@ const MIN_SWEEP_RAD: f64 = 10.0 * RAD_PER_DEG;
 const MIN_LATITUDE_DEG: f64 = 10.0;
 
 /// The latitude the data's turn gives, deg (`None` when the run sweeps too little).
-pub fn latitude_from_turn(samples: &[Sample]) -> Option<f64> {
+pub(crate) fn latitude_from_turn(samples: &[Sample]) -> Option<f64> {
     if samples.len() < 16 {
         return None;
     }
@@ -56,7 +56,7 @@ pub fn latitude_from_turn(samples: &[Sample]) -> Option<f64> {
 }
 
 /// Refuses a recording that turns as in the other hemisphere than its stated latitude.
-pub fn check_hemisphere(site: &Site, samples: &[Sample]) -> Result<(), Refuse> {
+pub(crate) fn check_hemisphere(site: &Site, samples: &[Sample]) -> Result<(), Refuse> {
     let stated = site.latitude_rad / RAD_PER_DEG;
     let Some(seen) = latitude_from_turn(samples) else {
         return Ok(());

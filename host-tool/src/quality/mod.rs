@@ -15,7 +15,7 @@
 //! [`screening`]: estimator_core::screening
 
 pub mod attitude;
-pub mod exclusion;
+pub(crate) mod exclusion;
 mod finding;
 mod hemisphere;
 pub mod noise;
@@ -56,19 +56,8 @@ pub struct Screened<'s> {
     pub means: Vec<estimator_core::Measurement>,
 }
 
-impl Screened<'_> {
-    /// Whether any finding makes the estimate untrusted.
-    pub fn untrusted_reasons(&self) -> Vec<String> {
-        self.findings
-            .iter()
-            .filter(|f| f.action == Action::NotRepaired)
-            .map(|f| f.line())
-            .collect()
-    }
-}
-
 /// Fraction of rejected samples beyond which the recording is refused.
-pub const MAX_REJECTED_FRACTION: f64 = 0.5;
+pub(crate) const MAX_REJECTED_FRACTION: f64 = 0.5;
 
 /// Screens samples in the core's form for a run at `site` analysed at `period_s`.
 pub fn screen(site: Site, samples: &[Sample], period_s: f64) -> Result<Screened<'_>, Refusal> {
@@ -78,7 +67,7 @@ pub fn screen(site: Site, samples: &[Sample], period_s: f64) -> Result<Screened<
 /// [`screen`] for a platform whose stated orientation at t = 0 is `theta0` (rad, the paper's
 /// Euler angles measured in the site's chart, [`estimator_core::frames::Chart`]; for the ENU
 /// chart these are the metadata's `initial_orientation_deg`).
-pub fn screen_oriented(
+pub(crate) fn screen_oriented(
     site: Site,
     samples: &[Sample],
     period_s: f64,
@@ -90,7 +79,7 @@ pub fn screen_oriented(
 /// [`screen_oriented`] without the samples in the windows `exclude_s` ([t0, t1] in the
 /// recording's seconds, the user's `--exclude`); the stretches pinned at a rail are left out
 /// too ([`exclusion`]), each with a finding.
-pub fn screen_excluding<'s>(
+pub(crate) fn screen_excluding<'s>(
     site: Site,
     all: &'s [Sample],
     period_s: f64,
@@ -327,7 +316,7 @@ pub fn screen_excluding<'s>(
 }
 
 /// Repeat rate beyond which the noise does not dither the outputs' rounding.
-pub const UNDITHERED_REPEAT_RATE: f64 = 0.5;
+pub(crate) const UNDITHERED_REPEAT_RATE: f64 = 0.5;
 
 /// The output step (LSB) of each axis whose rounding the noise does not dither: most consecutive
 /// readings repeat, so the rounding error follows the slowly turning signal and does not average
@@ -437,7 +426,7 @@ fn dead_axis(samples: &[Sample], flags: &[u8]) -> Option<String> {
 }
 
 /// `x`, `y` or `z`.
-pub fn axis_name(a: usize) -> char {
+pub(crate) fn axis_name(a: usize) -> char {
     ['x', 'y', 'z'][a.min(2)]
 }
 
@@ -584,7 +573,7 @@ fn glitch_finding(samples: &[Sample], flags: &[u8], sum: &ScreenSummary) -> Find
 }
 
 /// Filter-period means of accepted samples (the core's averager; raw noise `sigma`).
-pub fn window_means(
+pub(crate) fn window_means(
     samples: &[Sample],
     period_s: f64,
     sigma: &[f64; 3],

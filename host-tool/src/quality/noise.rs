@@ -16,12 +16,12 @@ pub struct NoiseFloor {
 }
 
 /// Smallest raw 1σ we accept (m/s²): keeps S positive definite on noise-free simulations.
-pub const MIN_RAW_SIGMA_MPS2: f64 = 1e-8;
+pub(crate) const MIN_RAW_SIGMA_MPS2: f64 = 1e-8;
 
 /// Estimates the raw-sample noise from samples in time order (their times and specific forces;
 /// finite). Returns `None` when fewer than 8 runs of 4 samples within [`MAX_JITTER`] of equal
 /// spacing exist.
-pub fn estimate(samples: &[Sample]) -> Option<NoiseFloor> {
+pub(crate) fn estimate(samples: &[Sample]) -> Option<NoiseFloor> {
     // Each axis on its own, the first here and the others on the pool (`crate::beside`): the
     // differences and their median are most of the screening's noise estimate, ~2 ms of a 60-h
     // recording.
@@ -73,7 +73,7 @@ fn axis_sigma(samples: &[Sample], a: usize) -> Option<(usize, f64)> {
 /// Earth-rate turn's 7e-4 m/s² per s, 40 µs on 10-s samples or a millisecond stamp's rounding on
 /// a 3-Hz logger (0.5 ms) is under 1e-6 m/s², far below any accelerometer's noise.
 /// Wider departures are gaps or a change of rate, not jitter: those runs are not used.
-pub const MAX_JITTER: f64 = 0.1;
+pub(crate) const MAX_JITTER: f64 = 0.1;
 
 /// The third difference of axis `a` over four samples: x₃ − 3x₂ + 3x₁ − x₀ when they are equally
 /// spaced (to 1e-6 of their interval); within [`MAX_JITTER`] of it, the third divided difference
@@ -107,7 +107,7 @@ fn jitter(d: f64, h: f64) -> bool {
 /// The first sample (index) whose interval to the previous one departs from the median interval
 /// by more than [`MAX_JITTER`], with that interval and the median (s): where a recording whose
 /// noise cannot be estimated is irregular.
-pub fn first_irregular(samples: &[Sample]) -> Option<(usize, f64, f64)> {
+pub(crate) fn first_irregular(samples: &[Sample]) -> Option<(usize, f64, f64)> {
     let mut dt: Vec<f64> = samples.windows(2).map(|w| w[1].t_s - w[0].t_s).collect();
     if dt.is_empty() {
         return None;

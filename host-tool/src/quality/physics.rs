@@ -12,18 +12,18 @@ use super::{Action, Finding, Kind};
 use crate::recording::GRAVITY_RANGE_MPS2;
 
 /// A refusal: finding kind and message.
-pub type Refuse = (Kind, String);
+pub(crate) type Refuse = (Kind, String);
 
 /// Relative disagreement of the measured |A| with the metadata gravity beyond which the metadata
 /// is wrong: accelerometer scale-factor errors are 1e-5–1e-4, so 1e-3 is far outside them.
-pub const GRAVITY_REL_TOL: f64 = 1e-3;
+pub(crate) const GRAVITY_REL_TOL: f64 = 1e-3;
 /// Standard gravity, m/s² (the unit "g").
-pub const STANDARD_GRAVITY: f64 = 9.806_65;
+pub(crate) const STANDARD_GRAVITY: f64 = 9.806_65;
 /// Largest tilt at the start that is levelled (beyond: an axis inverted or swapped, or the
 /// platform far from level), deg.
-pub const MAX_START_TILT_DEG: f64 = 10.0;
+pub(crate) const MAX_START_TILT_DEG: f64 = 10.0;
 /// A start tilt is levelled when it exceeds this many 1σ of its own uncertainty.
-pub const TILT_SIGMAS: f64 = 6.0;
+pub(crate) const TILT_SIGMAS: f64 = 6.0;
 
 fn mean_magnitude(samples: &[Sample]) -> f64 {
     let n = samples.len().max(1) as f64;
@@ -36,7 +36,7 @@ fn mean_magnitude(samples: &[Sample]) -> f64 {
 
 /// Mean |A| against the site's gravity: outputs in g are converted, a wrong metadata gravity is
 /// replaced by the measured one, anything else is refused.
-pub fn check_gravity(
+pub(crate) fn check_gravity(
     site: &mut Site,
     samples: &mut Cow<'_, [Sample]>,
     sigma: &mut [f64; 3],
@@ -101,7 +101,7 @@ pub fn check_gravity(
 /// first window); a small departure is levelled (the returned angle correction, least-norm: the
 /// rotation about gravity is not seen, the azimuth stays the alignment's), a large one or
 /// gravity on another axis is refused.
-pub fn check_start(
+pub(crate) fn check_start(
     site: &Site,
     samples: &[Sample],
     period_s: f64,

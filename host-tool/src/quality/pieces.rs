@@ -14,7 +14,7 @@ const MIN_PIECE: usize = 32_768;
 
 /// [`screening::screen`] with the outlier test on all cores (rayon's pool), run on `series`
 /// (the samples, or their residuals from a model of the slow signal: same length and times).
-pub fn screen(
+pub(crate) fn screen(
     samples: &[Sample],
     series: &[Sample],
     sigma: &[f64; 3],

@@ -21,14 +21,14 @@ use nalgebra::{SMatrix, SVector};
 /// Half-width of one fit of the signal model, s (at least [`MIN_HALF_INTERVALS`] intervals).
 /// Over ±2 h a polynomial of degree 8 follows the Earth-rate turn, cos(Ωτ + φ) with ΩH = 0.52,
 /// to g·(ΩH)⁹/(9!·2⁸) ≈ 3e-10 m/s².
-pub const HALF_WINDOW_S: f64 = 2.0 * 3600.0;
+pub(crate) const HALF_WINDOW_S: f64 = 2.0 * 3600.0;
 
 /// Fewest sample intervals in a fit's half-width (slow logs widen it: at 600 s, ±4 h).
-pub const MIN_HALF_INTERVALS: f64 = 24.0;
+pub(crate) const MIN_HALF_INTERVALS: f64 = 24.0;
 
 /// The model is used when the line test's miss of the curvature reaches this fraction of the raw
 /// noise on some axis (below, the test screens the samples as they are: byte-identical results).
-pub const CURVATURE_FRACTION: f64 = 0.05;
+pub(crate) const CURVATURE_FRACTION: f64 = 0.05;
 
 /// Functions of the model: Legendre polynomials of degree 0..=8.
 const N: usize = 9;
@@ -39,7 +39,7 @@ const MIN_FIT_SAMPLES: usize = 3 * N;
 /// The median sample interval (s) and what the glitch test's line misses of the slow signal
 /// there, m/s²: ½·g·Ω²·(4.5·Δt)², Ω twice the Earth's rate (a drift of up to 15 deg/h turns
 /// the platform too).
-pub fn line_miss_mps2(samples: &[Sample]) -> (f64, f64) {
+pub(crate) fn line_miss_mps2(samples: &[Sample]) -> (f64, f64) {
     let mut dt: Vec<f64> = samples
         .windows(2)
         .map(|w| w[1].t_s - w[0].t_s)
@@ -63,7 +63,7 @@ pub fn line_miss_mps2(samples: &[Sample]) -> (f64, f64) {
 /// signal to [`CURVATURE_FRACTION`] of the noise `sigma`, else their residuals from the model
 /// (each sample corrected by the fit whose centre is nearest; the times, and the values of a
 /// sample the screening rejects anyway — non-finite, all zero — kept).
-pub fn outlier_series<'s>(samples: &'s [Sample], sigma: &[f64; 3]) -> Cow<'s, [Sample]> {
+pub(crate) fn outlier_series<'s>(samples: &'s [Sample], sigma: &[f64; 3]) -> Cow<'s, [Sample]> {
     let (dt, miss) = line_miss_mps2(samples);
     if sigma.iter().all(|s| miss < CURVATURE_FRACTION * s) {
         return Cow::Borrowed(samples);
@@ -124,7 +124,7 @@ pub fn outlier_series<'s>(samples: &'s [Sample], sigma: &[f64; 3]) -> Cow<'s, [S
 /// paper's noise is 1e-4, a 1-µg/√Hz sensor's 60-s averages 1.3e-6). The filter's consistency
 /// checks and the set-up's estimates then have no noise to be judged against: the estimate is
 /// not trusted, and the finding says why.
-pub fn no_noise(samples: &[Sample], sigma: &[f64; 3]) -> Option<Finding> {
+pub(crate) fn no_noise(samples: &[Sample], sigma: &[f64; 3]) -> Option<Finding> {
     let (dt, _) = line_miss_mps2(samples);
     let g = 9.81;
     let own = 2.0 * g * (EARTH_RATE_RADPS * dt).powi(3) / 20f64.sqrt();

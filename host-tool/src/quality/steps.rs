@@ -10,9 +10,9 @@ use estimator_core::Measurement;
 use super::{axis_name, Action, Finding, Kind};
 
 /// A step is reported beyond this many robust 1σ of the third differences.
-pub const STEP_SIGMAS: f64 = 8.0;
+pub(crate) const STEP_SIGMAS: f64 = 8.0;
 /// The means' scatter must differ from white raw noise by at least this factor to replace it.
-pub const MEAN_NOISE_FACTOR: f64 = 1.5;
+pub(crate) const MEAN_NOISE_FACTOR: f64 = 1.5;
 
 /// One third difference of four consecutive means of an axis.
 #[derive(Clone, Copy, Debug)]
@@ -75,7 +75,7 @@ fn third_differences(means: &[Measurement], axis: usize) -> Vec<Diff> {
 
 /// The median sample count of a filter-period mean (the full window's, whatever the partial
 /// first and last ones hold).
-pub fn typical_count(means: &[Measurement]) -> f64 {
+pub(crate) fn typical_count(means: &[Measurement]) -> f64 {
     let mut counts: Vec<u32> = means.iter().map(|m| m.count).collect();
     if counts.is_empty() {
         return 1.0;
@@ -86,7 +86,7 @@ pub fn typical_count(means: &[Measurement]) -> f64 {
 
 /// 1σ of a full-window mean per axis from the scatter of the means' third differences (robust);
 /// 0 on a skipped axis or one with too few means.
-pub fn mean_sigma(means: &[Measurement], skip: &[bool; 3]) -> [f64; 3] {
+pub(crate) fn mean_sigma(means: &[Measurement], skip: &[bool; 3]) -> [f64; 3] {
     core::array::from_fn(|a| {
         let d = third_differences(means, a);
         if skip[a] || d.len() < 30 {
@@ -107,7 +107,7 @@ fn robust_sigma(d: &[Diff]) -> f64 {
 
 /// Compares the means' scatter with raw noise/√n; returns the means' own 1σ per axis to use when
 /// they disagree (other axes keep raw/√n), with a finding.
-pub fn check_mean_noise(
+pub(crate) fn check_mean_noise(
     means: &[Measurement],
     raw_sigma: &[f64; 3],
     findings: &mut Vec<Finding>,
@@ -160,12 +160,12 @@ pub fn check_mean_noise(
 }
 
 /// Means on each side of an event fitted to tell a step from a disturbance.
-pub const SIDE_MEANS: usize = 12;
+pub(crate) const SIDE_MEANS: usize = 12;
 /// A level shift across an event beyond this many of its 1σ is a step; within, the level comes
 /// back: a disturbance.
-pub const SHIFT_SIGMAS: f64 = 5.0;
+pub(crate) const SHIFT_SIGMAS: f64 = 5.0;
 /// A mean inside a disturbance departs from the fit by more than this many of its 1σ: excluded.
-pub const DISTURBED_SIGMAS: f64 = 4.0;
+pub(crate) const DISTURBED_SIGMAS: f64 = 4.0;
 
 /// A level shift and its 1σ (m/s²), and the means departing from the fit (index, residual).
 type Shift = (f64, f64, Vec<(usize, f64)>);
@@ -219,7 +219,7 @@ fn shift_across(
 
 /// Longest disturbance, in filter periods, whose start and end (two events of opposite sign)
 /// are joined into one: a bump or a door left open for up to an hour at the paper's 60 s.
-pub const DISTURBANCE_MAX_MEANS: usize = 60;
+pub(crate) const DISTURBANCE_MAX_MEANS: usize = 60;
 
 /// One exceedance of the step check: means `i0..=i1`, the peak's difference.
 struct Event {
@@ -235,7 +235,7 @@ struct Event {
 /// together it comes back (its start and its end): its means are excluded (returned, indices
 /// into `means`, sorted) and the finding says so. One that leaves the level shifted is a `step`
 /// (not repaired; the message suggests `--exclude`).
-pub fn check_steps(
+pub(crate) fn check_steps(
     means: &[Measurement],
     skip: &[bool; 3],
     findings: &mut Vec<Finding>,
@@ -346,15 +346,15 @@ pub fn check_steps(
 /// ([`find_bias_steps`]). Positions tried: one per filter period and axis (~10 800 on 60 h at
 /// 60 s, correlated over the ~25 means of one fit); at 6σ the chance of one false step per run
 /// is below 1e-5 for white Gaussian means.
-pub const BIAS_STEP_SIGMAS: f64 = 6.0;
+pub(crate) const BIAS_STEP_SIGMAS: f64 = 6.0;
 /// The local fit's shift must exceed this many of its 1σ before the long fit sizes it.
-pub const PRESCREEN_SIGMAS: f64 = 1.5;
+pub(crate) const PRESCREEN_SIGMAS: f64 = 1.5;
 /// Largest number of bias steps repaired per axis.
-pub const MAX_BIAS_STEPS: usize = 3;
+pub(crate) const MAX_BIAS_STEPS: usize = 3;
 
 /// A bias step of an accelerometer axis found in the filter-period means.
 #[derive(Clone, Copy, Debug, PartialEq)]
-pub struct BiasStep {
+pub(crate) struct BiasStep {
     /// Axis, 0..3.
     pub axis: usize,
     /// Size, m/s² (the later readings are this much higher).
@@ -374,7 +374,7 @@ pub struct BiasStep {
 /// repeated (at most [`MAX_BIAS_STEPS`] per axis); more than one in the run is no step (slow
 /// structure, e.g. a Gauss–Markov drift: none is returned). `sigma_full` is the 1σ of a full-window mean
 /// per axis (the means' own scatter).
-pub fn find_bias_steps(
+pub(crate) fn find_bias_steps(
     means: &[Measurement],
     skip: &[bool; 3],
     sigma_full: &[f64; 3],
@@ -482,7 +482,7 @@ fn local_fit(means: &[Measurement], a: usize, idx: &[usize], t: f64) -> f64 {
 
 /// Half-width of the fit that sizes a found bias step, s: ±6 h. On 60 h at 1 s, ±3 h sized a
 /// step to 3.9e-5 m/s² (1σ), ±6 h to 3.1e-5, and found one of 2.5e-4 in 17 of 20 seeds, not 10.
-pub const REFINE_HALF_S: f64 = 6.0 * 3600.0;
+pub(crate) const REFINE_HALF_S: f64 = 6.0 * 3600.0;
 
 /// The means refine_step fits about the candidate mean `c`: contiguous ones within
 /// `REFINE_HALF_S` on each side (a gap of more than 3 spacings ends a side), earlier side first
@@ -522,7 +522,7 @@ fn refine_window(means: &[Measurement], c: usize, other: &[usize]) -> Vec<usize>
 /// {1, cos Ωτ, sin Ωτ} × {1, u, u², u³} (τ from the step, u = τ/half-width) plus the step fits
 /// hours of signal to far below the noise: the local cubic's 1σ (~1.3σ of a mean) would leave
 /// the later half of the run offset by a bias the model then reads as a misfit.
-pub fn refine_step(
+pub(crate) fn refine_step(
     means: &[Measurement],
     a: usize,
     c: usize,

@@ -13,20 +13,20 @@ use super::{Action, Finding, Kind};
 
 /// The measured sweep may differ from the Earth-rate prediction by this factor (drift of a few
 /// deg/h against 15 cos(L) deg/h, a latitude a few degrees off) before the time unit is doubted.
-pub const RATE_TOLERANCE: f64 = 1.35;
+pub(crate) const RATE_TOLERANCE: f64 = 1.35;
 /// Time units recognised, as the factor from the file's unit to seconds.
-pub const UNITS: [(f64, &str); 4] = [
+pub(crate) const UNITS: [(f64, &str); 4] = [
     (1e-3, "milliseconds"),
     (1e-6, "microseconds"),
     (60.0, "minutes"),
     (3600.0, "hours"),
 ];
 /// Smallest swept angle that tests the unit, rad (1°; noise of a block mean is ~1e-5 rad).
-pub const MIN_SWEEP_RAD: f64 = 0.0175;
+pub(crate) const MIN_SWEEP_RAD: f64 = 0.0175;
 
 /// A sweep this much narrower than its widest so far has turned back, rad (0.2°; a block mean's
 /// direction is good to ~1e-5 rad).
-pub const TURN_BACK_RAD: f64 = 0.0035;
+pub(crate) const TURN_BACK_RAD: f64 = 0.0035;
 
 /// Ratio of the time elapsed according to the Earth's rotation to the file's time difference,
 /// from ≤ 200 block means; `None` when the run sweeps too little (short, or near a pole).
@@ -82,7 +82,7 @@ pub fn time_scale(site: &Site, samples: &[Sample]) -> Option<f64> {
 
 /// Checks the time unit against the Earth's rotation and repairs a recognised one; returns the
 /// factor applied to the file's times (1 when they are seconds).
-pub fn check_units(
+pub(crate) fn check_units(
     site: &Site,
     samples: &mut Cow<'_, [Sample]>,
     findings: &mut Vec<Finding>,
@@ -142,7 +142,7 @@ fn median(v: &mut [f64]) -> f64 {
 
 /// Gaps (> 5 median intervals) and a change of the sample interval (> 10 % between the first and
 /// last quarter) are noted: the averager and the filter bridge both.
-pub fn check_spacing(times: &[f64], findings: &mut Vec<Finding>) {
+pub(crate) fn check_spacing(times: &[f64], findings: &mut Vec<Finding>) {
     // The intervals, recomputed from `times` where their order matters: one buffer of them for
     // the three medians (on a 60-h recording 1.7 MB of fresh memory instead of 4.3).
     let dt = |k: usize| times[k + 1] - times[k];

@@ -10,7 +10,7 @@ use super::*;
 
 /// One run of a joint fit as the page shows it.
 #[derive(Clone, Debug)]
-pub struct JointRun {
+pub(crate) struct JointRun {
     /// Recording file name.
     pub recording: String,
     /// The recording's free-text description, if any.
@@ -29,7 +29,7 @@ pub struct JointRun {
 
 /// One shared coefficient of the joint fit.
 #[derive(Clone, Debug)]
-pub struct JointCoef {
+pub(crate) struct JointCoef {
     /// Parameter name (`DX0`, …).
     pub name: String,
     /// Unit.
@@ -51,7 +51,7 @@ pub struct JointCoef {
 
 /// Everything the joint report shows.
 #[derive(Clone, Debug)]
-pub struct JointReportInput {
+pub(crate) struct JointReportInput {
     /// Page title.
     pub title: String,
     /// Effects in the shared model (beyond the paper's drift).
@@ -79,7 +79,7 @@ fn run_kinds(r: usize) -> [Kind; 4] {
 }
 
 /// Every figure of the joint report with the run it shows, in the page's order, numbered.
-pub fn joint_figures(input: &JointReportInput) -> Vec<(Figure, usize)> {
+pub(crate) fn joint_figures(input: &JointReportInput) -> Vec<(Figure, usize)> {
     let mut out = vec![];
     for (r, run) in input.runs.iter().enumerate() {
         for kind in run_kinds(r) {
@@ -93,7 +93,7 @@ pub fn joint_figures(input: &JointReportInput) -> Vec<(Figure, usize)> {
 }
 
 /// Renders the joint report as one HTML document.
-pub fn render_joint_html(input: &JointReportInput) -> Result<String> {
+pub(crate) fn render_joint_html(input: &JointReportInput) -> Result<String> {
     anyhow::ensure!(!input.runs.is_empty(), "report: no run to show");
     let mut svgs: Vec<Vec<(Figure, String)>> = vec![vec![]; input.runs.len()];
     for (f, r) in joint_figures(input) {
@@ -289,7 +289,7 @@ fn coefficients(h: &mut String, input: &JointReportInput) {
 
 /// Draws every figure of the joint report as `DIR/NN-name.png`, as [`super::draw_pngs`] does
 /// for one run: checked first, returned uncommitted.
-pub fn draw_joint_pngs(
+pub(crate) fn draw_joint_pngs(
     input: &JointReportInput,
     dir: &Path,
     outputs: &mut crate::output::Outputs,

@@ -20,13 +20,13 @@ use anyhow::Result;
 use crate::consistency::Thresholds;
 use crate::diagnose::types::{Diagnosis, Rung};
 use crate::format::{pm, with_sigma};
-pub use joint::{draw_joint_pngs, render_joint_html, JointCoef, JointReportInput, JointRun};
+pub(crate) use joint::{draw_joint_pngs, render_joint_html, JointCoef, JointReportInput, JointRun};
 use plots::{Figure, Kind};
 use tables::*;
 
 /// One identified parameter for the report's coefficient table.
 #[derive(Clone, Debug)]
-pub struct CoefRow {
+pub(crate) struct CoefRow {
     /// Parameter name (`DX0`, `GXxx-zz`, …).
     pub name: String,
     /// Unit (`deg/h`, …).
@@ -47,7 +47,7 @@ pub struct CoefRow {
 
 /// Everything the report shows.
 #[derive(Clone, Debug)]
-pub struct ReportInput {
+pub(crate) struct ReportInput {
     /// Page title.
     pub title: String,
     /// Recording file name.
@@ -73,7 +73,7 @@ pub struct ReportInput {
 /// What produced a page (issue: a page must say which command, version, effects file and
 /// options made it).
 #[derive(Clone, Debug, Default)]
-pub struct Provenance {
+pub(crate) struct Provenance {
     /// The command line as given.
     pub command: String,
     /// Each `--effects` file: its path and its text.
@@ -204,7 +204,7 @@ fn wrap_tables(h: &str) -> String {
 }
 
 /// Renders the whole report as one HTML document.
-pub fn render_html(input: &ReportInput) -> Result<String> {
+pub(crate) fn render_html(input: &ReportInput) -> Result<String> {
     anyhow::ensure!(!input.diagnoses.is_empty(), "report: no diagnosis to show");
     let figs = plots::figures(input);
     let mut svgs = Vec::with_capacity(figs.len());
@@ -274,7 +274,7 @@ fn provenance(h: &mut String, p: &Provenance) {
 /// moves each into place; dropped, they vanish). Every PNG is checked first by `outputs` (not an
 /// input, not another output, not a file driftid did not write, unless --force): nothing is
 /// drawn when one is refused.
-pub fn draw_pngs(
+pub(crate) fn draw_pngs(
     input: &ReportInput,
     dir: &Path,
     outputs: &mut crate::output::Outputs,

@@ -4,18 +4,18 @@
 use nalgebra::{Matrix3, Vector3};
 
 /// Earth rotation rate, rad/s.
-pub const EARTH_RATE_RADPS: f64 = 7.292115e-5;
+pub(crate) const EARTH_RATE_RADPS: f64 = 7.292115e-5;
 /// deg/h → rad/s.
-pub const RADPS_PER_DEG_H: f64 = std::f64::consts::PI / 180.0 / 3600.0;
+pub(crate) const RADPS_PER_DEG_H: f64 = std::f64::consts::PI / 180.0 / 3600.0;
 
 /// Cross-product matrix: `skew(a) * b = a × b`.
-pub fn skew(a: &Vector3<f64>) -> Matrix3<f64> {
+pub(crate) fn skew(a: &Vector3<f64>) -> Matrix3<f64> {
     Matrix3::new(0.0, -a.z, a.y, a.z, 0.0, -a.x, -a.y, a.x, 0.0)
 }
 
 /// exp(−[φ×]) by Rodrigues' formula: the passive DCM of a frame turned by the rotation vector φ
 /// (old-frame coordinates → new-frame coordinates). `passive(φ)·v = v − sinθ/θ (φ×v) + …`.
-pub fn passive(phi: &Vector3<f64>) -> Matrix3<f64> {
+pub(crate) fn passive(phi: &Vector3<f64>) -> Matrix3<f64> {
     let theta = phi.norm();
     if theta < 1e-300 {
         return Matrix3::identity();
@@ -30,13 +30,13 @@ pub fn passive(phi: &Vector3<f64>) -> Matrix3<f64> {
 /// Earth frame 0 → inertial frame i (= frame 0 at t = 0) at time t. A vector fixed in the Earth
 /// turns with it: in inertial coordinates it is rotated actively by Ω t about the polar axis
 /// `n0` (a unit vector, the same in both frames), i.e. the passive DCM of the angle −Ω t.
-pub fn c_0i(n0: &Vector3<f64>, t_s: f64) -> Matrix3<f64> {
+pub(crate) fn c_0i(n0: &Vector3<f64>, t_s: f64) -> Matrix3<f64> {
     passive(&(n0 * (-EARTH_RATE_RADPS * t_s)))
 }
 
 /// C = Rz(tz)·Ry(ty)·Rx(tx) from Euler angles (rad), passive elementary rotations (the inverse
 /// of [`euler_zyx`]).
-pub fn from_euler_zyx(theta: &[f64; 3]) -> Matrix3<f64> {
+pub(crate) fn from_euler_zyx(theta: &[f64; 3]) -> Matrix3<f64> {
     let (sx, cx) = theta[0].sin_cos();
     let (sy, cy) = theta[1].sin_cos();
     let (sz, cz) = theta[2].sin_cos();
@@ -49,7 +49,7 @@ pub fn from_euler_zyx(theta: &[f64; 3]) -> Matrix3<f64> {
 /// Euler angles (tx, ty, tz) of C = Rz(tz)·Ry(ty)·Rx(tx) (passive elementary rotations):
 /// C[2][0] = sin ty, C[2][1] = −cos ty sin tx, C[2][2] = cos ty cos tx, C[1][0] = −sin tz cos ty,
 /// C[0][0] = cos tz cos ty. Angles in (−π, π], ty in [−π/2, π/2].
-pub fn euler_zyx(c: &Matrix3<f64>) -> [f64; 3] {
+pub(crate) fn euler_zyx(c: &Matrix3<f64>) -> [f64; 3] {
     let ty = c[(2, 0)].clamp(-1.0, 1.0).asin();
     let tx = (-c[(2, 1)]).atan2(c[(2, 2)]);
     let tz = (-c[(1, 0)]).atan2(c[(0, 0)]);
@@ -57,7 +57,7 @@ pub fn euler_zyx(c: &Matrix3<f64>) -> [f64; 3] {
 }
 
 /// Wraps an angle to (−π, π].
-pub fn wrap_pi(a: f64) -> f64 {
+pub(crate) fn wrap_pi(a: f64) -> f64 {
     let two_pi = std::f64::consts::TAU;
     let mut r = a % two_pi;
     if r > std::f64::consts::PI {
@@ -69,12 +69,12 @@ pub fn wrap_pi(a: f64) -> f64 {
 }
 
 /// One step of C ← ½(3I − C Cᵀ) C: pulls a nearly orthonormal matrix back to orthonormal.
-pub fn reorthonormalize(c: &Matrix3<f64>) -> Matrix3<f64> {
+pub(crate) fn reorthonormalize(c: &Matrix3<f64>) -> Matrix3<f64> {
     (Matrix3::identity() * 3.0 - c * c.transpose()) * c * 0.5
 }
 
 /// WGS-84 normal gravity (Somigliana), m/s², at geodetic latitude `lat_rad`.
-pub fn normal_gravity(lat_rad: f64) -> f64 {
+pub(crate) fn normal_gravity(lat_rad: f64) -> f64 {
     let s2 = lat_rad.sin().powi(2);
     9.780_325_335_9 * (1.0 + 0.001_931_852_652_41 * s2) / (1.0 - 0.006_694_379_990_13 * s2).sqrt()
 }

@@ -5,7 +5,7 @@ use std::fmt;
 use std::str::FromStr;
 
 /// Names of the injectable effects, as on the command line and in the truth file.
-pub const EFFECT_NAMES: [&str; 12] = [
+pub(crate) const EFFECT_NAMES: [&str; 12] = [
     "g2",
     "acc-bias",
     "acc-scale",
@@ -21,7 +21,7 @@ pub const EFFECT_NAMES: [&str; 12] = [
 ];
 
 /// Help text describing the `--effect` syntax.
-pub const EFFECT_SYNTAX_HELP: &str = "\
+pub(crate) const EFFECT_SYNTAX_HELP: &str = "\
 NAME=v1,v2,... (repeatable; the same effect twice adds up). Effects:
   g2=18 values          drift += sum_{j<=k} D(i)_jk A_j A_k, deg/h/(m/s^2)^2; 6 per axis X,Y,Z in order xx,xy,xz,yy,yz,zz.
                         A static run sees 15 combinations (A_x^2+A_y^2+A_z^2 = g^2): the truth file and the
@@ -100,7 +100,7 @@ impl InjectedEffect {
     }
 
     /// All parameters are finite; Markov σ ≥ 0 and τ > 0.
-    pub fn validate(&self) -> Result<(), String> {
+    pub(crate) fn validate(&self) -> Result<(), String> {
         let vals = self.values();
         if vals.iter().flatten().any(|v| !v.is_finite()) {
             return Err(format!("{}: parameters must be finite", self.name()));

@@ -21,12 +21,12 @@ const SOLAR_DAY_S: f64 = 86_400.0;
 /// Random-number streams of one seed; separate streams keep each noise source's realisation
 /// independent of which other effects are switched on.
 pub(crate) mod stream {
-    pub const GYRO: u64 = 0;
-    pub const ACCEL: u64 = 1;
-    pub const MARKOV: u64 = 2;
-    pub const TEMP: u64 = 3;
-    pub const SETUP: u64 = 4;
-    pub const TIMING: u64 = 5;
+    pub(crate) const GYRO: u64 = 0;
+    pub(crate) const ACCEL: u64 = 1;
+    pub(crate) const MARKOV: u64 = 2;
+    pub(crate) const TEMP: u64 = 3;
+    pub(crate) const SETUP: u64 = 4;
+    pub(crate) const TIMING: u64 = 5;
 }
 
 pub(crate) fn rng(seed: u64, stream: u64) -> ChaCha8Rng {
@@ -188,23 +188,13 @@ impl Simulator {
     }
 
     /// Current time, s.
-    pub fn time_s(&self) -> f64 {
+    pub(crate) fn time_s(&self) -> f64 {
         self.t
-    }
-
-    /// Magnitude of gravity used, m/s².
-    pub fn gravity_mps2(&self) -> f64 {
-        self.g
     }
 
     /// C_i^p: inertial → platform.
     pub fn c_ip(&self) -> Matrix3<f64> {
         self.c_ip
-    }
-
-    /// C_0^i at the current time: Earth frame 0 → inertial.
-    pub fn c_0i(&self) -> Matrix3<f64> {
-        self.c_0i
     }
 
     /// C_0^p = C_i^p·C_0^i: Earth frame 0 → platform.
@@ -213,7 +203,7 @@ impl Simulator {
     }
 
     /// Local north in platform axes, C_0^p [0, 1, 0] (frame 0 is ENU).
-    pub fn north(&self) -> Vector3<f64> {
+    pub(crate) fn north(&self) -> Vector3<f64> {
         self.c_0p().column(1).into_owned()
     }
 
@@ -224,7 +214,7 @@ impl Simulator {
 
     /// Euler angles θ = (tx, ty, tz) of C_0^p = Rz·Ry·Rx, rad, unwrapped along the trajectory
     /// (continuous from θ(0) = 0, as a filter integrating θ̇ would have them).
-    pub fn theta_rad(&self) -> [f64; 3] {
+    pub(crate) fn theta_rad(&self) -> [f64; 3] {
         self.theta
     }
 
@@ -240,14 +230,10 @@ impl Simulator {
     }
 
     /// The deterministic part of the drift rate now (all terms but the white noise), rad/s.
-    pub fn drift_rate_rad_s(&self) -> Vector3<f64> {
+    #[cfg(test)]
+    pub(crate) fn drift_rate_rad_s(&self) -> Vector3<f64> {
         let a = self.c_0p() * Vector3::new(0.0, 0.0, self.g);
         self.drift(self.t, &a, &self.markov_rad_s())
-    }
-
-    /// Smooth platform temperature, °C (without the sensor noise written to the file).
-    pub fn temperature_c(&self, t_s: f64) -> f64 {
-        self.temp.at(t_s)
     }
 
     fn drift(&self, t: f64, a: &Vector3<f64>, markov: &[f64; 3]) -> Vector3<f64> {

@@ -9,7 +9,7 @@ use std::str::FromStr;
 use crate::recording::RawSample;
 
 /// Help text describing the `--fault` syntax.
-pub const FAULT_SYNTAX_HELP: &str = "\
+pub(crate) const FAULT_SYNTAX_HELP: &str = "\
 NAME=v1,v2,... (repeatable). Faults, applied to the written samples after the physics:
   saturate=AXIS,LIMIT,T0_H,T1_H   from T0_H to T1_H hours, readings of AXIS (x, y or z) beyond
                                   +-LIMIT m/s^2 read +-LIMIT (the sensor pinned at its rails)

@@ -13,7 +13,7 @@
 
 #![allow(clippy::needless_range_loop)]
 
-pub mod dcm;
+pub(crate) mod dcm;
 mod effects;
 mod engine;
 mod faults;
@@ -26,20 +26,22 @@ use anyhow::Context as _;
 use nalgebra::{Matrix3, Vector3};
 use rand_distr::{Distribution, StandardNormal};
 
-pub use effects::{InjectedEffect, EFFECT_NAMES, EFFECT_SYNTAX_HELP};
+pub use effects::InjectedEffect;
+pub(crate) use effects::EFFECT_SYNTAX_HELP;
 pub use engine::Simulator;
-pub use faults::{Fault, FAULT_SYNTAX_HELP};
+pub use faults::Fault;
+pub(crate) use faults::FAULT_SYNTAX_HELP;
 
 use crate::output::AtomicFile;
 use crate::recording::{Metadata, RawSample, RecordingWriter};
 
 /// Names of the 12 drift coefficients, in [`Scenario::coefficients`] order.
-pub const COEFFICIENT_NAMES: [&str; 12] = [
+pub(crate) const COEFFICIENT_NAMES: [&str; 12] = [
     "DX0", "DXx", "DXy", "DXz", "DY0", "DYx", "DYy", "DYz", "DZ0", "DZx", "DZy", "DZz",
 ];
 
 /// The paper's Table 1 coefficients (deg/h and deg/h/(m/s²)).
-pub const PAPER_COEFFICIENTS: [f64; 12] = [
+pub(crate) const PAPER_COEFFICIENTS: [f64; 12] = [
     0.5, -0.1, -0.05, -0.05, -0.5, 0.05, 0.1, 0.05, 0.5, -0.05, 0.05, -0.1,
 ];
 
@@ -84,7 +86,7 @@ fn default_max_substep() -> f64 {
 }
 
 /// Metadata key of the platform's initial orientation (deg, `tx, ty, tz`).
-pub const INITIAL_ORIENTATION_KEY: &str = "initial_orientation_deg";
+pub(crate) const INITIAL_ORIENTATION_KEY: &str = "initial_orientation_deg";
 
 /// Everything that defines a simulated run.
 #[derive(Clone, Debug, PartialEq, serde::Serialize, serde::Deserialize)]
@@ -149,12 +151,12 @@ pub struct Logger {
 
 impl Logger {
     /// The default logger: exact stamps, values at them.
-    pub fn is_plain(&self) -> bool {
+    pub(crate) fn is_plain(&self) -> bool {
         *self == Logger::default()
     }
 
     /// The stamp written for sampling time `t` (s), `jitter` a draw in [−1, 1].
-    pub fn stamp(&self, t: f64, jitter: f64) -> f64 {
+    pub(crate) fn stamp(&self, t: f64, jitter: f64) -> f64 {
         let t = if t == 0.0 {
             t
         } else {
@@ -281,12 +283,12 @@ impl Scenario {
     }
 
     /// Number of samples: t = 0, rate_s, … up to hours·3600 inclusive.
-    pub fn sample_count(&self) -> u64 {
+    pub(crate) fn sample_count(&self) -> u64 {
         ((self.hours * 3600.0) / self.rate_s + 1e-9).floor() as u64 + 1
     }
 
     /// Whether the recording gets a `temp_c` column.
-    pub fn has_temp(&self) -> bool {
+    pub(crate) fn has_temp(&self) -> bool {
         self.write_temp
             || self.effects.iter().any(|e| {
                 matches!(
@@ -298,7 +300,7 @@ impl Scenario {
 
     /// Checks ranges: latitude in [−90, 90], hours ≥ 0, rate_s > 0, finite coefficients,
     /// non-negative noise, valid effects, at most 1e8 samples.
-    pub fn validate(&self) -> Result<(), String> {
+    pub(crate) fn validate(&self) -> Result<(), String> {
         let fin = |x: f64, what: &str| {
             if x.is_finite() {
                 Ok(())
@@ -468,7 +470,7 @@ impl Truth {
     /// Gauss–Markov drift is a random process: no parameter truth). With g² drift the constant
     /// D(i)0 a static run sees is D(i)0 + g²·D(i)zz (|A| = g merges them), and the identifiable
     /// g² combinations are xx−zz, yy−zz, xy, xz, yz.
-    pub fn parameter_values(&self) -> BTreeMap<String, f64> {
+    pub(crate) fn parameter_values(&self) -> BTreeMap<String, f64> {
         let mut out: BTreeMap<String, f64> = COEFFICIENT_NAMES
             .iter()
             .zip(self.scenario.coefficients)
@@ -614,7 +616,7 @@ fn accel_model(effects: &[InjectedEffect]) -> (Matrix3<f64>, Vector3<f64>) {
 }
 
 /// A one-line description of the scenario for the recording's metadata.
-pub fn describe(s: &Scenario) -> String {
+pub(crate) fn describe(s: &Scenario) -> String {
     let mut d = format!(
         "driftid simulate: scenario {}, seed {}, {} h at {} s, latitude {} deg, arw {} deg^2/h, accel sigma {} m/s^2 per 60 s",
         if s.name.is_empty() { "custom" } else { &s.name },
@@ -802,7 +804,7 @@ fn metadata_of(s: &Scenario, g: f64) -> Metadata {
 }
 
 /// `NAME.csv` → `NAME.truth.json` (any other name: `NAME.truth.json` appended).
-pub fn truth_path_for(csv: &Path) -> PathBuf {
+pub(crate) fn truth_path_for(csv: &Path) -> PathBuf {
     let stem = match csv.extension() {
         Some(e) if e.eq_ignore_ascii_case("csv") => csv.with_extension(""),
         _ => csv.to_path_buf(),
@@ -866,11 +868,6 @@ pub fn write_simulation(csv: &Path, sim: &Simulation, force: bool) -> anyhow::Re
 
 fn truth_json(truth: &Truth) -> anyhow::Result<String> {
     Ok(serde_json::to_string_pretty(truth)? + "\n")
-}
-
-/// Writes a truth file (pretty JSON), atomically.
-pub fn write_truth(path: &Path, truth: &Truth) -> anyhow::Result<()> {
-    crate::output::write_atomic(path, truth_json(truth)?.as_bytes())
 }
 
 /// Reads a truth file and checks that its named coefficients agree with its scenario.

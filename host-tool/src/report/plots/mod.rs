@@ -69,7 +69,7 @@ const AXIS_COLORS: [RGBColor; 3] = [
 
 /// Which plot.
 #[derive(Clone, Copy, Debug, PartialEq)]
-pub enum Kind {
+pub(crate) enum Kind {
     /// What changed along the ladder: NIS and whiteness per rung, the coefficients that moved.
     Story,
     /// Residual (measured − predicted) with the noise floor, per axis.
@@ -96,7 +96,7 @@ pub enum Kind {
 
 /// One plot: what, its file stem and title, its size.
 #[derive(Clone, Debug)]
-pub struct Figure {
+pub(crate) struct Figure {
     /// What to draw.
     pub kind: Kind,
     /// File stem for the PNG (`01-measured-predicted`).
@@ -116,7 +116,7 @@ fn model_name(d: &Diagnosis) -> String {
 }
 
 /// The figure for `kind`, titled for this input.
-pub fn figure(kind: Kind, input: &ReportInput) -> Figure {
+pub(crate) fn figure(kind: Kind, input: &ReportInput) -> Figure {
     let (stem, title, h) = spec(kind, input);
     let suffix = match kind {
         Kind::Residual(d)
@@ -218,7 +218,7 @@ fn spec(kind: Kind, input: &ReportInput) -> (&'static str, String, u32) {
 
 /// A figure of the joint report that shows run `r` alone (`kind` one of [`one_diagnosis`]'s,
 /// its index `r`), titled with the run's `label`: `None` for the other kinds.
-pub fn run_figure(kind: Kind, label: &str) -> Option<Figure> {
+pub(crate) fn run_figure(kind: Kind, label: &str) -> Option<Figure> {
     let (stem, what, h, r) = one_diagnosis(kind)?;
     Some(Figure {
         kind,
@@ -229,7 +229,7 @@ pub fn run_figure(kind: Kind, label: &str) -> Option<Figure> {
 }
 
 /// Every figure of the report, in the report's order.
-pub fn figures(input: &ReportInput) -> Vec<Figure> {
+pub(crate) fn figures(input: &ReportInput) -> Vec<Figure> {
     let last = input.diagnoses.len() - 1;
     let mut kinds = if last > 0 { vec![Kind::Story] } else { vec![] };
     kinds.extend([
@@ -279,19 +279,19 @@ fn err<E: std::fmt::Debug>(e: E) -> anyhow::Error {
 }
 
 /// The figure as an SVG document (for inlining in HTML).
-pub fn svg(fig: &Figure, input: &ReportInput) -> Result<String> {
+pub(crate) fn svg(fig: &Figure, input: &ReportInput) -> Result<String> {
     svg_of(fig, Source::Report(input))
 }
 
 /// The figure as a PNG file.
-pub fn png(fig: &Figure, input: &ReportInput, path: &Path) -> Result<()> {
+pub(crate) fn png(fig: &Figure, input: &ReportInput, path: &Path) -> Result<()> {
     png_of(fig, Source::Report(input), path)
 }
 
 /// What a figure is drawn from: the report's whole input, or one diagnosis alone (a run of the
 /// joint report, [`run_figure`]).
 #[derive(Clone, Copy)]
-pub enum Source<'a> {
+pub(crate) enum Source<'a> {
     /// The single-run report's input.
     Report(&'a ReportInput),
     /// One diagnosis: the figures of [`one_diagnosis`]'s kinds.
@@ -299,7 +299,7 @@ pub enum Source<'a> {
 }
 
 /// The figure, drawn from `src`, as an SVG document.
-pub fn svg_of(fig: &Figure, src: Source<'_>) -> Result<String> {
+pub(crate) fn svg_of(fig: &Figure, src: Source<'_>) -> Result<String> {
     ensure_font();
     let mut out = String::new();
     {
@@ -311,7 +311,7 @@ pub fn svg_of(fig: &Figure, src: Source<'_>) -> Result<String> {
 }
 
 /// The figure, drawn from `src`, as a PNG file.
-pub fn png_of(fig: &Figure, src: Source<'_>, path: &Path) -> Result<()> {
+pub(crate) fn png_of(fig: &Figure, src: Source<'_>, path: &Path) -> Result<()> {
     ensure_font();
     let root = BitMapBackend::new(path, fig.size).into_drawing_area();
     draw(&root, fig, src)?;
@@ -366,6 +366,6 @@ fn draw_one<DB: DrawingBackend>(
 }
 
 /// p-value for display ([`crate::format::p_value`]: one style everywhere).
-pub fn fmt_p(p: f64) -> String {
+pub(crate) fn fmt_p(p: f64) -> String {
     crate::format::p_value(p, f64::NAN)
 }

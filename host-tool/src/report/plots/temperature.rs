@@ -57,7 +57,7 @@ pub(super) fn temperature_notes(input: &ReportInput, d: usize) -> Vec<String> {
         format!("{name} = {} {unit}", crate::format::pm(v, s))
     };
     let (what, items): (&str, Vec<String>) = if dg.model.iter().any(|m| m == TEMP_DRIFT) {
-        let names: Vec<&str> = crate::catalog::by_name(TEMP_DRIFT)
+        let names: Vec<&str> = crate::catalog::builtin(TEMP_DRIFT)
             .map(|e| e.params().iter().map(|p| p.name).collect())
             .unwrap_or_default();
         let params = input
