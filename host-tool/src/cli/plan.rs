@@ -147,11 +147,16 @@ impl Start {
         let defaults = Scenario::paper();
         let lat = args.model.latitude_deg.unwrap_or(defaults.latitude_deg);
         let site = estimator_core::Site::new(lat, None);
-        let sigma = cfg.raw_sigma_mps2.unwrap_or([1e-5 * site.gravity_mps2; 3]);
+        let rate_s = args.rate_s.unwrap_or(defaults.rate_s);
+        // The simulator's raw noise: 1e-5 g per 60-s mean (was taken as the raw samples' 1σ,
+        // √(60/rate) too small: the noise bound of a 24-h run at 10 s came out 2–14 % low).
+        let sigma = cfg
+            .raw_sigma_mps2
+            .unwrap_or([1e-5 * site.gravity_mps2 * (60.0 / rate_s).sqrt(); 3]);
         let template = Design {
             orientation_deg: [0.0; 3],
             hours: args.hours.unwrap_or(defaults.hours),
-            rate_s: args.rate_s.unwrap_or(defaults.rate_s),
+            rate_s,
             raw_sigma_mps2: sigma,
         };
         let model = build_model(site, effects, cfg)?;
