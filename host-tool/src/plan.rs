@@ -209,8 +209,12 @@ pub fn design_setup_cov(
     noise_free(&model, &mut prep, params);
     let id = identify(&model, &prep, cfg)
         .with_context(|| format!("the noise-free run from {:?} deg", design.orientation_deg))?;
-    let unc = setup::uncertainty(effects, &prep, cfg, &id)
-        .with_context(|| format!("the set-up of the run from {:?} deg", design.orientation_deg))?;
+    let unc = setup::uncertainty(effects, &prep, cfg, &id).with_context(|| {
+        format!(
+            "the set-up of the run from {:?} deg",
+            design.orientation_deg
+        )
+    })?;
     Ok(unc.setup_cov)
 }
 
@@ -317,7 +321,10 @@ pub fn rank(
             for (d, share) in designs.iter().zip(&shares) {
                 let mut runs = b.runs.clone();
                 runs.push(share.clone());
-                let posteriors = [posterior(b.estimate.cov.clone()), posterior(share.0.clone())];
+                let posteriors = [
+                    posterior(b.estimate.cov.clone()),
+                    posterior(share.0.clone()),
+                ];
                 out.push(Candidate::new(vec![*d], &posteriors, &runs, &p0, eval)?);
             }
         }

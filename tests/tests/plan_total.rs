@@ -44,7 +44,9 @@ fn reported_total(d: &Design, seed: u64, cfg: &Config) -> Vec<f64> {
     (0..unc.total_sigma.len())
         .map(|k| {
             let spread = unc.model_spread.get(k).copied().unwrap_or(0.0);
-            (unc.total_sigma[k].powi(2) - spread * spread).max(0.0).sqrt()
+            (unc.total_sigma[k].powi(2) - spread * spread)
+                .max(0.0)
+                .sqrt()
         })
         .collect()
 }

@@ -81,6 +81,9 @@ pub fn run(args: &PlanArgs) -> anyhow::Result<()> {
     }
     let before_total = before.as_ref().map(SoFar::total_cov).transpose()?;
     let before_score = before_total.as_ref().map(|c| criterion.score(&model, c));
+    let before_noise_score = before
+        .as_ref()
+        .map(|b| criterion.score(&model, &b.estimate.cov));
     let names: Vec<&str> = (3..model.dim()).map(|i| model.param(i).name).collect();
     let units: Vec<&str> = (3..model.dim()).map(|i| model.param(i).unit).collect();
     let what = match &criterion {
@@ -95,7 +98,9 @@ pub fn run(args: &PlanArgs) -> anyhow::Result<()> {
         units: &units,
         what: &what,
         before: before_total.as_ref(),
+        before_noise: before.as_ref().map(|b| &b.estimate.cov),
         before_score,
+        before_noise_score,
         ranked: &ranked,
         alternatives: args.alternatives,
     };
@@ -235,15 +240,17 @@ impl Start {
     }
 }
 
-/// What a plan shows: the parameters' names and units, the criterion's words, the total
-/// covariance so far and its score, the ranked candidates (best first) and how many alternatives
-/// to list.
+/// What a plan shows: the parameters' names and units, the criterion's words, the total and the
+/// noise-only covariance so far and their scores, the ranked candidates (best first) and
+/// how many alternatives to list.
 struct Shown<'a> {
     names: &'a [&'a str],
     units: &'a [&'a str],
     what: &'a str,
     before: Option<&'a nalgebra::DMatrix<f64>>,
+    before_noise: Option<&'a nalgebra::DMatrix<f64>>,
     before_score: Option<f64>,
+    before_noise_score: Option<f64>,
     ranked: &'a [crate::plan::Candidate],
     alternatives: usize,
 }
@@ -262,10 +269,12 @@ fn print_plan_json(
         "runs_so_far": recordings.iter().map(|p| p.display().to_string()).collect::<Vec<_>>(),
         "recommended": best.designs,
         "score_before": s.before_score,
+        "score_before_noise_only": s.before_noise_score,
         "score_after": best.score,
         "score_after_noise_only": best.noise_score,
         "parameters": s.names,
         "units": s.units,
+        "sigma_before": s.before_noise.map(sig),
         "sigma_total_before": s.before.map(sig),
         "sigma_total_after": sig(&best.total_cov),
         "sigma_after": sig(&best.cov),
