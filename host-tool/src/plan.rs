@@ -11,7 +11,8 @@
 //! - **separate A,B**: the largest canonical correlation between the estimates of two effects'
 //!   parameters (e.g. acc-bias and acc-scale).
 //!
-//! Both are scored on the **total** covariance, the one whose 1σ `identify` reports: the bound
+//! The weakest 1σ is scored on the **total** covariance, the one whose 1σ `identify` reports
+//! (the separation on the noise-only one, [`Criterion::on_total`]): the bound
 //! plus what each run's set-up leaves uncertain (latitude, clock rate, gravity, the vertical's
 //! daily tilt, the daily drift — [`crate::identify::setup::uncertainty`] on the designed run's
 //! noise-free measurements, the runs' set-ups independent as in
@@ -73,6 +74,23 @@ impl Criterion {
             names: [a.to_string(), b.to_string()],
             blocks: [block(a)?, block(b)?],
         })
+    }
+
+    /// Whether candidates are ranked by the score of the total covariance (the weakest 1σ: what
+    /// `identify` will report) or of the noise-only one (the separation of two effects: a
+    /// property of the information; the set-up's common shifts — gravity moves acc-bias and
+    /// acc-scale together — correlate the estimates on the total whatever the orientation).
+    pub fn on_total(&self) -> bool {
+        matches!(self, Criterion::Weakest)
+    }
+
+    /// The score a candidate is ranked by ([`Criterion::on_total`]).
+    pub fn ranking(&self, c: &Candidate) -> f64 {
+        if self.on_total() {
+            c.score
+        } else {
+            c.noise_score
+        }
     }
 
     /// The score of a parameter covariance (smaller is better); NaN if it cannot be computed.
@@ -250,9 +268,10 @@ pub struct Candidate {
     /// The total covariance after: `cov` plus every run's set-up share, the 1σ `identify`
     /// reports as the headline.
     pub total_cov: DMatrix<f64>,
-    /// The criterion's value after, on the total covariance (what the candidates are ranked by).
+    /// The criterion's value after, on the total covariance (the weakest 1σ is ranked by it).
     pub score: f64,
-    /// The criterion's value after on the noise-only covariance.
+    /// The criterion's value after on the noise-only covariance (two effects' separation is
+    /// ranked by it).
     pub noise_score: f64,
 }
 
@@ -279,7 +298,7 @@ impl Candidate {
     }
 }
 
-/// The candidates, best first by their total covariance: the next run after `before` (the runs
+/// The candidates, best first ([`Criterion::ranking`]): the next run after `before` (the runs
 /// so far, a posterior from the model's wide prior `p0`), or with `before = None` the best first
 /// pair.
 pub fn rank(
@@ -339,6 +358,6 @@ pub fn rank(
             }
         }
     }
-    out.sort_by(|a, b| a.score.total_cmp(&b.score));
+    out.sort_by(|a, b| criterion.ranking(a).total_cmp(&criterion.ranking(b)));
     Ok(out)
 }

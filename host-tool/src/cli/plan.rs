@@ -88,15 +88,15 @@ pub fn run(args: &PlanArgs) -> anyhow::Result<()> {
     let units: Vec<&str> = (3..model.dim()).map(|i| model.param(i).unit).collect();
     let what = match &criterion {
         Criterion::Weakest => "largest total 1σ of a weak combination, deg/h".to_string(),
-        Criterion::Separate { names, .. } => format!(
-            "canonical correlation of {} and {} (total covariance)",
-            names[0], names[1]
-        ),
+        Criterion::Separate { names, .. } => {
+            format!("canonical correlation of {} and {}", names[0], names[1])
+        }
     };
     let shown = Shown {
         names: &names,
         units: &units,
         what: &what,
+        on_total: criterion.on_total(),
         before: before_total.as_ref(),
         before_noise: before.as_ref().map(|b| &b.estimate.cov),
         before_score,
@@ -247,6 +247,7 @@ struct Shown<'a> {
     names: &'a [&'a str],
     units: &'a [&'a str],
     what: &'a str,
+    on_total: bool,
     before: Option<&'a nalgebra::DMatrix<f64>>,
     before_noise: Option<&'a nalgebra::DMatrix<f64>>,
     before_score: Option<f64>,
@@ -266,6 +267,7 @@ fn print_plan_json(
         |e: &nalgebra::DMatrix<f64>| (0..e.nrows()).map(|k| e[(k, k)].sqrt()).collect::<Vec<_>>();
     let out = json!({
         "criterion": s.what,
+        "ranked_by": if s.on_total { "total" } else { "noise_only" },
         "runs_so_far": recordings.iter().map(|p| p.display().to_string()).collect::<Vec<_>>(),
         "recommended": best.designs,
         "score_before": s.before_score,
@@ -310,30 +312,51 @@ fn print_plan(s: &Shown<'_>) {
             sci(v)
         }
     };
-    match s.before_score {
-        Some(b) => println!(
-            "{}: {} now, {} after (noise only: {})",
-            s.what,
-            show(b),
-            show(best.score),
-            show(best.noise_score)
-        ),
-        None => println!(
-            "{}: {} after the pair (noise only: {})",
-            s.what,
-            show(best.score),
-            show(best.noise_score)
-        ),
-    }
+    // The score ranked by first, the other in parentheses.
+    let (first, other, other_name) = if s.on_total {
+        (
+            (s.before_score, best.score),
+            (s.before_noise_score, best.noise_score),
+            "noise only",
+        )
+    } else {
+        (
+            (s.before_noise_score, best.noise_score),
+            (s.before_score, best.score),
+            "total",
+        )
+    };
+    let now = |v: Option<f64>| v.map_or(String::new(), |b| format!("{} now, ", show(b)));
+    let after = if first.0.is_some() {
+        "after"
+    } else {
+        "after the pair"
+    };
     println!(
-        "  ranked by the total 1σ: the noise bound plus each run's set-up priors (latitude, clock rate, gravity, \
-         the vertical's daily tilt, the daily drift), as identify reports it"
+        "{}: {}{} {after} ({other_name}: {}{} {after})",
+        s.what,
+        now(first.0),
+        show(first.1),
+        now(other.0),
+        show(other.1)
     );
+    if s.on_total {
+        println!(
+            "  ranked by the total 1σ: the noise bound plus each run's set-up priors (latitude, clock rate, gravity, \
+             the vertical's daily tilt, the daily drift), as identify reports it"
+        );
+    } else {
+        println!(
+            "  ranked by the noise-only correlation (the information's): the set-up's common shifts correlate the \
+             estimates on the total whatever the orientation"
+        );
+    }
     print_sigmas(s.names, s.units, s.before, best);
     if s.alternatives > 0 {
         println!("alternatives ({}):", s.what);
         for c in s.ranked.iter().skip(1).take(s.alternatives) {
-            println!("  {} → {}", orientations(c), show(c.score));
+            let key = if s.on_total { c.score } else { c.noise_score };
+            println!("  {} → {}", orientations(c), show(key));
         }
     }
 }
