@@ -327,13 +327,13 @@ fn print_plan(s: &Shown<'_>) {
         )
     };
     let now = |v: Option<f64>| v.map_or(String::new(), |b| format!("{} now, ", show(b)));
-    let after = if first.0.is_some() {
-        "after"
+    let (after, other_after) = if first.0.is_some() {
+        ("after", " after")
     } else {
-        "after the pair"
+        ("after the pair", "")
     };
     println!(
-        "{}: {}{} {after} ({other_name}: {}{} {after})",
+        "{}: {}{} {after} ({other_name}: {}{}{other_after})",
         s.what,
         now(first.0),
         show(first.1),
