@@ -10,6 +10,14 @@
 //!   weaker than the rest;
 //! - **separate A,B**: the largest canonical correlation between the estimates of two effects'
 //!   parameters (e.g. acc-bias and acc-scale).
+//!
+//! The weakest 1σ is scored on the **total** covariance, the one whose 1σ `identify` reports
+//! (the separation on the noise-only one, [`Criterion::on_total`]): the bound
+//! plus what each run's set-up leaves uncertain (latitude, clock rate, gravity, the vertical's
+//! daily tilt, the daily drift — [`crate::identify::setup::uncertainty`] on the designed run's
+//! noise-free measurements, the runs' set-ups independent as in
+//! [`crate::identify::joint::setup_covariance`]). Where a set-up prior dominates a
+//! coefficient, the noise bound alone would understate it and could rank designs wrongly.
 
 use anyhow::{bail, Context as _};
 use estimator_core::filter::ANGLE_PRIOR_SIGMA_RAD;
@@ -18,9 +26,10 @@ use estimator_core::{Effect, Sample, Site};
 use nalgebra::DMatrix;
 use rayon::prelude::*;
 
-use crate::identify::joint::{fuse, run_bound_cov, Run};
+use crate::identify::joint::{fuse, run_bound_cov, setup_covariance, Run};
 use crate::identify::{
-    build_model, canonical_correlation, weak_combinations, Config, Estimate, Prepared,
+    build_model, canonical_correlation, identify, nominal_trajectory, setup, smoothed_residuals,
+    weak_combinations, Config, Estimate, Prepared,
 };
 use crate::quality::noise::NoiseFloor;
 
@@ -65,6 +74,23 @@ impl Criterion {
             names: [a.to_string(), b.to_string()],
             blocks: [block(a)?, block(b)?],
         })
+    }
+
+    /// Whether candidates are ranked by the score of the total covariance (the weakest 1σ: what
+    /// `identify` will report) or of the noise-only one (the separation of two effects: a
+    /// property of the information; the set-up's common shifts — gravity moves acc-bias and
+    /// acc-scale together — correlate the estimates on the total whatever the orientation).
+    pub fn on_total(&self) -> bool {
+        matches!(self, Criterion::Weakest)
+    }
+
+    /// The score a candidate is ranked by ([`Criterion::on_total`]).
+    pub fn ranking(&self, c: &Candidate) -> f64 {
+        if self.on_total() {
+            c.score
+        } else {
+            c.noise_score
+        }
     }
 
     /// The score of a parameter covariance (smaller is better); NaN if it cannot be computed.
@@ -169,24 +195,117 @@ pub fn design_cov(
         .with_context(|| format!("run from {:?} deg", design.orientation_deg))
 }
 
+/// The designed run's measurements made noise-free at `params`: each filter period's mean is the
+/// model's prediction along the nominal trajectory (a recording with no noise, which a fit
+/// reproduces exactly; the set-up's sensitivities are taken about it).
+fn noise_free(model: &Model<'_>, prep: &mut Prepared, params: &[f64]) {
+    let nominal = nominal_trajectory(model, &prep.measurements, &prep.initial_angles, params);
+    for m in &mut prep.measurements {
+        m.specific_force = [0.0; 3];
+    }
+    // Measured minus predicted of zero measurements: minus the prediction.
+    let residuals = smoothed_residuals(model, &prep.measurements, &nominal);
+    for (m, r) in prep.measurements.iter_mut().zip(residuals) {
+        m.specific_force = r.map(|x| -x);
+    }
+}
+
+/// What a designed run's set-up adds to its parameters' covariance: the share `identify` adds to
+/// a recording's fit ([`setup::Uncertainty::setup_cov`]: latitude, clock rate, gravity, the
+/// vertical's daily tilt, the daily drift; the start attitude is in the bound), computed as
+/// `identify` computes it, on the run's noise-free measurements at `params` with the set-up
+/// priors of `cfg`.
+pub fn design_setup_cov(
+    site: Site,
+    effects: &[&'static dyn Effect],
+    design: &Design,
+    params: &[f64],
+    cfg: &Config,
+) -> anyhow::Result<DMatrix<f64>> {
+    let mut prep = designed_prepared(site, design, cfg)?;
+    let model = build_model(prep.site, effects, cfg)?;
+    noise_free(&model, &mut prep, params);
+    let id = identify(&model, &prep, cfg)
+        .with_context(|| format!("the noise-free run from {:?} deg", design.orientation_deg))?;
+    let unc = setup::uncertainty(effects, &prep, cfg, &id).with_context(|| {
+        format!(
+            "the set-up of the run from {:?} deg",
+            design.orientation_deg
+        )
+    })?;
+    Ok(unc.setup_cov)
+}
+
+/// One run's share of a joint estimate: its own parameter covariance (the run alone, from the
+/// wide prior) and what its set-up adds to that ([`setup::Uncertainty::setup_cov`]).
+pub type RunShare = (DMatrix<f64>, DMatrix<f64>);
+
+/// The runs made so far: their joint estimate and each run's share.
+#[derive(Clone, Debug)]
+pub struct SoFar {
+    /// The joint estimate (covariance without the set-up).
+    pub estimate: Estimate,
+    /// Per run, its own covariance and its set-up's share.
+    pub runs: Vec<RunShare>,
+}
+
+impl SoFar {
+    /// The total covariance now: the joint one plus the runs' set-ups ([`setup_covariance`]),
+    /// as `identify` reports it for these runs.
+    pub fn total_cov(&self) -> anyhow::Result<DMatrix<f64>> {
+        Ok(&self.estimate.cov + setup_covariance(&self.estimate, &self.runs)?)
+    }
+}
+
 /// One candidate of a plan.
 #[derive(Clone, Debug)]
 pub struct Candidate {
     /// The run(s) proposed: one for a next run, two for a first pair.
     pub designs: Vec<Design>,
-    /// Covariance of the parameters after the proposed run(s).
+    /// Covariance of the parameters after the proposed run(s), noise only (the Cramér–Rao
+    /// bound, start attitude estimated at its prior): `identify`'s joint "fit 1σ".
     pub cov: DMatrix<f64>,
-    /// The criterion's value after.
+    /// The total covariance after: `cov` plus every run's set-up share, the 1σ `identify`
+    /// reports as the headline.
+    pub total_cov: DMatrix<f64>,
+    /// The criterion's value after, on the total covariance (the weakest 1σ is ranked by it).
     pub score: f64,
+    /// The criterion's value after on the noise-only covariance (two effects' separation is
+    /// ranked by it).
+    pub noise_score: f64,
 }
 
-/// The candidates, best first: the next run after `before` (the runs so far, a posterior from
-/// the model's wide prior `p0`), or with `before = None` the best first pair.
+impl Candidate {
+    /// The candidate after fusing the posteriors (each from the prior `p0`) with `shares` the
+    /// runs' own covariances and set-up shares.
+    fn new(
+        designs: Vec<Design>,
+        posteriors: &[Estimate],
+        shares: &[RunShare],
+        p0: &DMatrix<f64>,
+        eval: (&Model<'_>, &Criterion),
+    ) -> anyhow::Result<Self> {
+        let fused = fuse(posteriors, p0)?;
+        let total_cov = &fused.cov + setup_covariance(&fused, shares)?;
+        let (model, criterion) = eval;
+        Ok(Candidate {
+            designs,
+            score: criterion.score(model, &total_cov),
+            noise_score: criterion.score(model, &fused.cov),
+            cov: fused.cov,
+            total_cov,
+        })
+    }
+}
+
+/// The candidates, best first ([`Criterion::ranking`]): the next run after `before` (the runs
+/// so far, a posterior from the model's wide prior `p0`), or with `before = None` the best first
+/// pair.
 pub fn rank(
     model: &Model<'_>,
-    effects: &[&dyn Effect],
+    effects: &[&'static dyn Effect],
     criterion: &Criterion,
-    before: Option<&Estimate>,
+    before: Option<&SoFar>,
     template: &Design,
     params: &[f64],
     cfg: &Config,
@@ -205,38 +324,40 @@ pub fn rank(
         value: vec![0.0; n],
         cov,
     };
-    // One bound per orientation, on all cores.
-    let covs = designs
+    // One bound and one set-up share per orientation, on all cores.
+    let site = *model.site();
+    let shares = designs
         .par_iter()
-        .map(|d| design_cov(*model.site(), effects, d, params, cfg).map(posterior))
-        .collect::<anyhow::Result<Vec<_>>>()?;
+        .map(|d| {
+            let cov = design_cov(site, effects, d, params, cfg)?;
+            Ok((cov, design_setup_cov(site, effects, d, params, cfg)?))
+        })
+        .collect::<anyhow::Result<Vec<RunShare>>>()?;
+    let eval = (model, criterion);
     let mut out = vec![];
     match before {
         Some(b) => {
-            for (d, c) in designs.iter().zip(&covs) {
-                let cov = fuse(&[posterior(b.cov.clone()), c.clone()], &p0)?.cov;
-                let score = criterion.score(model, &cov);
-                out.push(Candidate {
-                    designs: vec![*d],
-                    cov,
-                    score,
-                });
+            for (d, share) in designs.iter().zip(&shares) {
+                let mut runs = b.runs.clone();
+                runs.push(share.clone());
+                let posteriors = [
+                    posterior(b.estimate.cov.clone()),
+                    posterior(share.0.clone()),
+                ];
+                out.push(Candidate::new(vec![*d], &posteriors, &runs, &p0, eval)?);
             }
         }
         None => {
             for i in 0..designs.len() {
                 for j in i + 1..designs.len() {
-                    let cov = fuse(&[covs[i].clone(), covs[j].clone()], &p0)?.cov;
-                    let score = criterion.score(model, &cov);
-                    out.push(Candidate {
-                        designs: vec![designs[i], designs[j]],
-                        cov,
-                        score,
-                    });
+                    let runs = [shares[i].clone(), shares[j].clone()];
+                    let posteriors = [posterior(runs[0].0.clone()), posterior(runs[1].0.clone())];
+                    let pair = vec![designs[i], designs[j]];
+                    out.push(Candidate::new(pair, &posteriors, &runs, &p0, eval)?);
                 }
             }
         }
     }
-    out.sort_by(|a, b| a.score.total_cmp(&b.score));
+    out.sort_by(|a, b| criterion.ranking(a).total_cmp(&criterion.ranking(b)));
     Ok(out)
 }

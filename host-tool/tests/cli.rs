@@ -411,12 +411,20 @@ fn several_runs_are_identified_diagnosed_and_planned_together() {
     );
     let v: serde_json::Value = serde_json::from_slice(&out.stdout).unwrap();
     // The plan's next run must shrink the weakest combination's 1σ (one level run: 12–19×
-    // weaker than the next direction; any second orientation in the grid helps several-fold).
-    let (now, after) = (
-        v["score_before"].as_f64().unwrap(),
-        v["score_after"].as_f64().unwrap(),
+    // weaker than the next direction; any second orientation in the grid helps several-fold):
+    // the noise-only one by ≥ 3× (measured 29×); the total, which keeps the first run's set-up
+    // share (a second run's own set-up is independent of it), by ≥ 2× (measured 2.7×).
+    let score = |key: &str| v[key].as_f64().unwrap();
+    let (now, after) = (score("score_before"), score("score_after"));
+    let (now_noise, after_noise) = (
+        score("score_before_noise_only"),
+        score("score_after_noise_only"),
     );
-    assert!(after < now / 3.0, "{now} -> {after}");
+    assert!(
+        after_noise < now_noise / 3.0,
+        "{now_noise} -> {after_noise}"
+    );
+    assert!(after < now / 2.0, "{now} -> {after}");
     let _ = std::fs::remove_dir_all(&dir);
 }
 

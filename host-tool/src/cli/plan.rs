@@ -1,5 +1,6 @@
 //! `driftid plan [RUN.csv …]`: the initial orientation of the next run (or, with no runs, of a
-//! first pair) that most shrinks the weakest combination's 1σ or best separates two effects.
+//! first pair) that most shrinks the weakest combination's total 1σ (the set-up's priors
+//! included, as `identify` reports it) or best separates two effects.
 
 use std::path::PathBuf;
 
@@ -9,8 +10,8 @@ use super::common::{build_model, trusted_or, ModelArgs};
 use super::joint::{fit_jointly, load_runs, run_consistency, runs_untrusted, LoadedRun};
 use crate::catalog::Catalog;
 use crate::format::sci;
-use crate::identify::{Estimate, Prepared};
-use crate::plan::{rank, Criterion, Design};
+use crate::identify::Prepared;
+use crate::plan::{rank, Criterion, Design, SoFar};
 use crate::simulate::Scenario;
 
 /// Arguments of `driftid plan`.
@@ -68,7 +69,9 @@ fn run_with(args: &PlanArgs, catalog: &Catalog) -> anyhow::Result<()> {
         Some(p) => Criterion::separate(&model, &p[0], &p[1])?,
         None => Criterion::Weakest,
     };
-    let spin = crate::progress::spinner("evaluating the Fisher information over 48 orientations");
+    let spin = crate::progress::spinner(
+        "evaluating the Fisher information and the set-up's share over 48 orientations",
+    );
     let ranked = rank(
         &model,
         &effects,
@@ -83,11 +86,15 @@ fn run_with(args: &PlanArgs, catalog: &Catalog) -> anyhow::Result<()> {
     if ranked.is_empty() {
         anyhow::bail!("no candidate orientation could be evaluated");
     }
-    let before_score = before.as_ref().map(|b| criterion.score(&model, &b.cov));
+    let before_total = before.as_ref().map(SoFar::total_cov).transpose()?;
+    let before_score = before_total.as_ref().map(|c| criterion.score(&model, c));
+    let before_noise_score = before
+        .as_ref()
+        .map(|b| criterion.score(&model, &b.estimate.cov));
     let names: Vec<&str> = (3..model.dim()).map(|i| model.param(i).name).collect();
     let units: Vec<&str> = (3..model.dim()).map(|i| model.param(i).unit).collect();
     let what = match &criterion {
-        Criterion::Weakest => "largest 1σ of a weak combination, deg/h".to_string(),
+        Criterion::Weakest => "largest total 1σ of a weak combination, deg/h".to_string(),
         Criterion::Separate { names, .. } => {
             format!("canonical correlation of {} and {}", names[0], names[1])
         }
@@ -96,8 +103,11 @@ fn run_with(args: &PlanArgs, catalog: &Catalog) -> anyhow::Result<()> {
         names: &names,
         units: &units,
         what: &what,
-        before: before.as_ref(),
+        on_total: criterion.on_total(),
+        before: before_total.as_ref(),
+        before_noise: before.as_ref().map(|b| &b.estimate.cov),
         before_score,
+        before_noise_score,
         ranked: &ranked,
         alternatives: args.alternatives,
     };
@@ -133,7 +143,7 @@ fn effects_named(args: &PlanArgs) -> anyhow::Result<Vec<String>> {
 struct Start {
     site: estimator_core::Site,
     template: Design,
-    before: Option<Estimate>,
+    before: Option<SoFar>,
     params: Vec<f64>,
     reasons: Vec<String>,
 }
@@ -149,11 +159,16 @@ impl Start {
         let defaults = Scenario::paper();
         let lat = args.model.latitude_deg.unwrap_or(defaults.latitude_deg);
         let site = estimator_core::Site::new(lat, None);
-        let sigma = cfg.raw_sigma_mps2.unwrap_or([1e-5 * site.gravity_mps2; 3]);
+        let rate_s = args.rate_s.unwrap_or(defaults.rate_s);
+        // The simulator's raw noise: 1e-5 g per 60-s mean (was taken as the raw samples' 1σ,
+        // √(60/rate) too small: the noise bound of a 24-h run at 10 s came out 2–14 % low).
+        let sigma = cfg
+            .raw_sigma_mps2
+            .unwrap_or([1e-5 * site.gravity_mps2 * (60.0 / rate_s).sqrt(); 3]);
         let template = Design {
             orientation_deg: [0.0; 3],
             hours: args.hours.unwrap_or(defaults.hours),
-            rate_s: args.rate_s.unwrap_or(defaults.rate_s),
+            rate_s,
             raw_sigma_mps2: sigma,
         };
         let model = build_model(site, effects, cfg)?;
@@ -196,6 +211,16 @@ impl Start {
             .map(|(fit, r)| run_consistency(fit, &r.prep))
             .collect();
         let reasons = runs_untrusted(&runs, &joint.runs, &checks);
+        // Each run's own covariance and set-up share, as `identify` carries them into the joint
+        // total 1σ.
+        let shares = runs
+            .iter()
+            .zip(&joint.runs)
+            .map(|(r, fit)| {
+                let unc = crate::identify::setup::uncertainty(effects, &r.prep, cfg, &fit.alone)?;
+                Ok((fit.alone.best().cov.clone(), unc.setup_cov))
+            })
+            .collect::<anyhow::Result<Vec<_>>>()?;
         let last = &runs[runs.len() - 1].prep;
         let mean_hours = runs
             .iter()
@@ -214,21 +239,28 @@ impl Start {
         Ok(Start {
             site,
             template,
-            before: Some(joint.estimate),
+            before: Some(SoFar {
+                estimate: joint.estimate,
+                runs: shares,
+            }),
             params,
             reasons,
         })
     }
 }
 
-/// What a plan shows: the parameters' names and units, the criterion's words, the estimate so
-/// far and its score, the ranked candidates (best first) and how many alternatives to list.
+/// What a plan shows: the parameters' names and units, the criterion's words, the total and the
+/// noise-only covariance so far and their scores, the ranked candidates (best first) and
+/// how many alternatives to list.
 struct Shown<'a> {
     names: &'a [&'a str],
     units: &'a [&'a str],
     what: &'a str,
-    before: Option<&'a Estimate>,
+    on_total: bool,
+    before: Option<&'a nalgebra::DMatrix<f64>>,
+    before_noise: Option<&'a nalgebra::DMatrix<f64>>,
     before_score: Option<f64>,
+    before_noise_score: Option<f64>,
     ranked: &'a [crate::plan::Candidate],
     alternatives: usize,
 }
@@ -244,16 +276,22 @@ fn print_plan_json(
         |e: &nalgebra::DMatrix<f64>| (0..e.nrows()).map(|k| e[(k, k)].sqrt()).collect::<Vec<_>>();
     let out = json!({
         "criterion": s.what,
+        "ranked_by": if s.on_total { "total" } else { "noise_only" },
         "runs_so_far": recordings.iter().map(|p| p.display().to_string()).collect::<Vec<_>>(),
         "recommended": best.designs,
         "score_before": s.before_score,
+        "score_before_noise_only": s.before_noise_score,
         "score_after": best.score,
+        "score_after_noise_only": best.noise_score,
         "parameters": s.names,
         "units": s.units,
-        "sigma_before": s.before.map(|b| sig(&b.cov)),
+        "sigma_before": s.before_noise.map(sig),
+        "sigma_total_before": s.before.map(sig),
+        "sigma_total_after": sig(&best.total_cov),
         "sigma_after": sig(&best.cov),
         "alternatives": s.ranked.iter().skip(1).take(s.alternatives)
-            .map(|c| json!({ "designs": c.designs, "score": c.score })).collect::<Vec<_>>(),
+            .map(|c| json!({ "designs": c.designs, "score": c.score, "score_noise_only": c.noise_score }))
+            .collect::<Vec<_>>(),
         "trusted": reasons.is_empty(),
         "untrusted_reasons": reasons,
     });
@@ -283,15 +321,51 @@ fn print_plan(s: &Shown<'_>) {
             sci(v)
         }
     };
-    match s.before_score {
-        Some(b) => println!("{}: {} now, {} after", s.what, show(b), show(best.score)),
-        None => println!("{}: {} after the pair", s.what, show(best.score)),
+    // The score ranked by first, the other in parentheses.
+    let (first, other, other_name) = if s.on_total {
+        (
+            (s.before_score, best.score),
+            (s.before_noise_score, best.noise_score),
+            "noise only",
+        )
+    } else {
+        (
+            (s.before_noise_score, best.noise_score),
+            (s.before_score, best.score),
+            "total",
+        )
+    };
+    let now = |v: Option<f64>| v.map_or(String::new(), |b| format!("{} now, ", show(b)));
+    let (after, other_after) = if first.0.is_some() {
+        ("after", " after")
+    } else {
+        ("after the pair", "")
+    };
+    println!(
+        "{}: {}{} {after} ({other_name}: {}{}{other_after})",
+        s.what,
+        now(first.0),
+        show(first.1),
+        now(other.0),
+        show(other.1)
+    );
+    if s.on_total {
+        println!(
+            "  ranked by the total 1σ: the noise bound plus each run's set-up priors (latitude, clock rate, gravity, \
+             the vertical's daily tilt, the daily drift), as identify reports it"
+        );
+    } else {
+        println!(
+            "  ranked by the noise-only correlation (the information's): the set-up's common shifts correlate the \
+             estimates on the total whatever the orientation"
+        );
     }
     print_sigmas(s.names, s.units, s.before, best);
     if s.alternatives > 0 {
         println!("alternatives ({}):", s.what);
         for c in s.ranked.iter().skip(1).take(s.alternatives) {
-            println!("  {} → {}", orientations(c), show(c.score));
+            let key = if s.on_total { c.score } else { c.noise_score };
+            println!("  {} → {}", orientations(c), show(key));
         }
     }
 }
@@ -344,38 +418,36 @@ fn print_recommendation(best: &crate::plan::Candidate, after_runs: bool) {
     }
 }
 
-/// Each parameter's 1σ now (when there are runs so far) and after the recommended run(s).
+/// Each parameter's total 1σ now (when there are runs so far), its total and noise-only 1σ
+/// after the recommended run(s), and the ratio of the totals.
 fn print_sigmas(
     names: &[&str],
     units: &[&str],
-    before: Option<&Estimate>,
+    before: Option<&nalgebra::DMatrix<f64>>,
     best: &crate::plan::Candidate,
 ) {
     println!(
-        "{:<6} {:<16} {:>12} {:>12} {:>8}",
-        "coef", "unit", "1σ now", "1σ after", "ratio"
+        "{:<6} {:<16} {:>12} {:>12} {:>12} {:>8}",
+        "coef", "unit", "total 1σ now", "total after", "noise after", "ratio"
     );
     for k in 0..names.len() {
-        let after = best.cov[(k, k)].sqrt();
-        match before {
+        let after = best.total_cov[(k, k)].sqrt();
+        let noise = best.cov[(k, k)].sqrt();
+        let (now, ratio) = match before {
             Some(b) => {
-                let now = b.cov[(k, k)].sqrt();
-                println!(
-                    "{:<6} {:<16} {:>12} {:>12} {:>8.2}",
-                    names[k],
-                    units[k],
-                    sci(now),
-                    sci(after),
-                    now / after
-                );
+                let now = b[(k, k)].sqrt();
+                (sci(now), format!("{:>8.2}", now / after))
             }
-            None => println!(
-                "{:<6} {:<16} {:>12} {:>12}",
-                names[k],
-                units[k],
-                "—",
-                sci(after)
-            ),
-        }
+            None => ("—".to_string(), String::new()),
+        };
+        println!(
+            "{:<6} {:<16} {:>12} {:>12} {:>12} {}",
+            names[k],
+            units[k],
+            now,
+            sci(after),
+            sci(noise),
+            ratio
+        );
     }
 }
