@@ -217,7 +217,7 @@ fn noise_free(model: &Model<'_>, prep: &mut Prepared, params: &[f64]) {
 /// priors of `cfg`.
 pub fn design_setup_cov(
     site: Site,
-    effects: &[&'static dyn Effect],
+    effects: &[&dyn Effect],
     design: &Design,
     params: &[f64],
     cfg: &Config,
@@ -303,7 +303,7 @@ impl Candidate {
 /// pair.
 pub fn rank(
     model: &Model<'_>,
-    effects: &[&'static dyn Effect],
+    effects: &[&dyn Effect],
     criterion: &Criterion,
     before: Option<&SoFar>,
     template: &Design,
