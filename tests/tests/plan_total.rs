@@ -40,7 +40,9 @@ fn reported_total(d: &Design, seed: u64, cfg: &Config) -> Vec<f64> {
     let effects = [catalog::paper()];
     let model = build_model(prep.site, &effects, cfg).unwrap();
     let id = identify(&model, &prep, cfg).unwrap();
-    let unc = assess(&effects, prep, cfg, id).unwrap().unc;
+    let unc = assess(catalog::Catalog::builtin(), &effects, prep, cfg, id)
+        .unwrap()
+        .unc;
     (0..unc.total_sigma.len())
         .map(|k| {
             let spread = unc.model_spread.get(k).copied().unwrap_or(0.0);
