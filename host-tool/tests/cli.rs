@@ -1093,3 +1093,41 @@ fn a_warm_up_transient_is_named_and_its_coefficients_hold() {
     }
     let _ = std::fs::remove_dir_all(&dir);
 }
+
+/// Clean 24-h runs at 10 s (issue 26's false-alarm sweep): 3 of 8 seeds (101, 106, 108) exited
+/// 3 because the catalog's `drift-daily` stayed within the plausible margin of "no effect" — one
+/// daily cycle is confounded with the constant drifts — although the total 1σ already carries a
+/// daily drift as a set-up parameter sized by the data. Those three seeds must now be trusted,
+/// with every drift coefficient within 3.5 of its total 1σ (measured ≤ 2.2σ over 40 clean
+/// seeds, 40/40 trusted; 12 at 3.5σ fail together with probability ≈ 0.6 % per run).
+#[test]
+fn clean_day_long_runs_are_not_distrusted_for_a_daily_drift_they_carry() {
+    let dir = temp_dir("clean-24h");
+    for seed in ["101", "106", "108"] {
+        let csv = simulate_to(
+            &dir,
+            &format!("c{seed}.csv"),
+            &["--seed", seed, "--hours", "24", "--rate-s", "10"],
+        );
+        let truth = dir.join(format!("c{seed}.truth.json"));
+        let out = driftid()
+            .args([
+                "identify".as_ref(),
+                csv.as_os_str(),
+                "--truth".as_ref(),
+                truth.as_os_str(),
+                "--json".as_ref(),
+            ])
+            .output()
+            .unwrap();
+        let all = String::from_utf8_lossy(&out.stdout).to_string()
+            + &String::from_utf8_lossy(&out.stderr);
+        assert_eq!(out.status.code(), Some(0), "seed {seed}: {all}");
+        let v: serde_json::Value = serde_json::from_slice(&out.stdout).unwrap();
+        for (name, c) in v["coefficients"].as_object().unwrap() {
+            let z = c["error"].as_f64().unwrap() / c["sigma_total"].as_f64().unwrap();
+            assert!(z.abs() <= 3.5, "seed {seed} {name}: {z:.2} σ off");
+        }
+    }
+    let _ = std::fs::remove_dir_all(&dir);
+}
