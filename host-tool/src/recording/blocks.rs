@@ -49,7 +49,8 @@ impl Rows {
     /// Adds a row, growing the vectors (by doubling) only if the memory can be had.
     #[inline]
     pub fn push(&mut self, line: u32, s: RawSample) -> Result<(), TryReserveError> {
-        if self.samples.len() == self.samples.capacity() || self.lines.len() == self.lines.capacity()
+        if self.samples.len() == self.samples.capacity()
+            || self.lines.len() == self.lines.capacity()
         {
             self.try_reserve(1)?;
         }

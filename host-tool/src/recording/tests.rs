@@ -615,10 +615,13 @@ fn blocks_read_as_one_thread_reads() {
     }
 }
 
+/// What a test does to the file at `AFTER_HEADER`.
+type FileHook = Box<dyn Fn(&Path)>;
+
 thread_local! {
     /// Run by [`read_recording`] once the header is read, on the reading thread: a test plays
     /// the other program that changes the file while it is read.
-    pub(super) static AFTER_HEADER: std::cell::RefCell<Option<Box<dyn Fn(&Path)>>> =
+    pub(super) static AFTER_HEADER: std::cell::RefCell<Option<FileHook>> =
         const { std::cell::RefCell::new(None) };
 }
 
@@ -663,7 +666,10 @@ fn a_file_shortened_while_read_is_named() {
                 now_bytes,
                 ..
             }) => assert_eq!((opened_bytes, now_bytes), (full, cut)),
-            other => panic!("cut to {cut} of {full} bytes: {:?}", other.map(|r| r.repairs)),
+            other => panic!(
+                "cut to {cut} of {full} bytes: {:?}",
+                other.map(|r| r.repairs)
+            ),
         }
     }
     // A file that grows while it is read (a recorder appending) is read to its length at
