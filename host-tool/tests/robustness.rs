@@ -1146,3 +1146,43 @@ fn record_on_a_silent_or_missing_port_exits_2_and_leaves_nothing() {
     drop(pty);
     let _ = std::fs::remove_dir_all(&dir);
 }
+
+/// Memory that runs out while a recording is read (issue 28, item 9): under `ulimit -v` of
+/// 400 MB, a file of 12 M short rows (~190 MB; its samples need 12 M × 52 B = 624 MB) ends in a
+/// clear error naming the file, the line reached and the samples held, exit 2 — before, the
+/// allocator's failure aborted the process ("memory allocation of … failed", exit 134). The
+/// limit leaves the process's own start-up room (measured: it reads over 1 M samples under
+/// 300 MB; glibc's per-thread arenas capped at 2 so that many cores do not eat the address
+/// space first), and the rows need 1.5 times the limit, so a reader that bounds nothing can
+/// only fail. Fails if a growing vector of the reader allocates infallibly (abort, 134).
+#[cfg(target_os = "linux")]
+#[test]
+fn a_recording_larger_than_memory_allows_is_refused_with_exit_2() {
+    use std::io::Write as _;
+    let dir = temp_dir("oom");
+    let csv = dir.join("huge.csv");
+    {
+        let mut f = std::io::BufWriter::new(std::fs::File::create(&csv).unwrap());
+        writeln!(f, "# latitude_deg: 39.1\nt_s,ax_mps2,ay_mps2,az_mps2").unwrap();
+        for k in 0..12_000_000u32 {
+            writeln!(f, "{k},0,0,9.8").unwrap();
+        }
+    }
+    let out = Command::new("sh")
+        .arg("-c")
+        .arg("ulimit -v 400000 && exec \"$0\" identify \"$1\"")
+        .arg(env!("CARGO_BIN_EXE_driftid"))
+        .arg(&csv)
+        .env("MALLOC_ARENA_MAX", "2")
+        .output()
+        .unwrap();
+    let err = stderr(&out);
+    let _ = std::fs::remove_dir_all(&dir);
+    assert_eq!(out.status.code(), Some(2), "{err}");
+    assert!(
+        err.contains(&format!("{}:", csv.display()))
+            && err.contains("out of memory")
+            && err.contains("samples read"),
+        "{err}"
+    );
+}

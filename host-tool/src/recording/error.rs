@@ -128,6 +128,21 @@ pub enum RecordingError {
     /// The file holds no samples.
     #[error("{file}: no samples ({reason})")]
     NoSamples { file: String, reason: &'static str },
+    /// The memory for more samples could not be had at line `line` (`samples` held so far).
+    #[error("{file}:{line}: out of memory: {samples} samples read, at {per} bytes each ({mib:.0} MiB), and no room for more; give the process more memory (ulimit -v, a larger machine) or split the recording into shorter runs", per = super::BYTES_PER_SAMPLE, mib = (*samples as f64) * super::BYTES_PER_SAMPLE as f64 / 1048576.0)]
+    OutOfMemory {
+        file: String,
+        line: u32,
+        samples: usize,
+    },
+    /// The file was shorter once read than when it was opened: another program truncated or
+    /// rewrote it meanwhile, and what was read of it is not the recording.
+    #[error("{file}: the file shrank while it was read ({opened_bytes} bytes when opened, {now_bytes} after): another program truncated or rewrote it; read it again once it is complete")]
+    Shrank {
+        file: String,
+        opened_bytes: u64,
+        now_bytes: u64,
+    },
 }
 
 impl RecordingError {
@@ -149,7 +164,9 @@ impl RecordingError {
             | NotFinite { file, .. }
             | OutOfRange { file, .. }
             | TimeNotIncreasing { file, .. }
-            | NoSamples { file, .. } => file,
+            | NoSamples { file, .. }
+            | OutOfMemory { file, .. }
+            | Shrank { file, .. } => file,
         }
     }
 
@@ -157,7 +174,7 @@ impl RecordingError {
     pub fn line(&self) -> Option<u32> {
         use RecordingError::*;
         match self {
-            Open { .. } | NoSamples { .. } => None,
+            Open { .. } | NoSamples { .. } | Shrank { .. } => None,
             Read { line, .. }
             | LineTooLong { line, .. }
             | InvalidUtf8 { line, .. }
@@ -170,7 +187,8 @@ impl RecordingError {
             | NotANumber { line, .. }
             | NotFinite { line, .. }
             | OutOfRange { line, .. }
-            | TimeNotIncreasing { line, .. } => Some(*line),
+            | TimeNotIncreasing { line, .. }
+            | OutOfMemory { line, .. } => Some(*line),
         }
     }
 }

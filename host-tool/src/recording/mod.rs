@@ -24,7 +24,7 @@ mod reader;
 mod writer;
 
 use std::fs::File;
-use std::io::BufReader;
+use std::io::{BufReader, Read};
 use std::path::{Path, PathBuf};
 
 pub use columns::read_columns;
@@ -35,6 +35,12 @@ pub use reader::{
     MAX_LINE_BYTES, REQUIRED_COLUMNS, TEMP_COLUMN, TEMP_RANGE_C,
 };
 pub use writer::{write_recording, Appending, RecordingWriter};
+
+/// Memory a sample takes once read, bytes: the sample (`RawSample`, 48) and its line (4).
+/// [`read_recording`] needs this much a sample (1.3 times it while the vectors, reserved from
+/// the file's length at 40 bytes a row, are not yet filled), plus a round of blocks (a MiB per
+/// core).
+pub const BYTES_PER_SAMPLE: usize = std::mem::size_of::<RawSample>() + std::mem::size_of::<u32>();
 
 /// The `# key: value` lines before the header.
 #[derive(Clone, Debug, Default, PartialEq, serde::Serialize, serde::Deserialize)]
@@ -90,28 +96,53 @@ pub struct Recording {
 }
 
 /// Reads a whole recording. Fails if it holds no samples. A file of more than two blocks is
-/// read on all cores ([`blocks`]), with the same samples, lines, errors and repairs.
+/// read on all cores ([`blocks`]), with the same samples, lines, errors and repairs. A regular
+/// file is read up to the length it had when opened (rows appended meanwhile are not read); one
+/// that is shorter once read — truncated or rewritten by another program meanwhile — is
+/// [`RecordingError::Shrank`], whatever its rows said. Memory: [`BYTES_PER_SAMPLE`] a sample;
+/// memory refused is [`RecordingError::OutOfMemory`].
 pub fn read_recording(path: &Path) -> Result<Recording, RecordingError> {
     let name = path.display().to_string();
     let f = File::open(path).map_err(|source| RecordingError::Open {
         file: name.clone(),
         source,
     })?;
+    let regular = f.metadata().ok().filter(|m| m.is_file());
+    let bytes = regular.as_ref().map_or(0, |m| m.len());
+    // A second handle on the same open file, to see its length once read.
+    let watch = regular.and_then(|_| f.try_clone().ok());
+    let limit = if watch.is_some() { bytes } else { u64::MAX };
     // Room for every row up front (rows of a plain recording are 40–70 bytes): growing the
     // vectors by doubling moved and page-faulted them again, 10 % of reading a 60-h recording.
-    let bytes = f.metadata().map_or(0, |m| m.len());
     let rows_hint = (bytes / 40).min(1 << 26) as usize;
-    let reader = RecordingReader::new(BufReader::with_capacity(1 << 16, f), name)?;
-    let (threads, block_bytes) = (blocks::read_threads(), blocks::BLOCK_BYTES);
-    let parallel = threads > 1 && bytes > 2 * block_bytes as u64;
-    collect(reader, path, rows_hint, |reader, rows| {
-        if parallel {
-            blocks::read_file_parallel(reader, rows, threads, block_bytes)
-        } else {
-            let mut reader = reader;
-            blocks::read_rows(&mut reader, rows)
-        }
-    })
+    let read = || {
+        let input = BufReader::with_capacity(1 << 16, f.take(limit));
+        let reader = RecordingReader::new(input, name.clone())?;
+        #[cfg(test)]
+        tests::AFTER_HEADER.with(|hook| {
+            if let Some(h) = hook.borrow().as_ref() {
+                h(path);
+            }
+        });
+        let (threads, block_bytes) = (blocks::read_threads(), blocks::BLOCK_BYTES);
+        let parallel = threads > 1 && bytes > 2 * block_bytes as u64;
+        collect(reader, path, rows_hint, |mut reader, rows| {
+            if parallel {
+                blocks::read_rows_parallel(reader, rows, threads, block_bytes)
+            } else {
+                blocks::read_rows(&mut reader, rows)
+            }
+        })
+    };
+    let result = read();
+    match watch.and_then(|w| w.metadata().ok()).map(|m| m.len()) {
+        Some(now) if now < bytes => Err(RecordingError::Shrank {
+            file: name,
+            opened_bytes: bytes,
+            now_bytes: now,
+        }),
+        _ => result,
+    }
 }
 
 /// Reads a whole recording from any buffered reader; `display_name` is used in errors.
@@ -135,11 +166,12 @@ fn collect<R: std::io::BufRead>(
     let meta = reader.metadata().clone();
     let has_temp = reader.has_temp();
     let file = reader.display_name().to_string();
-    let mut rows = blocks::Rows {
-        samples: Vec::with_capacity(rows_hint),
-        lines: Vec::with_capacity(rows_hint),
-        repairs: Vec::new(),
-    };
+    let mut rows = blocks::Rows::default();
+    // A hint the allocator refuses is dropped: the rows then grow as they come, and it is their
+    // growth that fails, if anything does, naming the line it reached.
+    if rows.try_reserve(rows_hint).is_err() {
+        rows = blocks::Rows::default();
+    }
     read(reader, &mut rows)?;
     if rows.samples.is_empty() {
         return Err(RecordingError::NoSamples {

@@ -528,6 +528,7 @@ impl<R: BufRead> RecordingReader<R> {
         ))
     }
 
+    /// The next data row's sample and line (blank and `#` lines skipped), or `None` at the end.
     fn next_sample(&mut self) -> Result<Option<(u32, RawSample)>, RecordingError> {
         if let Some(s) = self.fast_sample() {
             return Ok(Some(s));
@@ -543,96 +544,118 @@ impl<R: BufRead> RecordingReader<R> {
                 return Ok(None);
             };
             let line = self.line_no;
-            let file = self.file.as_str();
-            let text = as_utf8(&self.buf, line, file)?;
+            let text = as_utf8(&self.buf, line, &self.file)?;
             let trimmed = text.trim();
             if trimmed.is_empty() || trimmed.starts_with('#') {
                 continue;
             }
-            let expected = self.header.len();
-            let found = text.split(',').count();
-            if found != expected {
-                if !had_newline && found < expected {
-                    return Err(RecordingError::Truncated {
+            self.check_field_count(text, line, had_newline)?;
+            let sample = self.parse_row(text, line)?;
+            self.check_order(sample.t_s, line)?;
+            return Ok(Some((line, sample)));
+        }
+    }
+
+    /// The header's field count, or why not: a short last line without its newline is a file
+    /// cut off ([`RecordingError::Truncated`]), anything else a wrong count.
+    fn check_field_count(
+        &self,
+        text: &str,
+        line: u32,
+        had_newline: bool,
+    ) -> Result<(), RecordingError> {
+        let expected = self.header.len();
+        let found = text.split(',').count();
+        if found == expected {
+            return Ok(());
+        }
+        let file = self.file.clone();
+        if !had_newline && found < expected {
+            return Err(RecordingError::Truncated {
+                file,
+                line,
+                expected,
+                found,
+            });
+        }
+        Err(RecordingError::FieldCount {
+            file,
+            line,
+            expected,
+            found,
+            header_line: self.header_line,
+        })
+    }
+
+    /// The sample of a row of the right field count: numbers in range, or the first that is
+    /// not (a non-finite time or force is kept, NaN, for the screening to count).
+    fn parse_row(&self, text: &str, line: u32) -> Result<RawSample, RecordingError> {
+        let file = self.file.as_str();
+        let mut vals = [0.0f64; 4];
+        let mut temp = None;
+        for (i, field) in text.split(',').enumerate() {
+            if let Some(k) = self.idx.iter().position(|&j| j == i) {
+                let column = REQUIRED_COLUMNS[k];
+                // A non-finite value (a sensor's NaN) is kept: the data-quality screening
+                // rejects and counts that sample instead of refusing the whole file.
+                let v = match parse_number(clean_field(field), file, line, column) {
+                    Err(RecordingError::NotFinite { .. }) => f64::NAN,
+                    other => other?,
+                };
+                if k > 0 && v.abs() > MAX_ABS_SPECIFIC_FORCE_MPS2 {
+                    return Err(RecordingError::OutOfRange {
                         file: file.to_string(),
                         line,
-                        expected,
-                        found,
+                        column: column.to_string(),
+                        value: v,
+                        reason: "m/s^2 is implausibly large (|a| > 1000 m/s^2)",
                     });
                 }
-                return Err(RecordingError::FieldCount {
-                    file: file.to_string(),
-                    line,
-                    expected,
-                    found,
-                    header_line: self.header_line,
-                });
-            }
-            let mut vals = [0.0f64; 4];
-            let mut temp = None;
-            for (i, field) in text.split(',').enumerate() {
-                if let Some(k) = self.idx.iter().position(|&j| j == i) {
-                    let column = REQUIRED_COLUMNS[k];
-                    // A non-finite value (a sensor's NaN) is kept: the data-quality screening
-                    // rejects and counts that sample instead of refusing the whole file.
-                    let v = match parse_number(clean_field(field), file, line, column) {
-                        Err(RecordingError::NotFinite { .. }) => f64::NAN,
-                        other => other?,
-                    };
-                    if k > 0 && v.abs() > MAX_ABS_SPECIFIC_FORCE_MPS2 {
+                vals[k] = v;
+            } else if Some(i) == self.temp_idx {
+                let f = clean_field(field);
+                if !f.is_empty() {
+                    let v = parse_number(f, file, line, TEMP_COLUMN)?;
+                    if !(TEMP_RANGE_C.0..=TEMP_RANGE_C.1).contains(&v) {
                         return Err(RecordingError::OutOfRange {
                             file: file.to_string(),
                             line,
-                            column: column.to_string(),
+                            column: TEMP_COLUMN.to_string(),
                             value: v,
-                            reason: "m/s^2 is implausibly large (|a| > 1000 m/s^2)",
+                            reason: "deg C is outside the plausible range [-273.15, 1000]",
                         });
                     }
-                    vals[k] = v;
-                } else if Some(i) == self.temp_idx {
-                    let f = clean_field(field);
-                    if !f.is_empty() {
-                        let v = parse_number(f, file, line, TEMP_COLUMN)?;
-                        if !(TEMP_RANGE_C.0..=TEMP_RANGE_C.1).contains(&v) {
-                            return Err(RecordingError::OutOfRange {
-                                file: file.to_string(),
-                                line,
-                                column: TEMP_COLUMN.to_string(),
-                                value: v,
-                                reason: "deg C is outside the plausible range [-273.15, 1000]",
-                            });
-                        }
-                        temp = Some(v);
-                    }
+                    temp = Some(v);
                 }
             }
-            let t = vals[0];
-            if !t.is_finite() {
-                // Kept for the screening to count; it does not enter the time-order check.
-            } else if let Some((prev, prev_line)) = self.prev {
-                // `!(t > prev)` also catches what the finiteness check already excludes.
-                if t.partial_cmp(&prev) != Some(std::cmp::Ordering::Greater) {
-                    return Err(RecordingError::TimeNotIncreasing {
-                        file: file.to_string(),
-                        line,
-                        t,
-                        prev,
-                        prev_line,
-                    });
-                }
-            }
-            if t.is_finite() {
-                self.prev = Some((t, line));
-            }
-            return Ok(Some((
-                line,
-                RawSample {
-                    t_s: t,
-                    specific_force_mps2: [vals[1], vals[2], vals[3]],
-                    temp_c: temp,
-                },
-            )));
         }
+        Ok(RawSample {
+            t_s: vals[0],
+            specific_force_mps2: [vals[1], vals[2], vals[3]],
+            temp_c: temp,
+        })
+    }
+
+    /// Checks that the finite time `t` of `line` comes after the last finite one, and makes it
+    /// the last. A non-finite time is kept for the screening to count, outside the order.
+    fn check_order(&mut self, t: f64, line: u32) -> Result<(), RecordingError> {
+        if !t.is_finite() {
+            return Ok(());
+        }
+        if let Some((prev, prev_line)) = self.prev {
+            // `!(t > prev)` also catches what the finiteness check already excludes.
+            if t.partial_cmp(&prev) != Some(std::cmp::Ordering::Greater) {
+                return Err(RecordingError::TimeNotIncreasing {
+                    file: self.file.clone(),
+                    line,
+                    t,
+                    prev,
+                    prev_line,
+                });
+            }
+        }
+        self.prev = Some((t, line));
+        Ok(())
     }
 }
 
