@@ -41,6 +41,59 @@ fn aligned(align: usize, size: usize) -> *mut u8 {
     }
 }
 
+/// Allocations in progress whose caller handles a refusal itself (the reader's `try_reserve`,
+/// [`fallibly`]): a null is returned to them. Any other refusal ends the process with exit 2
+/// and a message ([`refused`]) instead of Rust's abort (exit 134, "memory allocation of …
+/// failed", once garbled by a second failing allocation while printing).
+static FALLIBLE: std::sync::atomic::AtomicUsize = std::sync::atomic::AtomicUsize::new(0);
+
+/// Runs `f` with the allocator's refusals returned as null (for `try_reserve`).
+pub(crate) fn fallibly<T>(f: impl FnOnce() -> T) -> T {
+    use std::sync::atomic::Ordering::SeqCst;
+    FALLIBLE.fetch_add(1, SeqCst);
+    let r = f();
+    FALLIBLE.fetch_sub(1, SeqCst);
+    r
+}
+
+/// A refused block of `size` bytes: null inside [`fallibly`]; otherwise the message and exit 2
+/// at once. Written with `write(2)` from a stack buffer (no allocation: there is no memory) and
+/// ended with `_exit` (no destructor may allocate).
+fn refused(size: usize) -> *mut u8 {
+    if FALLIBLE.load(std::sync::atomic::Ordering::SeqCst) > 0 {
+        return std::ptr::null_mut();
+    }
+    let mut buf = [0u8; 320];
+    let mut n = 0;
+    let mut put = |b: &[u8]| {
+        let k = b.len().min(buf.len() - n);
+        buf[n..n + k].copy_from_slice(&b[..k]);
+        n += k;
+    };
+    put(b"driftid: error: out of memory: a block of ");
+    let mut digits = [0u8; 20];
+    let (mut v, mut d) = (size, digits.len());
+    loop {
+        d -= 1;
+        digits[d] = b'0' + (v % 10) as u8;
+        v /= 10;
+        if v == 0 {
+            break;
+        }
+    }
+    put(&digits[d..]);
+    put(
+        b" bytes was refused; give the process more memory (ulimit -v, a larger machine), \
+          a longer --period-s, or split the recording into shorter runs (README, \"Bad input\")\n",
+    );
+    // SAFETY: write(2) of an initialised stack buffer, then _exit: async-signal-safe calls that
+    // neither allocate nor run destructors.
+    unsafe {
+        libc::write(2, buf.as_ptr().cast(), n);
+        libc::_exit(2)
+    }
+}
+
 /// A large block: on whole huge pages, advised to use them.
 fn large(layout: Layout) -> *mut u8 {
     let size = layout.size().next_multiple_of(HUGE_PAGE_BYTES);
@@ -59,13 +112,18 @@ fn large(layout: Layout) -> *mut u8 {
 // size and alignment asked for, and is freed by `free`, which takes any of them.
 unsafe impl GlobalAlloc for HugePages {
     unsafe fn alloc(&self, layout: Layout) -> *mut u8 {
-        if layout.size() >= LARGE_BYTES {
+        let ptr = if layout.size() >= LARGE_BYTES {
             large(layout)
         } else if layout.align() <= MALLOC_ALIGN && layout.align() <= layout.size() {
             // SAFETY: malloc of a non-zero size (GlobalAlloc's contract).
             unsafe { libc::malloc(layout.size()).cast() }
         } else {
             aligned(layout.align(), layout.size())
+        };
+        if ptr.is_null() {
+            refused(layout.size())
+        } else {
+            ptr
         }
     }
 
@@ -75,7 +133,12 @@ unsafe impl GlobalAlloc for HugePages {
             && layout.align() <= layout.size()
         {
             // SAFETY: calloc of a non-zero size; it skips clearing memory fresh from the kernel.
-            return unsafe { libc::calloc(layout.size(), 1).cast() };
+            let ptr: *mut u8 = unsafe { libc::calloc(layout.size(), 1).cast() };
+            return if ptr.is_null() {
+                refused(layout.size())
+            } else {
+                ptr
+            };
         }
         // SAFETY: `alloc` with the caller's layout; the block it returns holds `size` bytes.
         unsafe {
@@ -97,7 +160,12 @@ unsafe impl GlobalAlloc for HugePages {
         if small(layout.size()) && small(new_size) && layout.align() <= MALLOC_ALIGN {
             if layout.align() <= new_size {
                 // SAFETY: `ptr` is a malloc'd block (the caller's contract), `new_size` > 0.
-                return unsafe { libc::realloc(ptr.cast(), new_size).cast() };
+                let new: *mut u8 = unsafe { libc::realloc(ptr.cast(), new_size).cast() };
+                return if new.is_null() {
+                    refused(new_size)
+                } else {
+                    new
+                };
             }
         } else if !small(layout.size()) && new_size <= layout.size() {
             return ptr; // a large block shrinks in place: `free` does not ask its size

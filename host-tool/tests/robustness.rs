@@ -1186,3 +1186,51 @@ fn a_recording_larger_than_memory_allows_is_refused_with_exit_2() {
         "{err}"
     );
 }
+
+/// Issue 28 item 9: memory refused *after* reading (the fit, the screening) ended in Rust's
+/// abort, exit 134 ("memory allocation of … failed"). The allocator now ends the process with
+/// exit 2 and a message instead. A 24-h recording at 1 s is identified under address-space
+/// limits of 60, 90 and 400 MB (rayon and glibc capped at 2 threads and arenas, so the machine's
+/// core count does not decide): every run must either finish (0 or 3) or exit 2 saying "out of
+/// memory" — never abort —, 60 MB must be too small and 400 MB enough (measured: up to 90 MB
+/// refused, in the fit — a block of 518 760 bytes —, 120 MB finishes).
+#[cfg(all(target_os = "linux", target_env = "gnu"))]
+#[test]
+fn memory_refused_during_the_fit_is_exit_2_with_a_message() {
+    let dir = temp_dir("oom-fit");
+    let csv = dir.join("run.csv");
+    let sim = Command::new(env!("CARGO_BIN_EXE_driftid"))
+        .args(["simulate", "--hours", "24", "--seed", "4", "--out"])
+        .arg(&csv)
+        .output()
+        .unwrap();
+    assert!(sim.status.success(), "{}", stderr(&sim));
+    let mut refused = vec![];
+    for limit_kb in [60_000, 90_000, 400_000] {
+        let out = Command::new("sh")
+            .arg("-c")
+            .arg(format!(
+                "ulimit -v {limit_kb} && exec \"$0\" identify \"$1\""
+            ))
+            .arg(env!("CARGO_BIN_EXE_driftid"))
+            .arg(&csv)
+            .env("MALLOC_ARENA_MAX", "2")
+            .env("RAYON_NUM_THREADS", "2")
+            .output()
+            .unwrap();
+        let err = stderr(&out);
+        match out.status.code() {
+            Some(0) | Some(3) => {}
+            Some(2) => {
+                assert!(err.contains("out of memory"), "{limit_kb} kB: {err}");
+                refused.push(limit_kb);
+            }
+            other => panic!("{limit_kb} kB: status {other:?}: {err}"),
+        }
+    }
+    let _ = std::fs::remove_dir_all(&dir);
+    assert!(
+        refused.contains(&60_000) && !refused.contains(&400_000),
+        "refused under {refused:?}"
+    );
+}

@@ -39,11 +39,22 @@ pub(super) struct Rows {
     pub repairs: Vec<String>,
 }
 
+/// The allocator's refusals returned to `try_reserve` (the allocator ends the process on others).
+#[cfg(all(target_os = "linux", target_env = "gnu"))]
+use crate::alloc::fallibly;
+/// Elsewhere the system allocator returns every refusal.
+#[cfg(not(all(target_os = "linux", target_env = "gnu")))]
+fn fallibly<T>(f: impl FnOnce() -> T) -> T {
+    f()
+}
+
 impl Rows {
     /// Room for `n` more rows, or the allocator's refusal (no abort).
     pub fn try_reserve(&mut self, n: usize) -> Result<(), TryReserveError> {
-        self.samples.try_reserve(n)?;
-        self.lines.try_reserve(n)
+        fallibly(|| {
+            self.samples.try_reserve(n)?;
+            self.lines.try_reserve(n)
+        })
     }
 
     /// Adds a row, growing the vectors (by doubling) only if the memory can be had.
