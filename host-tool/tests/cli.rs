@@ -988,6 +988,39 @@ fn irregular_time_stamps_are_refused_naming_the_line() {
     let _ = std::fs::remove_dir_all(&dir);
 }
 
+/// `driftid COMMAND CSV --truth CSV's truth --json`: its exit status, its JSON and all it
+/// printed (for the assertion messages).
+fn json_with_truth(
+    command: &str,
+    csv: &std::path::Path,
+) -> (Option<i32>, serde_json::Value, String) {
+    let truth = csv.with_extension("truth.json");
+    let out = driftid()
+        .args([
+            command.as_ref(),
+            csv.as_os_str(),
+            "--truth".as_ref(),
+            truth.as_os_str(),
+            "--json".as_ref(),
+        ])
+        .output()
+        .unwrap();
+    let all =
+        String::from_utf8_lossy(&out.stdout).to_string() + &String::from_utf8_lossy(&out.stderr);
+    let v = serde_json::from_slice(&out.stdout).unwrap_or(serde_json::Value::Null);
+    (out.status.code(), v, all)
+}
+
+/// Every coefficient of `v` within `bound` of its total 1σ; returns how many there were.
+fn within_total_sigma(v: &serde_json::Value, bound: f64, what: &str) -> usize {
+    let coefs = v["coefficients"].as_object().unwrap();
+    for (name, c) in coefs {
+        let z = c["error"].as_f64().unwrap() / c["sigma_total"].as_f64().unwrap();
+        assert!(z.abs() <= bound, "{what} {name}: {z:.2} σ off");
+    }
+    coefs.len()
+}
+
 /// Issue 27 item 2 (the gyro half): a drift step of 0.002 deg/h on Y at 30 h of 60 (60 h at
 /// 10 s, seed 5) is an explanation like any other. Before, `identify` named it "not repaired"
 /// (exit 3) and `diagnose` let `drift-markov` absorb it although the step's evidence gain was
@@ -1011,21 +1044,8 @@ fn a_drift_step_is_repaired_by_name_when_it_beats_every_explanation() {
             "drift-step=0,0.002,0:30",
         ],
     );
-    let truth = dir.join("run.truth.json");
-    let out = driftid()
-        .args([
-            "identify".as_ref(),
-            csv.as_os_str(),
-            "--truth".as_ref(),
-            truth.as_os_str(),
-            "--json".as_ref(),
-        ])
-        .output()
-        .unwrap();
-    let all =
-        String::from_utf8_lossy(&out.stdout).to_string() + &String::from_utf8_lossy(&out.stderr);
-    assert_eq!(out.status.code(), Some(0), "{all}");
-    let v: serde_json::Value = serde_json::from_slice(&out.stdout).unwrap();
+    let (code, v, all) = json_with_truth("identify", &csv);
+    assert_eq!(code, Some(0), "{all}");
     let step = v["data_quality"]["findings"]
         .as_array()
         .unwrap()
@@ -1035,12 +1055,7 @@ fn a_drift_step_is_repaired_by_name_when_it_beats_every_explanation() {
     assert_eq!(step["action"], "repaired");
     let t0_h = step["start_s"].as_f64().unwrap() / 3600.0;
     assert!((t0_h - 30.0).abs() <= 0.25, "step at {t0_h} h");
-    let coefs = v["coefficients"].as_object().unwrap();
-    assert_eq!(coefs.len(), 15, "{:?}", coefs.keys());
-    for (name, c) in coefs {
-        let z = c["error"].as_f64().unwrap() / c["sigma_total"].as_f64().unwrap();
-        assert!(z.abs() <= 3.5, "{name}: {z:.2} σ off");
-    }
+    assert_eq!(within_total_sigma(&v, 3.5, "identify"), 15);
     let (code, all) = run_driftid(&["diagnose".into(), csv.into()]);
     assert_eq!(code, Some(0), "{all}");
     assert!(all.contains("paper + drift-step "), "{all}");
@@ -1068,29 +1083,11 @@ fn a_warm_up_transient_is_named_and_its_coefficients_hold() {
             "drift-transient=0.004,0.004,0.004:3",
         ],
     );
-    let truth = dir.join("run.truth.json");
-    let out = driftid()
-        .args([
-            "diagnose".as_ref(),
-            csv.as_os_str(),
-            "--truth".as_ref(),
-            truth.as_os_str(),
-            "--json".as_ref(),
-        ])
-        .output()
-        .unwrap();
-    let all =
-        String::from_utf8_lossy(&out.stdout).to_string() + &String::from_utf8_lossy(&out.stderr);
-    assert_eq!(out.status.code(), Some(0), "{all}");
-    let v: serde_json::Value = serde_json::from_slice(&out.stdout).unwrap();
+    let (code, v, all) = json_with_truth("diagnose", &csv);
+    assert_eq!(code, Some(0), "{all}");
     let last = v["ladder"].as_array().unwrap().last().unwrap();
     assert_eq!(last["model"], serde_json::json!(["drift-warmup"]), "{all}");
-    let coefs = v["coefficients"].as_object().unwrap();
-    assert_eq!(coefs.len(), 15, "{:?}", coefs.keys());
-    for (name, c) in coefs {
-        let z = c["error"].as_f64().unwrap() / c["sigma_total"].as_f64().unwrap();
-        assert!(z.abs() <= 3.5, "{name}: {z:.2} σ off");
-    }
+    assert_eq!(within_total_sigma(&v, 3.5, "diagnose"), 15);
     let _ = std::fs::remove_dir_all(&dir);
 }
 
@@ -1109,25 +1106,9 @@ fn clean_day_long_runs_are_not_distrusted_for_a_daily_drift_they_carry() {
             &format!("c{seed}.csv"),
             &["--seed", seed, "--hours", "24", "--rate-s", "10"],
         );
-        let truth = dir.join(format!("c{seed}.truth.json"));
-        let out = driftid()
-            .args([
-                "identify".as_ref(),
-                csv.as_os_str(),
-                "--truth".as_ref(),
-                truth.as_os_str(),
-                "--json".as_ref(),
-            ])
-            .output()
-            .unwrap();
-        let all = String::from_utf8_lossy(&out.stdout).to_string()
-            + &String::from_utf8_lossy(&out.stderr);
-        assert_eq!(out.status.code(), Some(0), "seed {seed}: {all}");
-        let v: serde_json::Value = serde_json::from_slice(&out.stdout).unwrap();
-        for (name, c) in v["coefficients"].as_object().unwrap() {
-            let z = c["error"].as_f64().unwrap() / c["sigma_total"].as_f64().unwrap();
-            assert!(z.abs() <= 3.5, "seed {seed} {name}: {z:.2} σ off");
-        }
+        let (code, v, all) = json_with_truth("identify", &csv);
+        assert_eq!(code, Some(0), "seed {seed}: {all}");
+        within_total_sigma(&v, 3.5, &format!("seed {seed}"));
     }
     let _ = std::fs::remove_dir_all(&dir);
 }
