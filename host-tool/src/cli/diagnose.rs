@@ -305,10 +305,17 @@ pub(crate) struct OneDiagnosis {
     pub final_model: Vec<String>,
 }
 
-/// Why a ladder's result is not trusted (empty when it is): the data's faults, then its final
-/// model's fit — not converged, or not explaining the measurements. `diagnose` and `report` both.
+/// Why a ladder's result is not trusted (empty when it is): the data's faults, a rung whose
+/// choice the evidence did not settle ([`crate::diagnose::select::Choice::confounded`]), then
+/// its final model's fit — not converged, or not explaining the measurements. `diagnose` and
+/// `report` both.
 pub(crate) fn ladder_untrusted(faults: &[String], diagnoses: &[Diagnosis]) -> Vec<String> {
     let mut reasons = faults.to_vec();
+    reasons.extend(
+        diagnoses
+            .iter()
+            .filter_map(|d| d.choice.as_ref()?.confounded.clone()),
+    );
     if let Some(d) = diagnoses.last() {
         reasons.extend(d.convergence.and_then(|c| c.untrusted_reason()));
         if !d.consistency.is_consistent() {

@@ -51,7 +51,20 @@ pub struct Refit {
     /// A candidate made for this run, not a catalog effect: its profiled parameter.
     #[serde(skip_serializing_if = "Option::is_none")]
     pub profiled: Option<Profiled>,
+    /// The paper's 12 drift coefficients after the refit: name, value, (noise-only) 1σ.
+    #[serde(skip)]
+    pub drift: Vec<(&'static str, f64, f64)>,
 }
+
+/// Within this evidence difference (−2 ln units) two candidates that both earn their place are
+/// not told apart firmly enough to trust the coefficients of the one chosen, when they differ:
+/// on a drift trend with a drift step, `drift-daily` beat `drift-trend` by 12 on two seeds
+/// (Kass–Raftery: "very strong") and the final coefficients were 6–8σ off, exit 0.
+pub const CONFOUNDED_MARGIN: f64 = 2.0 * MIN_EVIDENCE_GAIN;
+
+/// A drift coefficient differing between two refits by more than this many of the larger of
+/// their 1σ makes a confounded pair matter.
+pub const CONFOUNDED_SHIFT: f64 = 2.0;
 
 /// A candidate made for this run by profiling one parameter the filter cannot estimate, its
 /// evidence charged the look-elsewhere penalty of the values tried.
@@ -94,6 +107,10 @@ pub struct Choice {
     /// A candidate made for this run: its profiled parameter.
     #[serde(skip_serializing_if = "Option::is_none")]
     pub profiled: Option<Profiled>,
+    /// A rival that earns its place too, within [`CONFOUNDED_MARGIN`] of the chosen one, under
+    /// which a drift coefficient would differ by more than [`CONFOUNDED_SHIFT`] σ: in words.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub confounded: Option<String>,
 }
 
 /// −2 ln p(y) of an identification's final forward pass.
@@ -199,6 +216,32 @@ pub fn refit_effect<'c>(
             })
             .collect(),
         profiled: None,
+        drift: (0..12.min(id.params.len()))
+            .map(|k| (id.params[k].name, best.value[k], best.sigma(k)))
+            .collect(),
+    })
+}
+
+/// The strongest rival of `chosen` among `refits` that earns its place too and lies within
+/// [`CONFOUNDED_MARGIN`] of it, when a drift coefficient differs between them by more than
+/// [`CONFOUNDED_SHIFT`] of the larger 1σ: the words of a choice the data do not settle.
+fn confounded(chosen: &Refit, refits: &[Refit]) -> Option<String> {
+    let rival = refits
+        .iter()
+        .filter(|r| r.effect != chosen.effect && r.evidence_gain > MIN_EVIDENCE_GAIN)
+        .filter(|r| (chosen.evidence_gain - r.evidence_gain).abs() < CONFOUNDED_MARGIN)
+        .max_by(|a, b| a.evidence_gain.total_cmp(&b.evidence_gain))?;
+    let (name, z) = chosen
+        .drift
+        .iter()
+        .zip(&rival.drift)
+        .map(|(a, b)| (a.0, (a.1 - b.1).abs() / a.2.max(b.2)))
+        .max_by(|a, b| a.1.total_cmp(&b.1))?;
+    (z > CONFOUNDED_SHIFT).then(|| {
+        format!(
+            "`{}` (evidence gain {:.1}) and `{}` ({:.1}) both explain the data and are within {CONFOUNDED_MARGIN} of each other, but {} differs between them by {z:.1}σ: this run cannot tell which holds (the candidates' refits are in the rung's table) — a second run from another orientation (`driftid plan`) or a bench value separates them",
+            chosen.effect, chosen.evidence_gain, rival.effect, rival.evidence_gain, name
+        )
     })
 }
 
@@ -221,6 +264,7 @@ pub(crate) fn choose(refits: &[Refit]) -> Option<Choice> {
         if let Some(d) = det {
             if d.consistent || best.evidence_gain - d.evidence_gain < MIN_EVIDENCE_GAIN {
                 return Some(Choice {
+                    confounded: confounded(d, refits),
                     profiled: d.profiled,
                     effect: d.effect.clone(),
                     reason: format!(
@@ -250,6 +294,7 @@ pub(crate) fn choose(refits: &[Refit]) -> Option<Choice> {
         effect: best.effect.clone(),
         reason,
         profiled: best.profiled,
+        confounded: confounded(best, refits),
     })
 }
 
@@ -268,6 +313,7 @@ mod tests {
             consistent,
             params: vec![],
             profiled: None,
+            drift: vec![],
         }
     }
 
