@@ -1112,3 +1112,35 @@ fn clean_day_long_runs_are_not_distrusted_for_a_daily_drift_they_carry() {
     }
     let _ = std::fs::remove_dir_all(&dir);
 }
+
+/// Issue 26 item 2: explanations that compete. A drift trend (1e-5 deg/h/h per axis) with a
+/// drift step (0.002 deg/h on X at 40 h), 60 h at 10 s, seed 33: the ladder added the step, then
+/// `drift-daily` beat `drift-trend` by 12 (−2 ln units, "very strong") and `diagnose` exited 0
+/// with DXx 6.4σ off its total 1σ. The two rivals disagree on DXx by ~7σ of their 1σ, so the
+/// choice is not settled: exit 3, naming both.
+#[test]
+fn explanations_within_the_margin_that_disagree_are_not_trusted() {
+    let dir = temp_dir("confounded");
+    let csv = simulate_to(
+        &dir,
+        "run.csv",
+        &[
+            "--seed",
+            "33",
+            "--rate-s",
+            "10",
+            "--effect",
+            "drift-trend=1e-5,1e-5,-1e-5",
+            "--effect",
+            "drift-step=0.002,0,0:40",
+        ],
+    );
+    let (code, v, all) = json_with_truth("diagnose", &csv);
+    assert_eq!(code, Some(3), "{all}");
+    let reasons = v["untrusted_reasons"].to_string();
+    assert!(
+        reasons.contains("both explain the data") && reasons.contains("`drift-trend`"),
+        "{all}"
+    );
+    let _ = std::fs::remove_dir_all(&dir);
+}
