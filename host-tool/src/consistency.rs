@@ -142,6 +142,40 @@ pub(crate) fn assess(
     }
 }
 
+/// The consistency of the converged identification (`None` for a single pass).
+pub fn consistency_of(
+    id: &crate::identify::Identification,
+    prep: &crate::identify::Prepared,
+) -> Option<Consistency> {
+    id.refined.as_ref()?;
+    Some(fit_consistency(
+        &id.innovations,
+        id.residual_rms_mps2(prep),
+        prep,
+    ))
+}
+
+/// The consistency ([`crate::consistency`]) of a fit's innovations and residual RMS against the
+/// run's noise floor.
+pub fn fit_consistency(
+    innovations: &[estimator_core::Residual],
+    rms_mps2: [f64; 3],
+    prep: &crate::identify::Prepared,
+) -> Consistency {
+    let whitened: Vec<[f64; 3]> = innovations.iter().map(|r| r.whitened).collect();
+    let white =
+        crate::diagnose::whiteness(&whitened, crate::diagnose::DiagnoseConfig::default().lags);
+    let floor = prep.floor_mps2();
+    assess(
+        crate::identify::mean_nis(innovations),
+        innovations.len(),
+        white.p_value,
+        [0, 1, 2].map(|i| rms_mps2[i] / floor[i]),
+        prep.floor_rel_sd(),
+        &Thresholds::default(),
+    )
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;

@@ -6,7 +6,7 @@ use serde_json::{json, Map, Value};
 
 use super::common::{build_model, load, print_findings, trusted_or, ModelArgs};
 use crate::catalog::Catalog;
-use crate::consistency::{assess, Consistency, Thresholds};
+use crate::consistency::Consistency;
 use crate::format::{sci, with_sigma};
 use crate::identify::setup::Uncertainty;
 use crate::identify::{identify, try_cramer_rao_bound, Identification, Prepared};
@@ -350,44 +350,10 @@ fn run_one(args: &IdentifyArgs, catalog: &Catalog) -> anyhow::Result<()> {
     // The measurements at the stated set-up: a repair starts again from them.
     let stated = prep.clone();
     let assessed = crate::assess::assess_with(catalog, &effects, prep, &cfg, id, &progress)?;
-    // A misfit at the settled set-up: is it a step of the gyro drift at one time? Profiled on
-    // the fit the alternatives were weighed against, so its evidence is on their scale.
-    let step = match consistency_of(&assessed.id, &assessed.prep) {
-        Some(c) if !c.is_consistent() => {
-            progress.note(|| "profiling a gyro drift step".into());
-            crate::diagnose::drift_step::profile(&assessed.prep, &effects, &cfg, &assessed.id)
-        }
-        _ => None,
-    };
-    // A step that beats every other explanation on the same evidence is repaired: modelled from
-    // its time on, the model refitted at the stated set-up and assessed again (the set-up
-    // settled with the step, not before it: a settled latitude had bent to absorb the step).
-    // A warm-up transient is followed by a step too: the step must beat it as well.
-    let warmup = step
-        .as_ref()
-        .filter(|s| s.beats(&assessed.alternatives))
-        .and_then(|_| {
-            crate::diagnose::warmup::profile(&assessed.prep, &effects, &cfg, &assessed.id)
-        });
-    let (effects, assessed, step) = match step {
-        Some(s) if !s.beats(&assessed.alternatives) => (effects, assessed, Some(s)),
-        // The warm-up explains it as well or better: the misfit stands, `diagnose` weighs both.
-        Some(s)
-            if warmup.is_some_and(|(_, g)| {
-                g + crate::diagnose::alternatives::PLAUSIBLE_MARGIN >= s.evidence_gain
-            }) =>
-        {
-            (effects, assessed, None)
-        }
-        Some(s) => {
-            let (with_step, id) = crate::diagnose::drift_step::repair(&stated, &effects, &cfg, &s)?;
-            let mut prep = stated;
-            prep.findings.push(s.repaired());
-            let a = crate::assess::assess_with(catalog, &with_step, prep, &cfg, id, &progress)?;
-            (with_step, a, None)
-        }
-        other => (effects, assessed, other),
-    };
+    // A misfit a drift step explains better than anything else is repaired.
+    let (effects, assessed, step) = crate::diagnose::drift_step::repaired_if_it_wins(
+        catalog, stated, effects, &cfg, assessed, &progress,
+    )?;
     spin.finish_and_clear();
     let truth = match &args.truth {
         Some(p) => Some(truth_of(&read_truth(p)?, &assessed.id)),
@@ -517,33 +483,4 @@ fn print_text(
     }
 }
 
-/// The consistency of the converged identification (`None` for a single pass).
-pub fn consistency_of(id: &Identification, prep: &Prepared) -> Option<Consistency> {
-    id.refined.as_ref()?;
-    Some(fit_consistency(
-        &id.innovations,
-        id.residual_rms_mps2(prep),
-        prep,
-    ))
-}
-
-/// The consistency ([`crate::consistency`]) of a fit's innovations and residual RMS against the
-/// run's noise floor.
-pub(crate) fn fit_consistency(
-    innovations: &[estimator_core::Residual],
-    rms_mps2: [f64; 3],
-    prep: &Prepared,
-) -> Consistency {
-    let whitened: Vec<[f64; 3]> = innovations.iter().map(|r| r.whitened).collect();
-    let white =
-        crate::diagnose::whiteness(&whitened, crate::diagnose::DiagnoseConfig::default().lags);
-    let floor = prep.floor_mps2();
-    assess(
-        crate::identify::mean_nis(innovations),
-        innovations.len(),
-        white.p_value,
-        [0, 1, 2].map(|i| rms_mps2[i] / floor[i]),
-        prep.floor_rel_sd(),
-        &Thresholds::default(),
-    )
-}
+pub use crate::consistency::{consistency_of, fit_consistency};

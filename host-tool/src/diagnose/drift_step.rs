@@ -353,3 +353,47 @@ impl DriftStepFit {
         )
     }
 }
+
+/// `identify`'s answer to a misfit at the settled set-up of `assessed`: a drift step profiled on
+/// the fit the alternatives were weighed against (so its evidence is on their scale); when it
+/// beats every alternative and a warm-up transient (which a step also follows) by the plausible
+/// margin, it is repaired — modelled from its time on, the model refitted at the `stated`
+/// set-up and assessed again (the set-up settles with the step in the model: settled first, the
+/// latitude had bent to absorb the step). Returns the effects and assessment to report and the
+/// step when it is only named (it explains the misfit but is not repaired: no rival beats it).
+pub fn repaired_if_it_wins<'c>(
+    catalog: &'c crate::catalog::Catalog,
+    stated: Prepared,
+    effects: Vec<&'c dyn Effect>,
+    cfg: &Config,
+    assessed: crate::assess::Assessment,
+    progress: &crate::steps::Progress,
+) -> anyhow::Result<(
+    Vec<&'c dyn Effect>,
+    crate::assess::Assessment,
+    Option<DriftStepFit>,
+)> {
+    let misfit = crate::consistency::consistency_of(&assessed.id, &assessed.prep)
+        .is_some_and(|c| !c.is_consistent());
+    if !misfit {
+        return Ok((effects, assessed, None));
+    }
+    progress.note(|| "profiling a gyro drift step".into());
+    let Some(step) = profile(&assessed.prep, &effects, cfg, &assessed.id) else {
+        return Ok((effects, assessed, None));
+    };
+    if !step.beats(&assessed.alternatives) {
+        return Ok((effects, assessed, Some(step)));
+    }
+    let warmup = super::warmup::profile(&assessed.prep, &effects, cfg, &assessed.id);
+    if warmup.is_some_and(|(_, g)| g + super::alternatives::PLAUSIBLE_MARGIN >= step.evidence_gain)
+    {
+        // The warm-up explains it as well or better: the misfit stands; `diagnose` weighs both.
+        return Ok((effects, assessed, None));
+    }
+    let (with_step, id) = repair(&stated, &effects, cfg, &step)?;
+    let mut prep = stated;
+    prep.findings.push(step.repaired());
+    let a = crate::assess::assess_with(catalog, &with_step, prep, cfg, id, progress)?;
+    Ok((with_step, a, None))
+}
