@@ -80,7 +80,7 @@ pub(crate) fn screen_oriented(
 /// recording's seconds, the user's `--exclude`); the stretches pinned at a rail are left out
 /// too ([`exclusion`]), each with a finding.
 pub(crate) fn screen_excluding<'s>(
-    site: Site,
+    mut site: Site,
     all: &'s [Sample],
     period_s: f64,
     theta0: [f64; 3],
@@ -107,8 +107,119 @@ pub(crate) fn screen_excluding<'s>(
             format!("{} samples; at least 16 are needed", samples.len()),
         );
     }
-    // 1. Raw screening, twice: the second pass with the noise of the accepted samples only (a long
-    //    stuck run would otherwise pull the median-based noise estimate down).
+    // 1. Raw screening (see [`raw_screening`]).
+    let (mut sigma, summary, flags) = match raw_screening(samples, &mut findings) {
+        Ok(x) => x,
+        Err((kind, message, at_s)) => return refuse_at(findings, kind, message, at_s),
+    };
+    let mut accepted: Cow<'s, [Sample]> = if summary.rejected == 0 {
+        match &kept {
+            None => Cow::Borrowed(all),
+            Some(k) => Cow::Owned(k.clone()),
+        }
+    } else {
+        samples
+            .iter()
+            .zip(&flags)
+            .filter(|(_, f)| **f == 0)
+            .map(|(s, _)| *s)
+            .collect()
+    };
+    // 2. Physics: gravity magnitude and units, the time axis, the start.
+    let initial_tilt = match check_physics(
+        &mut site,
+        &mut accepted,
+        &mut sigma,
+        all,
+        period_s,
+        theta0,
+        &mut findings,
+    ) {
+        Ok(t) => t,
+        Err(f) => return refuse(findings, f.0, f.1),
+    };
+    // 3. Quantisation, the noise at the filter period, and steps in the means.
+    let quantum = quantisation(&accepted, &summary, &mut findings);
+    let means = window_means(&accepted, period_s, &sigma);
+    let mut mean_sigma_override_mps2 = steps::check_mean_noise(&means, &sigma, &mut findings);
+    if quantum.iter().any(|q| q.is_some()) {
+        mean_sigma_override_mps2 = Some(quantised_floor(
+            mean_sigma_override_mps2,
+            &means,
+            &sigma,
+            &quantum,
+        ));
+    }
+    // Undithered rounding makes the means jump by an LSB as the signal crosses a step: no steps
+    // are looked for on those axes.
+    let disturbed = steps::check_steps(&means, &quantum.map(|q| q.is_some()), &mut findings);
+    let (mut means, accepted_now) = drop_disturbed(means, &accepted, &disturbed, period_s);
+    if let Some(a) = accepted_now {
+        accepted = a.into();
+    }
+    // Bias steps too small for the third differences: found in the means, repaired in the
+    // samples (the later ones corrected, the window holding the jump left out), the means
+    // recomputed. A step the third differences named is replaced by its repair.
+    let skip = quantum.map(|q| q.is_some());
+    let full = steps::mean_sigma(&means, &skip);
+    let found = steps::find_bias_steps(&means, &skip, &full);
+    if !found.is_empty() {
+        let repaired = repair_bias_steps(&accepted, &means, &found, period_s, &mut findings);
+        means = window_means(&repaired, period_s, &sigma);
+        accepted = Cow::Owned(repaired);
+    }
+    Ok(Screened {
+        site,
+        samples: accepted,
+        raw_sigma_mps2: sigma,
+        mean_sigma_override_mps2,
+        initial_tilt,
+        findings,
+        summary,
+        means,
+    })
+}
+
+/// The physics of the accepted samples: gravity's magnitude and units (`site` and `sigma` may
+/// be repaired), the time axis (units, spacing of the recording's own times `all`), the start's
+/// orientation and the hemisphere. Returns the initial tilt levelled from the data; or why the
+/// recording is refused.
+#[allow(clippy::type_complexity)]
+fn check_physics(
+    site: &mut Site,
+    accepted: &mut Cow<'_, [Sample]>,
+    sigma: &mut [f64; 3],
+    all: &[Sample],
+    period_s: f64,
+    theta0: [f64; 3],
+    findings: &mut Vec<Finding>,
+) -> Result<Option<([f64; 3], f64)>, (Kind, String)> {
+    physics::check_gravity(site, accepted, sigma, findings)?;
+    let factor = time::check_units(site, accepted, findings)?;
+    // On the times in seconds (a time column in ms would read as 1000-s samples).
+    findings.extend(signal::no_noise(accepted, sigma));
+    // The recording's own times (an excluded stretch is no gap in the recording).
+    let times: Vec<f64> = all
+        .iter()
+        .map(|s| s.t_s * factor)
+        .filter(|t| t.is_finite())
+        .collect();
+    time::check_spacing(&times, findings);
+    let initial_tilt = physics::check_start(site, accepted, period_s, sigma, theta0, findings)?;
+    // After the start's orientation (an inverted or swapped axis is named there first).
+    hemisphere::check_hemisphere(site, accepted)?;
+    Ok(initial_tilt)
+}
+
+/// The raw screening, twice: the second pass with the noise of the accepted samples only (a long
+/// stuck run would otherwise pull the median-based noise estimate down). Returns the raw noise,
+/// the summary and each sample's flags, the flagged stretches added to `findings`; or why the
+/// recording is refused (kind, words, the time to name).
+#[allow(clippy::type_complexity)]
+fn raw_screening(
+    samples: &[Sample],
+    findings: &mut Vec<Finding>,
+) -> Result<([f64; 3], ScreenSummary, Vec<u8>), (Kind, String, Option<f64>)> {
     let cfg = ScreenConfig::default();
     let mut flags = vec![0u8; samples.len()];
     let Some(sigma0) = robust_sigma(samples, &flags) else {
@@ -123,15 +234,14 @@ pub(crate) fn screen_excluding<'s>(
             ),
             None => String::new(),
         };
-        return refuse_at(
-            findings,
+        return Err((
             Kind::TooFewSamples,
             format!(
                 "fewer than 8 runs of 4 finite samples equally spaced to within {:.0} % of their interval (clock jitter): cannot estimate the noise{place}",
                 100.0 * noise::MAX_JITTER
             ),
             irregular.map(|(k, _, _)| samples[k].t_s),
-        );
+        ));
     };
     // The glitch test screens the residual of a model of the slow signal where a line through
     // the neighbours would miss its curvature (slow logs, noise-free records: [`signal`]).
@@ -148,12 +258,11 @@ pub(crate) fn screen_excluding<'s>(
         (sigma, summary)
     };
     if let Some(f) = dead_axis(samples, &flags) {
-        return refuse(findings, Kind::DeadAxis, f);
+        return Err((Kind::DeadAxis, f, None));
     }
     findings.extend(group_flags(samples, &flags, &summary));
     if summary.rejected as f64 > MAX_REJECTED_FRACTION * samples.len() as f64 {
-        return refuse(
-            findings,
+        return Err((
             Kind::TooManyRejected,
             format!(
                 "{} of {} samples rejected (more than {:.0} %)",
@@ -161,158 +270,124 @@ pub(crate) fn screen_excluding<'s>(
                 samples.len(),
                 100.0 * MAX_REJECTED_FRACTION
             ),
-        );
+            None,
+        ));
     }
-    let mut accepted: Cow<'s, [Sample]> = if summary.rejected == 0 {
-        match &kept {
-            None => Cow::Borrowed(all),
-            Some(k) => Cow::Owned(k.clone()),
+    Ok((sigma, summary, flags))
+}
+
+/// The bias steps `found` in the filter-period `means` repaired in the samples: every later
+/// sample corrected by the step, the filter period holding the jump left out; each named as an
+/// `acc-bias-step` finding (replacing a `step` the third differences named there). Returns the
+/// repaired samples.
+fn repair_bias_steps(
+    accepted: &[Sample],
+    means: &[estimator_core::Measurement],
+    found: &[steps::BiasStep],
+    period_s: f64,
+    findings: &mut Vec<Finding>,
+) -> Vec<Sample> {
+    let p = period_s.max(1e-9);
+    let transitional: Vec<f64> = found
+        .iter()
+        .map(|b| (means[b.at].t_s / p).floor())
+        .collect();
+    let mut repaired: Vec<Sample> = Vec::with_capacity(accepted.len());
+    for s in accepted.iter() {
+        let w = (s.t_s / p).floor();
+        if transitional.contains(&w) {
+            continue;
         }
-    } else {
-        samples
-            .iter()
-            .zip(&flags)
-            .filter(|(_, f)| **f == 0)
-            .map(|(s, _)| *s)
-            .collect()
-    };
-    // 2. Physics: gravity magnitude and units, the time axis, the start.
-    let mut site = site;
-    let mut sigma = sigma;
-    if let Err(f) = physics::check_gravity(&mut site, &mut accepted, &mut sigma, &mut findings) {
-        return refuse(findings, f.0, f.1);
+        let mut s = *s;
+        for (b, tw) in found.iter().zip(&transitional) {
+            if w > *tw {
+                s.specific_force[b.axis] -= b.size;
+            }
+        }
+        repaired.push(s);
     }
-    let factor = match time::check_units(&site, &mut accepted, &mut findings) {
-        Ok(f) => f,
-        Err(f) => return refuse(findings, f.0, f.1),
-    };
-    // On the times in seconds (a time column in ms would read as 1000-s samples).
-    findings.extend(signal::no_noise(&accepted, &sigma));
-    let mut times: Vec<f64> = Vec::with_capacity(samples.len());
-    // The recording's own times (an excluded stretch is no gap in the recording).
-    times.extend(all.iter().map(|s| s.t_s * factor).filter(|t| t.is_finite()));
-    time::check_spacing(&times, &mut findings);
-    let initial_tilt =
-        match physics::check_start(&site, &accepted, period_s, &sigma, theta0, &mut findings) {
-            Ok(t) => t,
-            Err(f) => return refuse(findings, f.0, f.1),
-        };
-    // After the start's orientation (an inverted or swapped axis is named there first).
-    if let Err(f) = hemisphere::check_hemisphere(&site, &accepted) {
-        return refuse(findings, f.0, f.1);
-    }
-    // 3. Quantisation, the noise at the filter period, and steps in the means.
-    let quantum = quantisation(&accepted, &summary, &mut findings);
-    let means = window_means(&accepted, period_s, &sigma);
-    let mut mean_sigma_override_mps2 = steps::check_mean_noise(&means, &sigma, &mut findings);
-    if quantum.iter().any(|q| q.is_some()) {
-        let mut over = mean_sigma_override_mps2.unwrap_or_else(|| {
-            // A full window's count (as `prepare` scales the override to each window's count),
-            // not the mean count, which the partial first and last windows pull down.
-            let n = steps::typical_count(&means);
-            sigma.map(|s| s / n.sqrt())
+    for b in found {
+        let tag = format!("axis {}:", axis_name(b.axis));
+        let (t0, t1) = (means[b.at].t_s - p, means[b.at].t_s + p);
+        findings.retain(|f| {
+            !(f.kind == Kind::Step
+                && f.message.starts_with(&tag)
+                && f.start_s.is_some_and(|a| a <= t1)
+                && f.end_s.is_some_and(|e| e >= t0))
         });
-        for (o, q) in over.iter_mut().zip(&quantum) {
-            if let Some(q) = q {
-                *o = o.max(q / 12f64.sqrt());
-            }
-        }
-        mean_sigma_override_mps2 = Some(over);
+        findings.push(Finding {
+            kind: Kind::AccBiasStep,
+            message: format!(
+                "axis {}: the accelerometer bias steps by {:+.3e} ± {:.1e} m/s^2 ({:.0}σ) at t = {:.0} s ({:.3} h): found as a level shift of the \
+                 filter-period means across it (a cubic for the slow signal plus a step, {} means each side) and sized on ±6 h of them (the Earth-rate turn of gravity, \
+                 modulated by a cubic, plus the step); repaired: every later sample corrected by {:+.3e} m/s^2, the filter period holding the jump left out",
+                axis_name(b.axis),
+                b.size,
+                b.sigma,
+                (b.size / b.sigma).abs(),
+                b.t_s,
+                b.t_s / 3600.0,
+                steps::SIDE_MEANS,
+                -b.size
+            ),
+            start_s: Some(b.t_s),
+            end_s: None,
+            samples: means[b.at].count as usize,
+            action: Action::Repaired,
+        });
     }
-    // Undithered rounding makes the means jump by an LSB as the signal crosses a step: no steps
-    // are looked for on those axes.
-    let disturbed = steps::check_steps(&means, &quantum.map(|q| q.is_some()), &mut findings);
-    let mut means = means;
-    if !disturbed.is_empty() {
-        // The disturbed filter periods leave the means and the samples (the windows
-        // [k·T, (k+1)·T) holding those means).
-        let p = period_s.max(1e-9);
-        let windows: Vec<f64> = disturbed
-            .iter()
-            .map(|&i| (means[i].t_s / p).floor())
-            .collect();
-        accepted = accepted
-            .iter()
-            .filter(|s| !windows.contains(&(s.t_s / p).floor()))
-            .copied()
-            .collect::<Vec<_>>()
-            .into();
-        means = means
-            .into_iter()
-            .enumerate()
-            .filter(|(i, _)| disturbed.binary_search(i).is_err())
-            .map(|(_, m)| m)
-            .collect();
+    repaired
+}
+/// The disturbed filter periods (indices into `means`, sorted) left out of the means and of the
+/// samples (the windows [k·T, (k+1)·T) holding those means); `None`: nothing disturbed.
+fn drop_disturbed(
+    means: Vec<estimator_core::Measurement>,
+    accepted: &[Sample],
+    disturbed: &[usize],
+    period_s: f64,
+) -> (Vec<estimator_core::Measurement>, Option<Vec<Sample>>) {
+    if disturbed.is_empty() {
+        return (means, None);
     }
-    // Bias steps too small for the third differences: found in the means, repaired in the
-    // samples (the later ones corrected, the window holding the jump left out), the means
-    // recomputed. A step the third differences named is replaced by its repair.
-    let skip = quantum.map(|q| q.is_some());
-    let full = steps::mean_sigma(&means, &skip);
-    let found = steps::find_bias_steps(&means, &skip, &full);
-    if !found.is_empty() {
-        let p = period_s.max(1e-9);
-        let transitional: Vec<f64> = found
-            .iter()
-            .map(|b| (means[b.at].t_s / p).floor())
-            .collect();
-        let mut repaired: Vec<Sample> = Vec::with_capacity(accepted.len());
-        for s in accepted.iter() {
-            let w = (s.t_s / p).floor();
-            if transitional.contains(&w) {
-                continue;
-            }
-            let mut s = *s;
-            for (b, tw) in found.iter().zip(&transitional) {
-                if w > *tw {
-                    s.specific_force[b.axis] -= b.size;
-                }
-            }
-            repaired.push(s);
+    let p = period_s.max(1e-9);
+    let windows: Vec<f64> = disturbed
+        .iter()
+        .map(|&i| (means[i].t_s / p).floor())
+        .collect();
+    let accepted = accepted
+        .iter()
+        .filter(|s| !windows.contains(&(s.t_s / p).floor()))
+        .copied()
+        .collect();
+    let means = means
+        .into_iter()
+        .enumerate()
+        .filter(|(i, _)| disturbed.binary_search(i).is_err())
+        .map(|(_, m)| m)
+        .collect();
+    (means, Some(accepted))
+}
+
+/// The floor of a filter-period mean on quantised axes: at least LSB/√12, over the override the
+/// means' scatter set (or the raw noise over a full window's count — as `prepare` scales the
+/// override to each window's count —, not the mean count, which the partial first and last
+/// windows pull down).
+fn quantised_floor(
+    over: Option<[f64; 3]>,
+    means: &[estimator_core::Measurement],
+    sigma: &[f64; 3],
+    quantum: &[Option<f64>; 3],
+) -> [f64; 3] {
+    let mut over = over.unwrap_or_else(|| {
+        let n = steps::typical_count(means);
+        sigma.map(|s| s / n.sqrt())
+    });
+    for (o, q) in over.iter_mut().zip(quantum) {
+        if let Some(q) = q {
+            *o = o.max(q / 12f64.sqrt());
         }
-        for b in &found {
-            let tag = format!("axis {}:", axis_name(b.axis));
-            let (t0, t1) = (means[b.at].t_s - p, means[b.at].t_s + p);
-            findings.retain(|f| {
-                !(f.kind == Kind::Step
-                    && f.message.starts_with(&tag)
-                    && f.start_s.is_some_and(|a| a <= t1)
-                    && f.end_s.is_some_and(|e| e >= t0))
-            });
-            findings.push(Finding {
-                kind: Kind::AccBiasStep,
-                message: format!(
-                    "axis {}: the accelerometer bias steps by {:+.3e} ± {:.1e} m/s^2 ({:.0}σ) at t = {:.0} s ({:.3} h): found as a level shift of the \
-                     filter-period means across it (a cubic for the slow signal plus a step, {} means each side) and sized on ±6 h of them (the Earth-rate turn of gravity, \
-                     modulated by a cubic, plus the step); repaired: every later sample corrected by {:+.3e} m/s^2, the filter period holding the jump left out",
-                    axis_name(b.axis),
-                    b.size,
-                    b.sigma,
-                    (b.size / b.sigma).abs(),
-                    b.t_s,
-                    b.t_s / 3600.0,
-                    steps::SIDE_MEANS,
-                    -b.size
-                ),
-                start_s: Some(b.t_s),
-                end_s: None,
-                samples: means[b.at].count as usize,
-                action: Action::Repaired,
-            });
-        }
-        means = window_means(&repaired, period_s, &sigma);
-        accepted = Cow::Owned(repaired);
     }
-    Ok(Screened {
-        site,
-        samples: accepted,
-        raw_sigma_mps2: sigma,
-        mean_sigma_override_mps2,
-        initial_tilt,
-        findings,
-        summary,
-        means,
-    })
+    over
 }
 
 /// Repeat rate beyond which the noise does not dither the outputs' rounding.
