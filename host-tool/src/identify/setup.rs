@@ -452,18 +452,10 @@ struct Marginal {
     model: KnobModel,
 }
 
-fn marginalise(
-    knobs: &[Knob; 3],
-    f0: f64,
-    prep: &Prepared,
-    effects: &[&dyn Effect],
-    cfg: &Config,
-    id: &Identification,
-) -> anyhow::Result<Marginal> {
-    let h: Vec<f64> = knobs.iter().map(|k| k.sigma_prior).collect();
-    let live: Vec<usize> = (0..3).filter(|&k| h[k] > 0.0).collect();
+/// The refits' design points in the knobs' units: ±σ_prior on each live knob, (+,+) on each pair.
+fn design_points(h: &[f64], live: &[usize]) -> Vec<[f64; 3]> {
     let mut points: Vec<[f64; 3]> = vec![];
-    for &k in &live {
+    for &k in live {
         for sign in [1.0, -1.0] {
             let mut d = [0.0; 3];
             d[k] = sign * h[k];
@@ -478,6 +470,44 @@ fn marginalise(
             points.push(d);
         }
     }
+    points
+}
+
+/// Whether the data contradict the stated set-up and its priors: gᵀ(H(H+2))⁻¹g over the
+/// eigendirections the data curve (`eig` of the data's Hessian, `grad` its gradient, both in
+/// the priors' units), χ² on that many degrees of freedom.
+fn setup_check(
+    eig: &nalgebra::SymmetricEigen<f64, nalgebra::Dyn>,
+    grad: &DVector<f64>,
+) -> SetupCheck {
+    let lmax = eig.eigenvalues.iter().cloned().fold(0.0, f64::max);
+    let (mut chi2, mut dof) = (0.0, 0);
+    for (k, &l) in eig.eigenvalues.iter().enumerate() {
+        if l > 1e-6 * lmax.max(1e-6) {
+            let gl = eig.eigenvectors.column(k).dot(grad);
+            chi2 += gl * gl / (l * (l + 2.0));
+            dof += 1;
+        }
+    }
+    let p_value = if dof > 0 {
+        crate::stats::chi2_sf(chi2, dof as f64)
+    } else {
+        1.0
+    };
+    SetupCheck { chi2, dof, p_value }
+}
+
+fn marginalise(
+    knobs: &[Knob; 3],
+    f0: f64,
+    prep: &Prepared,
+    effects: &[&dyn Effect],
+    cfg: &Config,
+    id: &Identification,
+) -> anyhow::Result<Marginal> {
+    let h: Vec<f64> = knobs.iter().map(|k| k.sigma_prior).collect();
+    let live: Vec<usize> = (0..3).filter(|&k| h[k] > 0.0).collect();
+    let points = design_points(&h, &live);
     let fits: Vec<anyhow::Result<(f64, DVector<f64>)>> = points
         .par_iter()
         .map(|d| refit(&moved(prep, *d), effects, cfg, id))
@@ -526,20 +556,7 @@ fn marginalise(
     let v = &a_inv * 2.0;
     let shift_u = -(&a_inv * &grad);
     let cov = &sens * &v * sens.transpose();
-    let lmax = eig.eigenvalues.iter().cloned().fold(0.0, f64::max);
-    let (mut chi2, mut dof) = (0.0, 0);
-    for (k, &l) in eig.eigenvalues.iter().enumerate() {
-        if l > 1e-6 * lmax.max(1e-6) {
-            let gl = eig.eigenvectors.column(k).dot(&grad);
-            chi2 += gl * gl / (l * (l + 2.0));
-            dof += 1;
-        }
-    }
-    let p_value = if dof > 0 {
-        crate::stats::chi2_sf(chi2, dof as f64)
-    } else {
-        1.0
-    };
+    let check = setup_check(&eig, &grad);
     let contributions = (0..3)
         .map(|k| {
             let kn = &knobs[k];
@@ -566,7 +583,7 @@ fn marginalise(
         contributions,
         cov,
         shift: [0, 1, 2].map(|k| shift_u[k] * h[k]),
-        check: SetupCheck { chi2, dof, p_value },
+        check,
         model: KnobModel {
             f0,
             grad,

@@ -96,6 +96,57 @@ pub(crate) fn check_gravity(
     }
 }
 
+/// The refusal of a level start whose mean specific force `a` lies `tilt_deg` from +z over the
+/// first `span_s` seconds: an inverted z, swapped columns, or a platform far from level.
+fn far_from_level(a: &Vector3<f64>, tilt_deg: f64, span_s: f64) -> Refuse {
+    let (ax, _) =
+        a.iter().enumerate().fold(
+            (0, 0.0),
+            |best, (i, v)| {
+                if v.abs() > best.1 {
+                    (i, v.abs())
+                } else {
+                    best
+                }
+            },
+        );
+    let sign = if a[ax] < 0.0 { '-' } else { '+' };
+    let what = match (ax, sign) {
+        (2, '-') => "the z axis is inverted (or the platform is upside down)".to_string(),
+        (2, _) => format!("the platform is tilted {tilt_deg:.1} deg from level"),
+        _ => format!(
+            "gravity lies along {sign}{}: columns swapped (e.g. {}↔z) or an inverted axis, or the platform is far from level",
+            super::axis_name(ax),
+            super::axis_name(ax)
+        ),
+    };
+    (
+        Kind::InitialOrientation,
+        format!(
+            "at the start (first {:.0} s) the specific force is [{:.4}, {:.4}, {:.4}] m/s^2, {tilt_deg:.1} deg from +z: {what}. \
+             The model starts from a level platform (x east, y north, z up); fix the columns or signs of the recording",
+            span_s,
+            a.x,
+            a.y,
+            a.z
+        ),
+    )
+}
+
+/// The samples of the first filter period (at least the first four).
+fn first_window(samples: &[Sample], period_s: f64) -> Vec<&Sample> {
+    let t0 = samples.first().map(|s| s.t_s).unwrap_or(0.0);
+    let window: Vec<&Sample> = samples
+        .iter()
+        .take_while(|s| s.t_s < t0 + period_s.max(1e-9))
+        .collect();
+    if window.len() < 4 {
+        samples.iter().take(4).collect()
+    } else {
+        window
+    }
+}
+
 /// Where gravity points at the start. A level start (`theta0` = 0) sees +g on z, any other
 /// initial orientation what the model predicts from `theta0` (after the Earth-rate turn of the
 /// first window); a small departure is levelled (the returned angle correction, least-norm: the
@@ -110,15 +161,7 @@ pub(crate) fn check_start(
     findings: &mut Vec<Finding>,
 ) -> Result<Option<([f64; 3], f64)>, Refuse> {
     let t0 = samples.first().map(|s| s.t_s).unwrap_or(0.0);
-    let window: Vec<&Sample> = samples
-        .iter()
-        .take_while(|s| s.t_s < t0 + period_s.max(1e-9))
-        .collect();
-    let window = if window.len() < 4 {
-        samples.iter().take(4).collect()
-    } else {
-        window
-    };
+    let window = first_window(samples, period_s);
     let n = window.len() as f64;
     let t_mid = window.iter().map(|s| s.t_s).sum::<f64>() / n;
     let a = window.iter().fold(Vector3::zeros(), |acc, s| {
@@ -151,38 +194,8 @@ pub(crate) fn check_start(
             ));
         }
     } else if tilt_deg > MAX_START_TILT_DEG {
-        let (ax, _) =
-            a.iter().enumerate().fold(
-                (0, 0.0),
-                |best, (i, v)| {
-                    if v.abs() > best.1 {
-                        (i, v.abs())
-                    } else {
-                        best
-                    }
-                },
-            );
-        let sign = if a[ax] < 0.0 { '-' } else { '+' };
-        let what = match (ax, sign) {
-            (2, '-') => "the z axis is inverted (or the platform is upside down)".to_string(),
-            (2, _) => format!("the platform is tilted {tilt_deg:.1} deg from level"),
-            _ => format!(
-                "gravity lies along {sign}{}: columns swapped (e.g. {}↔z) or an inverted axis, or the platform is far from level",
-                super::axis_name(ax),
-                super::axis_name(ax)
-            ),
-        };
-        return Err((
-            Kind::InitialOrientation,
-            format!(
-                "at the start (first {:.0} s) the specific force is [{:.4}, {:.4}, {:.4}] m/s^2, {tilt_deg:.1} deg from +z: {what}. \
-                 The model starts from a level platform (x east, y north, z up); fix the columns or signs of the recording",
-                window.last().map(|s| s.t_s).unwrap_or(t0) - t0,
-                a.x,
-                a.y,
-                a.z
-            ),
-        ));
+        let span_s = window.last().map(|s| s.t_s).unwrap_or(t0) - t0;
+        return Err(far_from_level(&a, tilt_deg, span_s));
     }
     let d = a - pred;
     // Least-norm angle correction: A ≈ pred + J·δ; J has rank 2 (a turn about gravity is not

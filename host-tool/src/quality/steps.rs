@@ -229,6 +229,56 @@ struct Event {
     peak: usize,
 }
 
+/// The exceedances of the third differences `d` (robust 1σ `s`) beyond [`STEP_SIGMAS`], each
+/// spanning consecutive exceedances; its peak is the middle of (J, −2J, J). `n` means in all.
+fn events(d: &[Diff], s: f64, n: usize) -> Vec<Event> {
+    let mut events = vec![];
+    let mut k = 0;
+    while k < d.len() {
+        if d[k].z.abs() > STEP_SIGMAS * s {
+            let start = k;
+            while k < d.len() && d[k].k <= d[start].k + 4 && d[k].k - d[start].k <= 4 {
+                k += 1;
+            }
+            let peak = (start..k)
+                .max_by(|&i, &j| d[i].z.abs().total_cmp(&d[j].z.abs()))
+                .unwrap_or(start);
+            events.push(Event {
+                i0: d[start].k,
+                i1: (d[k - 1].k + 3).min(n - 1),
+                peak,
+            });
+        } else {
+            k += 1;
+        }
+    }
+    events
+}
+
+/// The finding of a step on axis `a` at event `ev` (not repaired: named, with `--exclude`
+/// suggested).
+fn step_finding(means: &[Measurement], a: usize, d: &[Diff], ev: &Event, s: f64) -> Finding {
+    let j = -d[ev.peak].raw / 2.0;
+    let idx = (d[ev.peak].k + 2).min(means.len() - 1);
+    let (t0, t1) = (means[ev.i0].t_s, means[ev.i1].t_s);
+    Finding {
+        kind: Kind::Step,
+        message: format!(
+            "axis {}: the filter-period means jump by about {j:+.2e} m/s^2 near t = {:.0} s ({:.0}× the noise of their third differences): \
+             a bias step or a disturbance of the platform; not repaired (a disturbance you know of can be left out with --exclude {:.2}..T1, \
+             hours, T1 where it ended: the run's end if it did not)",
+            axis_name(a),
+            means[idx].t_s,
+            d[ev.peak].z.abs() / s,
+            (t0 / 36.0).floor() / 100.0,
+        ),
+        start_s: Some(t0),
+        end_s: Some(t1),
+        samples: 0,
+        action: Action::NotRepaired,
+    }
+}
+
 /// Steps: third differences beyond [`STEP_SIGMAS`]; one finding per event. An event across which
 /// the level comes back ([`shift_across`]) is a disturbance of the platform (a burst: a door
 /// slammed, a bump), and so are two events of up to [`DISTURBANCE_MAX_MEANS`] apart across which
@@ -250,27 +300,7 @@ pub(crate) fn check_steps(
         if s <= 0.0 {
             continue;
         }
-        let mut events = vec![];
-        let mut k = 0;
-        while k < d.len() {
-            if d[k].z.abs() > STEP_SIGMAS * s {
-                // The event spans consecutive exceedances; its peak is the middle of (J, −2J, J).
-                let start = k;
-                while k < d.len() && d[k].k <= d[start].k + 4 && d[k].k - d[start].k <= 4 {
-                    k += 1;
-                }
-                let peak = (start..k)
-                    .max_by(|&i, &j| d[i].z.abs().total_cmp(&d[j].z.abs()))
-                    .unwrap_or(start);
-                events.push(Event {
-                    i0: d[start].k,
-                    i1: (d[k - 1].k + 3).min(means.len() - 1),
-                    peak,
-                });
-            } else {
-                k += 1;
-            }
-        }
+        let events = events(&d, s, means.len());
         let sigma_full = s / 20f64.sqrt();
         let burst = |i0: usize, i1: usize| {
             shift_across(means, a, i0, i1, sigma_full)
@@ -315,25 +345,7 @@ pub(crate) fn check_steps(
                 e = last + 1;
                 continue;
             }
-            let j = -d[ev.peak].raw / 2.0;
-            let idx = (d[ev.peak].k + 2).min(means.len() - 1);
-            let (t0, t1) = (means[ev.i0].t_s, means[ev.i1].t_s);
-            findings.push(Finding {
-                kind: Kind::Step,
-                message: format!(
-                    "axis {}: the filter-period means jump by about {j:+.2e} m/s^2 near t = {:.0} s ({:.0}× the noise of their third differences): \
-                     a bias step or a disturbance of the platform; not repaired (a disturbance you know of can be left out with --exclude {:.2}..T1, \
-                     hours, T1 where it ended: the run's end if it did not)",
-                    axis_name(a),
-                    means[idx].t_s,
-                    d[ev.peak].z.abs() / s,
-                    (t0 / 36.0).floor() / 100.0,
-                ),
-                start_s: Some(t0),
-                end_s: Some(t1),
-                samples: 0,
-                action: Action::NotRepaired,
-            });
+            findings.push(step_finding(means, a, &d, ev, s));
             e += 1;
         }
     }
