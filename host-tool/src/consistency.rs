@@ -29,6 +29,9 @@ pub(crate) struct Thresholds {
     pub whiteness_alpha: f64,
     /// Largest residual RMS / noise floor on any axis.
     pub max_rms_over_floor: f64,
+    /// Smallest χ² p-value accepted for one run's coefficients against a joint estimate
+    /// ([`agreement`]).
+    pub agreement_alpha: f64,
 }
 
 impl Default for Thresholds {
@@ -37,6 +40,7 @@ impl Default for Thresholds {
             nis_band_prob: 0.999,
             whiteness_alpha: 1e-3,
             max_rms_over_floor: 1.05,
+            agreement_alpha: 1e-3,
         }
     }
 }
@@ -140,6 +144,63 @@ pub(crate) fn assess(
         rms_over_floor,
         failures,
     }
+}
+
+/// Whether one run's coefficients agree with a joint estimate of several runs.
+#[derive(Clone, Debug, PartialEq, Serialize)]
+pub struct Agreement {
+    /// `dᵀ D⁺ d`: d the run's own estimate minus the joint one, D the covariance of d.
+    pub chi2: f64,
+    /// Degrees of freedom: the directions in which D is not negligible.
+    pub dof: usize,
+    /// The χ²(dof) tail probability of `chi2`.
+    pub p_value: f64,
+}
+
+impl Agreement {
+    /// Why the run disagrees with the joint estimate (`None`: it agrees at
+    /// [`Thresholds::agreement_alpha`]).
+    pub fn failure(&self) -> Option<String> {
+        let alpha = Thresholds::default().agreement_alpha;
+        (self.p_value.is_nan() || self.p_value < alpha).then(|| {
+            format!(
+                "its coefficients disagree with the other runs' beyond their total 1σ (χ² = {:.1} for {} degrees of freedom, p = {:.1e} < {alpha:.0e})",
+                self.chi2, self.dof, self.p_value
+            )
+        })
+    }
+}
+
+/// One run's estimate `own` (covariance `own_cov`, its set-up's share included) against the
+/// joint estimate `joint` (covariance `joint_cov`) it is part of. For the joint estimate as the
+/// information-weighted mean of the runs', the difference `d = own − joint` has covariance
+/// `D = own_cov − joint_cov` (an estimate minus an efficient one it feeds: their covariance is
+/// the efficient one's). `χ² = dᵀ D⁺ d` over the eigen-directions of D above 1e-9 of its largest
+/// (a direction only this run informs has d ≈ 0 and D ≈ 0: no test there).
+pub fn agreement(
+    own: &[f64],
+    own_cov: &nalgebra::DMatrix<f64>,
+    joint: &[f64],
+    joint_cov: &nalgebra::DMatrix<f64>,
+) -> Agreement {
+    let d = nalgebra::DVector::from_iterator(own.len(), own.iter().zip(joint).map(|(a, b)| a - b));
+    let cov = own_cov - joint_cov;
+    let eig = ((&cov + cov.transpose()) * 0.5).symmetric_eigen();
+    let top = eig.eigenvalues.iter().cloned().fold(0.0, f64::max);
+    let mut chi2 = 0.0;
+    let mut dof = 0;
+    for (k, &l) in eig.eigenvalues.iter().enumerate() {
+        if l > 1e-9 * top && l > 0.0 {
+            chi2 += eig.eigenvectors.column(k).dot(&d).powi(2) / l;
+            dof += 1;
+        }
+    }
+    let p_value = if dof == 0 {
+        1.0
+    } else {
+        crate::stats::chi2_sf(chi2, dof as f64)
+    };
+    Agreement { chi2, dof, p_value }
 }
 
 /// The consistency of the converged identification (`None` for a single pass).

@@ -15,8 +15,8 @@
 //! (the separation on the noise-only one, [`Criterion::on_total`]): the bound
 //! plus what each run's set-up leaves uncertain (latitude, clock rate, gravity, the vertical's
 //! daily tilt, the daily drift — [`crate::identify::setup::uncertainty`] on the designed run's
-//! noise-free measurements, the runs' set-ups independent as in
-//! [`crate::identify::joint::setup_covariance`]). Where a set-up prior dominates a
+//! noise-free measurements, each run's set-up marginalised as in
+//! [`crate::identify::joint::fuse_with_setup`]). Where a set-up prior dominates a
 //! coefficient, the noise bound alone would understate it and could rank designs wrongly.
 
 use anyhow::{bail, Context as _};
@@ -26,7 +26,7 @@ use estimator_core::{Effect, Sample, Site};
 use nalgebra::DMatrix;
 use rayon::prelude::*;
 
-use crate::identify::joint::{fuse, run_bound_cov, setup_covariance, Run};
+use crate::identify::joint::{fuse_with_setup, run_bound_cov, Run, RunSetup};
 use crate::identify::{
     build_model, canonical_correlation, identify, nominal_trajectory, setup, smoothed_residuals,
     weak_combinations, Config, Estimate, Prepared,
@@ -243,18 +243,34 @@ pub type RunShare = (DMatrix<f64>, DMatrix<f64>);
 /// The runs made so far: their joint estimate and each run's share.
 #[derive(Clone, Debug)]
 pub struct SoFar {
-    /// The joint estimate (covariance without the set-up).
+    /// The joint estimate (covariance without the set-up: noise only).
     pub estimate: Estimate,
+    /// The total covariance now, every run's set-up marginalised, as `identify` reports it for
+    /// these runs ([`crate::identify::joint::fuse_with_setup`]).
+    pub total_cov: DMatrix<f64>,
     /// Per run, its own covariance and its set-up's share.
     pub runs: Vec<RunShare>,
 }
 
-impl SoFar {
-    /// The total covariance now: the joint one plus the runs' set-ups ([`setup_covariance`]),
-    /// as `identify` reports it for these runs.
-    pub fn total_cov(&self) -> anyhow::Result<DMatrix<f64>> {
-        Ok(&self.estimate.cov + setup_covariance(&self.estimate, &self.runs)?)
-    }
+/// The runs' shares fused ([`fuse_with_setup`], from the prior `p0`): the total covariance and
+/// the noise-only one.
+fn fused(shares: &[RunShare], p0: &DMatrix<f64>) -> anyhow::Result<(DMatrix<f64>, DMatrix<f64>)> {
+    let posteriors: Vec<Estimate> = shares
+        .iter()
+        .map(|(cov, _)| Estimate {
+            value: vec![0.0; p0.nrows()],
+            cov: cov.clone(),
+        })
+        .collect();
+    let setups: Vec<RunSetup> = shares
+        .iter()
+        .map(|(_, cov)| RunSetup {
+            cov: cov.clone(),
+            shift: vec![],
+        })
+        .collect();
+    let (total, noise) = fuse_with_setup(&posteriors, &setups, p0)?;
+    Ok((total.cov, noise))
 }
 
 /// One candidate of a plan.
@@ -276,23 +292,21 @@ pub struct Candidate {
 }
 
 impl Candidate {
-    /// The candidate after fusing the posteriors (each from the prior `p0`) with `shares` the
-    /// runs' own covariances and set-up shares.
+    /// The candidate after fusing `shares`, every run's own covariance and set-up share (each
+    /// from the prior `p0`).
     fn new(
         designs: Vec<Design>,
-        posteriors: &[Estimate],
         shares: &[RunShare],
         p0: &DMatrix<f64>,
         eval: (&Model<'_>, &Criterion),
     ) -> anyhow::Result<Self> {
-        let fused = fuse(posteriors, p0)?;
-        let total_cov = &fused.cov + setup_covariance(&fused, shares)?;
+        let (total_cov, cov) = fused(shares, p0)?;
         let (model, criterion) = eval;
         Ok(Candidate {
             designs,
             score: criterion.score(model, &total_cov),
-            noise_score: criterion.score(model, &fused.cov),
-            cov: fused.cov,
+            noise_score: criterion.score(model, &cov),
+            cov,
             total_cov,
         })
     }
@@ -320,10 +334,6 @@ pub fn rank(
             ..*template
         })
         .collect();
-    let posterior = |cov: DMatrix<f64>| Estimate {
-        value: vec![0.0; n],
-        cov,
-    };
     // One bound and one set-up share per orientation, on all cores.
     let site = *model.site();
     let shares = designs
@@ -340,20 +350,15 @@ pub fn rank(
             for (d, share) in designs.iter().zip(&shares) {
                 let mut runs = b.runs.clone();
                 runs.push(share.clone());
-                let posteriors = [
-                    posterior(b.estimate.cov.clone()),
-                    posterior(share.0.clone()),
-                ];
-                out.push(Candidate::new(vec![*d], &posteriors, &runs, &p0, eval)?);
+                out.push(Candidate::new(vec![*d], &runs, &p0, eval)?);
             }
         }
         None => {
             for i in 0..designs.len() {
                 for j in i + 1..designs.len() {
                     let runs = [shares[i].clone(), shares[j].clone()];
-                    let posteriors = [posterior(runs[0].0.clone()), posterior(runs[1].0.clone())];
                     let pair = vec![designs[i], designs[j]];
-                    out.push(Candidate::new(pair, &posteriors, &runs, &p0, eval)?);
+                    out.push(Candidate::new(pair, &runs, &p0, eval)?);
                 }
             }
         }

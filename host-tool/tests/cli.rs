@@ -350,7 +350,9 @@ fn simulate_run(
 fn several_runs_are_identified_diagnosed_and_planned_together() {
     // Two runs of one system (an accelerometer bias on top of the paper's drift), level and at
     // (90°, 0°, 90°): diagnose names acc-bias on each and identifies it jointly; identify and plan
-    // accept the same runs; every result within 3σ of the truth (errors N(0, 1) in σ).
+    // accept the same runs; every result within 3 of its total 1σ (the joint estimate has each
+    // run's set-up marginalised, so its error is judged against the total: it was 0.02–2 of the
+    // noise-only 1σ when the stated set-up was taken as exact, and DZz is 7 of it now).
     let dir = temp_dir("joint");
     let bias = ["--effect", "acc-bias=2e-4,-1e-4,3e-4"];
     let a = simulate_run(&dir, "a.csv", "21", "0,0,0", &bias);
@@ -378,7 +380,7 @@ fn several_runs_are_identified_diagnosed_and_planned_together() {
         ("DZz", -0.1),
     ] {
         let c = &coefs[name];
-        let z = (c["value"].as_f64().unwrap() - truth) / c["sigma"].as_f64().unwrap();
+        let z = (c["value"].as_f64().unwrap() - truth) / c["sigma_total"].as_f64().unwrap();
         assert!(z.abs() < 3.0, "{name}: {z:.2}σ");
     }
     assert_eq!(v["joint"]["runs"].as_array().unwrap().len(), 2);
@@ -1142,5 +1144,87 @@ fn explanations_within_the_margin_that_disagree_are_not_trusted() {
         reasons.contains("both explain the data") && reasons.contains("`drift-trend`"),
         "{all}"
     );
+    let _ = std::fs::remove_dir_all(&dir);
+}
+
+/// Issue 26: each run's set-up is a nuisance of the joint fit. Two runs (36 h at 10 s) whose
+/// latitude, clock rate, gravity and start attitude are off by draws from the priors (seeds 45
+/// and 47): the joint fit fused the runs' fits at their *stated* set-ups and added the set-ups'
+/// spread afterwards, so "the joint model does not explain this run" (NIS/3 ≈ 5.6) for both runs
+/// and DXx 6.7σ off its total 1σ. Now each run's fit is taken at its settled set-up and widened
+/// by what the set-up leaves uncertain before fusing (docs/model.md, "Several runs"): both runs
+/// are explained, and every coefficient is within 3.5 of its total 1σ (over 25 such pairs the
+/// RMS error/total 1σ was 0.77 and none beyond 3σ; 24 coefficients at 3.5σ fail together with
+/// probability ≈ 1 % for an honest 1σ). The noise-only 1σ stays the smaller one.
+#[test]
+fn each_runs_set_up_is_marginalised_in_a_joint_fit() {
+    let dir = temp_dir("joint-setup");
+    for seed in [45u32, 47] {
+        let run = |name: &str, s: u32| {
+            let s = s.to_string();
+            let args = ["--seed", &s, "--hours", "36", "--rate-s", "10"];
+            let mut args = args.to_vec();
+            args.push("--setup-errors-from-priors");
+            simulate_to(&dir, name, &args)
+        };
+        let a = run(&format!("a{seed}.csv"), seed);
+        let b = run(&format!("b{seed}.csv"), seed + 1000);
+        let out = driftid()
+            .arg("identify")
+            .args([&a, &b])
+            .arg("--truth")
+            .arg(a.with_extension("truth.json"))
+            .arg("--json")
+            .output()
+            .unwrap();
+        let all = String::from_utf8_lossy(&out.stdout).to_string()
+            + &String::from_utf8_lossy(&out.stderr);
+        let v: serde_json::Value = serde_json::from_slice(&out.stdout).expect(&all);
+        let reasons = v["untrusted_reasons"].to_string();
+        assert!(
+            !reasons.contains("does not explain this run"),
+            "seed {seed}: {reasons}"
+        );
+        within_total_sigma(&v, 3.5, &format!("seed {seed}"));
+        for (name, c) in v["coefficients"].as_object().unwrap() {
+            let (noise, total) = (
+                c["sigma"].as_f64().unwrap(),
+                c["sigma_total"].as_f64().unwrap(),
+            );
+            assert!(
+                noise <= total * (1.0 + 1e-9),
+                "seed {seed} {name}: {noise} > {total}"
+            );
+        }
+    }
+    let _ = std::fs::remove_dir_all(&dir);
+}
+
+/// Runs of two different systems are not fused silently: the same seeds as a clean pair, but the
+/// second run's X gyro drifts 0.003 deg/h more (a drift step at t = 0, ~7 of DX0's total 1σ).
+/// Each run alone is explained by the paper's model, so only the runs' agreement can tell: each
+/// run's coefficients against the joint ones, χ² over the total covariance (p 2e-5 and 2e-6
+/// measured; p < 1e-3 fails). The clean pair agrees (p 0.45–0.57) and is trusted.
+#[test]
+fn runs_whose_coefficients_disagree_are_not_trusted() {
+    let dir = temp_dir("joint-disagree");
+    let common = ["--rate-s", "10", "--hours", "36"];
+    let a = simulate_to(&dir, "a.csv", &[&common[..], &["--seed", "2"]].concat());
+    let level = ["--seed", "3", "--initial-orientation-deg", "0,0,90"];
+    let b = simulate_to(&dir, "b.csv", &[&common[..], &level].concat());
+    let c = simulate_to(
+        &dir,
+        "c.csv",
+        &[&common[..], &level, &["--effect", "drift-step=0.003,0,0:0"]].concat(),
+    );
+    for (other, code) in [(&b, 0), (&c, 3)] {
+        let (got, all) = run_driftid(&["identify".into(), a.clone().into(), other.clone().into()]);
+        assert_eq!(got, Some(code), "{all}");
+        assert_eq!(
+            all.contains("disagree with the other runs'"),
+            code == 3,
+            "named exactly when it is so:\n{all}"
+        );
+    }
     let _ = std::fs::remove_dir_all(&dir);
 }

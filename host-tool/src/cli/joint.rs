@@ -11,17 +11,23 @@ use crate::catalog::Catalog;
 use crate::consistency::Consistency;
 use crate::format::{sci, with_sigma};
 use crate::identify::joint::{
-    fit_alone, identify_joint_from, joint_bound, JointIdentification, Run, RunFit,
+    fit_alone, identify_joint_from, joint_bound, JointIdentification, Run, RunFit, RunSetup,
 };
 use crate::identify::{Config, Prepared};
 use crate::simulate::read_truth;
+use anyhow::Context as _;
+use rayon::prelude::*;
 
 /// One run as loaded and prepared.
 pub(crate) struct LoadedRun {
     /// Where it came from.
     pub path: PathBuf,
-    /// Its prepared measurements (site and chart its own).
+    /// Its prepared measurements (site and chart its own); after [`fit_jointly`], at the run's
+    /// settled set-up.
     pub prep: Prepared,
+    /// The site as the recording states it (the settled latitude's digits are no statement of
+    /// its precision).
+    pub stated_site: estimator_core::Site,
     /// Stated initial orientation (ENU Euler angles), rad.
     pub orientation_rad: [f64; 3],
     /// The recording's free-text description, if any.
@@ -78,6 +84,7 @@ pub(crate) fn load_runs(
             let prep = super::common::prepare_loaded(path, &loaded, cfg)?;
             Ok(LoadedRun {
                 path: path.clone(),
+                stated_site: prep.site,
                 prep,
                 orientation_rad: loaded.initial_orientation_rad,
                 description: loaded.description,
@@ -108,19 +115,27 @@ pub(crate) fn runs_untrusted(
         }
         if !c.is_consistent() {
             reasons.push(format!(
-                "{name}: the joint model does not explain this run: {} (alone: NIS/3 {:.3}); run `driftid diagnose` on it",
+                "{name}: the joint model does not explain this run: {}; run `driftid diagnose` on it",
                 c.failures.join("; "),
-                fit.alone.nis_mean()
+            ));
+        }
+        if let Some(why) = fit.agreement.failure() {
+            reasons.push(format!(
+                "{name}: {why}: were the runs made on one system, unchanged between them?"
             ));
         }
     }
     reasons
 }
 
-/// The consistency of one run under the joint estimate (the one definition in
-/// [`crate::consistency`]).
+/// Whether the model explains one run (the one definition in [`crate::consistency`]): the run's
+/// own converged fit at its settled set-up, the coefficients shared (whether they agree with
+/// the other runs' is [`RunFit::agreement`]). A run fitted in a single pass is judged by its
+/// innovations under the joint estimate.
 pub(crate) fn run_consistency(fit: &RunFit, prep: &Prepared) -> Consistency {
-    super::identify::fit_consistency(&fit.innovations, fit.residual_rms_mps2(prep), prep)
+    super::identify::consistency_of(&fit.alone, prep).unwrap_or_else(|| {
+        super::identify::fit_consistency(&fit.innovations, fit.residual_rms_mps2(prep), prep)
+    })
 }
 
 /// Runs the joint `driftid identify`.
@@ -229,25 +244,73 @@ pub(crate) fn diagnose(args: &DiagnoseArgs, catalog: &Catalog) -> anyhow::Result
     trusted_or(reasons)
 }
 
-/// The runs identified jointly ([`crate::identify::joint`]), each first alone; a run whose
-/// metadata latitude the data contradict is refused ([`refuse_wrong_latitudes`]). `models[r]` is
-/// run r's model; `label` is what the spinner says meanwhile.
-pub(crate) fn fit_jointly(
+/// One run's own fit, assessed as a single run is ([`crate::assess`] for `identify`, the
+/// set-up settled for `plan`): what the joint fit starts from and marginalises.
+pub(crate) struct RunAlone {
+    /// The run's measurements at its set-up's posterior.
+    pub prep: Prepared,
+    /// The run's fit there.
+    pub id: crate::identify::Identification,
+    /// What the run's set-up leaves uncertain in that fit.
+    pub setup: RunSetup,
+    /// Why the run alone is not trusted (empty: nothing against it).
+    pub reasons: Vec<String>,
+}
+
+/// How a run's own fit is assessed before the joint fit (see [`RunAlone`]).
+pub(crate) type AssessRun<'c> =
+    dyn Fn(&Prepared, crate::identify::Identification) -> anyhow::Result<RunAlone> + Sync + 'c;
+
+/// The runs identified jointly ([`crate::identify::joint`]): each first alone; a run whose
+/// metadata latitude the data contradict is refused ([`refuse_wrong_latitudes`]); each run's
+/// fit assessed (`assess_run`: its set-up settled where its data put it, and what the set-up
+/// leaves uncertain), then every run's set-up marginalised in the joint fit. `runs[r].prep`
+/// becomes the run's settled measurements. Returns the fit, each run's model (at its settled
+/// site) and each run's own reasons not to trust it; `label` is what the spinner says.
+pub(crate) fn fit_jointly<'m>(
     catalog: &Catalog,
     runs: &mut [LoadedRun],
-    models: &[estimator_core::model::Model<'_>],
-    effects: &[&dyn estimator_core::effects::Effect],
+    effects: &'m [&'m dyn estimator_core::effects::Effect],
     cfg: &crate::identify::Config,
     label: &str,
-) -> anyhow::Result<JointIdentification> {
+    assess_run: &AssessRun<'_>,
+) -> anyhow::Result<(
+    JointIdentification,
+    Vec<estimator_core::model::Model<'m>>,
+    Vec<Vec<String>>,
+)> {
+    let models_at = |runs: &[LoadedRun]| {
+        runs.iter()
+            .map(|r| build_model(r.prep.site, effects, cfg))
+            .collect::<anyhow::Result<Vec<_>>>()
+    };
+    let models = models_at(runs)?;
     let spin = crate::progress::spinner(label);
-    let alone = fit_alone(&as_runs(models, runs), cfg);
+    let alone = fit_alone(&as_runs(&models, runs), cfg);
     spin.finish_and_clear();
     refuse_wrong_latitudes(catalog, runs, &alone, effects, cfg)?;
-    let spin = crate::progress::spinner(label);
-    let joint = identify_joint_from(&as_runs(models, runs), alone);
+    let spin = crate::progress::spinner("each run's set-up and alternatives");
+    let assessed = alone
+        .into_par_iter()
+        .zip(runs.par_iter())
+        .enumerate()
+        .map(|(i, (id, r))| assess_run(&r.prep, id?).with_context(|| format!("run {}", i + 1)))
+        .collect::<anyhow::Result<Vec<RunAlone>>>();
     spin.finish_and_clear();
-    joint
+    let mut fits = vec![];
+    let mut setups = vec![];
+    let mut reasons = vec![];
+    for (r, a) in runs.iter_mut().zip(assessed?) {
+        r.prep = a.prep;
+        fits.push(Ok(a.id));
+        setups.push(a.setup);
+        reasons.push(a.reasons);
+    }
+    let models = models_at(runs)?;
+    let spin = crate::progress::spinner(label);
+    let joint = identify_joint_from(&as_runs(&models, runs), fits, &setups);
+    spin.finish_and_clear();
+    Ok((joint?, models, reasons))
 }
 
 /// The runs as the joint fit takes them: each with its model.
@@ -313,8 +376,10 @@ pub(crate) struct JointFit {
     pub joint: JointIdentification,
     /// The joint Cramér–Rao bound (1σ per parameter; NaN when it could not be computed).
     pub bound: Vec<f64>,
-    /// The 1σ with each run's set-up uncertainty ([`crate::identify::joint::setup_covariance`]).
+    /// The 1σ with every run's set-up marginalised (the joint estimate's).
     pub total_sigma: Vec<f64>,
+    /// The 1σ with every run's set-up exactly known: noise only ("fit 1σ").
+    pub noise_sigma: Vec<f64>,
     /// Each run's consistency under the joint estimate ([`run_consistency`]).
     pub checks: Vec<Consistency>,
     /// The true parameters (from `--truth`), in the joint fit's order.
@@ -323,8 +388,11 @@ pub(crate) struct JointFit {
     pub reasons: Vec<String>,
 }
 
-/// Identifies `paths` jointly with the paper's model plus `with`: the fit, the bound, each run's
-/// consistency and each run's own fit assessed ([`crate::assess`]).
+/// Identifies `paths` jointly with the paper's model plus `with`: each run's own fit assessed
+/// as `identify` assesses one run ([`crate::assess`]: the set-up against its priors, the
+/// alternatives on one evidence scale), the joint fit with every run's set-up marginalised, the
+/// bound, each run's consistency under it. A run whose set-up the data contradict, or that
+/// prefers an effect the joint model lacks, makes the joint result untrusted too.
 pub(crate) fn fit_runs(
     catalog: &Catalog,
     paths: &[PathBuf],
@@ -335,12 +403,21 @@ pub(crate) fn fit_runs(
     let cfg = model_args.config()?;
     let effects = catalog.model_effects(with)?;
     let mut runs = load_runs(catalog, paths, model_args.latitude_deg, &cfg)?;
-    let models = runs
-        .iter()
-        .map(|r| build_model(r.prep.site, &effects, &cfg))
-        .collect::<anyhow::Result<Vec<_>>>()?;
     let label = format!("identifying {} runs jointly", runs.len());
-    let joint = fit_jointly(catalog, &mut runs, &models, &effects, &cfg, &label)?;
+    let assess_run = |prep: &Prepared, id| {
+        let a = crate::assess::assess(catalog, &effects, prep.clone(), &cfg, id)?;
+        Ok(RunAlone {
+            prep: a.prep,
+            id: a.id,
+            setup: RunSetup {
+                cov: a.unc.setup_cov,
+                shift: a.unc.daily_shift,
+            },
+            reasons: a.reasons,
+        })
+    };
+    let (joint, models, alone_reasons) =
+        fit_jointly(catalog, &mut runs, &effects, &cfg, &label, &assess_run)?;
     let joint_runs = as_runs(&models, &runs);
     let truth: Option<Vec<f64>> = match truth_path {
         Some(p) => {
@@ -362,6 +439,7 @@ pub(crate) fn fit_runs(
         eprintln!("driftid: warning: no Cramér–Rao bound: {e:#}");
         vec![f64::NAN; bound_at.len()]
     });
+    drop(joint_runs);
     let checks: Vec<Consistency> = joint
         .runs
         .iter()
@@ -369,36 +447,17 @@ pub(crate) fn fit_runs(
         .map(|(fit, r)| run_consistency(fit, &r.prep))
         .collect();
     let mut reasons = runs_untrusted(&runs, &joint.runs, &checks);
-    // Each run's own fit assessed as `identify` assesses one run (the set-up against its priors,
-    // the alternatives on one evidence scale): a run whose set-up the data contradict, or that
-    // prefers an effect the joint model lacks, makes the joint result untrusted too. Each run's
-    // set-up uncertainty joins the joint 1σ (the start attitude is in the fit's own).
-    let spin = crate::progress::spinner("each run's set-up and alternatives");
-    let mut setups = vec![];
-    for (r, fit) in runs.iter().zip(&joint.runs) {
-        let a = crate::assess::assess(catalog, &effects, r.prep.clone(), &cfg, fit.alone.clone())?;
-        setups.push((fit.alone.best().cov.clone(), a.unc.setup_cov.clone()));
-        reasons.extend(
-            a.reasons
-                .into_iter()
-                .map(|m| format!("{} alone: {m}", r.path.display())),
-        );
+    for (r, alone) in runs.iter().zip(alone_reasons) {
+        let name = r.path.display();
+        reasons.extend(alone.into_iter().map(|m| format!("{name} alone: {m}")));
     }
-    spin.finish_and_clear();
-    let setup_cov = crate::identify::joint::setup_covariance(&joint.estimate, &setups)?;
-    let total_sigma: Vec<f64> = (0..joint.params.len())
-        .map(|k| {
-            (joint.estimate.cov[(k, k)] + setup_cov[(k, k)])
-                .max(0.0)
-                .sqrt()
-        })
-        .collect();
-    drop(joint_runs);
+    let n = joint.params.len();
     Ok(JointFit {
+        total_sigma: (0..n).map(|k| joint.estimate.sigma(k)).collect(),
+        noise_sigma: (0..n).map(|k| joint.noise_cov[(k, k)].sqrt()).collect(),
         runs,
         joint,
         bound,
-        total_sigma,
         checks,
         truth,
         reasons,
@@ -420,15 +479,30 @@ pub(crate) fn identify_runs(
         joint,
         bound,
         total_sigma: total,
+        noise_sigma: noise,
         checks,
         truth,
         reasons,
     } = fit_runs(catalog, paths, model_args, with, truth_path)?;
-    let mut out = to_json(&joint, &runs, &checks, &bound, &total, truth.as_deref());
+    let mut out = to_json(
+        &joint,
+        &runs,
+        &checks,
+        &bound,
+        (&total, &noise),
+        truth.as_deref(),
+    );
     out["trusted"] = json!(reasons.is_empty());
     out["untrusted_reasons"] = json!(reasons);
     if !as_json {
-        print_text(&joint, &runs, &checks, &bound, &total, truth.as_deref());
+        print_text(
+            &joint,
+            &runs,
+            &checks,
+            &bound,
+            (&total, &noise),
+            truth.as_deref(),
+        );
         if !reasons.is_empty() {
             println!(
                 "NOT TRUSTED: the numbers above are computed but the tool does not trust them:"
@@ -470,7 +544,7 @@ fn print_text(
     runs: &[LoadedRun],
     checks: &[Consistency],
     bound: &[f64],
-    total: &[f64],
+    (total, noise): (&[f64], &[f64]),
     truth: Option<&[f64]>,
 ) {
     print_runs(joint, runs, checks);
@@ -505,7 +579,7 @@ fn print_text(
             p.unit,
             with_sigma(e.value[k], total[k]),
             sci(total[k]),
-            sci(e.sigma(k)),
+            sci(noise[k]),
             sci(bound[k]),
             sci(alone)
         );
@@ -518,25 +592,29 @@ fn print_text(
     print_weak(&joint.weak);
 }
 
-/// Each run's line: findings, length, orientation, residual over the floor, NIS/3 and whether
-/// it is consistent with the joint fit.
+/// Each run's line: findings, length, orientation, its own fit's residual over the floor and
+/// NIS/3 and whether the model explains it ([`run_consistency`]), and whether its coefficients
+/// agree with the joint ones ([`RunFit::agreement`]).
 fn print_runs(joint: &JointIdentification, runs: &[LoadedRun], checks: &[Consistency]) {
     for ((r, fit), c) in runs.iter().zip(&joint.runs).zip(checks) {
         print_findings(&r.prep.findings);
-        let rms = fit.residual_rms_mps2(&r.prep);
-        let floor = r.prep.floor_mps2();
+        let rms = c.rms_over_floor;
+        let agree = &fit.agreement;
         println!(
-            "run {}: {:.2} h, {} updates, initial orientation {:?} deg ({:?} chart); residual/floor [{:.3}, {:.3}, {:.3}]; NIS/3 {:.3}; {}",
+            "run {}: {:.2} h, {} updates, initial orientation {:?} deg ({:?} chart); residual/floor [{:.3}, {:.3}, {:.3}]; NIS/3 {:.3}; {}; against the joint χ² {:.1} for {} (p {:.1e})",
             r.path.display(),
             fit.alone.final_time_h,
             r.prep.measurements.len(),
             deg3(&r.orientation_rad),
             r.prep.site.chart,
-            rms[0] / floor[0],
-            rms[1] / floor[1],
-            rms[2] / floor[2],
-            fit.nis_mean(),
-            if c.is_consistent() { "consistent" } else { "NOT consistent" }
+            rms[0],
+            rms[1],
+            rms[2],
+            c.nis_mean,
+            if c.is_consistent() { "consistent" } else { "NOT consistent" },
+            agree.chi2,
+            agree.dof,
+            agree.p_value
         );
     }
 }
@@ -553,13 +631,13 @@ fn to_json(
     runs: &[LoadedRun],
     checks: &[Consistency],
     bound: &[f64],
-    total: &[f64],
+    (total, noise): (&[f64], &[f64]),
     truth: Option<&[f64]>,
 ) -> Value {
     let mut coefs = Map::new();
     let e = &joint.estimate;
     for (k, p) in joint.params.iter().enumerate() {
-        let mut o = json!({ "value": e.value[k], "sigma_total": total[k], "sigma": e.sigma(k), "bound": bound[k], "unit": p.unit,
+        let mut o = json!({ "value": e.value[k], "sigma_total": total[k], "sigma": noise[k], "bound": bound[k], "unit": p.unit,
             "alone_sigma": joint.runs.iter().map(|f| f.alone.best().sigma(k)).collect::<Vec<_>>() });
         if let Some(t) = truth {
             o["truth"] = json!(t[k]);
@@ -580,8 +658,9 @@ fn to_json(
                 "updates": r.prep.measurements.len(),
                 "residual_rms_mps2": fit.residual_rms_mps2(&r.prep),
                 "floor_mps2": r.prep.floor_mps2(),
-                "nis_mean": fit.nis_mean(),
+                "nis_mean": c.nis_mean,
                 "consistency": c,
+                "agreement": fit.agreement,
                 "data_quality": { "findings": r.prep.findings },
             })
         })

@@ -83,7 +83,7 @@ fn page_input(
             name: p.name.to_string(),
             unit: p.unit.to_string(),
             value: e.value[k],
-            sigma: e.sigma(k),
+            sigma: fit.noise_sigma[k],
             sigma_total: fit.total_sigma[k],
             bound: fit.bound[k],
             best_alone: fit

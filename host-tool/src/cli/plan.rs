@@ -7,9 +7,10 @@ use std::path::PathBuf;
 use serde_json::json;
 
 use super::common::{build_model, trusted_or, ModelArgs};
-use super::joint::{fit_jointly, load_runs, run_consistency, runs_untrusted, LoadedRun};
+use super::joint::{fit_jointly, load_runs, run_consistency, runs_untrusted, LoadedRun, RunAlone};
 use crate::catalog::Catalog;
 use crate::format::sci;
+use crate::identify::joint::RunSetup;
 use crate::identify::Prepared;
 use crate::plan::{rank, Criterion, Design, SoFar};
 use crate::simulate::Scenario;
@@ -86,7 +87,7 @@ fn run_with(args: &PlanArgs, catalog: &Catalog) -> anyhow::Result<()> {
     if ranked.is_empty() {
         anyhow::bail!("no candidate orientation could be evaluated");
     }
-    let before_total = before.as_ref().map(SoFar::total_cov).transpose()?;
+    let before_total = before.as_ref().map(|b| b.total_cov.clone());
     let before_score = before_total.as_ref().map(|c| criterion.score(&model, c));
     let before_noise_score = before
         .as_ref()
@@ -192,17 +193,27 @@ impl Start {
         effects: &[&dyn estimator_core::effects::Effect],
         cfg: &crate::identify::Config,
     ) -> anyhow::Result<Self> {
-        let models = runs
-            .iter()
-            .map(|r| build_model(r.prep.site, effects, cfg))
-            .collect::<anyhow::Result<Vec<_>>>()?;
-        let joint = fit_jointly(
+        // Each run's set-up settled where its data put it, and its share, as `identify`
+        // marginalises them in the joint total 1σ.
+        let settle_run = |prep: &crate::identify::Prepared, id| {
+            let s = crate::identify::setup::settle(effects, prep.clone(), cfg, id)?;
+            Ok(RunAlone {
+                prep: s.prep,
+                id: s.id,
+                setup: RunSetup {
+                    cov: s.unc.setup_cov,
+                    shift: s.unc.daily_shift,
+                },
+                reasons: vec![],
+            })
+        };
+        let (joint, _, _) = fit_jointly(
             catalog,
             &mut runs,
-            &models,
             effects,
             cfg,
             "identifying the runs so far",
+            &settle_run,
         )?;
         let checks: Vec<_> = joint
             .runs
@@ -211,16 +222,11 @@ impl Start {
             .map(|(fit, r)| run_consistency(fit, &r.prep))
             .collect();
         let reasons = runs_untrusted(&runs, &joint.runs, &checks);
-        // Each run's own covariance and set-up share, as `identify` carries them into the joint
-        // total 1σ.
-        let shares = runs
+        let shares: Vec<_> = joint
+            .runs
             .iter()
-            .zip(&joint.runs)
-            .map(|(r, fit)| {
-                let unc = crate::identify::setup::uncertainty(effects, &r.prep, cfg, &fit.alone)?;
-                Ok((fit.alone.best().cov.clone(), unc.setup_cov))
-            })
-            .collect::<anyhow::Result<Vec<_>>>()?;
+            .map(|fit| (fit.alone.best().cov.clone(), fit.setup.cov.clone()))
+            .collect();
         let last = &runs[runs.len() - 1].prep;
         let mean_hours = runs
             .iter()
@@ -233,14 +239,20 @@ impl Start {
             rate_s: args.rate_s.unwrap_or_else(|| rate_of(last, cfg.period_s)),
             raw_sigma_mps2: last.noise.raw_sigma_mps2,
         };
-        let mut site = last.site;
+        // The stated site: the settled latitude's digits would set the designed run's latitude
+        // prior to its 1e-4° floor (a 1.4–2× too small predicted total, measured).
+        let mut site = runs[runs.len() - 1].stated_site;
         site.chart = Default::default();
         let params = joint.estimate.value.clone();
         Ok(Start {
             site,
             template,
             before: Some(SoFar {
-                estimate: joint.estimate,
+                estimate: crate::identify::Estimate {
+                    value: joint.estimate.value,
+                    cov: joint.noise_cov,
+                },
+                total_cov: joint.estimate.cov,
                 runs: shares,
             }),
             params,

@@ -11,6 +11,17 @@
 //! Λ = P0⁻¹ + Σ_r (P_r⁻¹ − P0⁻¹),   p̂ = Λ⁻¹ Σ_r P_r⁻¹ p_r      (prior mean 0)
 //! ```
 //!
+//! **Each run's set-up is a nuisance of the joint fit.** A run's latitude, clock rate and
+//! gravity (estimated where its data can, [`super::setup::settle`]), the vertical's daily tilt
+//! and the daily drift are the run's own, independent between runs. Linearised, the parameters'
+//! posterior from run r with its set-up s_r marginalised is exactly N(p_r(ŝ_r), P_r + C_r):
+//! the fit at the set-up's posterior ŝ_r, widened by `C_r = S_r V_r S_rᵀ` (S_r the coefficients'
+//! sensitivity to s_r, V_r its posterior covariance — [`super::setup::Uncertainty::setup_cov`]).
+//! Fusing these marginal posteriors as above is the joint fit with every run's set-up estimated
+//! along: a run whose set-up leaves a coefficient uncertain weighs less on it, and the fused
+//! covariance is the total one. The same fusion without the C_r gives the noise-only covariance
+//! (the set-ups exactly known), the one the Cramér–Rao bound is compared with.
+//!
 //! Iterating (each run relinearised about p̂) is Gauss–Newton for the joint likelihood. Each run
 //! is first identified alone ([`super::identify`], with its fall-backs) for a start. Effects with
 //! Gauss–Markov states (time-varying parameters) are per run and cannot be shared: refused.
@@ -27,6 +38,7 @@ use super::{
     identify, nominal_trajectory, smoothed_residuals, weak_combinations, wide_prior, Config,
     Estimate, Identification, Prepared, WeakCombination,
 };
+use crate::consistency::{agreement, Agreement};
 
 /// Gauss–Newton iterations of the joint fit after the runs' own fits (the second changes the
 /// estimate by far less than 1σ on the paper's scenario).
@@ -51,6 +63,12 @@ pub struct RunFit {
     pub residuals: Vec<[f64; 3]>,
     /// Smoothed initial angles in the run's chart, rad.
     pub initial_angles: [f64; 3],
+    /// What the run's set-up leaves uncertain, marginalised in the joint fit.
+    pub setup: RunSetup,
+    /// The run's own posterior at the joint estimate (its data alone, its set-up as settled).
+    pub own: Estimate,
+    /// The run's coefficients against the joint estimate, the set-up's share included.
+    pub agreement: Agreement,
 }
 
 impl RunFit {
@@ -64,13 +82,37 @@ impl RunFit {
     }
 }
 
+/// What a run's set-up leaves uncertain in the run's own estimate: the joint fit marginalises
+/// it (see the module docs).
+#[derive(Clone, Debug)]
+pub struct RunSetup {
+    /// Covariance the set-up adds to the run's estimate ([`super::setup::Uncertainty::setup_cov`]).
+    pub cov: DMatrix<f64>,
+    /// How far marginalising the daily drift moved the run's estimate
+    /// ([`super::setup::Uncertainty::daily_shift`]; empty: none): kept when the run is
+    /// relinearised.
+    pub shift: Vec<f64>,
+}
+
+impl RunSetup {
+    /// A set-up taken as exactly known, for `n` parameters.
+    pub fn known(n: usize) -> Self {
+        RunSetup {
+            cov: DMatrix::zeros(n, n),
+            shift: vec![],
+        }
+    }
+}
+
 /// The joint estimate and each run's fit.
 #[derive(Clone, Debug)]
 pub struct JointIdentification {
     /// The shared parameters (name, unit, prior), in state order after the angles.
     pub params: Vec<Param>,
-    /// Joint estimate and covariance.
+    /// Joint estimate, every run's set-up marginalised, and its total covariance.
     pub estimate: Estimate,
+    /// Covariance with every run's set-up exactly known: noise only ("fit 1σ").
+    pub noise_cov: DMatrix<f64>,
     /// Per run, in the order given.
     pub runs: Vec<RunFit>,
     /// Weakest combinations of the paper's coefficients in the joint information.
@@ -110,25 +152,26 @@ pub fn fuse(posteriors: &[Estimate], p0: &DMatrix<f64>) -> anyhow::Result<Estima
     })
 }
 
-/// What the runs' set-ups leave uncertain in the joint estimate. The joint estimate is
-/// `p̂ = Λ⁻¹ Σ_r P_r⁻¹ p_r` (Λ⁻¹ the joint covariance, P_r run r's own posterior), so an error of
-/// run r's estimate from its set-up (covariance `C_r`: latitude, clock rate, gravity, the
-/// vertical's daily tilt, the daily drift — [`super::setup::Uncertainty::setup_cov`]) moves it by
-/// `Λ⁻¹ P_r⁻¹ δp_r`. The runs' set-up errors are taken as independent (each run's own logger
-/// set-up, its own days; a latitude common to runs at one site is not correlated here).
-/// `runs`: per run `(P_r, C_r)`.
-pub fn setup_covariance(
-    joint: &Estimate,
-    runs: &[(DMatrix<f64>, DMatrix<f64>)],
-) -> anyhow::Result<DMatrix<f64>> {
-    let n = joint.cov.nrows();
-    let mut out = DMatrix::zeros(n, n);
-    for (p_r, c_r) in runs {
-        let (info, _) = information(p_r, &vec![0.0; n])?;
-        let w = &joint.cov * info;
-        out += &w * c_r * w.transpose();
-    }
-    Ok(out)
+/// The runs' posteriors fused twice ([`fuse`]): with each run's set-up marginalised (its
+/// covariance widened by `setups[r].cov`, see the module docs) — the joint estimate and its total
+/// covariance — and with the set-ups exactly known — the noise-only covariance. The runs' set-ups
+/// are independent (each run's own logger, its own days; a latitude common to runs at one site
+/// is not correlated here).
+pub fn fuse_with_setup(
+    posteriors: &[Estimate],
+    setups: &[RunSetup],
+    p0: &DMatrix<f64>,
+) -> anyhow::Result<(Estimate, DMatrix<f64>)> {
+    let noise = fuse(posteriors, p0)?;
+    let widened: Vec<Estimate> = posteriors
+        .iter()
+        .zip(setups)
+        .map(|(p, s)| Estimate {
+            value: p.value.clone(),
+            cov: &p.cov + &s.cov,
+        })
+        .collect();
+    Ok((fuse(&widened, p0)?, noise.cov))
 }
 
 /// The parameter block of the wide prior (the same for every run).
@@ -169,12 +212,14 @@ fn run_posterior(
 }
 
 /// The run's innovations and residuals under the joint estimate: a forward–backward pass about
-/// the trajectory at `joint`, with the joint posterior as the parameters' prior.
+/// the trajectory at `joint`, with the joint posterior as the parameters' prior (its total
+/// covariance: the run's set-up may move its coefficients within the share it contributes).
 fn fit_under(
     run: &Run<'_, '_>,
     angles0: &[f64; 3],
     joint: &Estimate,
     alone: Identification,
+    (own, setup): (Estimate, RunSetup),
 ) -> anyhow::Result<RunFit> {
     let (model, meas) = (run.model, &run.prep.measurements);
     let n = model.dim();
@@ -193,12 +238,21 @@ fn fit_under(
         innovations: pass.innovations,
         residuals,
         initial_angles: [first[0], first[1], first[2]],
+        agreement: agreement(
+            &own.value,
+            &(&own.cov + &setup.cov),
+            &joint.value,
+            &joint.cov,
+        ),
+        setup,
+        own,
     })
 }
 
-/// Identifies one set of parameters from several runs (see the module docs).
+/// Identifies one set of parameters from several runs (see the module docs), each run's set-up
+/// taken as exactly known.
 pub fn identify_joint(runs: &[Run<'_, '_>], cfg: &Config) -> anyhow::Result<JointIdentification> {
-    identify_joint_from(runs, fit_alone(runs, cfg))
+    identify_joint_from(runs, fit_alone(runs, cfg), &[])
 }
 
 /// Each run identified alone ([`identify`], with its fall-backs), on all cores: the joint fit's
@@ -212,10 +266,13 @@ pub fn fit_alone(runs: &[Run<'_, '_>], cfg: &Config) -> Vec<anyhow::Result<Ident
         .collect()
 }
 
-/// [`identify_joint`] from the runs' own fits, made already ([`fit_alone`]).
+/// [`identify_joint`] from the runs' own fits, made already ([`fit_alone`], or at each run's
+/// settled set-up), with each run's set-up marginalised (`setups[r]`; empty: every set-up
+/// exactly known).
 pub fn identify_joint_from(
     runs: &[Run<'_, '_>],
     fits: Vec<anyhow::Result<Identification>>,
+    setups: &[RunSetup],
 ) -> anyhow::Result<JointIdentification> {
     let Some(first) = runs.first() else {
         bail!("no runs to identify from");
@@ -224,6 +281,11 @@ pub fn identify_joint_from(
         bail!("effects with Gauss-Markov states (drift-markov) vary within each run and cannot be shared between runs; identify those runs one at a time");
     }
     let p0 = parameter_prior(first.model);
+    let known = vec![RunSetup::known(p0.nrows()); runs.len()];
+    let setups = if setups.is_empty() { &known } else { setups };
+    if setups.len() != runs.len() {
+        bail!("{} set-ups for {} runs", setups.len(), runs.len());
+    }
     let mut alone = Vec::with_capacity(runs.len());
     let mut posteriors = Vec::with_capacity(runs.len());
     let mut angles = Vec::with_capacity(runs.len());
@@ -237,26 +299,37 @@ pub fn identify_joint_from(
         angles.push(a);
         alone.push(id);
     }
-    let mut joint = fuse(&posteriors, &p0)?;
+    let (mut joint, mut noise_cov) = fuse_with_setup(&posteriors, setups, &p0)?;
     for _ in 0..JOINT_ITERATIONS {
         for (r, run) in runs.iter().enumerate() {
-            let (post, a) = run_posterior(run, &angles[r], &joint.value)
+            let (mut post, a) = run_posterior(run, &angles[r], &joint.value)
                 .with_context(|| format!("joint fit, run {}", r + 1))?;
+            for (v, d) in post.value.iter_mut().zip(&setups[r].shift) {
+                *v += d;
+            }
             posteriors[r] = post;
             angles[r] = a;
         }
-        joint = fuse(&posteriors, &p0)?;
+        (joint, noise_cov) = fuse_with_setup(&posteriors, setups, &p0)?;
     }
     let mut fits = Vec::with_capacity(runs.len());
-    for ((run, id), a) in runs.iter().zip(alone).zip(&angles) {
-        fits.push(fit_under(run, a, &joint, id)?);
+    let own = posteriors.into_iter().zip(setups.iter().cloned());
+    for (((run, id), a), own) in runs.iter().zip(alone).zip(&angles).zip(own) {
+        fits.push(fit_under(run, a, &joint, id, own)?);
     }
-    let weak = weak_combinations(first.model, &joint);
+    let weak = weak_combinations(
+        first.model,
+        &Estimate {
+            value: joint.value.clone(),
+            cov: noise_cov.clone(),
+        },
+    );
     Ok(JointIdentification {
         params: (ANGLES..first.model.dim())
             .map(|i| first.model.param(i))
             .collect(),
         estimate: joint,
+        noise_cov,
         runs: fits,
         weak,
     })

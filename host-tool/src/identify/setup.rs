@@ -187,7 +187,7 @@ pub struct Uncertainty {
     pub total_cov: DMatrix<f64>,
     /// The set-up's share of it beyond the fit's own covariance (latitude, clock rate, gravity,
     /// the vertical's daily tilt, the daily drift; the start attitude is in the fit): what a
-    /// joint fit of several runs carries from each ([`super::joint::setup_covariance`]).
+    /// joint fit of several runs marginalises from each ([`super::joint::RunSetup`]).
     #[serde(skip)]
     pub setup_cov: DMatrix<f64>,
     /// Where prior and data put the latitude (deg), clock rate (ppm) and gravity (ppm) against
@@ -202,7 +202,8 @@ pub struct Uncertainty {
     #[serde(skip)]
     pub knobs: Option<KnobModel>,
     /// How far marginalising the daily drift at its prior moves the parameters (state order after
-    /// the angles; empty for a single pass): [`settle`] applies it.
+    /// the angles; empty for a single pass): [`settle`] applies it (and a joint fit again to each
+    /// relinearised run, [`super::joint::RunSetup::shift`]).
     #[serde(skip)]
     pub daily_shift: Vec<f64>,
 }
@@ -780,7 +781,7 @@ fn with_daily_fits(effects: &[&dyn Effect], prep: &Prepared, cfg: &Config) -> an
 /// From the pass at `sigma0` (the components are the states from `first` on): the components'
 /// information from the data alone `J = P⁻¹ − σ0⁻²` and their score `h = P⁻¹ m` (P, m their
 /// posterior); for a prior σ the evidence is `G(σ) = σ² hᵀ(1 + σ²J)⁻¹h − ln det(1 + σ²J)`,
-/// maximised over σ0·1.5^k, k = 0…10.
+/// maximised over σ0·1.5^k, k = 0…10, a larger size kept only when it beats σ0 by 2 ln 10.
 fn daily_size(pass: &super::smoother::Smoothed, first: usize, sigma0: f64) -> f64 {
     let (Some(last), q) = (pass.states.last(), pass.final_cov.nrows() - first) else {
         return sigma0;
@@ -799,15 +800,24 @@ fn daily_size(pass: &super::smoother::Smoothed, first: usize, sigma0: f64) -> f6
             None => f64::NEG_INFINITY,
         }
     };
-    (0..=10)
-        .map(|k| sigma0 * 1.5f64.powi(k))
+    let (best, gain) = (0..=DAILY_SIZES)
+        .map(|k| sigma0 * 1.5f64.powi(k as i32))
         .map(|s| (s, evidence(s)))
         .fold(
             (sigma0, f64::NEG_INFINITY),
             |b, x| if x.1 > b.1 { x } else { b },
-        )
-        .0
+        );
+    // Charged 2 ln N for the N sizes tried above the prior, as every profiled explanation is
+    // ([`crate::diagnose::select`]): the best of N noise draws beats the prior by chance.
+    if gain - evidence(sigma0) > 2.0 * (DAILY_SIZES as f64).ln() {
+        best
+    } else {
+        sigma0
+    }
 }
+
+/// Sizes of the daily drift tried above its prior: σ0·1.5^k, k = 1…10 (up to 58× the prior).
+const DAILY_SIZES: usize = 10;
 
 /// The coefficients' uncertainty with the set-up priors of `cfg` (see the module docs). `id` is
 /// the converged fit of `effects` on `prep`.
@@ -933,14 +943,13 @@ pub fn settle(
     id: Identification,
 ) -> anyhow::Result<Settled> {
     let (mut settled, moved) = settle_setup(effects, prep, cfg, id)?;
-    let mut shift = std::mem::take(&mut settled.unc.daily_shift);
     if moved {
         // The shift is the daily drift's reach from the fit it is taken about: about the stated
         // set-up's misfit it would also soak up the set-up's error the refit has repaired.
-        shift = daily_drift(effects, &settled.prep, cfg, &settled.id)?.1;
+        settled.unc.daily_shift = daily_drift(effects, &settled.prep, cfg, &settled.id)?.1;
     }
     if let Some(est) = settled.id.refined.as_mut() {
-        for (v, d) in est.value.iter_mut().zip(&shift) {
+        for (v, d) in est.value.iter_mut().zip(&settled.unc.daily_shift) {
             *v += d;
         }
     }
