@@ -294,4 +294,25 @@ mod tests {
         let bad = assess(0.94, 3600, 1e-5, [1.0, 1.2, 1.0], 0.0, &t);
         assert_eq!(bad.failures.len(), 3, "{:?}", bad.failures);
     }
+
+    #[test]
+    fn agreement_tests_only_the_directions_the_difference_can_take() {
+        // d = (1, 0.5): D = own − joint = diag(1, 0); the second direction, which only this
+        // run informs (D = 0), is not tested; χ² = 1²/1 on 1 dof, tail 0.3173 (scipy
+        // chi2.sf(1, 1) = 0.31731); statrs's regularised gamma agrees to 1e-10.
+        let own_cov =
+            nalgebra::DMatrix::from_diagonal(&nalgebra::DVector::from_vec(vec![2.0, 1.0]));
+        let joint_cov = nalgebra::DMatrix::identity(2, 2);
+        let a = agreement(&[1.0, 0.5], &own_cov, &[0.0, 0.0], &joint_cov);
+        assert_eq!(a.dof, 1);
+        assert!((a.chi2 - 1.0).abs() < 1e-12, "{a:?}");
+        assert!((a.p_value - 0.317_310_507_9).abs() < 1e-8, "{a:?}");
+        assert!(a.failure().is_none());
+        // Five of D's 1σ apart: χ² 25, p 5.7e-7 < 1e-3, named.
+        let far = agreement(&[5.0, 0.0], &own_cov, &[0.0, 0.0], &joint_cov);
+        assert!(
+            far.failure().is_some_and(|m| m.contains("disagree")),
+            "{far:?}"
+        );
+    }
 }

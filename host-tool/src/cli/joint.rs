@@ -129,13 +129,10 @@ pub(crate) fn runs_untrusted(
 }
 
 /// Whether the model explains one run (the one definition in [`crate::consistency`]): the run's
-/// own converged fit at its settled set-up, the coefficients shared (whether they agree with
-/// the other runs' is [`RunFit::agreement`]). A run fitted in a single pass is judged by its
-/// innovations under the joint estimate.
+/// own fit at its settled set-up (whether its coefficients agree with the other runs' is
+/// [`RunFit::agreement`]).
 pub(crate) fn run_consistency(fit: &RunFit, prep: &Prepared) -> Consistency {
-    super::identify::consistency_of(&fit.alone, prep).unwrap_or_else(|| {
-        super::identify::fit_consistency(&fit.innovations, fit.residual_rms_mps2(prep), prep)
-    })
+    super::identify::fit_consistency(fit.innovations(), fit.residual_rms_mps2(prep), prep)
 }
 
 /// Runs the joint `driftid identify`.

@@ -295,10 +295,11 @@ fn choose(
 }
 
 /// One run of a joint fit ([`crate::identify::joint`]) as a [`Diagnosis`], for the joint report:
-/// its residual at the joint estimate and the innovations of its pass with the joint posterior
-/// as the prior (`fit`), their whiteness (`lags`), failure windows, correlations and the one
-/// definition of consistent. No candidate is scored (the joint fit tests none): the ranking is
-/// empty and the verdict says whether the joint model explains the run.
+/// the residual and innovations of the run's own fit of the shared model at its settled set-up
+/// (`fit`, [`crate::identify::joint::RunFit`]), their whiteness (`lags`), failure windows,
+/// correlations and the one definition of consistent. No candidate is scored (the joint fit
+/// tests none): the ranking is empty and the verdict says whether the shared model explains the
+/// run (whether its coefficients agree with the other runs' is the fit's agreement).
 pub(crate) fn of_joint_run(
     prep: &Prepared,
     model: Vec<String>,
@@ -306,7 +307,7 @@ pub(crate) fn of_joint_run(
     lags: usize,
 ) -> Diagnosis {
     let meas = &prep.measurements;
-    let series = series_of(meas, fit.residuals.clone(), &fit.innovations);
+    let series = series_of(meas, fit.residuals().to_vec(), fit.innovations());
     let stats = statistics::fit(
         &series,
         prep.floor_mps2(),

@@ -1,6 +1,6 @@
 //! The joint report: one page for several runs of one system fitted together (`driftid report
 //! A.csv B.csv`, the fit of `driftid identify A.csv B.csv`, [`crate::identify::joint`]). Per run:
-//! its data quality, its residual and consistency under the joint estimate (NIS, whiteness) with
+//! its data quality, its residual and consistency under the shared model (NIS, whiteness) with
 //! the single-run report's figures and tables; then the shared coefficients with their 1σ, the
 //! verdict and the provenance. The figures and tables are the single-run report's own.
 
@@ -192,7 +192,7 @@ fn quality(h: &mut String, input: &JointReportInput) {
 fn consistency(h: &mut String, input: &JointReportInput) {
     let _ = writeln!(
         h,
-        "<h2 id=\"consistency\">Each run under the joint estimate</h2><p>Each run's forward pass with the joint posterior as the parameters' prior and its residual along the trajectory at the joint estimate, against the run's own noise floor; one definition of consistent for every run.</p>"
+        "<h2 id=\"consistency\">Each run under the joint model</h2><p>Each run's own fit of the shared model at its settled set-up: its innovations and its residual against the run's own noise floor, one definition of consistent for every run; whether its coefficients agree with the joint ones is a reason above when they do not.</p>"
     );
     let rows: Vec<(String, &Diagnosis)> = input
         .runs
@@ -273,7 +273,7 @@ fn coefficients(h: &mut String, input: &JointReportInput) {
     let _ = writeln!(h, "</table>");
     let _ = writeln!(
         h,
-        "<p class=\"small\">Joint Gauss–Newton: each run's iterated Rauch–Tung–Striebel smoother relinearised about the joint estimate, the runs' information fused. The fit 1σ carries the measurement noise and each run's start attitude; the 1σ total adds what each run's set-up leaves uncertain (latitude, clock rate, gravity, the daily tilt of the vertical and the daily drift, as for one run), the runs' set-up errors taken as independent (each run's set-up is also checked alone: the reasons above). The bound is the joint Cramér–Rao bound of the fit.</p>"
+        "<p class=\"small\">Joint Gauss–Newton: each run's iterated Rauch–Tung–Striebel smoother relinearised about the joint estimate at the run's settled set-up, the runs' information fused with each run's set-up marginalised. The fit 1σ carries the measurement noise and each run's start attitude; the 1σ total also what each run's set-up leaves uncertain (latitude, clock rate, gravity, the daily tilt of the vertical and the daily drift, as for one run), the runs' set-up errors taken as independent (each run's set-up is also checked alone: the reasons above). The bound is the joint Cramér–Rao bound of the fit.</p>"
     );
     if !input.weak.is_empty() {
         let _ = writeln!(
