@@ -33,6 +33,96 @@ pub struct Assessment {
     pub reasons: Vec<String>,
     /// The settings it was assessed with (a repaired misstatement's prior is the data's 1σ).
     pub cfg: Config,
+    /// The evidence gain of the set-up moved within its priors over the set-up as stated
+    /// (`None`: the data did not move it).
+    pub moved: Option<f64>,
+}
+
+/// Where an alternative's shift of the coefficients is judged: against the fit's own total 1σ,
+/// or, for a run of a joint fit, carried into the joint estimate (`weight`, the run's share of
+/// it: [`crate::identify::joint::RunFit::weight`]) and judged against the joint total 1σ.
+pub(crate) struct Scale<'a> {
+    /// How a shift of the run's estimate moves the estimate judged (`None`: itself).
+    pub weight: Option<&'a nalgebra::DMatrix<f64>>,
+    /// The total 1σ the moved estimate is judged against.
+    pub total_sigma: &'a [f64],
+}
+
+impl Scale<'_> {
+    /// The shift `shift` of the run's estimate in total 1σ of the estimate judged.
+    fn z(&self, shift: &[f64]) -> Vec<f64> {
+        let moved = match self.weight {
+            Some(w) => (w * nalgebra::DVector::from_column_slice(shift))
+                .as_slice()
+                .to_vec(),
+            None => shift.to_vec(),
+        };
+        moved
+            .iter()
+            .zip(self.total_sigma)
+            .map(|(d, s)| d / s)
+            .collect()
+    }
+
+    /// The coefficient `shift` moves most, and by how many total 1σ.
+    fn worst(&self, shift: &[f64]) -> Option<(usize, f64)> {
+        self.z(shift)
+            .into_iter()
+            .enumerate()
+            .max_by(|x, y| x.1.abs().total_cmp(&y.1.abs()))
+    }
+}
+
+impl Assessment {
+    /// Why not to trust the fit, its alternatives' shifts judged on `scale`: the data contradict
+    /// the stated set-up; the data prefer an effect the model lacks; a plausible alternative
+    /// moves a coefficient beyond the total 1σ; the result rests on an assumed set-up prior.
+    pub(crate) fn reasons_on(&self, scale: &Scale<'_>) -> Vec<String> {
+        let judged = Judged {
+            alternatives: self.alternatives.clone(),
+            unc: self.unc.clone(),
+            moved: self.moved,
+            priors: self.cfg.setup,
+        };
+        judged.reasons(&self.id, scale)
+    }
+}
+
+/// What an assessment's reasons not to trust are drawn from, kept to judge them again on
+/// another scale (a joint fit's, [`Scale`]).
+#[derive(Clone)]
+pub(crate) struct Judged {
+    /// The alternatives weighed ([`Assessment::alternatives`]).
+    pub alternatives: Vec<Alternative>,
+    /// The fit's uncertainty ([`Assessment::unc`]).
+    pub unc: Uncertainty,
+    /// [`Assessment::moved`].
+    pub moved: Option<f64>,
+    /// The set-up priors the fit was assessed with.
+    pub priors: SetupPriors,
+}
+
+impl Judged {
+    /// See [`Assessment::reasons_on`]; `id` the fit assessed.
+    pub(crate) fn reasons(&self, id: &Identification, scale: &Scale<'_>) -> Vec<String> {
+        let mut reasons = self.unc.untrusted_reasons();
+        reasons.extend(alternatives_untrusted(
+            &self.alternatives,
+            &self.unc,
+            id,
+            scale,
+        ));
+        if let Some(g0) = self.moved {
+            reasons.extend(move_confounded(
+                &self.alternatives,
+                g0,
+                id,
+                &self.priors,
+                scale,
+            ));
+        }
+        reasons
+    }
 }
 
 /// Assesses the fit `id` of `effects` on `prep` (see the module docs). A single pass is returned
@@ -95,6 +185,7 @@ fn assess_as_stated(
         alternatives: vec![],
         reasons: vec![],
         cfg: cfg.clone(),
+        moved: None,
     };
     if out.id.refined.is_none() {
         out.unc = unc;
@@ -126,14 +217,13 @@ fn assess_as_stated(
         return Ok((out, Some((p, c, stated.1))));
     }
     unc.add_model_spread(&alternatives::averaging_spread(&alts, out.id.params.len()));
-    let mut reasons = unc.untrusted_reasons();
-    reasons.extend(alternatives_untrusted(&alts, &unc, &out.id));
-    if let Some(g0) = moved {
-        reasons.extend(move_confounded(&alts, g0, &unc, &out.id, &cfg.setup));
-    }
     out.unc = unc;
     out.alternatives = alts;
-    out.reasons = reasons;
+    out.moved = moved;
+    out.reasons = out.reasons_on(&Scale {
+        weight: None,
+        total_sigma: &out.unc.total_sigma,
+    });
     Ok((out, None))
 }
 
@@ -187,9 +277,9 @@ fn rivals_of_the_move(
 fn move_confounded(
     alts: &[Alternative],
     moved: f64,
-    unc: &Uncertainty,
     id: &Identification,
     priors: &SetupPriors,
+    scale: &Scale<'_>,
 ) -> Vec<String> {
     let mut out = vec![];
     for a in alts {
@@ -198,11 +288,7 @@ fn move_confounded(
         if !priors.assumed[m.index] || on_the_data < -PLAUSIBLE_MARGIN {
             continue;
         }
-        let Some((k, z)) = (0..a.shift.len())
-            .map(|k| (k, a.shift[k] / unc.total_sigma[k]))
-            .max_by(|x, y| x.1.abs().total_cmp(&y.1.abs()))
-            .filter(|(_, z)| z.abs() > 1.0)
-        else {
+        let Some((k, z)) = scale.worst(&a.shift).filter(|(_, z)| z.abs() > 1.0) else {
             continue;
         };
         let option = [
@@ -258,14 +344,14 @@ pub(crate) fn alternatives_untrusted(
     alts: &[Alternative],
     unc: &Uncertainty,
     id: &Identification,
+    scale: &Scale<'_>,
 ) -> Vec<String> {
     let best = alts.iter().map(|a| a.evidence_gain).fold(0.0, f64::max);
     let mut out = vec![];
     for a in alts.iter().filter(|a| a.plausible(best)) {
-        let worst = (0..a.shift.len())
-            .map(|k| (k, a.shift[k] / unc.total_sigma[k]))
-            .max_by(|x, y| x.1.abs().total_cmp(&y.1.abs()));
-        let Some((k, z)) = worst else { continue };
+        let Some((k, z)) = scale.worst(&a.shift) else {
+            continue;
+        };
         let what = match &a.misstated {
             Some(m) => format!(
                 "a misstated {} ({} {} where {} is stated)",

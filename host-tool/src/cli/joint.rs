@@ -250,8 +250,9 @@ pub(crate) struct RunAlone {
     pub id: crate::identify::Identification,
     /// What the run's set-up leaves uncertain in that fit.
     pub setup: RunSetup,
-    /// Why the run alone is not trusted (empty: nothing against it).
-    pub reasons: Vec<String>,
+    /// What the run's reasons not to trust are drawn from, judged again on the joint estimate's
+    /// scale once it is made (`None`: nothing is weighed, as for `plan`).
+    pub judged: Option<crate::assess::Judged>,
 }
 
 /// How a run's own fit is assessed before the joint fit (see [`RunAlone`]).
@@ -296,18 +297,47 @@ pub(crate) fn fit_jointly<'m>(
     spin.finish_and_clear();
     let mut fits = vec![];
     let mut setups = vec![];
-    let mut reasons = vec![];
+    let mut judged = vec![];
     for (r, a) in runs.iter_mut().zip(assessed?) {
         r.prep = a.prep;
         fits.push(Ok(a.id));
         setups.push(a.setup);
-        reasons.push(a.reasons);
+        judged.push(a.judged);
     }
     let models = models_at(runs)?;
     let spin = crate::progress::spinner(label);
     let joint = identify_joint_from(&as_runs(&models, runs), fits, &setups);
     spin.finish_and_clear();
-    Ok((joint?, models, reasons))
+    let joint = joint?;
+    let reasons = alone_reasons(&joint, &judged);
+    Ok((joint, models, reasons))
+}
+
+/// Each run's own reasons not to trust, its alternatives' shifts carried into the joint
+/// estimate and judged against the joint total 1σ ([`crate::assess::Scale`]): a misstated clock
+/// that would move one run's coefficient by 5σ of that run's total may move the joint estimate,
+/// which the other runs pin, by less than its 1σ.
+fn alone_reasons(
+    joint: &JointIdentification,
+    judged: &[Option<crate::assess::Judged>],
+) -> Vec<Vec<String>> {
+    let total: Vec<f64> = (0..joint.params.len())
+        .map(|k| joint.estimate.sigma(k))
+        .collect();
+    joint
+        .runs
+        .iter()
+        .zip(judged)
+        .map(|(fit, j)| {
+            let Some(j) = j else { return vec![] };
+            let weight = fit.weight(&joint.estimate);
+            let scale = crate::assess::Scale {
+                weight: Some(&weight),
+                total_sigma: &total,
+            };
+            j.reasons(&fit.alone, &scale)
+        })
+        .collect()
 }
 
 /// The runs as the joint fit takes them: each with its model.
@@ -407,10 +437,15 @@ pub(crate) fn fit_runs(
             prep: a.prep,
             id: a.id,
             setup: RunSetup {
-                cov: a.unc.setup_cov,
-                shift: a.unc.daily_shift,
+                cov: a.unc.setup_cov.clone(),
+                shift: a.unc.daily_shift.clone(),
             },
-            reasons: a.reasons,
+            judged: Some(crate::assess::Judged {
+                alternatives: a.alternatives,
+                unc: a.unc,
+                moved: a.moved,
+                priors: a.cfg.setup,
+            }),
         })
     };
     let (joint, models, alone_reasons) =

@@ -204,7 +204,7 @@ impl Start {
                     cov: s.unc.setup_cov,
                     shift: s.unc.daily_shift,
                 },
-                reasons: vec![],
+                judged: None,
             })
         };
         let (joint, _, _) = fit_jointly(

@@ -73,6 +73,17 @@ pub struct RunFit {
 }
 
 impl RunFit {
+    /// How a shift of this run's estimate moves the joint one, `Λ⁻¹ (P_r + C_r)⁻¹` (the run's
+    /// weight in the fusion, `joint` its result; see the module docs).
+    pub fn weight(&self, joint: &Estimate) -> DMatrix<f64> {
+        let t = &self.own.cov + &self.setup.cov;
+        let t = (&t + t.transpose()) * 0.5;
+        match t.clone().cholesky() {
+            Some(c) => &joint.cov * c.inverse(),
+            // Not reached: the fusion refuses such a posterior. A shift then counts in full.
+            None => DMatrix::identity(t.nrows(), t.nrows()),
+        }
+    }
     /// Innovations of the run's own fit.
     pub fn innovations(&self) -> &[Residual] {
         &self.alone.innovations
