@@ -88,18 +88,7 @@ pub(crate) fn screen_excluding<'s>(
 ) -> Result<Screened<'s>, Refusal> {
     let (kept, mut findings) = exclusion::exclude(all, period_s, exclude_s);
     let samples: &[Sample] = kept.as_deref().unwrap_or(all);
-    let refuse_at = |mut findings: Vec<Finding>, kind, message: String, at_s| {
-        findings.push(Finding {
-            kind,
-            message,
-            start_s: None,
-            end_s: None,
-            samples: 0,
-            action: Action::Refused,
-        });
-        Err(Refusal { findings, at_s })
-    };
-    let refuse = |findings, kind, message| refuse_at(findings, kind, message, None);
+    let refuse = |findings, kind, message| Err(refused(findings, kind, message, None));
     if samples.len() < 16 {
         return refuse(
             findings,
@@ -110,7 +99,7 @@ pub(crate) fn screen_excluding<'s>(
     // 1. Raw screening (see [`raw_screening`]).
     let (mut sigma, summary, flags) = match raw_screening(samples, &mut findings) {
         Ok(x) => x,
-        Err((kind, message, at_s)) => return refuse_at(findings, kind, message, at_s),
+        Err((kind, message, at_s)) => return Err(refused(findings, kind, message, at_s)),
     };
     let mut accepted = accepted_by_screening(all, kept.as_deref(), &summary, &flags);
     // 2. Physics: gravity magnitude and units, the time axis, the start.
@@ -156,6 +145,20 @@ pub(crate) fn screen_excluding<'s>(
         summary,
         means,
     })
+}
+
+/// The refusal that ends the screening: the `findings` so far and the refused one (`kind`,
+/// `message`), `at_s` the time of the sample to blame when there is one.
+fn refused(mut findings: Vec<Finding>, kind: Kind, message: String, at_s: Option<f64>) -> Refusal {
+    findings.push(Finding {
+        kind,
+        message,
+        start_s: None,
+        end_s: None,
+        samples: 0,
+        action: Action::Refused,
+    });
+    Refusal { findings, at_s }
 }
 
 /// The samples the raw screening accepted (`flags` 0) among the ones left after the exclusions
