@@ -31,12 +31,19 @@ static DRIFT_MARKOV: DriftMarkov = DriftMarkov {
 pub struct Catalog {
     /// Effects from `--effects` files, in the order they were defined.
     user: Vec<UserEffect>,
+    /// `drift-markov` with σ and τ fitted to a run ([`Catalog::tuned_markov`]), owned here like
+    /// the file effects. Append-only (`boxcar`): a variant handed out stays where it is while
+    /// others are added, from any thread.
+    tuned: boxcar::Vec<DriftMarkov>,
 }
 
 impl Catalog {
     /// The built-in effects only.
     pub fn builtin() -> &'static Self {
-        static BUILTIN: Catalog = Catalog { user: Vec::new() };
+        static BUILTIN: Catalog = Catalog {
+            user: Vec::new(),
+            tuned: boxcar::Vec::new(),
+        };
         &BUILTIN
     }
 
@@ -59,7 +66,10 @@ impl Catalog {
             check_new(e, &known, builtin)?;
             known.push(e);
         }
-        Ok(Self { user })
+        Ok(Self {
+            user,
+            tuned: boxcar::Vec::new(),
+        })
     }
 
     /// The effects from `--effects` files.
@@ -98,6 +108,17 @@ impl Catalog {
             effects.push(e);
         }
         Ok(effects)
+    }
+
+    /// `drift-markov` with σ (deg/h) and τ (h) set, owned by the catalog: one value per distinct
+    /// (σ, τ) (a run tunes a handful at most), borrowed for as long as the catalog lives.
+    pub(crate) fn tuned_markov(&self, sigma_degph: f64, tau_h: f64) -> &DriftMarkov {
+        let same = |d: &DriftMarkov| d.sigma_degph == sigma_degph && d.tau_h == tau_h;
+        if let Some((_, d)) = self.tuned.iter().find(|(_, d)| same(d)) {
+            return d;
+        }
+        let k = self.tuned.push(DriftMarkov { sigma_degph, tau_h });
+        &self.tuned[k]
     }
 
     /// Binds the recording columns the file effects use to the recording at `path`
@@ -173,4 +194,27 @@ pub fn paper() -> &'static dyn Effect {
 /// Looks up a built-in effect by its catalog name (no catalog needed: they are statics).
 pub fn builtin(name: &str) -> Option<&'static dyn Effect> {
     builtin_candidates().into_iter().find(|e| e.name() == name)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// A tuned `drift-markov` is the catalog's: asked again for the same σ, τ it lends the same
+    /// value (one per distinct pair), a variant lent earlier stays valid while others are added,
+    /// and it carries the σ, τ asked for (compared exactly: they are stored, not computed).
+    #[test]
+    fn a_tuned_drift_markov_is_owned_once_per_sigma_and_tau() {
+        let catalog = Catalog::with_user(vec![]).unwrap();
+        let first = catalog.tuned_markov(0.02, 3.0);
+        let others: Vec<&DriftMarkov> = (1..40)
+            .map(|k| catalog.tuned_markov(0.001 * f64::from(k), 7.0))
+            .collect();
+        let again = catalog.tuned_markov(0.02, 3.0);
+        assert!(std::ptr::eq(first, again));
+        assert_eq!((first.sigma_degph, first.tau_h), (0.02, 3.0));
+        assert_eq!(others[38].sigma_degph, 0.001 * 39.0);
+        assert!(!std::ptr::eq(first, others[19]));
+        assert_eq!(catalog.tuned.count(), 40);
+    }
 }

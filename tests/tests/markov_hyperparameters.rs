@@ -54,7 +54,7 @@ fn fit_markov(seed: u64, effect: Option<&str>) -> (f64, MarkovFit, Identificatio
     let model = build_model(prep.site, &effects, &cfg).unwrap();
     let id = identify(&model, &prep, &cfg).unwrap();
     let before = whiteness_p(&id);
-    let (_, tuned) = tune(&prep, &effects, &cfg, id).unwrap();
+    let (_, tuned) = tune(Catalog::builtin(), &prep, &effects, &cfg, id).unwrap();
     let gm = tuned.markov.expect("drift-markov is in the model: tuned");
     eprintln!(
         "seed {seed} {effect:?}: catalog σ, τ Ljung–Box p {before:.2e}; {}; after p {:.2e}",

@@ -343,7 +343,7 @@ fn run_one(args: &IdentifyArgs, catalog: &Catalog) -> anyhow::Result<()> {
     let id = identify(&model, &prep, &cfg)?;
     spin.finish_and_clear();
     // drift-markov in the model: its σ and τ from the data, the model refitted there.
-    let (effects, id) = crate::identify::markov::tune(&prep, &effects, &cfg, id)?;
+    let (effects, id) = crate::identify::markov::tune(catalog, &prep, &effects, &cfg, id)?;
     let spin =
         crate::progress::spinner("the set-up's uncertainty and the alternative explanations");
     let progress = crate::progress::follow(&spin);

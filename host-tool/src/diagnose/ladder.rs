@@ -65,7 +65,7 @@ pub fn ladder_from<'c>(
         };
         // A rung with `drift-markov`: its σ and τ from the data before it is diagnosed (the
         // candidates' refits keep the catalog's: the choice of effect is unchanged).
-        let (tuned, id) = markov::tune(prep, &effects, &cfg.identify, id)?;
+        let (tuned, id) = markov::tune(catalog, prep, &effects, &cfg.identify, id)?;
         effects = tuned;
         let (d, id) = diagnose_identified(prep, catalog, &effects, &at, id)?;
         rungs.push(rung(&d, &id));

@@ -92,20 +92,11 @@ fn latitude_of_gravity(g: f64) -> f64 {
     0.5 * (lo + hi)
 }
 
-/// Profiles the evidence over latitude: a grid of 2° ([`search_grid`]) then a golden-section
-/// refinement. Also returns the fit at the best latitude.
-pub(crate) fn profile(
-    prep: &Prepared,
-    effects: &[&dyn Effect],
-    cfg: &Config,
-) -> Option<(LatitudeFit, Identification)> {
-    let l0 = prep.site.latitude_rad.to_degrees();
-    // A model that cannot even be fitted at the metadata latitude (the smoother fails) leaves
-    // any latitude where it fits, and fits consistently, the better one.
-    let f = |l: f64| evidence_at(prep, effects, cfg, l);
-    // The fits are independent: the metadata latitude's and the grid's run on all cores (each
-    // fit then on one; the values are the same, see `identify`), in the grid's order.
-    let grid = search_grid(l0, latitude_of_gravity(prep.site.gravity_mps2));
+/// `f` at the metadata latitude `l0` and the latitude of `grid` where `f` is least (deg; `None`:
+/// an empty grid). The fits are independent: `l0`'s and the grid's run on all cores (each fit
+/// then on one; the values are the same, see `identify`), in the grid's order; a grid point at
+/// `l0` reuses its value.
+fn grid_minimum(grid: &[f64], l0: f64, f: &(impl Fn(f64) -> f64 + Sync)) -> Option<(f64, f64)> {
     let at_l0 = |l: f64| (l - l0).abs() < 1e-9;
     let (f0, off_l0) = rayon::join(
         || f(l0),
@@ -121,7 +112,13 @@ pub(crate) fn profile(
         .map(|(&l, v)| if at_l0(l) { f0 } else { v })
         .collect();
     let k = (0..grid.len()).min_by(|&a, &b| vals[a].total_cmp(&vals[b]))?;
-    let (mut a, mut b) = ((grid[k] - 2.0).max(-89.0), (grid[k] + 2.0).min(89.0));
+    Some((f0, grid[k]))
+}
+
+/// The bracket [a, b] (deg) of `f`'s minimum after 14 golden-section steps from [`a`, `b`] (the
+/// first two interior points evaluated in parallel).
+fn golden_section(f: &(impl Fn(f64) -> f64 + Sync), a: f64, b: f64) -> (f64, f64) {
+    let (mut a, mut b) = (a, b);
     let r = (5f64.sqrt() - 1.0) / 2.0;
     let (mut c, mut d) = (b - r * (b - a), a + r * (b - a));
     let (mut fc, mut fd) = rayon::join(|| f(c), || f(d));
@@ -140,6 +137,23 @@ pub(crate) fn profile(
             fd = f(d);
         }
     }
+    (a, b)
+}
+
+/// Profiles the evidence over latitude: a grid of 2° ([`search_grid`]) then a golden-section
+/// refinement. Also returns the fit at the best latitude.
+pub(crate) fn profile(
+    prep: &Prepared,
+    effects: &[&dyn Effect],
+    cfg: &Config,
+) -> Option<(LatitudeFit, Identification)> {
+    let l0 = prep.site.latitude_rad.to_degrees();
+    // A model that cannot even be fitted at the metadata latitude (the smoother fails) leaves
+    // any latitude where it fits, and fits consistently, the better one.
+    let f = |l: f64| evidence_at(prep, effects, cfg, l);
+    let grid = search_grid(l0, latitude_of_gravity(prep.site.gravity_mps2));
+    let (f0, on_grid) = grid_minimum(&grid, l0, &f)?;
+    let (a, b) = golden_section(&f, (on_grid - 2.0).max(-89.0), (on_grid + 2.0).min(89.0));
     let best = 0.5 * (a + b);
     // Curvature from a symmetric three-point stencil: −2 ln p ≈ const + (L − L̂)²/σ²; the fit at
     // the best latitude also says whether the model is consistent there.

@@ -381,28 +381,7 @@ fn compile_here(
     }
     check_limits(src)?;
     let original = parse_expr(src).map_err(|e| format!("not a valid expression: {}", e.msg()))?;
-    for v in original.var_names() {
-        let known = VARIABLES.iter().any(|(n, _)| n == v)
-            || params.contains(&v.as_str())
-            || columns.contains(&v.as_str());
-        if !known {
-            let at = word_position(src, v)
-                .map(|c| format!(" (character {c} of the expression)"))
-                .unwrap_or_default();
-            let vars: Vec<&str> = VARIABLES.iter().map(|(n, _)| *n).collect();
-            let cols = if columns.is_empty() {
-                String::new()
-            } else {
-                format!(", its recording columns {}", columns.join(", "))
-            };
-            return Err(format!(
-                "unknown variable `{v}`{at}; an expression may use {}, the effect's \
-                 parameters {}{cols} (a recording column must be declared: columns = [\"{v}\"])",
-                vars.join(", "),
-                params.join(", ")
-            ));
-        }
-    }
+    known_variables_only(src, &original, params, columns)?;
     let (text, abs_texts) = rewrite(src);
     let internal = |e: String| format!("cannot compile the expression (variable `{e}`)");
     let parse = |t: &str| parse_expr(t).map_err(|e| format!("not a valid expression: {}", e.msg()));
@@ -427,6 +406,58 @@ fn compile_here(
             budget
         ));
     }
+    let (d_params, d_force, d_north) = derivatives(&value)?;
+    let ax = AxisExpr {
+        source: src.to_string(),
+        value,
+        abs_args,
+        d_params,
+        d_force,
+        d_north,
+    };
+    Ok((ax, work))
+}
+
+/// Refuses a variable of `original` (parsed from `src`) that is neither a built-in one, one of
+/// the effect's `params` nor one of its declared recording `columns`, naming where it is and
+/// what may be used.
+fn known_variables_only(
+    src: &str,
+    original: &Expr,
+    params: &[&str],
+    columns: &[&str],
+) -> Result<(), Refusal> {
+    for v in original.var_names() {
+        let known = VARIABLES.iter().any(|(n, _)| n == v)
+            || params.contains(&v.as_str())
+            || columns.contains(&v.as_str());
+        if !known {
+            let at = word_position(src, v)
+                .map(|c| format!(" (character {c} of the expression)"))
+                .unwrap_or_default();
+            let vars: Vec<&str> = VARIABLES.iter().map(|(n, _)| *n).collect();
+            let cols = if columns.is_empty() {
+                String::new()
+            } else {
+                format!(", its recording columns {}", columns.join(", "))
+            };
+            return Err(format!(
+                "unknown variable `{v}`{at}; an expression may use {}, the effect's \
+                 parameters {}{cols} (a recording column must be declared: columns = [\"{v}\"])",
+                vars.join(", "),
+                params.join(", ")
+            ));
+        }
+    }
+    Ok(())
+}
+
+/// Partial derivatives, each with the index of the parameter or component it is taken for.
+type Partials = Vec<(usize, Expr)>;
+
+/// The derivatives of `value` the filter needs, symbolic: with respect to each parameter, force
+/// component and north component it uses (∂/∂parameter k, ∂/∂A_j, ∂/∂north_j, in slot order).
+fn derivatives(value: &Bound) -> Result<(Partials, Partials, Partials), Refusal> {
     let (mut d_params, mut d_force, mut d_north) = (Vec::new(), Vec::new(), Vec::new());
     for (idx, slot) in value.slots.iter().enumerate() {
         let d = || {
@@ -445,15 +476,7 @@ fn compile_here(
             Slot::TimeH | Slot::TempC | Slot::Column(_) | Slot::Sign(_) => {}
         }
     }
-    let ax = AxisExpr {
-        source: src.to_string(),
-        value,
-        abs_args,
-        d_params,
-        d_force,
-        d_north,
-    };
-    Ok((ax, work))
+    Ok((d_params, d_force, d_north))
 }
 
 #[cfg(test)]

@@ -34,6 +34,7 @@ use nalgebra::{Matrix2, Vector2};
 use serde::Serialize;
 
 use super::{build_model, neg2_log_evidence, start_prior, Config, Identification, Prepared};
+use crate::catalog::Catalog;
 
 /// The effect whose σ and τ are estimated.
 pub(crate) const NAME: &str = "drift-markov";
@@ -387,26 +388,12 @@ pub(crate) fn fit(
     })
 }
 
-/// `drift-markov` with σ and τ set, for the rest of the process: one leaked value per distinct
-/// (σ, τ) (effects are `&'static` throughout; a run tunes a handful at most).
-pub(crate) fn interned(sigma_degph: f64, tau_h: f64) -> &'static DriftMarkov {
-    static TUNED: std::sync::Mutex<Vec<&'static DriftMarkov>> = std::sync::Mutex::new(Vec::new());
-    let mut v = TUNED.lock().unwrap_or_else(|e| e.into_inner());
-    if let Some(d) = v
-        .iter()
-        .find(|d| d.sigma_degph == sigma_degph && d.tau_h == tau_h)
-    {
-        return d;
-    }
-    let d: &'static DriftMarkov = Box::leak(Box::new(DriftMarkov { sigma_degph, tau_h }));
-    v.push(d);
-    d
-}
-
 /// When `effects` hold `drift-markov` and `id` is converged: σ and τ fitted ([`fit`]), the
 /// effect replaced by one with them and the model refitted there (from `id`'s trajectory).
-/// Otherwise everything is returned as it is (the clean path does no work here).
+/// Otherwise everything is returned as it is (the clean path does no work here). The tuned
+/// effect is owned by `catalog` ([`Catalog::tuned_markov`]).
 pub fn tune<'e>(
+    catalog: &'e Catalog,
     prep: &Prepared,
     effects: &[&'e dyn Effect],
     cfg: &Config,
@@ -416,7 +403,7 @@ pub fn tune<'e>(
         return Ok((effects.to_vec(), id));
     }
     let gm = fit(prep, effects, cfg, &id)?;
-    let tuned: &'static dyn Effect = interned(gm.sigma_degph, gm.tau_h);
+    let tuned: &'e dyn Effect = catalog.tuned_markov(gm.sigma_degph, gm.tau_h);
     let list: Vec<&dyn Effect> = effects
         .iter()
         .map(|e| if e.name() == NAME { tuned } else { *e })

@@ -189,83 +189,18 @@ pub fn prepare_oriented(
     cfg: &Config,
     theta0_enu: [f64; 3],
 ) -> anyhow::Result<Prepared> {
-    // No stated orientation and not level: the orientation from the Earth's turn, if the data
-    // fix it (else the screening refuses the start, naming what looks wrong).
-    let mut theta0_enu = theta0_enu;
-    let mut estimated = None;
-    if theta0_enu == [0.0; 3]
-        && quality::attitude::start_tilt_deg(samples, cfg.period_s)
-            > quality::physics::MAX_START_TILT_DEG
-    {
-        if let Ok(est) = quality::attitude::estimate_start(&site, samples) {
-            theta0_enu = est.theta_enu;
-            estimated = Some(est);
-        }
-    }
+    let (theta0_enu, estimated) = stated_or_estimated_start(&site, samples, cfg, theta0_enu);
     site.chart = site.chart_for_start(&theta0_enu);
     let theta0 = site.angles_to_chart(&theta0_enu);
-    let screened = quality::screen_excluding(site, samples, cfg.period_s, theta0, &cfg.exclude_s)?;
-    let noise = match cfg.raw_sigma_mps2 {
-        Some(raw_sigma_mps2) => NoiseFloor {
-            raw_sigma_mps2,
-            count: 0,
-        },
-        None => NoiseFloor {
-            raw_sigma_mps2: screened.raw_sigma_mps2,
-            count: screened.samples.len(),
-        },
-    };
-    let mut measurements = match cfg.raw_sigma_mps2 {
-        Some(_) => quality::window_means(&screened.samples, cfg.period_s, &noise.raw_sigma_mps2),
-        None => screened.means,
-    };
-    if let (None, Some(over)) = (cfg.raw_sigma_mps2, screened.mean_sigma_override_mps2) {
-        // The means' own scatter (quantised or correlated noise), scaled to each window's count.
-        let mut counts: Vec<u32> = measurements.iter().map(|m| m.count).collect();
-        let mid = counts.len() / 2;
-        let typical = f64::from(*counts.select_nth_unstable(mid).1);
-        for m in &mut measurements {
-            for a in 0..3 {
-                m.variance[a] = over[a] * over[a] * typical / f64::from(m.count);
-            }
-        }
-    }
-    let (initial_angles, initial_angle_sigma) = match screened.initial_tilt {
-        // Level start: the correction is tx, ty and the azimuth keeps the alignment's prior; from
-        // another orientation the unseen turn about gravity mixes all three Euler angles.
-        Some((d, s)) => (
-            [theta0[0] + d[0], theta0[1] + d[1], theta0[2] + d[2]],
-            if theta0 == [0.0; 3] {
-                [s, s, ANGLE_PRIOR_SIGMA_RAD]
-            } else {
-                [s; 3]
-            },
-        ),
-        None => (theta0, [ANGLE_PRIOR_SIGMA_RAD; 3]),
-    };
+    let mut screened =
+        quality::screen_excluding(site, samples, cfg.period_s, theta0, &cfg.exclude_s)?;
+    let (noise, measurements) = measurement_noise(cfg, &mut screened);
+    let (initial_angles, initial_angle_sigma) = levelled_start(theta0, screened.initial_tilt);
     let mut findings = screened.findings;
     let initial_angle_sigma = match estimated {
         None => initial_angle_sigma,
         Some(est) => {
-            let d = est.theta_enu.map(f64::to_degrees);
-            findings.insert(
-                0,
-                Finding {
-                    kind: crate::quality::Kind::InitialOrientation,
-                    message: format!(
-                        "the recording states no initial orientation and does not start level: estimated from the Earth's turn of gravity \
-                         in the first hours as tx, ty, tz = {:.2}, {:.2}, {:.2} deg (fit {:.2} deg RMS; 1σ {:.1} deg given to the filter, \
-                         which refines it); add `# initial_orientation_deg: tx, ty, tz` to state it",
-                        d[0], d[1], d[2],
-                        est.fit_rms_rad.to_degrees(),
-                        quality::attitude::START_SIGMA_RAD.to_degrees()
-                    ),
-                    start_s: None,
-                    end_s: None,
-                    samples: 0,
-                    action: Action::Repaired,
-                },
-            );
+            findings.insert(0, estimated_start_finding(&est));
             initial_angle_sigma.map(|s| s.max(quality::attitude::START_SIGMA_RAD))
         }
     };
@@ -279,6 +214,99 @@ pub fn prepare_oriented(
         alignment_sigma: cfg.setup.alignment_sigma(level_enu),
         findings,
     })
+}
+
+/// The start's orientation (rad, ENU Euler angles): the stated `theta0_enu`; or, when none is
+/// stated and the platform is not level, the one the Earth's turn of gravity gives, if the data
+/// fix it (returned too; else the screening refuses the start, naming what looks wrong).
+fn stated_or_estimated_start(
+    site: &Site,
+    samples: &[Sample],
+    cfg: &Config,
+    theta0_enu: [f64; 3],
+) -> ([f64; 3], Option<quality::attitude::StartEstimate>) {
+    if theta0_enu == [0.0; 3]
+        && quality::attitude::start_tilt_deg(samples, cfg.period_s)
+            > quality::physics::MAX_START_TILT_DEG
+    {
+        if let Ok(est) = quality::attitude::estimate_start(site, samples) {
+            return (est.theta_enu, Some(est));
+        }
+    }
+    (theta0_enu, None)
+}
+
+/// The raw-sample noise floor (the user's `--raw-sigma`, else the screening's) and the
+/// filter-period means with their variances: when the means scatter more than the raw noise
+/// says (quantised or correlated noise), their own scatter, scaled to each window's count. The
+/// screening's means are taken from `screened`.
+fn measurement_noise(
+    cfg: &Config,
+    screened: &mut quality::Screened,
+) -> (NoiseFloor, Vec<Measurement>) {
+    let noise = match cfg.raw_sigma_mps2 {
+        Some(raw_sigma_mps2) => NoiseFloor {
+            raw_sigma_mps2,
+            count: 0,
+        },
+        None => NoiseFloor {
+            raw_sigma_mps2: screened.raw_sigma_mps2,
+            count: screened.samples.len(),
+        },
+    };
+    let mut measurements = match cfg.raw_sigma_mps2 {
+        Some(_) => quality::window_means(&screened.samples, cfg.period_s, &noise.raw_sigma_mps2),
+        None => std::mem::take(&mut screened.means),
+    };
+    if let (None, Some(over)) = (cfg.raw_sigma_mps2, screened.mean_sigma_override_mps2) {
+        let mut counts: Vec<u32> = measurements.iter().map(|m| m.count).collect();
+        let mid = counts.len() / 2;
+        let typical = f64::from(*counts.select_nth_unstable(mid).1);
+        for m in &mut measurements {
+            for a in 0..3 {
+                m.variance[a] = over[a] * over[a] * typical / f64::from(m.count);
+            }
+        }
+    }
+    (noise, measurements)
+}
+
+/// The start angles and their prior 1σ (rad, in the site's chart) from the stated `theta0` and
+/// the screening's levelling `initial_tilt` (correction, 1σ). Level start: the correction is
+/// tx, ty and the azimuth keeps the alignment's prior; from another orientation the unseen turn
+/// about gravity mixes all three Euler angles.
+fn levelled_start(theta0: [f64; 3], initial_tilt: Option<([f64; 3], f64)>) -> ([f64; 3], [f64; 3]) {
+    match initial_tilt {
+        Some((d, s)) => (
+            [theta0[0] + d[0], theta0[1] + d[1], theta0[2] + d[2]],
+            if theta0 == [0.0; 3] {
+                [s, s, ANGLE_PRIOR_SIGMA_RAD]
+            } else {
+                [s; 3]
+            },
+        ),
+        None => (theta0, [ANGLE_PRIOR_SIGMA_RAD; 3]),
+    }
+}
+
+/// The finding that says the start's orientation was estimated from the data, and how to state it.
+fn estimated_start_finding(est: &quality::attitude::StartEstimate) -> Finding {
+    let d = est.theta_enu.map(f64::to_degrees);
+    Finding {
+        kind: crate::quality::Kind::InitialOrientation,
+        message: format!(
+            "the recording states no initial orientation and does not start level: estimated from the Earth's turn of gravity \
+             in the first hours as tx, ty, tz = {:.2}, {:.2}, {:.2} deg (fit {:.2} deg RMS; 1σ {:.1} deg given to the filter, \
+             which refines it); add `# initial_orientation_deg: tx, ty, tz` to state it",
+            d[0], d[1], d[2],
+            est.fit_rms_rad.to_degrees(),
+            quality::attitude::START_SIGMA_RAD.to_degrees()
+        ),
+        start_s: None,
+        end_s: None,
+        samples: 0,
+        action: Action::Repaired,
+    }
 }
 
 /// The model with the paper's drift and the chosen effects.

@@ -88,18 +88,7 @@ pub(crate) fn screen_excluding<'s>(
 ) -> Result<Screened<'s>, Refusal> {
     let (kept, mut findings) = exclusion::exclude(all, period_s, exclude_s);
     let samples: &[Sample] = kept.as_deref().unwrap_or(all);
-    let refuse_at = |mut findings: Vec<Finding>, kind, message: String, at_s| {
-        findings.push(Finding {
-            kind,
-            message,
-            start_s: None,
-            end_s: None,
-            samples: 0,
-            action: Action::Refused,
-        });
-        Err(Refusal { findings, at_s })
-    };
-    let refuse = |findings, kind, message| refuse_at(findings, kind, message, None);
+    let refuse = |findings, kind, message| Err(refused(findings, kind, message, None));
     if samples.len() < 16 {
         return refuse(
             findings,
@@ -110,21 +99,9 @@ pub(crate) fn screen_excluding<'s>(
     // 1. Raw screening (see [`raw_screening`]).
     let (mut sigma, summary, flags) = match raw_screening(samples, &mut findings) {
         Ok(x) => x,
-        Err((kind, message, at_s)) => return refuse_at(findings, kind, message, at_s),
+        Err((kind, message, at_s)) => return Err(refused(findings, kind, message, at_s)),
     };
-    let mut accepted: Cow<'s, [Sample]> = if summary.rejected == 0 {
-        match &kept {
-            None => Cow::Borrowed(all),
-            Some(k) => Cow::Owned(k.clone()),
-        }
-    } else {
-        samples
-            .iter()
-            .zip(&flags)
-            .filter(|(_, f)| **f == 0)
-            .map(|(s, _)| *s)
-            .collect()
-    };
+    let mut accepted = accepted_by_screening(all, kept.as_deref(), &summary, &flags);
     // 2. Physics: gravity magnitude and units, the time axis, the start.
     let initial_tilt = match check_physics(
         &mut site,
@@ -141,33 +118,23 @@ pub(crate) fn screen_excluding<'s>(
     // 3. Quantisation, the noise at the filter period, and steps in the means.
     let quantum = quantisation(&accepted, &summary, &mut findings);
     let means = window_means(&accepted, period_s, &sigma);
-    let mut mean_sigma_override_mps2 = steps::check_mean_noise(&means, &sigma, &mut findings);
-    if quantum.iter().any(|q| q.is_some()) {
-        mean_sigma_override_mps2 = Some(quantised_floor(
-            mean_sigma_override_mps2,
-            &means,
-            &sigma,
-            &quantum,
-        ));
-    }
+    let mean_sigma_override_mps2 = means_noise(&means, &sigma, &quantum, &mut findings);
     // Undithered rounding makes the means jump by an LSB as the signal crosses a step: no steps
     // are looked for on those axes.
-    let disturbed = steps::check_steps(&means, &quantum.map(|q| q.is_some()), &mut findings);
-    let (mut means, accepted_now) = drop_disturbed(means, &accepted, &disturbed, period_s);
+    let quantised = quantum.map(|q| q.is_some());
+    let disturbed = steps::check_steps(&means, &quantised, &mut findings);
+    let (means, accepted_now) = drop_disturbed(means, &accepted, &disturbed, period_s);
     if let Some(a) = accepted_now {
         accepted = a.into();
     }
-    // Bias steps too small for the third differences: found in the means, repaired in the
-    // samples (the later ones corrected, the window holding the jump left out), the means
-    // recomputed. A step the third differences named is replaced by its repair.
-    let skip = quantum.map(|q| q.is_some());
-    let full = steps::mean_sigma(&means, &skip);
-    let found = steps::find_bias_steps(&means, &skip, &full);
-    if !found.is_empty() {
-        let repaired = repair_bias_steps(&accepted, &means, &found, period_s, &mut findings);
-        means = window_means(&repaired, period_s, &sigma);
-        accepted = Cow::Owned(repaired);
-    }
+    let (accepted, means) = with_small_bias_steps_repaired(
+        accepted,
+        means,
+        &quantised,
+        period_s,
+        &sigma,
+        &mut findings,
+    );
     Ok(Screened {
         site,
         samples: accepted,
@@ -178,6 +145,81 @@ pub(crate) fn screen_excluding<'s>(
         summary,
         means,
     })
+}
+
+/// The refusal that ends the screening: the `findings` so far and the refused one (`kind`,
+/// `message`), `at_s` the time of the sample to blame when there is one.
+fn refused(mut findings: Vec<Finding>, kind: Kind, message: String, at_s: Option<f64>) -> Refusal {
+    findings.push(Finding {
+        kind,
+        message,
+        start_s: None,
+        end_s: None,
+        samples: 0,
+        action: Action::Refused,
+    });
+    Refusal { findings, at_s }
+}
+
+/// The samples the raw screening accepted (`flags` 0) among the ones left after the exclusions
+/// (`kept`, else `all`): borrowed when nothing was left out, so a clean recording is not copied.
+fn accepted_by_screening<'s>(
+    all: &'s [Sample],
+    kept: Option<&[Sample]>,
+    summary: &ScreenSummary,
+    flags: &[u8],
+) -> Cow<'s, [Sample]> {
+    if summary.rejected == 0 {
+        match kept {
+            None => Cow::Borrowed(all),
+            Some(k) => Cow::Owned(k.to_vec()),
+        }
+    } else {
+        kept.unwrap_or(all)
+            .iter()
+            .zip(flags)
+            .filter(|(_, f)| **f == 0)
+            .map(|(s, _)| *s)
+            .collect()
+    }
+}
+
+/// The 1σ of the filter-period means when the raw noise does not set it (m/s² per axis; `None`:
+/// it does): their own scatter when correlated noise makes it larger, and the floor of the
+/// quantisation on the axes `quantum` names.
+fn means_noise(
+    means: &[estimator_core::Measurement],
+    sigma: &[f64; 3],
+    quantum: &[Option<f64>; 3],
+    findings: &mut Vec<Finding>,
+) -> Option<[f64; 3]> {
+    let over = steps::check_mean_noise(means, sigma, findings);
+    if quantum.iter().any(|q| q.is_some()) {
+        Some(quantised_floor(over, means, sigma, quantum))
+    } else {
+        over
+    }
+}
+
+/// Bias steps too small for the third differences: found in the means (not on the `quantised`
+/// axes), repaired in the samples (the later ones corrected, the window holding the jump left
+/// out), the means recomputed. A step the third differences named is replaced by its repair.
+fn with_small_bias_steps_repaired<'s>(
+    accepted: Cow<'s, [Sample]>,
+    means: Vec<estimator_core::Measurement>,
+    quantised: &[bool; 3],
+    period_s: f64,
+    sigma: &[f64; 3],
+    findings: &mut Vec<Finding>,
+) -> (Cow<'s, [Sample]>, Vec<estimator_core::Measurement>) {
+    let full = steps::mean_sigma(&means, quantised);
+    let found = steps::find_bias_steps(&means, quantised, &full);
+    if found.is_empty() {
+        return (accepted, means);
+    }
+    let repaired = repair_bias_steps(&accepted, &means, &found, period_s, findings);
+    let means = window_means(&repaired, period_s, sigma);
+    (Cow::Owned(repaired), means)
 }
 
 /// The physics of the accepted samples: gravity's magnitude and units (`site` and `sigma` may

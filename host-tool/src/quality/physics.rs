@@ -147,6 +147,61 @@ fn first_window(samples: &[Sample], period_s: f64) -> Vec<&Sample> {
     }
 }
 
+/// The specific force the stated start `theta0` predicts at `t_mid` (s; the paper's model, no
+/// drift, m/s²), its Jacobian (∂A/∂θ in the first three columns) and the drift prior's 1σ
+/// (deg/h); `None` when the model cannot be built for `site`.
+fn stated_start(
+    site: &Site,
+    theta0: [f64; 3],
+    t_mid: f64,
+) -> Option<(
+    Vector3<f64>,
+    [Vector3<f64>; estimator_core::model::MAX_STATES],
+    f64,
+)> {
+    let model = Model::new(*site, &PAPER_EFFECTS, 0.0, Propagation::default()).ok()?;
+    let mut x = vec![0.0; model.dim()];
+    x[..ANGLES].copy_from_slice(&theta0);
+    let mut tr = Transition::<{ estimator_core::model::MAX_STATES }>::default();
+    propagate(&model, &mut x, 0.0, t_mid, 0.0, 0.0, &mut tr);
+    let mut jac = [Vector3::zeros(); estimator_core::model::MAX_STATES];
+    let pred = model.measurement(&x, t_mid, 0.0, 0.0, &mut jac);
+    Some((pred, jac, model.param(ANGLES).prior_sigma))
+}
+
+/// Refuses a start whose measured specific force `a` (the first window's mean over `span_s`,
+/// m/s²) is more than [`MAX_START_TILT_DEG`] from the stated orientation's prediction `pred`
+/// (or, for a level start, from +z): the metadata, the columns or their signs are wrong.
+fn start_within_reach(
+    site: &Site,
+    theta0: [f64; 3],
+    a: &Vector3<f64>,
+    pred: &Vector3<f64>,
+    span_s: f64,
+) -> Result<(), Refuse> {
+    if theta0 != [0.0; 3] {
+        let off_deg = a.angle(pred) / RAD_PER_DEG;
+        if off_deg > MAX_START_TILT_DEG {
+            let enu = site.angles_to_enu(&theta0);
+            return Err((
+                Kind::InitialOrientation,
+                format!(
+                    "at the start the specific force is [{:.4}, {:.4}, {:.4}] m/s^2, {off_deg:.1} deg from the [{:.4}, {:.4}, {:.4}] m/s^2 \
+                     the metadata's initial orientation ({:.3}, {:.3}, {:.3} deg) predicts: the orientation metadata, the columns or their signs are wrong",
+                    a.x, a.y, a.z, pred.x, pred.y, pred.z,
+                    enu[0] / RAD_PER_DEG, enu[1] / RAD_PER_DEG, enu[2] / RAD_PER_DEG
+                ),
+            ));
+        }
+        return Ok(());
+    }
+    let tilt_deg = (a.z / a.norm()).clamp(-1.0, 1.0).acos() / RAD_PER_DEG;
+    if tilt_deg > MAX_START_TILT_DEG {
+        return Err(far_from_level(a, tilt_deg, span_s));
+    }
+    Ok(())
+}
+
 /// Where gravity points at the start. A level start (`theta0` = 0) sees +g on z, any other
 /// initial orientation what the model predicts from `theta0` (after the Earth-rate turn of the
 /// first window); a small departure is levelled (the returned angle correction, least-norm: the
@@ -167,36 +222,12 @@ pub(crate) fn check_start(
     let a = window.iter().fold(Vector3::zeros(), |acc, s| {
         acc + Vector3::from(s.specific_force)
     }) / n;
-    let g = a.norm();
-    let tilt_deg = (a.z / g).clamp(-1.0, 1.0).acos() / RAD_PER_DEG;
     // The prediction of the stated start at the window's mean time (no drift), and ∂A/∂θ there.
-    let Ok(model) = Model::new(*site, &PAPER_EFFECTS, 0.0, Propagation::default()) else {
+    let Some((pred, jac, drift_prior_degph)) = stated_start(site, theta0, t_mid) else {
         return Ok(None);
     };
-    let mut x = vec![0.0; model.dim()];
-    x[..ANGLES].copy_from_slice(&theta0);
-    let mut tr = Transition::<{ estimator_core::model::MAX_STATES }>::default();
-    propagate(&model, &mut x, 0.0, t_mid, 0.0, 0.0, &mut tr);
-    let mut jac = [Vector3::zeros(); estimator_core::model::MAX_STATES];
-    let pred = model.measurement(&x, t_mid, 0.0, 0.0, &mut jac);
-    if theta0 != [0.0; 3] {
-        let off_deg = a.angle(&pred) / RAD_PER_DEG;
-        if off_deg > MAX_START_TILT_DEG {
-            let enu = site.angles_to_enu(&theta0);
-            return Err((
-                Kind::InitialOrientation,
-                format!(
-                    "at the start the specific force is [{:.4}, {:.4}, {:.4}] m/s^2, {off_deg:.1} deg from the [{:.4}, {:.4}, {:.4}] m/s^2 \
-                     the metadata's initial orientation ({:.3}, {:.3}, {:.3} deg) predicts: the orientation metadata, the columns or their signs are wrong",
-                    a.x, a.y, a.z, pred.x, pred.y, pred.z,
-                    enu[0] / RAD_PER_DEG, enu[1] / RAD_PER_DEG, enu[2] / RAD_PER_DEG
-                ),
-            ));
-        }
-    } else if tilt_deg > MAX_START_TILT_DEG {
-        let span_s = window.last().map(|s| s.t_s).unwrap_or(t0) - t0;
-        return Err(far_from_level(&a, tilt_deg, span_s));
-    }
+    let span_s = window.last().map(|s| s.t_s).unwrap_or(t0) - t0;
+    start_within_reach(site, theta0, &a, &pred, span_s)?;
     let d = a - pred;
     // Least-norm angle correction: A ≈ pred + J·δ; J has rank 2 (a turn about gravity is not
     // seen). For a level start this is tx = d_y/g, ty = −d_x/g, tz = 0.
@@ -215,7 +246,7 @@ pub(crate) fn check_start(
     let tilt = (j * delta).norm() / site.gravity_mps2;
     // Its 1σ: the window mean's noise, plus the platform turn a drift of the prior's size (1 deg/h
     // on each axis) makes before the window's mean time.
-    let drift_radps = estimator_core::units::RADPS_PER_DEGPH * model.param(ANGLES).prior_sigma;
+    let drift_radps = estimator_core::units::RADPS_PER_DEGPH * drift_prior_degph;
     let noise = sigma[0].max(sigma[1]) / n.sqrt() / site.gravity_mps2;
     let sigma_tilt = noise.hypot(drift_radps * (t_mid - 0.0).max(0.0)).max(1e-6);
     if tilt > TILT_SIGMAS * sigma_tilt {

@@ -301,6 +301,88 @@ impl MetaParser {
     }
 }
 
+/// The metadata lines (`# key: value`) up to the header row, and the header row's text (trimmed,
+/// a byte-order mark dropped); blank lines are skipped. `line_no` is left at the header's line.
+fn read_metadata<R: BufRead>(
+    reader: &mut R,
+    buf: &mut Vec<u8>,
+    line_no: &mut u32,
+    file: &str,
+) -> Result<(Metadata, String), RecordingError> {
+    let mut meta = Metadata::default();
+    let mut mp = MetaParser {
+        lat_line: None,
+        g_line: None,
+        desc_line: None,
+    };
+    let mut saw_content = false;
+    loop {
+        if read_line(reader, buf, line_no, file)?.is_none() {
+            let reason = if saw_content {
+                "no header row, only comments"
+            } else {
+                "file is empty"
+            };
+            return Err(RecordingError::NoSamples {
+                file: file.to_string(),
+                reason,
+            });
+        }
+        let mut text = as_utf8(buf, *line_no, file)?;
+        if *line_no == 1 {
+            text = text.strip_prefix('\u{feff}').unwrap_or(text);
+        }
+        let text = text.trim();
+        if text.is_empty() {
+            continue;
+        }
+        saw_content = true;
+        if text.starts_with('#') {
+            mp.line(&mut meta, text, *line_no, file)?;
+            continue;
+        }
+        return Ok((meta, text.to_string()));
+    }
+}
+
+/// The positions of [`REQUIRED_COLUMNS`] in the `header` (on line `header_line`); refused when
+/// one is missing or a column read (required or [`TEMP_COLUMN`]) appears twice.
+fn required_columns(
+    header: &[String],
+    header_line: u32,
+    file: &str,
+) -> Result<[usize; 4], RecordingError> {
+    for (i, name) in header.iter().enumerate() {
+        if !(REQUIRED_COLUMNS.contains(&name.as_str()) || name == TEMP_COLUMN) {
+            continue;
+        }
+        if let Some(j) = header[i + 1..].iter().position(|n| n == name) {
+            return Err(RecordingError::DuplicateColumn {
+                file: file.to_string(),
+                line: header_line,
+                column: excerpt(name),
+                first: i + 1,
+                second: i + 2 + j,
+            });
+        }
+    }
+    let mut idx = [0usize; 4];
+    for (k, col) in REQUIRED_COLUMNS.iter().enumerate() {
+        match header.iter().position(|n| n == col) {
+            Some(i) => idx[k] = i,
+            None => {
+                return Err(RecordingError::MissingColumn {
+                    file: file.to_string(),
+                    line: header_line,
+                    column: col,
+                    header: excerpt(&header.join(", ")),
+                })
+            }
+        }
+    }
+    Ok(idx)
+}
+
 impl<R: BufRead> RecordingReader<R> {
     /// Parses the metadata lines and the header row. `display_name` is used in error messages
     /// (typically the path as the user gave it).
@@ -308,71 +390,13 @@ impl<R: BufRead> RecordingReader<R> {
         let file: String = display_name.into();
         let mut buf = Vec::new();
         let mut line_no = 0u32;
-        let mut meta = Metadata::default();
-        let mut mp = MetaParser {
-            lat_line: None,
-            g_line: None,
-            desc_line: None,
-        };
-        let mut saw_content = false;
-        let header_text = loop {
-            if read_line(&mut reader, &mut buf, &mut line_no, &file)?.is_none() {
-                let reason = if saw_content {
-                    "no header row, only comments"
-                } else {
-                    "file is empty"
-                };
-                return Err(RecordingError::NoSamples { file, reason });
-            }
-            let mut text = as_utf8(&buf, line_no, &file)?;
-            if line_no == 1 {
-                text = text.strip_prefix('\u{feff}').unwrap_or(text);
-            }
-            let text = text.trim();
-            if text.is_empty() {
-                continue;
-            }
-            saw_content = true;
-            if text.starts_with('#') {
-                mp.line(&mut meta, text, line_no, &file)?;
-                continue;
-            }
-            break text.to_string();
-        };
+        let (meta, header_text) = read_metadata(&mut reader, &mut buf, &mut line_no, &file)?;
         let header_line = line_no;
         let header: Vec<String> = header_text
             .split(',')
             .map(|f| clean_field(f).to_string())
             .collect();
-        // Duplicates among the columns we read.
-        for (i, name) in header.iter().enumerate() {
-            if !(REQUIRED_COLUMNS.contains(&name.as_str()) || name == TEMP_COLUMN) {
-                continue;
-            }
-            if let Some(j) = header[i + 1..].iter().position(|n| n == name) {
-                return Err(RecordingError::DuplicateColumn {
-                    file,
-                    line: header_line,
-                    column: excerpt(name),
-                    first: i + 1,
-                    second: i + 2 + j,
-                });
-            }
-        }
-        let mut idx = [0usize; 4];
-        for (k, col) in REQUIRED_COLUMNS.iter().enumerate() {
-            match header.iter().position(|n| n == col) {
-                Some(i) => idx[k] = i,
-                None => {
-                    return Err(RecordingError::MissingColumn {
-                        file,
-                        line: header_line,
-                        column: col,
-                        header: excerpt(&header.join(", ")),
-                    })
-                }
-            }
-        }
+        let idx = required_columns(&header, header_line, &file)?;
         let temp_idx = header.iter().position(|n| n == TEMP_COLUMN);
         Ok(RecordingReader {
             reader,

@@ -642,37 +642,14 @@ pub fn simulate(s: &Scenario) -> Simulation {
     }
     let g = s.gravity();
     let err = s.setup_errors;
-    let mut truly = s.clone();
-    // The metadata states the scenario's latitude; the platform stands at the true one (the
-    // scenario's gravity either way: its change with 0.03° of latitude is 0.2 ppm).
-    truly.latitude_deg -= err.latitude_deg;
-    truly.gravity_mps2 = Some(g);
-    for i in 0..3 {
-        truly.initial_orientation_deg[i] += err.start_arcsec[i] / 3600.0;
-    }
-    let mut sim = Simulator::new(&truly);
+    let mut sim = Simulator::new(&as_it_truly_is(s, g));
     let clock = 1.0 + err.clock_ppm * 1e-6;
     let mut rng_acc = engine::rng(s.seed, engine::stream::ACCEL);
     let mut rng_temp = engine::rng(s.seed, engine::stream::TEMP);
     let mut rng_time = engine::rng(s.seed, engine::stream::TIMING);
     let sigma = s.accel_sigma_mps2 * (60.0 / s.rate_s).sqrt();
     let (k, b) = accel_model(&s.effects);
-    let acc_temp: Vector3<f64> = s
-        .effects
-        .iter()
-        .filter_map(|e| match e {
-            InjectedEffect::AccTemp { k_mps2_per_c } => Some(Vector3::from(*k_mps2_per_c)),
-            _ => None,
-        })
-        .sum();
-    let acc_north: Option<Vector3<f64>> = s
-        .effects
-        .iter()
-        .filter_map(|e| match e {
-            InjectedEffect::AccNorth { k_mps2 } => Some(Vector3::from(*k_mps2)),
-            _ => None,
-        })
-        .reduce(|a, b| a + b);
+    let (acc_temp, acc_north) = temperature_and_north_pickup(&s.effects);
     let has_temp = s.has_temp();
     let max_sub = s.max_substep_s.min(1.0);
     let n = s.sample_count();
@@ -724,6 +701,43 @@ pub fn simulate(s: &Scenario) -> Simulation {
         samples,
         truth,
     }
+}
+
+/// The scenario as the platform truly stands, set-up errors included: the metadata states the
+/// scenario's latitude, the platform stands at the true one (the scenario's gravity `g` either
+/// way: its change with 0.03° of latitude is 0.2 ppm), and starts off the stated orientation by
+/// the start error.
+fn as_it_truly_is(s: &Scenario, g: f64) -> Scenario {
+    let err = s.setup_errors;
+    let mut truly = s.clone();
+    truly.latitude_deg -= err.latitude_deg;
+    truly.gravity_mps2 = Some(g);
+    for i in 0..3 {
+        truly.initial_orientation_deg[i] += err.start_arcsec[i] / 3600.0;
+    }
+    truly
+}
+
+/// The accelerometers' pick-up summed over `effects`: of the temperature (m/s² per °C,
+/// `acc-temp`) and of the local north (m/s² per unit, `acc-north`; `None` when absent).
+fn temperature_and_north_pickup(
+    effects: &[InjectedEffect],
+) -> (Vector3<f64>, Option<Vector3<f64>>) {
+    let acc_temp: Vector3<f64> = effects
+        .iter()
+        .filter_map(|e| match e {
+            InjectedEffect::AccTemp { k_mps2_per_c } => Some(Vector3::from(*k_mps2_per_c)),
+            _ => None,
+        })
+        .sum();
+    let acc_north: Option<Vector3<f64>> = effects
+        .iter()
+        .filter_map(|e| match e {
+            InjectedEffect::AccNorth { k_mps2 } => Some(Vector3::from(*k_mps2)),
+            _ => None,
+        })
+        .reduce(|a, b| a + b);
+    (acc_temp, acc_north)
 }
 
 /// What the logger writes for the sample at true time `t` (clock rate `clock`): the mean over

@@ -2,18 +2,15 @@
 
 use super::*;
 
+/// The model ladder's plot: each rung's residual RMS / noise floor per axis against the floor
+/// (1), the rungs named below, their added estimates under the chart.
 pub(super) fn ladder<DB: DrawingBackend>(
     area: &DrawingArea<DB, Shift>,
     input: &ReportInput,
 ) -> Result<()> {
     let r = &input.ladder;
     let n = r.len().max(1);
-    let vals = r
-        .iter()
-        .flat_map(|g| g.residual_rms_over_floor.iter().copied())
-        .filter(|v| v.is_finite() && *v > 0.0);
-    let hi = vals.clone().fold(1.0f64, f64::max) * 1.5;
-    let lo = vals.fold(1.0f64, f64::min).min(0.8) * 0.8;
+    let (lo, hi) = rms_range(r);
     let notes = ladder_estimates(r);
     let (chart_area, text_area) = split_notes(area, notes.len());
     let (plot, strip) = with_legend_strip(&chart_area);
@@ -71,7 +68,27 @@ pub(super) fn ladder<DB: DrawingBackend>(
             .draw_series(pts.iter().map(|&p| Circle::new(p, 4, color.filled())))
             .map_err(err)?;
     }
-    let labels: Vec<(f64, String)> = r
+    category_labels(&plot, &chart, &rung_labels(r), lo, 13)?;
+    legend_strip(&strip, &entries)?;
+    draw_notes(&text_area, &notes)
+}
+
+/// The y range of the ladder (residual RMS / floor, log scale): the rungs' finite values and 1,
+/// with room above and below.
+fn rms_range(rungs: &[crate::diagnose::types::Rung]) -> (f64, f64) {
+    let vals = rungs
+        .iter()
+        .flat_map(|g| g.residual_rms_over_floor.iter().copied())
+        .filter(|v| v.is_finite() && *v > 0.0);
+    let hi = vals.clone().fold(1.0f64, f64::max) * 1.5;
+    let lo = vals.fold(1.0f64, f64::min).min(0.8) * 0.8;
+    (lo, hi)
+}
+
+/// Each rung's label at its x position: `k: paper + …` for the first, `k: + …` (the effects it
+/// adds) for the others.
+fn rung_labels(rungs: &[crate::diagnose::types::Rung]) -> Vec<(f64, String)> {
+    rungs
         .iter()
         .enumerate()
         .map(|(k, g)| {
@@ -82,7 +99,7 @@ pub(super) fn ladder<DB: DrawingBackend>(
                     format!("paper + {}", g.model.join(" + "))
                 }
             } else {
-                let prev = &r[k - 1].model;
+                let prev = &rungs[k - 1].model;
                 let added: Vec<&str> = g
                     .model
                     .iter()
@@ -93,10 +110,7 @@ pub(super) fn ladder<DB: DrawingBackend>(
             };
             (k as f64, format!("{k}: {name}"))
         })
-        .collect();
-    category_labels(&plot, &chart, &labels, lo, 13)?;
-    legend_strip(&strip, &entries)?;
-    draw_notes(&text_area, &notes)
+        .collect()
 }
 /// Estimates shown per line under the ladder.
 pub(super) const ESTIMATES_PER_LINE: usize = 4;
