@@ -1228,3 +1228,21 @@ fn runs_whose_coefficients_disagree_are_not_trusted() {
     }
     let _ = std::fs::remove_dir_all(&dir);
 }
+
+/// `identify --single-pass` (the paper's one EKF pass, no smoother) panicked (exit 101) once the
+/// set-up was settled after every fit: a single pass weighs no set-up knobs, and the settling
+/// indexed them anyway. It prints the pass's estimates with their 1σ and exits as a computed
+/// result (0 or 3), never a crash.
+#[test]
+fn a_single_pass_identifies_without_a_crash() {
+    let dir = temp_dir("single-pass");
+    let csv = simulate_to(
+        &dir,
+        "run.csv",
+        &["--hours", "12", "--rate-s", "10", "--seed", "3"],
+    );
+    let (code, all) = run_driftid(&["identify".into(), csv.into(), "--single-pass".into()]);
+    assert!(matches!(code, Some(0 | 3)), "{all}");
+    assert!(all.contains("DXx") && !all.contains("panicked"), "{all}");
+    let _ = std::fs::remove_dir_all(&dir);
+}

@@ -972,7 +972,11 @@ fn settle_setup(
         // The stated set-up is contradicted: the linearised posterior is no place to refit.
         return Ok((Settled { prep, id, unc }, false));
     }
-    let far = unc.contributions[1..4]
+    // A single pass has no knobs weighed (its contributions are empty): nothing to settle.
+    let Some(knobs) = unc.contributions.get(1..4) else {
+        return Ok((Settled { prep, id, unc }, false));
+    };
+    let far = knobs
         .iter()
         .zip(unc.setup_shift)
         .any(|(c, d)| c.posterior_sigma > 0.0 && d.abs() > SETTLE_SHIFT_SIGMA * c.posterior_sigma);
@@ -980,7 +984,7 @@ fn settle_setup(
         return Ok((Settled { prep, id, unc }, false));
     }
     let mut p = moved(&prep, unc.setup_shift);
-    for c in &unc.contributions[1..4] {
+    for c in knobs {
         if let (Some(o), Some((v, unit))) = (c.offset, c.stated) {
             if o.abs() > 3.0 * c.posterior_sigma {
                 p.findings.push(crate::quality::Finding {
