@@ -5,7 +5,8 @@
 //!    ([`crate::identify::setup::settle`]): the total covariance.
 //! 2. Every catalog effect not in the model weighed on the same evidence scale
 //!    ([`crate::diagnose::alternatives`]): the plausible ones' spread joins the total 1σ.
-//! 3. The reasons not to trust it: the data contradict the stated set-up; the data prefer an
+//! 3. A gyro drift step that beats every explanation is repaired ([`repaired_if_it_wins`]).
+//! 4. The reasons not to trust it: the data contradict the stated set-up; the data prefer an
 //!    effect the model lacks; a plausible alternative moves a coefficient beyond its total 1σ.
 
 use crate::steps::Progress;
@@ -13,6 +14,7 @@ use estimator_core::effects::Effect;
 
 use crate::catalog::Catalog;
 use crate::diagnose::alternatives::{self, Alternative, PLAUSIBLE_MARGIN};
+use crate::diagnose::drift_step::{self, DriftStepFit};
 use crate::diagnose::misstated;
 use crate::diagnose::select::MIN_EVIDENCE_GAIN;
 use crate::diagnose::DiagnoseConfig;
@@ -388,4 +390,43 @@ pub(crate) fn alternatives_untrusted(
         }
     }
     out
+}
+
+/// `identify`'s answer to a misfit at the settled set-up of `assessed`: a drift step profiled on
+/// the fit the alternatives were weighed against (so its evidence is on their scale); when it
+/// beats every alternative and a warm-up transient (which a step also follows) by the plausible
+/// margin, it is repaired — modelled from its time on, the model refitted at the `stated`
+/// set-up and assessed again (the set-up settles with the step in the model: settled first, the
+/// latitude had bent to absorb the step). Returns the effects and assessment to report and the
+/// step when it is only named (it explains the misfit but is not repaired: no rival beats it).
+pub(crate) fn repaired_if_it_wins<'c>(
+    catalog: &'c crate::catalog::Catalog,
+    stated: Prepared,
+    effects: Vec<&'c dyn Effect>,
+    cfg: &Config,
+    assessed: Assessment,
+    progress: &crate::steps::Progress,
+) -> anyhow::Result<(Vec<&'c dyn Effect>, Assessment, Option<DriftStepFit>)> {
+    let misfit = crate::consistency::consistency_of(&assessed.id, &assessed.prep)
+        .is_some_and(|c| !c.is_consistent());
+    if !misfit {
+        return Ok((effects, assessed, None));
+    }
+    progress.note(|| "profiling a gyro drift step".into());
+    let Some(step) = drift_step::profile(&assessed.prep, &effects, cfg, &assessed.id) else {
+        return Ok((effects, assessed, None));
+    };
+    if !step.beats(&assessed.alternatives) {
+        return Ok((effects, assessed, Some(step)));
+    }
+    let warmup = crate::diagnose::warmup::profile(&assessed.prep, &effects, cfg, &assessed.id);
+    if warmup.is_some_and(|(_, g)| g + PLAUSIBLE_MARGIN >= step.evidence_gain) {
+        // The warm-up explains it as well or better: the misfit stands; `diagnose` weighs both.
+        return Ok((effects, assessed, None));
+    }
+    let (with_step, id) = drift_step::repair(&stated, &effects, cfg, &step)?;
+    let mut prep = stated;
+    prep.findings.push(step.repaired());
+    let a = assess_with(catalog, &with_step, prep, cfg, id, progress)?;
+    Ok((with_step, a, None))
 }

@@ -6,7 +6,7 @@
 //! - the mean NIS/3 lies in its two-sided band for 3N degrees of freedom,
 //!   `[χ²_{(1−P)/2}(3N), χ²_{(1+P)/2}(3N)]/3N` with `P = nis_band_prob`;
 //! - the whitened innovations are white: Ljung–Box `p ≥ whiteness_alpha`
-//!   ([`crate::diagnose::whiteness`]);
+//!   ([`whiteness`]);
 //! - the residual along the converged trajectory is at the noise floor: `RMS/floor <
 //!   max(max_rms_over_floor, 1 + z·floor_rel_sd)` on every axis, z = 3.29 (the band's
 //!   two-sided 99.9 % point): a floor estimated from few samples (e.g. 36 h at 30 s: 2.7 %) is
@@ -18,7 +18,7 @@
 
 use serde::Serialize;
 
-use crate::stats::chi2_quantile;
+use crate::stats::{chi2_quantile, chi2_sf};
 
 /// The thresholds of consistency.
 #[derive(Clone, Copy, Debug, PartialEq, Serialize)]
@@ -146,6 +146,57 @@ pub(crate) fn assess(
     }
 }
 
+/// Autocorrelation and Ljung–Box test of the whitened innovations.
+#[derive(Clone, Debug, Default, Serialize)]
+pub struct Whiteness {
+    /// Autocorrelation at lags 1..=m, per axis.
+    pub acf: Vec<[f64; 3]>,
+    /// 95 % bound for a white sequence, ±1.96/√N.
+    pub acf_bound95: f64,
+    /// Ljung–Box statistic summed over the three axes.
+    pub ljung_box_q: f64,
+    /// Its degrees of freedom.
+    pub dof: f64,
+    /// p-value (small: not white).
+    pub p_value: f64,
+}
+
+/// Lags of the Ljung–Box test ([`crate::diagnose::DiagnoseConfig::lags`]'s default).
+pub const LJUNG_BOX_LAGS: usize = 20;
+
+/// Autocorrelation of each axis' whitened innovations and the Ljung–Box test over the three axes.
+///
+/// The whitened innovations of a filter are white under its model by construction (they are not
+/// residuals of a fit), so the Ljung–Box statistic is referred to χ²(3m) without the reduction
+/// for fitted ARMA parameters; the 12+ fitted constants shift the innovations by O(1/N).
+pub fn whiteness(w: &[[f64; 3]], lags: usize) -> Whiteness {
+    let n = w.len();
+    let lags = lags.min(n.saturating_sub(2)).max(1);
+    let mut acf = vec![[0.0; 3]; lags];
+    let mut q = 0.0;
+    for a in 0..3 {
+        let mean = w.iter().map(|x| x[a]).sum::<f64>() / n as f64;
+        let var = w.iter().map(|x| (x[a] - mean).powi(2)).sum::<f64>();
+        for k in 1..=lags {
+            let c: f64 = (k..n)
+                .map(|j| (w[j][a] - mean) * (w[j - k][a] - mean))
+                .sum();
+            let r = c / var.max(1e-300);
+            acf[k - 1][a] = r;
+            q += r * r / (n - k) as f64;
+        }
+    }
+    let q = n as f64 * (n as f64 + 2.0) * q;
+    let dof = 3.0 * lags as f64;
+    Whiteness {
+        acf,
+        acf_bound95: 1.96 / (n as f64).sqrt(),
+        ljung_box_q: q,
+        dof,
+        p_value: chi2_sf(q, dof),
+    }
+}
+
 /// Whether one run's coefficients agree with a joint estimate of several runs.
 #[derive(Clone, Debug, PartialEq, Serialize)]
 pub struct Agreement {
@@ -203,6 +254,20 @@ pub fn agreement(
     Agreement { chi2, dof, p_value }
 }
 
+/// One run of a joint fit against the joint estimate `joint` ([`agreement`]: the run's own
+/// estimate with its set-up's share, [`crate::identify::joint::RunFit`]).
+pub fn run_agreement(
+    fit: &crate::identify::joint::RunFit,
+    joint: &crate::identify::Estimate,
+) -> Agreement {
+    agreement(
+        &fit.own.value,
+        &(&fit.own.cov + &fit.setup.cov),
+        &joint.value,
+        &joint.cov,
+    )
+}
+
 /// The consistency of the converged identification (`None` for a single pass).
 pub fn consistency_of(
     id: &crate::identify::Identification,
@@ -224,8 +289,7 @@ pub fn fit_consistency(
     prep: &crate::identify::Prepared,
 ) -> Consistency {
     let whitened: Vec<[f64; 3]> = innovations.iter().map(|r| r.whitened).collect();
-    let white =
-        crate::diagnose::whiteness(&whitened, crate::diagnose::DiagnoseConfig::default().lags);
+    let white = whiteness(&whitened, LJUNG_BOX_LAGS);
     let floor = prep.floor_mps2();
     assess(
         crate::identify::mean_nis(innovations),

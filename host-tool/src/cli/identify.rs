@@ -351,9 +351,8 @@ fn run_one(args: &IdentifyArgs, catalog: &Catalog) -> anyhow::Result<()> {
     let stated = prep.clone();
     let assessed = crate::assess::assess_with(catalog, &effects, prep, &cfg, id, &progress)?;
     // A misfit a drift step explains better than anything else is repaired.
-    let (effects, assessed, step) = crate::diagnose::drift_step::repaired_if_it_wins(
-        catalog, stated, effects, &cfg, assessed, &progress,
-    )?;
+    let (effects, assessed, step) =
+        crate::assess::repaired_if_it_wins(catalog, stated, effects, &cfg, assessed, &progress)?;
     spin.finish_and_clear();
     let truth = match &args.truth {
         Some(p) => Some(truth_of(&read_truth(p)?, &assessed.id)),

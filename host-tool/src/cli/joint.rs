@@ -8,7 +8,7 @@ use super::common::{build_model, load, print_findings, trusted_or, ModelArgs};
 use super::diagnose::{diagnose_one, DiagnoseArgs};
 use super::identify::IdentifyArgs;
 use crate::catalog::Catalog;
-use crate::consistency::Consistency;
+use crate::consistency::{run_agreement, Consistency};
 use crate::format::{sci, with_sigma};
 use crate::identify::joint::{
     fit_alone, identify_joint_from, joint_bound, JointIdentification, Run, RunFit, RunSetup,
@@ -98,11 +98,11 @@ pub(crate) fn load_runs(
 /// `identify` with several runs and `plan` both.
 pub(crate) fn runs_untrusted(
     runs: &[LoadedRun],
-    fits: &[RunFit],
+    joint: &JointIdentification,
     checks: &[Consistency],
 ) -> Vec<String> {
     let mut reasons = vec![];
-    for ((r, c), fit) in runs.iter().zip(checks).zip(fits) {
+    for ((r, c), fit) in runs.iter().zip(checks).zip(&joint.runs) {
         let name = r.path.display();
         reasons.extend(
             r.prep
@@ -119,7 +119,7 @@ pub(crate) fn runs_untrusted(
                 c.failures.join("; "),
             ));
         }
-        if let Some(why) = fit.agreement.failure() {
+        if let Some(why) = run_agreement(fit, &joint.estimate).failure() {
             reasons.push(format!(
                 "{name}: {why}: were the runs made on one system, unchanged between them?"
             ));
@@ -130,7 +130,7 @@ pub(crate) fn runs_untrusted(
 
 /// Whether the model explains one run (the one definition in [`crate::consistency`]): the run's
 /// own fit at its settled set-up (whether its coefficients agree with the other runs' is
-/// [`RunFit::agreement`]).
+/// [`run_agreement`]).
 pub(crate) fn run_consistency(fit: &RunFit, prep: &Prepared) -> Consistency {
     super::identify::fit_consistency(fit.innovations(), fit.residual_rms_mps2(prep), prep)
 }
@@ -478,7 +478,7 @@ pub(crate) fn fit_runs(
         .zip(&runs)
         .map(|(fit, r)| run_consistency(fit, &r.prep))
         .collect();
-    let mut reasons = runs_untrusted(&runs, &joint.runs, &checks);
+    let mut reasons = runs_untrusted(&runs, &joint, &checks);
     for (r, alone) in runs.iter().zip(alone_reasons) {
         let name = r.path.display();
         reasons.extend(alone.into_iter().map(|m| format!("{name} alone: {m}")));
@@ -626,12 +626,12 @@ fn print_text(
 
 /// Each run's line: findings, length, orientation, its own fit's residual over the floor and
 /// NIS/3 and whether the model explains it ([`run_consistency`]), and whether its coefficients
-/// agree with the joint ones ([`RunFit::agreement`]).
+/// agree with the joint ones ([`run_agreement`]).
 fn print_runs(joint: &JointIdentification, runs: &[LoadedRun], checks: &[Consistency]) {
     for ((r, fit), c) in runs.iter().zip(&joint.runs).zip(checks) {
         print_findings(&r.prep.findings);
         let rms = c.rms_over_floor;
-        let agree = &fit.agreement;
+        let agree = run_agreement(fit, &joint.estimate);
         println!(
             "run {}: {:.2} h, {} updates, initial orientation {:?} deg ({:?} chart); residual/floor [{:.3}, {:.3}, {:.3}]; NIS/3 {:.3}; {}; against the joint χ² {:.1} for {} (p {:.1e})",
             r.path.display(),
@@ -692,7 +692,7 @@ fn to_json(
                 "floor_mps2": r.prep.floor_mps2(),
                 "nis_mean": c.nis_mean,
                 "consistency": c,
-                "agreement": fit.agreement,
+                "agreement": run_agreement(fit, &joint.estimate),
                 "data_quality": { "findings": r.prep.findings },
             })
         })

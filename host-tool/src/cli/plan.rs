@@ -221,7 +221,7 @@ impl Start {
             .zip(&runs)
             .map(|(fit, r)| run_consistency(fit, &r.prep))
             .collect();
-        let reasons = runs_untrusted(&runs, &joint.runs, &checks);
+        let reasons = runs_untrusted(&runs, &joint, &checks);
         let shares: Vec<_> = joint
             .runs
             .iter()

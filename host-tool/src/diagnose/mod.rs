@@ -69,7 +69,7 @@ impl Default for DiagnoseConfig {
         DiagnoseConfig {
             identify: Config::default(),
             alpha: 0.01,
-            lags: 20,
+            lags: crate::consistency::LJUNG_BOX_LAGS,
             max_rungs: 4,
             markov_block_h: 5.0,
             progress: crate::steps::Progress::default(),
@@ -299,7 +299,8 @@ fn choose(
 /// (`fit`, [`crate::identify::joint::RunFit`]), their whiteness (`lags`), failure windows,
 /// correlations and the one definition of consistent. No candidate is scored (the joint fit
 /// tests none): the ranking is empty and the verdict says whether the shared model explains the
-/// run (whether its coefficients agree with the other runs' is the fit's agreement).
+/// run (whether its coefficients agree with the other runs' is
+/// [`crate::consistency::run_agreement`]).
 pub(crate) fn of_joint_run(
     prep: &Prepared,
     model: Vec<String>,

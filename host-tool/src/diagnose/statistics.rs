@@ -5,8 +5,9 @@
 //! Every function here is a pure function of the series it is given; each is unit-tested against
 //! reference values computed independently (numpy/scipy, statsmodels' definitions).
 
-use super::types::{FailureWindow, RegressorCorrelation, Series, Whiteness};
-use crate::stats::{chi2_quantile, chi2_sf, normal_quantile};
+use super::types::{FailureWindow, RegressorCorrelation, Series};
+pub use crate::consistency::whiteness;
+use crate::stats::{chi2_quantile, normal_quantile};
 
 /// χ² quantiles of the display band of the mean NIS/3, 95 % two-sided ([`Fit::nis_band95`]; the
 /// band that decides consistency is [`crate::consistency::Thresholds::nis_band_prob`]'s).
@@ -54,39 +55,6 @@ pub(crate) fn fit(s: &Series, floor_mps2: [f64; 3], residual_rms_mps2: [f64; 3])
         residual_rms_over_floor,
         nis_mean,
         nis_band95,
-    }
-}
-
-/// Autocorrelation of each axis' whitened innovations and the Ljung–Box test over the three axes.
-///
-/// The whitened innovations of a filter are white under its model by construction (they are not
-/// residuals of a fit), so the Ljung–Box statistic is referred to χ²(3m) without the reduction
-/// for fitted ARMA parameters; the 12+ fitted constants shift the innovations by O(1/N).
-pub fn whiteness(w: &[[f64; 3]], lags: usize) -> Whiteness {
-    let n = w.len();
-    let lags = lags.min(n.saturating_sub(2)).max(1);
-    let mut acf = vec![[0.0; 3]; lags];
-    let mut q = 0.0;
-    for a in 0..3 {
-        let mean = w.iter().map(|x| x[a]).sum::<f64>() / n as f64;
-        let var = w.iter().map(|x| (x[a] - mean).powi(2)).sum::<f64>();
-        for k in 1..=lags {
-            let c: f64 = (k..n)
-                .map(|j| (w[j][a] - mean) * (w[j - k][a] - mean))
-                .sum();
-            let r = c / var.max(1e-300);
-            acf[k - 1][a] = r;
-            q += r * r / (n - k) as f64;
-        }
-    }
-    let q = n as f64 * (n as f64 + 2.0) * q;
-    let dof = 3.0 * lags as f64;
-    Whiteness {
-        acf,
-        acf_bound95: 1.96 / (n as f64).sqrt(),
-        ljung_box_q: q,
-        dof,
-        p_value: chi2_sf(q, dof),
     }
 }
 

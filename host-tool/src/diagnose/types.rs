@@ -26,20 +26,7 @@ pub struct Series {
     pub temp_c: Vec<f64>,
 }
 
-/// Autocorrelation and Ljung–Box test of the whitened innovations.
-#[derive(Clone, Debug, Default, Serialize)]
-pub struct Whiteness {
-    /// Autocorrelation at lags 1..=m, per axis.
-    pub acf: Vec<[f64; 3]>,
-    /// 95 % bound for a white sequence, ±1.96/√N.
-    pub acf_bound95: f64,
-    /// Ljung–Box statistic summed over the three axes.
-    pub ljung_box_q: f64,
-    /// Its degrees of freedom.
-    pub dof: f64,
-    /// p-value (small: not white).
-    pub p_value: f64,
-}
+pub use crate::consistency::Whiteness;
 
 /// A time interval where the model leaves its band.
 #[derive(Clone, Debug, Serialize)]

@@ -38,7 +38,6 @@ use super::{
     identify, nominal_trajectory, weak_combinations, wide_prior, Config, Estimate, Identification,
     Prepared, WeakCombination,
 };
-use crate::consistency::{agreement, Agreement};
 
 /// Gauss–Newton iterations of the joint fit after the runs' own fits (the second changes the
 /// estimate by far less than 1σ on the paper's scenario).
@@ -54,7 +53,7 @@ pub struct Run<'a, 'm> {
 
 /// What the joint fit says about one run. Whether the shared model explains the run is its own
 /// fit's consistency at its settled set-up (the coefficients its own); whether the run's
-/// coefficients agree with the joint ones is [`RunFit::agreement`]. (A pass with the joint
+/// coefficients agree with the joint ones is [`crate::consistency::run_agreement`]. (A pass with the joint
 /// estimate as the parameters' prior at the run's settled set-up is no test of either: where
 /// the run's set-up moves a coefficient the run's data pin at that set-up, the joint estimate
 /// lies many of its noise-only 1σ away, and its innovations fail whiteness on clean runs.)
@@ -68,8 +67,6 @@ pub struct RunFit {
     pub setup: RunSetup,
     /// The run's own posterior at the joint estimate (its data alone, its set-up as settled).
     pub own: Estimate,
-    /// The run's coefficients against the joint estimate, the set-up's share included.
-    pub agreement: Agreement,
 }
 
 impl RunFit {
@@ -227,27 +224,6 @@ fn run_posterior(
     Ok((estimate, [first[0], first[1], first[2]]))
 }
 
-/// What the joint fit says about a run (see [`RunFit`]).
-fn run_fit(
-    joint: &Estimate,
-    alone: Identification,
-    initial_angles: [f64; 3],
-    (own, setup): (Estimate, RunSetup),
-) -> RunFit {
-    RunFit {
-        alone,
-        initial_angles,
-        agreement: agreement(
-            &own.value,
-            &(&own.cov + &setup.cov),
-            &joint.value,
-            &joint.cov,
-        ),
-        setup,
-        own,
-    }
-}
-
 /// Identifies one set of parameters from several runs (see the module docs), each run's set-up
 /// taken as exactly known.
 pub fn identify_joint(runs: &[Run<'_, '_>], cfg: &Config) -> anyhow::Result<JointIdentification> {
@@ -313,8 +289,13 @@ pub fn identify_joint_from(
     }
     let mut fits = Vec::with_capacity(runs.len());
     let own = posteriors.into_iter().zip(setups.iter().cloned());
-    for ((id, a), own) in alone.into_iter().zip(angles).zip(own) {
-        fits.push(run_fit(&joint, id, a, own));
+    for ((alone, initial_angles), (own, setup)) in alone.into_iter().zip(angles).zip(own) {
+        fits.push(RunFit {
+            alone,
+            initial_angles,
+            setup,
+            own,
+        });
     }
     let weak = weak_combinations(
         first.model,
