@@ -506,35 +506,13 @@ pub(crate) fn identify_runs(
     truth_path: Option<&std::path::Path>,
     as_json: bool,
 ) -> anyhow::Result<(Value, Vec<String>)> {
-    let JointFit {
-        runs,
-        joint,
-        bound,
-        total_sigma: total,
-        noise_sigma: noise,
-        checks,
-        truth,
-        reasons,
-    } = fit_runs(catalog, paths, model_args, with, truth_path)?;
-    let mut out = to_json(
-        &joint,
-        &runs,
-        &checks,
-        &bound,
-        (&total, &noise),
-        truth.as_deref(),
-    );
+    let fit = fit_runs(catalog, paths, model_args, with, truth_path)?;
+    let reasons = fit.reasons.clone();
+    let mut out = to_json(&fit);
     out["trusted"] = json!(reasons.is_empty());
     out["untrusted_reasons"] = json!(reasons);
     if !as_json {
-        print_text(
-            &joint,
-            &runs,
-            &checks,
-            &bound,
-            (&total, &noise),
-            truth.as_deref(),
-        );
+        print_text(&fit);
         if !reasons.is_empty() {
             println!(
                 "NOT TRUSTED: the numbers above are computed but the tool does not trust them:"
@@ -571,14 +549,18 @@ pub(crate) fn deg3(a: &[f64; 3]) -> [f64; 3] {
     a.map(|v| (v.to_degrees() * 1e4).round() / 1e4)
 }
 
-fn print_text(
-    joint: &JointIdentification,
-    runs: &[LoadedRun],
-    checks: &[Consistency],
-    bound: &[f64],
-    (total, noise): (&[f64], &[f64]),
-    truth: Option<&[f64]>,
-) {
+fn print_text(fit: &JointFit) {
+    let JointFit {
+        runs,
+        joint,
+        bound,
+        total_sigma: total,
+        noise_sigma: noise,
+        checks,
+        truth,
+        ..
+    } = fit;
+    let truth = truth.as_deref();
     print_runs(joint, runs, checks);
     println!(
         "joint drift coefficients from {} runs (each run's smoother relinearised about the joint estimate)",
@@ -658,14 +640,18 @@ fn print_weak(weak: &[crate::identify::WeakCombination]) {
     }
 }
 
-fn to_json(
-    joint: &JointIdentification,
-    runs: &[LoadedRun],
-    checks: &[Consistency],
-    bound: &[f64],
-    (total, noise): (&[f64], &[f64]),
-    truth: Option<&[f64]>,
-) -> Value {
+fn to_json(fit: &JointFit) -> Value {
+    let JointFit {
+        runs,
+        joint,
+        bound,
+        total_sigma: total,
+        noise_sigma: noise,
+        checks,
+        truth,
+        ..
+    } = fit;
+    let truth = truth.as_deref();
     let mut coefs = Map::new();
     let e = &joint.estimate;
     for (k, p) in joint.params.iter().enumerate() {
