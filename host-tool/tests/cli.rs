@@ -1102,7 +1102,10 @@ fn a_warm_up_transient_is_named_and_its_coefficients_hold() {
 #[test]
 fn clean_day_long_runs_are_not_distrusted_for_a_daily_drift_they_carry() {
     let dir = temp_dir("clean-24h");
-    for seed in ["101", "106", "108"] {
+    // Seed 1079: the data moved the latitude by noise (evidence gain 2.8) and the run was
+    // distrusted as "resting on the assumed latitude prior" (1 of 100 clean runs); a move the
+    // data do not establish (gain < 10) is no such reason.
+    for seed in ["101", "106", "108", "1079"] {
         let csv = simulate_to(
             &dir,
             &format!("c{seed}.csv"),
