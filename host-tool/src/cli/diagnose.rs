@@ -344,7 +344,7 @@ pub(crate) fn diagnose_one(
         cfg.identify.smoother_iterations > 0,
         "diagnose needs the converged identification; drop --single-pass"
     );
-    let c = climb(catalog, recording, args, &mut cfg)?;
+    let c = climb(catalog, recording, &args.model, &mut cfg)?;
     let mut reasons = ladder_untrusted(&c.faults, &c.diagnoses);
     reasons.extend(c.assessed.reasons.iter().cloned());
     let truth = match &args.truth {
@@ -384,27 +384,29 @@ pub(crate) fn diagnose_one(
 /// One recording taken up the model ladder and assessed: the prepared run, the data's faults,
 /// every rung's diagnosis, the final model's effects and its assessment (its honest 1σ and the
 /// alternatives it cannot rule out).
-struct Climbed<'c> {
-    prep: crate::identify::Prepared,
-    faults: Vec<String>,
-    diagnoses: Vec<Diagnosis>,
-    rungs: Vec<Rung>,
-    final_effects: Vec<&'c dyn estimator_core::effects::Effect>,
-    assessed: crate::assess::Assessment,
+pub(crate) struct Climbed<'c> {
+    pub prep: crate::identify::Prepared,
+    /// The recording's free-text description, if any.
+    pub description: Option<String>,
+    pub faults: Vec<String>,
+    pub diagnoses: Vec<Diagnosis>,
+    pub rungs: Vec<Rung>,
+    pub final_effects: Vec<&'c dyn estimator_core::effects::Effect>,
+    pub assessed: crate::assess::Assessment,
 }
 
 /// Loads and prepares `recording`, fits the starting model (`cfg.identify` takes what the
 /// starting fit settles), climbs the ladder (one rung when the data have faults: a fault is
 /// named as a fault, never explained by a physical effect) and assesses the final model by
-/// the one path shared with identify and report.
-fn climb<'c>(
+/// the one path shared with identify and report. `diagnose` and `report` both climb so.
+pub(crate) fn climb<'c>(
     catalog: &'c Catalog,
     recording: &std::path::Path,
-    args: &DiagnoseArgs,
+    model: &super::common::ModelArgs,
     cfg: &mut DiagnoseConfig,
 ) -> anyhow::Result<Climbed<'c>> {
-    let loaded = load(catalog, recording, args.model.latitude_deg)?;
-    let effects = catalog.model_effects(&args.model.with)?;
+    let loaded = load(catalog, recording, model.latitude_deg)?;
+    let effects = catalog.model_effects(&model.with)?;
     let mut prep = super::common::prepare_loaded(recording, &loaded, &cfg.identify)?;
     let mut stated = None;
     let spin = crate::progress::spinner("fitting the starting model");
@@ -450,6 +452,7 @@ fn climb<'c>(
     spin.finish_and_clear();
     Ok(Climbed {
         prep,
+        description: loaded.description,
         faults,
         diagnoses,
         rungs,

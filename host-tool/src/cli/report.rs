@@ -2,10 +2,10 @@
 
 use std::path::PathBuf;
 
-use super::common::{load, ModelArgs};
+use super::common::ModelArgs;
 use super::identify::rows;
 use crate::catalog::Catalog;
-use crate::diagnose::{ladder_from, DiagnoseConfig, Ladder};
+use crate::diagnose::DiagnoseConfig;
 use crate::output;
 use crate::report::{draw_pngs, render_html, CoefRow, ReportInput};
 use crate::simulate::read_truth;
@@ -58,42 +58,15 @@ fn run_one(args: &ReportArgs, catalog: &Catalog) -> anyhow::Result<()> {
         cfg.identify.smoother_iterations > 0,
         "report needs the converged identification; drop --single-pass"
     );
-    let loaded = load(catalog, recording, args.model.latitude_deg)?;
-    let effects = catalog.model_effects(&args.model.with)?;
-    let mut prep = super::common::prepare_loaded(recording, &loaded, &cfg.identify)?;
-    let mut stated = None;
-    let spin = crate::progress::spinner("fitting the starting model");
-    let first = super::common::starting_fit(
-        &mut prep,
-        catalog,
-        &effects,
-        &mut cfg.identify,
-        &mut stated,
-        &crate::progress::follow(&spin),
-    )?;
-    spin.finish_and_clear();
-    super::common::print_findings(&prep.findings);
-    let faults = prep.untrusted_reasons();
-    if !faults.is_empty() {
-        // A data fault is named as a fault, never explained by a physical effect: no ladder.
-        cfg.max_rungs = 1;
-    }
-    let spin = crate::progress::spinner("climbing the model ladder");
-    cfg.progress = crate::progress::follow(&spin);
-    let Ladder {
-        diagnoses,
-        rungs,
-        identification: id,
-        effects: final_effects,
-    } = ladder_from(&prep, catalog, &effects, &cfg, first)?;
-    spin.finish_and_clear();
-    let model = super::common::build_model(prep.site, &final_effects, &cfg.identify)?;
-    let mut untrusted = super::diagnose::ladder_untrusted(&faults, &diagnoses);
+    let c = super::diagnose::climb(catalog, recording, &args.model, &mut cfg)?;
+    super::common::print_findings(&c.prep.findings);
+    let model = super::common::build_model(c.prep.site, &c.final_effects, &cfg.identify)?;
+    let mut untrusted = super::diagnose::ladder_untrusted(&c.faults, &c.diagnoses);
+    let assessed = c.assessed;
     let truth = match &args.truth {
-        Some(p) => Some(super::identify::truth_of(&read_truth(p)?, &id)),
+        Some(p) => Some(super::identify::truth_of(&read_truth(p)?, &assessed.id)),
         None => None,
     };
-    let assessed = final_assessment(catalog, stated, &prep, &final_effects, &cfg.identify, id)?;
     untrusted.extend(assessed.reasons.iter().cloned());
     let table = rows(
         &assessed.id,
@@ -109,9 +82,9 @@ fn run_one(args: &ReportArgs, catalog: &Catalog) -> anyhow::Result<()> {
     let input = ReportInput {
         title: format!("Gyro drift identification — {name}"),
         recording: name,
-        description: loaded.description,
-        diagnoses,
-        ladder: rungs,
+        description: c.description,
+        diagnoses: c.diagnoses,
+        ladder: c.rungs,
         coefficients: coefficient_rows(&table, truth.as_deref()),
         findings: assessed.prep.findings.clone(),
         untrusted: untrusted.clone(),
@@ -140,32 +113,6 @@ fn checked_outputs(args: &ReportArgs) -> anyhow::Result<output::Outputs> {
         output::check_output_dir(dir, "--png")?;
     }
     Ok(outputs)
-}
-
-/// The final model's fit `id` assessed ([`crate::assess`]) where it is to be
-/// ([`super::common::for_assessment`]: on the set-up as `stated` when the ladder ran on a
-/// settled one, else on `prep`), behind its spinner.
-fn final_assessment(
-    catalog: &Catalog,
-    stated: Option<crate::identify::Prepared>,
-    prep: &crate::identify::Prepared,
-    effects: &[&dyn estimator_core::effects::Effect],
-    cfg: &crate::identify::Config,
-    id: crate::identify::Identification,
-) -> anyhow::Result<crate::assess::Assessment> {
-    let spin =
-        crate::progress::spinner("the set-up's uncertainty and the alternative explanations");
-    let (at, id) = super::common::for_assessment(stated, prep, effects, cfg, id)?;
-    let assessed = crate::assess::assess_with(
-        catalog,
-        effects,
-        at,
-        cfg,
-        id,
-        &crate::progress::follow(&spin),
-    );
-    spin.finish_and_clear();
-    assessed
 }
 
 /// The coefficient table's rows as the page shows them, with the truth where it is finite.
