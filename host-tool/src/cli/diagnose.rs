@@ -350,7 +350,7 @@ pub(crate) fn diagnose_one(
     let truth = match &args.truth {
         Some(p) => Some(super::identify::truth_of(
             &crate::simulate::read_truth(p)?,
-            &c.assessed.id,
+            &c.assessed.id.params,
         )),
         None => None,
     };

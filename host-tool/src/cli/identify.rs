@@ -53,16 +53,38 @@ pub(crate) struct Row {
 
 /// The true value of each of the identification's parameters (NaN where the truth file has none:
 /// an effect not injected is 0, a Gauss–Markov state has no fixed truth).
-pub(crate) fn truth_of(truth: &crate::simulate::Truth, id: &Identification) -> Vec<f64> {
+pub(crate) fn truth_of(
+    truth: &crate::simulate::Truth,
+    params: &[estimator_core::effects::Param],
+) -> Vec<f64> {
     let values = truth.parameter_values();
-    id.params
+    params
         .iter()
         .map(|p| match values.get(p.name) {
             Some(v) => *v,
-            None if p.name.starts_with('M') && p.name.len() == 2 => f64::NAN,
-            None => 0.0,
+            None if known_zero(p.name) => 0.0,
+            None => f64::NAN,
         })
         .collect()
+}
+
+/// Whether a parameter the simulator did not inject is truly zero: a parameter of a built-in
+/// effect (the paper's, the catalog's, the drift step's, the warm-up's) that is no Gauss–Markov
+/// state. A Gauss–Markov state is a random process, and an effects-file parameter is named by
+/// the user (the simulator's own effects outside the catalog, such as `acc-north`, are not
+/// matched to it): their truth is unknown (NaN), not 0 — the error column was wrong for them.
+fn known_zero(name: &str) -> bool {
+    let deterministic = |e: &dyn estimator_core::effects::Effect| {
+        (0..e.params().len()).any(|k| e.params()[k].name == name && e.markov(k).is_none())
+    };
+    crate::catalog::builtin_candidates()
+        .into_iter()
+        .chain([crate::catalog::paper()])
+        .any(deterministic)
+        || crate::diagnose::drift_step::PARAMS
+            .iter()
+            .chain(&crate::diagnose::warmup::PARAMS)
+            .any(|p| p.name == name)
 }
 
 /// Builds the rows of an identification (bound at `truth` where it is known, NaN entries
@@ -355,7 +377,7 @@ fn run_one(args: &IdentifyArgs, catalog: &Catalog) -> anyhow::Result<()> {
         crate::assess::repaired_if_it_wins(catalog, stated, effects, &cfg, assessed, &progress)?;
     spin.finish_and_clear();
     let truth = match &args.truth {
-        Some(p) => Some(truth_of(&read_truth(p)?, &assessed.id)),
+        Some(p) => Some(truth_of(&read_truth(p)?, &assessed.id.params)),
         None => None,
     };
     let model = build_model(assessed.prep.site, &effects, &cfg)?;

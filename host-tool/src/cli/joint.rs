@@ -452,21 +452,19 @@ pub(crate) fn fit_runs(
         fit_jointly(catalog, &mut runs, &effects, &cfg, &label, &assess_run)?;
     let joint_runs = as_runs(&models, &runs);
     let truth: Option<Vec<f64>> = match truth_path {
-        Some(p) => {
-            let values = read_truth(p)?.parameter_values();
-            Some(
-                joint
-                    .params
-                    .iter()
-                    .map(|p| values.get(p.name).copied().unwrap_or(0.0))
-                    .collect(),
-            )
-        }
+        Some(p) => Some(super::identify::truth_of(&read_truth(p)?, &joint.params)),
         None => None,
     };
-    let bound_at = truth
-        .clone()
-        .unwrap_or_else(|| joint.estimate.value.clone());
+    // At the truth where it is known (NaN: unknown), else at the estimate.
+    let bound_at: Vec<f64> = (0..joint.params.len())
+        .map(|k| {
+            truth
+                .as_ref()
+                .map(|t| t[k])
+                .filter(|v| v.is_finite())
+                .unwrap_or(joint.estimate.value[k])
+        })
+        .collect();
     let bound = joint_bound(&joint_runs, &bound_at).unwrap_or_else(|e| {
         eprintln!("driftid: warning: no Cramér–Rao bound: {e:#}");
         vec![f64::NAN; bound_at.len()]
@@ -597,7 +595,8 @@ fn print_text(fit: &JointFit) {
             sci(bound[k]),
             sci(alone)
         );
-        if let Some(t) = truth {
+        // A truth the simulator cannot know (NaN) leaves its columns blank.
+        if let Some(t) = truth.filter(|t| t[k].is_finite()) {
             let err = e.value[k] - t[k];
             print!(" {:>10} {:>10} {:>7.2}", t[k], sci(err), err / total[k]);
         }
@@ -657,7 +656,7 @@ fn to_json(fit: &JointFit) -> Value {
     for (k, p) in joint.params.iter().enumerate() {
         let mut o = json!({ "value": e.value[k], "sigma_total": total[k], "sigma": noise[k], "bound": bound[k], "unit": p.unit,
             "alone_sigma": joint.runs.iter().map(|f| f.alone.best().sigma(k)).collect::<Vec<_>>() });
-        if let Some(t) = truth {
+        if let Some(t) = truth.filter(|t| t[k].is_finite()) {
             o["truth"] = json!(t[k]);
             o["error"] = json!(e.value[k] - t[k]);
         }

@@ -64,7 +64,10 @@ fn run_one(args: &ReportArgs, catalog: &Catalog) -> anyhow::Result<()> {
     let mut untrusted = super::diagnose::ladder_untrusted(&c.faults, &c.diagnoses);
     let assessed = c.assessed;
     let truth = match &args.truth {
-        Some(p) => Some(super::identify::truth_of(&read_truth(p)?, &assessed.id)),
+        Some(p) => Some(super::identify::truth_of(
+            &read_truth(p)?,
+            &assessed.id.params,
+        )),
         None => None,
     };
     untrusted.extend(assessed.reasons.iter().cloned());

@@ -25,7 +25,7 @@ pub(crate) const PRIOR_SIGMA_DEGPH: f64 = 0.01;
 /// Spacing of the coarse profile over t₀, h.
 pub(crate) const COARSE_STEP_H: f64 = 0.5;
 
-const PARAMS: [Param; 3] = [
+pub(crate) const PARAMS: [Param; 3] = [
     Param {
         name: "DSX",
         unit: "deg/h",

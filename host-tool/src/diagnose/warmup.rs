@@ -20,7 +20,7 @@ pub const PRIOR_SIGMA_DEGPH: f64 = 0.01;
 /// trend, and one shorter than a filter period or two is not seen).
 pub const TAUS_H: [f64; 10] = [0.5, 0.75, 1.125, 1.69, 2.53, 3.8, 5.7, 8.5, 12.8, 19.2];
 
-const PARAMS: [Param; 3] = [
+pub(crate) const PARAMS: [Param; 3] = [
     Param {
         name: "AWX",
         unit: "deg/h",
