@@ -460,6 +460,28 @@ struct Marginal {
     model: KnobModel,
 }
 
+/// The refits' design points in the basis' coordinates: ±1 on each of `m` axes, then (1, 1) on
+/// each pair.
+fn design_points(m: usize) -> Vec<Vec<f64>> {
+    let mut ws: Vec<Vec<f64>> = vec![];
+    for k in 0..m {
+        for sign in [1.0, -1.0] {
+            let mut w = vec![0.0; m];
+            w[k] = sign;
+            ws.push(w);
+        }
+    }
+    for i in 0..m {
+        for j in i + 1..m {
+            let mut w = vec![0.0; m];
+            w[i] = 1.0;
+            w[j] = 1.0;
+            ws.push(w);
+        }
+    }
+    ws
+}
+
 /// −2 ln p(y) to second order about the stated set-up, and the coefficients' sensitivity, in
 /// units of each knob's prior 1σ `h` (`u = δ/h`; the live knobs only), from refits along the
 /// columns of `basis` (each a step in u): at ±b_k and at b_i + b_j for each pair. In the basis'
@@ -483,22 +505,7 @@ fn quadratic(
         }
         d
     };
-    let mut ws: Vec<Vec<f64>> = vec![];
-    for k in 0..m {
-        for sign in [1.0, -1.0] {
-            let mut w = vec![0.0; m];
-            w[k] = sign;
-            ws.push(w);
-        }
-    }
-    for i in 0..m {
-        for j in i + 1..m {
-            let mut w = vec![0.0; m];
-            w[i] = 1.0;
-            w[j] = 1.0;
-            ws.push(w);
-        }
-    }
+    let ws = design_points(m);
     let fits: Vec<anyhow::Result<(f64, DVector<f64>)>> = ws
         .par_iter()
         .map(|w| refit(&moved(prep, point(w)), effects, cfg, id))
