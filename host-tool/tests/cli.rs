@@ -1331,3 +1331,30 @@ fn runs_at_low_latitudes_are_never_confidently_wrong() {
     }
     let _ = std::fs::remove_dir_all(&dir);
 }
+
+/// The set-up taken as exact (every prior 0, as the message for a set-up that cannot be
+/// marginalised advises) is identified without a crash: the refits' design had no knob left and
+/// an eigen-decomposition of an empty matrix panicked (exit 101).
+#[test]
+fn a_set_up_taken_as_exact_identifies_without_a_crash() {
+    let dir = temp_dir("exact-setup");
+    let csv = simulate_to(
+        &dir,
+        "run.csv",
+        &["--hours", "12", "--rate-s", "10", "--seed", "8"],
+    );
+    let exact = [
+        "--latitude-sigma-deg",
+        "0",
+        "--clock-sigma-ppm",
+        "0",
+        "--gravity-sigma-ppm",
+        "0",
+    ];
+    let mut args: Vec<std::ffi::OsString> = vec!["identify".into(), csv.into()];
+    args.extend(exact.iter().map(Into::into));
+    let (code, all) = run_driftid(&args);
+    assert!(matches!(code, Some(0 | 3)), "{all}");
+    assert!(all.contains("DXx") && !all.contains("panicked"), "{all}");
+    let _ = std::fs::remove_dir_all(&dir);
+}

@@ -496,6 +496,15 @@ fn quadratic(
     id: &Identification,
 ) -> anyhow::Result<(DVector<f64>, DMatrix<f64>, DMatrix<f64>)> {
     let m = live.len();
+    let n = id.best().value.len();
+    if m == 0 {
+        // Every knob taken as exact: nothing to refit.
+        return Ok((
+            DVector::zeros(3),
+            DMatrix::zeros(3, 3),
+            DMatrix::zeros(n, 3),
+        ));
+    }
     // A step in w as the set-up moved, in the knobs' units.
     let point = |w: &[f64]| {
         let u = basis * DVector::from_column_slice(w);
@@ -517,7 +526,6 @@ fn quadratic(
         w[k] = s;
         w
     };
-    let n = id.best().value.len();
     let mut grad_w = DVector::zeros(m);
     let mut hess_w = DMatrix::zeros(m, m);
     let mut sens_w = DMatrix::zeros(n, m);
@@ -572,6 +580,9 @@ const STEEP_RATIO: f64 = 4.0;
 /// eigendirections), or `None` when no direction is steep.
 fn steep_basis(hess: &DMatrix<f64>, live: &[usize]) -> Option<DMatrix<f64>> {
     let m = live.len();
+    if m == 0 {
+        return None;
+    }
     let sub = DMatrix::from_fn(m, m, |a, b| hess[(live[a], live[b])]);
     let eig = nalgebra::SymmetricEigen::new(sub);
     let limit = 2.0 * STEEP_RATIO * STEEP_RATIO;
@@ -625,7 +636,18 @@ fn marginalise(
     let identity = DMatrix::identity(live.len(), live.len());
     let mut q = quadratic(f0, (&h, &live, &identity), prep, effects, cfg, id)?;
     if let Some(basis) = steep_basis(&q.1, &live) {
-        q = quadratic(f0, (&h, &live, &basis), prep, effects, cfg, id)?;
+        // Where the second round's refits fail or diverge, the first round's model stands.
+        if let Ok(q2) = quadratic(f0, (&h, &live, &basis), prep, effects, cfg, id) {
+            if q2
+                .0
+                .iter()
+                .chain(q2.1.iter())
+                .chain(q2.2.iter())
+                .all(|v| v.is_finite())
+            {
+                q = q2;
+            }
+        }
     }
     let (grad, hess, sens) = q;
     // The data's curvature is a Gauss–Newton Hessian, positive semi-definite: clamp what the
@@ -635,7 +657,9 @@ fn marginalise(
         * DMatrix::from_diagonal(&eig.eigenvalues.map(|l| l.max(0.0)))
         * eig.eigenvectors.transpose();
     let a = &hess_psd + DMatrix::identity(3, 3) * 2.0;
-    let a_inv = a.try_inverse().context("set-up posterior")?;
+    let a_inv = a.try_inverse().context(
+        "the set-up's posterior could not be formed from the refits at the latitude's, clock rate's and gravity's prior 1σ (not finite), so what they add to the 1σ is unknown; setting their priors to 0 (--latitude-sigma-deg 0 --clock-sigma-ppm 0 --gravity-sigma-ppm 0) takes them as exact",
+    )?;
     let v = &a_inv * 2.0;
     let shift_u = -(&a_inv * &grad);
     let cov = &sens * &v * sens.transpose();
