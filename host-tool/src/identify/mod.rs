@@ -411,7 +411,7 @@ impl Identification {
     }
     /// Mean NIS of the final innovations (3 per update; 1 is consistent after dividing by 3).
     pub fn nis_mean(&self) -> f64 {
-        self.innovations.iter().map(|r| r.nis).sum::<f64>() / (3.0 * self.innovations.len() as f64)
+        mean_nis(&self.innovations)
     }
     /// RMS of the residuals per axis on the floor's scale, m/s² ([`Prepared::residual_rms_mps2`]).
     pub fn residual_rms_mps2(&self, prep: &Prepared) -> [f64; 3] {
