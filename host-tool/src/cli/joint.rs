@@ -640,32 +640,23 @@ fn print_weak(weak: &[crate::identify::WeakCombination]) {
 }
 
 fn to_json(fit: &JointFit) -> Value {
-    let JointFit {
-        runs,
-        joint,
-        bound,
-        total_sigma: total,
-        noise_sigma: noise,
-        checks,
-        truth,
-        ..
-    } = fit;
-    let truth = truth.as_deref();
+    let joint = &fit.joint;
     let mut coefs = Map::new();
     let e = &joint.estimate;
     for (k, p) in joint.params.iter().enumerate() {
-        let mut o = json!({ "value": e.value[k], "sigma_total": total[k], "sigma": noise[k], "bound": bound[k], "unit": p.unit,
+        let mut o = json!({ "value": e.value[k], "sigma_total": fit.total_sigma[k], "sigma": fit.noise_sigma[k], "bound": fit.bound[k], "unit": p.unit,
             "alone_sigma": joint.runs.iter().map(|f| f.alone.best().sigma(k)).collect::<Vec<_>>() });
-        if let Some(t) = truth.filter(|t| t[k].is_finite()) {
+        if let Some(t) = fit.truth.as_deref().filter(|t| t[k].is_finite()) {
             o["truth"] = json!(t[k]);
             o["error"] = json!(e.value[k] - t[k]);
         }
         coefs.insert(p.name.to_string(), o);
     }
-    let run_objs: Vec<Value> = runs
+    let run_objs: Vec<Value> = fit
+        .runs
         .iter()
         .zip(&joint.runs)
-        .zip(checks)
+        .zip(&fit.checks)
         .map(|((r, fit), c)| {
             json!({
                 "recording": r.path.display().to_string(),
