@@ -326,11 +326,13 @@ impl Uncertainty {
 /// gravity, and stays when given or measured) and the start's attitude kept, re-expressed in the
 /// chart that start calls for there (a chart's angles depend on the latitude).
 pub fn at_latitude(prep: &Prepared, lat_deg: f64) -> Prepared {
-    let derived = (prep.site.gravity_mps2
-        - estimator_core::frames::normal_gravity(prep.site.latitude_rad))
-    .abs()
-        < 1e-12;
-    at_latitude_with(prep, lat_deg, derived)
+    at_latitude_with(prep, lat_deg, normal_gravity_at_site(prep))
+}
+
+/// Whether `prep`'s gravity is the normal gravity of its latitude (and so moves with it).
+fn normal_gravity_at_site(prep: &Prepared) -> bool {
+    (prep.site.gravity_mps2 - estimator_core::frames::normal_gravity(prep.site.latitude_rad)).abs()
+        < 1e-12
 }
 
 /// [`at_latitude`], gravity moving with the latitude (`derived`) or kept.
@@ -338,8 +340,25 @@ pub fn at_latitude_with(prep: &Prepared, lat_deg: f64, derived: bool) -> Prepare
     let enu = prep.site.angles_to_enu(&prep.initial_angles);
     let mut site = Site::new(lat_deg, (!derived).then_some(prep.site.gravity_mps2));
     site.chart = site.chart_for_start(&enu);
+    in_site(prep, site, &enu)
+}
+
+/// `prep` at latitude `lat_deg` in the chart it has (gravity as in [`at_latitude`]): a set-up
+/// moved by a prior σ for a refit warm-started from the stated fit, whose trajectory's angles
+/// are in that chart. Choosing the chart anew switched it where a start sits on the charts'
+/// border (a level start at exactly 30° S), and the refit started 60° off and diverged.
+fn at_latitude_in_chart(prep: &Prepared, lat_deg: f64) -> Prepared {
+    let enu = prep.site.angles_to_enu(&prep.initial_angles);
+    let derived = normal_gravity_at_site(prep);
+    let mut site = Site::new(lat_deg, (!derived).then_some(prep.site.gravity_mps2));
+    site.chart = prep.site.chart;
+    in_site(prep, site, &enu)
+}
+
+/// `prep` at `site`, its start (ENU angles `enu`) re-expressed in the site's chart.
+fn in_site(prep: &Prepared, site: Site, enu: &[f64; 3]) -> Prepared {
     let mut p = prep.clone();
-    p.initial_angles = site.angles_to_chart(&enu);
+    p.initial_angles = site.angles_to_chart(enu);
     p.site = site;
     p
 }
@@ -426,11 +445,11 @@ struct Knob {
     stated: f64,
 }
 
-/// `prep` with the set-up moved by `d` (latitude deg, clock ppm, gravity ppm).
+/// `prep` with the set-up moved by `d` (latitude deg, clock ppm, gravity ppm), in its chart.
 pub(crate) fn moved(prep: &Prepared, d: [f64; 3]) -> Prepared {
     let lat_deg = prep.site.latitude_rad.to_degrees();
     let mut p = if d[0] != 0.0 {
-        at_latitude(prep, lat_deg + d[0])
+        at_latitude_in_chart(prep, lat_deg + d[0])
     } else {
         prep.clone()
     };
