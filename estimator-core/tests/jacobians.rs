@@ -29,7 +29,7 @@ static EFFECTS: [&dyn Effect; 9] = [
     &G2Drift,
     &AccScale,
     &AccMisalign,
-    &DriftTrend,
+    &DriftTrend::CATALOG,
     &TempDrift,
     &DriftDaily { sigma_degph: 0.01 },
 ];

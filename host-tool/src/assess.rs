@@ -19,6 +19,7 @@ use crate::diagnose::misstated;
 use crate::diagnose::select::MIN_EVIDENCE_GAIN;
 use crate::diagnose::DiagnoseConfig;
 use crate::identify::setup::{settle, Settled, SetupPriors, Uncertainty};
+use crate::identify::slow_drift::SlowDrift;
 use crate::identify::{build_model, identify_from, Config, Identification, Prepared};
 
 /// A final fit assessed.
@@ -333,19 +334,21 @@ fn longer(id: &Identification) -> &'static str {
 }
 
 /// Whether `a` is a catalog effect the total 1σ already carries as a set-up parameter sized by
-/// the data: `drift-daily`, when the daily drift is marginalised ([`crate::identify::setup`],
-/// its prior's size chosen by evidence up to 58× the prior, past the catalog's 0.01 deg/h). A
-/// run that cannot rule such an effect out is not distrusted for it — its spread is in the total
-/// already; one whose data prefer it still is. (On clean 24-h runs, where one daily cycle is
-/// confounded with the constant drifts, the catalog twin stayed within the plausible margin and
-/// made 3 of 8 runs exit 3.)
+/// the data: `drift-daily` or `drift-trend`, when that slow drift is marginalised
+/// ([`crate::identify::slow_drift`], its prior's size chosen by evidence up to 58× the prior, past
+/// the catalog's). A run that cannot rule such an effect out is not distrusted for it — its spread
+/// is in the total already; one whose data prefer it still is. (On clean 24-h runs, where one
+/// daily cycle, or a trend, is confounded with the constant drifts, the catalog twin stayed within
+/// the plausible margin and made 3 of 8 runs — for the trend 4 of 100 — exit 3.)
 fn carried_as_setup(a: &Alternative, unc: &Uncertainty) -> bool {
     a.misstated.is_none()
-        && a.effect == "drift-daily"
-        && unc
-            .contributions
-            .iter()
-            .any(|c| c.source == "daily drift" && c.cov.iter().any(|v| *v != 0.0))
+        && SlowDrift::ALL.iter().any(|kind| {
+            a.effect == kind.catalog_name()
+                && unc
+                    .contributions
+                    .iter()
+                    .any(|c| c.source == kind.source() && c.cov.iter().any(|v| *v != 0.0))
+        })
 }
 
 /// Why the alternatives make the result untrusted: one the data prefer, or a plausible one that

@@ -1100,12 +1100,15 @@ fn a_warm_up_transient_is_named_and_its_coefficients_hold() {
 /// with every drift coefficient within 3.5 of its total 1σ (measured ≤ 2.2σ over 40 clean
 /// seeds, 40/40 trusted; 12 at 3.5σ fail together with probability ≈ 0.6 % per run).
 #[test]
-fn clean_day_long_runs_are_not_distrusted_for_a_daily_drift_they_carry() {
+fn clean_day_long_runs_are_not_distrusted_for_slow_drifts_they_carry() {
     let dir = temp_dir("clean-24h");
     // Seed 1079: the data moved the latitude by noise (evidence gain 2.8) and the run was
     // distrusted as "resting on the assumed latitude prior" (1 of 100 clean runs); a move the
     // data do not establish (gain < 10) is no such reason.
-    for seed in ["101", "106", "108", "1079"] {
+    // Seeds 28, 63, 72, 96: with `drift-trend`'s prior on the drift effects' one size (0.01 deg/h
+    // a day) the catalog trend stayed within the plausible margin and moved DXy or DZy by
+    // 1.9–3.3 total σ (4 of 100 clean runs exit 3); the trend is now carried as a set-up drift.
+    for seed in ["101", "106", "108", "1079", "28", "63", "72", "96"] {
         let csv = simulate_to(
             &dir,
             &format!("c{seed}.csv"),

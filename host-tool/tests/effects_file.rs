@@ -326,8 +326,8 @@ z = "Bz"
 [[effect]]
 name = "trend-file"
 applies_to = "drift"
-params = [ { name = "Tx", unit = "deg/h/h", prior_sigma = 0.01 }, { name = "Ty", unit = "deg/h/h", prior_sigma = 0.01 },
-           { name = "Tz", unit = "deg/h/h", prior_sigma = 0.01 } ]
+params = [ { name = "Tx", unit = "deg/h/h", prior_sigma = 0.0004166666666666667 }, { name = "Ty", unit = "deg/h/h", prior_sigma = 0.0004166666666666667 },
+           { name = "Tz", unit = "deg/h/h", prior_sigma = 0.0004166666666666667 } ]
 x = "Tx * t_h"
 y = "Ty * t_h"
 z = "Tz * t_h"
@@ -354,7 +354,11 @@ fn file_effect_jacobians_match_the_builtin_and_finite_differences() {
     check_twin(&G2Drift, &twin("g2-file"), &p15);
     check_twin(&AccScale, &twin("scale-file"), &[120.0, -80.0, 45.0]);
     check_twin(&AccBias, &twin("bias-file"), &[5e-4, -3e-4, 2e-4]);
-    check_twin(&DriftTrend, &twin("trend-file"), &[0.002, -0.001, 0.0015]);
+    check_twin(
+        &DriftTrend::CATALOG,
+        &twin("trend-file"),
+        &[0.002, -0.001, 0.0015],
+    );
     check_twin(&TempDrift, &twin("temp-file"), &[0.05, -0.03, 0.04]);
     // A non-polynomial expression, against finite differences only (no built-in twin): chain
     // rule through sin, exp and a quotient, in all three force components and two parameters.
@@ -440,7 +444,7 @@ fn file_effects_identify_like_the_builtin_effects() {
     let prep = prepare(site, &samples, &cfg).unwrap();
     let trend = twin("trend-file");
     let bias = twin("bias-file");
-    let builtin: Vec<&dyn Effect> = vec![catalog::paper(), &DriftTrend, &AccBias];
+    let builtin: Vec<&dyn Effect> = vec![catalog::paper(), &DriftTrend::CATALOG, &AccBias];
     let file: Vec<&dyn Effect> = vec![catalog::paper(), &trend, &bias];
     let run = |effects: &[&dyn Effect]| {
         let model = build_model(site, effects, &cfg).unwrap();

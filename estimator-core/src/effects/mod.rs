@@ -140,7 +140,7 @@ mod tests {
             &AccMisalign,
             &AccScale,
             &DriftMarkov::default(),
-            &DriftTrend,
+            &DriftTrend::CATALOG,
             &G2Drift,
             &TempDrift,
         ];

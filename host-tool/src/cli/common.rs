@@ -54,6 +54,10 @@ pub struct ModelArgs {
     /// (default 3e-4; 0 when the gyros' temperature is held or the drift is modelled from it).
     #[arg(long, value_parser = super::args::nonneg_f64)]
     pub daily_drift_deg_h: Option<f64>,
+    /// Drift that changes steadily over the run (slow temperature changes, run-in), 1σ of each
+    /// axis' change over a day, deg/h (default 3e-4; 0 when known to be absent).
+    #[arg(long, value_parser = super::args::nonneg_f64)]
+    pub drift_trend_deg_h_per_day: Option<f64>,
     /// TOML file of effects defined by the user, added to the catalog for this run (repeatable);
     /// see the README, "Effects defined in a file".
     #[arg(long = "effects", value_name = "FILE")]
@@ -104,6 +108,9 @@ impl ModelArgs {
             .vertical_tilt_arcsec
             .unwrap_or(setup.vertical_tilt_arcsec);
         setup.daily_drift_deg_h = self.daily_drift_deg_h.unwrap_or(setup.daily_drift_deg_h);
+        setup.drift_trend_deg_h_per_day = self
+            .drift_trend_deg_h_per_day
+            .unwrap_or(setup.drift_trend_deg_h_per_day);
         Ok(Config {
             setup,
             period_s: self.period_s,

@@ -438,7 +438,7 @@ pub(crate) fn fit_runs(
             id: a.id,
             setup: RunSetup {
                 cov: a.unc.setup_cov.clone(),
-                shift: a.unc.daily_shift.clone(),
+                shift: a.unc.drift_shift.clone(),
             },
             judged: Some(crate::assess::Judged {
                 alternatives: a.alternatives,

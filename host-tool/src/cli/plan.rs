@@ -202,7 +202,7 @@ impl Start {
                 id: s.id,
                 setup: RunSetup {
                     cov: s.unc.setup_cov,
-                    shift: s.unc.daily_shift,
+                    shift: s.unc.drift_shift,
                 },
                 judged: None,
             })

@@ -101,8 +101,8 @@ impl RunFit {
 pub struct RunSetup {
     /// Covariance the set-up adds to the run's estimate ([`super::setup::Uncertainty::setup_cov`]).
     pub cov: DMatrix<f64>,
-    /// How far marginalising the daily drift moved the run's estimate
-    /// ([`super::setup::Uncertainty::daily_shift`]; empty: none): kept when the run is
+    /// How far marginalising the slow drifts moved the run's estimate
+    /// ([`super::setup::Uncertainty::drift_shift`]; empty: none): kept when the run is
     /// relinearised.
     pub shift: Vec<f64>,
 }

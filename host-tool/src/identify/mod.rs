@@ -14,6 +14,7 @@
 pub mod joint;
 pub mod markov;
 pub mod setup;
+pub(crate) mod slow_drift;
 pub mod smoother;
 
 use anyhow::{bail, Context as _};

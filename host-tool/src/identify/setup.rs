@@ -19,14 +19,14 @@
 //!   `S σ² Sᵀ`, S from the linearised smoother's response to the tilt's signature.
 //! - **daily drift** (a laboratory's thermal cycle reaching the gyros): a drift at the solar day,
 //!   which one run of a few days hardly separates from the coefficients (the platform turns with
-//!   the sidereal day). Marginalised: the model with its six components at their prior is
-//!   linearised about the fit; what it adds is that covariance less the fit's (shrunk where the
-//!   data see it, the full consider term where they do not).
+//!   the sidereal day), and a **drift trend** (its slower temperature changes, the gyros'
+//!   run-in), which a day-long run hardly separates from them either: marginalised at a physical
+//!   prior ([`super::slow_drift`]).
 //!
 //! The total covariance is the fit's (start attitude estimated) plus these terms.
 
 use anyhow::Context as _;
-use estimator_core::effects::{DriftDaily, Effect};
+use estimator_core::effects::Effect;
 use estimator_core::frames::Attitude;
 use estimator_core::model::{Model, ANGLES};
 use estimator_core::Site;
@@ -34,6 +34,7 @@ use nalgebra::{DMatrix, DVector, Vector3};
 use rayon::prelude::*;
 use serde::Serialize;
 
+use super::slow_drift::{marginalised, SlowDrift};
 use super::smoother::linearised_pass;
 use super::{
     build_model, gauss_newton, neg2_log_evidence, start_prior, Config, Identification, Prepared,
@@ -74,6 +75,11 @@ pub struct SetupPriors {
     /// electrostatic gyro's drift moves by ~0.002 deg/h per °C (the catalog's `temp-drift`
     /// examples span 0.001–0.003): 3e-4 deg/h.
     pub daily_drift_deg_h: f64,
+    /// A gyro drift that changes steadily over the run, 1σ of each axis' change over a day,
+    /// deg/h: the laboratory's slower temperature changes (its ±1 °C over days reaching the gyros
+    /// as the daily cycle does, ±0.15 °C, at ~0.002 deg/h per °C) and the gyros' run-in: the daily
+    /// drift's size, 3e-4 deg/h, in a day.
+    pub drift_trend_deg_h_per_day: f64,
     /// Whether the latitude's, the clock rate's and the gravity's priors are the tool's defaults
     /// (an assumption the run rests on) rather than the user's statement.
     #[serde(skip)]
@@ -94,6 +100,7 @@ impl Default for SetupPriors {
             vertical_tilt_arcsec: 1.0,
             vertical_tilt_period_h: 24.0,
             daily_drift_deg_h: 3e-4,
+            drift_trend_deg_h_per_day: 3e-4,
             assumed: [true; 3],
         }
     }
@@ -133,7 +140,7 @@ pub fn written_precision(x: f64) -> f64 {
 /// What one set-up parameter adds to the coefficients' uncertainty.
 #[derive(Clone, Debug, Serialize)]
 pub struct Contribution {
-    /// `start attitude`, `latitude`, `clock rate`, `gravity`, `vertical tilt` or `daily drift`.
+    /// `start attitude`, `latitude`, `clock rate`, `gravity`, `vertical tilt`, `daily drift` or `drift trend`.
     pub source: &'static str,
     /// The prior, in words with its unit.
     pub prior: String,
@@ -157,7 +164,7 @@ pub struct Contribution {
 }
 
 impl Contribution {
-    fn new(source: &'static str, prior: String, cov: DMatrix<f64>) -> Self {
+    pub(crate) fn new(source: &'static str, prior: String, cov: DMatrix<f64>) -> Self {
         Contribution {
             source,
             prior,
@@ -187,7 +194,7 @@ pub struct Uncertainty {
     #[serde(skip)]
     pub total_cov: DMatrix<f64>,
     /// The set-up's share of it beyond the fit's own covariance (latitude, clock rate, gravity,
-    /// the vertical's daily tilt, the daily drift; the start attitude is in the fit): what a
+    /// the vertical's daily tilt, the slow drifts; the start attitude is in the fit): what a
     /// joint fit of several runs marginalises from each ([`super::joint::RunSetup`]).
     #[serde(skip)]
     pub setup_cov: DMatrix<f64>,
@@ -202,11 +209,11 @@ pub struct Uncertainty {
     /// (`None` for a single pass): what [`super::misstated`] weighs a misstated set-up with.
     #[serde(skip)]
     pub knobs: Option<KnobModel>,
-    /// How far marginalising the daily drift at its prior moves the parameters (state order after
-    /// the angles; empty for a single pass): [`settle`] applies it (and a joint fit again to each
-    /// relinearised run, [`super::joint::RunSetup::shift`]).
+    /// How far marginalising the slow drifts (daily, trend) at their priors moves the parameters
+    /// (state order after the angles; empty for a single pass): [`settle`] applies it (and a joint
+    /// fit again to each relinearised run, [`super::joint::RunSetup::shift`]).
     #[serde(skip)]
-    pub daily_shift: Vec<f64>,
+    pub drift_shift: Vec<f64>,
 }
 
 /// −2 ln p(y) to second order in the knobs (latitude, clock rate, gravity) about the stated
@@ -317,7 +324,7 @@ impl Uncertainty {
             setup_check: None,
             model_spread: vec![],
             knobs: None,
-            daily_shift: vec![],
+            drift_shift: vec![],
         }
     }
 }
@@ -809,141 +816,6 @@ fn vertical_tilt(
     Ok(c)
 }
 
-/// A daily periodic drift marginalised at its prior (six components): the model with
-/// [`DriftDaily`] appended, linearised about the fit with the components at zero; what it adds
-/// is the difference of the parameters' covariances from the fit's, and where it puts them the
-/// difference of the estimates. Nothing when the model
-/// already holds `drift-daily`.
-fn daily_drift(
-    effects: &[&dyn Effect],
-    prep: &Prepared,
-    cfg: &Config,
-    id: &Identification,
-) -> anyhow::Result<(Contribution, Vec<f64>)> {
-    let sigma0 = cfg.setup.daily_drift_deg_h;
-    let n = id.best().value.len();
-    let prior = |s: f64| format!("{} deg/h per component", crate::format::sig(s, 2));
-    if sigma0.is_nan()
-        || sigma0 <= 0.0
-        || effects
-            .iter()
-            .any(|e| e.name() == DriftDaily::default().name())
-    {
-        let none = Contribution::new("daily drift", prior(sigma0), DMatrix::zeros(n, n));
-        return Ok((none, vec![0.0; n]));
-    }
-    let added = DriftDaily::default().params().len();
-    let nominal: Vec<DVector<f64>> = id
-        .trajectory
-        .iter()
-        .map(|x| x.clone().resize_vertically(x.len() + added, 0.0))
-        .collect();
-    let pass = |m: &Model<'_>, nominal: &[DVector<f64>]| {
-        let (x0, p0) = start_prior(m, prep, &prep.start_sigma());
-        linearised_pass(m, &prep.measurements, nominal, &x0, &p0, false)
-    };
-    let with_daily = |sigma: f64| -> anyhow::Result<_> {
-        let daily = DriftDaily { sigma_degph: sigma };
-        let mut with: Vec<&dyn Effect> = effects.iter().map(|e| *e as &dyn Effect).collect();
-        with.push(&daily);
-        Ok(pass(&build_model(prep.site, &with, cfg)?, &nominal)?)
-    };
-    if let Err(e) = with_daily_fits(effects, prep, cfg) {
-        // Said in the set-up table, not hidden: the 1σ then lacks this term.
-        let none = Contribution::new(
-            "daily drift",
-            format!("not carried: {e}"),
-            DMatrix::zeros(n, n),
-        );
-        return Ok((none, vec![0.0; n]));
-    }
-    let mut with = with_daily(sigma0)?;
-    let sigma = daily_size(&with, ANGLES + n, sigma0);
-    if sigma > sigma0 {
-        with = with_daily(sigma)?;
-    }
-    // The parameters where the daily drift's prior and the data put them: one Gauss–Newton step
-    // of the augmented model from the converged fit (exact to first order: the drift is linear
-    // in its components; the fit itself moves by less than its convergence tolerance, 0.01σ,
-    // in such a step), against the fit.
-    let fit = id.best();
-    let b = with.states.last().context("no states")?;
-    let shift: Vec<f64> = (0..n).map(|k| b[ANGLES + k] - fit.value[k]).collect();
-    let with = with.final_cov;
-    let cov = with.view((ANGLES, ANGLES), (n, n)) - &fit.cov;
-    let label = if sigma > sigma0 {
-        format!(
-            "{}; the data's {}",
-            prior(sigma0),
-            crate::format::sig(sigma, 2)
-        )
-    } else {
-        prior(sigma0)
-    };
-    let mut c = Contribution::new("daily drift", label, cov);
-    let post = (0..added)
-        .map(|k| with[(ANGLES + n + k, ANGLES + n + k)].sqrt())
-        .fold(0.0, f64::max);
-    c.posterior_sigma = post;
-    c.data_sigma =
-        (post < 0.99 * sigma).then(|| 1.0 / (1.0 / (post * post) - 1.0 / (sigma * sigma)).sqrt());
-    Ok((c, shift))
-}
-
-/// Whether the model of `effects` with the daily drift appended can be built (it may exceed the
-/// model's capacity of states or effects).
-fn with_daily_fits(effects: &[&dyn Effect], prep: &Prepared, cfg: &Config) -> anyhow::Result<()> {
-    let daily = DriftDaily::default();
-    let mut with: Vec<&dyn Effect> = effects.iter().map(|e| *e as &dyn Effect).collect();
-    with.push(&daily);
-    build_model(prep.site, &with, cfg).map(|_| ())
-}
-
-/// The daily drift's size: its prior 1σ `sigma0`, or a larger one where the data's evidence for
-/// it is higher (the size is not known in advance; the thermal prior is where it starts, not a
-/// cap — as `drift-markov`'s σ, the marginal likelihood decides).
-///
-/// From the pass at `sigma0` (the components are the states from `first` on): the components'
-/// information from the data alone `J = P⁻¹ − σ0⁻²` and their score `h = P⁻¹ m` (P, m their
-/// posterior); for a prior σ the evidence is `G(σ) = σ² hᵀ(1 + σ²J)⁻¹h − ln det(1 + σ²J)`,
-/// maximised over σ0·1.5^k, k = 0…10, a larger size kept only when it beats σ0 by 2 ln 10.
-fn daily_size(pass: &super::smoother::Smoothed, first: usize, sigma0: f64) -> f64 {
-    let (Some(last), q) = (pass.states.last(), pass.final_cov.nrows() - first) else {
-        return sigma0;
-    };
-    let p = pass.final_cov.view((first, first), (q, q)).into_owned();
-    let Some(p_inv) = p.clone().try_inverse() else {
-        return sigma0;
-    };
-    let m = last.rows(first, q).into_owned();
-    let h = &p_inv * m;
-    let j = p_inv - DMatrix::identity(q, q) / (sigma0 * sigma0);
-    let evidence = |sigma: f64| -> f64 {
-        let a = DMatrix::identity(q, q) + &j * (sigma * sigma);
-        match a.clone().lu().solve(&h) {
-            Some(x) => sigma * sigma * h.dot(&x) - a.determinant().max(1e-300).ln(),
-            None => f64::NEG_INFINITY,
-        }
-    };
-    let (best, gain) = (0..=DAILY_SIZES)
-        .map(|k| sigma0 * 1.5f64.powi(k as i32))
-        .map(|s| (s, evidence(s)))
-        .fold(
-            (sigma0, f64::NEG_INFINITY),
-            |b, x| if x.1 > b.1 { x } else { b },
-        );
-    // Charged 2 ln N for the N sizes tried above the prior, as every profiled explanation is
-    // ([`crate::diagnose::select`]): the best of N noise draws beats the prior by chance.
-    if gain - evidence(sigma0) > 2.0 * (DAILY_SIZES as f64).ln() {
-        best
-    } else {
-        sigma0
-    }
-}
-
-/// Sizes of the daily drift tried above its prior: σ0·1.5^k, k = 1…10 (up to 58× the prior).
-const DAILY_SIZES: usize = 10;
-
 /// The coefficients' uncertainty with the set-up priors of `cfg` (see the module docs). `id` is
 /// the converged fit of `effects` on `prep`.
 pub fn uncertainty(
@@ -1002,12 +874,12 @@ pub fn uncertainty(
             stated: 0.0,
         },
     ];
-    let (marginal, (tilt, daily)) = rayon::join(
+    let (marginal, (tilt, drifts)) = rayon::join(
         || marginalise(&knobs, f0, prep, effects, cfg, id),
         || {
             rayon::join(
                 || vertical_tilt(&model, prep, id, &priors),
-                || daily_drift(effects, prep, cfg, id),
+                || slow_drifts(effects, prep, cfg, id),
             )
         },
     );
@@ -1024,12 +896,14 @@ pub fn uncertainty(
     );
     let mut contributions = vec![start];
     contributions.extend(marginal.contributions);
-    let (daily, daily_shift) = daily?;
+    let (drifts, drift_shift) = drifts?;
     contributions.push(tilt?);
-    contributions.push(daily);
-    // The knobs' joint covariance (their correlations kept), the start's, the tilt's and the
-    // daily drift's.
-    let setup_cov = &marginal.cov + &contributions[4].cov + &contributions[5].cov;
+    contributions.extend(drifts);
+    // The knobs' joint covariance (their correlations kept), then the tilt's and the slow
+    // drifts' (each marginalised on its own: their sum is conservative where they correlate).
+    let setup_cov = contributions[4..]
+        .iter()
+        .fold(marginal.cov.clone(), |acc, c| acc + &c.cov);
     let total_cov = &noise_cov + &contributions[0].cov + &setup_cov;
     Ok(Uncertainty {
         noise_sigma: (0..n).map(|k| noise_cov[(k, k)].sqrt()).collect(),
@@ -1041,8 +915,29 @@ pub fn uncertainty(
         setup_check: Some(marginal.check),
         model_spread: vec![],
         knobs: Some(marginal.model),
-        daily_shift,
+        drift_shift,
     })
+}
+
+/// The slow drifts ([`SlowDrift::ALL`]) marginalised about the fit: their contributions and the
+/// sum of their shifts.
+fn slow_drifts(
+    effects: &[&dyn Effect],
+    prep: &Prepared,
+    cfg: &Config,
+    id: &Identification,
+) -> anyhow::Result<(Vec<Contribution>, Vec<f64>)> {
+    let n = id.best().value.len();
+    let mut shift = vec![0.0; n];
+    let mut out = vec![];
+    for kind in SlowDrift::ALL {
+        let (c, s) = marginalised(kind, effects, prep, cfg, id)?;
+        for (a, b) in shift.iter_mut().zip(&s) {
+            *a += b;
+        }
+        out.push(c);
+    }
+    Ok((out, shift))
 }
 
 /// A fit at the set-up's posterior: the identification, its measurements and the uncertainty.
@@ -1060,7 +955,7 @@ pub struct Settled {
 pub const SETTLE_SHIFT_SIGMA: f64 = 0.1;
 
 /// The set-up estimated where the data can ([`settle_setup`]), and the coefficients moved where
-/// the daily drift's prior and the data put them ([`Uncertainty::daily_shift`]).
+/// the slow drifts' priors and the data put them ([`Uncertainty::drift_shift`]).
 pub fn settle(
     effects: &[&dyn Effect],
     prep: Prepared,
@@ -1069,12 +964,12 @@ pub fn settle(
 ) -> anyhow::Result<Settled> {
     let (mut settled, moved) = settle_setup(effects, prep, cfg, id)?;
     if moved {
-        // The shift is the daily drift's reach from the fit it is taken about: about the stated
+        // The shift is the slow drifts' reach from the fit it is taken about: about the stated
         // set-up's misfit it would also soak up the set-up's error the refit has repaired.
-        settled.unc.daily_shift = daily_drift(effects, &settled.prep, cfg, &settled.id)?.1;
+        settled.unc.drift_shift = slow_drifts(effects, &settled.prep, cfg, &settled.id)?.1;
     }
     if let Some(est) = settled.id.refined.as_mut() {
-        for (v, d) in est.value.iter_mut().zip(&settled.unc.daily_shift) {
+        for (v, d) in est.value.iter_mut().zip(&settled.unc.drift_shift) {
             *v += d;
         }
     }

@@ -1,0 +1,204 @@
+//! Slow gyro drifts a laboratory puts on a run — a drift that follows the solar day (its thermal
+//! cycle) and a drift that changes steadily over the run (its slower temperature changes, the
+//! gyros' run-in) — as set-up uncertainties: the model with the drift appended at a physical
+//! prior is linearised about the fit; what it adds is that covariance less the fit's (shrunk
+//! where the data see the drift, the full consider term where they do not), and where it puts the
+//! parameters is the shift [`super::setup::settle`] applies. The size is the prior's, or a larger
+//! one where the data's evidence asks for it ([`size`]), up to past the catalog effect's own
+//! prior: a catalog twin the data cannot rule out is then carried in the total 1σ, not a reason
+//! to distrust it (`assess::carried_as_setup`). Nothing when the model already holds the effect.
+
+use anyhow::Context as _;
+use estimator_core::effects::{DriftDaily, DriftTrend, Effect};
+use estimator_core::model::ANGLES;
+use nalgebra::{DMatrix, DVector};
+
+use super::setup::{Contribution, SetupPriors};
+use super::smoother::linearised_pass;
+use super::{build_model, start_prior, Config, Identification, Prepared};
+
+/// One of the slow drifts marginalised.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub(crate) enum SlowDrift {
+    /// Six components at the solar day ([`DriftDaily`]).
+    Daily,
+    /// A trend per axis ([`DriftTrend`]).
+    Trend,
+}
+
+impl SlowDrift {
+    /// Both, in the order the set-up table lists them.
+    pub(crate) const ALL: [SlowDrift; 2] = [SlowDrift::Daily, SlowDrift::Trend];
+
+    /// The set-up table's name of the source.
+    pub(crate) fn source(self) -> &'static str {
+        match self {
+            SlowDrift::Daily => "daily drift",
+            SlowDrift::Trend => "drift trend",
+        }
+    }
+
+    /// The catalog effect of the same physics.
+    pub(crate) fn catalog_name(self) -> &'static str {
+        match self {
+            SlowDrift::Daily => "drift-daily",
+            SlowDrift::Trend => "drift-trend",
+        }
+    }
+
+    /// The prior 1σ in the effect's units (deg/h; deg/h per h).
+    fn prior(self, p: &SetupPriors) -> f64 {
+        match self {
+            SlowDrift::Daily => p.daily_drift_deg_h,
+            SlowDrift::Trend => p.drift_trend_deg_h_per_day / 24.0,
+        }
+    }
+
+    /// The prior in the set-up table's words.
+    fn label(self, sigma: f64) -> String {
+        match self {
+            SlowDrift::Daily => format!("{} deg/h per component", crate::format::sig(sigma, 2)),
+            SlowDrift::Trend => format!(
+                "{} deg/h a day per axis",
+                crate::format::sig(sigma * 24.0, 2)
+            ),
+        }
+    }
+
+    /// The effect at prior 1σ `sigma`.
+    fn effect(self, sigma: f64) -> Box<dyn Effect> {
+        match self {
+            SlowDrift::Daily => Box::new(DriftDaily { sigma_degph: sigma }),
+            SlowDrift::Trend => Box::new(DriftTrend {
+                sigma_deg_h_per_h: sigma,
+            }),
+        }
+    }
+}
+
+/// `effects` with `drift` appended.
+fn with_drift<'a>(effects: &[&'a dyn Effect], drift: &'a dyn Effect) -> Vec<&'a dyn Effect> {
+    let mut with = effects.to_vec();
+    with.push(drift);
+    with
+}
+
+/// `kind` marginalised about the fit `id` of `effects` on `prep`: what it adds to the parameters'
+/// covariance and where it moves them (state order after the angles).
+pub(crate) fn marginalised(
+    kind: SlowDrift,
+    effects: &[&dyn Effect],
+    prep: &Prepared,
+    cfg: &Config,
+    id: &Identification,
+) -> anyhow::Result<(Contribution, Vec<f64>)> {
+    let sigma0 = kind.prior(&cfg.setup);
+    let n = id.best().value.len();
+    let none = |label: String| {
+        (
+            Contribution::new(kind.source(), label, DMatrix::zeros(n, n)),
+            vec![0.0; n],
+        )
+    };
+    if sigma0.is_nan() || sigma0 <= 0.0 || effects.iter().any(|e| e.name() == kind.catalog_name()) {
+        return Ok(none(kind.label(sigma0)));
+    }
+    let probe = kind.effect(sigma0);
+    if let Err(e) = build_model(prep.site, &with_drift(effects, probe.as_ref()), cfg) {
+        // Said in the set-up table, not hidden: the 1σ then lacks this term.
+        return Ok(none(format!("not carried: {e}")));
+    }
+    let added = probe.params().len();
+    let nominal: Vec<DVector<f64>> = id
+        .trajectory
+        .iter()
+        .map(|x| x.clone().resize_vertically(x.len() + added, 0.0))
+        .collect();
+    let pass = |sigma: f64| -> anyhow::Result<_> {
+        let drift = kind.effect(sigma);
+        let with = with_drift(effects, drift.as_ref());
+        let m = build_model(prep.site, &with, cfg)?;
+        let (x0, p0) = start_prior(&m, prep, &prep.start_sigma());
+        Ok(linearised_pass(
+            &m,
+            &prep.measurements,
+            &nominal,
+            &x0,
+            &p0,
+            false,
+        )?)
+    };
+    let mut with = pass(sigma0)?;
+    let sigma = size(&with, ANGLES + n, sigma0);
+    if sigma > sigma0 {
+        with = pass(sigma)?;
+    }
+    // The parameters where the drift's prior and the data put them: one Gauss–Newton step of the
+    // augmented model from the converged fit (exact to first order: the drift is linear in its
+    // components; the fit itself moves by less than its convergence tolerance, 0.01σ, in such a
+    // step), against the fit.
+    let fit = id.best();
+    let b = with.states.last().context("no states")?;
+    let shift: Vec<f64> = (0..n).map(|k| b[ANGLES + k] - fit.value[k]).collect();
+    let cov_with = with.final_cov;
+    let cov = cov_with.view((ANGLES, ANGLES), (n, n)) - &fit.cov;
+    let label = if sigma > sigma0 {
+        format!("{}; the data's {}", kind.label(sigma0), kind.label(sigma))
+    } else {
+        kind.label(sigma0)
+    };
+    let mut c = Contribution::new(kind.source(), label, cov);
+    let post = (0..added)
+        .map(|k| cov_with[(ANGLES + n + k, ANGLES + n + k)].sqrt())
+        .fold(0.0, f64::max);
+    c.posterior_sigma = post;
+    c.data_sigma =
+        (post < 0.99 * sigma).then(|| 1.0 / (1.0 / (post * post) - 1.0 / (sigma * sigma)).sqrt());
+    Ok((c, shift))
+}
+
+/// The drift's size: its prior 1σ `sigma0`, or a larger one where the data's evidence for it is
+/// higher (the size is not known in advance; the physical prior is where it starts, not a cap —
+/// as `drift-markov`'s σ, the marginal likelihood decides).
+///
+/// From the pass at `sigma0` (the components are the states from `first` on): the components'
+/// information from the data alone `J = P⁻¹ − σ0⁻²` and their score `h = P⁻¹ m` (P, m their
+/// posterior); for a prior σ the evidence is `G(σ) = σ² hᵀ(1 + σ²J)⁻¹h − ln det(1 + σ²J)`,
+/// maximised over σ0·1.5^k, k = 0…[`SIZES`], a larger size kept only when it beats σ0 by 2 ln N.
+fn size(pass: &super::smoother::Smoothed, first: usize, sigma0: f64) -> f64 {
+    let (Some(last), q) = (pass.states.last(), pass.final_cov.nrows() - first) else {
+        return sigma0;
+    };
+    let p = pass.final_cov.view((first, first), (q, q)).into_owned();
+    let Some(p_inv) = p.clone().try_inverse() else {
+        return sigma0;
+    };
+    let m = last.rows(first, q).into_owned();
+    let h = &p_inv * m;
+    let j = p_inv - DMatrix::identity(q, q) / (sigma0 * sigma0);
+    let evidence = |sigma: f64| -> f64 {
+        let a = DMatrix::identity(q, q) + &j * (sigma * sigma);
+        match a.clone().lu().solve(&h) {
+            Some(x) => sigma * sigma * h.dot(&x) - a.determinant().max(1e-300).ln(),
+            None => f64::NEG_INFINITY,
+        }
+    };
+    let (best, gain) = (0..=SIZES)
+        .map(|k| sigma0 * 1.5f64.powi(k as i32))
+        .map(|s| (s, evidence(s)))
+        .fold(
+            (sigma0, f64::NEG_INFINITY),
+            |b, x| if x.1 > b.1 { x } else { b },
+        );
+    // Charged 2 ln N for the N sizes tried above the prior, as every profiled explanation is
+    // ([`crate::diagnose::select`]): the best of N noise draws beats the prior by chance.
+    if gain - evidence(sigma0) > 2.0 * (SIZES as f64).ln() {
+        best
+    } else {
+        sigma0
+    }
+}
+
+/// Sizes tried above the prior: σ0·1.5^k, k = 1…10 (up to 58× the prior: past the catalog
+/// effects' priors, 0.01 deg/h and 0.01 deg/h a day, from the defaults 3e-4).
+const SIZES: usize = 10;
