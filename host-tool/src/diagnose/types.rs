@@ -204,3 +204,21 @@ pub struct Rung {
     /// Why that effect was added (the evidence).
     pub next_reason: Option<String>,
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// The one spelling of a model's name, compact form and rung labels (strings: compared
+    /// exactly).
+    #[test]
+    fn a_model_is_named_by_the_effects_added_to_the_papers() {
+        let none: [&str; 0] = [];
+        assert_eq!(model_name(&none), "paper");
+        let m = ["acc-bias".to_string(), "drift-trend".to_string()];
+        assert_eq!(model_name(&m), "paper + acc-bias + drift-trend");
+        assert_eq!(model_name_compact(&m), "paper+acc-bias+drift-trend");
+        assert_eq!(rung_name(&m, None), "paper + acc-bias + drift-trend");
+        assert_eq!(rung_name(&m, Some(&m[..1])), "+ drift-trend");
+    }
+}

@@ -77,8 +77,7 @@ pub fn time_scale(site: &Site, samples: &[Sample]) -> Option<f64> {
     if scales.len() < 3 {
         return None;
     }
-    scales.sort_by(f64::total_cmp);
-    Some(scales[scales.len() / 2])
+    Some(median(&mut scales))
 }
 
 /// Checks the time unit against the Earth's rotation and repairs a recognised one; returns the
