@@ -89,8 +89,9 @@ pub mod trig;
 pub mod units;
 
 // Screening and averaging of raw samples live in the `sampling` crate (the firmware optimises
-// them for size, the EKF here for speed); re-exported under their former paths.
-pub use sampling::{averaging, screening};
+// them for size, the EKF here for speed); re-exported under their former paths, with the one
+// median (`robust`) the screening and the host share.
+pub use sampling::{averaging, robust, screening};
 
 pub use averaging::{Averager, Measurement, Sample};
 pub use effects::{Effect, PaperDrift};

@@ -36,10 +36,10 @@ const PARAMS: [Param; 3] = [
 ];
 
 impl Effect for AccQuadratic {
-    fn name(&self) -> &'static str {
+    fn name(&self) -> &str {
         "acc-quadratic"
     }
-    fn about(&self) -> &'static str {
+    fn about(&self) -> &str {
         "Second-order accelerometer nonlinearity: output grows with the square of the input."
     }
     fn params(&self) -> &[Param] {

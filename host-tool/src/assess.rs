@@ -435,7 +435,7 @@ pub(crate) fn repaired_if_it_wins<'c>(
         // The warm-up explains it as well or better: the misfit stands; `diagnose` weighs both.
         return Ok((effects, assessed, None));
     }
-    let (with_step, id) = drift_step::repair(&stated, &effects, cfg, &step)?;
+    let (with_step, id) = drift_step::repair(catalog, &stated, &effects, cfg, &step)?;
     let mut prep = stated;
     prep.findings.push(step.repaired());
     let a = assess_with(catalog, &with_step, prep, cfg, id, progress)?;

@@ -35,6 +35,21 @@ pub struct Catalog {
     /// the file effects. Append-only (`boxcar`): a variant handed out stays where it is while
     /// others are added, from any thread.
     tuned: boxcar::Vec<DriftMarkov>,
+    /// Effects made for a run from a profiled value ([`Catalog::made_for_run`]: a drift step at
+    /// its time, a warm-up of its time constant), owned here the same way.
+    made: boxcar::Vec<Made>,
+}
+
+/// What tells two effects made for a run apart: the kind's name and the profiled value's bits.
+pub(crate) type MadeKey = (&'static str, u64);
+
+/// An effect made for a run, with its key.
+struct Made(MadeKey, Box<dyn Effect + Send>);
+
+impl std::fmt::Debug for Made {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        write!(f, "{} ({:?})", self.1.name(), f64::from_bits(self.0 .1))
+    }
 }
 
 impl Catalog {
@@ -43,6 +58,7 @@ impl Catalog {
         static BUILTIN: Catalog = Catalog {
             user: Vec::new(),
             tuned: boxcar::Vec::new(),
+            made: boxcar::Vec::new(),
         };
         &BUILTIN
     }
@@ -69,6 +85,7 @@ impl Catalog {
         Ok(Self {
             user,
             tuned: boxcar::Vec::new(),
+            made: boxcar::Vec::new(),
         })
     }
 
@@ -119,6 +136,21 @@ impl Catalog {
         }
         let k = self.tuned.push(DriftMarkov { sigma_degph, tau_h });
         &self.tuned[k]
+    }
+
+    /// The effect `make` builds for `key`, owned by the catalog: made once per distinct key (a
+    /// run adopts a handful at most: one per rung or repair), lent for as long as the catalog
+    /// lives. The catalog does not know the kinds (`diagnose::select::Profiled` does).
+    pub(crate) fn made_for_run(
+        &self,
+        key: MadeKey,
+        make: impl FnOnce() -> Box<dyn Effect + Send>,
+    ) -> &dyn Effect {
+        if let Some((_, Made(_, e))) = self.made.iter().find(|(_, m)| m.0 == key) {
+            return e.as_ref();
+        }
+        let k = self.made.push(Made(key, make()));
+        self.made[k].1.as_ref()
     }
 
     /// Binds the recording columns the file effects use to the recording at `path`
@@ -216,5 +248,25 @@ mod tests {
         assert_eq!(others[38].sigma_degph, 0.001 * 39.0);
         assert!(!std::ptr::eq(first, others[19]));
         assert_eq!(catalog.tuned.count(), 40);
+    }
+
+    /// An effect made for a run is the catalog's: the same key lends the same value (a ladder
+    /// that adopts a drift step at one time makes it once), another key another value, and one
+    /// lent earlier stays valid while others are added (compared by address, of an effect with a
+    /// size: a zero-sized one would share its address with every other, and by the name the
+    /// maker gave: nothing is computed).
+    #[test]
+    fn an_effect_made_for_a_run_is_owned_once_per_key() {
+        let catalog = Catalog::with_user(vec![]).unwrap();
+        let make = || -> Box<dyn Effect + Send> { Box::new(DriftDaily { sigma_degph: 0.01 }) };
+        let first = catalog.made_for_run(("drift-step", 3.0f64.to_bits()), make);
+        let others: Vec<&dyn Effect> = (1..30u64)
+            .map(|k| catalog.made_for_run(("drift-step", k), make))
+            .collect();
+        let again = catalog.made_for_run(("drift-step", 3.0f64.to_bits()), || unreachable!());
+        assert!(std::ptr::addr_eq(first, again));
+        assert!(!std::ptr::addr_eq(first, others[10]));
+        assert_eq!(first.name(), "drift-daily");
+        assert_eq!(catalog.made.count(), 30);
     }
 }

@@ -3,6 +3,7 @@
 //! What happens to raw accelerometer samples before the EKF, shared by firmware and host:
 //! - [`screening`]: raw-sample screening (glitches, stuck/dead channels, non-finite) before averaging.
 //! - [`averaging`]: raw samples → filter-period means tagged at the mean sample time.
+//! - [`robust`]: the median and the 1σ it gives (the screening's, and the host's statistics').
 //!
 //! A crate of its own, apart from the EKF in `estimator-core` (which re-exports both modules
 //! under the same paths), so that the firmware can optimise it for size while the EKF keeps
@@ -11,6 +12,7 @@
 #![warn(missing_docs)]
 
 pub mod averaging;
+pub mod robust;
 pub mod screening;
 
 pub use averaging::{Averager, Measurement, Sample};

@@ -20,6 +20,7 @@
 //! sample blocks the same way.
 
 use crate::averaging::Sample;
+use crate::robust::{median_of_few, median_of_sorted, sort_few};
 
 /// Flag bits of one sample (any bit set: the sample is rejected).
 pub mod flag {
@@ -197,7 +198,7 @@ fn flag_stuck(
             for (b, k) in buf.iter_mut().zip(range) {
                 *b = s[k].specific_force[a];
             }
-            let md = median(&mut buf[..m]);
+            let md = median_of_few(&mut buf[..m]);
             if md.is_finite() {
                 jump = jump.max(libm::fabs(md - v));
             }
@@ -226,31 +227,15 @@ fn flag_stuck(
     count
 }
 
-/// Median of `v[..n]` (sorted in place; n ≥ 1).
-fn median(v: &mut [f64]) -> f64 {
-    sort(v);
-    let m = v.len();
-    if m % 2 == 1 {
-        v[m / 2]
-    } else {
-        0.5 * (v[m / 2 - 1] + v[m / 2])
-    }
-}
-
-/// [`median`] of values that usually come in order (a side's sample times: increasing on the
-/// right, decreasing on the left): the middle without sorting when they are monotone, which
-/// gives the same value (the middle pair's sum does not depend on its order); sorted otherwise.
+/// [`median_of_few`] of values that usually come in order (a side's sample times:
+/// increasing on the right, decreasing on the left): the middle without sorting when they are
+/// monotone ([`median_of_sorted`], the same value); sorted otherwise.
 fn median_of_ordered(v: &mut [f64]) -> f64 {
-    let m = v.len();
     let up = v.windows(2).all(|w| w[0] < w[1]);
     if !(up || v.windows(2).all(|w| w[0] > w[1])) {
-        return median(v);
+        return median_of_few(v);
     }
-    if m % 2 == 1 {
-        v[m / 2]
-    } else {
-        0.5 * (v[m / 2 - 1] + v[m / 2])
-    }
+    median_of_sorted(v)
 }
 
 /// Values and times of one side's neighbours.
@@ -366,8 +351,8 @@ pub fn flag_outliers(
                 for (j, x) in right[..h].iter_mut().enumerate() {
                     *x = v(i + 1 + j);
                 }
-                sort(&mut left[..h]);
-                sort(&mut right[..h]);
+                sort_few(&mut left[..h]);
+                sort_few(&mut right[..h]);
             }
             sorted_for = Some(i);
             let (ml, mr, tl, tr) = sides_medians(s, i, h, &left[..h], &right[..h]);
@@ -383,10 +368,10 @@ pub fn flag_outliers(
 }
 
 /// The medians `judge` would take of a regular window's two sides around sample `i` (`h`
-/// each): of the sorted values `left` and `right`, and of the times, which are in order
-/// (checked by the caller), so the middle ones — added in the order `median_of_ordered` adds
-/// them (the left side is collected backwards). Returns (left value, right value, left time,
-/// right time).
+/// each): of the sorted values `left` and `right` ([`median_of_sorted`]), and of the times,
+/// which are in order (checked by the caller), so the middle ones — read from the samples in
+/// place, added in the order [`median_of_sorted`] adds them (the left side is collected
+/// backwards). Returns (left value, right value, left time, right time).
 #[inline(always)]
 fn sides_medians(
     s: &[Sample],
@@ -396,21 +381,15 @@ fn sides_medians(
     right: &[f64],
 ) -> (f64, f64, f64, f64) {
     let t = |k: usize| s[k].t_s;
-    if h % 2 == 1 {
-        (
-            left[h / 2],
-            right[h / 2],
-            t(i - 1 - h / 2),
-            t(i + 1 + h / 2),
-        )
+    let (tl, tr) = if h % 2 == 1 {
+        (t(i - 1 - h / 2), t(i + 1 + h / 2))
     } else {
         (
-            0.5 * (left[h / 2 - 1] + left[h / 2]),
-            0.5 * (right[h / 2 - 1] + right[h / 2]),
             0.5 * (t(i - h / 2) + t(i - 1 - h / 2)),
             0.5 * (t(i + h / 2) + t(i + 1 + h / 2)),
         )
-    }
+    };
+    (median_of_sorted(left), median_of_sorted(right), tl, tr)
 }
 
 /// The batch screening's quickest accept, before any median: whether sample `i` lies within
@@ -448,17 +427,6 @@ fn within_range_of_window(s: &[Sample], i: usize, a: usize, h: usize, k_sigma: f
 /// Whether sample `k` is rejected before the outlier test (its neighbours' medians skip it).
 fn bad(flags: &[u8], k: usize) -> bool {
     flags[k] & (flag::NON_FINITE | flag::ZERO | flag::STUCK) != 0
-}
-
-/// Insertion sort (at most [`MAX_HALF_WINDOW`] values).
-fn sort(v: &mut [f64]) {
-    for i in 1..v.len() {
-        let mut j = i;
-        while j > 0 && v[j - 1] > v[j] {
-            v.swap(j - 1, j);
-            j -= 1;
-        }
-    }
 }
 
 /// Replaces `out` (present, compared bit for bit) by `new` in the sorted `v`, keeping it sorted:
@@ -522,7 +490,7 @@ fn judge(
     let ((lv, lt), (rv, rt)) = (l, r);
     // Each side's median value and median time (times are increasing: the middle one).
     if nl >= 3 && nr >= 3 {
-        let (ml, mr) = (median(&mut lv[..nl]), median(&mut rv[..nr]));
+        let (ml, mr) = (median_of_few(&mut lv[..nl]), median_of_few(&mut rv[..nr]));
         let (tl, tr) = (
             median_of_ordered(&mut lt[..nl]),
             median_of_ordered(&mut rt[..nr]),
@@ -533,7 +501,7 @@ fn judge(
         // Too few on one side (record edge, long gap): the other side's median, no slope —
         // valid only where the signal is locally flat, so widen the threshold by the spread.
         let (vals, m) = if nl >= nr { (lv, nl) } else { (rv, nr) };
-        let md = median(&mut vals[..m]);
+        let md = median_of_few(&mut vals[..m]);
         let spread = vals[..m]
             .iter()
             .fold(0.0f64, |acc, v| acc.max(libm::fabs(v - md)));

@@ -87,9 +87,9 @@ pub struct Partials<'a> {
 /// Implement this trait to add an effect of your own; see the README's worked example.
 pub trait Effect: Sync {
     /// Catalog name used on the command line (`--with name`), e.g. `acc-bias`.
-    fn name(&self) -> &'static str;
+    fn name(&self) -> &str;
     /// One paragraph: what physical mechanism this is and what signature it leaves.
-    fn about(&self) -> &'static str;
+    fn about(&self) -> &str;
     /// The effect's parameters, in state order.
     fn params(&self) -> &[Param];
     /// Prior 1σ of parameter `k` (default: the `Param`'s); configurable effects override it.

@@ -9,6 +9,7 @@ use anyhow::Context as _;
 
 use super::common::{load, print_findings, trusted_or, ModelArgs};
 use crate::catalog::Catalog;
+use crate::diagnose::types::{model_name, model_name_compact};
 use crate::diagnose::{ladder_from, DiagnoseConfig, Diagnosis, Ladder, Rung};
 use crate::format::{p_value, pm, sci};
 
@@ -42,12 +43,7 @@ pub struct DiagnoseArgs {
 
 /// Prints one diagnosis as text.
 pub(crate) fn print_diagnosis(d: &Diagnosis) {
-    let model = if d.model.is_empty() {
-        "paper".to_string()
-    } else {
-        format!("paper + {}", d.model.join(" + "))
-    };
-    println!("model: {model}");
+    println!("model: {}", model_name(&d.model));
     println!(
         "  residual RMS [{}, {}, {}] m/s^2 = [{:.3}, {:.3}, {:.3}] × noise floor [{}, {}, {}] m/s^2",
         sci(d.residual_rms_mps2[0]),
@@ -184,11 +180,7 @@ pub(crate) fn print_ladder(rungs: &[Rung]) {
         "model", "RMS/floor [x, y, z]", "NIS/3", "LB p"
     );
     for r in rungs {
-        let m = if r.model.is_empty() {
-            "paper".into()
-        } else {
-            format!("paper + {}", r.model.join(" + "))
-        };
+        let m = model_name(&r.model);
         let next = r
             .next
             .as_ref()
@@ -617,11 +609,7 @@ pub(crate) fn export(
     let mut index = format!("{INDEX_HEADER}\n");
     let mut files: Vec<(std::path::PathBuf, String)> = Vec::with_capacity(diagnoses.len() + 1);
     for (k, d) in diagnoses.iter().enumerate() {
-        let model = if d.model.is_empty() {
-            "paper".to_string()
-        } else {
-            format!("paper+{}", d.model.join("+"))
-        };
+        let model = model_name_compact(&d.model);
         let _ = writeln!(
             index,
             "{k},{model},{},{},{},{},{},{}",

@@ -193,13 +193,7 @@ pub(crate) fn print_table(rows: &[Row], refined: bool) {
 pub(crate) fn print_summary(id: &Identification, prep: &Prepared) {
     let rms = id.residual_rms_mps2(prep);
     let floor = prep.floor_mps2();
-    let mut counts: Vec<u32> = prep.measurements.iter().map(|m| m.count).collect();
-    let typical = if counts.is_empty() {
-        0
-    } else {
-        let mid = counts.len() / 2;
-        *counts.select_nth_unstable(mid).1
-    };
+    let typical = crate::quality::steps::typical_count(&prep.measurements);
     println!(
         "run: {:.2} h, {} updates; noise floor per {}-sample mean [{}] m/s^2; residual RMS [{}, {}, {}] m/s^2; mean NIS/3 {:.3} (1 when consistent)",
         id.final_time_h,

@@ -313,12 +313,7 @@ fn print_plan_json(
 
 /// Mean sample interval of a prepared run, s (from the samples per filter period).
 fn rate_of(prep: &Prepared, period_s: f64) -> f64 {
-    let mut counts: Vec<u32> = prep.measurements.iter().map(|m| m.count).collect();
-    if counts.is_empty() {
-        return 1.0;
-    }
-    let mid = counts.len() / 2;
-    period_s / f64::from((*counts.select_nth_unstable(mid).1).max(1))
+    period_s / crate::quality::steps::typical_count(&prep.measurements)
 }
 
 /// The plan as text: the recommendation, ready `driftid simulate` lines, the criterion before

@@ -27,9 +27,9 @@ pub(crate) const DETECTION_POWER: f64 = 0.9;
 /// stand-in built for this run), or why it cannot be tested.
 pub(crate) struct Setup<'c> {
     /// Catalog name.
-    pub name: &'static str,
+    pub name: &'c str,
     /// Physical explanation.
-    pub about: &'static str,
+    pub about: &'c str,
     /// A stand-in built for this run (`drift-markov`'s piecewise-constant blocks).
     pub effect: Option<Box<dyn Effect>>,
     /// The catalog's effect.

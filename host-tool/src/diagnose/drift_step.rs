@@ -16,6 +16,7 @@ use estimator_core::units::S_PER_H;
 use nalgebra::{DVector, Vector3};
 use serde::Serialize;
 
+use crate::diagnose::select::Profiled;
 use crate::identify::{
     build_model, neg2_log_evidence, start_prior, Config, Identification, Prepared,
 };
@@ -224,23 +225,17 @@ fn refit(
     Some((neg2_log_evidence(&fit.innovations), size, sigma))
 }
 
-/// The drift-step effect at `t0_s`, for a model's effect list. Leaked: a model's effects are
-/// `'static` (the catalog's are statics), and a step is made once per rung or run that adopts it
-/// (24 bytes each).
-pub fn effect_at(t0_s: f64) -> &'static dyn Effect {
-    Box::leak(Box::new(DriftStep { t0_s }))
-}
-
 /// `effects` plus the step, and the model refitted with it: the repair of a run whose misfit a
 /// drift step explains best (`driftid identify`).
 pub fn repair<'c>(
+    catalog: &'c crate::catalog::Catalog,
     prep: &Prepared,
     effects: &[&'c dyn Effect],
     cfg: &Config,
     step: &DriftStepFit,
 ) -> anyhow::Result<(Vec<&'c dyn Effect>, Identification)> {
     let mut list = effects.to_vec();
-    list.push(effect_at(step.t0_s));
+    list.push(Profiled::StepAtS(step.t0_s).effect(catalog));
     let model = build_model(prep.site, &list, cfg)?;
     let id = crate::identify::identify(&model, prep, cfg)?;
     Ok((list, id))
@@ -266,16 +261,11 @@ pub fn candidate(
         return None;
     }
     let penalty = 2.0 * (fit.times_tried.max(1) as f64).ln();
-    let made = crate::diagnose::select::Profiled::StepAtS(fit.t0_s);
-    let mut r = crate::diagnose::select::refit_effect(
-        prep,
-        effects,
-        base_evidence,
-        made.effect(),
-        penalty,
-        cfg,
-    )?;
-    r.profiled = Some(made);
+    // Weighed with a step of its own; the catalog owns the one a rung adopts (`Profiled::effect`).
+    let step = DriftStep { t0_s: fit.t0_s };
+    let mut r =
+        crate::diagnose::select::refit_effect(prep, effects, base_evidence, &step, penalty, cfg)?;
+    r.profiled = Some(Profiled::StepAtS(fit.t0_s));
     Some(r)
 }
 

@@ -138,7 +138,7 @@ fn next_effect<'c>(catalog: &'c Catalog, d: &Diagnosis) -> Option<(&'c dyn Effec
         .map(|r| r.p_adjusted)
         .unwrap_or(f64::NAN);
     let e = match c.profiled {
-        Some(made) => Some(made.effect()),
+        Some(made) => Some(made.effect(catalog)),
         None => catalog.by_name(&c.effect),
     };
     e.map(|e| (e, p, c.reason.clone()))

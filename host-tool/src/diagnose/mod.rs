@@ -208,12 +208,7 @@ pub(crate) fn temp_varies(meas: &[Measurement]) -> bool {
 /// The model's effects beyond the paper's drift, by name.
 /// "paper + acc-bias + …": the model of `effects` for a progress note.
 pub(super) fn model_label(effects: &[&dyn Effect]) -> String {
-    ["paper".to_string()]
-        .iter()
-        .chain(&model_names(effects))
-        .cloned()
-        .collect::<Vec<_>>()
-        .join(" + ")
+    types::model_name(&model_names(effects))
 }
 
 fn model_names(effects: &[&dyn Effect]) -> Vec<String> {

@@ -78,11 +78,17 @@ pub enum Profiled {
 }
 
 impl Profiled {
-    /// The effect, made for this value.
-    pub fn effect(self) -> &'static dyn Effect {
+    /// The effect made for this value, owned by `catalog` (one per distinct value).
+    pub(crate) fn effect(self, catalog: &Catalog) -> &dyn Effect {
+        use super::{drift_step::DriftStep, warmup::DriftWarmup};
         match self {
-            Profiled::StepAtS(t0_s) => super::drift_step::effect_at(t0_s),
-            Profiled::WarmupTauS(tau_s) => super::warmup::effect_with(tau_s),
+            Profiled::StepAtS(t0_s) => catalog.made_for_run(("drift-step", t0_s.to_bits()), || {
+                Box::new(DriftStep { t0_s })
+            }),
+            Profiled::WarmupTauS(tau_s) => catalog
+                .made_for_run(("drift-warmup", tau_s.to_bits()), || {
+                    Box::new(DriftWarmup { tau_s })
+                }),
         }
     }
 

@@ -28,6 +28,38 @@ pub struct Series {
 
 pub use crate::consistency::Whiteness;
 
+/// A model's display name from the effects added to the paper's (`paper`, `paper + acc-bias +
+/// drift-trend`): the one spelling the commands, the progress notes and the report print.
+pub(crate) fn model_name<S: AsRef<str>>(added: &[S]) -> String {
+    joined_name(added, " + ")
+}
+
+/// [`model_name`] without spaces (`paper+acc-bias`): a cell of the exported plots' CSV index.
+pub(crate) fn model_name_compact<S: AsRef<str>>(added: &[S]) -> String {
+    joined_name(added, "+")
+}
+
+fn joined_name<S: AsRef<str>>(added: &[S], sep: &str) -> String {
+    std::iter::once("paper")
+        .chain(added.iter().map(AsRef::as_ref))
+        .collect::<Vec<_>>()
+        .join(sep)
+}
+
+/// A rung of a ladder by what it added to the rung `before` it (`+ temp-drift`), the first
+/// rung (no `before`) by its [`model_name`].
+pub(crate) fn rung_name(model: &[String], before: Option<&[String]>) -> String {
+    let Some(prev) = before else {
+        return model_name(model);
+    };
+    let added: Vec<&str> = model
+        .iter()
+        .filter(|m| !prev.contains(m))
+        .map(String::as_str)
+        .collect();
+    format!("+ {}", added.join(" + "))
+}
+
 /// A time interval where the model leaves its band.
 #[derive(Clone, Debug, Serialize)]
 pub struct FailureWindow {
@@ -171,4 +203,22 @@ pub struct Rung {
     pub next: Option<(String, f64)>,
     /// Why that effect was added (the evidence).
     pub next_reason: Option<String>,
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// The one spelling of a model's name, compact form and rung labels (strings: compared
+    /// exactly).
+    #[test]
+    fn a_model_is_named_by_the_effects_added_to_the_papers() {
+        let none: [&str; 0] = [];
+        assert_eq!(model_name(&none), "paper");
+        let m = ["acc-bias".to_string(), "drift-trend".to_string()];
+        assert_eq!(model_name(&m), "paper + acc-bias + drift-trend");
+        assert_eq!(model_name_compact(&m), "paper+acc-bias+drift-trend");
+        assert_eq!(rung_name(&m, None), "paper + acc-bias + drift-trend");
+        assert_eq!(rung_name(&m, Some(&m[..1])), "+ drift-trend");
+    }
 }

@@ -71,12 +71,6 @@ impl Effect for DriftWarmup {
     }
 }
 
-/// The warm-up effect of time constant `tau_s`, for a model's effect list. Leaked like a drift
-/// step ([`super::drift_step::effect_at`]): once per rung that adopts it.
-pub fn effect_with(tau_s: f64) -> &'static dyn Effect {
-    Box::leak(Box::new(DriftWarmup { tau_s }))
-}
-
 /// The best time constant for `id`'s fit and its evidence gain after the look-elsewhere penalty
 /// (`None`: the run is too short — under 3 h — or every pass failed).
 pub fn profile(
@@ -137,8 +131,9 @@ pub fn candidate(
     if gain <= super::select::MIN_EVIDENCE_GAIN {
         return None;
     }
-    let made = Profiled::WarmupTauS(tau_s);
-    let mut r = refit_effect(prep, effects, base_evidence, made.effect(), penalty(), cfg)?;
-    r.profiled = Some(made);
+    // Weighed with a warm-up of its own; the catalog owns the one a rung adopts.
+    let warmup = DriftWarmup { tau_s };
+    let mut r = refit_effect(prep, effects, base_evidence, &warmup, penalty(), cfg)?;
+    r.profiled = Some(Profiled::WarmupTauS(tau_s));
     Some(r)
 }

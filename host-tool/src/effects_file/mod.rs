@@ -99,12 +99,12 @@ pub(crate) enum AppliesTo {
     Drift,
 }
 
-/// An effect read from a TOML file, owned by the run's [`crate::catalog::Catalog`]. Its name and
-/// about strings are leaked once per run (see `leak`).
+/// An effect read from a TOML file, owned by the run's [`crate::catalog::Catalog`] with its name
+/// and about; its parameters' names and units are leaked once per run (see `leak`).
 #[derive(Debug)]
 pub struct UserEffect {
-    name: &'static str,
-    about: &'static str,
+    name: String,
+    about: String,
     applies_to: AppliesTo,
     params: Vec<Param>,
     axes: [AxisExpr; 3],
@@ -271,11 +271,11 @@ impl UserEffect {
 }
 
 impl Effect for UserEffect {
-    fn name(&self) -> &'static str {
-        self.name
+    fn name(&self) -> &str {
+        &self.name
     }
-    fn about(&self) -> &'static str {
-        self.about
+    fn about(&self) -> &str {
+        &self.about
     }
     fn params(&self) -> &[Param] {
         &self.params
@@ -409,9 +409,10 @@ fn is_identifier(s: &str) -> bool {
         && ch.all(|c| c.is_ascii_alphanumeric() || c == '_')
 }
 
-/// Leaks a string for the `&'static str` the [`Effect`] trait asks for (`name`, `about`, a
-/// parameter's name and unit). Acceptable on the host: a run loads each user file once, and the
-/// catalog that holds the effect lives until the command ends.
+/// Leaks a string for the `&'static str` of a [`Param`] (a parameter's name and unit): the
+/// identification's results carry parameter names as `&'static str` (`Identification::params`,
+/// the coefficient rows, a refit's drift), so a file effect's cannot borrow from the catalog yet.
+/// Bounded: a run loads each user file once, a few short strings per parameter.
 fn leak(s: &str) -> &'static str {
     Box::leak(s.to_owned().into_boxed_str())
 }
@@ -721,8 +722,8 @@ fn build_effect(
         .clone()
         .unwrap_or_else(|| format!("User-defined effect from {}.", loc.file.display()));
     Ok(UserEffect {
-        name: leak(n),
-        about: leak(&about),
+        name: n.to_string(),
+        about,
         applies_to,
         params: params
             .iter()

@@ -22,6 +22,7 @@ use estimator_core::effects::Param;
 use estimator_core::filter::ANGLE_PRIOR_SIGMA_RAD;
 use estimator_core::model::{Model, ANGLES, MAX_STATES};
 use estimator_core::propagate::{propagate, Transition};
+use estimator_core::robust;
 use estimator_core::{Ekf, Measurement, Propagation, Residual, Sample, Site};
 use nalgebra::{DMatrix, DVector, SymmetricEigen};
 
@@ -122,11 +123,7 @@ impl Prepared {
                 .iter()
                 .map(|m| m.variance[i].sqrt())
                 .collect();
-            if v.is_empty() {
-                return f64::NAN;
-            }
-            let mid = v.len() / 2;
-            *v.select_nth_unstable_by(mid, f64::total_cmp).1
+            robust::median(&mut v)
         })
     }
 
@@ -260,9 +257,7 @@ fn measurement_noise(
         None => std::mem::take(&mut screened.means),
     };
     if let (None, Some(over)) = (cfg.raw_sigma_mps2, screened.mean_sigma_override_mps2) {
-        let mut counts: Vec<u32> = measurements.iter().map(|m| m.count).collect();
-        let mid = counts.len() / 2;
-        let typical = f64::from(*counts.select_nth_unstable(mid).1);
+        let typical = quality::steps::typical_count(&measurements);
         for m in &mut measurements {
             for a in 0..3 {
                 m.variance[a] = over[a] * over[a] * typical / f64::from(m.count);

@@ -15,6 +15,7 @@
 //! refines it together with the drift coefficients.
 
 use estimator_core::frames::{euler_zyx, Site};
+use estimator_core::robust;
 use estimator_core::units::EARTH_RATE_RADPS;
 use estimator_core::Sample;
 use nalgebra::{Matrix3, Rotation3, SymmetricEigen, Unit, Vector3};
@@ -60,8 +61,7 @@ fn directions(samples: &[Sample], hours: f64, blocks: usize) -> Vec<(f64, Vector
         }
         let median = |i: usize| {
             let mut v: Vec<f64> = chunk.iter().map(|s| s.specific_force[i]).collect();
-            let mid = v.len() / 2;
-            *v.select_nth_unstable_by(mid, f64::total_cmp).1
+            robust::median(&mut v)
         };
         let a = Vector3::new(median(0), median(1), median(2));
         let t = chunk.iter().map(|s| s.t_s - t0).sum::<f64>() / chunk.len() as f64;

@@ -15,6 +15,7 @@
 
 use std::collections::HashMap;
 
+use estimator_core::robust;
 use estimator_core::Sample;
 
 use super::{axis_name, Action, Finding, Kind};
@@ -213,9 +214,11 @@ fn is_rail(samples: &[Sample], a: usize, rail: f64, extremes: [f64; 2], pinned: 
         .copied()
         .filter(|x| *x > 0.0)
         .fold(f64::INFINITY, f64::min);
-    let mid = d.len() / 2;
-    let sigma = (1.4826 / 2f64.sqrt() * *d.select_nth_unstable_by(mid, f64::total_cmp).1)
-        .max(if step.is_finite() { step } else { 0.0 });
+    let sigma = (robust::sigma_from_abs(&mut d) / 2f64.sqrt()).max(if step.is_finite() {
+        step
+    } else {
+        0.0
+    });
     // Beside each pinned run: the reading just before and just after.
     let (mut near, mut far) = (0usize, 0usize);
     let mut k = 0;

@@ -264,7 +264,7 @@ fn raw_screening(
 ) -> Result<([f64; 3], ScreenSummary, Vec<u8>), (Kind, String, Option<f64>)> {
     let cfg = ScreenConfig::default();
     let mut flags = vec![0u8; samples.len()];
-    let Some(sigma0) = robust_sigma(samples, &flags) else {
+    let Some(sigma0) = raw_noise_sigma(samples, &flags) else {
         // Named by its time (the CLI adds the file's line): an index would count the samples
         // left after `--exclude`, not the file's rows.
         let irregular = noise::first_irregular(samples);
@@ -295,7 +295,7 @@ fn raw_screening(
     let (sigma, summary) = if first.rejected == 0 {
         (sigma0, first)
     } else {
-        let sigma = robust_sigma(samples, &flags).unwrap_or(sigma0);
+        let sigma = raw_noise_sigma(samples, &flags).unwrap_or(sigma0);
         let summary = pieces::screen(samples, &series, &sigma, &cfg, &mut flags);
         (sigma, summary)
     };
@@ -484,8 +484,9 @@ fn lsb(samples: &[Sample], a: usize) -> Option<f64> {
     Some(*nz.select_nth_unstable_by(k, f64::total_cmp).1)
 }
 
-/// Robust raw noise per axis from third differences of accepted, (nearly) equally spaced samples.
-fn robust_sigma(samples: &[Sample], flags: &[u8]) -> Option<[f64; 3]> {
+/// Raw-sample noise 1σ per axis of the accepted samples: the noise floor of their third
+/// differences ([`noise::estimate`], robust), at least an output step's rounding error.
+fn raw_noise_sigma(samples: &[Sample], flags: &[u8]) -> Option<[f64; 3]> {
     let ok = |s: &Sample, f: u8| {
         f == 0 && s.t_s.is_finite() && s.specific_force.iter().all(|v| v.is_finite())
     };

@@ -4,6 +4,7 @@
 //! difference at 1 s is ~1e-13 m/s², at 60 s ~7e-7 m/s²) and keep white noise with variance
 //! 20σ². A median-based estimate (1.4826·median|Δ³|/√20) ignores the occasional outlier.
 
+use estimator_core::robust;
 use estimator_core::Sample;
 
 /// Raw-sample 1σ per axis (m/s²) and how many third differences it rests on.
@@ -56,11 +57,10 @@ fn axis_sigma(samples: &[Sample], a: usize) -> Option<(usize, f64)> {
     if d.len() < 8 {
         return None;
     }
-    let mid = d.len() / 2;
-    let median = f64::from_bits(*d.select_nth_unstable(mid).1);
+    let median = robust::median_by(&mut d, Ord::cmp, f64::from_bits);
     Some((
         d.len(),
-        (1.4826 * median / 20f64.sqrt()).max(MIN_RAW_SIGMA_MPS2),
+        (robust::NORMAL_SIGMA_PER_MEDIAN_ABS * median / 20f64.sqrt()).max(MIN_RAW_SIGMA_MPS2),
     ))
 }
 
@@ -112,8 +112,7 @@ pub(crate) fn first_irregular(samples: &[Sample]) -> Option<(usize, f64, f64)> {
     if dt.is_empty() {
         return None;
     }
-    let mid = dt.len() / 2;
-    let med = *dt.select_nth_unstable_by(mid, f64::total_cmp).1;
+    let med = robust::median(&mut dt);
     samples.windows(2).enumerate().find_map(|(k, w)| {
         let d = w[1].t_s - w[0].t_s;
         (!jitter(d, med)).then_some((k + 1, d, med))

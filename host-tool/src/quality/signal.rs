@@ -14,6 +14,7 @@ use std::borrow::Cow;
 
 use super::noise;
 use super::{Action, Finding, Kind};
+use estimator_core::robust;
 use estimator_core::units::EARTH_RATE_RADPS;
 use estimator_core::Sample;
 use nalgebra::{SMatrix, SVector};
@@ -48,8 +49,7 @@ pub(crate) fn line_miss_mps2(samples: &[Sample]) -> (f64, f64) {
     if dt.is_empty() {
         return (0.0, 0.0);
     }
-    let mid = dt.len() / 2;
-    let h = *dt.select_nth_unstable_by(mid, f64::total_cmp).1;
+    let h = robust::median(&mut dt);
     let g = samples
         .iter()
         .map(|s| s.specific_force.iter().map(|v| v * v).sum::<f64>().sqrt())
@@ -183,9 +183,7 @@ fn robust_fit(
         .map(|&k| basis((samples[k].t_s - tc) / half))
         .collect();
     let mut y: Vec<f64> = idx.iter().map(|&k| samples[k].specific_force[a]).collect();
-    let mut sorted = y.clone();
-    let mid = sorted.len() / 2;
-    let y0 = *sorted.select_nth_unstable_by(mid, f64::total_cmp).1;
+    let y0 = robust::median(&mut y.clone());
     for v in &mut y {
         *v -= y0;
     }
@@ -197,8 +195,9 @@ fn robust_fit(
         for (b, v) in abs.iter_mut().zip(&r) {
             *b = v.abs();
         }
-        let mad = *abs.select_nth_unstable_by(mid, f64::total_cmp).1;
-        let scale = (1.4826 * mad).max(0.25 * sigma).max(f64::MIN_POSITIVE);
+        let scale = robust::sigma_from_abs(&mut abs)
+            .max(0.25 * sigma)
+            .max(f64::MIN_POSITIVE);
         for (wi, ri) in w.iter_mut().zip(&r) {
             let z = (ri / scale).abs();
             *wi = match (iter < 5, z) {

@@ -5,6 +5,7 @@
 //! √n they reveal quantised or correlated noise (the floor the filter must use), and an isolated
 //! jump of size J leaves the pattern (J, −2J, J): a bias step.
 
+use estimator_core::robust;
 use estimator_core::Measurement;
 
 use super::{axis_name, Action, Finding, Kind};
@@ -80,8 +81,7 @@ pub(crate) fn typical_count(means: &[Measurement]) -> f64 {
     if counts.is_empty() {
         return 1.0;
     }
-    let mid = counts.len() / 2;
-    f64::from(*counts.select_nth_unstable(mid).1).max(1.0)
+    robust::median_by(&mut counts, Ord::cmp, f64::from).max(1.0)
 }
 
 /// 1σ of a full-window mean per axis from the scatter of the means' third differences (robust);
@@ -92,17 +92,15 @@ pub(crate) fn mean_sigma(means: &[Measurement], skip: &[bool; 3]) -> [f64; 3] {
         if skip[a] || d.len() < 30 {
             0.0
         } else {
-            robust_sigma(&d) / 20f64.sqrt()
+            sigma_of_z(&d) / 20f64.sqrt()
         }
     })
 }
 
-/// Robust 1σ (MAD) of the rescaled differences ([`Diff::z`]).
-fn robust_sigma(d: &[Diff]) -> f64 {
+/// 1σ of the rescaled differences ([`Diff::z`]) from the median of their sizes.
+fn sigma_of_z(d: &[Diff]) -> f64 {
     let mut v: Vec<f64> = d.iter().map(|x| x.z.abs()).collect();
-    let mid = v.len() / 2;
-    let (_, m, _) = v.select_nth_unstable_by(mid, f64::total_cmp);
-    1.4826 * *m
+    robust::sigma_from_abs(&mut v)
 }
 
 /// Compares the means' scatter with raw noise/√n; returns the means' own 1σ per axis to use when
@@ -125,7 +123,7 @@ pub(crate) fn check_mean_noise(
         if d.len() < 30 {
             continue;
         }
-        let emp = robust_sigma(&d) / 20f64.sqrt();
+        let emp = sigma_of_z(&d) / 20f64.sqrt();
         // The MAD of overlapping third differences: relative 1σ ≈ 2/√N.
         let tol = MEAN_NOISE_FACTOR
             .ln()
@@ -296,7 +294,7 @@ pub(crate) fn check_steps(
         if d.len() < 30 {
             continue;
         }
-        let s = robust_sigma(&d);
+        let s = sigma_of_z(&d);
         if s <= 0.0 {
             continue;
         }
@@ -400,8 +398,7 @@ pub(crate) fn find_bias_steps(
         if gaps.is_empty() {
             continue;
         }
-        let mid = gaps.len() / 2;
-        let h = *gaps.select_nth_unstable_by(mid, f64::total_cmp).1;
+        let h = robust::median(&mut gaps);
         let span = (2 * SIDE_MEANS + 2) as f64 * h;
         for _ in 0..MAX_BIAS_STEPS {
             // Sized on hours of signal ([`refine_step`]) where the local fit (cubic + step, 12

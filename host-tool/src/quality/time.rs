@@ -3,6 +3,7 @@
 //! fixes how many seconds lie between them. A time column in ms (or minutes, hours) shows up as a
 //! sweep rate 1000× (1/60×, 1/3600×) off; gaps and a change of sample rate are noted.
 
+use estimator_core::robust::median;
 use estimator_core::units::EARTH_RATE_RADPS;
 use estimator_core::{Sample, Site};
 use nalgebra::Vector3;
@@ -76,8 +77,7 @@ pub fn time_scale(site: &Site, samples: &[Sample]) -> Option<f64> {
     if scales.len() < 3 {
         return None;
     }
-    scales.sort_by(f64::total_cmp);
-    Some(scales[scales.len() / 2])
+    Some(median(&mut scales))
 }
 
 /// Checks the time unit against the Earth's rotation and repairs a recognised one; returns the
@@ -128,16 +128,6 @@ pub(crate) fn check_units(
         }
     }
     Ok(applied)
-}
-
-/// The median of `v` (reordered: the selection works in place); NaN for none.
-fn median(v: &mut [f64]) -> f64 {
-    if v.is_empty() {
-        return f64::NAN;
-    }
-    let mid = v.len() / 2;
-    let (_, m, _) = v.select_nth_unstable_by(mid, f64::total_cmp);
-    *m
 }
 
 /// Gaps (> 5 median intervals) and a change of the sample interval (> 10 % between the first and

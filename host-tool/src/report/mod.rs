@@ -18,7 +18,7 @@ use std::path::{Path, PathBuf};
 use anyhow::Result;
 
 use crate::consistency::Thresholds;
-use crate::diagnose::types::{Diagnosis, Rung};
+use crate::diagnose::types::{model_name, Diagnosis, Rung};
 use crate::format::{pm, with_sigma};
 pub(crate) use joint::{draw_joint_pngs, render_joint_html, JointCoef, JointReportInput, JointRun};
 use plots::{Figure, Kind};
@@ -104,14 +104,6 @@ fn esc(s: &str) -> String {
         }
     }
     o
-}
-
-fn model_name(m: &[String]) -> String {
-    if m.is_empty() {
-        "paper".into()
-    } else {
-        format!("paper + {}", m.join(" + "))
-    }
 }
 
 /// A number with 4 significant digits, in exponent form when very small or large.

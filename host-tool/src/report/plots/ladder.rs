@@ -92,23 +92,8 @@ fn rung_labels(rungs: &[crate::diagnose::types::Rung]) -> Vec<(f64, String)> {
         .iter()
         .enumerate()
         .map(|(k, g)| {
-            let name = if k == 0 {
-                if g.model.is_empty() {
-                    "paper".to_string()
-                } else {
-                    format!("paper + {}", g.model.join(" + "))
-                }
-            } else {
-                let prev = &rungs[k - 1].model;
-                let added: Vec<&str> = g
-                    .model
-                    .iter()
-                    .filter(|m| !prev.contains(m))
-                    .map(|s| s.as_str())
-                    .collect();
-                format!("+ {}", added.join(" + "))
-            };
-            (k as f64, format!("{k}: {name}"))
+            let before = k.checked_sub(1).map(|j| rungs[j].model.as_slice());
+            (k as f64, format!("{k}: {}", rung_name(&g.model, before)))
         })
         .collect()
 }

@@ -60,14 +60,14 @@ pub(super) fn residual_means<DB: DrawingBackend>(
             )],
             lines: vec![
                 Line {
-                    label: Some(format!("before: {}", model_name(before))),
+                    label: Some(format!("before: {}", model_name(&before.model))),
                     color: BEFORE,
                     width: 2,
                     dashed: false,
                     pts: scaled(mb),
                 },
                 Line {
-                    label: Some(format!("after: {}", model_name(after))),
+                    label: Some(format!("after: {}", model_name(&after.model))),
                     color: AFTER,
                     width: 2,
                     dashed: false,

@@ -17,7 +17,7 @@ use plotters::element::DashedPathElement;
 use plotters::prelude::*;
 
 use super::ReportInput;
-use crate::diagnose::types::{Diagnosis, Series};
+use crate::diagnose::types::{model_name, rung_name, Diagnosis, Series};
 use crate::stats::chi2_quantile;
 
 mod acf;
@@ -107,14 +107,6 @@ pub(crate) struct Figure {
     pub size: (u32, u32),
 }
 
-fn model_name(d: &Diagnosis) -> String {
-    if d.model.is_empty() {
-        "paper".into()
-    } else {
-        format!("paper + {}", d.model.join(" + "))
-    }
-}
-
 /// The figure for `kind`, titled for this input.
 pub(crate) fn figure(kind: Kind, input: &ReportInput) -> Figure {
     let (stem, title, h) = spec(kind, input);
@@ -169,7 +161,7 @@ fn one_diagnosis(kind: Kind) -> Option<(&'static str, &'static str, u32, usize)>
 
 /// File stem, title and height (px) of the figure of `kind`.
 fn spec(kind: Kind, input: &ReportInput) -> (&'static str, String, u32) {
-    let name = |d: usize| model_name(&input.diagnoses[d]);
+    let name = |d: usize| model_name(&input.diagnoses[d].model);
     let last = input.diagnoses.len() - 1;
     if let Some((stem, what, h, d)) = one_diagnosis(kind) {
         return (stem, format!("{what} — model {}", name(d)), h);

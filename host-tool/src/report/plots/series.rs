@@ -219,7 +219,7 @@ pub(super) fn nis<DB: DrawingBackend>(
             format!(
                 "{}: {}",
                 if j == 0 { "before" } else { "after" },
-                model_name(d)
+                model_name(&d.model)
             )
         };
         lines.push(Line {

@@ -33,19 +33,8 @@ fn rung_labels(ds: &[Diagnosis]) -> Vec<(f64, String)> {
     ds.iter()
         .enumerate()
         .map(|(k, d)| {
-            let name = match k {
-                0 => model_name(d),
-                _ => {
-                    let added: Vec<&str> = d
-                        .model
-                        .iter()
-                        .filter(|m| !ds[k - 1].model.contains(m))
-                        .map(String::as_str)
-                        .collect();
-                    format!("+ {}", added.join(" + "))
-                }
-            };
-            (k as f64, format!("{k}: {name}"))
+            let before = k.checked_sub(1).map(|j| ds[j].model.as_slice());
+            (k as f64, format!("{k}: {}", rung_name(&d.model, before)))
         })
         .collect()
 }
