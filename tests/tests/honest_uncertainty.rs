@@ -294,9 +294,10 @@ fn an_alternatives_shift_is_what_refitting_with_it_gives() {
     let samples: Vec<Sample> = sim.samples.iter().map(Sample::from).collect();
     let site = estimator_core::Site::new(sim.meta.latitude_deg.unwrap(), sim.meta.gravity_mps2);
     let mut cfg = Config::default();
-    // Without the daily drift's marginalisation, which moves the assessed estimate off the fit
-    // that both the linearisation and the refit below start from.
+    // Without the slow drifts' marginalisation (daily, trend), which moves the assessed estimate
+    // off the fit that both the linearisation and the refit below start from.
     cfg.setup.daily_drift_deg_h = 0.0;
+    cfg.setup.drift_trend_deg_h_per_day = 0.0;
     let prep = prepare(site, &samples, &cfg).unwrap();
     let paper = [catalog::paper()];
     let id = identify(&build_model(prep.site, &paper, &cfg).unwrap(), &prep, &cfg).unwrap();
