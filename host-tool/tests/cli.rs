@@ -1335,6 +1335,40 @@ fn runs_at_low_latitudes_are_never_confidently_wrong() {
     let _ = std::fs::remove_dir_all(&dir);
 }
 
+/// A drift trend (2.3e-5 deg/h per h on X) with set-up errors drawn from the priors, 36 h at 10 s
+/// (seed 19): the latitude, bent by the trend, left the stated "39.1"'s bound, and a clock
+/// "1043 ppm fast" (the truth: 19 ppm) beat every catalog effect by taking the gravity's move
+/// (10 ppm, within its prior) along — 2300 against the trend's 250, weighed with the set-up as
+/// stated — was repaired, and DY0 ended 8.7 of its total 1σ off, exit 0. The catalog's effects
+/// are now also weighed with the set-up within its priors, the best refitted with it
+/// marginalised (the trend: 2291, within the confounded margin of the clock's 2300): no repair,
+/// exit 3. Tolerance: a trusted answer within 3.5 total σ, as in the tests above.
+#[test]
+fn a_trend_with_a_moved_set_up_is_not_repaired_as_a_fast_clock() {
+    let dir = temp_dir("trend-clock");
+    let csv = simulate_to(
+        &dir,
+        "run.csv",
+        &[
+            "--seed",
+            "19",
+            "--hours",
+            "36",
+            "--rate-s",
+            "10",
+            "--setup-errors-from-priors",
+            "--effect",
+            "drift-trend=2.3378866106855908e-05,3.2231424519926477e-06,-1.8108150405487541e-06",
+        ],
+    );
+    let (code, v, all) = json_with_truth("identify", &csv);
+    assert!(matches!(code, Some(0 | 3)), "{all}");
+    if code == Some(0) {
+        within_total_sigma(&v, 3.5, "trend with set-up errors");
+    }
+    let _ = std::fs::remove_dir_all(&dir);
+}
+
 /// A level start at exactly 30° S sits on the border of the two charts of the platform angles
 /// (its daily turn reaches ty = 60°): the set-up's refits at the latitude ± its prior σ chose
 /// the other chart, started from the stated fit's trajectory 60° off, and diverged, and the run

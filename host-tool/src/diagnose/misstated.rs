@@ -65,6 +65,12 @@ pub(crate) struct Weighed {
     /// `None` when the data contradict those priors): add it to put the alternatives on the
     /// scale of effects refitted at the stated set-up.
     pub stated_gain: Option<f64>,
+    /// The set-up moved within its priors (the first hypothesis' mode: latitude deg, clock ppm,
+    /// gravity ppm) and that hypothesis' evidence gain over the stated set-up's own fit, also
+    /// where the data contradict the priors (`None` for a single pass): where a misstatement's
+    /// gain is taken over the stated fit, the other knobs move within their priors with it, and
+    /// a catalog effect is its rival only with them moved too ([`crate::assess`]).
+    pub within_priors: Option<([f64; 3], f64)>,
 }
 
 impl Weighed {
@@ -95,6 +101,7 @@ pub(crate) fn weigh(
         return Ok(Weighed {
             alternatives: vec![],
             stated_gain: None,
+            within_priors: None,
         });
     };
     let live = live_knobs(prep, km);
@@ -108,11 +115,8 @@ pub(crate) fn weigh(
     // χ² check or the latitude's digits): then that hypothesis is out, and the stated set-up's
     // own fit is the reference, as it is for the catalog's alternatives weighed on it.
     let contradicted = !unc.untrusted_reasons().is_empty();
-    let base = if contradicted {
-        km.f0
-    } else {
-        laplace[0].neg2_ln_z(fits[0].0)
-    };
+    let priors_z = laplace[0].neg2_ln_z(fits[0].0);
+    let base = if contradicted { km.f0 } else { priors_z };
     let reference = Reference {
         km,
         laplace: &laplace[0],
@@ -136,6 +140,7 @@ pub(crate) fn weigh(
     Ok(Weighed {
         alternatives: out,
         stated_gain: (!contradicted).then_some(km.f0 - base),
+        within_priors: Some((laplace[0].delta(km), km.f0 - priors_z)),
     })
 }
 
