@@ -291,7 +291,7 @@ fn rivals_of_the_move(
 /// marginalised along (their own knobs' posterior: at the priors' point the latitude, bent by
 /// the trend to its bound, stayed there): gains on the stated fit's scale, rivals a
 /// misstatement must beat.
-fn rivals_within_priors(
+pub(crate) fn rivals_within_priors(
     catalog: &Catalog,
     effects: &[&dyn Effect],
     stated: &(Prepared, Identification),

@@ -492,9 +492,31 @@ pub(crate) fn starting_fit(
         return Ok(Some(id));
     }
     let mut rivals = rivals(prep, catalog, effects, cfg, &id, progress);
+    let contradicted = weighed.stated_gain.is_none();
+    let moved_within = weighed.within_priors;
     // On the scale of the rivals, refitted at the stated set-up: the misstatements' gains over
     // that fit, and the stated set-up within its priors as one more rival.
     let (mis, within_priors) = weighed.on_the_stated_fit();
+    if let (true, Some(w)) = (contradicted, moved_within) {
+        if misstated::to_repair(&mis, &rivals).is_some() {
+            // The same rivals as `identify`'s (crate::assess::rivals_within_priors).
+            let dcfg = crate::diagnose::DiagnoseConfig {
+                identify: cfg.clone(),
+                progress: progress.clone(),
+                ..Default::default()
+            };
+            progress
+                .note(|| "weighing the catalog effects with the set-up within its priors".into());
+            let stated_fit = (prep.clone(), id.clone());
+            rivals.extend(crate::assess::rivals_within_priors(
+                catalog,
+                effects,
+                &stated_fit,
+                &dcfg,
+                w,
+            )?);
+        }
+    }
     let catalog_best = rivals.iter().map(|r| r.1).fold(0.0, f64::max);
     rivals.extend(within_priors.clone());
     if let Some(m) = misstated::to_repair(&mis, &rivals) {
