@@ -18,11 +18,11 @@ use std::time::Duration;
 
 use criterion::{criterion_group, criterion_main, Criterion, Throughput};
 
-/// `driftid`'s allocator (huge pages for large blocks, `host_tool::alloc`): the benches measure
+/// `driftid`'s allocator (huge pages for large blocks, `host_tool::heap`): the benches measure
 /// what the program does.
 #[cfg(all(target_os = "linux", target_env = "gnu"))]
 #[global_allocator]
-static ALLOC: host_tool::alloc::HugePages = host_tool::alloc::HugePages;
+static ALLOC: host_tool::heap::HugePages = host_tool::heap::HugePages;
 use estimator_core::model::MAX_STATES;
 use estimator_core::units::arw_deg2ph_to_rad2ps;
 use estimator_core::{Averager, Ekf, Measurement, Model, Propagation, Site, PAPER_EFFECTS};

@@ -10,7 +10,7 @@ use host_tool::identify::{build_model, identify, prepare_oriented, try_cramer_ra
 /// The allocator `driftid` runs with.
 #[cfg(all(target_os = "linux", target_env = "gnu"))]
 #[global_allocator]
-static ALLOC: host_tool::alloc::HugePages = host_tool::alloc::HugePages;
+static ALLOC: host_tool::heap::HugePages = host_tool::heap::HugePages;
 
 fn main() -> anyhow::Result<()> {
     host_tool::cli::common::keep_freed_memory();

@@ -12,19 +12,19 @@
 //! - [`link`]: the host end of the telemetry link (record, HIL replay).
 //! - [`output`]: atomic writes of every output file; an output never overwrites an input.
 //! - [`cli`]: one module per `driftid` subcommand.
-#[cfg(all(target_os = "linux", target_env = "gnu"))]
-pub mod alloc;
 pub mod assess;
-pub mod beside;
 pub mod catalog;
 pub mod consistency;
 pub mod diagnose;
 pub mod effects_file;
 pub mod format;
+#[cfg(all(target_os = "linux", target_env = "gnu"))]
+pub mod heap;
 pub mod identify;
 pub mod link;
 pub mod output;
 pub mod plan;
+pub mod pool;
 pub mod progress;
 pub mod quality;
 pub mod recording;

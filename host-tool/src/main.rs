@@ -39,10 +39,10 @@ enum Command {
     Bench(cli::bench::BenchArgs),
 }
 
-/// Huge pages for the large blocks ([`host_tool::alloc`]).
+/// Huge pages for the large blocks ([`host_tool::heap`]).
 #[cfg(all(target_os = "linux", target_env = "gnu"))]
 #[global_allocator]
-static ALLOC: host_tool::alloc::HugePages = host_tool::alloc::HugePages;
+static ALLOC: host_tool::heap::HugePages = host_tool::heap::HugePages;
 
 fn main() {
     // A closed stdout (`driftid identify … | head`) ends the process quietly, as for any Unix

@@ -614,7 +614,7 @@ pub fn keep_freed_memory() {
         libc::mallopt(libc::M_TRIM_THRESHOLD, 512 << 20);
     }
     // The heap's next 64 MB advised for huge pages once, as a large block is
-    // ([`crate::alloc::HugePages`]), and handed back: freed, it joins the top of the heap, which
+    // ([`crate::heap::HugePages`]), and handed back: freed, it joins the top of the heap, which
     // is not trimmed, so the blocks this thread allocates later (below the large-block size:
     // the time axis, the filter's states and innovations, the screening's copies) are carved from
     // advised memory and fault in 2 MiB at a time. On the 60-h run: ~2 300 page faults -> ~1 300,

@@ -1114,7 +1114,7 @@ fn for_each_linearisation<const CAP: usize>(
     // per chunk (that was ~8 % of the process's CPU time). A linearisation overwrites
     // every entry the filter reads.
     // On rayon's pool (this thread is outside it, see above), not on a thread of its
-    // own: see `crate::beside`.
+    // own: see `crate::pool`.
     rayon::in_place_scope(|scope| {
         type Chunk<const CAP: usize> = Vec<Linearisation<CAP>>;
         let (tx, rx) = std::sync::mpsc::sync_channel::<(Chunk<CAP>, usize)>(2);

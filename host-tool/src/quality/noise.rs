@@ -23,11 +23,11 @@ pub(crate) const MIN_RAW_SIGMA_MPS2: f64 = 1e-8;
 /// finite). Returns `None` when fewer than 8 runs of 4 samples within [`MAX_JITTER`] of equal
 /// spacing exist.
 pub(crate) fn estimate(samples: &[Sample]) -> Option<NoiseFloor> {
-    // Each axis on its own, the first here and the others on the pool (`crate::beside`): the
+    // Each axis on its own, the first here and the others on the pool (`crate::pool`): the
     // differences and their median are most of the screening's noise estimate, ~2 ms of a 60-h
     // recording.
     let mut axes: [Option<(usize, f64)>; 3] = [None; 3];
-    crate::beside::first_here(axes.iter_mut().enumerate(), |(a, out)| {
+    crate::pool::caller_first(axes.iter_mut().enumerate(), |(a, out)| {
         *out = axis_sigma(samples, a);
     });
     let [Some((count, x)), Some((_, y)), Some((_, z))] = axes else {

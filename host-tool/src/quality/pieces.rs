@@ -67,9 +67,9 @@ fn screen_in_pieces(
         })
     };
     let mut counts = vec![[0usize; 3]; n.div_ceil(piece)];
-    // The first piece on this thread, the others on the pool (see `crate::beside`).
+    // The first piece on this thread, the others on the pool (see `crate::pool`).
     let pieces = flags.chunks_mut(piece).zip(counts.iter_mut()).enumerate();
-    crate::beside::first_here(pieces, |(k, (out, c))| *c = screen_piece(k, out));
+    crate::pool::caller_first(pieces, |(k, (out, c))| *c = screen_piece(k, out));
     for c in counts {
         for a in 0..3 {
             sum.outliers[a] += c[a];

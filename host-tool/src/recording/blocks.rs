@@ -41,7 +41,7 @@ pub(super) struct Rows {
 
 /// The allocator's refusals returned to `try_reserve` (the allocator ends the process on others).
 #[cfg(all(target_os = "linux", target_env = "gnu"))]
-use crate::alloc::fallibly;
+use crate::heap::fallibly;
 /// Elsewhere the system allocator returns every refusal.
 #[cfg(not(all(target_os = "linux", target_env = "gnu")))]
 fn fallibly<T>(f: impl FnOnce() -> T) -> T {
@@ -271,7 +271,7 @@ fn read_round(
     prev: &mut Option<(f64, u32)>,
 ) -> Result<(), RecordingError> {
     // The other blocks go to rayon's pool while this thread reads the first (why the pool, not
-    // a thread per round: `crate::beside`). A block whose job panicked is read again here.
+    // a thread per round: `crate::pool`). A block whose job panicked is read again here.
     let mut detached: Vec<Option<Detached>> = Vec::with_capacity(rest.len());
     detached.resize_with(rest.len(), || None);
     let mut first_result = Ok(());

@@ -9,7 +9,7 @@
 
 /// Runs `f` on every item: the first on this thread, the others as jobs on rayon's pool
 /// (`rayon::in_place_scope`); returns when all are done.
-pub(crate) fn first_here<I>(items: I, f: impl Fn(I::Item) + Sync)
+pub(crate) fn caller_first<I>(items: I, f: impl Fn(I::Item) + Sync)
 where
     I: IntoIterator,
     I::Item: Send,
@@ -34,7 +34,7 @@ mod tests {
     fn every_item_runs_once() {
         for n in [0usize, 1, 2, 7] {
             let mut seen = vec![0u32; n];
-            super::first_here(seen.iter_mut(), |s| *s += 1);
+            super::caller_first(seen.iter_mut(), |s| *s += 1);
             assert_eq!(seen, vec![1; n], "{n} items");
         }
     }
