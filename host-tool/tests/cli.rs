@@ -1311,8 +1311,18 @@ fn an_effects_file_parameter_has_no_truth_the_simulator_cannot_know() {
 /// on this seed: all six trusted, worst 0.6–1.4 total 1σ.
 #[test]
 fn runs_at_low_latitudes_are_never_confidently_wrong() {
-    let dir = temp_dir("low-latitude");
-    for lat in ["30", "20", "10", "0", "-5", "-20"] {
+    never_confidently_wrong_at(
+        "low-latitude",
+        "4003",
+        &["30", "20", "10", "0", "-5", "-20"],
+    );
+}
+
+/// 24-h runs at 10 s of `seed` at each latitude of `lats` (written as given): `identify` ends in
+/// exit 0 or 3, and a trusted answer lies within 3.5 of its total 1σ.
+fn never_confidently_wrong_at(tag: &str, seed: &str, lats: &[&str]) {
+    let dir = temp_dir(tag);
+    for lat in lats {
         let csv = simulate_to(
             &dir,
             &format!("lat{lat}.csv"),
@@ -1322,7 +1332,7 @@ fn runs_at_low_latitudes_are_never_confidently_wrong() {
                 "--rate-s",
                 "10",
                 "--seed",
-                "4003",
+                seed,
                 &format!("--latitude-deg={lat}"),
             ],
         );
@@ -1388,28 +1398,7 @@ fn a_trend_with_a_moved_set_up_is_not_repaired_as_a_fast_clock() {
 /// (both signs): exit 0, worst 1.03 and 1.36 total σ.
 #[test]
 fn a_start_on_the_charts_border_is_identified() {
-    let dir = temp_dir("chart-border");
-    for lat in ["-30", "30"] {
-        let csv = simulate_to(
-            &dir,
-            &format!("lat{lat}.csv"),
-            &[
-                "--hours",
-                "24",
-                "--rate-s",
-                "10",
-                "--seed",
-                "7001",
-                &format!("--latitude-deg={lat}"),
-            ],
-        );
-        let (code, v, all) = json_with_truth("identify", &csv);
-        assert!(matches!(code, Some(0 | 3)), "latitude {lat}: {all}");
-        if code == Some(0) {
-            within_total_sigma(&v, 3.5, &format!("latitude {lat}"));
-        }
-    }
-    let _ = std::fs::remove_dir_all(&dir);
+    never_confidently_wrong_at("chart-border", "7001", &["-30", "30"]);
 }
 
 /// The set-up taken as exact (every prior 0, as the message for a set-up that cannot be

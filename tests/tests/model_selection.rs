@@ -341,6 +341,17 @@ fn named(label: &str, sc: &Scenario) -> Diagnosis {
     d
 }
 
+/// The ladder's first choice is `effect` (else the evidence table in the message).
+fn assert_chosen(label: &str, d: &Diagnosis, effect: &str) {
+    let choice = d.choice.as_ref().map(|c| c.effect.as_str());
+    assert_eq!(
+        choice,
+        Some(effect),
+        "{label}: (effect, ln p, evidence gain) {:?}",
+        evidence_table(d)
+    );
+}
+
 fn evidence_table(d: &Diagnosis) -> Vec<(String, f64, Option<f64>)> {
     d.ranking
         .iter()
@@ -366,13 +377,7 @@ fn a_drift_trend_is_named_drift_trend() {
         let label = format!("trend seed {seed}");
         let sc = scenario(seed, Scenario::paper().latitude_deg, 60.0, &[spec]);
         let d = named(&label, &sc);
-        let choice = d.choice.as_ref().map(|c| c.effect.as_str());
-        assert_eq!(
-            choice,
-            Some("drift-trend"),
-            "{label}: (effect, ln p, evidence gain) {:?}",
-            evidence_table(&d)
-        );
+        assert_chosen(&label, &d, "drift-trend");
         assert_above_limit(&label, &d, "drift-trend", &k);
     }
 }
@@ -395,13 +400,7 @@ fn a_small_drift_trend_is_named_drift_trend_not_a_long_warm_up() {
         let mut sc = scenario(seed, Scenario::paper().latitude_deg, 60.0, &[spec]);
         sc.rate_s = 1.0;
         let d = named(&label, &sc);
-        let choice = d.choice.as_ref().map(|c| c.effect.as_str());
-        assert_eq!(
-            choice,
-            Some("drift-trend"),
-            "{label}: (effect, ln p, evidence gain) {:?}",
-            evidence_table(&d)
-        );
+        assert_chosen(&label, &d, "drift-trend");
     }
 }
 
@@ -416,13 +415,7 @@ fn a_markov_drift_is_named_drift_markov() {
             &["drift-markov=0.02,0.02,0.02:5,5,5"],
         );
         let d = named(&label, &sc);
-        let choice = d.choice.as_ref().map(|c| c.effect.as_str());
-        assert_eq!(
-            choice,
-            Some("drift-markov"),
-            "{label}: (effect, ln p, evidence gain) {:?}",
-            evidence_table(&d)
-        );
+        assert_chosen(&label, &d, "drift-markov");
     }
 }
 
