@@ -3,7 +3,8 @@
 //! gyros' run-in) — as set-up uncertainties: the model with the drift appended at a physical
 //! prior is linearised about the fit; what it adds is that covariance less the fit's (shrunk
 //! where the data see the drift, the full consider term where they do not), and where it puts the
-//! parameters is the shift [`super::setup::settle`] applies. The size is the prior's, or a larger
+//! parameters is the shift [`super::setup::settle`] applies (the daily drift's only:
+//! [`SlowDrift::shifts_the_estimate`]). The size is the prior's, or a larger
 //! one where the data's evidence asks for it ([`size`]), up to past the catalog effect's own
 //! prior: a catalog twin the data cannot rule out is then carried in the total 1σ, not a reason
 //! to distrust it (`assess::carried_as_setup`). Nothing when the model already holds the effect.
@@ -36,6 +37,13 @@ impl SlowDrift {
             SlowDrift::Daily => "daily drift",
             SlowDrift::Trend => "drift trend",
         }
+    }
+
+    /// Whether [`super::setup::settle`] moves the estimate where this drift's prior and the data
+    /// put it (the daily drift), or the drift only widens the 1σ (the trend: see
+    /// `setup::slow_drifts`).
+    pub(crate) fn shifts_the_estimate(self) -> bool {
+        self == SlowDrift::Daily
     }
 
     /// The catalog effect of the same physics.
