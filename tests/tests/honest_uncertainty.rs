@@ -82,6 +82,10 @@ fn the_total_sigma_covers_set_up_errors_drawn_from_the_priors() {
                             let mut sc = scenario(seed, 36.0, 10.0);
                             let half = priors.latitude_sigma(sc.latitude_deg) * 3f64.sqrt();
                             sc.setup_errors = SetupErrors::draw(&priors, half, seed);
+                            // A trend drawn at its prior is above a 36-h run's detection limit
+                            // most often: the alternatives' to name, not the 1σ's to cover
+                            // (`trends_drawn_from_their_prior_are_named_or_covered`).
+                            sc.setup_errors.drift_trend_deg_h_per_h = [0.0; 3];
                             // The user states the priors the errors are drawn from: with the
                             // defaults a latitude moved within its digits is also a clock
                             // running fast (`a_clock_running_fast_is_not_trusted_as_a_latitude_move`).
@@ -120,6 +124,82 @@ fn the_total_sigma_covers_set_up_errors_drawn_from_the_priors() {
         "trusted {trusted} of {}",
         results.len()
     );
+}
+
+#[test]
+fn trends_drawn_from_their_prior_are_named_or_covered() {
+    // Every set-up error drawn from its prior, the drift trend's too (0.0003 deg/h a day per
+    // axis): at 36 h such a trend is mostly above the detection limit, and the run is then not
+    // trusted (its reasons name it). A trusted run must be calibrated: no coefficient beyond 3
+    // total σ (the worst of 14 trusted in 40 swept was 2.54σ; before the trend's path through the
+    // latitude was carried, 80 of 480 coefficients lay beyond 3σ), RMS ≤ 1.2 as for the other
+    // set-up errors — over at least 5 trusted runs, or the test shows nothing.
+    let priors = Config::default().setup;
+    let seeds: Vec<u64> = (300..316).collect();
+    let results: Vec<(Vec<(f64, f64)>, bool)> = std::thread::scope(|s| {
+        let handles: Vec<_> = seeds
+            .chunks(8)
+            .map(|chunk| {
+                s.spawn(move || {
+                    chunk
+                        .iter()
+                        .map(|&seed| {
+                            let mut sc = scenario(seed, 36.0, 10.0);
+                            let half = priors.latitude_sigma(sc.latitude_deg) * 3f64.sqrt();
+                            sc.setup_errors = SetupErrors::draw(&priors, half, seed);
+                            let (a, truth) = run_with(&sc, stated_priors());
+                            (z_scores(&a, &truth), a.reasons.is_empty())
+                        })
+                        .collect::<Vec<_>>()
+                })
+            })
+            .collect();
+        handles
+            .into_iter()
+            .flat_map(|h| h.join().unwrap())
+            .collect()
+    });
+    let trusted: Vec<f64> = results
+        .iter()
+        .filter(|r| r.1)
+        .flat_map(|r| r.0.iter().map(|z| z.0))
+        .collect();
+    let rms = (trusted.iter().map(|z| z * z).sum::<f64>() / trusted.len().max(1) as f64).sqrt();
+    let worst = trusted.iter().fold(0.0f64, |m, z| m.max(z.abs()));
+    println!(
+        "{} runs, {} trusted: RMS error/total 1σ {rms:.2}, worst {worst:.2}",
+        results.len(),
+        trusted.len() / 12
+    );
+    assert!(trusted.len() >= 5 * 12, "{} trusted", trusted.len() / 12);
+    assert!(worst <= 3.0, "a trusted coefficient {worst:.2} total σ off");
+    assert!(rms <= 1.2, "RMS error / total 1σ of trusted runs {rms:.2}");
+}
+
+#[test]
+fn a_trend_below_its_detection_limit_moves_no_coefficient_through_the_latitude() {
+    // A trend on x at half its detection limit (60 h at 1 s, 2e-6 deg/h per h) bends the
+    // latitude's signature: it moved the latitude by 1.7 of its 1σ and DXx with it by 1.61 total
+    // σ, while each term taken with the other held (the trend's set-up term, the sensitivity
+    // table) showed 0.03σ. With the knobs marginalised with the slow drifts free it moves no
+    // coefficient by more than 0.4σ; beyond 1σ, the limit for an unflagged move, fails.
+    let clean = scenario(3, 60.0, 1.0);
+    let mut with = clean.clone();
+    with.effects
+        .push("drift-trend=-1.98249e-06,0,0".parse().unwrap());
+    let (a_with, a_clean) = std::thread::scope(|s| {
+        let h = s.spawn(|| run(&clean).0);
+        (run(&with).0, h.join().unwrap())
+    });
+    for k in 0..12 {
+        let moved =
+            (a_with.id.best().value[k] - a_clean.id.best().value[k]) / a_with.unc.total_sigma[k];
+        assert!(
+            moved.abs() <= 1.0,
+            "{} moved by {moved:+.2} total σ",
+            a_with.id.params[k].name
+        );
+    }
 }
 
 #[test]
@@ -238,20 +318,27 @@ fn a_misstated_gravity_is_repaired_and_a_misstated_clock_is_never_trusted_wrong(
 fn a_clock_running_fast_is_not_trusted_as_a_latitude_move() {
     // A recorder clock 300 ppm fast (15 times its default prior) on a latitude written "39.1":
     // the data move the latitude 0.02° within its digits and fit; a clock 300 ppm fast fits
-    // them as well (the two differ only in their priors), and the coefficients differ by 6σ
-    // (DXx was 8σ off, trusted). The result rests on the assumed clock prior: not trusted, the
-    // clock named. Stated (the user vouches for the clock) the latitude move is trusted.
+    // them as well (the two differ only in their priors), and the coefficients differ by 6σ of
+    // the total 1σ the latitude's data left (DXx was 8σ off, trusted). Either the result rests
+    // on the assumed clock prior — not trusted, the clock named — or the total 1σ carries the
+    // difference and the trusted answer is within 3 of it (since the knobs are marginalised
+    // with the slow drifts free, the latitude's share is wide enough on seed 2: worst 1.36σ).
     for seed in [1, 2] {
         let mut sc = scenario(seed, 60.0, 10.0);
         sc.setup_errors.clock_ppm = 300.0;
-        let (a, _) = run(&sc);
-        assert!(
-            a.reasons
-                .iter()
-                .any(|r| r.contains("misstated clock rate") && r.contains("rests on the assumed")),
-            "seed {seed}: {:?}",
-            a.reasons
-        );
+        let (a, truth) = run(&sc);
+        if a.reasons.is_empty() {
+            assert_within_3_sigma(&a, &truth);
+        } else {
+            assert!(
+                a.reasons
+                    .iter()
+                    .any(|r| r.contains("misstated clock rate")
+                        && r.contains("rests on the assumed")),
+                "seed {seed}: {:?}",
+                a.reasons
+            );
+        }
         // The same recording with a clock as stated (none of the above): trusted.
         let (a, truth) = run(&scenario(seed, 60.0, 10.0));
         assert!(a.reasons.is_empty(), "seed {seed}: {:?}", a.reasons);

@@ -279,14 +279,19 @@ pub(crate) fn print_setup(unc: &Uncertainty, id: &Identification) {
             .max_by(|a, b| a.1.total_cmp(&b.1))
             .unwrap_or((0, 0.0));
         let data = match (c.offset, c.stated) {
-            (Some(o), Some((v, unit))) => format!(
-                "; estimated {} {unit} (stated {}{})",
-                crate::format::pm(v + o, c.posterior_sigma),
-                crate::format::sig(v, 9),
-                c.data_sigma
-                    .map(|s| format!("; the data alone ± {}", sci(s)))
+            (Some(o), Some((v, unit))) => {
+                format!(
+                    "; estimated {} {unit} (stated {}{})",
+                    crate::format::pm(v + o, c.posterior_sigma),
+                    crate::format::sig(v, 9),
+                    c.data_sigma
+                        .map(|s| format!("; the data alone ± {}", sci(s)))
+                        .unwrap_or_default()
+                ) + &c
+                    .sigma_drifts_free
+                    .map(|s| format!("; ± {} with the slow drifts free", sci(s)))
                     .unwrap_or_default()
-            ),
+            }
             _ => String::new(),
         };
         println!(

@@ -88,6 +88,9 @@ pub struct SimulateArgs {
     /// Set-up error: a daily tilt of the apparent vertical, amplitudes about east and north, arcsec.
     #[arg(long, value_delimiter = ',', allow_hyphen_values = true, value_name = "EAST,NORTH", value_parser = super::args::finite_f64)]
     pub vertical_tilt_arcsec: Option<Vec<f64>>,
+    /// Set-up error: a gyro drift trend the set-up puts on the run, deg/h per h on x, y, z.
+    #[arg(long, value_delimiter = ',', allow_hyphen_values = true, value_name = "KX,KY,KZ", value_parser = super::args::finite_f64)]
+    pub drift_trend_error_deg_h_per_h: Option<Vec<f64>>,
     /// Draw every set-up error from the default set-up priors with the seed (identify's
     /// defaults; the latitude uniform within half its last written digit: ±0.05 deg for 39.1).
     #[arg(long)]
@@ -150,6 +153,14 @@ impl SimulateArgs {
                 [a, b] => e.vertical_tilt_arcsec = [*a, *b],
                 _ => anyhow::bail!(
                     "--vertical-tilt-arcsec takes two amplitudes EAST,NORTH in arcsec"
+                ),
+            }
+        }
+        if let Some(v) = &self.drift_trend_error_deg_h_per_h {
+            match v.as_slice() {
+                [a, b, c] => e.drift_trend_deg_h_per_h = [*a, *b, *c],
+                _ => anyhow::bail!(
+                    "--drift-trend-error-deg-h-per-h takes three trends KX,KY,KZ in deg/h per h"
                 ),
             }
         }

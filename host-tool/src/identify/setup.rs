@@ -149,6 +149,11 @@ pub struct Contribution {
     pub data_sigma: Option<f64>,
     /// Posterior 1σ used, in the prior's unit.
     pub posterior_sigma: f64,
+    /// For a knob, its posterior 1σ with the slow drifts free, where that is wider (a trend the
+    /// data cannot rule out bends the latitude's signature): what its share of the coefficients'
+    /// 1σ is computed with ([`super::slow_drift::knobs_with_drifts`]).
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub sigma_drifts_free: Option<f64>,
     /// Where prior and data together put the parameter against the stated value, in the prior's
     /// unit (`None` where not estimated).
     pub offset: Option<f64>,
@@ -170,6 +175,7 @@ impl Contribution {
             prior,
             data_sigma: None,
             posterior_sigma: f64::NAN,
+            sigma_drifts_free: None,
             offset: None,
             bound: None,
             stated: None,
@@ -883,7 +889,9 @@ pub fn uncertainty(
             )
         },
     );
-    let marginal = marginal?;
+    let mut marginal = marginal?;
+    let drifts = drifts?;
+    with_drift_path(&mut marginal, &drifts.carried, effects, prep, cfg, id)?;
     // The start attitude is estimated in the fit: what it adds is the fit's covariance less the
     // noise-only one.
     let start = Contribution::new(
@@ -896,9 +904,8 @@ pub fn uncertainty(
     );
     let mut contributions = vec![start];
     contributions.extend(marginal.contributions);
-    let (drifts, drift_shift) = drifts?;
     contributions.push(tilt?);
-    contributions.extend(drifts);
+    contributions.extend(drifts.contributions);
     // The knobs' joint covariance (their correlations kept), then the tilt's and the slow
     // drifts' (each marginalised on its own: their sum is conservative where they correlate).
     let setup_cov = contributions[4..]
@@ -915,8 +922,55 @@ pub fn uncertainty(
         setup_check: Some(marginal.check),
         model_spread: vec![],
         knobs: Some(marginal.model),
-        drift_shift,
+        drift_shift: drifts.shift,
     })
+}
+
+/// The knobs' covariance and shares with the carried slow drifts free
+/// ([`super::slow_drift::knobs_with_drifts`]): the path of a drift through the latitude, clock
+/// rate and gravity into the coefficients, which each term alone misses. Their estimate, the
+/// check and the quadratic model the misstated set-up is weighed with stay the stated model's.
+fn with_drift_path(
+    marginal: &mut Marginal,
+    carried: &[(SlowDrift, f64)],
+    effects: &[&dyn Effect],
+    prep: &Prepared,
+    cfg: &Config,
+    id: &Identification,
+) -> anyhow::Result<()> {
+    let Some((hess, sens)) =
+        super::slow_drift::knobs_with_drifts(carried, effects, prep, cfg, id, &marginal.model)?
+    else {
+        return Ok(());
+    };
+    let Some(a_inv) = (&hess + DMatrix::identity(3, 3) * 2.0).try_inverse() else {
+        return Ok(());
+    };
+    let v = a_inv * 2.0;
+    marginal.cov = &sens * &v * sens.transpose();
+    for (k, c) in marginal.contributions.iter_mut().enumerate() {
+        let col = sens.column(k).into_owned();
+        let cov = &col * col.transpose() * v[(k, k)];
+        c.sigma = (0..cov.nrows())
+            .map(|i| cov[(i, i)].max(0.0).sqrt())
+            .collect();
+        c.cov = cov;
+        let free = v[(k, k)].sqrt() * marginal.model.unit[k];
+        if free > 1.01 * c.posterior_sigma {
+            c.sigma_drifts_free = Some(free);
+        }
+    }
+    Ok(())
+}
+
+/// The slow drifts marginalised about a fit ([`slow_drifts`]).
+struct SlowDrifts {
+    /// Each one's contribution, in [`SlowDrift::ALL`]'s order.
+    contributions: Vec<Contribution>,
+    /// Where they move the parameters (the daily drift's shift only).
+    shift: Vec<f64>,
+    /// Those carried, at their sizes.
+    carried: Vec<(SlowDrift, f64)>,
 }
 
 /// The slow drifts ([`SlowDrift::ALL`]) marginalised about the fit: their contributions and the
@@ -928,20 +982,26 @@ fn slow_drifts(
     prep: &Prepared,
     cfg: &Config,
     id: &Identification,
-) -> anyhow::Result<(Vec<Contribution>, Vec<f64>)> {
+) -> anyhow::Result<SlowDrifts> {
     let n = id.best().value.len();
-    let mut shift = vec![0.0; n];
-    let mut out = vec![];
+    let mut out = SlowDrifts {
+        contributions: vec![],
+        shift: vec![0.0; n],
+        carried: vec![],
+    };
     for kind in SlowDrift::ALL {
-        let (c, s) = marginalised(kind, effects, prep, cfg, id)?;
+        let m = marginalised(kind, effects, prep, cfg, id)?;
         if kind.shifts_the_estimate() {
-            for (a, b) in shift.iter_mut().zip(&s) {
+            for (a, b) in out.shift.iter_mut().zip(&m.shift) {
                 *a += b;
             }
         }
-        out.push(c);
+        if let Some(size) = m.size {
+            out.carried.push((kind, size));
+        }
+        out.contributions.push(m.contribution);
     }
-    Ok((out, shift))
+    Ok(out)
 }
 
 /// A fit at the set-up's posterior: the identification, its measurements and the uncertainty.
@@ -970,7 +1030,7 @@ pub fn settle(
     if moved {
         // The shift is the slow drifts' reach from the fit it is taken about: about the stated
         // set-up's misfit it would also soak up the set-up's error the refit has repaired.
-        settled.unc.drift_shift = slow_drifts(effects, &settled.prep, cfg, &settled.id)?.1;
+        settled.unc.drift_shift = slow_drifts(effects, &settled.prep, cfg, &settled.id)?.shift;
     }
     if let Some(est) = settled.id.refined.as_mut() {
         for (v, d) in est.value.iter_mut().zip(&settled.unc.drift_shift) {

@@ -13,6 +13,7 @@ use anyhow::Context as _;
 use estimator_core::effects::{DriftDaily, DriftTrend, Effect};
 use estimator_core::model::ANGLES;
 use nalgebra::{DMatrix, DVector};
+use rayon::prelude::*;
 
 use super::setup::{Contribution, SetupPriors};
 use super::smoother::linearised_pass;
@@ -91,22 +92,30 @@ fn with_drift<'a>(effects: &[&'a dyn Effect], drift: &'a dyn Effect) -> Vec<&'a 
     with
 }
 
-/// `kind` marginalised about the fit `id` of `effects` on `prep`: what it adds to the parameters'
-/// covariance and where it moves them (state order after the angles).
+/// One slow drift marginalised about a fit.
+pub(crate) struct Marginalised {
+    /// What it adds to the parameters' covariance.
+    pub contribution: Contribution,
+    /// Where it moves them (state order after the angles).
+    pub shift: Vec<f64>,
+    /// The size it was carried at, its prior 1σ or the data's ([`size`]); `None`: not carried.
+    pub size: Option<f64>,
+}
+
+/// `kind` marginalised about the fit `id` of `effects` on `prep`.
 pub(crate) fn marginalised(
     kind: SlowDrift,
     effects: &[&dyn Effect],
     prep: &Prepared,
     cfg: &Config,
     id: &Identification,
-) -> anyhow::Result<(Contribution, Vec<f64>)> {
+) -> anyhow::Result<Marginalised> {
     let sigma0 = kind.prior(&cfg.setup);
     let n = id.best().value.len();
-    let none = |label: String| {
-        (
-            Contribution::new(kind.source(), label, DMatrix::zeros(n, n)),
-            vec![0.0; n],
-        )
+    let none = |label: String| Marginalised {
+        contribution: Contribution::new(kind.source(), label, DMatrix::zeros(n, n)),
+        shift: vec![0.0; n],
+        size: None,
     };
     if sigma0.is_nan() || sigma0 <= 0.0 || effects.iter().any(|e| e.name() == kind.catalog_name()) {
         return Ok(none(kind.label(sigma0)));
@@ -117,11 +126,7 @@ pub(crate) fn marginalised(
         return Ok(none(format!("not carried: {e}")));
     }
     let added = probe.params().len();
-    let nominal: Vec<DVector<f64>> = id
-        .trajectory
-        .iter()
-        .map(|x| x.clone().resize_vertically(x.len() + added, 0.0))
-        .collect();
+    let nominal = widened(&id.trajectory, added);
     let pass = |sigma: f64| -> anyhow::Result<_> {
         let drift = kind.effect(sigma);
         let with = with_drift(effects, drift.as_ref());
@@ -162,7 +167,19 @@ pub(crate) fn marginalised(
     c.posterior_sigma = post;
     c.data_sigma =
         (post < 0.99 * sigma).then(|| 1.0 / (1.0 / (post * post) - 1.0 / (sigma * sigma)).sqrt());
-    Ok((c, shift))
+    Ok(Marginalised {
+        contribution: c,
+        shift,
+        size: Some(sigma),
+    })
+}
+
+/// The trajectory `nominal` with `added` states (at 0) appended to each node.
+fn widened(nominal: &[DVector<f64>], added: usize) -> Vec<DVector<f64>> {
+    nominal
+        .iter()
+        .map(|x| x.clone().resize_vertically(x.len() + added, 0.0))
+        .collect()
 }
 
 /// The drift's size: its prior 1σ `sigma0`, or a larger one where the data's evidence for it is
@@ -210,3 +227,96 @@ fn size(pass: &super::smoother::Smoothed, first: usize, sigma0: f64) -> f64 {
 /// Sizes tried above the prior: σ0·1.5^k, k = 1…10 (up to 58× the prior: past the catalog
 /// effects' priors, 0.01 deg/h and 0.01 deg/h a day, from the defaults 3e-4).
 const SIZES: usize = 10;
+
+/// The knobs (latitude, clock rate, gravity) with the carried slow drifts free: a drift trend
+/// and a latitude bend the platform's turn alike, so a trend the data cannot rule out widens what
+/// the data say of the latitude, and the latitude carries the trend into the coefficients (a
+/// trend at half its detection limit moved DXx by 1.6σ through the latitude while each term,
+/// taken with the other held, showed 0.03σ).
+///
+/// For a model linear in coefficients c, knobs u and drifts d (prior `N(0, Σ)`), with `J =
+/// ∂d̂/∂u` at fixed set-up and `P_dd`, `P_cd` the drifts' posterior blocks:
+///
+/// ```text
+/// H_with = H − 2 Jᵀ P_dd⁻¹ J            (−2 ln p(y|u) with the drifts integrated out)
+/// S_with = S + P_cd P_dd⁻¹ J            (∂ĉ/∂u with the drifts estimated along)
+/// ```
+///
+/// `J` comes from linearised passes of the model with the drifts at the knobs moved by ± a step
+/// (a prior 1σ, or twice the data's 1σ where they measure the knob better). `km` is the knobs'
+/// model without the drifts; returns its Hessian and sensitivity with them, or `None` when no
+/// drift is carried.
+pub(crate) fn knobs_with_drifts(
+    carried: &[(SlowDrift, f64)],
+    effects: &[&dyn Effect],
+    prep: &Prepared,
+    cfg: &Config,
+    id: &Identification,
+    km: &super::setup::KnobModel,
+) -> anyhow::Result<Option<(DMatrix<f64>, DMatrix<f64>)>> {
+    let live: Vec<usize> = (0..3).filter(|&k| km.unit[k] > 0.0).collect();
+    if carried.is_empty() || live.is_empty() {
+        return Ok(None);
+    }
+    let drifts: Vec<Box<dyn Effect>> = carried.iter().map(|&(k, s)| k.effect(s)).collect();
+    let mut with = effects.to_vec();
+    with.extend(drifts.iter().map(|d| d.as_ref()));
+    let n = id.best().value.len();
+    let q: usize = drifts.iter().map(|d| d.params().len()).sum();
+    let nominal = widened(&id.trajectory, q);
+    let step: Vec<f64> = (0..3)
+        .map(|k| {
+            let curv = km.hess[(k, k)];
+            if curv > 0.0 {
+                (2.0 * (2.0 / curv).sqrt()).min(1.0)
+            } else {
+                1.0
+            }
+        })
+        .collect();
+    // The pass at the stated set-up, then at ± step on each live knob.
+    let points: Vec<[f64; 3]> = std::iter::once([0.0; 3])
+        .chain(live.iter().flat_map(|&k| {
+            [1.0, -1.0].map(|sign| {
+                let mut d = [0.0; 3];
+                d[k] = sign * step[k] * km.unit[k];
+                d
+            })
+        }))
+        .collect();
+    let passes: Vec<anyhow::Result<(DVector<f64>, DMatrix<f64>)>> = points
+        .par_iter()
+        .map(|d| {
+            let p = super::setup::moved(prep, *d);
+            let m = build_model(p.site, &with, cfg)?;
+            let (x0, p0) = start_prior(&m, &p, &p.start_sigma());
+            let s = linearised_pass(&m, &p.measurements, &nominal, &x0, &p0, false)?;
+            let last = s.states.last().context("no states")?.clone();
+            Ok((last, s.final_cov))
+        })
+        .collect();
+    let passes = passes.into_iter().collect::<anyhow::Result<Vec<_>>>()?;
+    let (first, p_all) = (ANGLES + n, &passes[0].1);
+    let p_dd = p_all.view((first, first), (q, q)).into_owned();
+    let p_cd = p_all.view((ANGLES, first), (n, q)).into_owned();
+    let Some(p_dd_inv) = p_dd.try_inverse() else {
+        return Ok(None);
+    };
+    let mut j = DMatrix::zeros(q, 3);
+    for (a, &k) in live.iter().enumerate() {
+        let (plus, minus) = (&passes[1 + 2 * a].0, &passes[2 + 2 * a].0);
+        let col = (plus.rows(first, q) - minus.rows(first, q)) / (2.0 * step[k]);
+        j.set_column(k, &col);
+    }
+    let hess = &km.hess - (j.transpose() * &p_dd_inv * &j) * 2.0;
+    let sens = &km.sens + p_cd * &p_dd_inv * &j;
+    if hess.iter().chain(sens.iter()).any(|v| !v.is_finite()) {
+        return Ok(None);
+    }
+    // Clamped positive semi-definite, as the knobs' own Hessian is.
+    let eig = nalgebra::SymmetricEigen::new(hess);
+    let hess = &eig.eigenvectors
+        * DMatrix::from_diagonal(&eig.eigenvalues.map(|l| l.max(0.0)))
+        * eig.eigenvectors.transpose();
+    Ok(Some((hess, sens)))
+}

@@ -101,7 +101,10 @@ impl Simulator {
             coeff,
             g2: [[0.0; 6]; 3],
             has_g2: false,
-            trend: [0.0; 3],
+            trend: s
+                .setup_errors
+                .drift_trend_deg_h_per_h
+                .map(|k| k * RADPS_PER_DEG_H / 3600.0),
             temp_coef: [0.0; 3],
             has_temp_drift: false,
             temp: s.temp_profile.clone(),

@@ -194,6 +194,10 @@ pub struct SetupErrors {
     /// x, y, z the amplitude in phase (∝ cos Ωt) and in quadrature (∝ sin Ωt), Ω = 2π/24 h.
     #[serde(default)]
     pub daily_drift_deg_h: [f64; 6],
+    /// A gyro drift that changes steadily over the run (a laboratory's slower temperature
+    /// changes, the gyros' run-in), deg/h per h, per axis x, y, z.
+    #[serde(default)]
+    pub drift_trend_deg_h_per_h: [f64; 3],
 }
 
 impl SetupErrors {
@@ -223,6 +227,8 @@ impl SetupErrors {
             ],
             vertical_tilt_period_h: priors.vertical_tilt_period_h,
             daily_drift_deg_h: [(); 6].map(|_| priors.daily_drift_deg_h * n()),
+            // Drawn last: the earlier draws of a seed are those of the recordings made before.
+            drift_trend_deg_h_per_h: [(); 3].map(|_| priors.drift_trend_deg_h_per_day / 24.0 * n()),
         }
     }
 
@@ -362,7 +368,7 @@ impl Scenario {
     }
 
     /// The set-up errors within their ranges (clock ±1e5 ppm, latitude ±10°, gravity ±1e5 ppm,
-    /// angles ±3600″).
+    /// angles ±3600″, daily drift ±1 deg/h, drift trend ±0.1 deg/h per h).
     fn validate_setup_errors(&self) -> Result<(), String> {
         let se = &self.setup_errors;
         if !(se.clock_ppm.abs() < 1e5
@@ -371,10 +377,11 @@ impl Scenario {
             && se.start_arcsec.iter().all(|a| a.abs() <= 3600.0)
             && se.vertical_tilt_arcsec.iter().all(|a| a.abs() <= 3600.0)
             && se.vertical_tilt_period_h >= 0.0
-            && se.daily_drift_deg_h.iter().all(|a| a.abs() <= 1.0))
+            && se.daily_drift_deg_h.iter().all(|a| a.abs() <= 1.0)
+            && se.drift_trend_deg_h_per_h.iter().all(|a| a.abs() <= 0.1))
         {
             return Err(format!(
-                "set-up errors out of range (clock ±1e5 ppm, latitude ±10 deg, gravity ±1e5 ppm, angles ±3600 arcsec, daily drift ±1 deg/h): {se:?}"
+                "set-up errors out of range (clock ±1e5 ppm, latitude ±10 deg, gravity ±1e5 ppm, angles ±3600 arcsec, daily drift ±1 deg/h, drift trend ±0.1 deg/h per h): {se:?}"
             ));
         }
         Ok(())
