@@ -404,11 +404,11 @@ fn move_confounded(
     out
 }
 
-/// "a longer run (a day at least), " for a run of a day or less; "a longer run, " otherwise (a 60-h
-/// run told to last a day was the generic phrase).
+/// "a longer run (a day at least), " for a run shorter than a day; "a longer run, " otherwise (a
+/// 60-h run told to last a day was the generic phrase, and so was a 24-h run).
 fn longer(id: &Identification) -> &'static str {
     let hours = id.innovations.last().map_or(0.0, |r| r.t_s) / estimator_core::units::S_PER_H;
-    if hours < 25.0 {
+    if hours < 23.5 {
         "a longer run (a day at least), "
     } else {
         "a longer run, "

@@ -67,13 +67,21 @@ fn z_scores(a: &Assessment, truth: &[f64; 12]) -> Vec<(f64, f64)> {
         .collect()
 }
 
-#[test]
-fn the_total_sigma_covers_set_up_errors_drawn_from_the_priors() {
+/// Runs of 36 h at 10 s with every set-up error drawn from the priors by its seed (`adjust`
+/// then changes the draw), assessed with the priors stated by the user (at the defaults'
+/// values: with the defaults a latitude moved within its digits is also a clock running fast,
+/// `a_clock_running_fast_is_not_trusted_as_a_latitude_move`), `per_thread` seeds to a thread:
+/// each run's z-scores and whether it is trusted.
+fn drawn_runs(
+    seeds: &[u64],
+    per_thread: usize,
+    adjust: impl Fn(&mut Scenario) + Sync,
+) -> Vec<(Vec<(f64, f64)>, bool)> {
     let priors = Config::default().setup;
-    let seeds: Vec<u64> = (200..250).collect();
-    let results: Vec<(Vec<(f64, f64)>, bool)> = std::thread::scope(|s| {
+    let adjust = &adjust;
+    std::thread::scope(|s| {
         let handles: Vec<_> = seeds
-            .chunks(25)
+            .chunks(per_thread)
             .map(|chunk| {
                 s.spawn(move || {
                     chunk
@@ -82,13 +90,7 @@ fn the_total_sigma_covers_set_up_errors_drawn_from_the_priors() {
                             let mut sc = scenario(seed, 36.0, 10.0);
                             let half = priors.latitude_sigma(sc.latitude_deg) * 3f64.sqrt();
                             sc.setup_errors = SetupErrors::draw(&priors, half, seed);
-                            // A trend drawn at its prior is above a 36-h run's detection limit
-                            // most often: the alternatives' to name, not the 1σ's to cover
-                            // (`trends_drawn_from_their_prior_are_named_or_covered`).
-                            sc.setup_errors.drift_trend_deg_h_per_h = [0.0; 3];
-                            // The user states the priors the errors are drawn from: with the
-                            // defaults a latitude moved within its digits is also a clock
-                            // running fast (`a_clock_running_fast_is_not_trusted_as_a_latitude_move`).
+                            adjust(&mut sc);
                             let (a, truth) = run_with(&sc, stated_priors());
                             (z_scores(&a, &truth), a.reasons.is_empty())
                         })
@@ -100,6 +102,17 @@ fn the_total_sigma_covers_set_up_errors_drawn_from_the_priors() {
             .into_iter()
             .flat_map(|h| h.join().unwrap())
             .collect()
+    })
+}
+
+#[test]
+fn the_total_sigma_covers_set_up_errors_drawn_from_the_priors() {
+    let seeds: Vec<u64> = (200..250).collect();
+    let results = drawn_runs(&seeds, 25, |sc| {
+        // A trend drawn at its prior is above a 36-h run's detection limit most often: the
+        // alternatives' to name, not the 1σ's to cover
+        // (`trends_drawn_from_their_prior_are_named_or_covered`).
+        sc.setup_errors.drift_trend_deg_h_per_h = [0.0; 3];
     });
     let z: Vec<(f64, f64)> = results.iter().flat_map(|r| r.0.clone()).collect();
     let rms = |f: &dyn Fn(&(f64, f64)) -> f64| {
@@ -134,31 +147,8 @@ fn trends_drawn_from_their_prior_are_named_or_covered() {
     // total σ (the worst of 14 trusted in 40 swept was 2.54σ; before the trend's path through the
     // latitude was carried, 80 of 480 coefficients lay beyond 3σ), RMS ≤ 1.2 as for the other
     // set-up errors — over at least 5 trusted runs, or the test shows nothing.
-    let priors = Config::default().setup;
     let seeds: Vec<u64> = (300..316).collect();
-    let results: Vec<(Vec<(f64, f64)>, bool)> = std::thread::scope(|s| {
-        let handles: Vec<_> = seeds
-            .chunks(8)
-            .map(|chunk| {
-                s.spawn(move || {
-                    chunk
-                        .iter()
-                        .map(|&seed| {
-                            let mut sc = scenario(seed, 36.0, 10.0);
-                            let half = priors.latitude_sigma(sc.latitude_deg) * 3f64.sqrt();
-                            sc.setup_errors = SetupErrors::draw(&priors, half, seed);
-                            let (a, truth) = run_with(&sc, stated_priors());
-                            (z_scores(&a, &truth), a.reasons.is_empty())
-                        })
-                        .collect::<Vec<_>>()
-                })
-            })
-            .collect();
-        handles
-            .into_iter()
-            .flat_map(|h| h.join().unwrap())
-            .collect()
-    });
+    let results = drawn_runs(&seeds, 8, |_| {});
     let trusted: Vec<f64> = results
         .iter()
         .filter(|r| r.1)
