@@ -171,21 +171,22 @@ type Shift = (f64, f64, Vec<(usize, f64)>);
 /// The level shift across means `i0..=i1` of axis `a` and its 1σ, and the means in that span that
 /// depart from the fit: a cubic in time (the slow gravity signal) plus a step at the event's
 /// middle, fitted by weighted least squares (weights the means' counts) to up to
-/// [`SIDE_MEANS`] means on each side; `sigma_full` is the 1σ of a full-window mean. `None` when
-/// a side has fewer than 4 means (an event at the record's ends).
+/// [`SIDE_MEANS`] means on each side; `sigma_full` is the 1σ of a full-window mean, `typical`
+/// the record's [`typical_count`] (taken once: per position it was 15 % of a clean identify).
+/// `None` when a side has fewer than 4 means (an event at the record's ends).
 fn shift_across(
     means: &[Measurement],
     a: usize,
     i0: usize,
     i1: usize,
     sigma_full: f64,
+    typical: f64,
 ) -> Option<Shift> {
     let before: Vec<usize> = (i0.saturating_sub(SIDE_MEANS)..i0).collect();
     let after: Vec<usize> = (i1 + 1..(i1 + 1 + SIDE_MEANS).min(means.len())).collect();
     if before.len() < 4 || after.len() < 4 {
         return None;
     }
-    let typical = typical_count(means);
     let tc = 0.5 * (means[i0].t_s + means[i1].t_s);
     let scale = (means[i1].t_s - means[i0].t_s).max(1.0) + 1.0;
     let row = |j: usize| {
@@ -300,8 +301,9 @@ pub(crate) fn check_steps(
         }
         let events = events(&d, s, means.len());
         let sigma_full = s / 20f64.sqrt();
+        let typical = typical_count(means);
         let burst = |i0: usize, i1: usize| {
-            shift_across(means, a, i0, i1, sigma_full)
+            shift_across(means, a, i0, i1, sigma_full, typical)
                 .filter(|(shift, sd, dist)| shift.abs() <= SHIFT_SIGMAS * sd && !dist.is_empty())
         };
         let mut e = 0;
@@ -390,6 +392,7 @@ pub(crate) fn find_bias_steps(
     sigma_full: &[f64; 3],
 ) -> Vec<BiasStep> {
     let mut out = vec![];
+    let typical = typical_count(means);
     for a in (0..3).filter(|&a| !skip[a] && sigma_full[a] > 0.0) {
         let mut x: Vec<Measurement> = means.to_vec();
         // The typical spacing of the means: a fit whose sides span a gap (an excluded stretch,
@@ -415,11 +418,11 @@ pub(crate) fn find_bias_steps(
             let best = (SIDE_MEANS..x.len().saturating_sub(SIDE_MEANS))
                 .filter(|&c| x[c + SIDE_MEANS].t_s - x[c - SIDE_MEANS].t_s <= span)
                 .filter_map(|c| {
-                    let (shift, sd, _) = shift_across(&x, a, c, c, sigma_full[a])?;
+                    let (shift, sd, _) = shift_across(&x, a, c, c, sigma_full[a], typical)?;
                     if !(sd > 0.0 && (shift / sd).abs() > PRESCREEN_SIGMAS) {
                         return None;
                     }
-                    let (size_h, sd_h) = refine_step(&x, a, c, &done, sigma_full[a])?;
+                    let (size_h, sd_h) = refine_step(&x, a, c, &done, sigma_full[a], typical)?;
                     ((size_h - shift).abs() <= BIAS_STEP_SIGMAS * sd && sd_h > 0.0)
                         .then_some((c, size_h, sd_h))
                 })
@@ -537,10 +540,10 @@ pub(crate) fn refine_step(
     c: usize,
     other: &[usize],
     sigma_full: f64,
+    typical: f64,
 ) -> Option<(f64, f64)> {
     const N: usize = 13;
     let tc = means[c].t_s;
-    let typical = typical_count(means);
     let omega = estimator_core::units::EARTH_RATE_RADPS;
     let idx = refine_window(means, c, other);
     let row = |j: usize| {
