@@ -30,7 +30,7 @@ static EFFECTS: [&dyn Effect; 9] = [
     &AccScale,
     &AccMisalign,
     &DriftTrend::CATALOG,
-    &TempDrift,
+    &TempDrift::CATALOG,
     &DriftDaily { sigma_degph: 0.01 },
 ];
 

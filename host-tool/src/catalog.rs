@@ -16,7 +16,7 @@ static ACC_MISALIGN: AccMisalign = AccMisalign;
 static G2: G2Drift = G2Drift;
 static DRIFT_TREND: DriftTrend = DriftTrend::CATALOG;
 static DRIFT_DAILY: DriftDaily = DriftDaily { sigma_degph: 0.01 };
-static TEMP_DRIFT: TempDrift = TempDrift;
+static TEMP_DRIFT: TempDrift = TempDrift::CATALOG;
 static DRIFT_MARKOV: DriftMarkov = DriftMarkov {
     sigma_degph: 0.01,
     tau_h: 5.0,

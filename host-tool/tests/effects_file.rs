@@ -335,8 +335,8 @@ z = "Tz * t_h"
 [[effect]]
 name = "temp-file"
 applies_to = "drift"
-params = [ { name = "Kx", unit = "deg/h/degC", prior_sigma = 0.1 }, { name = "Ky", unit = "deg/h/degC", prior_sigma = 0.1 },
-           { name = "Kz", unit = "deg/h/degC", prior_sigma = 0.1 } ]
+params = [ { name = "Kx", unit = "deg/h/degC", prior_sigma = 0.01 }, { name = "Ky", unit = "deg/h/degC", prior_sigma = 0.01 },
+           { name = "Kz", unit = "deg/h/degC", prior_sigma = 0.01 } ]
 x = "Kx * temp_c"
 y = "Ky * temp_c"
 z = "Kz * temp_c"
@@ -359,7 +359,11 @@ fn file_effect_jacobians_match_the_builtin_and_finite_differences() {
         &twin("trend-file"),
         &[0.002, -0.001, 0.0015],
     );
-    check_twin(&TempDrift, &twin("temp-file"), &[0.05, -0.03, 0.04]);
+    check_twin(
+        &TempDrift::CATALOG,
+        &twin("temp-file"),
+        &[0.05, -0.03, 0.04],
+    );
     // A non-polynomial expression, against finite differences only (no built-in twin): chain
     // rule through sin, exp and a quotient, in all three force components and two parameters.
     let e = parse(

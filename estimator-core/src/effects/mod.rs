@@ -142,7 +142,7 @@ mod tests {
             &DriftMarkov::default(),
             &DriftTrend::CATALOG,
             &G2Drift,
-            &TempDrift,
+            &TempDrift::CATALOG,
         ];
         let ctx = Context {
             t_s: 7200.0,

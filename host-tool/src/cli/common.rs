@@ -58,6 +58,10 @@ pub struct ModelArgs {
     /// axis' change over a day, deg/h (default 3e-4; 0 when known to be absent).
     #[arg(long, value_parser = super::args::nonneg_f64)]
     pub drift_trend_deg_h_per_day: Option<f64>,
+    /// Drift proportional to the recorded temperature (where it varies), 1σ per axis, deg/h per
+    /// °C (default 0.002; 0 when the gyros' temperature sensitivity is known to be negligible).
+    #[arg(long, value_parser = super::args::nonneg_f64)]
+    pub temp_drift_deg_h_per_c: Option<f64>,
     /// TOML file of effects defined by the user, added to the catalog for this run (repeatable);
     /// see the README, "Effects defined in a file".
     #[arg(long = "effects", value_name = "FILE")]
@@ -111,6 +115,9 @@ impl ModelArgs {
         setup.drift_trend_deg_h_per_day = self
             .drift_trend_deg_h_per_day
             .unwrap_or(setup.drift_trend_deg_h_per_day);
+        setup.temp_drift_deg_h_per_c = self
+            .temp_drift_deg_h_per_c
+            .unwrap_or(setup.temp_drift_deg_h_per_c);
         Ok(Config {
             setup,
             period_s: self.period_s,

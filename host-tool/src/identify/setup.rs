@@ -45,7 +45,7 @@ pub const RAD_PER_ARCSEC: f64 = std::f64::consts::PI / (180.0 * 3600.0);
 
 /// Priors of the set-up (1σ each); `driftid` options `--alignment-arcsec`,
 /// `--latitude-sigma-deg`, `--clock-sigma-ppm`, `--gravity-sigma-ppm`, `--vertical-tilt-arcsec`,
-/// `--daily-drift-deg-h`.
+/// `--daily-drift-deg-h`, `--drift-trend-deg-h-per-day`, `--temp-drift-deg-h-per-c`.
 #[derive(Clone, Copy, Debug, PartialEq, Serialize)]
 pub struct SetupPriors {
     /// Start tilt about each level axis, arcsec: a platform levelled on its accelerometers is
@@ -80,6 +80,11 @@ pub struct SetupPriors {
     /// as the daily cycle does, ±0.15 °C, at ~0.002 deg/h per °C) and the gyros' run-in: the daily
     /// drift's size, 3e-4 deg/h, in a day.
     pub drift_trend_deg_h_per_day: f64,
+    /// A gyro drift proportional to the recorded temperature's deviation, 1σ per axis, deg/h per
+    /// °C: an electrostatic gyro's drift moves by ~0.002 deg/h per °C (the figure the daily
+    /// drift's and the trend's priors are built on). Carried only where the recording's
+    /// temperature varies.
+    pub temp_drift_deg_h_per_c: f64,
     /// Whether the latitude's, the clock rate's and the gravity's priors are the tool's defaults
     /// (an assumption the run rests on) rather than the user's statement.
     #[serde(skip)]
@@ -101,6 +106,7 @@ impl Default for SetupPriors {
             vertical_tilt_period_h: 24.0,
             daily_drift_deg_h: 3e-4,
             drift_trend_deg_h_per_day: 3e-4,
+            temp_drift_deg_h_per_c: 2e-3,
             assumed: [true; 3],
         }
     }
@@ -132,9 +138,19 @@ impl SetupPriors {
 /// 1σ of a uniform rounding error of the last digit of `x` as Rust writes it shortest
 /// (39.1 → 0.1/√12).
 pub fn written_precision(x: f64) -> f64 {
-    let s = format!("{x}");
-    let decimals = s.split_once('.').map_or(0, |(_, f)| f.len()) as i32;
-    10f64.powi(-decimals) / 12f64.sqrt()
+    10f64.powi(-written_decimals(x)) / 12f64.sqrt()
+}
+
+/// The decimals `x` is written with: the fewest that give it back to 1e-9 (a latitude that went
+/// through radians, −30.3 → −30.299999999999997, is still "−30.3": taken as 15 decimals it was
+/// known to 1e-4°, and a run 0.03° off it was trusted 47σ off). At most 12.
+fn written_decimals(x: f64) -> i32 {
+    (0..12)
+        .find(|&d| {
+            let scale = 10f64.powi(d);
+            ((x * scale).round() / scale - x).abs() <= 1e-9
+        })
+        .unwrap_or(12)
 }
 
 /// What one set-up parameter adds to the coefficients' uncertainty.
@@ -965,7 +981,7 @@ fn with_drift_path(
 
 /// The slow drifts marginalised about a fit ([`slow_drifts`]).
 struct SlowDrifts {
-    /// Each one's contribution, in [`SlowDrift::ALL`]'s order.
+    /// Each one's contribution, in [`SlowDrift::ALL`]'s order (those that apply).
     contributions: Vec<Contribution>,
     /// Where they move the parameters (the daily drift's shift only).
     shift: Vec<f64>,
@@ -989,7 +1005,7 @@ fn slow_drifts(
         shift: vec![0.0; n],
         carried: vec![],
     };
-    for kind in SlowDrift::ALL {
+    for kind in SlowDrift::ALL.into_iter().filter(|k| k.applies(prep)) {
         let m = marginalised(kind, effects, prep, cfg, id)?;
         if kind.shifts_the_estimate() {
             for (a, b) in out.shift.iter_mut().zip(&m.shift) {
@@ -1136,4 +1152,27 @@ fn follows_linear(unc: &Uncertainty, from: &Identification, to: &Identification)
     let predicted = &k.sens * shift_u;
     let (a, b) = (&from.best().value, &to.best().value);
     (0..predicted.len()).all(|i| ((b[i] - a[i]) - predicted[i]).abs() <= unc.total_sigma[i])
+}
+
+#[cfg(test)]
+mod tests {
+    use super::written_precision;
+
+    #[test]
+    fn a_latitude_keeps_its_written_digits_through_radians() {
+        // −30.3 and 60.25 come back from radians as −30.299999999999997 and 60.25000000000001:
+        // taken at face value they had 15 and 14 decimals (a prior of 1e-4°, the floor) and a
+        // run 0.03° off was trusted 47σ off. Exact to rounding (1e-12).
+        let r = 12f64.sqrt();
+        for (x, decimals) in [(39.1, 1), (-30.3, 1), (60.25, 2), (39.1051, 4), (39.0, 0)] {
+            for y in [x, f64::to_degrees(f64::to_radians(x))] {
+                let want = 10f64.powi(-decimals) / r;
+                assert!(
+                    (written_precision(y) / want - 1.0).abs() < 1e-12,
+                    "{y}: {} against {want}",
+                    written_precision(y)
+                );
+            }
+        }
+    }
 }

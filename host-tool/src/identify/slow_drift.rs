@@ -10,7 +10,7 @@
 //! to distrust it (`assess::carried_as_setup`). Nothing when the model already holds the effect.
 
 use anyhow::Context as _;
-use estimator_core::effects::{DriftDaily, DriftTrend, Effect};
+use estimator_core::effects::{DriftDaily, DriftTrend, Effect, TempDrift};
 use estimator_core::model::ANGLES;
 use nalgebra::{DMatrix, DVector};
 use rayon::prelude::*;
@@ -26,17 +26,22 @@ pub(crate) enum SlowDrift {
     Daily,
     /// A trend per axis ([`DriftTrend`]).
     Trend,
+    /// A drift proportional to the recorded temperature per axis ([`TempDrift`]; only where the
+    /// temperature varies).
+    Temperature,
 }
 
 impl SlowDrift {
     /// Both, in the order the set-up table lists them.
-    pub(crate) const ALL: [SlowDrift; 2] = [SlowDrift::Daily, SlowDrift::Trend];
+    pub(crate) const ALL: [SlowDrift; 3] =
+        [SlowDrift::Daily, SlowDrift::Trend, SlowDrift::Temperature];
 
     /// The set-up table's name of the source.
     pub(crate) fn source(self) -> &'static str {
         match self {
             SlowDrift::Daily => "daily drift",
             SlowDrift::Trend => "drift trend",
+            SlowDrift::Temperature => "thermal drift",
         }
     }
 
@@ -47,11 +52,18 @@ impl SlowDrift {
         self == SlowDrift::Daily
     }
 
+    /// Whether it can act on this recording: a temperature drift only where the recorded
+    /// temperature varies (elsewhere it has no row in the set-up table).
+    pub(crate) fn applies(self, prep: &Prepared) -> bool {
+        self != SlowDrift::Temperature || crate::diagnose::temp_varies(&prep.measurements)
+    }
+
     /// The catalog effect of the same physics.
     pub(crate) fn catalog_name(self) -> &'static str {
         match self {
             SlowDrift::Daily => "drift-daily",
             SlowDrift::Trend => "drift-trend",
+            SlowDrift::Temperature => "temp-drift",
         }
     }
 
@@ -60,6 +72,7 @@ impl SlowDrift {
         match self {
             SlowDrift::Daily => p.daily_drift_deg_h,
             SlowDrift::Trend => p.drift_trend_deg_h_per_day / 24.0,
+            SlowDrift::Temperature => p.temp_drift_deg_h_per_c,
         }
     }
 
@@ -71,6 +84,9 @@ impl SlowDrift {
                 "{} deg/h a day per axis",
                 crate::format::sig(sigma * 24.0, 2)
             ),
+            SlowDrift::Temperature => {
+                format!("{} deg/h per degC per axis", crate::format::sig(sigma, 2))
+            }
         }
     }
 
@@ -80,6 +96,9 @@ impl SlowDrift {
             SlowDrift::Daily => Box::new(DriftDaily { sigma_degph: sigma }),
             SlowDrift::Trend => Box::new(DriftTrend {
                 sigma_deg_h_per_h: sigma,
+            }),
+            SlowDrift::Temperature => Box::new(TempDrift {
+                sigma_deg_h_per_c: sigma,
             }),
         }
     }
