@@ -489,3 +489,31 @@ fn a_drift_with_the_recorded_temperature_is_carried_not_trusted_wrong() {
         assert!(reasons.is_empty(), "clean seed {seed}: {reasons:?}");
     }
 }
+
+#[test]
+fn a_latitude_written_minus_30_3_keeps_its_prior() {
+    // Found by a sweep of random recordings: −30.3 came back from radians as
+    // −30.299999999999997, read as written to 15 decimals (a prior of 1e-4° for 0.029°); the
+    // run, 0.032° off that latitude (60 h at 10 s, set-up errors drawn from the priors, seed
+    // 1073), had its clock "repaired" to 285 ppm and was trusted 46.6 total σ off.
+    let priors = Config::default().setup;
+    let mut sc = scenario(1073, 60.0, 10.0);
+    sc.latitude_deg = -30.3;
+    let half = priors.latitude_sigma(sc.latitude_deg) * 3f64.sqrt();
+    sc.setup_errors = SetupErrors::draw(&priors, half, sc.seed);
+    let (a, truth) = run(&sc);
+    let lat = a
+        .unc
+        .contributions
+        .iter()
+        .find(|c| c.source == "latitude")
+        .unwrap();
+    assert!(
+        lat.prior.starts_with("0.029"),
+        "latitude prior {}",
+        lat.prior
+    );
+    if a.reasons.is_empty() {
+        assert_within_3_sigma(&a, &truth);
+    }
+}
