@@ -499,12 +499,13 @@ pub(crate) fn starting_fit(
         return Ok(Some(id));
     }
     let mut rivals = rivals(prep, catalog, effects, cfg, &id, progress);
-    let contradicted = weighed.stated_gain.is_none();
     let moved_within = weighed.within_priors;
     // On the scale of the rivals, refitted at the stated set-up: the misstatements' gains over
     // that fit, and the stated set-up within its priors as one more rival.
     let (mis, within_priors) = weighed.on_the_stated_fit();
-    if let (true, Some(w)) = (contradicted, moved_within) {
+    // Contradicted or moved within its priors, a repair must beat the catalog's effects with
+    // the set-up within its priors (crate::assess's rule).
+    if let Some(w) = moved_within {
         if misstated::to_repair(&mis, &rivals).is_some() {
             // The same rivals as `identify`'s (crate::assess::rivals_within_priors).
             let dcfg = crate::diagnose::DiagnoseConfig {

@@ -182,6 +182,10 @@ pub struct Contribution {
     /// The covariance it adds.
     #[serde(skip)]
     pub cov: DMatrix<f64>,
+    /// For a slow drift: carried at a size the data asked for, above its prior (a drift the data
+    /// see, not only one they cannot rule out).
+    #[serde(skip)]
+    pub sized_by_data: bool,
 }
 
 impl Contribution {
@@ -192,6 +196,7 @@ impl Contribution {
             data_sigma: None,
             posterior_sigma: f64::NAN,
             sigma_drifts_free: None,
+            sized_by_data: false,
             offset: None,
             bound: None,
             stated: None,

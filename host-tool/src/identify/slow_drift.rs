@@ -180,6 +180,7 @@ pub(crate) fn marginalised(
         kind.label(sigma0)
     };
     let mut c = Contribution::new(kind.source(), label, cov);
+    c.sized_by_data = sigma > sigma0;
     let post = (0..added)
         .map(|k| cov_with[(ANGLES + n + k, ANGLES + n + k)].sqrt())
         .fold(0.0, f64::max);
