@@ -156,7 +156,8 @@ fn written_decimals(x: f64) -> i32 {
 /// What one set-up parameter adds to the coefficients' uncertainty.
 #[derive(Clone, Debug, Serialize)]
 pub struct Contribution {
-    /// `start attitude`, `latitude`, `clock rate`, `gravity`, `vertical tilt`, `daily drift` or `drift trend`.
+    /// `start attitude`, `latitude`, `clock rate`, `gravity`, `vertical tilt`, `daily drift`,
+    /// `drift trend` or `thermal drift`.
     pub source: &'static str,
     /// The prior, in words with its unit.
     pub prior: String,
