@@ -707,9 +707,7 @@ fn marginalise(
     // The data's curvature is a Gauss–Newton Hessian, positive semi-definite: clamp what the
     // finite differences leave below zero.
     let eig = nalgebra::SymmetricEigen::new(hess.clone());
-    let hess_psd = &eig.eigenvectors
-        * DMatrix::from_diagonal(&eig.eigenvalues.map(|l| l.max(0.0)))
-        * eig.eigenvectors.transpose();
+    let hess_psd = psd_part(&eig);
     let a = &hess_psd + DMatrix::identity(3, 3) * 2.0;
     let a_inv = a.try_inverse().context(
         "the set-up's posterior could not be formed from the refits at the latitude's, clock rate's and gravity's prior 1σ (not finite), so what they add to the 1σ is unknown; setting their priors to 0 (--latitude-sigma-deg 0 --clock-sigma-ppm 0 --gravity-sigma-ppm 0) takes them as exact",
@@ -753,6 +751,14 @@ fn marginalise(
             unit: [h[0], h[1], h[2]],
         },
     })
+}
+
+/// A symmetric matrix from its eigendecomposition with the negative eigenvalues set to zero: a
+/// Gauss–Newton curvature is positive semi-definite, finite differences leave it slightly less.
+pub(crate) fn psd_part(eig: &nalgebra::SymmetricEigen<f64, nalgebra::Dyn>) -> DMatrix<f64> {
+    &eig.eigenvectors
+        * DMatrix::from_diagonal(&eig.eigenvalues.map(|l| l.max(0.0)))
+        * eig.eigenvectors.transpose()
 }
 
 /// The sensitivity of the parameters to an additive perturbation of the measurements, by one

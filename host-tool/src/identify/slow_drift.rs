@@ -334,10 +334,7 @@ pub(crate) fn knobs_with_drifts(
         return Ok(None);
     }
     // Clamped positive semi-definite, as the knobs' own Hessian is.
-    let eig = nalgebra::SymmetricEigen::new(hess);
-    let hess = &eig.eigenvectors
-        * DMatrix::from_diagonal(&eig.eigenvalues.map(|l| l.max(0.0)))
-        * eig.eigenvectors.transpose();
+    let hess = super::setup::psd_part(&nalgebra::SymmetricEigen::new(hess));
     Ok(Some((hess, sens)))
 }
 
