@@ -149,16 +149,7 @@ pub(crate) fn marginalised(
     let pass = |sigma: f64| -> anyhow::Result<_> {
         let drift = kind.effect(sigma);
         let with = with_drift(effects, drift.as_ref());
-        let m = build_model(prep.site, &with, cfg)?;
-        let (x0, p0) = start_prior(&m, prep, &prep.start_sigma());
-        Ok(linearised_pass(
-            &m,
-            &prep.measurements,
-            &nominal,
-            &x0,
-            &p0,
-            false,
-        )?)
+        filter_pass(prep, &with, &nominal, cfg)
     };
     let mut with = pass(sigma0)?;
     let sigma = size(&with, ANGLES + n, sigma0);
@@ -192,6 +183,26 @@ pub(crate) fn marginalised(
         shift,
         size: Some(sigma),
     })
+}
+
+/// One linearised filter pass (no smoothing: the parameters are constant, the last state is
+/// their posterior) of the model of `effects` on `p` about `nominal`, from the start's prior.
+fn filter_pass(
+    p: &Prepared,
+    effects: &[&dyn Effect],
+    nominal: &[DVector<f64>],
+    cfg: &Config,
+) -> anyhow::Result<super::smoother::Smoothed> {
+    let m = build_model(p.site, effects, cfg)?;
+    let (x0, p0) = start_prior(&m, p, &p.start_sigma());
+    Ok(linearised_pass(
+        &m,
+        &p.measurements,
+        nominal,
+        &x0,
+        &p0,
+        false,
+    )?)
 }
 
 /// The trajectory `nominal` with `added` states (at 0) appended to each node.
@@ -307,10 +318,7 @@ pub(crate) fn knobs_with_drifts(
     let passes: Vec<anyhow::Result<(DVector<f64>, DMatrix<f64>)>> = points
         .par_iter()
         .map(|d| {
-            let p = super::setup::moved(prep, *d);
-            let m = build_model(p.site, &with, cfg)?;
-            let (x0, p0) = start_prior(&m, &p, &p.start_sigma());
-            let s = linearised_pass(&m, &p.measurements, &nominal, &x0, &p0, false)?;
+            let s = filter_pass(&super::setup::moved(prep, *d), &with, &nominal, cfg)?;
             let last = s.states.last().context("no states")?.clone();
             Ok((last, s.final_cov))
         })
@@ -377,9 +385,7 @@ mod tests {
         let nominal = widened(&id.trajectory, 3);
         let f = |u: f64| {
             let p = moved(&prep, [u * km.unit[0], 0.0, 0.0]);
-            let m = build_model(p.site, &with, &cfg).unwrap();
-            let (x0, p0) = start_prior(&m, &p, &p.start_sigma());
-            let s = linearised_pass(&m, &p.measurements, &nominal, &x0, &p0, false).unwrap();
+            let s = filter_pass(&p, &with, &nominal, &cfg).unwrap();
             neg2_log_evidence(&s.innovations)
         };
         let step = (2.0 * (2.0 / km.hess[(0, 0)]).sqrt()).min(1.0);
