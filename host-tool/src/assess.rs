@@ -563,7 +563,7 @@ pub(crate) fn repaired_if_it_wins<'c>(
         return Ok((effects, assessed, Some(step)));
     }
     let warmup = crate::diagnose::warmup::profile(&assessed.prep, &effects, cfg, &assessed.id);
-    if warmup.is_some_and(|(_, g)| g + PLAUSIBLE_MARGIN >= step.evidence_gain) {
+    if warmup.is_some_and(|w| w.evidence_gain + PLAUSIBLE_MARGIN >= step.evidence_gain) {
         // The warm-up explains it as well or better: the misfit stands; `diagnose` weighs both.
         return Ok((effects, assessed, None));
     }

@@ -84,6 +84,7 @@ fn known_zero(name: &str) -> bool {
         || crate::diagnose::drift_step::PARAMS
             .iter()
             .chain(&crate::diagnose::warmup::PARAMS)
+            .chain(&crate::diagnose::periodic::PARAMS)
             .any(|p| p.name == name)
 }
 

@@ -16,7 +16,7 @@ use estimator_core::units::S_PER_H;
 use nalgebra::{DVector, Vector3};
 use serde::Serialize;
 
-use crate::diagnose::select::Profiled;
+use crate::diagnose::select::{Member, Profiled};
 use crate::identify::{
     build_model, neg2_log_evidence, start_prior, Config, Identification, Prepared,
 };
@@ -92,6 +92,10 @@ pub struct DriftStepFit {
     pub evidence_gain: f64,
     /// Coarse times tried.
     pub times_tried: usize,
+    /// Every time tried, each linearised about the fit profiled (its gain charged the same
+    /// penalty): a step at another time the data do not rule out is a rival of its own.
+    #[serde(skip)]
+    pub members: Vec<Member>,
 }
 
 impl DriftStepFit {
@@ -103,27 +107,26 @@ impl DriftStepFit {
     }
 }
 
-/// −2 ln L and the step sizes' estimate with 1σ for the step at `t0_s`.
-fn at(
-    prep: &Prepared,
-    effects: &[&dyn Effect],
-    cfg: &Config,
-    id: &Identification,
-    t0_s: f64,
-) -> Option<(f64, [f64; 3], [f64; 3])> {
-    with_extra(prep, effects, cfg, id, &DriftStep { t0_s })
+/// The model plus an effect, in one forward pass linearised about a fit.
+pub(crate) struct Extra {
+    /// −2 ln L of the pass.
+    pub neg2_log_evidence: f64,
+    /// The paper's drift coefficients under it: name, value, 1σ (as [`Refit::drift`]).
+    ///
+    /// [`Refit::drift`]: crate::diagnose::select::Refit::drift
+    pub drift: Vec<(&'static str, f64, f64)>,
 }
 
-/// −2 ln L and the estimates with 1σ of the three parameters of `extra`, appended to the model:
-/// one forward pass linearised about `id`'s trajectory (the parameters enter linearly and are
-/// small; the last filtered state is their estimate from the whole run).
+/// `extra`, appended to the model, estimated with the rest in one forward pass linearised about
+/// `id`'s trajectory (the parameters enter linearly and are small; the last filtered state is
+/// their estimate from the whole run).
 pub(crate) fn with_extra(
     prep: &Prepared,
     effects: &[&dyn Effect],
     cfg: &Config,
     id: &Identification,
     extra: &dyn Effect,
-) -> Option<(f64, [f64; 3], [f64; 3])> {
+) -> Option<Extra> {
     let mut list: Vec<&dyn Effect> = effects.iter().map(|e| *e as &dyn Effect).collect();
     list.push(extra);
     let model = build_model(prep.site, &list, cfg).ok()?;
@@ -140,9 +143,14 @@ pub(crate) fn with_extra(
     )
     .ok()?;
     let last = pass.states.last()?;
-    let size = [0, 1, 2].map(|i| last[n - 3 + i]);
-    let sigma = [0, 1, 2].map(|i| pass.final_cov[(n - 3 + i, n - 3 + i)].max(0.0).sqrt());
-    Some((neg2_log_evidence(&pass.innovations), size, sigma))
+    let sd = |i: usize| pass.final_cov[(i, i)].max(0.0).sqrt();
+    let a = estimator_core::model::ANGLES;
+    Some(Extra {
+        neg2_log_evidence: neg2_log_evidence(&pass.innovations),
+        drift: (0..12.min(id.params.len()))
+            .map(|k| (id.params[k].name, last[a + k], sd(a + k)))
+            .collect(),
+    })
 }
 
 /// The drift step that best explains the measurements beyond the fit `id` of `effects` (see the
@@ -168,28 +176,45 @@ pub fn profile(
             next = m.t_s + COARSE_STEP_H * S_PER_H;
         }
     }
-    let eval = |ts: &[f64]| -> Vec<(f64, f64, [f64; 3], [f64; 3])> {
+    let eval = |ts: &[f64]| -> Vec<(f64, Extra)> {
         ts.par_iter()
-            .filter_map(|&t| at(prep, effects, cfg, id, t).map(|(f, s, sd)| (t, f, s, sd)))
+            .filter_map(|&t| {
+                with_extra(prep, effects, cfg, id, &DriftStep { t0_s: t }).map(|e| (t, e))
+            })
             .collect()
     };
-    let best =
-        |v: Vec<(f64, f64, [f64; 3], [f64; 3])>| v.into_iter().min_by(|a, b| a.1.total_cmp(&b.1));
-    let (t_c, ..) = best(eval(&coarse))?;
+    let best = |v: &[(f64, Extra)]| {
+        v.iter()
+            .min_by(|a, b| a.1.neg2_log_evidence.total_cmp(&b.1.neg2_log_evidence))
+            .map(|(t, _)| *t)
+    };
+    let mut tried = eval(&coarse);
+    let t_c = best(&tried)?;
     let fine: Vec<f64> = meas
         .iter()
         .map(|m| m.t_s)
         .filter(|t| (t - t_c).abs() <= COARSE_STEP_H * S_PER_H)
         .collect();
-    let (t0, ..) = best(eval(&fine))?;
+    let fine = eval(&fine);
+    let t0 = best(&fine)?;
+    tried.extend(fine);
     let (f, size, sigma) = refit(prep, effects, cfg, id, t0)?;
+    let penalty = 2.0 * (coarse.len().max(1) as f64).ln();
     Some(DriftStepFit {
         t0_s: t0,
         t0_h: t0 / S_PER_H,
         size_degph: size,
         sigma_degph: sigma,
-        evidence_gain: base - f - 2.0 * (coarse.len().max(1) as f64).ln(),
+        evidence_gain: base - f - penalty,
         times_tried: coarse.len(),
+        members: tried
+            .into_iter()
+            .map(|(t, e)| Member {
+                profiled: Profiled::StepAtS(t),
+                evidence_gain: base - e.neg2_log_evidence - penalty,
+                drift: e.drift,
+            })
+            .collect(),
     })
 }
 
@@ -266,6 +291,7 @@ pub fn candidate(
     let mut r =
         crate::diagnose::select::refit_effect(prep, effects, base_evidence, &step, penalty, cfg)?;
     r.profiled = Some(Profiled::StepAtS(fit.t0_s));
+    r.members = fit.members;
     Some(r)
 }
 

@@ -20,6 +20,7 @@ pub mod drift_step;
 pub mod ladder;
 pub mod latitude;
 pub mod misstated;
+pub mod periodic;
 pub mod score;
 pub mod select;
 pub(crate) mod statistics;
@@ -258,7 +259,8 @@ fn series_of(meas: &[Measurement], residual: Vec<[f64; 3]>, innovations: &[Resid
 
 /// The leading significant candidates refitted (their refits recorded in `ranking`) and, when
 /// the model does not fit, a drift step profiled over its time ([`drift_step::candidate`]) and
-/// a warm-up over its time constant ([`warmup::candidate`]); the evidence chooses among them
+/// a warm-up over its time constant ([`warmup::candidate`]) and a periodic drift over its period
+/// ([`periodic::candidate`]); the evidence chooses among them
 /// ([`select`]).
 fn choose(
     prep: &Prepared,
@@ -280,6 +282,7 @@ fn choose(
     if !consistent {
         refits.extend(drift_step::candidate(prep, effects, id, base_evidence, cfg));
         refits.extend(warmup::candidate(prep, effects, id, base_evidence, cfg));
+        refits.extend(periodic::candidate(prep, effects, id, base_evidence, cfg));
     }
     for r in &refits {
         if let Some(c) = ranking.iter_mut().find(|c| c.effect == r.effect) {

@@ -10,7 +10,7 @@ use estimator_core::effects::{Context, Effect, Param, Partials};
 use estimator_core::units::S_PER_H;
 use nalgebra::Vector3;
 
-use super::select::{refit_effect, Profiled, Refit};
+use super::select::{refit_effect, Member, Profiled, Refit};
 use super::DiagnoseConfig;
 use crate::identify::{Identification, Prepared};
 
@@ -71,37 +71,72 @@ impl Effect for DriftWarmup {
     }
 }
 
-/// The best time constant for `id`'s fit and its evidence gain after the look-elsewhere penalty
-/// (`None`: the run is too short — under 3 h — or every pass failed).
+/// The best warm-up found.
+pub struct WarmupFit {
+    /// Its time constant, s.
+    pub tau_s: f64,
+    /// Its evidence gain over the fit profiled, after the look-elsewhere penalty.
+    pub evidence_gain: f64,
+    /// Every time constant tried, each linearised about the fit profiled (its gain charged the
+    /// same penalty): where the run does not settle τ and the coefficients follow it, another τ
+    /// is a rival of its own.
+    pub members: Vec<Member>,
+}
+
+/// The best time constant for `id`'s fit (`None`: the run is too short — under 3 h — or every
+/// pass failed).
 pub fn profile(
     prep: &Prepared,
     effects: &[&dyn Effect],
     cfg: &crate::identify::Config,
     id: &Identification,
-) -> Option<(f64, f64)> {
+) -> Option<WarmupFit> {
     use rayon::prelude::*;
     let end_s = prep.measurements.last()?.t_s;
     if id.trajectory.len() != prep.measurements.len() + 1 || end_s < 3.0 * S_PER_H {
         return None;
     }
     let base = crate::identify::neg2_log_evidence(&id.innovations);
-    let best = |taus_h: Vec<f64>| {
+    let eval = |taus_h: Vec<f64>| -> Vec<Member> {
         taus_h
             .par_iter()
             .filter_map(|&h| {
-                let w = DriftWarmup { tau_s: h * S_PER_H };
-                super::drift_step::with_extra(prep, effects, cfg, id, &w).map(|(f, ..)| (h, f))
+                let tau_s = h * S_PER_H;
+                let e =
+                    super::drift_step::with_extra(prep, effects, cfg, id, &DriftWarmup { tau_s })?;
+                Some(Member {
+                    profiled: Profiled::WarmupTauS(tau_s),
+                    evidence_gain: base - e.neg2_log_evidence - penalty(),
+                    drift: e.drift,
+                })
             })
-            .min_by(|a, b| a.1.total_cmp(&b.1))
+            .collect()
     };
-    let (coarse_h, _) = best(TAUS_H.to_vec())?;
+    let best = |v: &[Member]| {
+        v.iter()
+            .max_by(|a, b| a.evidence_gain.total_cmp(&b.evidence_gain))
+            .map(|m| (m.profiled, m.evidence_gain))
+    };
+    let mut members = eval(TAUS_H.to_vec());
+    let (Profiled::WarmupTauS(coarse_s), _) = best(&members)? else {
+        return None;
+    };
     // Within the best coarse cell, every ×FINE_RATIO: the amplitudes depend on τ, and the coarse
     // grid's τ left them ~3σ off on a 3-h transient.
-    let fine: Vec<f64> = (-FINE_STEPS..=FINE_STEPS)
-        .map(|k| coarse_h * FINE_RATIO.powi(k))
-        .collect();
-    let (tau_h, f) = best(fine)?;
-    Some((tau_h * S_PER_H, base - f - penalty()))
+    let fine = eval(
+        (-FINE_STEPS..=FINE_STEPS)
+            .map(|k| coarse_s / S_PER_H * FINE_RATIO.powi(k))
+            .collect(),
+    );
+    let (Profiled::WarmupTauS(tau_s), evidence_gain) = best(&fine)? else {
+        return None;
+    };
+    members.extend(fine);
+    Some(WarmupFit {
+        tau_s,
+        evidence_gain,
+        members,
+    })
 }
 
 /// The fine grid within a coarse cell of [`TAUS_H`]: ×1.05, 8 steps each way (1.05⁸ ≈ 1.48).
@@ -127,13 +162,15 @@ pub fn candidate(
         return None;
     }
     cfg.progress.note(|| "profiling a gyro warm-up".into());
-    let (tau_s, gain) = profile(prep, effects, &cfg.identify, id)?;
-    if gain <= super::select::MIN_EVIDENCE_GAIN {
+    let fit = profile(prep, effects, &cfg.identify, id)?;
+    if fit.evidence_gain <= super::select::MIN_EVIDENCE_GAIN {
         return None;
     }
+    let tau_s = fit.tau_s;
     // Weighed with a warm-up of its own; the catalog owns the one a rung adopts.
     let warmup = DriftWarmup { tau_s };
     let mut r = refit_effect(prep, effects, base_evidence, &warmup, penalty(), cfg)?;
     r.profiled = Some(Profiled::WarmupTauS(tau_s));
+    r.members = fit.members;
     Some(r)
 }
