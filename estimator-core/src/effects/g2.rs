@@ -16,7 +16,11 @@ use super::{Context, Effect, Param, Partials};
 #[derive(Clone, Copy, Debug, Default)]
 pub struct G2Drift;
 
-const S: f64 = 0.01; // deg/h/(m/s²)²: ~1 deg/h at 1 g², wide
+/// Prior 1σ, deg/h/(m/s²)², on the drift effects' one size (docs/model.md): 0.01 deg/h at 1 g²
+/// (g² ≈ 96 (m/s²)²). At 0.01 (~1 deg/h at 1 g²) its 15 parameters paid ~100 units more than a
+/// daily drift of the same drift, and a g² drift of 2e-5 was trusted as acc-scale + drift-daily +
+/// drift-trend with DZy 5.8σ off.
+const S: f64 = 1e-4;
 
 macro_rules! g2_params {
     ($($n:literal),*) => { [$(Param { name: $n, unit: "deg/h/(m/s^2)^2", prior_sigma: S }),*] };

@@ -210,8 +210,11 @@ mod tests {
             temp_dev_c: 0.0,
             north: Vector3::new(f64::NAN, f64::NAN, f64::NAN),
         };
-        let (mut value, mut d_params, mut d_force) =
-            (Vector3::zeros(), vec![Vector3::zeros(); 6], Matrix3::zeros());
+        let (mut value, mut d_params, mut d_force) = (
+            Vector3::zeros(),
+            vec![Vector3::zeros(); 6],
+            Matrix3::zeros(),
+        );
         e.drift(
             p,
             &ctx,
