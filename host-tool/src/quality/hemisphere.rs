@@ -22,18 +22,21 @@ const MIN_LATITUDE_DEG: f64 = 10.0;
 
 /// The latitude the data's turn gives, deg (`None` when the run sweeps too little).
 pub(crate) fn latitude_from_turn(samples: &[Sample]) -> Option<f64> {
-    if samples.len() < 16 {
+    latitude_from_forces(&samples.iter().map(|s| s.specific_force).collect::<Vec<_>>())
+}
+
+/// [`latitude_from_turn`] of specific forces in time order (samples or filter-period means).
+pub(crate) fn latitude_from_forces(forces: &[[f64; 3]]) -> Option<f64> {
+    if forces.len() < 16 {
         return None;
     }
-    let blocks = 200.min(samples.len() / 4).max(3);
-    let per = samples.len() / blocks;
+    let blocks = 200.min(forces.len() / 4).max(3);
+    let per = forces.len() / blocks;
     let u: Vec<Vector3<f64>> = (0..blocks)
         .map(|k| {
-            samples[k * per..(k + 1) * per]
+            forces[k * per..(k + 1) * per]
                 .iter()
-                .fold(Vector3::zeros(), |acc, s| {
-                    acc + Vector3::from(s.specific_force)
-                })
+                .fold(Vector3::zeros(), |acc, f| acc + Vector3::from(*f))
                 .normalize()
         })
         .collect();
@@ -55,13 +58,19 @@ pub(crate) fn latitude_from_turn(samples: &[Sample]) -> Option<f64> {
     Some(u[0].dot(&axis).clamp(-1.0, 1.0).asin() / RAD_PER_DEG)
 }
 
+/// Whether the data's turn (`seen`, deg) confirms the hemisphere of the `stated` latitude: both
+/// far enough from the equator to be judged, and of one sign.
+pub(crate) fn confirms(stated: f64, seen: f64) -> bool {
+    stated.abs() >= MIN_LATITUDE_DEG && seen.abs() >= MIN_LATITUDE_DEG && stated * seen > 0.0
+}
+
 /// Refuses a recording that turns as in the other hemisphere than its stated latitude.
 pub(crate) fn check_hemisphere(site: &Site, samples: &[Sample]) -> Result<(), Refuse> {
     let stated = site.latitude_rad / RAD_PER_DEG;
     let Some(seen) = latitude_from_turn(samples) else {
         return Ok(());
     };
-    if stated.abs() < MIN_LATITUDE_DEG || seen.abs() < MIN_LATITUDE_DEG || stated * seen > 0.0 {
+    if stated.abs() < MIN_LATITUDE_DEG || seen.abs() < MIN_LATITUDE_DEG || confirms(stated, seen) {
         return Ok(());
     }
     Err((

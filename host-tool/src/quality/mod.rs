@@ -17,7 +17,7 @@
 pub mod attitude;
 pub(crate) mod exclusion;
 mod finding;
-mod hemisphere;
+pub(crate) mod hemisphere;
 pub mod noise;
 pub mod physics;
 mod pieces;
