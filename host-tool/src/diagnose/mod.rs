@@ -21,6 +21,7 @@ pub mod ladder;
 pub mod latitude;
 pub mod misstated;
 pub mod periodic;
+pub mod profile;
 pub mod score;
 pub mod select;
 pub(crate) mod statistics;

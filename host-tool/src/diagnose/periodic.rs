@@ -13,7 +13,7 @@ use estimator_core::effects::{Context, Effect, Param, Partials};
 use estimator_core::units::S_PER_H;
 use nalgebra::Vector3;
 
-use super::select::{refit_effect, Member, Profiled, Refit};
+use super::select::{refit_effect, Profiled, Refit};
 use super::DiagnoseConfig;
 use crate::identify::{Identification, Prepared};
 
@@ -89,83 +89,34 @@ fn shows(run_h: f64, period_h: f64) -> bool {
     2.0 * period_h <= run_h && !(19.2..=28.8).contains(&period_h)
 }
 
-/// The best period found.
-pub struct PeriodicFit {
-    /// Its period, s.
-    pub period_s: f64,
-    /// Its evidence gain over the fit profiled, after the look-elsewhere penalty.
-    pub evidence_gain: f64,
-    /// The look-elsewhere penalty charged, −2 ln units.
-    pub penalty: f64,
-    /// Every period tried (as [`super::warmup::WarmupFit::members`]).
-    pub members: Vec<Member>,
-}
-
-/// The best period for `id`'s fit (`None`: the run is too short for two periods of the grid,
-/// or every pass failed).
+/// The best period for `id`'s fit ([`super::profile::Fit`], its value P) and the look-elsewhere
+/// penalty charged (`None`: the run is too short for two periods of the grid, or every pass
+/// failed).
 pub fn profile(
     prep: &Prepared,
     effects: &[&dyn Effect],
     cfg: &crate::identify::Config,
     id: &Identification,
-) -> Option<PeriodicFit> {
-    use rayon::prelude::*;
+) -> Option<(super::profile::Fit, f64)> {
     let run_h = prep.measurements.last()?.t_s / S_PER_H;
-    let coarse: Vec<f64> = PERIODS_H
+    let coarse_s: Vec<f64> = PERIODS_H
         .iter()
-        .copied()
-        .filter(|p| shows(run_h, *p))
+        .filter(|p| shows(run_h, **p))
+        .map(|p| p * S_PER_H)
         .collect();
-    if id.trajectory.len() != prep.measurements.len() + 1 || coarse.len() < 2 {
+    if id.trajectory.len() != prep.measurements.len() + 1 || coarse_s.len() < 2 {
         return None;
     }
-    let penalty = 2.0 * (coarse.len() as f64).ln();
-    let base = crate::identify::neg2_log_evidence(&id.innovations);
-    let eval = |periods_h: Vec<f64>| -> Vec<Member> {
-        periods_h
-            .par_iter()
-            .filter_map(|&h| {
-                let period_s = h * S_PER_H;
-                let e = super::drift_step::with_extra(
-                    prep,
-                    effects,
-                    cfg,
-                    id,
-                    &DriftPeriodic { period_s },
-                )?;
-                Some(Member {
-                    profiled: Profiled::PeriodS(period_s),
-                    evidence_gain: base - e.neg2_log_evidence - penalty,
-                    drift: e.drift,
-                })
-            })
-            .collect()
-    };
-    let best = |v: &[Member]| {
-        v.iter()
-            .max_by(|a, b| a.evidence_gain.total_cmp(&b.evidence_gain))
-            .map(|m| (m.profiled, m.evidence_gain))
-    };
-    let mut members = eval(coarse);
-    let (Profiled::PeriodS(coarse_s), _) = best(&members)? else {
-        return None;
-    };
-    let fine = eval(
-        (-FINE_STEPS..=FINE_STEPS)
-            .map(|k| coarse_s / S_PER_H * FINE_RATIO.powi(k))
-            .filter(|p| shows(run_h, *p))
-            .collect(),
-    );
-    let (Profiled::PeriodS(period_s), evidence_gain) = best(&fine)? else {
-        return None;
-    };
-    members.extend(fine);
-    Some(PeriodicFit {
-        period_s,
-        evidence_gain,
+    let penalty = 2.0 * (coarse_s.len() as f64).ln();
+    let grid = super::profile::Grid {
+        coarse_s: &coarse_s,
+        ratio: FINE_RATIO,
+        steps: FINE_STEPS,
+        made: Profiled::PeriodS,
         penalty,
-        members,
-    })
+    };
+    let fit = super::profile::over(prep, effects, cfg, id, &grid, |s| shows(run_h, s / S_PER_H))?;
+    Some((fit, penalty))
 }
 
 /// The periodic drift as a candidate of a diagnosis rung, on the evidence scale of the catalog's
@@ -183,16 +134,16 @@ pub fn candidate(
     }
     cfg.progress
         .note(|| "profiling a periodic gyro drift".into());
-    let fit = profile(prep, effects, &cfg.identify, id)?;
+    let (fit, penalty) = profile(prep, effects, &cfg.identify, id)?;
     if fit.evidence_gain <= super::select::MIN_EVIDENCE_GAIN {
         return None;
     }
     // Weighed with one of its own; the catalog owns the one a rung adopts.
     let periodic = DriftPeriodic {
-        period_s: fit.period_s,
+        period_s: fit.value_s,
     };
-    let mut r = refit_effect(prep, effects, base_evidence, &periodic, fit.penalty, cfg)?;
-    r.profiled = Some(Profiled::PeriodS(fit.period_s));
+    let mut r = refit_effect(prep, effects, base_evidence, &periodic, penalty, cfg)?;
+    r.profiled = Some(Profiled::PeriodS(fit.value_s));
     r.members = fit.members;
     Some(r)
 }

@@ -97,19 +97,28 @@ pub enum Profiled {
 impl Profiled {
     /// The effect made for this value, owned by `catalog` (one per distinct value).
     pub(crate) fn effect(self, catalog: &Catalog) -> &dyn Effect {
+        let kind = match self {
+            Profiled::StepAtS(_) => "drift-step",
+            Profiled::WarmupTauS(_) => "drift-warmup",
+            Profiled::PeriodS(_) => "drift-periodic",
+        };
+        catalog.made_for_run((kind, self.seconds().to_bits()), || self.make())
+    }
+
+    /// The effect made for this value, owned by the caller.
+    pub(crate) fn make(self) -> Box<dyn Effect + Send> {
         use super::{drift_step::DriftStep, periodic::DriftPeriodic, warmup::DriftWarmup};
         match self {
-            Profiled::StepAtS(t0_s) => catalog.made_for_run(("drift-step", t0_s.to_bits()), || {
-                Box::new(DriftStep { t0_s })
-            }),
-            Profiled::WarmupTauS(tau_s) => catalog
-                .made_for_run(("drift-warmup", tau_s.to_bits()), || {
-                    Box::new(DriftWarmup { tau_s })
-                }),
-            Profiled::PeriodS(period_s) => catalog
-                .made_for_run(("drift-periodic", period_s.to_bits()), || {
-                    Box::new(DriftPeriodic { period_s })
-                }),
+            Profiled::StepAtS(t0_s) => Box::new(DriftStep { t0_s }),
+            Profiled::WarmupTauS(tau_s) => Box::new(DriftWarmup { tau_s }),
+            Profiled::PeriodS(period_s) => Box::new(DriftPeriodic { period_s }),
+        }
+    }
+
+    /// The value, s.
+    fn seconds(self) -> f64 {
+        match self {
+            Profiled::StepAtS(s) | Profiled::WarmupTauS(s) | Profiled::PeriodS(s) => s,
         }
     }
 

@@ -10,7 +10,7 @@ use estimator_core::effects::{Context, Effect, Param, Partials};
 use estimator_core::units::S_PER_H;
 use nalgebra::Vector3;
 
-use super::select::{refit_effect, Member, Profiled, Refit};
+use super::select::{refit_effect, Profiled, Refit};
 use super::DiagnoseConfig;
 use crate::identify::{Identification, Prepared};
 
@@ -71,72 +71,29 @@ impl Effect for DriftWarmup {
     }
 }
 
-/// The best warm-up found.
-pub struct WarmupFit {
-    /// Its time constant, s.
-    pub tau_s: f64,
-    /// Its evidence gain over the fit profiled, after the look-elsewhere penalty.
-    pub evidence_gain: f64,
-    /// Every time constant tried, each linearised about the fit profiled (its gain charged the
-    /// same penalty): where the run does not settle τ and the coefficients follow it, another τ
-    /// is a rival of its own.
-    pub members: Vec<Member>,
-}
-
-/// The best time constant for `id`'s fit (`None`: the run is too short — under 3 h — or every
-/// pass failed).
+/// The best time constant for `id`'s fit ([`super::profile::Fit`], its value τ; `None`: the run
+/// is too short — under 3 h — or every pass failed).
 pub fn profile(
     prep: &Prepared,
     effects: &[&dyn Effect],
     cfg: &crate::identify::Config,
     id: &Identification,
-) -> Option<WarmupFit> {
-    use rayon::prelude::*;
+) -> Option<super::profile::Fit> {
     let end_s = prep.measurements.last()?.t_s;
     if id.trajectory.len() != prep.measurements.len() + 1 || end_s < 3.0 * S_PER_H {
         return None;
     }
-    let base = crate::identify::neg2_log_evidence(&id.innovations);
-    let eval = |taus_h: Vec<f64>| -> Vec<Member> {
-        taus_h
-            .par_iter()
-            .filter_map(|&h| {
-                let tau_s = h * S_PER_H;
-                let e =
-                    super::drift_step::with_extra(prep, effects, cfg, id, &DriftWarmup { tau_s })?;
-                Some(Member {
-                    profiled: Profiled::WarmupTauS(tau_s),
-                    evidence_gain: base - e.neg2_log_evidence - penalty(),
-                    drift: e.drift,
-                })
-            })
-            .collect()
-    };
-    let best = |v: &[Member]| {
-        v.iter()
-            .max_by(|a, b| a.evidence_gain.total_cmp(&b.evidence_gain))
-            .map(|m| (m.profiled, m.evidence_gain))
-    };
-    let mut members = eval(TAUS_H.to_vec());
-    let (Profiled::WarmupTauS(coarse_s), _) = best(&members)? else {
-        return None;
-    };
+    let coarse_s: Vec<f64> = TAUS_H.iter().map(|h| h * S_PER_H).collect();
     // Within the best coarse cell, every ×FINE_RATIO: the amplitudes depend on τ, and the coarse
     // grid's τ left them ~3σ off on a 3-h transient.
-    let fine = eval(
-        (-FINE_STEPS..=FINE_STEPS)
-            .map(|k| coarse_s / S_PER_H * FINE_RATIO.powi(k))
-            .collect(),
-    );
-    let (Profiled::WarmupTauS(tau_s), evidence_gain) = best(&fine)? else {
-        return None;
+    let grid = super::profile::Grid {
+        coarse_s: &coarse_s,
+        ratio: FINE_RATIO,
+        steps: FINE_STEPS,
+        made: Profiled::WarmupTauS,
+        penalty: penalty(),
     };
-    members.extend(fine);
-    Some(WarmupFit {
-        tau_s,
-        evidence_gain,
-        members,
-    })
+    super::profile::over(prep, effects, cfg, id, &grid, |_| true)
 }
 
 /// The fine grid within a coarse cell of [`TAUS_H`]: ×1.05, 8 steps each way (1.05⁸ ≈ 1.48).
@@ -166,7 +123,7 @@ pub fn candidate(
     if fit.evidence_gain <= super::select::MIN_EVIDENCE_GAIN {
         return None;
     }
-    let tau_s = fit.tau_s;
+    let tau_s = fit.value_s;
     // Weighed with a warm-up of its own; the catalog owns the one a rung adopts.
     let warmup = DriftWarmup { tau_s };
     let mut r = refit_effect(prep, effects, base_evidence, &warmup, penalty(), cfg)?;
