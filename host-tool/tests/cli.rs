@@ -1582,3 +1582,39 @@ fn a_twelve_hour_drift_cycle_is_named_with_its_period() {
     }
     let _ = std::fs::remove_dir_all(&dir);
 }
+
+/// Known to fail (issue 26, found by two-effect random recordings): a g² drift of ~2e-5
+/// deg/h/(m/s²)² per term with an accelerometer bias, 24 h at 1 s. `diagnose` adds acc-bias, the
+/// model is consistent, and g2's alternative (evidence −9.5 at its catalog prior) lies outside the
+/// plausible margin, so the run is trusted with DXz 12.7 total σ off (`identify` exits 3). Weighing
+/// each alternative over prior scales ×1, ×0.3, ×0.1 catches it but distrusts 14 of 30 clean
+/// 24-h runs: one day cannot rule out a g² drift of ~1e-5 that moves the coefficients beyond 1σ.
+/// Named or covered: exit 3, or every drift coefficient within 3 total σ.
+#[test]
+#[ignore = "FAILS: trusted with DXz 12.7 total σ off; whether g2 is carried at a physical size in the total 1σ is open"]
+fn a_small_g2_drift_under_an_accelerometer_bias_is_named_or_covered() {
+    let dir = temp_dir("g2-under-bias");
+    let csv = simulate_to(
+        &dir,
+        "run.csv",
+        &[
+            "--seed",
+            "5052",
+            "--hours",
+            "24",
+            "--rate-s",
+            "1",
+            "--latitude-deg=51.5",
+            "--effect",
+            "acc-bias=-8.36e-05,8.9e-05,0.000144",
+            "--effect",
+            "g2=2.3e-06,1.3e-05,1.5e-07,2.6e-05,2.5e-05,2.6e-05,2.1e-05,1.4e-05,1.1e-05,-2e-05,-2.8e-05,-2.9e-05,-2e-05,-5.9e-06,-6e-06,6.1e-06,-2.1e-05,2.6e-05",
+        ],
+    );
+    let (code, v, all) = json_with_truth("diagnose", &csv);
+    assert!(matches!(code, Some(0 | 3)), "{all}");
+    if code == Some(0) {
+        drift_within_total_sigma(&v, 3.0, "g2 under a bias");
+    }
+    let _ = std::fs::remove_dir_all(&dir);
+}
