@@ -775,6 +775,41 @@ fn diagnose_does_not_hide_a_fast_clock_behind_an_effect() {
     let _ = std::fs::remove_dir_all(&dir);
 }
 
+/// Issue 26, false alarms: a day's run at 1 s with its set-up drawn from the priors is clean —
+/// its gravity a prior σ off, which the data measure to 0.3 ppm, so that the set-up "moves" with
+/// gains in the thousands. Every such move made any knob the data hardly see a rival ("a
+/// misstated clock rate (617 ± 680 ppm) … the result rests on the assumed clock rate prior"):
+/// 14 of 20 seeds were distrusted, their coefficients within 3.4 total σ of the truth. Now a
+/// misstated knob is a rival only where it takes the move over. Tolerance: at most 2 of 8
+/// distrusted (2 of 20 measured, for a `drift-daily` the data almost prefer and a latitude the
+/// data put 3σ off), and the trusted within 4 total σ (99.9 % of honest 1σ).
+#[test]
+fn a_day_with_its_set_up_drawn_from_the_priors_is_trusted() {
+    let dir = temp_dir("setup-priors-day");
+    let mut distrusted = vec![];
+    for seed in 1..=8 {
+        let csv = simulate_to(
+            &dir,
+            &format!("run{seed}.csv"),
+            &[
+                "--seed",
+                &seed.to_string(),
+                "--hours",
+                "24",
+                "--setup-errors-from-priors",
+            ],
+        );
+        let (code, v, all) = json_with_truth("identify", &csv);
+        match code {
+            Some(0) => drift_within_total_sigma(&v, 4.0, &format!("seed {seed}")),
+            Some(3) => distrusted.push(format!("seed {seed}: {all}")),
+            _ => panic!("seed {seed}: {all}"),
+        }
+    }
+    assert!(distrusted.len() <= 2, "{distrusted:#?}");
+    let _ = std::fs::remove_dir_all(&dir);
+}
+
 /// The page's structure (issue 29): the verdict as its own block before everything else, a table
 /// of contents whose links all land, no table cut at 800 px (each scrolls in a wrapper, numbers
 /// never wrap, a base font of at least 14 px), every clipped point marked and counted, long lists
@@ -1583,16 +1618,17 @@ fn a_twelve_hour_drift_cycle_is_named_with_its_period() {
     let _ = std::fs::remove_dir_all(&dir);
 }
 
-/// Known to fail (issue 26, found by two-effect random recordings): a g² drift of ~2e-5
-/// deg/h/(m/s²)² per term with an accelerometer bias, 24 h at 1 s. `diagnose` adds acc-bias, the
-/// model is consistent, and g2's alternative (evidence −9.5 at its catalog prior) lies outside the
-/// plausible margin, so the run is trusted with DXz 12.7 total σ off (`identify` exits 3). Weighing
-/// each alternative over prior scales ×1, ×0.3, ×0.1 catches it but distrusts 14 of 30 clean
-/// 24-h runs: one day cannot rule out a g² drift of ~1e-5 that moves the coefficients beyond 1σ.
-/// Named or covered: exit 3, or every drift coefficient within 3 total σ.
+/// Issue 26, found by two-effect random recordings: a g² drift of ~2e-5 deg/h/(m/s²)² per term
+/// with an accelerometer bias, 24 h at 1 s. No test can see this g² drift (its score test: 15.2
+/// on 15 dof, p = 0.44), yet it moves DXz by 12.7 total σ: one day from one orientation cannot
+/// tell a g² drift of that size from the coefficients. The paper's model assumes it absent; the
+/// tool may trust the run only saying so. Weighing g2 over prior scales ×1, ×0.3, ×0.1 distrusted
+/// 14 of 30 clean 24-h runs; carrying it at 1e-5 per term in the total 1σ would widen DX0, DXy,
+/// DXz, DYz and DZy by ~2× on every clean run of the paper's model. So: exit 3, or every drift
+/// coefficient beyond 3 total σ marked as holding only on g2's absence (`conditional_on`, in the
+/// text "could move, at a size this run cannot rule out").
 #[test]
-#[ignore = "FAILS: trusted with DXz 12.7 total σ off; whether g2 is carried at a physical size in the total 1σ is open"]
-fn a_small_g2_drift_under_an_accelerometer_bias_is_named_or_covered() {
+fn a_small_g2_drift_under_an_accelerometer_bias_is_distrusted_or_marked_conditional() {
     let dir = temp_dir("g2-under-bias");
     let csv = simulate_to(
         &dir,
@@ -1614,7 +1650,19 @@ fn a_small_g2_drift_under_an_accelerometer_bias_is_named_or_covered() {
     let (code, v, all) = json_with_truth("diagnose", &csv);
     assert!(matches!(code, Some(0 | 3)), "{all}");
     if code == Some(0) {
-        drift_within_total_sigma(&v, 3.0, "g2 under a bias");
+        for (name, c) in v["coefficients"].as_object().unwrap() {
+            let z = c["error"].as_f64().unwrap() / c["sigma_total"].as_f64().unwrap();
+            let on_g2 = c["conditional_on"]
+                .as_array()
+                .unwrap()
+                .iter()
+                .any(|e| e["effect"] == "g2");
+            assert!(
+                !(name.starts_with('D') && name.len() == 3) || z.abs() <= 3.0 || on_g2,
+                "{name}: {z:.1} total σ off, not marked as holding only on g2's absence: {}",
+                c["conditional_on"]
+            );
+        }
     }
     let _ = std::fs::remove_dir_all(&dir);
 }

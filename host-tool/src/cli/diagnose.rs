@@ -349,6 +349,7 @@ pub(crate) fn diagnose_one(
     let final_rows = super::identify::rows(
         &c.assessed.id,
         &c.assessed.unc,
+        &c.assessed.alternatives,
         &super::common::build_model(c.assessed.prep.site, &c.final_effects, &cfg.identify)?,
         &c.assessed.prep,
         truth.as_deref(),

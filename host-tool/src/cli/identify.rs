@@ -49,6 +49,9 @@ pub(crate) struct Row {
     pub single: (f64, f64),
     /// True value, if known.
     pub truth: Option<f64>,
+    /// The alternatives it holds only on the absence of, with how far each could move it (total
+    /// 1σ; [`crate::diagnose::alternatives::conditional_on`]).
+    pub conditional_on: Vec<(String, f64)>,
 }
 
 /// The true value of each of the identification's parameters (NaN where the truth file has none:
@@ -93,6 +96,7 @@ fn known_zero(name: &str) -> bool {
 pub(crate) fn rows(
     id: &Identification,
     unc: &Uncertainty,
+    alts: &[crate::diagnose::alternatives::Alternative],
     model: &estimator_core::Model<'_>,
     prep: &Prepared,
     truth: Option<&[f64]>,
@@ -125,6 +129,11 @@ pub(crate) fn rows(
             truth: truth
                 .and_then(|t| t.get(k).copied())
                 .filter(|v| v.is_finite()),
+            conditional_on: crate::diagnose::alternatives::conditional_on(
+                alts,
+                &unc.total_sigma,
+                k,
+            ),
         })
         .collect()
 }
@@ -231,15 +240,11 @@ pub(crate) fn print_alternatives(
     println!("alternative explanations (catalog effects not in the model, a misstated set-up; evidence gain in −2 ln units, > 0: the data prefer it):");
     let mut any_conditional = false;
     for a in alts {
-        let conditional: Vec<String> = (0..a.reach.len().min(id.params.len()))
-            .filter(|&k| a.reach[k] > unc.total_sigma[k])
-            .map(|k| {
-                format!(
-                    "{} ({:.1}σ)",
-                    id.params[k].name,
-                    a.reach[k] / unc.total_sigma[k]
-                )
-            })
+        let conditional: Vec<String> = a
+            .reaches_beyond(&unc.total_sigma)
+            .into_iter()
+            .filter(|&(k, _)| k < id.params.len())
+            .map(|(k, z)| format!("{} ({z:.1}σ)", id.params[k].name))
             .collect();
         any_conditional |= !conditional.is_empty();
         println!(
@@ -328,7 +333,10 @@ pub(crate) fn coefficients_json(rows: &[Row]) -> Value {
     for r in rows {
         let mut o = json!({ "value": r.value, "sigma": r.sigma, "sigma_total": r.sigma_total,
             "dominant_uncertainty": r.dominant, "bound": r.bound, "unit": r.unit,
-            "single_pass": { "value": r.single.0, "sigma": r.single.1 } });
+            "single_pass": { "value": r.single.0, "sigma": r.single.1 },
+            "conditional_on": r.conditional_on.iter()
+                .map(|(e, z)| json!({ "effect": e, "reach_total_sigma": z }))
+                .collect::<Vec<_>>() });
         if let Some(t) = r.truth {
             o["truth"] = json!(t);
             o["error"] = json!(r.value - t);
@@ -384,6 +392,7 @@ fn run_one(args: &IdentifyArgs, catalog: &Catalog) -> anyhow::Result<()> {
     let rows = rows(
         &assessed.id,
         &assessed.unc,
+        &assessed.alternatives,
         &model,
         &assessed.prep,
         truth.as_deref(),

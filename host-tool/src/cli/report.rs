@@ -74,6 +74,7 @@ fn run_one(args: &ReportArgs, catalog: &Catalog) -> anyhow::Result<()> {
     let table = rows(
         &assessed.id,
         &assessed.unc,
+        &assessed.alternatives,
         &model,
         &assessed.prep,
         truth.as_deref(),

@@ -72,6 +72,14 @@ pub struct Misstated {
     /// Index of the knob (0 latitude, 1 clock rate, 2 gravity).
     #[serde(skip)]
     pub index: usize,
+    /// How far this hypothesis moves the knobs from where their priors put them, in 1σ: the
+    /// knob itself in its broad 1σ, the others in their 1σ with the priors. A misstatement that
+    /// explains the set-up's move takes it over (a clock running fast: the latitude's move goes
+    /// back); one that does not leaves the move where it was (a gravity 4 ppm off, measured to
+    /// 0.3 ppm, stays whatever the clock) and puts its own knob within the data's reach of where
+    /// the priors hold it.
+    #[serde(skip)]
+    pub takes_over: f64,
 }
 
 impl Alternative {
@@ -80,6 +88,39 @@ impl Alternative {
     pub(crate) fn plausible(&self, best_gain: f64) -> bool {
         self.evidence_gain > best_gain - PLAUSIBLE_MARGIN
     }
+
+    /// The parameters it could move beyond their total 1σ (`total_sigma`) at a size the run
+    /// cannot rule out, with that reach in total 1σ: those that hold only on its absence.
+    pub(crate) fn reaches_beyond(&self, total_sigma: &[f64]) -> Vec<(usize, f64)> {
+        self.reach
+            .iter()
+            .zip(total_sigma)
+            .enumerate()
+            .filter(|(_, (r, s))| *r > *s)
+            .map(|(k, (r, s))| (k, r / s))
+            .collect()
+    }
+}
+
+/// The alternatives parameter `k` holds only on the absence of ([`Alternative::reaches_beyond`]),
+/// each named once with its largest reach in total 1σ, the farthest first.
+pub(crate) fn conditional_on(
+    alts: &[Alternative],
+    total_sigma: &[f64],
+    k: usize,
+) -> Vec<(String, f64)> {
+    let mut out: Vec<(String, f64)> = vec![];
+    for a in alts {
+        let Some(&(_, z)) = a.reaches_beyond(total_sigma).iter().find(|(i, _)| *i == k) else {
+            continue;
+        };
+        match out.iter_mut().find(|(e, _)| *e == a.effect) {
+            Some(seen) => seen.1 = seen.1.max(z),
+            None => out.push((a.effect.clone(), z)),
+        }
+    }
+    out.sort_by(|a, b| b.1.total_cmp(&a.1));
+    out
 }
 
 /// The alternatives to the model of `effects` fitted as `id` on `prep`.
