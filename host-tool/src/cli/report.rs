@@ -135,6 +135,7 @@ fn coefficient_rows(table: &[super::identify::Row], truth: Option<&[f64]>) -> Ve
             truth: truth
                 .and_then(|t| t.get(k).copied())
                 .filter(|v| v.is_finite()),
+            conditional_on: r.conditional_on.clone(),
         })
         .collect()
 }

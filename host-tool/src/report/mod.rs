@@ -43,6 +43,8 @@ pub(crate) struct CoefRow {
     pub bound: f64,
     /// True value when the recording is simulated and its truth file was given.
     pub truth: Option<f64>,
+    /// The alternatives it holds only on the absence of, with their reach in total 1σ.
+    pub conditional_on: Vec<(String, f64)>,
 }
 
 /// Everything the report shows.

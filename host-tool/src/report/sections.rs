@@ -303,6 +303,6 @@ pub(super) fn coefficients(h: &mut String, input: &ReportInput) {
     }
     let _ = writeln!(
         h,
-        "<p class=\"small\">Converged identification: a forward EKF pass from a wide prior, then iterated Rauch–Tung–Striebel smoothing (Gauss–Newton over the whole record); the 1σ is the smoother's, the bound is the Cramér–Rao bound from the Fisher information of the measurement sensitivities and the gyro random drift.</p>"
+        "<p class=\"small\">Converged identification: a forward EKF pass from a wide prior, then iterated Rauch–Tung–Striebel smoothing (Gauss–Newton over the whole record); the 1σ is the smoother's, the bound is the Cramér–Rao bound from the Fisher information of the measurement sensitivities and the gyro random drift. <em>Holds only without</em>: the catalog effects and misstated set-ups not in the model that could move the coefficient beyond its total 1σ at a size this run cannot rule out (how far, in total 1σ); the coefficient holds on their absence, which a second run from another orientation (<code>driftid plan</code>) or a bench value settles.</p>"
     );
 }

@@ -190,7 +190,7 @@ pub(super) fn movement_table(h: &mut String, rungs: &[Rung]) {
 
 pub(super) fn coefficient_table(h: &mut String, rows: &[CoefRow]) {
     let truth = rows.iter().any(|r| r.truth.is_some());
-    let _ = write!(h, "<table><tr><th class=\"l\">parameter</th><th class=\"l\">unit</th><th>estimate ± 1σ total</th><th>noise 1σ</th><th>bound (CRB 1σ)</th><th>noise 1σ / bound</th><th>total / noise</th><th class=\"l\">most from</th>");
+    let _ = write!(h, "<table><tr><th class=\"l\">parameter</th><th class=\"l\">unit</th><th>estimate ± 1σ total</th><th>noise 1σ</th><th>bound (CRB 1σ)</th><th>noise 1σ / bound</th><th>total / noise</th><th class=\"l\">most from</th><th class=\"l\">holds only without (reach, total 1σ)</th>");
     if truth {
         let _ = write!(h, "<th>truth</th><th>error</th><th>error / 1σ total</th>");
     }
@@ -198,7 +198,7 @@ pub(super) fn coefficient_table(h: &mut String, rows: &[CoefRow]) {
     for r in rows {
         let _ = write!(
             h,
-            "<tr><td class=\"l\">{}</td><td class=\"l\">{}</td><td>{}</td><td>{:.2e}</td><td>{:.2e}</td><td>{:.2}</td><td>{:.2}</td><td class=\"l\">{}</td>",
+            "<tr><td class=\"l\">{}</td><td class=\"l\">{}</td><td>{}</td><td>{:.2e}</td><td>{:.2e}</td><td>{:.2}</td><td>{:.2}</td><td class=\"l\">{}</td><td class=\"l\">{}</td>",
             esc(&r.name),
             esc(&r.unit),
             esc(&pm(r.value, r.sigma_total)),
@@ -206,7 +206,8 @@ pub(super) fn coefficient_table(h: &mut String, rows: &[CoefRow]) {
             r.bound,
             r.sigma / r.bound,
             r.sigma_total / r.sigma,
-            esc(&r.dominant)
+            esc(&r.dominant),
+            esc(&conditional_cell(&r.conditional_on))
         );
         if truth {
             truth_cells(h, r.value, r.sigma_total, r.truth);
@@ -214,6 +215,24 @@ pub(super) fn coefficient_table(h: &mut String, rows: &[CoefRow]) {
         let _ = writeln!(h, "</tr>");
     }
     let _ = writeln!(h, "</table>");
+}
+
+/// The alternatives a coefficient holds only on the absence of, the three farthest-reaching
+/// (`—` for none).
+fn conditional_cell(on: &[(String, f64)]) -> String {
+    if on.is_empty() {
+        return "—".into();
+    }
+    let mut cell = on
+        .iter()
+        .take(3)
+        .map(|(e, z)| format!("{e} ({z:.1})"))
+        .collect::<Vec<_>>()
+        .join(", ");
+    if on.len() > 3 {
+        cell += &format!(", +{}", on.len() - 3);
+    }
+    cell
 }
 
 /// `drift-markov`'s σ and τ, each ± its 1σ (the curvature's) with its 1σ interval from the
