@@ -401,21 +401,11 @@ fn with_set_up_marginalised(
     Ok(weighed.within_priors.map(|(_, g)| f - g))
 }
 
-/// A misstated knob is the move told another way only where it takes the move over by this many
-/// 1σ ([`crate::diagnose::alternatives::Misstated::takes_over`]). Without it, every move —
-/// above all gravity's, which the data measure to 0.3 ppm against a 30-ppm prior, so that a
-/// set-up drawn from its priors moves it with gains in the thousands — made any knob the data
-/// hardly see a rival: 4 of 8 clean 24-h runs at 1 s with their set-up drawn from the priors
-/// were distrusted for a clock "617 ± 680 ppm" or a latitude 1.3 of the data's 1σ from the
-/// stated one, the coefficients within 1.8 total σ of the truth.
-const TAKES_OVER_THE_MOVE: f64 = 2.0;
-
 /// When the data moved the set-up within its priors (evidence gain `moved`, at least
 /// [`MIN_EVIDENCE_GAIN`]), a knob misstated
 /// whose prior is only the tool's assumption ([`SetupPriors::assumed`]) and that the data alone do
-/// not rule out (its gain without the prior odds within [`PLAUSIBLE_MARGIN`]) and that takes the
-/// move over ([`TAKES_OVER_THE_MOVE`]) is the same data told another way: a clock running fast
-/// looks like a latitude a few hundredths of a degree off.
+/// not rule out (its gain without the prior odds within [`PLAUSIBLE_MARGIN`]) is the same data
+/// told another way: a clock running fast looks like a latitude a few hundredths of a degree off.
 /// Only the assumption tells them apart; where they differ beyond the total 1σ the result rests
 /// on it, and the user is asked to state what they know.
 fn move_confounded(
@@ -436,10 +426,7 @@ fn move_confounded(
     for a in alts {
         let Some(m) = &a.misstated else { continue };
         let on_the_data = a.evidence_gain + misstated::PRIOR_ODDS;
-        if !priors.assumed[m.index]
-            || on_the_data < -PLAUSIBLE_MARGIN
-            || m.takes_over < TAKES_OVER_THE_MOVE
-        {
+        if !priors.assumed[m.index] || on_the_data < -PLAUSIBLE_MARGIN {
             continue;
         }
         let Some((k, z)) = scale.worst(&a.shift).filter(|(_, z)| z.abs() > 1.0) else {

@@ -775,16 +775,18 @@ fn diagnose_does_not_hide_a_fast_clock_behind_an_effect() {
     let _ = std::fs::remove_dir_all(&dir);
 }
 
-/// Issue 26, false alarms: a day's run at 1 s with its set-up drawn from the priors is clean —
-/// its gravity a prior σ off, which the data measure to 0.3 ppm, so that the set-up "moves" with
-/// gains in the thousands. Every such move made any knob the data hardly see a rival ("a
-/// misstated clock rate (617 ± 680 ppm) … the result rests on the assumed clock rate prior"):
-/// 14 of 20 seeds were distrusted, their coefficients within 3.4 total σ of the truth. Now a
-/// misstated knob is a rival only where it takes the move over. Tolerance: at most 2 of 8
-/// distrusted (2 of 20 measured, for a `drift-daily` the data almost prefer and a latitude the
-/// data put 3σ off), and the trusted within 4 total σ (99.9 % of honest 1σ).
+/// Issue 26: a day's run at 1 s with its set-up drawn from the default priors (gravity a prior σ
+/// off, which the data measure to 0.3 ppm: the set-up "moves"). The data know the clock only to
+/// ~600 ppm and the latitude to ~0.06°, so a misstated clock or latitude the data cannot rule
+/// out would move coefficients beyond their 1σ: with the priors only assumed, such a run is not
+/// trusted, and the reason says which prior to state (14 of 20 seeds). Letting a run through
+/// when the misstated knob does not "take over" the set-up's move freed 12 of them, but trusted
+/// a clock really 337 ppm fast with DZ0 4.4σ off: no data tell those apart, only the user's
+/// word. Stated by the user (here the defaults, vouched for), the priors hold: at most 1 of 8
+/// distrusted (1 measured, a `drift-daily` the data almost prefer), the trusted within 4 total
+/// σ (99.9 % of honest 1σ; measured ≤ 3.4).
 #[test]
-fn a_day_with_its_set_up_drawn_from_the_priors_is_trusted() {
+fn a_day_with_its_set_up_drawn_from_the_priors_rests_on_the_priors_the_user_states() {
     let dir = temp_dir("setup-priors-day");
     let mut distrusted = vec![];
     for seed in 1..=8 {
@@ -799,14 +801,34 @@ fn a_day_with_its_set_up_drawn_from_the_priors_is_trusted() {
                 "--setup-errors-from-priors",
             ],
         );
-        let (code, v, all) = json_with_truth("identify", &csv);
-        match code {
+        let (code, all) = run_driftid(&["identify".into(), csv.clone().into()]);
+        assert!(matches!(code, Some(0 | 3)), "seed {seed}: {all}");
+        if code == Some(3) && all.contains("rests on the assumed") {
+            assert!(all.contains("state what you know of the set-up"), "{all}");
+        }
+        let out = driftid()
+            .arg("identify")
+            .arg(&csv)
+            .arg("--truth")
+            .arg(csv.with_extension("truth.json"))
+            .args([
+                "--json",
+                "--clock-sigma-ppm",
+                "20",
+                "--gravity-sigma-ppm",
+                "30",
+            ])
+            .args(["--latitude-sigma-deg", "0.029"])
+            .output()
+            .unwrap();
+        let v: serde_json::Value = serde_json::from_slice(&out.stdout).unwrap();
+        match out.status.code() {
             Some(0) => drift_within_total_sigma(&v, 4.0, &format!("seed {seed}")),
-            Some(3) => distrusted.push(format!("seed {seed}: {all}")),
-            _ => panic!("seed {seed}: {all}"),
+            Some(3) => distrusted.push(format!("seed {seed}: {}", v["untrusted_reasons"])),
+            c => panic!("seed {seed}: exit {c:?}"),
         }
     }
-    assert!(distrusted.len() <= 2, "{distrusted:#?}");
+    assert!(distrusted.len() <= 1, "{distrusted:#?}");
     let _ = std::fs::remove_dir_all(&dir);
 }
 

@@ -72,14 +72,6 @@ pub struct Misstated {
     /// Index of the knob (0 latitude, 1 clock rate, 2 gravity).
     #[serde(skip)]
     pub index: usize,
-    /// How far this hypothesis moves the knobs from where their priors put them, in 1σ: the
-    /// knob itself in its broad 1σ, the others in their 1σ with the priors. A misstatement that
-    /// explains the set-up's move takes it over (a clock running fast: the latitude's move goes
-    /// back); one that does not leaves the move where it was (a gravity 4 ppm off, measured to
-    /// 0.3 ppm, stays whatever the clock) and puts its own knob within the data's reach of where
-    /// the priors hold it.
-    #[serde(skip)]
-    pub takes_over: f64,
 }
 
 impl Alternative {

@@ -221,20 +221,8 @@ fn knob_misstated(
             value: reference.stated[k] + u * km.unit[k],
             sigma: var.sqrt() * km.unit[k],
             index: k,
-            takes_over: takes_over(reference.laplace, l, k, km),
         }),
     }
-}
-
-/// [`Misstated::takes_over`] of knob `k` broad (`l`) against the priors' hypothesis (`priors`).
-fn takes_over(priors: &Laplace, l: &Laplace, k: usize, km: &KnobModel) -> f64 {
-    (0..3)
-        .filter(|&i| km.unit[i] > 0.0)
-        .map(|i| {
-            let sigma = if i == k { l.var[i] } else { priors.var[i] }.sqrt();
-            (l.u[i] - priors.u[i]).abs() / sigma
-        })
-        .fold(0.0, f64::max)
 }
 
 /// A latitude the broad prior `l` puts beyond 3σ of where its own prior does, weighed by full
@@ -418,9 +406,6 @@ fn profiled_latitude(
             value: l,
             sigma,
             index: 0,
-            // This far off, the latitude is no move within the priors taken over but another
-            // site: counted as taking the move over.
-            takes_over: f64::INFINITY,
         }),
     })
 }
