@@ -536,6 +536,8 @@ fn print_one(
         for r in reasons {
             println!("  - {r}");
         }
+    } else {
+        super::identify::print_trusted_on(final_rows, &recording.display().to_string());
     }
 }
 
