@@ -396,9 +396,9 @@ fn with_set_up_marginalised(
     let Ok(unc) = crate::identify::setup::uncertainty(effects, prep, cfg, &id) else {
         return Ok(None);
     };
-    let weighed = misstated::weigh(effects, prep, cfg, &id, &unc)?;
+    let within = misstated::within_priors(effects, prep, cfg, &id, &unc)?;
     let f = crate::identify::neg2_log_evidence(&id.innovations);
-    Ok(weighed.within_priors.map(|(_, g)| f - g))
+    Ok(within.map(|(_, g)| f - g))
 }
 
 /// When the data moved the set-up within its priors (evidence gain `moved`, at least

@@ -45,6 +45,7 @@ enum Command {
 static ALLOC: host_tool::heap::HugePages = host_tool::heap::HugePages;
 
 fn main() {
+    host_tool::progress::start_clock();
     // A closed stdout (`driftid identify … | head`) ends the process quietly, as for any Unix
     // filter: Rust ignores SIGPIPE, so a write to a closed pipe would fail and `println!` panic;
     // with the default action the process ends at that write, silently (status: signal 13).

@@ -1,6 +1,15 @@
 //! Progress for long runs: drawn on a terminal (stderr), silent when piped or redirected.
 
-use std::time::Duration;
+use std::sync::LazyLock;
+use std::time::{Duration, Instant};
+
+/// When the process started ([`start_clock`]; else the first timed note).
+static START: LazyLock<Instant> = LazyLock::new(Instant::now);
+
+/// Starts the clock `DRIFTID_TIMING`'s notes are timed from (call first thing in `main`).
+pub fn start_clock() {
+    LazyLock::force(&START);
+}
 
 use indicatif::{ProgressBar, ProgressDrawTarget, ProgressStyle};
 
@@ -18,7 +27,16 @@ pub(crate) fn bar(len: u64, msg: &str) -> ProgressBar {
 
 /// Notes of the library's steps ([`crate::steps::Progress`]) as `pb`'s message; nothing when
 /// `pb` is hidden (stderr not a terminal), so a redirected run formats no message at all.
+///
+/// With `DRIFTID_TIMING` set in the environment each note is also written to stderr with the
+/// seconds since the process started (where the time of a run goes: docs/measurements.md).
 pub(crate) fn follow(pb: &ProgressBar) -> crate::steps::Progress {
+    if std::env::var_os("DRIFTID_TIMING").is_some() {
+        let start = *START;
+        return crate::steps::Progress::new(move |m| {
+            eprintln!("[{:7.3} s] {m}", start.elapsed().as_secs_f64())
+        });
+    }
     if pb.is_hidden() {
         return crate::steps::Progress::default();
     }
