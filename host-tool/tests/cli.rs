@@ -246,6 +246,15 @@ fn report_is_one_self_contained_page_that_tells_the_story() {
         String::from_utf8_lossy(&out.stderr)
     );
     let page = std::fs::read_to_string(&html).unwrap();
+    // Trusted: the verdict block says on what (the alternatives the coefficients hold only on
+    // the absence of, or none), before the story's first section.
+    let verdict = &page[page.find("<section id=\"verdict\"").unwrap()..];
+    let verdict = &verdict[..verdict.find("</section>").unwrap()];
+    assert!(
+        verdict.contains("Trusted on the absence of what this run cannot rule out")
+            || verdict.contains("No alternative this run cannot rule out"),
+        "{verdict}"
+    );
     // Self-contained: the only URL is the SVG namespace; no script, stylesheet or image fetched.
     let urls: Vec<&str> = page
         .match_indices("http")

@@ -519,45 +519,22 @@ fn print_text(
 /// coefficients hold only on the absence of (`Row::conditional_on`), the farthest-reaching
 /// first, and how to settle them (`recording` names the run for the `driftid plan` line).
 pub(crate) fn print_trusted_on(rows: &[Row], recording: &str) {
-    let mut on: Vec<(&str, usize, f64)> = vec![];
     let paper = crate::catalog::paper().params();
-    for r in rows
-        .iter()
-        .filter(|r| paper.iter().any(|p| p.name == r.name))
-    {
-        for (effect, z) in &r.conditional_on {
-            match on.iter_mut().find(|(e, _, _)| e == effect) {
-                Some(x) => {
-                    x.1 += 1;
-                    x.2 = x.2.max(*z);
-                }
-                None => on.push((effect, 1, *z)),
-            }
-        }
-    }
-    if on.is_empty() {
+    let on = crate::diagnose::alternatives::held_on(
+        rows.iter()
+            .filter(|r| paper.iter().any(|p| p.name == r.name))
+            .map(|r| r.conditional_on.as_slice()),
+    );
+    let Some(words) = crate::diagnose::alternatives::held_on_words(&on) else {
         println!("trusted: no alternative this run cannot rule out moves a drift coefficient beyond its total 1σ");
         return;
-    }
-    on.sort_by(|a, b| b.2.total_cmp(&a.2));
-    let listed: Vec<String> = on
-        .iter()
-        .take(3)
-        .map(|(e, n, z)| {
-            format!(
-                "{e} ({n} drift coefficient{}, up to {z:.1}σ)",
-                if *n == 1 { "" } else { "s" }
-            )
-        })
-        .collect();
+    };
     let catalog = on
         .iter()
         .find(|(e, _, _)| crate::catalog::Catalog::builtin().by_name(e).is_some())
         .map(|(e, _, _)| *e);
     println!(
-        "trusted on the absence of what this run cannot rule out: {}{} (the alternatives above){}",
-        listed.join(", "),
-        if on.len() > 3 { format!(", and {} more", on.len() - 3) } else { String::new() },
+        "trusted on the absence of what this run cannot rule out: {words} (the alternatives above){}",
         catalog.map_or(String::new(), |e| format!(
             "; `driftid plan {recording} --with {e}` designs the run that separates it, or a bench value settles it"
         ))

@@ -94,6 +94,52 @@ impl Alternative {
     }
 }
 
+/// What a result holds on, from each coefficient's [`conditional_on`]: every alternative named
+/// once with how many of the coefficients it could move beyond their total 1σ and its largest
+/// reach (total 1σ), the farthest-reaching first.
+pub(crate) fn held_on<'a>(
+    per_coefficient: impl IntoIterator<Item = &'a [(String, f64)]>,
+) -> Vec<(&'a str, usize, f64)> {
+    let mut on: Vec<(&str, usize, f64)> = vec![];
+    for conditional in per_coefficient {
+        for (effect, z) in conditional {
+            match on.iter_mut().find(|(e, _, _)| e == effect) {
+                Some(x) => {
+                    x.1 += 1;
+                    x.2 = x.2.max(*z);
+                }
+                None => on.push((effect, 1, *z)),
+            }
+        }
+    }
+    on.sort_by(|a, b| b.2.total_cmp(&a.2));
+    on
+}
+
+/// "g2 (12 drift coefficients, up to 160.0σ), …" for the three farthest-reaching of [`held_on`]
+/// (and how many more); `None` when it holds on nothing.
+pub(crate) fn held_on_words(on: &[(&str, usize, f64)]) -> Option<String> {
+    if on.is_empty() {
+        return None;
+    }
+    let listed: Vec<String> = on
+        .iter()
+        .take(3)
+        .map(|(e, n, z)| {
+            format!(
+                "{e} ({n} drift coefficient{}, up to {z:.1}σ)",
+                if *n == 1 { "" } else { "s" }
+            )
+        })
+        .collect();
+    let more = if on.len() > 3 {
+        format!(", and {} more", on.len() - 3)
+    } else {
+        String::new()
+    };
+    Some(listed.join(", ") + &more)
+}
+
 /// The alternatives parameter `k` holds only on the absence of ([`Alternative::reaches_beyond`]),
 /// each named once with its largest reach in total 1σ, the farthest first.
 pub(crate) fn conditional_on(
@@ -216,4 +262,44 @@ pub(crate) fn averaging_spread(alts: &[Alternative], n: usize) -> Vec<f64> {
             v.sqrt()
         })
         .collect()
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// Each alternative once, counted over the coefficients it reaches, with its largest reach,
+    /// the farthest first; the words list three and count the rest.
+    #[test]
+    fn what_a_result_holds_on_is_each_alternative_once_farthest_first() {
+        let c = |v: &[(&str, f64)]| -> Vec<(String, f64)> {
+            v.iter().map(|(e, z)| (e.to_string(), *z)).collect()
+        };
+        let per = [
+            c(&[("g2", 100.0), ("drift-daily", 2.0)]),
+            c(&[]),
+            c(&[
+                ("drift-daily", 14.7),
+                ("g2", 73.4),
+                ("clock rate misstated", 1.5),
+            ]),
+            c(&[("acc-scale", 1.2)]),
+        ];
+        let on = held_on(per.iter().map(Vec::as_slice));
+        assert_eq!(
+            on,
+            vec![
+                ("g2", 2, 100.0),
+                ("drift-daily", 2, 14.7),
+                ("clock rate misstated", 1, 1.5),
+                ("acc-scale", 1, 1.2),
+            ]
+        );
+        assert_eq!(
+            held_on_words(&on).unwrap(),
+            "g2 (2 drift coefficients, up to 100.0σ), drift-daily (2 drift coefficients, up to \
+             14.7σ), clock rate misstated (1 drift coefficient, up to 1.5σ), and 1 more"
+        );
+        assert_eq!(held_on_words(&[]), None);
+    }
 }

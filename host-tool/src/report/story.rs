@@ -77,7 +77,30 @@ pub(super) fn verdict_block(h: &mut String, input: &ReportInput) {
         );
     }
     untrusted_list(h, &input.untrusted);
+    if trusted {
+        held_on(h, &input.coefficients);
+    }
     let _ = writeln!(h, "</section>");
+}
+
+/// What a trusted result holds on: the alternatives its drift coefficients hold only on the
+/// absence of (as `identify` and `diagnose` end; the table of section 5 per coefficient).
+fn held_on(h: &mut String, coefficients: &[super::CoefRow]) {
+    let paper = crate::catalog::paper().params();
+    let on = crate::diagnose::alternatives::held_on(
+        coefficients
+            .iter()
+            .filter(|r| paper.iter().any(|p| p.name == r.name))
+            .map(|r| r.conditional_on.as_slice()),
+    );
+    let said = match crate::diagnose::alternatives::held_on_words(&on) {
+        Some(words) => format!(
+            "Trusted on the absence of what this run cannot rule out: {}; a second run from another orientation (<code>driftid plan</code>) or a bench value settles it (per coefficient: <a href=\"#coefficients\">section 5</a>, “holds only without”).",
+            esc(&words)
+        ),
+        None => "No alternative this run cannot rule out moves a drift coefficient beyond its total 1σ.".into(),
+    };
+    let _ = writeln!(h, "<p>{said}</p>");
 }
 
 /// The reasons not to trust the numbers, as a list (nothing when there are none).
