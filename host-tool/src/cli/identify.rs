@@ -519,11 +519,8 @@ fn print_text(
 /// coefficients hold only on the absence of (`Row::conditional_on`), the farthest-reaching
 /// first, and how to settle them (`recording` names the run for the `driftid plan` line).
 pub(crate) fn print_trusted_on(rows: &[Row], recording: &str) {
-    let paper = crate::catalog::paper().params();
     let on = crate::diagnose::alternatives::held_on(
-        rows.iter()
-            .filter(|r| paper.iter().any(|p| p.name == r.name))
-            .map(|r| r.conditional_on.as_slice()),
+        rows.iter().map(|r| (r.name, r.conditional_on.as_slice())),
     );
     let Some(words) = crate::diagnose::alternatives::held_on_words(&on) else {
         println!("trusted: no alternative this run cannot rule out moves a drift coefficient beyond its total 1σ");

@@ -94,14 +94,19 @@ impl Alternative {
     }
 }
 
-/// What a result holds on, from each coefficient's [`conditional_on`]: every alternative named
-/// once with how many of the coefficients it could move beyond their total 1σ and its largest
-/// reach (total 1σ), the farthest-reaching first.
+/// What a result holds on, from each parameter's name and [`conditional_on`]: every alternative
+/// named once with how many of the paper's drift coefficients it could move beyond their total
+/// 1σ (the other parameters are not counted) and its largest reach (total 1σ), the
+/// farthest-reaching first.
 pub(crate) fn held_on<'a>(
-    per_coefficient: impl IntoIterator<Item = &'a [(String, f64)]>,
+    per_parameter: impl IntoIterator<Item = (&'a str, &'a [(String, f64)])>,
 ) -> Vec<(&'a str, usize, f64)> {
+    let paper = crate::catalog::paper().params();
     let mut on: Vec<(&str, usize, f64)> = vec![];
-    for conditional in per_coefficient {
+    for (_, conditional) in per_parameter
+        .into_iter()
+        .filter(|(name, _)| paper.iter().any(|p| p.name == *name))
+    {
         for (effect, z) in conditional {
             match on.iter_mut().find(|(e, _, _)| e == effect) {
                 Some(x) => {
@@ -268,24 +273,29 @@ pub(crate) fn averaging_spread(alts: &[Alternative], n: usize) -> Vec<f64> {
 mod tests {
     use super::*;
 
-    /// Each alternative once, counted over the coefficients it reaches, with its largest reach,
-    /// the farthest first; the words list three and count the rest.
+    /// Each alternative once, counted over the drift coefficients it reaches (an added effect's
+    /// parameter, BAx, not counted), with its largest reach, the farthest first; the words list
+    /// three and count the rest.
     #[test]
     fn what_a_result_holds_on_is_each_alternative_once_farthest_first() {
         let c = |v: &[(&str, f64)]| -> Vec<(String, f64)> {
             v.iter().map(|(e, z)| (e.to_string(), *z)).collect()
         };
         let per = [
-            c(&[("g2", 100.0), ("drift-daily", 2.0)]),
-            c(&[]),
-            c(&[
-                ("drift-daily", 14.7),
-                ("g2", 73.4),
-                ("clock rate misstated", 1.5),
-            ]),
-            c(&[("acc-scale", 1.2)]),
+            ("DX0", c(&[("g2", 100.0), ("drift-daily", 2.0)])),
+            ("DXx", c(&[])),
+            (
+                "DZy",
+                c(&[
+                    ("drift-daily", 14.7),
+                    ("g2", 73.4),
+                    ("clock rate misstated", 1.5),
+                ]),
+            ),
+            ("DYz", c(&[("acc-scale", 1.2)])),
+            ("BAx", c(&[("acc-misalign", 178.8)])),
         ];
-        let on = held_on(per.iter().map(Vec::as_slice));
+        let on = held_on(per.iter().map(|(n, c)| (*n, c.as_slice())));
         assert_eq!(
             on,
             vec![

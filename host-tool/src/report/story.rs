@@ -86,12 +86,10 @@ pub(super) fn verdict_block(h: &mut String, input: &ReportInput) {
 /// What a trusted result holds on: the alternatives its drift coefficients hold only on the
 /// absence of (as `identify` and `diagnose` end; the table of section 5 per coefficient).
 fn held_on(h: &mut String, coefficients: &[super::CoefRow]) {
-    let paper = crate::catalog::paper().params();
     let on = crate::diagnose::alternatives::held_on(
         coefficients
             .iter()
-            .filter(|r| paper.iter().any(|p| p.name == r.name))
-            .map(|r| r.conditional_on.as_slice()),
+            .map(|r| (r.name.as_str(), r.conditional_on.as_slice())),
     );
     let said = match crate::diagnose::alternatives::held_on_words(&on) {
         Some(words) => format!(
