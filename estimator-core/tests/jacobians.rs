@@ -6,7 +6,7 @@
 //! (a missing or wrong-sign term changes a column by O(1) relative).
 
 use estimator_core::effects::{
-    AccBias, AccMisalign, AccScale, DriftDaily, DriftMarkov, DriftTrend, Effect, G2Drift,
+    AccBias, AccMisalign, AccScale, AccTemp, DriftDaily, DriftMarkov, DriftTrend, Effect, G2Drift,
     PaperDrift, Partials, TempDrift,
 };
 use estimator_core::model::{Model, Propagation};
@@ -22,7 +22,7 @@ static MARKOV: DriftMarkov = DriftMarkov {
     tau_h: 2.0,
 };
 /// Every catalog effect at once, so each effect's partials are checked.
-static EFFECTS: [&dyn Effect; 9] = [
+static EFFECTS: [&dyn Effect; 10] = [
     &PaperDrift,
     &AccBias,
     &MARKOV,
@@ -31,6 +31,7 @@ static EFFECTS: [&dyn Effect; 9] = [
     &AccMisalign,
     &DriftTrend::CATALOG,
     &TempDrift::CATALOG,
+    &AccTemp,
     &DriftDaily { sigma_degph: 0.01 },
 ];
 
@@ -104,7 +105,7 @@ fn measurement_jacobian_matches_finite_differences() {
     for k in 0..3 {
         let x = test_state(&m, k);
         let mut jac = [Vector3::zeros(); CAP];
-        m.measurement(&x, 0.0, 0.0, 300.0, &mut jac);
+        m.measurement(&x, 3600.0, 0.7, 300.0, &mut jac);
         let mut scratch = [Vector3::zeros(); CAP];
         let numeric: Vec<_> = (0..m.dim())
             .map(|j| {
@@ -112,8 +113,8 @@ fn measurement_jacobian_matches_finite_differences() {
                 let (mut xp, mut xm) = (x.clone(), x.clone());
                 xp[j] += h;
                 xm[j] -= h;
-                (m.measurement(&xp, 0.0, 0.0, 300.0, &mut scratch)
-                    - m.measurement(&xm, 0.0, 0.0, 300.0, &mut scratch))
+                (m.measurement(&xp, 3600.0, 0.7, 300.0, &mut scratch)
+                    - m.measurement(&xm, 3600.0, 0.7, 300.0, &mut scratch))
                     / (2.0 * h)
             })
             .collect();
@@ -405,8 +406,8 @@ fn north_dependent_effects_jacobians_match_finite_differences() {
             m.angle_rate(&x, 3600.0, 0.4, &mut jac);
             let num = numeric(&mut |x, s| m.angle_rate(x, 3600.0, 0.4, s));
             assert_columns_close(&format!("F ({chart:?})"), &jac[..m.dim()], &num);
-            m.measurement(&x, 0.0, 0.0, 300.0, &mut jac);
-            let num = numeric(&mut |x, s| m.measurement(x, 0.0, 0.0, 300.0, s));
+            m.measurement(&x, 3600.0, 0.7, 300.0, &mut jac);
+            let num = numeric(&mut |x, s| m.measurement(x, 3600.0, 0.7, 300.0, s));
             assert_columns_close(&format!("H ({chart:?})"), &jac[..m.dim()], &num);
         }
     }

@@ -3,7 +3,7 @@
 use std::path::{Path, PathBuf};
 
 use estimator_core::effects::{
-    AccBias, AccMisalign, AccScale, DriftDaily, DriftMarkov, DriftTrend, Effect, G2Drift,
+    AccBias, AccMisalign, AccScale, AccTemp, DriftDaily, DriftMarkov, DriftTrend, Effect, G2Drift,
     PaperDrift, TempDrift,
 };
 
@@ -13,6 +13,7 @@ static PAPER: PaperDrift = PaperDrift;
 static ACC_BIAS: AccBias = AccBias;
 static ACC_SCALE: AccScale = AccScale;
 static ACC_MISALIGN: AccMisalign = AccMisalign;
+static ACC_TEMP: AccTemp = AccTemp;
 static G2: G2Drift = G2Drift;
 static DRIFT_TREND: DriftTrend = DriftTrend::CATALOG;
 static DRIFT_DAILY: DriftDaily = DriftDaily { sigma_degph: 0.01 };
@@ -214,6 +215,7 @@ pub fn builtin_candidates() -> Vec<&'static dyn Effect> {
         &DRIFT_TREND,
         &DRIFT_MARKOV,
         &TEMP_DRIFT,
+        &ACC_TEMP,
         &DRIFT_DAILY,
     ]
 }

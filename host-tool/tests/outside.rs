@@ -1,7 +1,7 @@
 //! Recordings in the shape of outside data: a random site, length, sampling, start, set-up errors
 //! drawn from the priors, and none, one or two of a dozen effects, most of them outside the catalog
 //! (a gyro turn-on transient, a periodic drift of any period, a Markov wander, a clock running
-//! fast, a tilting vertical, a start off north, a temperature-dependent accelerometer bias).
+//! fast, a tilting vertical, a start off north).
 //! `identify` and `diagnose` may say "not trusted" (exit 3) as often as they must, but an exit 0
 //! must never come with a drift coefficient far outside its total 1σ.
 //!

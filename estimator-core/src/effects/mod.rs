@@ -17,6 +17,7 @@ use nalgebra::{Matrix3, Vector3};
 mod acc_bias;
 pub mod acc_misalign;
 mod acc_scale;
+mod acc_temp;
 mod drift_daily;
 mod drift_markov;
 mod drift_trend;
@@ -27,6 +28,7 @@ mod temp_drift;
 pub use acc_bias::AccBias;
 pub use acc_misalign::AccMisalign;
 pub use acc_scale::AccScale;
+pub use acc_temp::AccTemp;
 pub use drift_daily::{DriftDaily, SOLAR_DAY_S};
 pub use drift_markov::DriftMarkov;
 pub use drift_trend::DriftTrend;
@@ -112,6 +114,12 @@ pub trait Effect: Sync {
     fn uses_north(&self) -> bool {
         false
     }
+    /// Whether the effect reads [`Context::temp_dev_c`] (default: no). Such an effect is
+    /// invisible, and is not tried, on a recording whose temperature is not recorded or does not
+    /// vary.
+    fn reads_temperature(&self) -> bool {
+        false
+    }
     /// Adds ∂value/∂north of the effect's drift (`drift = true`, deg/h per unit) or
     /// accelerometer term (m/s² per unit) at parameters `p` to `d_north` (row: axis of the
     /// value, column: component of north). Called only for effects that say
@@ -133,12 +141,13 @@ mod tests {
     /// all be overwritten.
     #[test]
     fn effects_set_every_parameter_column() {
-        let effects: [&dyn Effect; 9] = [
+        let effects: [&dyn Effect; 10] = [
             &PaperDrift,
             &DriftDaily::default(),
             &AccBias,
             &AccMisalign,
             &AccScale,
+            &AccTemp,
             &DriftMarkov::default(),
             &DriftTrend::CATALOG,
             &G2Drift,

@@ -79,4 +79,7 @@ impl Effect for TempDrift {
     fn touches_accel(&self) -> bool {
         false
     }
+    fn reads_temperature(&self) -> bool {
+        true
+    }
 }

@@ -70,7 +70,7 @@ pub(crate) fn setups<'c>(
             catalog: Some(c),
             untestable: None,
         };
-        if c.name() == "temp-drift" && !has_temp {
+        if c.reads_temperature() && !has_temp {
             s.untestable = Some("the recording has no varying temp_c column".into());
         } else if c.name() == "drift-markov" {
             let room = (MAX_STATES - dim) / 3;
@@ -249,11 +249,12 @@ pub(crate) fn confounding(
 /// What experiment would separate effects `a` and `b`.
 pub(crate) fn separate_by(a: &str, b: &str) -> String {
     let accel = |e: &str| e.starts_with("acc-");
+    let thermal = |e: &str| matches!(e, "temp-drift" | "acc-temp");
     let slow = |e: &str| matches!(e, "g2" | "drift-trend" | "drift-markov");
-    if accel(a) && accel(b) {
-        "another initial platform orientation or a second run at another latitude: bias, scale factor and misalignment project differently onto the gravity cone".into()
-    } else if a == "temp-drift" || b == "temp-drift" {
+    if thermal(a) || thermal(b) {
         "a temperature excursion that is not synchronised with the gravity cone (e.g. a heater step mid-run)".into()
+    } else if accel(a) && accel(b) {
+        "another initial platform orientation or a second run at another latitude: bias, scale factor and misalignment project differently onto the gravity cone".into()
     } else if slow(a) && slow(b) {
         "a longer run: a trend keeps growing while g²-sensitive drift repeats with the sidereal day; another initial orientation also changes the g² signature".into()
     } else {

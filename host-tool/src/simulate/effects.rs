@@ -35,7 +35,7 @@ NAME=v1,v2,... (repeatable; the same effect twice adds up). Effects:
   temp-drift=cx,cy,cz   drift += c*(T(t)-T(0)), deg/h per deg C; adds a temp_c column
   drift-sine=ax,ay,az:P drift += a*sin(2*pi*t/P), deg/h, period P in h (not in the catalog)
   drift-transient=ax,ay,az:tau   turn-on transient: drift += a*exp(-t/tau), deg/h, tau in h (not in the catalog)
-  acc-temp=kx,ky,kz     accelerometer bias += k*(T(t)-T(0)), m/s^2 per deg C; adds a temp_c column (not in the catalog)
+  acc-temp=kx,ky,kz     accelerometer bias += k*(T(t)-T(0)), m/s^2 per deg C; adds a temp_c column
   drift-step=ax,ay,az:T0 drift step: drift += a from T0 hours on, deg/h (not in the catalog)
   acc-north=kx,ky,kz    z_i += k_i*north_i, m/s^2 per unit, north the local north in platform axes: an
                         Earth-fixed horizontal disturbance, e.g. the field's pull on the accelerometers
@@ -69,7 +69,7 @@ pub enum InjectedEffect {
     DriftSine { a_deg_h: [f64; 3], period_h: f64 },
     /// Turn-on transient (not in the catalog): w_d,i += a_i exp(−t/τ), deg/h, τ in h.
     DriftTransient { a_deg_h: [f64; 3], tau_h: f64 },
-    /// Temperature-driven accelerometer bias (not in the catalog): z_i += k_i (T(t) − T(0)),
+    /// Temperature-driven accelerometer bias: z_i += k_i (T(t) − T(0)),
     /// m/s² per °C.
     AccTemp { k_mps2_per_c: [f64; 3] },
     /// Drift step (not in the catalog): w_d,i += a_i for t ≥ T0, deg/h, T0 in h (a sudden change

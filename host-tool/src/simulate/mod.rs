@@ -530,6 +530,11 @@ impl Truth {
                         put(format!("K{}", xyz[i]), *v);
                     }
                 }
+                InjectedEffect::AccTemp { k_mps2_per_c } => {
+                    for (i, v) in k_mps2_per_c.iter().enumerate() {
+                        put(format!("TA{}", lower[i]), *v);
+                    }
+                }
                 // Found as a drift step (`diagnose::drift_step`) when it explains a misfit.
                 InjectedEffect::DriftStep { a_deg_h, .. } => {
                     for (i, v) in a_deg_h.iter().enumerate() {
@@ -546,7 +551,6 @@ impl Truth {
                 // Outside the catalog: no parameter of an identified model is theirs.
                 InjectedEffect::DriftMarkov { .. }
                 | InjectedEffect::DriftSine { .. }
-                | InjectedEffect::AccTemp { .. }
                 | InjectedEffect::AccNorth { .. } => {}
             }
         }
@@ -578,6 +582,7 @@ fn units() -> BTreeMap<String, String> {
         ("drift-trend", "deg/h per h"),
         ("drift-markov", "sigma deg/h, tau h"),
         ("temp-drift", "deg/h per deg C"),
+        ("acc-temp", "m/s^2 per deg C"),
         ("drift-step", "deg/h : h (size per axis : step time)"),
     ]
     .into_iter()
