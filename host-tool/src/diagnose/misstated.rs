@@ -225,16 +225,12 @@ fn knob_misstated(
     let (name, unit) = KNOBS[k];
     let sens = km.sens.column(k);
     let shift = c - reference.params;
-    Alternative {
-        effect: format!("{name} misstated"),
-        evidence_gain: reference.base - l.neg2_ln_z(f) - PRIOR_ODDS,
-        weight: 0.0,
-        reach: (0..shift.len())
-            .map(|i| shift[i].abs() + 2.0 * var.sqrt() * sens[i].abs())
-            .collect(),
-        shift: shift.iter().copied().collect(),
-        instead_of_setup: false,
-        misstated: Some(Misstated {
+    Alternative::new(
+        format!("{name} misstated"),
+        reference.base - l.neg2_ln_z(f) - PRIOR_ODDS,
+        shift.iter().copied().collect(),
+        sens.iter().map(|s| var.sqrt() * s.abs()).collect(),
+        Some(Misstated {
             knob: name,
             unit,
             stated: reference.stated[k],
@@ -242,7 +238,7 @@ fn knob_misstated(
             sigma: var.sqrt() * km.unit[k],
             index: k,
         }),
-    }
+    )
 }
 
 /// A latitude the broad prior `l` puts beyond 3σ of where its own prior does, weighed by full
@@ -410,16 +406,12 @@ fn profiled_latitude(
     // The other knobs as stated (their priors' share is small beside a latitude this far off).
     let gain = base - (fb + u * u + (1.0 + lambda).ln()) - PRIOR_ODDS;
     let sens = km.sens.column(0) / km.unit[0];
-    Some(Alternative {
-        effect: "latitude misstated".into(),
-        evidence_gain: gain,
-        weight: 0.0,
-        reach: (0..n)
-            .map(|i| shift[i].abs() + 2.0 * sigma * sens[i].abs())
-            .collect(),
-        shift: shift.iter().copied().collect(),
-        instead_of_setup: false,
-        misstated: Some(Misstated {
+    Some(Alternative::new(
+        "latitude misstated".into(),
+        gain,
+        shift.iter().copied().collect(),
+        sens.iter().map(|s| sigma * s.abs()).collect(),
+        Some(Misstated {
             knob: KNOBS[0].0,
             unit: KNOBS[0].1,
             stated,
@@ -427,7 +419,7 @@ fn profiled_latitude(
             sigma,
             index: 0,
         }),
-    })
+    ))
 }
 
 /// The stated latitude (deg), clock rate and gravity (ppm of the stated value: 0).
