@@ -347,4 +347,51 @@ mod tests {
         );
         assert_eq!(held_on_words(&[]), None);
     }
+
+    /// The averaged models' variance is a Gaussian mixture's: the current model (shift 0, its
+    /// own variance σ0²) and each plausible alternative (shift Δ_k, variance σ0² + σ_Δk²) at their
+    /// weights. `averaging_spread` is what the mixture adds to σ0², computed here from the
+    /// mixture's definition E[x²] − E[x]² (an independent expression; equal to rounding, 1e-12).
+    /// An implausible alternative (weight 0) adds nothing.
+    #[test]
+    fn averaging_adds_the_mixture_variance_of_the_plausible_models() {
+        let alt = |gain: f64, shift: [f64; 2], move_sigma: [f64; 2]| {
+            Alternative::new("e".into(), gain, shift.to_vec(), move_sigma.to_vec(), None)
+        };
+        let mut alts = vec![
+            alt(-3.3, [2.0, -0.5], [8.0, 0.1]),
+            alt(1.0, [-1.0, 0.3], [0.5, 0.2]),
+            alt(-40.0, [100.0, 100.0], [100.0, 100.0]),
+        ];
+        weight(&mut alts);
+        assert_eq!(alts[2].weight, 0.0);
+        let spread = averaging_spread(&alts, 2);
+        let w0 = 1.0 - alts.iter().map(|a| a.weight).sum::<f64>();
+        let sigma0 = 1.0;
+        for i in 0..2 {
+            let (mut m1, mut m2) = (0.0, w0 * sigma0 * sigma0);
+            for a in &alts {
+                m1 += a.weight * a.shift[i];
+                m2 += a.weight * (sigma0 * sigma0 + a.move_sigma[i].powi(2) + a.shift[i].powi(2));
+            }
+            let added = m2 - m1 * m1 - sigma0 * sigma0;
+            assert!(
+                (spread[i].powi(2) - added).abs() < 1e-12,
+                "{i}: {spread:?} vs {added}"
+            );
+        }
+        // The −3.3 alternative's own variance dominates x: the shifts alone spread it by < 1.4.
+        let shifts_only: Vec<Alternative> = alts
+            .iter()
+            .map(|a| Alternative {
+                move_sigma: vec![0.0; 2],
+                ..a.clone()
+            })
+            .collect();
+        let without = averaging_spread(&shifts_only, 2);
+        assert!(
+            spread[0] > 2.0 && without[0] < 1.4,
+            "{spread:?} {without:?}"
+        );
+    }
 }
