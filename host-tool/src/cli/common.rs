@@ -476,6 +476,7 @@ pub(crate) fn starting_fit(
     effects: &[&dyn estimator_core::effects::Effect],
     cfg: &mut Config,
     stated: &mut Option<Prepared>,
+    at_start: &mut crate::assess::AtTheStart,
     progress: &Progress,
 ) -> anyhow::Result<Option<crate::identify::Identification>> {
     use crate::diagnose::misstated;
@@ -500,6 +501,12 @@ pub(crate) fn starting_fit(
     }
     let mut rivals = rivals(prep, catalog, effects, cfg, &id, progress);
     let moved_within = weighed.within_priors;
+    let about: Vec<(&'static str, f64)> = id
+        .params
+        .iter()
+        .map(|p| p.name)
+        .zip(weighed.about.iter().copied())
+        .collect();
     // On the scale of the rivals, refitted at the stated set-up: the misstatements' gains over
     // that fit, and the stated set-up within its priors as one more rival.
     let (mis, within_priors) = weighed.on_the_stated_fit();
@@ -549,6 +556,11 @@ pub(crate) fn starting_fit(
         return Ok(Some(settled.id));
     }
     rivals.extend(mis.iter().map(|a| (a.effect.clone(), a.evidence_gain)));
+    // The ladder climbs from the set-up as stated: each misstatement is a rival of what it adds.
+    *at_start = crate::assess::AtTheStart {
+        misstated: mis,
+        about,
+    };
     name_a_wrong_latitude(prep, effects, cfg, &rivals, progress);
     Ok(Some(id))
 }

@@ -402,6 +402,7 @@ pub(crate) fn climb<'c>(
     let effects = catalog.model_effects(&model.with)?;
     let mut prep = super::common::prepare_loaded(recording, &loaded, &cfg.identify)?;
     let mut stated = None;
+    let mut at_start = crate::assess::AtTheStart::default();
     let spin = crate::progress::spinner("fitting the starting model");
     let first = super::common::starting_fit(
         &mut prep,
@@ -409,6 +410,7 @@ pub(crate) fn climb<'c>(
         &effects,
         &mut cfg.identify,
         &mut stated,
+        &mut at_start,
         &crate::progress::follow(&spin),
     )?;
     spin.finish_and_clear();
@@ -434,7 +436,7 @@ pub(crate) fn climb<'c>(
         &cfg.identify,
         identification,
     )?;
-    let assessed = crate::assess::assess_with(
+    let mut assessed = crate::assess::assess_with(
         catalog,
         &final_effects,
         at,
@@ -442,6 +444,8 @@ pub(crate) fn climb<'c>(
         identification,
         &crate::progress::follow(&spin),
     )?;
+    let (added, ladder_gain) = ladder_additions(&diagnoses);
+    assessed.weigh_instead_of_the_ladder(&at_start, &added, ladder_gain);
     spin.finish_and_clear();
     Ok(Climbed {
         prep,
@@ -452,6 +456,29 @@ pub(crate) fn climb<'c>(
         final_effects,
         assessed,
     })
+}
+
+/// The effects the ladder added, in order, and their evidence gain over the starting model: the
+/// sum of each rung's chosen refit's gain over the rung before (none when a rung's choice has no
+/// refit among its ranking).
+fn ladder_additions(diagnoses: &[Diagnosis]) -> (Vec<String>, f64) {
+    let mut added = vec![];
+    let mut gain = 0.0;
+    for d in diagnoses {
+        let Some(choice) = &d.choice else { continue };
+        let refit = d
+            .ranking
+            .iter()
+            .find(|c| c.effect == choice.effect)
+            .and_then(|c| c.refit.as_ref());
+        // A choice without a refit on the ranking's scale cannot be put on it: none weighed.
+        let Some(r) = refit else {
+            return (vec![], 0.0);
+        };
+        added.push(choice.effect.clone());
+        gain += r.evidence_gain;
+    }
+    (added, gain)
 }
 
 /// The JSON object of one recording's diagnosis (`--json`): the starting model's diagnosis,

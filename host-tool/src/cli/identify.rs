@@ -249,7 +249,7 @@ pub(crate) fn print_alternatives(
         any_conditional |= !conditional.is_empty();
         println!(
             "  {:<20} evidence gain {:>10.1}  weight {:.3}  {}",
-            a.effect,
+            a.label(),
             a.evidence_gain,
             a.weight,
             if conditional.is_empty() {

@@ -58,6 +58,10 @@ pub struct Alternative {
     /// priors: a rival of that move ([`crate::assess`]).
     #[serde(skip_serializing_if = "std::ops::Not::not")]
     pub instead_of_setup: bool,
+    /// A misstatement weighed on the starting fit, instead of the effects the ladder then added
+    /// (named here): a rival of them all ([`crate::assess::AtTheStart`]).
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub instead_of: Option<String>,
 }
 
 /// A set-up value the data give under the hypothesis that it was misstated.
@@ -102,6 +106,17 @@ impl Alternative {
             reach,
             misstated,
             instead_of_setup: false,
+            instead_of: None,
+        }
+    }
+
+    /// Its name as printed: the effect, and what it would replace where it is a rival of a move
+    /// of the set-up or of the ladder's additions.
+    pub(crate) fn label(&self) -> String {
+        match (&self.instead_of, self.instead_of_setup) {
+            (Some(added), _) => format!("{} instead of {added}", self.effect),
+            (None, true) => format!("{} at the set-up as stated", self.effect),
+            (None, false) => self.effect.clone(),
         }
     }
 

@@ -71,6 +71,9 @@ pub(crate) struct Weighed {
     /// gain is taken over the stated fit, the other knobs move within their priors with it, and
     /// a catalog effect is its rival only with them moved too ([`crate::assess`]).
     pub within_priors: Option<([f64; 3], f64)>,
+    /// The parameters the alternatives' shifts are taken about (the refit at the priors'
+    /// hypothesis; empty for a single pass).
+    pub about: Vec<f64>,
 }
 
 impl Weighed {
@@ -102,6 +105,7 @@ pub(crate) fn weigh(
             alternatives: vec![],
             stated_gain: None,
             within_priors: None,
+            about: vec![],
         });
     };
     let live = live_knobs(prep, km);
@@ -141,6 +145,7 @@ pub(crate) fn weigh(
         alternatives: out,
         stated_gain: (!contradicted).then_some(km.f0 - base),
         within_priors: Some((laplace[0].delta(km), km.f0 - priors_z)),
+        about: fits[0].1.iter().copied().collect(),
     })
 }
 

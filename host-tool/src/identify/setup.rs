@@ -325,10 +325,12 @@ impl Uncertainty {
         out
     }
 
-    /// Adds the model-averaging spread ([`crate::diagnose::alternatives`]) to the total.
+    /// Adds the model-averaging spread ([`crate::diagnose::alternatives`]) to the total, in
+    /// place of any spread added before (the alternatives weighed again with more rivals).
     pub fn add_model_spread(&mut self, spread: &[f64]) {
         for (k, s) in spread.iter().enumerate() {
-            self.total_cov[(k, k)] += s * s;
+            let before = self.model_spread.get(k).copied().unwrap_or(0.0);
+            self.total_cov[(k, k)] += s * s - before * before;
             self.total_sigma[k] = self.total_cov[(k, k)].max(0.0).sqrt();
         }
         self.model_spread = spread.to_vec();
