@@ -239,6 +239,12 @@ pub(crate) fn print_alternatives(
     }
     println!("alternative explanations (catalog effects not in the model, a misstated set-up; evidence gain in −2 ln units, > 0: the data prefer it):");
     let mut any_conditional = false;
+    let width = alts
+        .iter()
+        .map(|a| a.label().chars().count())
+        .max()
+        .unwrap_or(0)
+        .max(20);
     for a in alts {
         let conditional: Vec<String> = a
             .reaches_beyond(&unc.total_sigma)
@@ -248,7 +254,7 @@ pub(crate) fn print_alternatives(
             .collect();
         any_conditional |= !conditional.is_empty();
         println!(
-            "  {:<20} evidence gain {:>10.1}  weight {:.3}  {}",
+            "  {:<width$} evidence gain {:>10.1}  weight {:.3}  {}",
             a.label(),
             a.evidence_gain,
             a.weight,

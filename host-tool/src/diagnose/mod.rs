@@ -259,7 +259,7 @@ fn series_of(meas: &[Measurement], residual: Vec<[f64; 3]>, innovations: &[Resid
 }
 
 /// The leading significant candidates refitted (their refits recorded in `ranking`) and, when
-/// the model does not fit, a drift step profiled over its time ([`drift_step::candidate`]) and
+/// the model does not fit or a candidate is significant, a drift step profiled over its time ([`drift_step::candidate`]) and
 /// a warm-up over its time constant ([`warmup::candidate`]) and a periodic drift over its period
 /// ([`periodic::candidate`]); the evidence chooses among them
 /// ([`select`]).
@@ -280,7 +280,11 @@ fn choose(
         .collect();
     let base_evidence = select::neg2_log_evidence(id);
     let mut refits = select::refit(prep, catalog, effects, base_evidence, &leaders, cfg);
-    if !consistent {
+    // Whenever an effect is to be added (the model misfits, or a catalog effect is significant
+    // though it fits), the profiled explanations compete with the catalog's: a consistent start
+    // whose score test named `drift-daily` took it for a 30-h periodic drift (36 h at 10 s) and
+    // was trusted with DY0 4.1σ off.
+    if !consistent || !leaders.is_empty() {
         refits.extend(drift_step::candidate(prep, effects, id, base_evidence, cfg));
         refits.extend(warmup::candidate(prep, effects, id, base_evidence, cfg));
         refits.extend(periodic::candidate(prep, effects, id, base_evidence, cfg));
