@@ -444,7 +444,7 @@ pub(crate) fn climb<'c>(
         identification,
         &crate::progress::follow(&spin),
     )?;
-    let (added, ladder_gain) = ladder_additions(&diagnoses);
+    let (added, ladder_gain) = crate::diagnose::ladder::additions(&diagnoses);
     assessed.weigh_instead_of_the_ladder(&at_start, &added, ladder_gain);
     spin.finish_and_clear();
     Ok(Climbed {
@@ -456,29 +456,6 @@ pub(crate) fn climb<'c>(
         final_effects,
         assessed,
     })
-}
-
-/// The effects the ladder added, in order, and their evidence gain over the starting model: the
-/// sum of each rung's chosen refit's gain over the rung before (none when a rung's choice has no
-/// refit among its ranking).
-fn ladder_additions(diagnoses: &[Diagnosis]) -> (Vec<String>, f64) {
-    let mut added = vec![];
-    let mut gain = 0.0;
-    for d in diagnoses {
-        let Some(choice) = &d.choice else { continue };
-        let refit = d
-            .ranking
-            .iter()
-            .find(|c| c.effect == choice.effect)
-            .and_then(|c| c.refit.as_ref());
-        // A choice without a refit on the ranking's scale cannot be put on it: none weighed.
-        let Some(r) = refit else {
-            return (vec![], 0.0);
-        };
-        added.push(choice.effect.clone());
-        gain += r.evidence_gain;
-    }
-    (added, gain)
 }
 
 /// The JSON object of one recording's diagnosis (`--json`): the starting model's diagnosis,

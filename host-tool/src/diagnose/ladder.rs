@@ -91,6 +91,29 @@ pub fn ladder_from<'c>(
     }
 }
 
+/// The effects the ladder added, in order, and their evidence gain over the starting model: the
+/// sum of each rung's chosen refit's gain over the rung before (none when a rung's choice has no
+/// refit among its ranking).
+pub(crate) fn additions(diagnoses: &[Diagnosis]) -> (Vec<String>, f64) {
+    let mut added = vec![];
+    let mut gain = 0.0;
+    for d in diagnoses {
+        let Some(choice) = &d.choice else { continue };
+        let refit = d
+            .ranking
+            .iter()
+            .find(|c| c.effect == choice.effect)
+            .and_then(|c| c.refit.as_ref());
+        // A choice without a refit on the ranking's scale cannot be put on it: none weighed.
+        let Some(r) = refit else {
+            return (vec![], 0.0);
+        };
+        added.push(choice.effect.clone());
+        gain += r.evidence_gain;
+    }
+    (added, gain)
+}
+
 /// The rung of diagnosis `d` with its identification's estimates (no next step yet).
 pub(crate) fn rung(d: &Diagnosis, id: &Identification) -> Rung {
     let best = id.best();
