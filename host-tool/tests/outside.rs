@@ -147,6 +147,22 @@ fn scenario(rng: &mut ChaCha8Rng, seed: u64) -> Vec<String> {
     a
 }
 
+/// `driftid simulate ARGS --out csv`, which must succeed.
+fn simulate(args: &[String], csv: &Path) {
+    let sim = driftid()
+        .arg("simulate")
+        .args(args)
+        .arg("--out")
+        .arg(csv)
+        .output()
+        .unwrap();
+    assert!(
+        sim.status.success(),
+        "simulate {args:?}: {}",
+        String::from_utf8_lossy(&sim.stderr)
+    );
+}
+
 /// `driftid COMMAND csv --truth … --json`: exit code and the largest |error| / total 1σ of the
 /// paper's 12 drift coefficients.
 fn worst(command: &str, csv: &Path, args: &[String]) -> (Option<i32>, f64, String) {
@@ -181,18 +197,7 @@ fn outside_like_recordings_are_never_trusted_far_off() {
     for k in 0..12u64 {
         let args = scenario(&mut rng, 7000 + k);
         let csv = dir.join(format!("run{k}.csv"));
-        let sim = driftid()
-            .arg("simulate")
-            .args(&args)
-            .arg("--out")
-            .arg(&csv)
-            .output()
-            .unwrap();
-        assert!(
-            sim.status.success(),
-            "simulate {args:?}: {}",
-            String::from_utf8_lossy(&sim.stderr)
-        );
+        simulate(&args, &csv);
         for command in ["identify", "diagnose"] {
             let (code, z, text) = worst(command, &csv, &args);
             assert!(matches!(code, Some(0 | 3)), "{command} {args:?}: {text}");
@@ -238,14 +243,7 @@ fn a_periodic_drift_under_a_fitting_start_is_not_trusted_as_a_daily_drift() {
     ]
     .map(String::from)
     .to_vec();
-    let sim = driftid()
-        .arg("simulate")
-        .args(&args)
-        .arg("--out")
-        .arg(&csv)
-        .output()
-        .unwrap();
-    assert!(sim.status.success());
+    simulate(&args, &csv);
     let (code, z, text) = worst("diagnose", &csv, &args);
     assert!(
         code == Some(3) || (code == Some(0) && z <= 3.0),
