@@ -108,6 +108,7 @@ impl DriftStepFit {
 }
 
 /// The model plus an effect, in one forward pass linearised about a fit.
+#[derive(Clone)]
 pub(crate) struct Extra {
     /// −2 ln L of the pass.
     pub neg2_log_evidence: f64,
@@ -176,12 +177,26 @@ pub fn profile(
             next = m.t_s + COARSE_STEP_H * S_PER_H;
         }
     }
+    // Every time at once from one replay (`step_scan`) where it fits in memory; else one
+    // forward pass of the extended filter per time (the same numbers, see its test).
+    let scan = super::step_scan::every_update(prep, effects, cfg, id);
     let eval = |ts: &[f64]| -> Vec<(f64, Extra)> {
-        ts.par_iter()
-            .filter_map(|&t| {
-                with_extra(prep, effects, cfg, id, &DriftStep { t0_s: t }).map(|e| (t, e))
-            })
-            .collect()
+        match scan.as_deref() {
+            Some(all) => ts
+                .iter()
+                .filter_map(|&t| {
+                    // The update whose interval starts at t: the step is on from there.
+                    let j = all.partition_point(|u| u.t_prev_s < t);
+                    all.get(j).map(|u| (t, u.extra.clone()))
+                })
+                .collect(),
+            None => ts
+                .par_iter()
+                .filter_map(|&t| {
+                    with_extra(prep, effects, cfg, id, &DriftStep { t0_s: t }).map(|e| (t, e))
+                })
+                .collect(),
+        }
     };
     let best = |v: &[(f64, Extra)]| {
         v.iter()

@@ -25,6 +25,7 @@ pub mod profile;
 pub mod score;
 pub mod select;
 pub(crate) mod statistics;
+pub(crate) mod step_scan;
 pub(crate) mod types;
 pub mod verdict;
 pub mod wander;

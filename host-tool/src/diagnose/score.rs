@@ -105,16 +105,66 @@ struct Tracker<'m> {
 
 /// The candidate's Jacobians over one step: Γ (n × q, ∂x_j/∂β over the interval), A (q × q, β's
 /// own dynamics) and H_β (3 × q).
-struct StepJacobians {
-    gamma: DMatrix<f64>,
-    a: DMatrix<f64>,
-    h_beta: DMatrix<f64>,
+pub(crate) struct StepJacobians {
+    pub gamma: DMatrix<f64>,
+    pub a: DMatrix<f64>,
+    pub h_beta: DMatrix<f64>,
 }
 
 /// Scratch buffers of the core's propagation and measurement Jacobians, reused at every step.
-struct Scratch {
+pub(crate) struct Scratch {
     tr: Transition<MAX_STATES>,
     cols: [Vector3<f64>; MAX_STATES],
+}
+
+impl Default for Scratch {
+    fn default() -> Self {
+        Scratch {
+            tr: Transition::<MAX_STATES>::default(),
+            cols: [Vector3::zeros(); MAX_STATES],
+        }
+    }
+}
+
+/// Γ, A and H_β of `extended` (the current model of `n` states followed by a candidate's) over
+/// the step `v`, from the core's propagation and measurement on the nominal trajectory with
+/// β = 0.
+pub(crate) fn candidate_jacobians(
+    extended: &Model<'_>,
+    v: &StepView<'_>,
+    n: usize,
+    scratch: &mut Scratch,
+) -> StepJacobians {
+    let q = extended.dim() - n;
+    let tr = &mut scratch.tr;
+    let mut x = v.nominal_prev.as_slice().to_vec();
+    x.resize(n + q, 0.0);
+    propagate(
+        extended,
+        &mut x,
+        v.t_prev_s,
+        v.t_s - v.t_prev_s,
+        v.temp_prev,
+        v.temp,
+        tr,
+    );
+    let mut gamma = DMatrix::zeros(n, q);
+    let mut a = DMatrix::identity(q, q);
+    for (r, &d) in extended.dynamic_states().iter().enumerate() {
+        for b in 0..q {
+            if d < n {
+                gamma[(d, b)] = tr.rows[r][n + b];
+            } else {
+                a[(d - n, b)] = tr.rows[r][n + b];
+            }
+        }
+    }
+    let mut xj = v.nominal.as_slice().to_vec();
+    xj.resize(n + q, 0.0);
+    let cols = &mut scratch.cols;
+    extended.measurement(&xj, v.t_s, v.temp, v.time_var_s2, cols);
+    let h_beta = DMatrix::from_fn(3, q, |i, b| cols[n + b][i]);
+    StepJacobians { gamma, a, h_beta }
 }
 
 impl<'m> Tracker<'m> {
@@ -144,48 +194,12 @@ impl<'m> Tracker<'m> {
         nu_w: &Vector3<f64>,
         scratch: &mut Scratch,
     ) {
-        let jac = self.jacobians(v, n, scratch);
+        let jac = candidate_jacobians(&self.model, v, n, scratch);
         let psi_pred = self.predicted_psi(v, n, dynamic, &jac.gamma);
         self.advance_own_dynamics(n, &jac.a);
         let d = v.h * &psi_pred + jac.h_beta * &self.t;
         self.psi = psi_pred - v.k * &d;
         self.accumulate(&d, &v.chol_l, nu_w);
-    }
-
-    /// Γ, A and H_β from the core's propagation and measurement of the extended model on the
-    /// nominal trajectory with β = 0.
-    fn jacobians(&self, v: &StepView<'_>, n: usize, scratch: &mut Scratch) -> StepJacobians {
-        let q = self.q;
-        let tr = &mut scratch.tr;
-        let mut x = v.nominal_prev.as_slice().to_vec();
-        x.resize(n + q, 0.0);
-        propagate(
-            &self.model,
-            &mut x,
-            v.t_prev_s,
-            v.t_s - v.t_prev_s,
-            v.temp_prev,
-            v.temp,
-            tr,
-        );
-        let mut gamma = DMatrix::zeros(n, q);
-        let mut a = DMatrix::identity(q, q);
-        for (r, &d) in self.model.dynamic_states().iter().enumerate() {
-            for b in 0..q {
-                if d < n {
-                    gamma[(d, b)] = tr.rows[r][n + b];
-                } else {
-                    a[(d - n, b)] = tr.rows[r][n + b];
-                }
-            }
-        }
-        let mut xj = v.nominal.as_slice().to_vec();
-        xj.resize(n + q, 0.0);
-        let cols = &mut scratch.cols;
-        self.model
-            .measurement(&xj, v.t_s, v.temp, v.time_var_s2, cols);
-        let h_beta = DMatrix::from_fn(3, q, |i, b| cols[n + b][i]);
-        StepJacobians { gamma, a, h_beta }
     }
 
     /// Ψ⁻ = Φ Ψ + Γ T: Φ is the identity outside the current model's dynamic rows and Γ zero
@@ -291,10 +305,7 @@ pub(crate) fn signatures(
         .map(|m| m.map(|m| Tracker::new(m, n, meas.len())))
         .collect();
     let mut nu_whitened = Vec::with_capacity(3 * meas.len());
-    let mut scratch = Scratch {
-        tr: Transition::<MAX_STATES>::default(),
-        cols: [Vector3::zeros(); MAX_STATES],
-    };
+    let mut scratch = Scratch::default();
     let dynamic = model.dynamic_states();
     let pass = linearised_pass_observed(model, meas, nominal, x0, p0, false, |v: &StepView<'_>| {
         let nu_w = v.chol_l.solve_lower_triangular(&v.nu).unwrap_or(v.nu);
