@@ -473,6 +473,32 @@ fn ekf_pass_cap<const CAP: usize>(
     Ok((Estimate { value, cov }, residuals, states))
 }
 
+/// −2 ln p(y) of the model's second EKF pass (the single pass, then a pass from its estimate
+/// with the prior shrunk, as [`identify`] starts): no smoother. A cheap ranking of set-ups far
+/// apart (latitudes 2° apart differ by 1e5–1e7 here); not the fit's evidence.
+pub(crate) fn two_pass_evidence(model: &Model<'_>, prep: &Prepared, cfg: &Config) -> Option<f64> {
+    let n = model.dim();
+    let meas = &prep.measurements;
+    let mut x0 = vec![0.0; n];
+    x0[..ANGLES].copy_from_slice(&prep.initial_angles);
+    let mut sigma0: Vec<f64> = (0..n)
+        .map(|i| {
+            if i < ANGLES {
+                prep.start_sigma()[i]
+            } else {
+                model.param(i).prior_sigma
+            }
+        })
+        .collect();
+    let (single, _, _) = ekf_pass(model, meas, &x0, &sigma0).ok()?;
+    x0[ANGLES..].copy_from_slice(&single.value);
+    for s in sigma0.iter_mut().skip(ANGLES) {
+        *s /= cfg.pass2_prior_shrink;
+    }
+    let (_, res, _) = ekf_pass(model, meas, &x0, &sigma0).ok()?;
+    Some(neg2_log_evidence(&res))
+}
+
 /// The wide prior of every identification: the initial angles with `angle_sigma` (1e-6 rad for a
 /// level start) and each effect's prior.
 pub fn wide_prior(
