@@ -55,7 +55,15 @@ pub(crate) fn sig(v: f64, digits: usize) -> String {
             s
         }
     } else {
-        format!("{v:.*e}", digits.saturating_sub(1))
+        // Trailing zeros of the mantissa trimmed as above: a truth of 4e-5 is "4e-5", not
+        // "4.000000e-5" (the digits are the value's, not a precision).
+        let s = format!("{v:.*e}", digits.saturating_sub(1));
+        match s.split_once('e') {
+            Some((m, e)) if m.contains('.') => {
+                format!("{}e{e}", m.trim_end_matches('0').trim_end_matches('.'))
+            }
+            _ => s,
+        }
     }
 }
 
@@ -122,6 +130,22 @@ mod pm_tests {
         assert_eq!(with_sigma(-0.099995, 9.08e-5), "-0.099995");
         assert_eq!(with_sigma(2.942e-6, 6.79e-8), "2.942e-6");
         assert_eq!(with_sigma(-8.8e-4, 5.68e-4), "-8.8e-4");
+    }
+}
+
+#[cfg(test)]
+mod sig_tests {
+    use super::sig;
+
+    /// A value written with a number of significant digits (the truth column) keeps only the
+    /// digits it has, in fixed and in scientific notation alike.
+    #[test]
+    fn a_values_own_digits_and_no_more() {
+        assert_eq!(sig(4e-5, 7), "4e-5");
+        assert_eq!(sig(-1.23456e-5, 7), "-1.23456e-5");
+        assert_eq!(sig(1.2345678e-5, 7), "1.234568e-5");
+        assert_eq!(sig(0.05, 7), "0.05");
+        assert_eq!(sig(1.5e9, 7), "1.5e9");
     }
 }
 
