@@ -11,6 +11,7 @@
 
 use crate::steps::Progress;
 use estimator_core::effects::Effect;
+use rayon::prelude::*;
 
 use crate::catalog::Catalog;
 use crate::diagnose::alternatives::{self, Alternative, PLAUSIBLE_MARGIN};
@@ -374,16 +375,33 @@ pub(crate) fn rivals_within_priors(
         .collect();
     ranked.sort_by(|a, b| b.evidence_gain.total_cmp(&a.evidence_gain));
     let f0 = crate::identify::neg2_log_evidence(&stated.1.innovations);
+    let leaders = &ranked[..ranked.len().min(RIVALS_WITH_SET_UP)];
+    // The leaders' and the best pair's refits are independent: on all cores at once (each is
+    // a fit and the set-up's refits, mostly one pass after another).
+    let (marginalised, pair) = rayon::join(
+        || {
+            leaders
+                .par_iter()
+                .map(|a| {
+                    let Some(effect) = catalog.by_name(&a.effect) else {
+                        return Ok(None);
+                    };
+                    let mut with: Vec<&dyn Effect> = effects.to_vec();
+                    with.push(effect);
+                    with_set_up_marginalised(&with, &stated.0, cfg)
+                })
+                .collect::<anyhow::Result<Vec<Option<f64>>>>()
+        },
+        || match ranked.first() {
+            Some(first) => best_pair(catalog, effects, &prep, stated, dcfg, &first.effect),
+            None => Ok(None),
+        },
+    );
     let mut out = vec![];
-    for a in ranked.iter().take(RIVALS_WITH_SET_UP) {
+    for (a, g) in leaders.iter().zip(marginalised?) {
         let name = format!("`{}` with the set-up within its priors", a.effect);
         out.push((name.clone(), a.evidence_gain + gain));
-        let Some(effect) = catalog.by_name(&a.effect) else {
-            continue;
-        };
-        let mut with: Vec<&dyn Effect> = effects.to_vec();
-        with.push(effect);
-        if let Some(g) = with_set_up_marginalised(&with, &stated.0, cfg)? {
+        if let Some(g) = g {
             // Beaten by [`CONFOUNDED_MARGIN`], not the plausible margin: a misstated knob and an
             // effect with the set-up moved along can differ by many σ in the coefficients (the
             // clock at 1043 ppm beat the trend by 9 and left DY0 8.7σ off), and which holds is
@@ -391,10 +409,8 @@ pub(crate) fn rivals_within_priors(
             out.push((name, f0 - g + CONFOUNDED_MARGIN - PLAUSIBLE_MARGIN));
         }
     }
-    if let Some(first) = ranked.first() {
-        if let Some((name, g)) = best_pair(catalog, effects, &prep, stated, dcfg, &first.effect)? {
-            out.push((name, f0 - g + CONFOUNDED_MARGIN - PLAUSIBLE_MARGIN));
-        }
+    if let Some((name, g)) = pair? {
+        out.push((name, f0 - g + CONFOUNDED_MARGIN - PLAUSIBLE_MARGIN));
     }
     Ok(out)
 }
