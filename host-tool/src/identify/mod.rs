@@ -473,15 +473,12 @@ fn ekf_pass_cap<const CAP: usize>(
     Ok((Estimate { value, cov }, residuals, states))
 }
 
-/// −2 ln p(y) of the model's second EKF pass (the single pass, then a pass from its estimate
-/// with the prior shrunk, as [`identify`] starts): no smoother. A cheap ranking of set-ups far
-/// apart (latitudes 2° apart differ by 1e5–1e7 here); not the fit's evidence.
-pub(crate) fn two_pass_evidence(model: &Model<'_>, prep: &Prepared, cfg: &Config) -> Option<f64> {
-    let n = model.dim();
-    let meas = &prep.measurements;
-    let mut x0 = vec![0.0; n];
+/// The single EKF pass's start: the angles at the prepared start with its 1σ, the parameters at
+/// zero with their priors' 1σ.
+fn single_pass_prior(model: &Model<'_>, prep: &Prepared) -> (Vec<f64>, Vec<f64>) {
+    let mut x0 = vec![0.0; model.dim()];
     x0[..ANGLES].copy_from_slice(&prep.initial_angles);
-    let mut sigma0: Vec<f64> = (0..n)
+    let sigma0 = (0..model.dim())
         .map(|i| {
             if i < ANGLES {
                 prep.start_sigma()[i]
@@ -490,6 +487,15 @@ pub(crate) fn two_pass_evidence(model: &Model<'_>, prep: &Prepared, cfg: &Config
             }
         })
         .collect();
+    (x0, sigma0)
+}
+
+/// −2 ln p(y) of the model's second EKF pass (the single pass, then a pass from its estimate
+/// with the prior shrunk, as [`identify`] starts): no smoother. A cheap ranking of set-ups far
+/// apart (latitudes 2° apart differ by 1e5–1e7 here); not the fit's evidence.
+pub(crate) fn two_pass_evidence(model: &Model<'_>, prep: &Prepared, cfg: &Config) -> Option<f64> {
+    let meas = &prep.measurements;
+    let (mut x0, mut sigma0) = single_pass_prior(model, prep);
     let (single, _, _) = ekf_pass(model, meas, &x0, &sigma0).ok()?;
     x0[ANGLES..].copy_from_slice(&single.value);
     for s in sigma0.iter_mut().skip(ANGLES) {
@@ -581,22 +587,11 @@ pub fn identify(
     prep: &Prepared,
     cfg: &Config,
 ) -> anyhow::Result<Identification> {
-    let n = model.dim();
     let meas = &prep.measurements;
     if meas.is_empty() {
         bail!("no measurements to identify from");
     }
-    let mut zeros = vec![0.0; n];
-    zeros[..ANGLES].copy_from_slice(&prep.initial_angles);
-    let mut sigma0: Vec<f64> = (0..n)
-        .map(|i| {
-            if i < ANGLES {
-                prep.start_sigma()[i]
-            } else {
-                model.param(i).prior_sigma
-            }
-        })
-        .collect();
+    let (zeros, mut sigma0) = single_pass_prior(model, prep);
     let (single_pass, single_res, _) =
         ekf_pass(model, meas, &zeros, &sigma0).context("single EKF pass")?;
     let final_time_h = meas.last().map_or(0.0, |m| m.t_s) / 3600.0;
