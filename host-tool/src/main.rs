@@ -15,6 +15,11 @@ use host_tool::cli;
 struct Cli {
     #[command(subcommand)]
     command: Command,
+    /// The most memory driftid's heap may hold, MiB [1, 2^30]; a block beyond it ends the
+    /// command with exit 2 and a message. Default: 80 % of the memory free when it starts
+    /// (MemAvailable, or the cgroup's room if less).
+    #[arg(long, global = true, value_parser = cli::args::memory_mib, value_name = "MIB")]
+    max_memory_mib: Option<usize>,
 }
 
 #[derive(Subcommand, Debug)]
@@ -64,7 +69,13 @@ fn main() {
         eprintln!("driftid: warning: {e:#}");
     }
     cli::common::keep_freed_memory();
+    if let Some(bytes) = host_tool::heap::default_budget() {
+        host_tool::heap::set_budget(bytes);
+    }
     let cli = Cli::parse();
+    if let Some(bytes) = cli.max_memory_mib {
+        host_tool::heap::set_budget(bytes);
+    }
     let result = match &cli.command {
         Command::Demo(a) => cli::demo::run(a),
         Command::Simulate(a) => cli::simulate::run(a),

@@ -91,6 +91,17 @@ pub fn remove_temporaries_on_signal() -> anyhow::Result<()> {
     Ok(())
 }
 
+/// Removes every unfinished temporary file now, for a process about to end without unwinding
+/// (memory refused: [`crate::heap`]). Skipped if another thread holds the registry (it may be
+/// the very thread that ran out, inside its lock): nothing is waited for at that point.
+pub fn remove_temporaries_now() {
+    if let Ok(t) = TEMPORARIES.try_lock() {
+        for p in t.iter() {
+            let _ = fs::remove_file(p);
+        }
+    }
+}
+
 /// The directory a target lives in (`.` for a bare file name).
 fn dir_of(target: &Path) -> &Path {
     match target.parent() {

@@ -76,6 +76,24 @@ pub(crate) fn duration_s(s: &str) -> Result<f64, String> {
     }
 }
 
+/// Most MiB `--max-memory-mib` takes (1 PiB).
+pub const MAX_MEMORY_MIB: u64 = 1 << 30;
+
+/// `--max-memory-mib`: an integer number of MiB in [1, [`MAX_MEMORY_MIB`]], as bytes.
+pub fn memory_mib(s: &str) -> Result<usize, String> {
+    let v: u64 = s
+        .trim()
+        .parse()
+        .map_err(|_| format!("{s:?} is not a whole number of MiB"))?;
+    if (1..=MAX_MEMORY_MIB).contains(&v) {
+        usize::try_from(v << 20).map_err(|_| format!("{v} MiB is more than this machine addresses"))
+    } else {
+        Err(format!(
+            "{v} is outside [1, {MAX_MEMORY_MIB}] MiB (the option's range)"
+        ))
+    }
+}
+
 /// An integer ≥ 1 that fits a u32 (e.g. a baud rate).
 pub(crate) fn positive_u32(s: &str) -> Result<u32, String> {
     match s.trim().parse::<u32>() {

@@ -129,7 +129,7 @@ pub enum RecordingError {
     #[error("{file}: no samples ({reason})")]
     NoSamples { file: String, reason: &'static str },
     /// The memory for more samples could not be had at line `line` (`samples` held so far).
-    #[error("{file}:{line}: out of memory: {samples} samples read, at {per} bytes each ({mib:.0} MiB), and no room for more; give the process more memory (ulimit -v, a larger machine) or split the recording into shorter runs", per = super::BYTES_PER_SAMPLE, mib = (*samples as f64) * super::BYTES_PER_SAMPLE as f64 / 1048576.0)]
+    #[error("{file}:{line}: out of memory: {samples} samples read, at {per} bytes each ({mib:.0} MiB), and no room for more; give the process more memory (--max-memory-mib, ulimit -v, a larger machine) or split the recording into shorter runs", per = super::BYTES_PER_SAMPLE, mib = (*samples as f64) * super::BYTES_PER_SAMPLE as f64 / 1048576.0)]
     OutOfMemory {
         file: String,
         line: u32,
