@@ -19,7 +19,7 @@ use crate::diagnose::drift_step::{self, DriftStepFit};
 use crate::diagnose::misstated;
 use crate::diagnose::select::{CONFOUNDED_MARGIN, MIN_EVIDENCE_GAIN};
 use crate::diagnose::DiagnoseConfig;
-use crate::identify::setup::{settle, Settled, SetupPriors, Uncertainty};
+use crate::identify::setup::{settle, Computed, Settled, SetupPriors, Uncertainty};
 use crate::identify::slow_drift::SlowDrift;
 use crate::identify::{build_model, identify_from, Config, Identification, Prepared};
 
@@ -140,26 +140,30 @@ pub fn assess(
     cfg: &Config,
     id: Identification,
 ) -> anyhow::Result<Assessment> {
-    assess_with(catalog, effects, prep, cfg, id, &Progress::default())
+    assess_with(catalog, effects, prep, cfg, id, None, &Progress::default())
 }
 
-/// [`assess`], its steps noted to `progress` (the set-up, the alternatives, a repair).
+/// [`assess`], its steps noted to `progress` (the set-up, the alternatives, a repair); `known`:
+/// the set-up's uncertainty computed before, reused if it is this fit's ([`Computed`]).
 pub(crate) fn assess_with(
     catalog: &Catalog,
     effects: &[&dyn Effect],
     prep: Prepared,
     cfg: &Config,
     id: Identification,
+    known: Option<&Computed>,
     progress: &Progress,
 ) -> anyhow::Result<Assessment> {
-    let (first, repair) = assess_as_stated(catalog, effects, prep, cfg, id, true, progress)?;
+    let (first, repair) =
+        assess_as_stated(catalog, effects, (prep, id), cfg, (true, known), progress)?;
     let Some((prep, cfg, start)) = repair else {
         return Ok(first);
     };
     progress.note(|| "refitting at the repaired set-up".into());
     let model = build_model(prep.site, effects, &cfg)?;
     let id = identify_from(&model, &prep, &cfg, &start)?;
-    let (mut again, _) = assess_as_stated(catalog, effects, prep, &cfg, id, false, progress)?;
+    let (mut again, _) =
+        assess_as_stated(catalog, effects, (prep, id), &cfg, (false, None), progress)?;
     again.cfg = cfg;
     Ok(again)
 }
@@ -173,15 +177,14 @@ type Repair = (Prepared, Config, Identification);
 fn assess_as_stated(
     catalog: &Catalog,
     effects: &[&dyn Effect],
-    prep: Prepared,
+    (prep, id): (Prepared, Identification),
     cfg: &Config,
-    id: Identification,
-    may_repair: bool,
+    (may_repair, known): (bool, Option<&Computed>),
     progress: &Progress,
 ) -> anyhow::Result<(Assessment, Option<Repair>)> {
     let stated = (prep.clone(), id.clone());
     progress.note(|| "the set-up's uncertainty (refits at the priors' ±1σ)".into());
-    let Settled { prep, id, mut unc } = settle(effects, prep, cfg, id)?;
+    let Settled { prep, id, mut unc } = settle(effects, prep, cfg, id, known)?;
     let mut out = Assessment {
         prep,
         id,
@@ -661,6 +664,6 @@ pub(crate) fn repaired_if_it_wins<'c>(
     let (with_step, id) = drift_step::repair(catalog, &stated, &effects, cfg, &step)?;
     let mut prep = stated;
     prep.findings.push(step.repaired());
-    let a = assess_with(catalog, &with_step, prep, cfg, id, progress)?;
+    let a = assess_with(catalog, &with_step, prep, cfg, id, None, progress)?;
     Ok((with_step, a, None))
 }

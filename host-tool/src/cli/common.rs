@@ -469,14 +469,15 @@ pub(crate) fn rivals(
 /// first weighed against a misstated set-up ([`crate::diagnose::misstated`]; one that beats every
 /// explanation is repaired in `prep` and `cfg` and the model refitted there), then against the
 /// latitude ([`name_a_wrong_latitude`]). `diagnose` and `report` start their ladder from this
-/// fit ([`crate::diagnose::ladder_from`]).
+/// fit ([`crate::diagnose::ladder_from`]). `known` takes the starting fit's set-up uncertainty,
+/// for the final assessment to reuse if the ladder adds nothing.
 pub(crate) fn starting_fit(
     prep: &mut Prepared,
     catalog: &Catalog,
     effects: &[&dyn estimator_core::effects::Effect],
     cfg: &mut Config,
-    stated: &mut Option<Prepared>,
-    at_start: &mut crate::assess::AtTheStart,
+    (stated, at_start): (&mut Option<Prepared>, &mut crate::assess::AtTheStart),
+    known: &mut Option<crate::identify::setup::Computed>,
     progress: &Progress,
 ) -> anyhow::Result<Option<crate::identify::Identification>> {
     use crate::diagnose::misstated;
@@ -490,6 +491,7 @@ pub(crate) fn starting_fit(
     let consistent = super::identify::consistency_of(&id, prep).is_none_or(|c| c.is_consistent());
     progress.note(|| "the starting model: the set-up's uncertainty".into());
     let unc = setup::uncertainty(effects, prep, cfg, &id)?;
+    *known = Some(setup::Computed::new(effects, prep, cfg, &id, unc.clone()));
     progress.note(|| "the starting model: weighing a misstated set-up".into());
     let weighed = misstated::weigh(effects, prep, cfg, &id, &unc)?;
     // A fit within its noise may still rest on a set-up the data move within its priors (a
@@ -551,7 +553,7 @@ pub(crate) fn starting_fit(
         // starts where prior and data put it.
         // `stated` keeps the set-up as stated for the final assessment, whose own settling
         // applies the priors once.
-        let settled = setup::settle(effects, prep.clone(), cfg, id)?;
+        let settled = setup::settle(effects, prep.clone(), cfg, id, None)?;
         *stated = Some(std::mem::replace(prep, settled.prep));
         return Ok(Some(settled.id));
     }

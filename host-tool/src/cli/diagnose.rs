@@ -403,14 +403,15 @@ pub(crate) fn climb<'c>(
     let mut prep = super::common::prepare_loaded(recording, &loaded, &cfg.identify)?;
     let mut stated = None;
     let mut at_start = crate::assess::AtTheStart::default();
+    let mut known = None;
     let spin = crate::progress::spinner("fitting the starting model");
     let first = super::common::starting_fit(
         &mut prep,
         catalog,
         &effects,
         &mut cfg.identify,
-        &mut stated,
-        &mut at_start,
+        (&mut stated, &mut at_start),
+        &mut known,
         &crate::progress::follow(&spin),
     )?;
     spin.finish_and_clear();
@@ -442,6 +443,7 @@ pub(crate) fn climb<'c>(
         at,
         &cfg.identify,
         identification,
+        known.as_ref(),
         &crate::progress::follow(&spin),
     )?;
     let (added, ladder_gain) = crate::diagnose::ladder::additions(&diagnoses);

@@ -385,7 +385,7 @@ fn run_one(args: &IdentifyArgs, catalog: &Catalog) -> anyhow::Result<()> {
     let progress = crate::progress::follow(&spin);
     // The measurements at the stated set-up: a repair starts again from them.
     let stated = prep.clone();
-    let assessed = crate::assess::assess_with(catalog, &effects, prep, &cfg, id, &progress)?;
+    let assessed = crate::assess::assess_with(catalog, &effects, prep, &cfg, id, None, &progress)?;
     // A misfit a drift step explains better than anything else is repaired.
     let (effects, assessed, step) =
         crate::assess::repaired_if_it_wins(catalog, stated, effects, &cfg, assessed, &progress)?;

@@ -196,7 +196,7 @@ impl Start {
         // Each run's set-up settled where its data put it, and its share, as `identify`
         // marginalises them in the joint total 1σ.
         let settle_run = |prep: &crate::identify::Prepared, id| {
-            let s = crate::identify::setup::settle(effects, prep.clone(), cfg, id)?;
+            let s = crate::identify::setup::settle(effects, prep.clone(), cfg, id, None)?;
             Ok(RunAlone {
                 prep: s.prep,
                 id: s.id,
