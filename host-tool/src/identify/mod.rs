@@ -13,6 +13,7 @@
 
 pub mod joint;
 pub mod markov;
+pub mod memo;
 pub mod setup;
 pub(crate) mod slow_drift;
 pub mod smoother;
@@ -51,6 +52,8 @@ pub struct Config {
     /// Windows [t0, t1] (recording's seconds) whose samples are left out (`--exclude`), each
     /// reported as an `excluded` finding.
     pub exclude_s: Vec<(f64, f64)>,
+    /// The fits made with this configuration and its copies ([`identify`] remembers them).
+    pub memo: memo::FitMemo,
 }
 
 impl Default for Config {
@@ -64,6 +67,7 @@ impl Default for Config {
             pass2_prior_shrink: 20.0,
             setup: setup::SetupPriors::default(),
             exclude_s: Vec::new(),
+            memo: memo::FitMemo::default(),
         }
     }
 }
@@ -581,8 +585,21 @@ pub fn try_cramer_rao_bound(
     Ok((ANGLES..model.dim()).map(|i| cov[(i, i)].sqrt()).collect())
 }
 
-/// Identifies the model's parameters from prepared measurements (see the module docs).
+/// Identifies the model's parameters from prepared measurements (see the module docs); a fit
+/// `cfg` made before of the same model and data is handed back ([`memo`]).
 pub fn identify(
+    model: &Model<'_>,
+    prep: &Prepared,
+    cfg: &Config,
+) -> anyhow::Result<Identification> {
+    let key = memo::fit_key(model, prep, cfg);
+    cfg.memo.get_or(key, prep.measurements.len(), || {
+        identify_anew(model, prep, cfg)
+    })
+}
+
+/// [`identify`] without its memo.
+fn identify_anew(
     model: &Model<'_>,
     prep: &Prepared,
     cfg: &Config,

@@ -886,16 +886,8 @@ impl Computed {
 fn key(effects: &[&dyn Effect], prep: &Prepared, cfg: &Config, id: &Identification) -> u64 {
     use std::hash::{Hash, Hasher};
     let mut h = std::collections::hash_map::DefaultHasher::new();
+    super::memo::hash_prep(&mut h, prep);
     let mut put = |vs: &[f64]| vs.iter().for_each(|v| v.to_bits().hash(&mut h));
-    put(&[prep.site.latitude_rad, prep.site.gravity_mps2]);
-    put(&prep.initial_angles);
-    put(&prep.initial_angle_sigma);
-    put(&prep.alignment_sigma);
-    for m in &prep.measurements {
-        put(&[m.t_s, m.temp_c, m.time_var_s2, f64::from(m.count)]);
-        put(&m.specific_force);
-        put(&m.variance);
-    }
     let est = id.best();
     put(&est.value);
     put(est.cov.as_slice());
@@ -909,7 +901,7 @@ fn key(effects: &[&dyn Effect], prep: &Prepared, cfg: &Config, id: &Identificati
     for p in &id.params {
         p.name.hash(&mut h);
     }
-    format!("{:?} {:?} {cfg:?}", prep.site.chart, prep.noise).hash(&mut h);
+    format!("{cfg:?}").hash(&mut h);
     id.trajectory.len().hash(&mut h);
     h.finish()
 }
