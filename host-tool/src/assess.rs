@@ -472,12 +472,14 @@ fn with_set_up_marginalised(
     let Ok(id) = crate::identify::identify(&model, prep, cfg) else {
         return Ok(None);
     };
-    let Ok(unc) = crate::identify::setup::uncertainty(effects, prep, cfg, &id) else {
+    // The knobs' model alone: the other set-up terms do not enter the move within the priors.
+    let Ok(Some(knobs)) = crate::identify::setup::knob_model(effects, prep, cfg, &id) else {
         return Ok(None);
     };
-    let within = misstated::within_priors(effects, prep, cfg, &id, &unc)?;
-    let f = crate::identify::neg2_log_evidence(&id.innovations);
-    Ok(within.map(|(_, g)| f - g))
+    let (_, g) = misstated::within_priors(effects, prep, cfg, &id, (&knobs.0, knobs.1))?;
+    Ok(Some(
+        crate::identify::neg2_log_evidence(&id.innovations) - g,
+    ))
 }
 
 /// When the data moved the set-up within its priors (evidence gain `moved`, at least

@@ -109,7 +109,7 @@ pub(crate) fn weigh(
         });
     };
     let live = live_knobs(prep, km);
-    let laplace = hypotheses(km, &live, unc);
+    let laplace = hypotheses(km, &live, latitude_bound(unc));
     let fits: Vec<anyhow::Result<(f64, DVector<f64>)>> = laplace
         .par_iter()
         .map(|l| refit(&moved(prep, l.delta(km)), effects, cfg, id))
@@ -153,20 +153,26 @@ pub(crate) fn weigh(
 /// gain, without the misstatements' refits and the far latitude's profile — all a rival weighed
 /// with the set-up marginalised needs (`crate::assess`; the far latitude's profile, 21 fits and
 /// more, made `identify` of a 60-h run with a latitude 1.6° off take 9 s). `None` for a single
-/// pass.
+/// pass. `knobs`: the fit's [`KnobModel`] and the latitude's bound
+/// ([`crate::identify::setup::knob_model`]).
 pub(crate) fn within_priors(
     effects: &[&dyn Effect],
     prep: &Prepared,
     cfg: &Config,
     id: &Identification,
-    unc: &Uncertainty,
-) -> anyhow::Result<Option<([f64; 3], f64)>> {
-    let Some(km) = &unc.knobs else {
-        return Ok(None);
-    };
-    let priors = hypotheses(km, &[], unc).remove(0);
+    (km, bound): (&KnobModel, Option<f64>),
+) -> anyhow::Result<([f64; 3], f64)> {
+    let priors = hypotheses(km, &[], bound).remove(0);
     let (f, _) = refit(&moved(prep, priors.delta(km)), effects, cfg, id)?;
-    Ok(Some((priors.delta(km), km.f0 - priors.neg2_ln_z(f))))
+    Ok((priors.delta(km), km.f0 - priors.neg2_ln_z(f)))
+}
+
+/// The latitude's hard bound (its written digits), where `unc` has one.
+fn latitude_bound(unc: &Uncertainty) -> Option<f64> {
+    unc.contributions
+        .iter()
+        .find(|c| c.source == "latitude")
+        .and_then(|c| c.bound)
 }
 
 /// What each misstated knob is weighed against: the stated set-up with its priors (the first
@@ -197,7 +203,7 @@ fn live_knobs(prep: &Prepared, km: &KnobModel) -> Vec<usize> {
 /// broad. The latitude's own prior is uniform within its written digits: the Gaussian stand-in
 /// must not let it wander beyond them (a clock 1000 ppm off would hide in a latitude 0.06° off
 /// one written "39.1").
-fn hypotheses(km: &KnobModel, live: &[usize], unc: &Uncertainty) -> Vec<Laplace> {
+fn hypotheses(km: &KnobModel, live: &[usize], bound: Option<f64>) -> Vec<Laplace> {
     let lambdas: Vec<[f64; 3]> = std::iter::once([1.0; 3])
         .chain(live.iter().map(|&k| {
             let mut l = [1.0; 3];
@@ -205,11 +211,6 @@ fn hypotheses(km: &KnobModel, live: &[usize], unc: &Uncertainty) -> Vec<Laplace>
             l
         }))
         .collect();
-    let bound = unc
-        .contributions
-        .iter()
-        .find(|c| c.source == "latitude")
-        .and_then(|c| c.bound);
     lambdas
         .iter()
         .map(|l| Laplace::new(km, *l, bound))

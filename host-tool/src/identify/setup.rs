@@ -854,6 +854,66 @@ fn vertical_tilt(
 
 /// The coefficients' uncertainty with the set-up priors of `cfg` (see the module docs). `id` is
 /// the converged fit of `effects` on `prep`.
+/// The set-up parameters that are not states of the filter, as `prep` states them and `priors`
+/// weigh them: latitude, clock rate, gravity.
+fn knobs(prep: &Prepared, priors: &SetupPriors) -> [Knob; 3] {
+    let lat_deg = prep.site.latitude_rad.to_degrees();
+    let lat_sigma = priors.latitude_sigma(lat_deg);
+    [
+        Knob {
+            bound: priors
+                .latitude_sigma_deg
+                .is_none()
+                .then(|| written_precision(lat_deg) * 12f64.sqrt() / 2.0)
+                .filter(|b| *b >= MIN_LATITUDE_SIGMA_DEG),
+            source: "latitude",
+            unit: "deg",
+            prior: format!("{} deg", crate::format::sig(lat_sigma, 2)),
+            sigma_prior: lat_sigma,
+            stated: (lat_deg * 1e9).round() / 1e9,
+        },
+        Knob {
+            bound: None,
+            source: "clock rate",
+            unit: "ppm",
+            prior: format!("{} ppm", crate::format::sig(priors.clock_sigma_ppm, 2)),
+            sigma_prior: priors.clock_sigma_ppm,
+            stated: 0.0,
+        },
+        Knob {
+            bound: None,
+            source: "gravity",
+            unit: "ppm",
+            prior: format!(
+                "{} ppm of {} m/s^2",
+                crate::format::sig(priors.gravity_sigma_ppm, 2),
+                crate::format::sig(prep.site.gravity_mps2, 7)
+            ),
+            sigma_prior: priors.gravity_sigma_ppm,
+            stated: 0.0,
+        },
+    ]
+}
+
+/// The knobs' quadratic model alone and the latitude's bound (its written digits): what a
+/// misstated set-up is weighed with ([`crate::diagnose::misstated::within_priors`]), without
+/// the terms [`uncertainty`] adds besides (the noise-only pass, the vertical tilt, the slow
+/// drifts and their path through the knobs: a third of its time). `None` for a single pass.
+pub(crate) fn knob_model(
+    effects: &[&dyn Effect],
+    prep: &Prepared,
+    cfg: &Config,
+    id: &Identification,
+) -> anyhow::Result<Option<(KnobModel, Option<f64>)>> {
+    if id.refined.is_none() {
+        return Ok(None);
+    }
+    let knobs = knobs(prep, &cfg.setup);
+    let f0 = neg2_log_evidence(&id.innovations);
+    let marginal = marginalise(&knobs, f0, prep, effects, cfg, id)?;
+    Ok(Some((marginal.model, knobs[0].bound)))
+}
+
 /// An [`Uncertainty`] with a key of what it was computed from ([`key`]): asked again for the
 /// same effects, set-up, settings and fit, [`uncertainty_reusing`] hands it back instead of
 /// refitting (`diagnose` assesses its starting model a second time when the ladder adds nothing:
@@ -940,42 +1000,7 @@ pub fn uncertainty(
         let pass = linearised_pass(&model, &prep.measurements, &id.trajectory, &x0, &p0, true)?;
         pass.final_cov.view((ANGLES, ANGLES), (n, n)).into_owned()
     };
-    let lat_deg = prep.site.latitude_rad.to_degrees();
-    let lat_sigma = priors.latitude_sigma(lat_deg);
-    let knobs = [
-        Knob {
-            bound: priors
-                .latitude_sigma_deg
-                .is_none()
-                .then(|| written_precision(lat_deg) * 12f64.sqrt() / 2.0)
-                .filter(|b| *b >= MIN_LATITUDE_SIGMA_DEG),
-            source: "latitude",
-            unit: "deg",
-            prior: format!("{} deg", crate::format::sig(lat_sigma, 2)),
-            sigma_prior: lat_sigma,
-            stated: (lat_deg * 1e9).round() / 1e9,
-        },
-        Knob {
-            bound: None,
-            source: "clock rate",
-            unit: "ppm",
-            prior: format!("{} ppm", crate::format::sig(priors.clock_sigma_ppm, 2)),
-            sigma_prior: priors.clock_sigma_ppm,
-            stated: 0.0,
-        },
-        Knob {
-            bound: None,
-            source: "gravity",
-            unit: "ppm",
-            prior: format!(
-                "{} ppm of {} m/s^2",
-                crate::format::sig(priors.gravity_sigma_ppm, 2),
-                crate::format::sig(prep.site.gravity_mps2, 7)
-            ),
-            sigma_prior: priors.gravity_sigma_ppm,
-            stated: 0.0,
-        },
-    ];
+    let knobs = knobs(prep, &priors);
     let (marginal, (tilt, drifts)) = rayon::join(
         || marginalise(&knobs, f0, prep, effects, cfg, id),
         || {
