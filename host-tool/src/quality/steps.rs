@@ -7,6 +7,7 @@
 
 use estimator_core::robust;
 use estimator_core::Measurement;
+use rayon::prelude::*;
 
 use super::{axis_name, Action, Finding, Kind};
 
@@ -415,7 +416,10 @@ pub(crate) fn find_bias_steps(
                 .filter(|b: &&BiasStep| b.axis == a)
                 .map(|b| b.at)
                 .collect();
-            let best = (SIDE_MEANS..x.len().saturating_sub(SIDE_MEANS))
+            // The positions are tried on all cores (a 60-h run at 1 s: 25 ms on one) and the
+            // best taken in their order, as one core would.
+            let tried: Vec<(usize, f64, f64)> = (SIDE_MEANS..x.len().saturating_sub(SIDE_MEANS))
+                .into_par_iter()
                 .filter(|&c| x[c + SIDE_MEANS].t_s - x[c - SIDE_MEANS].t_s <= span)
                 .filter_map(|c| {
                     let (shift, sd, _) = shift_across(&x, a, c, c, sigma_full[a], typical)?;
@@ -426,6 +430,9 @@ pub(crate) fn find_bias_steps(
                     ((size_h - shift).abs() <= BIAS_STEP_SIGMAS * sd && sd_h > 0.0)
                         .then_some((c, size_h, sd_h))
                 })
+                .collect();
+            let best = tried
+                .into_iter()
                 .max_by(|p, q| (p.1 / p.2).abs().total_cmp(&(q.1 / q.2).abs()));
             let Some((c, size, sd)) = best else { break };
             if (size / sd).abs() <= BIAS_STEP_SIGMAS {
