@@ -1058,6 +1058,16 @@ fn every_numeric_option_out_of_range_names_the_option_and_its_range() {
             "--gate-nis",
             "[0, 1e6]",
         ),
+        (
+            &["identify", "x.csv", "--max-memory-mib", "0"],
+            "--max-memory-mib",
+            "[1, 1073741824] MiB",
+        ),
+        (
+            &["report", "x.csv", "--max-memory-mib", "1.5"],
+            "--max-memory-mib",
+            "not a whole number of MiB",
+        ),
     ];
     for (args, option, range) in cases {
         let out = driftid().args(*args).output().unwrap();
