@@ -55,6 +55,13 @@ pub(crate) fn neg2_ln_l(
     sigma_degph: f64,
     tau_h: f64,
 ) -> anyhow::Result<f64> {
+    // Outside the search range nothing is evaluated: a τ far below it makes the propagation take
+    // 8 sub-steps per τ (a profile 4σ out on a flat ridge asked for τ ~ e^-40 h and never ended).
+    let within = |v: f64, (lo, hi): (f64, f64)| v >= lo * (1.0 - 1e-9) && v <= hi * (1.0 + 1e-9);
+    anyhow::ensure!(
+        within(sigma_degph, SIGMA_RANGE_DEGPH) && within(tau_h, TAU_RANGE_H),
+        "{NAME}: σ = {sigma_degph:e} deg/h, τ = {tau_h:e} h is outside the range searched"
+    );
     let gm = DriftMarkov { sigma_degph, tau_h };
     let list: Vec<&dyn Effect> = effects
         .iter()
@@ -253,11 +260,12 @@ fn profile_points(p: Point, cov: &Matrix2<f64>, i: usize, d: f64) -> ([Point; 3]
         .max(0.0)
         .sqrt()
         .max(0.02);
+    // Kept in the range searched (a flat ridge's curvature reaches far beyond it).
     let at = |o: f64| {
         let mut q = p;
         q[i] += d;
         q[j] = mean + o * w;
-        q
+        clamp(q, 0.0)
     };
     ([at(-1.0), at(0.0), at(1.0)], w)
 }
@@ -277,7 +285,7 @@ fn parabola_min(v: [f64; 3]) -> f64 {
 
 /// The 1σ interval of coordinate `i` (ln units) from its profile likelihood: on each side the
 /// profile at one and two curvature-1σ, a quadratic in the offset through them and the optimum,
-/// solved for a rise of 1 (at most 4 curvature-1σ out).
+/// solved for a rise of 1 (at most 4 curvature-1σ out, and within the range searched).
 fn profile_interval(
     p: Point,
     f_best: f64,
@@ -319,9 +327,10 @@ fn profile_interval(
             4.0
         }
     };
+    let (lo, hi) = bounds();
     [
-        p[i] - reach(rise[1], rise[0]) * sd,
-        p[i] + reach(rise[2], rise[3]) * sd,
+        (p[i] - reach(rise[1], rise[0]) * sd).max(lo[i]),
+        (p[i] + reach(rise[2], rise[3]) * sd).min(hi[i]),
     ]
 }
 
@@ -479,5 +488,43 @@ mod line_tests {
             line.contains("τ = 4.9 ± 1.3 h (1σ interval 3.6–7.1;"),
             "{line}"
         );
+    }
+}
+
+#[cfg(test)]
+mod search_tests {
+    use super::*;
+
+    /// A flat ridge (a wander the run hardly constrains: seed 9509, 36 h at 10 s, whose rung
+    /// with `drift-markov` never ended) gives a curvature 1σ of e^20 in ln τ; the profile 4σ out
+    /// asked for τ ~ e^-40 h, and one pass at it took 8 propagation sub-steps per τ. Every point
+    /// the profile evaluates must lie in the range searched, and the interval must end there.
+    #[test]
+    fn the_profile_stays_in_the_range_searched_on_a_flat_ridge() {
+        let asked = std::sync::Mutex::new(vec![]);
+        let f = |s: f64, t: f64| -> anyhow::Result<f64> {
+            asked.lock().unwrap().push((s, t));
+            Ok(1e-6 * (s.ln() - t.ln()).powi(2))
+        };
+        let p = Point::new(0.01f64.ln(), 10f64.ln());
+        let cov = Matrix2::new(4e8, 3.9e8, 3.9e8, 4e8);
+        let (lo, hi) = bounds();
+        for i in 0..2 {
+            let [a, b] = profile_interval(p, 0.0, &cov, i, &f);
+            assert!(
+                a >= lo[i] && b <= hi[i],
+                "interval {a}..{b} of coordinate {i}"
+            );
+        }
+        let asked = asked.into_inner().unwrap();
+        assert_eq!(asked.len(), 2 * PROFILE_PASSES);
+        for (s, t) in asked {
+            let inside =
+                |v: f64, (l, h): (f64, f64)| v >= l * (1.0 - 1e-9) && v <= h * (1.0 + 1e-9);
+            assert!(
+                inside(s, SIGMA_RANGE_DEGPH) && inside(t, TAU_RANGE_H),
+                "evaluated at σ = {s:e}, τ = {t:e}"
+            );
+        }
     }
 }
