@@ -268,6 +268,31 @@ fn a_small_wander_is_not_trusted_as_g2_and_a_drift_step() {
     );
 }
 
+/// Found by the random recordings above (seed 9509): a wander of ~7e-4 deg/h (τ 10 h; 36 h at
+/// 10 s, latitude 60.25°, a clock 347 ppm slow). The ladder added a drift step, then
+/// `drift-markov`; tuning its σ and τ, the profile of a flat ridge asked for τ ~ e^-40 h and the
+/// propagation's sub-steps (8 per τ) never ended: `diagnose` ran for hours. It now keeps to the
+/// range searched (unit test `the_profile_stays_in_the_range_searched_on_a_flat_ridge`) and
+/// ends in seconds (3 s on a 2-core machine).
+#[test]
+fn a_wander_after_a_drift_step_is_tuned_in_seconds() {
+    not_confidently_wrong(
+        "wander-step",
+        &[
+            "--seed",
+            "9509",
+            "--hours",
+            "36",
+            "--rate-s",
+            "10",
+            "--latitude-deg=60.25",
+            "--clock-error-ppm=-347.2370854956184",
+            "--effect",
+            "drift-markov=5.529e-04,5.634e-04,1.059e-03:10,10,10",
+        ],
+    );
+}
+
 /// `diagnose` of the recording `args` simulate: deterministic (fixed seed), it must end in
 /// exit 3 or with every drift coefficient within 3 total σ of the truth.
 fn not_confidently_wrong(tag: &str, args: &[&str]) {
