@@ -662,6 +662,37 @@ fn a_bias_step_is_found_sized_and_repaired() {
     assert!(worst < 3.0, "worst |error|/σ {worst:.2}");
 }
 
+/// At a filter period shorter than a minute (`--period-s 1`) the bias-step search runs on
+/// 60-s means (sized on ±6 h of 1-s means, a 24-h run's search took 60 s, 200 s at 60 h,
+/// growing with the square of the run): the step is found with the same size and 1σ as at the
+/// default period, digit for digit (the same means are searched), and the repair leaves out the
+/// 60-s window holding the jump.
+#[test]
+fn a_bias_step_is_searched_in_minute_means_at_a_one_second_period() {
+    let (sc, samples) = run_with_faults(5, 60.0, &["step=y,4e-4,30"]);
+    let at = |period_s: f64| {
+        let cfg = Config {
+            period_s,
+            ..Config::default()
+        };
+        prepare(site_of(&sc), &samples, &cfg).unwrap()
+    };
+    let (p60, p1) = (at(60.0), at(1.0));
+    assert_eq!(kinds(&p1), ["acc-bias-step"], "{:#?}", p1.findings);
+    let sized = |m: &str| m[m.find("steps by ").unwrap()..m.find(" at t =").unwrap()].to_string();
+    assert_eq!(
+        sized(&p1.findings[0].message),
+        sized(&p60.findings[0].message)
+    );
+    assert!(
+        p1.findings[0]
+            .message
+            .contains("the 60-s window holding the jump left out"),
+        "{}",
+        p1.findings[0].message
+    );
+}
+
 #[test]
 fn a_bias_step_of_four_times_the_noise_of_a_mean_is_found_and_repaired() {
     // 4e-4 m/s² (4× the 1σ of a 60-s mean; 10σ of the ±6-h fit that sizes it): the local

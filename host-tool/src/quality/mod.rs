@@ -201,9 +201,17 @@ fn means_noise(
     }
 }
 
-/// Bias steps too small for the third differences: found in the means (not on the `quantised`
-/// axes), repaired in the samples (the later ones corrected, the window holding the jump left
-/// out), the means recomputed. A step the third differences named is replaced by its repair.
+/// The bias-step search's means span at least this long. Each candidate is sized on ±6 h of
+/// means ([`steps::REFINE_HALF_S`]): at a 1-s filter period that was 43 200 means a candidate,
+/// and the search took 60 s of a 24-h run (200 s at 60 h; 25 ms at the 60-s period), growing
+/// with the square of the run. Means of a minute also give the local test its calibrated reach
+/// (12 means a side: 12 min, not 12 s).
+const STEP_SEARCH_PERIOD_S: f64 = 60.0;
+
+/// Bias steps too small for the third differences: found in the means (of the filter period,
+/// or of [`STEP_SEARCH_PERIOD_S`] if that is longer; not on the `quantised` axes), repaired in
+/// the samples (the later ones corrected, the window of those means holding the jump left out),
+/// the means recomputed. A step the third differences named is replaced by its repair.
 fn with_small_bias_steps_repaired<'s>(
     accepted: Cow<'s, [Sample]>,
     means: Vec<estimator_core::Measurement>,
@@ -212,12 +220,25 @@ fn with_small_bias_steps_repaired<'s>(
     sigma: &[f64; 3],
     findings: &mut Vec<Finding>,
 ) -> (Cow<'s, [Sample]>, Vec<estimator_core::Measurement>) {
-    let full = steps::mean_sigma(&means, quantised);
-    let found = steps::find_bias_steps(&means, quantised, &full);
+    let search_s = period_s.max(STEP_SEARCH_PERIOD_S);
+    let coarse;
+    let searched: &[estimator_core::Measurement] = if search_s > period_s {
+        coarse = window_means(&accepted, search_s, sigma);
+        &coarse
+    } else {
+        &means
+    };
+    let full = steps::mean_sigma(searched, quantised);
+    let found = steps::find_bias_steps(searched, quantised, &full);
     if found.is_empty() {
         return (accepted, means);
     }
-    let repaired = repair_bias_steps(&accepted, &means, &found, period_s, findings);
+    let window = if search_s > period_s {
+        format!("the {}-s window", crate::format::sig(search_s, 6))
+    } else {
+        "the filter period".to_string()
+    };
+    let repaired = repair_bias_steps(&accepted, searched, &found, (search_s, &window), findings);
     let means = window_means(&repaired, period_s, sigma);
     (Cow::Owned(repaired), means)
 }
@@ -318,15 +339,16 @@ fn raw_screening(
     Ok((sigma, summary, flags))
 }
 
-/// The bias steps `found` in the filter-period `means` repaired in the samples: every later
-/// sample corrected by the step, the filter period holding the jump left out; each named as an
+/// The bias steps `found` in `means` (of `period_s`, called `window` in the finding) repaired in
+/// the samples: every later sample corrected by the step, the period holding the jump left
+/// out; each named as an
 /// `acc-bias-step` finding (replacing a `step` the third differences named there). Returns the
 /// repaired samples.
 fn repair_bias_steps(
     accepted: &[Sample],
     means: &[estimator_core::Measurement],
     found: &[steps::BiasStep],
-    period_s: f64,
+    (period_s, window): (f64, &str),
     findings: &mut Vec<Finding>,
 ) -> Vec<Sample> {
     let p = period_s.max(1e-9);
@@ -362,7 +384,7 @@ fn repair_bias_steps(
             message: format!(
                 "axis {}: the accelerometer bias steps by {:+.3e} ± {:.1e} m/s^2 ({:.0}σ) at t = {:.0} s ({:.3} h): found as a level shift of the \
                  filter-period means across it (a cubic for the slow signal plus a step, {} means each side) and sized on ±6 h of them (the Earth-rate turn of gravity, \
-                 modulated by a cubic, plus the step); repaired: every later sample corrected by {:+.3e} m/s^2, the filter period holding the jump left out",
+                 modulated by a cubic, plus the step); repaired: every later sample corrected by {:+.3e} m/s^2, {} holding the jump left out",
                 axis_name(b.axis),
                 b.size,
                 b.sigma,
@@ -370,7 +392,8 @@ fn repair_bias_steps(
                 b.t_s,
                 b.t_s / 3600.0,
                 steps::SIDE_MEANS,
-                -b.size
+                -b.size,
+                window
             ),
             start_s: Some(b.t_s),
             end_s: None,
