@@ -9,6 +9,7 @@ use std::collections::VecDeque;
 use std::hash::{Hash, Hasher};
 use std::sync::{Arc, Mutex};
 
+use estimator_core::effects::Effect;
 use estimator_core::model::Model;
 
 use super::{Config, Identification, Prepared};
@@ -84,6 +85,18 @@ pub(crate) fn hash_prep(h: &mut impl Hasher, prep: &Prepared) {
     format!("{:?} {:?}", prep.site.chart, prep.noise).hash(h);
 }
 
+/// Feeds `effects` to `h`: each one's name, priors and Gauss–Markov constants (a tuned
+/// `drift-markov` differs from the catalog's only there).
+pub(crate) fn hash_effects(h: &mut impl Hasher, effects: &[&dyn Effect]) {
+    for e in effects {
+        e.name().hash(h);
+        for k in 0..e.params().len() {
+            e.prior_sigma(k).to_bits().hash(h);
+            format!("{:?}", e.markov(k)).hash(h);
+        }
+    }
+}
+
 /// A hash of everything [`super::identify`] reads: the model (site, each effect's name, priors
 /// and Gauss–Markov constants, the gyro noise, the propagation), the prepared measurements and
 /// the settings.
@@ -94,13 +107,7 @@ pub(crate) fn fit_key(model: &Model<'_>, prep: &Prepared, cfg: &Config) -> u64 {
     for v in [site.latitude_rad, site.gravity_mps2, model.arw_rad2ps()] {
         v.to_bits().hash(&mut h);
     }
-    for e in model.effects() {
-        e.name().hash(&mut h);
-        for k in 0..e.params().len() {
-            e.prior_sigma(k).to_bits().hash(&mut h);
-            format!("{:?}", e.markov(k)).hash(&mut h);
-        }
-    }
+    hash_effects(&mut h, model.effects());
     format!("{:?} {:?} {cfg:?}", site.chart, model.propagation()).hash(&mut h);
     h.finish()
 }

@@ -940,7 +940,7 @@ impl Computed {
     }
 }
 
-/// A hash of everything [`uncertainty`] reads: the effects' names, the set-up (site, start and
+/// A hash of everything [`uncertainty`] reads: the effects ([`super::memo::hash_effects`]), the set-up (site, start and
 /// its priors, every measurement, the noise floor), the settings, and the fit bit for bit (its
 /// parameters, estimate, covariance, evidence and trajectory's end).
 fn key(effects: &[&dyn Effect], prep: &Prepared, cfg: &Config, id: &Identification) -> u64 {
@@ -955,9 +955,7 @@ fn key(effects: &[&dyn Effect], prep: &Prepared, cfg: &Config, id: &Identificati
     if let Some(last) = id.trajectory.last() {
         put(last.as_slice());
     }
-    for e in effects {
-        e.name().hash(&mut h);
-    }
+    super::memo::hash_effects(&mut h, effects);
     for p in &id.params {
         p.name.hash(&mut h);
     }
