@@ -183,7 +183,7 @@ fn assess_as_stated(
     progress: &Progress,
 ) -> anyhow::Result<(Assessment, Option<Repair>)> {
     let stated = (prep.clone(), id.clone());
-    progress.note(|| "the set-up's uncertainty (refits at the priors' ±1σ)".into());
+    progress.note(|| "the set-up's uncertainty".into());
     let Settled { prep, id, mut unc } = settle(effects, prep, cfg, id, known)?;
     let mut out = Assessment {
         prep,

@@ -1496,7 +1496,8 @@ fn a_trend_with_a_moved_set_up_is_not_repaired_as_a_fast_clock() {
 /// (its daily turn reaches ty = 60°): the set-up's refits at the latitude ± its prior σ chose
 /// the other chart, started from the stated fit's trajectory 60° off, and diverged, and the run
 /// ended in exit 2 ("the set-up's posterior could not be formed"; seed 7001, 2 of 3 seeds).
-/// Refits now keep the chart. Tolerance 3.5 total σ as in the test above; measured on this seed
+/// The moved set-ups now keep the chart (the knobs' signature and the misstated set-up's
+/// refits). Tolerance 3.5 total σ as in the test above; measured on this seed
 /// (both signs): exit 0, worst 1.03 and 1.36 total σ.
 #[test]
 fn a_start_on_the_charts_border_is_identified() {

@@ -85,12 +85,16 @@ impl Signature {
     }
 }
 
-/// One candidate's signature recursion, carried along the replay of the current model.
-struct Tracker<'m> {
-    /// The current model extended by the candidate.
-    model: Model<'m>,
-    /// The candidate's parameter count.
+/// One signature recursion (of a candidate effect, or of the set-up's knobs), carried along the
+/// replay of the current model.
+pub(crate) struct Tracker {
+    /// The parameter count (columns of Ψ).
     q: usize,
+    /// The rows of Ψ the prediction changes: the current model's dynamic rows (Φ) and those
+    /// where Γ can be nonzero.
+    rows: Vec<usize>,
+    /// β's own Gauss–Markov rows (A is the identity elsewhere), counted from 0.
+    own: Vec<usize>,
     /// Ψ: the sensitivity of the current model's filtered state to β (n × q).
     psi: DMatrix<f64>,
     /// T: the sensitivity of β's own states to their start (q × q; identity for constants).
@@ -99,8 +103,8 @@ struct Tracker<'m> {
     score: DVector<f64>,
     /// Σ D̃ᵀ D̃.
     info: DMatrix<f64>,
-    /// The whitened signature's rows, 3 per update, q values each.
-    rows: Vec<f64>,
+    /// The whitened signature's rows, 3 per update, q values each (when kept).
+    whitened: Option<Vec<f64>>,
 }
 
 /// The candidate's Jacobians over one step: Γ (n × q, ∂x_j/∂β over the interval), A (q × q, β's
@@ -113,8 +117,8 @@ pub(crate) struct StepJacobians {
 
 /// Scratch buffers of the core's propagation and measurement Jacobians, reused at every step.
 pub(crate) struct Scratch {
-    tr: Transition<MAX_STATES>,
-    cols: [Vector3<f64>; MAX_STATES],
+    pub(crate) tr: Transition<MAX_STATES>,
+    pub(crate) cols: [Vector3<f64>; MAX_STATES],
 }
 
 impl Default for Scratch {
@@ -167,57 +171,67 @@ pub(crate) fn candidate_jacobians(
     StepJacobians { gamma, a, h_beta }
 }
 
-impl<'m> Tracker<'m> {
-    /// The recursion's start for `model`, the current model of `n` states extended by the
-    /// candidate, over `updates` measurement updates.
-    fn new(model: Model<'m>, n: usize, updates: usize) -> Self {
-        let q = model.dim() - n;
+impl Tracker {
+    /// The recursion's start for `q` parameters on a current model of `n` states whose dynamic
+    /// rows are `dynamic`: Ψ = `psi0` (n × q, the start's sensitivity to β), Γ nonzero only in
+    /// `dynamic` and `gamma_rows`, β's own dynamics in its rows `own`; `keep_whitened` keeps the
+    /// whitened signature (3 rows per update) for comparing footprints.
+    pub(crate) fn new(
+        psi0: DMatrix<f64>,
+        dynamic: &[usize],
+        gamma_rows: &[usize],
+        own: Vec<usize>,
+        keep_whitened: Option<usize>,
+    ) -> Self {
+        let q = psi0.ncols();
+        let mut rows: Vec<usize> = dynamic.iter().chain(gamma_rows).copied().collect();
+        rows.sort_unstable();
+        rows.dedup();
         Tracker {
-            model,
             q,
-            psi: DMatrix::zeros(n, q),
+            rows,
+            own,
+            psi: psi0,
             t: DMatrix::identity(q, q),
             score: DVector::zeros(q),
             info: DMatrix::zeros(q, q),
-            rows: Vec::with_capacity(3 * q * updates),
+            whitened: keep_whitened.map(|updates| Vec::with_capacity(3 * q * updates)),
         }
     }
 
-    /// One update of the replay: the signature D_j of this step, then Ψ and the score and
-    /// information with the whitened innovation `nu_w` (`dynamic`: the current model's dynamic
-    /// states).
-    fn step(
-        &mut self,
-        v: &StepView<'_>,
-        n: usize,
-        dynamic: &[usize],
-        nu_w: &Vector3<f64>,
-        scratch: &mut Scratch,
-    ) {
-        let jac = candidate_jacobians(&self.model, v, n, scratch);
-        let psi_pred = self.predicted_psi(v, n, dynamic, &jac.gamma);
-        self.advance_own_dynamics(n, &jac.a);
-        let d = v.h * &psi_pred + jac.h_beta * &self.t;
+    /// The recursion of candidate `extended` (the current model of `n` states, dynamic rows
+    /// `dynamic`, extended by the candidate) over `updates` measurement updates.
+    fn for_candidate(extended: &Model<'_>, n: usize, dynamic: &[usize], updates: usize) -> Self {
+        let ext = extended.dynamic_states();
+        let gamma_rows: Vec<usize> = ext.iter().copied().filter(|&d| d < n).collect();
+        let own = ext.iter().filter(|&&d| d >= n).map(|&d| d - n).collect();
+        let q = extended.dim() - n;
+        Tracker::new(
+            DMatrix::zeros(n, q),
+            dynamic,
+            &gamma_rows,
+            own,
+            Some(updates),
+        )
+    }
+
+    /// One update of the replay: the signature D_j of this step from its Jacobians `jac`, then
+    /// Ψ and the score and information with the whitened innovation `nu_w`.
+    pub(crate) fn step(&mut self, v: &StepView<'_>, jac: &StepJacobians, nu_w: &Vector3<f64>) {
+        let psi_pred = self.predicted_psi(v, &jac.gamma);
+        self.advance_own_dynamics(&jac.a);
+        let d = v.h * &psi_pred + &jac.h_beta * &self.t;
         self.psi = psi_pred - v.k * &d;
         self.accumulate(&d, &v.chol_l, nu_w);
     }
 
     /// Ψ⁻ = Φ Ψ + Γ T: Φ is the identity outside the current model's dynamic rows and Γ zero
-    /// outside the extended model's (below n): only those rows change.
-    fn predicted_psi(
-        &self,
-        v: &StepView<'_>,
-        n: usize,
-        dynamic: &[usize],
-        gamma: &DMatrix<f64>,
-    ) -> DMatrix<f64> {
+    /// outside its own rows: only those rows change.
+    fn predicted_psi(&self, v: &StepView<'_>, gamma: &DMatrix<f64>) -> DMatrix<f64> {
         let q = self.q;
+        let n = self.psi.nrows();
         let mut psi_pred = self.psi.clone();
-        let ext_rows = self.model.dynamic_states().iter().filter(|&&d| d < n);
-        let mut rows: Vec<usize> = dynamic.iter().chain(ext_rows).copied().collect();
-        rows.sort_unstable();
-        rows.dedup();
-        for &d in &rows {
+        for &d in &self.rows {
             for b in 0..q {
                 let mut acc = 0.0;
                 for k in 0..n {
@@ -233,12 +247,12 @@ impl<'m> Tracker<'m> {
     }
 
     /// T ← A T: A is the identity outside the candidate's Gauss–Markov rows.
-    fn advance_own_dynamics(&mut self, n: usize, a: &DMatrix<f64>) {
+    fn advance_own_dynamics(&mut self, a: &DMatrix<f64>) {
         let q = self.q;
-        let markov_rows = self.model.dynamic_states().iter().filter(|&&d| d >= n);
-        let new_rows: Vec<(usize, Vec<f64>)> = markov_rows
-            .map(|&d| {
-                let r = d - n;
+        let new_rows: Vec<(usize, Vec<f64>)> = self
+            .own
+            .iter()
+            .map(|&r| {
                 let row = (0..q)
                     .map(|b| (0..q).fold(0.0, |acc, c| acc + a[(r, c)] * self.t[(c, b)]))
                     .collect();
@@ -264,19 +278,22 @@ impl<'m> Tracker<'m> {
         }
         self.score += dw.transpose() * DVector::from_row_slice(nu_w.as_slice());
         self.info += dw.transpose() * &dw;
-        for i in 0..3 {
-            self.rows.extend(dw.row(i).iter());
+        if let Some(rows) = self.whitened.as_mut() {
+            for i in 0..3 {
+                rows.extend(dw.row(i).iter());
+            }
         }
     }
 
-    /// The candidate's signature at the end of the replay.
-    fn into_signature(self) -> Signature {
-        let n_rows = self.rows.len() / self.q.max(1);
+    /// The signature at the end of the replay.
+    pub(crate) fn into_signature(self) -> Signature {
+        let rows = self.whitened.unwrap_or_default();
+        let n_rows = rows.len() / self.q.max(1);
         Signature {
             q: self.q,
             score: self.score,
             info: self.info,
-            whitened: DMatrix::from_row_slice(n_rows, self.q, &self.rows),
+            whitened: DMatrix::from_row_slice(n_rows, self.q, &rows),
             psi_final: self.psi,
         }
     }
@@ -300,24 +317,28 @@ pub(crate) fn signatures(
     p0: &DMatrix<f64>,
 ) -> Result<Replay, SmootherError> {
     let n = model.dim();
-    let mut trackers: Vec<Option<Tracker<'_>>> = extended
+    let dynamic = model.dynamic_states();
+    let mut trackers: Vec<Option<(&Model<'_>, Tracker)>> = extended
         .iter()
-        .map(|m| m.map(|m| Tracker::new(m, n, meas.len())))
+        .map(|m| {
+            m.as_ref()
+                .map(|m| (m, Tracker::for_candidate(m, n, dynamic, meas.len())))
+        })
         .collect();
     let mut nu_whitened = Vec::with_capacity(3 * meas.len());
     let mut scratch = Scratch::default();
-    let dynamic = model.dynamic_states();
     let pass = linearised_pass_observed(model, meas, nominal, x0, p0, false, |v: &StepView<'_>| {
         let nu_w = v.chol_l.solve_lower_triangular(&v.nu).unwrap_or(v.nu);
         nu_whitened.extend_from_slice(nu_w.as_slice());
-        for tk in trackers.iter_mut().flatten() {
-            tk.step(v, n, dynamic, &nu_w, &mut scratch);
+        for (m, tk) in trackers.iter_mut().flatten() {
+            let jac = candidate_jacobians(m, v, n, &mut scratch);
+            tk.step(v, &jac, &nu_w);
         }
     });
     let pass = pass?;
     let sigs = trackers
         .into_iter()
-        .map(|tk| tk.map(Tracker::into_signature))
+        .map(|tk| tk.map(|(_, t)| t.into_signature()))
         .collect();
     Ok((pass, sigs, nu_whitened))
 }

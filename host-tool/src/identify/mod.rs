@@ -12,6 +12,7 @@
 //! percent with a covariance that claims far more than it knows; steps 3–4 remove that.
 
 pub mod joint;
+pub(crate) mod knob_signature;
 pub mod markov;
 pub mod memo;
 pub mod setup;

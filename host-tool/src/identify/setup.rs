@@ -8,15 +8,14 @@
 //!   with the data (`Prepared::alignment_sigma`); [`Uncertainty`] reports what it adds against
 //!   a start known to 0.2″ (the noise-only 1σ, the one the Cramér–Rao bound is compared with).
 //! - **latitude, clock rate, gravity**: not states of the filter. Each is marginalised to first
-//!   order: the model is refitted at ±h (warm-started, Gauss–Newton to convergence; steep directions
-//!   again along the Hessian's eigendirections at ±2 of the data's 1σ), which gives the
-//!   coefficients' sensitivity `S = ∂ĉ/∂φ` and the data's own information about φ from the
-//!   curvature of −2 ln p(y); the posterior variance `v = 1/(1/σ_prior² + c/2)` (c the
-//!   curvature) then adds `S v Sᵀ` to the covariance — a Schmidt (consider) term where the data
-//!   say nothing, shrunk where they do.
+//!   order: their signature through the fit's own linearised filter ([`super::knob_signature`])
+//!   gives the coefficients' sensitivity `S = ∂ĉ/∂φ`, and the gradient and Gauss–Newton
+//!   curvature of −2 ln p(y) (the data's own information about φ); the posterior variance
+//!   `v = 1/(1/σ_prior² + c/2)` (c the curvature) then adds `S v Sᵀ` to the covariance — a
+//!   Schmidt (consider) term where the data say nothing, shrunk where they do.
 //! - **daily tilt of the apparent vertical** (a building's thermal tilt): a 24-h rotation of
 //!   the measured gravity direction, too small to detect at this noise; a pure consider term,
-//!   `S σ² Sᵀ`, S from the linearised smoother's response to the tilt's signature.
+//!   `S σ² Sᵀ`, S from the same replay (its four components are offsets of the measurements).
 //! - **daily drift** (a laboratory's thermal cycle reaching the gyros): a drift at the solar day,
 //!   which one run of a few days hardly separates from the coefficients (the platform turns with
 //!   the sidereal day), and a **drift trend** (its slower temperature changes, the gyros'
@@ -28,17 +27,18 @@
 use anyhow::Context as _;
 use estimator_core::effects::Effect;
 use estimator_core::frames::Attitude;
-use estimator_core::model::{Model, ANGLES};
+use estimator_core::model::ANGLES;
 use estimator_core::Site;
 use nalgebra::{DMatrix, DVector, Vector3};
-use rayon::prelude::*;
 use serde::Serialize;
 
+use super::knob_signature::{knob_signature, Offset};
 use super::slow_drift::{marginalised, SlowDrift};
 use super::smoother::linearised_pass;
 use super::{
     build_model, gauss_newton, neg2_log_evidence, start_prior, Config, Identification, Prepared,
 };
+use crate::diagnose::score::Signature;
 
 /// Radians per arcsecond.
 pub const RAD_PER_ARCSEC: f64 = std::f64::consts::PI / (180.0 * 3600.0);
@@ -380,16 +380,17 @@ pub fn at_latitude_with(prep: &Prepared, lat_deg: f64, derived: bool) -> Prepare
     in_site(prep, site, &enu)
 }
 
-/// `prep` at latitude `lat_deg` in the chart it has (gravity as in [`at_latitude`]): a set-up
-/// moved by a prior σ for a refit warm-started from the stated fit, whose trajectory's angles
-/// are in that chart. Choosing the chart anew switched it where a start sits on the charts'
-/// border (a level start at exactly 30° S), and the refit started 60° off and diverged.
-fn at_latitude_in_chart(prep: &Prepared, lat_deg: f64) -> Prepared {
+/// The site at latitude `lat_deg` in the chart `prep` has (gravity as in [`at_latitude`]) and
+/// `prep`'s start re-expressed there: a set-up moved by a prior σ for a refit warm-started from
+/// the stated fit, whose trajectory's angles are in that chart. Choosing the chart anew switched
+/// it where a start sits on the charts' border (a level start at exactly 30° S), and the refit
+/// started 60° off and diverged.
+fn latitude_in_chart(prep: &Prepared, lat_deg: f64) -> (Site, [f64; 3]) {
     let enu = prep.site.angles_to_enu(&prep.initial_angles);
     let derived = normal_gravity_at_site(prep);
     let mut site = Site::new(lat_deg, (!derived).then_some(prep.site.gravity_mps2));
     site.chart = prep.site.chart;
-    in_site(prep, site, &enu)
+    (site, site.angles_to_chart(&enu))
 }
 
 /// `prep` at `site`, its start (ENU angles `enu`) re-expressed in the site's chart.
@@ -400,22 +401,26 @@ fn in_site(prep: &Prepared, site: Site, enu: &[f64; 3]) -> Prepared {
     p
 }
 
-/// `prep` as recorded by a clock running fast by `ppm` (its stamps divided by 1 + ppm·1e-6).
-fn with_clock(prep: &Prepared, ppm: f64) -> Prepared {
-    let k = 1.0 / (1.0 + ppm * 1e-6);
-    let mut p = prep.clone();
-    for m in &mut p.measurements {
-        m.t_s *= k;
-        m.time_var_s2 *= k * k;
-    }
-    p
+/// The factor a clock running fast by `ppm` puts on the time stamps (they are divided by
+/// 1 + ppm·1e-6).
+pub(crate) fn clock_scale(ppm: f64) -> f64 {
+    1.0 / (1.0 + ppm * 1e-6)
 }
 
-/// `prep` with gravity scaled by 1 + `ppm`·1e-6.
-fn with_gravity(prep: &Prepared, ppm: f64) -> Prepared {
-    let mut p = prep.clone();
-    p.site.gravity_mps2 *= 1.0 + ppm * 1e-6;
-    p
+/// The site and start of `prep` with the set-up moved by `d` (latitude deg, clock ppm, gravity
+/// ppm; the clock moves the time stamps, not these), in its chart: [`moved`] without the
+/// measurements.
+pub(crate) fn moved_site(prep: &Prepared, d: [f64; 3]) -> (Site, [f64; 3]) {
+    let lat_deg = prep.site.latitude_rad.to_degrees();
+    let (mut site, angles) = if d[0] != 0.0 {
+        latitude_in_chart(prep, lat_deg + d[0])
+    } else {
+        (prep.site, prep.initial_angles)
+    };
+    if d[2] != 0.0 {
+        site.gravity_mps2 *= 1.0 + d[2] * 1e-6;
+    }
+    (site, angles)
 }
 
 /// Gauss–Newton passes of a set-up refit at most ([`refit`]).
@@ -484,25 +489,22 @@ struct Knob {
 
 /// `prep` with the set-up moved by `d` (latitude deg, clock ppm, gravity ppm), in its chart.
 pub(crate) fn moved(prep: &Prepared, d: [f64; 3]) -> Prepared {
-    let lat_deg = prep.site.latitude_rad.to_degrees();
-    let mut p = if d[0] != 0.0 {
-        at_latitude_in_chart(prep, lat_deg + d[0])
-    } else {
-        prep.clone()
-    };
+    let mut p = prep.clone();
+    (p.site, p.initial_angles) = moved_site(prep, d);
     if d[1] != 0.0 {
-        p = with_clock(&p, d[1]);
-    }
-    if d[2] != 0.0 {
-        p = with_gravity(&p, d[2]);
+        let k = clock_scale(d[1]);
+        for m in &mut p.measurements {
+            m.t_s *= k;
+            m.time_var_s2 *= k * k;
+        }
     }
     p
 }
 
-/// The knobs marginalised together (see the module docs): refits at ±h on each axis and at
-/// (+h, +h) on each pair give the gradient and Hessian of −2 ln p(y) and the coefficients'
-/// sensitivities; with the prior, the posterior of the knobs is Gaussian to second order, and
-/// its covariance V adds `S V Sᵀ` to the coefficients'. In units of each knob's prior 1σ.
+/// The knobs marginalised together (see the module docs): their signature gives the gradient
+/// and Hessian of −2 ln p(y) and the coefficients' sensitivities; with the prior, the posterior
+/// of the knobs is Gaussian to second order, and its covariance V adds `S V Sᵀ` to the
+/// coefficients'. In units of each knob's prior 1σ.
 struct Marginal {
     /// Per knob its contribution (the marginal share `S_k V_kk S_kᵀ`; the total uses all of V).
     contributions: Vec<Contribution>,
@@ -516,143 +518,26 @@ struct Marginal {
     model: KnobModel,
 }
 
-/// The refits' design points in the basis' coordinates: ±1 on each of `m` axes, then (1, 1) on
-/// each pair.
-fn design_points(m: usize) -> Vec<Vec<f64>> {
-    let mut ws: Vec<Vec<f64>> = vec![];
-    for k in 0..m {
-        for sign in [1.0, -1.0] {
-            let mut w = vec![0.0; m];
-            w[k] = sign;
-            ws.push(w);
-        }
-    }
-    for i in 0..m {
-        for j in i + 1..m {
-            let mut w = vec![0.0; m];
-            w[i] = 1.0;
-            w[j] = 1.0;
-            ws.push(w);
-        }
-    }
-    ws
-}
-
-/// −2 ln p(y) to second order about the stated set-up, and the coefficients' sensitivity, in
-/// units of each knob's prior 1σ `h` (`u = δ/h`; the live knobs only), from refits along the
-/// columns of `basis` (each a step in u): at ±b_k and at b_i + b_j for each pair. In the basis'
-/// coordinates w (u = B w) the finite differences give the gradient, Hessian and `∂ĉ/∂w`;
-/// returned in u: `B⁻ᵀ g_w`, `B⁻ᵀ H_w B⁻¹`, `S_w B⁻¹`.
+/// −2 ln p(y) to second order about the stated set-up, `f0 + gᵀu + ½ uᵀHu`, and the
+/// coefficients' sensitivity `∂ĉ/∂u` (`n` of them), in units of each knob's prior 1σ `h`
+/// (`u = δ/h`; a knob with h = 0 is held: zeros), from the knobs' signature through the fit's
+/// own linearised filter ([`super::knob_signature`], per unit of each knob): g = −2 s,
+/// H = 2 I, ∂ĉ/∂u = Ψ_N, each scaled by h.
 fn quadratic(
-    f0: f64,
-    (h, live, basis): (&[f64; 3], &[usize], &DMatrix<f64>),
-    prep: &Prepared,
-    effects: &[&dyn Effect],
-    cfg: &Config,
-    id: &Identification,
-) -> anyhow::Result<(DVector<f64>, DMatrix<f64>, DMatrix<f64>)> {
-    let m = live.len();
-    let n = id.best().value.len();
-    if m == 0 {
-        // Every knob taken as exact: nothing to refit.
-        return Ok((
-            DVector::zeros(3),
-            DMatrix::zeros(3, 3),
-            DMatrix::zeros(n, 3),
-        ));
-    }
-    // A step in w as the set-up moved, in the knobs' units.
-    let point = |w: &[f64]| {
-        let u = basis * DVector::from_column_slice(w);
-        let mut d = [0.0; 3];
-        for (a, &k) in live.iter().enumerate() {
-            d[k] = u[a] * h[k];
-        }
-        d
-    };
-    let ws = design_points(m);
-    let fits: Vec<anyhow::Result<(f64, DVector<f64>)>> = ws
-        .par_iter()
-        .map(|w| refit(&moved(prep, point(w)), effects, cfg, id))
-        .collect();
-    let fits = fits.into_iter().collect::<anyhow::Result<Vec<_>>>()?;
-    let at = |w: &[f64]| &fits[ws.iter().position(|x| x.as_slice() == w).unwrap_or(0)];
-    let unit = |k: usize, s: f64| {
-        let mut w = vec![0.0; m];
-        w[k] = s;
-        w
-    };
-    let mut grad_w = DVector::zeros(m);
-    let mut hess_w = DMatrix::zeros(m, m);
-    let mut sens_w = DMatrix::zeros(n, m);
-    for k in 0..m {
-        let ((fp, cp), (fm, cm)) = (at(&unit(k, 1.0)), at(&unit(k, -1.0)));
-        grad_w[k] = (fp - fm) / 2.0;
-        hess_w[(k, k)] = fp - 2.0 * f0 + fm;
-        sens_w.set_column(k, &((cp - cm) / 2.0));
-    }
-    for i in 0..m {
-        for j in i + 1..m {
-            let mut w = vec![0.0; m];
-            w[i] = 1.0;
-            w[j] = 1.0;
-            hess_w[(i, j)] = at(&w).0 - at(&unit(i, 1.0)).0 - at(&unit(j, 1.0)).0 + f0;
-            hess_w[(j, i)] = hess_w[(i, j)];
-        }
-    }
-    let b_inv = basis
-        .clone()
-        .try_inverse()
-        .context("the set-up's design basis is singular")?;
-    let (g, hs, sn) = (
-        b_inv.transpose() * grad_w,
-        b_inv.transpose() * hess_w * &b_inv,
-        sens_w * &b_inv,
-    );
-    // Back to all three knobs (a knob not marginalised: zero).
-    let mut grad = DVector::zeros(3);
-    let mut hess = DMatrix::zeros(3, 3);
-    let mut sens = DMatrix::zeros(n, 3);
-    for (a, &k) in live.iter().enumerate() {
-        grad[k] = g[a];
-        sens.set_column(k, &sn.column(a));
-        for (b, &l) in live.iter().enumerate() {
-            hess[(k, l)] = hs[(a, b)];
-        }
-    }
-    Ok((grad, hess, sens))
+    h: &[f64; 3],
+    sig: &Signature,
+    n: usize,
+) -> (DVector<f64>, DMatrix<f64>, DMatrix<f64>) {
+    let h = h.map(|v| if v > 0.0 { v } else { 0.0 });
+    let grad = DVector::from_fn(3, |k, _| -2.0 * sig.score[k] * h[k]);
+    let hess = DMatrix::from_fn(3, 3, |k, l| 2.0 * sig.info[(k, l)] * h[k] * h[l]);
+    let sens = DMatrix::from_fn(n, 3, |i, k| sig.psi_final[(ANGLES + i, k)] * h[k]);
+    (grad, hess, sens)
 }
 
-/// Data that measure a combination of the knobs to better than its prior 1σ over this (a
-/// curvature of −2 ln p above 2·4² in prior units) are refitted again along the Hessian's
-/// eigendirections, each at ±2 of the data's own 1σ along it: over ±σ_prior, 100 of their 1σ,
-/// −2 ln p is no quadratic, and a latitude the data measure only together with gravity (near
-/// the equator) leaves a nearly flat direction whose curvature and slope, taken as differences
-/// of two steep axes, are noise (a latitude written "20", prior 0.29°, measured to 0.003°, was
-/// put at −550°; one written "10" at 9.51°, DZx 11 of its total 1σ off, exit 0).
-const STEEP_RATIO: f64 = 4.0;
-
-/// The second round's basis (columns: steps in prior units along the first round's
-/// eigendirections), or `None` when no direction is steep.
-fn steep_basis(hess: &DMatrix<f64>, live: &[usize]) -> Option<DMatrix<f64>> {
-    let m = live.len();
-    if m == 0 {
-        return None;
-    }
-    let sub = DMatrix::from_fn(m, m, |a, b| hess[(live[a], live[b])]);
-    let eig = nalgebra::SymmetricEigen::new(sub);
-    let limit = 2.0 * STEEP_RATIO * STEEP_RATIO;
-    if eig.eigenvalues.iter().all(|l| *l <= limit) {
-        return None;
-    }
-    let scale = eig.eigenvalues.map(|l| {
-        if l > limit {
-            2.0 * (2.0 / l).sqrt()
-        } else {
-            1.0
-        }
-    });
-    Some(&eig.eigenvectors * DMatrix::from_diagonal(&scale))
+/// Which knobs are marginalised (a zero prior takes one as exact).
+fn live(knobs: &[Knob; 3]) -> [bool; 3] {
+    [0, 1, 2].map(|k| knobs[k].sigma_prior > 0.0)
 }
 
 /// Whether the data contradict the stated set-up and its priors: gᵀ(H(H+2))⁻¹g over the
@@ -679,40 +564,17 @@ fn setup_check(
     SetupCheck { chi2, dof, p_value }
 }
 
-fn marginalise(
-    knobs: &[Knob; 3],
-    f0: f64,
-    prep: &Prepared,
-    effects: &[&dyn Effect],
-    cfg: &Config,
-    id: &Identification,
-) -> anyhow::Result<Marginal> {
+/// The knobs marginalised (see [`Marginal`]) about the fit whose −2 ln p(y) is `f0`, from their
+/// signature `sig` through its filter (`n` coefficients).
+fn marginalise(knobs: &[Knob; 3], f0: f64, sig: &Signature, n: usize) -> anyhow::Result<Marginal> {
     let h: [f64; 3] = [0, 1, 2].map(|k| knobs[k].sigma_prior);
-    let live: Vec<usize> = (0..3).filter(|&k| h[k] > 0.0).collect();
-    let identity = DMatrix::identity(live.len(), live.len());
-    let mut q = quadratic(f0, (&h, &live, &identity), prep, effects, cfg, id)?;
-    if let Some(basis) = steep_basis(&q.1, &live) {
-        // Where the second round's refits fail or diverge, the first round's model stands.
-        if let Ok(q2) = quadratic(f0, (&h, &live, &basis), prep, effects, cfg, id) {
-            if q2
-                .0
-                .iter()
-                .chain(q2.1.iter())
-                .chain(q2.2.iter())
-                .all(|v| v.is_finite())
-            {
-                q = q2;
-            }
-        }
-    }
-    let (grad, hess, sens) = q;
-    // The data's curvature is a Gauss–Newton Hessian, positive semi-definite: clamp what the
-    // finite differences leave below zero.
+    let (grad, hess, sens) = quadratic(&h, sig, n);
+    // The data's curvature is a Gauss–Newton Hessian, positive semi-definite up to rounding.
     let eig = nalgebra::SymmetricEigen::new(hess.clone());
     let hess_psd = psd_part(&eig);
     let a = &hess_psd + DMatrix::identity(3, 3) * 2.0;
     let a_inv = a.try_inverse().context(
-        "the set-up's posterior could not be formed from the refits at the latitude's, clock rate's and gravity's prior 1σ (not finite), so what they add to the 1σ is unknown; setting their priors to 0 (--latitude-sigma-deg 0 --clock-sigma-ppm 0 --gravity-sigma-ppm 0) takes them as exact",
+        "the set-up's posterior could not be formed from the data's response to the latitude, clock rate and gravity (not finite), so what they add to the 1σ is unknown; setting their priors to 0 (--latitude-sigma-deg 0 --clock-sigma-ppm 0 --gravity-sigma-ppm 0) takes them as exact",
     )?;
     let v = &a_inv * 2.0;
     let shift_u = -(&a_inv * &grad);
@@ -763,67 +625,32 @@ pub(crate) fn psd_part(eig: &nalgebra::SymmetricEigen<f64, nalgebra::Dyn>) -> DM
         * eig.eigenvectors.transpose()
 }
 
-/// The sensitivity of the parameters to an additive perturbation of the measurements, by one
-/// linearised smoother pass about the fit (linear in the measurements).
-fn response(
-    model: &Model<'_>,
-    prep: &Prepared,
-    id: &Identification,
-    base: &DVector<f64>,
-    delta: impl Fn(usize) -> Vector3<f64>,
-) -> anyhow::Result<DVector<f64>> {
-    let mut meas = prep.measurements.clone();
-    for (j, m) in meas.iter_mut().enumerate() {
-        let d = delta(j);
-        for i in 0..3 {
-            m.specific_force[i] += d[i];
-        }
-    }
-    let (x0, p0) = start_prior(model, prep, &prep.start_sigma());
-    let pass = linearised_pass(model, &meas, &id.trajectory, &x0, &p0, true)?;
-    let last = pass.states.last().context("no states")?;
-    Ok(last.rows(ANGLES, model.dim() - ANGLES).into_owned() - base)
-}
-
-/// The daily tilt of the apparent vertical as a consider parameter (four components).
-fn vertical_tilt(
-    model: &Model<'_>,
-    prep: &Prepared,
-    id: &Identification,
+/// The daily tilt of the apparent vertical (four components: a rotation about east or north ×
+/// cos or sin of its period) as offsets of the measurements per prior 1σ, to carry through the
+/// fit's filter ([`knob_signature`]); none when its prior is zero.
+fn vertical_tilt_offsets<'a>(
+    prep: &'a Prepared,
+    id: &'a Identification,
     priors: &SetupPriors,
-) -> anyhow::Result<Contribution> {
+) -> Vec<Offset<'a>> {
     let sigma = priors.vertical_tilt_arcsec * RAD_PER_ARCSEC;
-    let n = model.dim() - ANGLES;
     if sigma <= 0.0 || sigma.is_nan() {
-        return Ok(Contribution::new(
-            "vertical tilt",
-            "0".into(),
-            DMatrix::zeros(n, n),
-        ));
+        return vec![];
     }
     let omega = 2.0 * std::f64::consts::PI / (priors.vertical_tilt_period_h * 3600.0);
     let g = prep.site.gravity_mps2;
     let r = prep.site.chart_rotation();
-    let (x0v, p0) = start_prior(model, prep, &prep.start_sigma());
-    let base_pass = linearised_pass(model, &prep.measurements, &id.trajectory, &x0v, &p0, true)?;
-    let base = base_pass
-        .states
-        .last()
-        .context("no states")?
-        .rows(ANGLES, model.dim() - ANGLES)
-        .into_owned();
-    // Components: (axis east or north, cos or sin of the day); δ × g0 for a rotation δ of the
-    // vertical about the east axis is (0, −δ g, 0)… about north (δ g, 0, 0) in ENU.
-    let columns: Vec<anyhow::Result<DVector<f64>>> = (0..4)
-        .into_par_iter()
-        .map(|c| {
-            response(model, prep, id, &base, |j| {
+    (0..4)
+        .map(|c| -> Offset<'a> {
+            Box::new(move |j| {
                 let t = prep.measurements[j].t_s;
                 let phase = if c % 2 == 0 {
                     (omega * t).cos()
                 } else {
                     (omega * t).sin()
                 };
+                // δ × g0 for a rotation δ of the vertical about the east axis is (0, −δ g, 0),
+                // about north (δ g, 0, 0), in ENU.
                 let d = sigma * phase * g;
                 let v0 = if c < 2 {
                     Vector3::new(0.0, -d, 0.0)
@@ -834,11 +661,19 @@ fn vertical_tilt(
                 Attitude::new(&Vector3::new(th[0], th[1], th[2])).specific_force(&(r * v0))
             })
         })
-        .collect();
+        .collect()
+}
+
+/// The daily tilt's consider term `Σ_c S_c S_cᵀ` from its columns of `sig` (after the knobs':
+/// the coefficients' response per prior 1σ of each component).
+fn vertical_tilt(sig: &Signature, n: usize, priors: &SetupPriors) -> Contribution {
     let mut cov = DMatrix::zeros(n, n);
-    for col in columns {
-        let col = col?;
-        cov += &col * col.transpose();
+    for c in 3..sig.psi_final.ncols() {
+        let col = sig.psi_final.view((ANGLES, c), (n, 1));
+        cov += col * col.transpose();
+    }
+    if sig.psi_final.ncols() == 3 {
+        return Contribution::new("vertical tilt", "0".into(), cov);
     }
     let mut c = Contribution::new(
         "vertical tilt",
@@ -849,7 +684,7 @@ fn vertical_tilt(
         cov,
     );
     c.posterior_sigma = priors.vertical_tilt_arcsec;
-    Ok(c)
+    c
 }
 
 /// The coefficients' uncertainty with the set-up priors of `cfg` (see the module docs). `id` is
@@ -910,7 +745,8 @@ pub(crate) fn knob_model(
     }
     let knobs = knobs(prep, &cfg.setup);
     let f0 = neg2_log_evidence(&id.innovations);
-    let marginal = marginalise(&knobs, f0, prep, effects, cfg, id)?;
+    let (_, sig) = knob_signature(prep, effects, cfg, &id.trajectory, (live(&knobs), &[]))?;
+    let marginal = marginalise(&knobs, f0, &sig, id.best().value.len())?;
     Ok(Some((marginal.model, knobs[0].bound)))
 }
 
@@ -999,16 +835,14 @@ pub fn uncertainty(
         pass.final_cov.view((ANGLES, ANGLES), (n, n)).into_owned()
     };
     let knobs = knobs(prep, &priors);
-    let (marginal, (tilt, drifts)) = rayon::join(
-        || marginalise(&knobs, f0, prep, effects, cfg, id),
-        || {
-            rayon::join(
-                || vertical_tilt(&model, prep, id, &priors),
-                || slow_drifts(effects, prep, cfg, id),
-            )
-        },
+    let offsets = vertical_tilt_offsets(prep, id, &priors);
+    let (signature, drifts) = rayon::join(
+        || knob_signature(prep, effects, cfg, &id.trajectory, (live(&knobs), &offsets)),
+        || slow_drifts(effects, prep, cfg, id),
     );
-    let mut marginal = marginal?;
+    let (_, sig) = signature?;
+    let mut marginal = marginalise(&knobs, f0, &sig, n)?;
+    let tilt = vertical_tilt(&sig, n, &priors);
     let drifts = drifts?;
     with_drift_path(&mut marginal, &drifts.carried, effects, prep, cfg, id)?;
     // The start attitude is estimated in the fit: what it adds is the fit's covariance less the
@@ -1023,7 +857,7 @@ pub fn uncertainty(
     );
     let mut contributions = vec![start];
     contributions.extend(marginal.contributions);
-    contributions.push(tilt?);
+    contributions.push(tilt);
     contributions.extend(drifts.contributions);
     // The knobs' joint covariance (their correlations kept), then the tilt's and the slow
     // drifts' (each marginalised on its own: their sum is conservative where they correlate).

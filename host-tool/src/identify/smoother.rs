@@ -92,6 +92,15 @@ pub fn temp_devs(meas: &[Measurement]) -> Vec<f64> {
         .collect()
 }
 
+/// The previous node's time, s, and temperature deviation before update `j` of a pass over
+/// `meas` (`temps`: [`temp_devs`]): node 0 is at t = 0 with the first temperature.
+pub(crate) fn before(meas: &[Measurement], temps: &[f64], j: usize) -> (f64, f64) {
+    match j.checked_sub(1) {
+        Some(i) => (meas[i].t_s, temps[i]),
+        None => (0.0, temps.first().copied().unwrap_or(0.0)),
+    }
+}
+
 /// What the recording or the nominal did to make a linearised pass impossible.
 ///
 /// Update indices count measurements (filter updates) from 0; times are the measurement's
@@ -296,10 +305,7 @@ impl<'a, 'm, const CAP: usize> Forward<'a, 'm, CAP> {
 
     /// Previous node's time, s, and temperature deviation before update `j`.
     fn before(&self, j: usize) -> (f64, f64) {
-        match j.checked_sub(1) {
-            Some(i) => (self.meas[i].t_s, self.temps[i]),
-            None => (0.0, self.temps.first().copied().unwrap_or(0.0)),
-        }
+        before(self.meas, &self.temps, j)
     }
 
     /// The model about the nominal for update `j`, from the nominal at node `j` (`lin.xbar_prev`).
