@@ -82,7 +82,10 @@ fn paper_single_pass_is_overconfident_where_the_refinement_is_not() {
             .map(|k| ((value[k] - truth[k]) / k_sigma(k)).abs())
             .fold(0.0, f64::max)
     };
-    let single = &id.single_pass;
+    let single = id
+        .single_pass
+        .as_ref()
+        .expect("the single pass on the paper's run");
     let refined = id.refined.as_ref().unwrap();
     let z_single = worst_z(&single.value, &|k| single.sigma(k));
     let z_refined = worst_z(&refined.value, &|k| refined.sigma(k));

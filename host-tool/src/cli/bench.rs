@@ -437,7 +437,12 @@ fn accuracy_seed(
         at.push((
             DVector::from_row_slice(&best.value) - &truth,
             best.cov.clone(),
-            DVector::from_row_slice(&id.single_pass.value) - &truth,
+            DVector::from_row_slice(
+                &id.single_pass
+                    .as_ref()
+                    .ok_or_else(|| anyhow::anyhow!("the paper's single EKF pass diverged"))?
+                    .value,
+            ) - &truth,
         ));
     }
     Ok(SeedResult { at })

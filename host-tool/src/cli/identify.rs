@@ -46,7 +46,7 @@ pub(crate) struct Row {
     /// Cramér–Rao bound 1σ (at the truth if known, else at the estimate).
     pub bound: f64,
     /// The paper's single-pass estimate and its claimed 1σ.
-    pub single: (f64, f64),
+    pub single: Option<(f64, f64)>,
     /// True value, if known.
     pub truth: Option<f64>,
     /// The alternatives it holds only on the absence of, with how far each could move it (total
@@ -125,7 +125,7 @@ pub(crate) fn rows(
             sigma_total: unc.total_sigma[k],
             dominant: unc.dominant(k),
             bound: bound[k],
-            single: (id.single_pass.value[k], id.single_pass.sigma(k)),
+            single: id.single_pass.as_ref().map(|s| (s.value[k], s.sigma(k))),
             truth: truth
                 .and_then(|t| t.get(k).copied())
                 .filter(|v| v.is_finite()),
@@ -188,11 +188,11 @@ pub(crate) fn print_table(rows: &[Row], refined: bool) {
         } else if has_truth {
             print!(" {:>10} {:>10} {:>8} {:>7}", "—", "", "", "");
         }
-        println!(
-            "  {:>12} {:>9}",
-            with_sigma(r.single.0, r.single.1),
-            sci(r.single.1)
-        );
+        match r.single {
+            Some((v, s)) => println!("  {:>12} {:>9}", with_sigma(v, s), sci(s)),
+            // The paper's pass diverged on this recording; the smoother fitted without it.
+            None => println!("  {:>12} {:>9}", "—", "—"),
+        }
     }
     if !refined {
         println!("(single pass only: its 1σ is optimistic on the paper's scenario; drop --single-pass for the converged estimate)");
@@ -339,7 +339,7 @@ pub(crate) fn coefficients_json(rows: &[Row]) -> Value {
     for r in rows {
         let mut o = json!({ "value": r.value, "sigma": r.sigma, "sigma_total": r.sigma_total,
             "dominant_uncertainty": r.dominant, "bound": r.bound, "unit": r.unit,
-            "single_pass": { "value": r.single.0, "sigma": r.single.1 },
+            "single_pass": r.single.map(|(v, s)| json!({ "value": v, "sigma": s })),
             "conditional_on": r.conditional_on.iter()
                 .map(|(e, z)| json!({ "effect": e, "reach_total_sigma": z }))
                 .collect::<Vec<_>>() });

@@ -359,8 +359,9 @@ pub struct WeakCombination {
 pub struct Identification {
     /// The parameters (name, unit, prior), in state order after the angles.
     pub params: Vec<Param>,
-    /// The paper's single EKF pass.
-    pub single_pass: Estimate,
+    /// The paper's single EKF pass; `None` where it diverged (a filter linearised about its own
+    /// estimate can lose the trajectory; the smoother then fits by continuation without it).
+    pub single_pass: Option<Estimate>,
     /// Converged estimate (passes 2 + smoother), if refinement ran.
     pub refined: Option<Estimate>,
     /// Innovations of the last forward pass (single pass if not refined).
@@ -408,7 +409,11 @@ impl Convergence {
 impl Identification {
     /// The best estimate: refined if available, else the single pass.
     pub fn best(&self) -> &Estimate {
-        self.refined.as_ref().unwrap_or(&self.single_pass)
+        // Every identification has one or the other (`identify_anew`, `converged`).
+        self.refined
+            .as_ref()
+            .or(self.single_pass.as_ref())
+            .expect("an identification has a refined or a single-pass estimate")
     }
     /// Mean NIS of the final innovations (3 per update; 1 is consistent after dividing by 3).
     pub fn nis_mean(&self) -> f64 {
@@ -610,8 +615,19 @@ fn identify_anew(
         bail!("no measurements to identify from");
     }
     let (zeros, mut sigma0) = single_pass_prior(model, prep);
-    let (single_pass, single_res, _) =
-        ekf_pass(model, meas, &zeros, &sigma0).context("single EKF pass")?;
+    let single = ekf_pass(model, meas, &zeros, &sigma0).context("single EKF pass");
+    let (x0w, p0w) = wide_prior(model, &zeros, &prep.start_sigma());
+    let (single_pass, single_res, _) = match single {
+        Ok(pass) => pass,
+        Err(e) if cfg.smoother_iterations == 0 => return Err(e),
+        Err(e) => {
+            // The paper's pass lost the trajectory (P no longer positive definite where a
+            // warm-up's amplitude met a tilted start; seed 9207): the smoother fits by
+            // continuation, short windows first, and the fit stands without that pass.
+            let fit = or_by_continuation(model, meas, &zeros, &x0w, &p0w, cfg, Err(e))?;
+            return converged(model, meas, None, fit);
+        }
+    };
     let final_time_h = meas.last().map_or(0.0, |m| m.t_s) / 3600.0;
     let params = params_of(model);
     if cfg.smoother_iterations == 0 {
@@ -619,7 +635,7 @@ fn identify_anew(
         let smoothed_residuals = single_res.iter().map(|r| r.innovation).collect();
         return Ok(Identification {
             params,
-            single_pass,
+            single_pass: Some(single_pass),
             refined: None,
             innovations: single_res,
             smoothed_residuals,
@@ -639,7 +655,6 @@ fn identify_anew(
     // replaces the previous one (nominal in, states out), so at most one nominal, one pass's
     // states and one set of innovations are alive at a time.
     drop(single_res);
-    let (x0w, p0w) = wide_prior(model, &zeros, &prep.start_sigma());
     let from_pass2 = ekf_pass(model, meas, &x0, &sigma0)
         .context("second EKF pass")
         .and_then(|(_, _, nominal)| {
@@ -654,7 +669,7 @@ fn identify_anew(
             )
         });
     let fit = or_by_continuation(model, meas, &zeros, &x0w, &p0w, cfg, from_pass2)?;
-    converged(model, meas, single_pass, fit)
+    converged(model, meas, Some(single_pass), fit)
 }
 
 /// The fit from the second pass, or one by continuation where that fits better.
@@ -701,7 +716,7 @@ fn or_by_continuation(
 fn converged(
     model: &Model<'_>,
     meas: &[Measurement],
-    single_pass: Estimate,
+    single_pass: Option<Estimate>,
     fit: GaussNewton,
 ) -> anyhow::Result<Identification> {
     let n = model.dim();

@@ -13,7 +13,6 @@ use anyhow::Context as _;
 use estimator_core::effects::{DriftDaily, DriftTrend, Effect, TempDrift};
 use estimator_core::model::ANGLES;
 use nalgebra::{DMatrix, DVector};
-use rayon::prelude::*;
 
 use super::setup::{Contribution, SetupPriors};
 use super::smoother::linearised_pass;
@@ -273,9 +272,9 @@ const SIZES: usize = 10;
 /// S_with = S + P_cd P_dd⁻¹ J            (∂ĉ/∂u with the drifts estimated along)
 /// ```
 ///
-/// `J` comes from linearised passes of the model with the drifts at the knobs moved by ± a step
-/// (a prior 1σ, or twice the data's 1σ where they measure the knob better). `km` is the knobs'
-/// model without the drifts; returns its Hessian and sensitivity with them, or `None` when no
+/// `J` (the drifts' estimate moved per prior 1σ of each knob) and `P` come from one replay of
+/// the model with the drifts carrying the knobs' signature ([`super::knob_signature`]: its
+/// final Ψ's drift rows). `km` is the knobs' model without the drifts; returns its Hessian and sensitivity with them, or `None` when no
 /// drift is carried.
 pub(crate) fn knobs_with_drifts(
     carried: &[(SlowDrift, f64)],
@@ -295,46 +294,20 @@ pub(crate) fn knobs_with_drifts(
     let n = id.best().value.len();
     let q: usize = drifts.iter().map(|d| d.params().len()).sum();
     let nominal = widened(&id.trajectory, q);
-    let step: Vec<f64> = (0..3)
-        .map(|k| {
-            let curv = km.hess[(k, k)];
-            if curv > 0.0 {
-                (2.0 * (2.0 / curv).sqrt()).min(1.0)
-            } else {
-                1.0
-            }
-        })
-        .collect();
-    // The pass at the stated set-up, then at ± step on each live knob.
-    let points: Vec<[f64; 3]> = std::iter::once([0.0; 3])
-        .chain(live.iter().flat_map(|&k| {
-            [1.0, -1.0].map(|sign| {
-                let mut d = [0.0; 3];
-                d[k] = sign * step[k] * km.unit[k];
-                d
-            })
-        }))
-        .collect();
-    let passes: Vec<anyhow::Result<(DVector<f64>, DMatrix<f64>)>> = points
-        .par_iter()
-        .map(|d| {
-            let s = filter_pass(&super::setup::moved(prep, *d), &with, &nominal, cfg)?;
-            let last = s.states.last().context("no states")?.clone();
-            Ok((last, s.final_cov))
-        })
-        .collect();
-    let passes = passes.into_iter().collect::<anyhow::Result<Vec<_>>>()?;
-    let (first, p_all) = (ANGLES + n, &passes[0].1);
+    // The drifts' response to each knob per prior 1σ, from the knobs' signature through the
+    // filter with the drifts (one replay, [`super::knob_signature`]).
+    let mask = [0, 1, 2].map(|k| km.unit[k] > 0.0);
+    let (pass, sig) =
+        super::knob_signature::knob_signature(prep, &with, cfg, &nominal, (mask, &[]))?;
+    let (first, p_all) = (ANGLES + n, &pass.final_cov);
     let p_dd = p_all.view((first, first), (q, q)).into_owned();
     let p_cd = p_all.view((ANGLES, first), (n, q)).into_owned();
     let Some(p_dd_inv) = p_dd.try_inverse() else {
         return Ok(None);
     };
     let mut j = DMatrix::zeros(q, 3);
-    for (a, &k) in live.iter().enumerate() {
-        let (plus, minus) = (&passes[1 + 2 * a].0, &passes[2 + 2 * a].0);
-        let col = (plus.rows(first, q) - minus.rows(first, q)) / (2.0 * step[k]);
-        j.set_column(k, &col);
+    for &k in &live {
+        j.set_column(k, &(sig.psi_final.column(k).rows(first, q) * km.unit[k]));
     }
     let hess = &km.hess - (j.transpose() * &p_dd_inv * &j) * 2.0;
     let sens = &km.sens + p_cd * &p_dd_inv * &j;
