@@ -4,6 +4,12 @@
 //! ladder, as `driftid diagnose` runs it). The firmware-sized step is benched in estimator-core
 //! (`cargo bench -p estimator-core --bench step`).
 //!
+//! The `commands` group runs `driftid identify` and `driftid diagnose` as a user does (a
+//! process, the whole command: reading, screening, the fit, the set-up's uncertainty, the
+//! alternatives) on 60-h recordings at 1 s that the model fits and that it does not: clean, a
+//! hidden catalog effect (an accelerometer bias), an uncatalogued drift (a 30-h sine), a bias
+//! step (a fault). Issue 31's table; its CPU time is the child's (`RUSAGE_CHILDREN`).
+//!
 //! Run: `cargo bench -p host-tool --bench ekf` (one group: `… --bench ekf -- read`).
 //!
 //! The times are the process's CPU time (`CLOCK_PROCESS_CPUTIME_ID`), not wall time: the
@@ -216,5 +222,88 @@ fn diagnose_60h_csv(c: &mut Criterion) {
     group.finish();
 }
 
-criterion_group!(benches, ekf_step, read, identify_60h_csv, diagnose_60h_csv);
+/// A 60-h run at 1 s written by `driftid simulate` with `args` (once per bench process).
+fn simulated_60h(name: &str, args: &[&str]) -> PathBuf {
+    let path = recording_60h().with_file_name(format!("{name}.csv"));
+    if !path.exists() {
+        let status = std::process::Command::new(env!("CARGO_BIN_EXE_driftid"))
+            .args(["simulate", "--hours", "60", "--rate-s", "1"])
+            .args(args)
+            .arg("--out")
+            .arg(&path)
+            .output()
+            .unwrap();
+        assert!(status.status.success(), "{status:?}");
+    }
+    path
+}
+
+/// CPU time of this process's finished children so far.
+#[cfg(unix)]
+fn children_cpu_time() -> Duration {
+    // SAFETY: getrusage writes the struct it is given.
+    let mut ru: libc::rusage = unsafe { std::mem::zeroed() };
+    unsafe { libc::getrusage(libc::RUSAGE_CHILDREN, &mut ru) };
+    let tv = |t: libc::timeval| Duration::new(t.tv_sec as u64, t.tv_usec as u32 * 1000);
+    tv(ru.ru_utime) + tv(ru.ru_stime)
+}
+
+/// `driftid COMMAND path` as a process; its exit status (0 trusted, 3 not).
+fn driftid(command: &str, path: &Path) -> i32 {
+    let out = std::process::Command::new(env!("CARGO_BIN_EXE_driftid"))
+        .arg(command)
+        .arg(path)
+        .output()
+        .unwrap();
+    let code = out.status.code().unwrap_or(-1);
+    assert!(matches!(code, 0 | 3), "{command} {}: {out:?}", path.display());
+    code
+}
+
+fn commands(c: &mut Criterion) {
+    let cases = [
+        ("clean", recording_60h()),
+        (
+            "acc_bias",
+            simulated_60h("acc_bias", &["--effect", "acc-bias=1e-4,-1e-4,1e-4"]),
+        ),
+        (
+            "uncatalogued_sine",
+            simulated_60h("sine30h", &["--effect", "drift-sine=7e-4,-5e-4,6e-4:30"]),
+        ),
+        (
+            "bias_step",
+            simulated_60h("bias_step", &["--fault", "step=y,4e-4,30"]),
+        ),
+    ];
+    let mut group = c.benchmark_group("commands");
+    group.sample_size(10);
+    for command in ["identify", "diagnose"] {
+        for (name, path) in &cases {
+            group.bench_function(format!("{command}_{name}_60h_1s_wall"), |b| {
+                b.iter(|| driftid(command, path))
+            });
+            #[cfg(unix)]
+            group.bench_function(format!("{command}_{name}_60h_1s_cpu"), |b| {
+                b.iter_custom(|iters| {
+                    let start = children_cpu_time();
+                    for _ in 0..iters {
+                        driftid(command, path);
+                    }
+                    children_cpu_time() - start
+                })
+            });
+        }
+    }
+    group.finish();
+}
+
+criterion_group!(
+    benches,
+    ekf_step,
+    read,
+    identify_60h_csv,
+    diagnose_60h_csv,
+    commands
+);
 criterion_main!(benches);
