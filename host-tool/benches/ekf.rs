@@ -256,7 +256,11 @@ fn driftid(command: &str, path: &Path) -> i32 {
         .output()
         .unwrap();
     let code = out.status.code().unwrap_or(-1);
-    assert!(matches!(code, 0 | 3), "{command} {}: {out:?}", path.display());
+    assert!(
+        matches!(code, 0 | 3),
+        "{command} {}: {out:?}",
+        path.display()
+    );
     code
 }
 

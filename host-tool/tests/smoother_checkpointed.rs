@@ -408,7 +408,10 @@ fn identify_is_unchanged_by_checkpointing() {
     let (x0, p0) = wide_prior(&model, &vec![0.0; n], &prep.start_sigma());
     // identify's pass 2 starts at pass 1's coefficients with a 20× narrower prior.
     let mut start = vec![0.0; n];
-    let single = id.single_pass.as_ref().expect("a single pass on the paper's run");
+    let single = id
+        .single_pass
+        .as_ref()
+        .expect("a single pass on the paper's run");
     start[ANGLES..].copy_from_slice(&single.value);
     let sigma: Vec<f64> = (0..n)
         .map(|i| {
