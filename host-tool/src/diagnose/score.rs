@@ -20,7 +20,6 @@ use estimator_core::model::{Model, MAX_STATES};
 use estimator_core::propagate::{propagate, Transition};
 use estimator_core::Measurement;
 use nalgebra::{DMatrix, DVector, SymmetricEigen, Vector3};
-use rayon::prelude::*;
 
 use crate::identify::smoother::{linearised_pass_observed, Smoothed, SmootherError, StepView};
 
@@ -327,105 +326,24 @@ pub(crate) fn signatures(
         })
         .collect();
     let mut nu_whitened = Vec::with_capacity(3 * meas.len());
-    // The trackers are independent: they follow the pass a chunk of steps behind, on all cores.
-    let mut chunk: Vec<KeptStep> = Vec::with_capacity(CHUNK);
+    // The trackers step with the pass, on its thread: the pass may hold rayon's workers (its
+    // linearisation ahead), and work handed to the pool from here waited for them forever
+    // (tests running side by side deadlocked).
+    let mut scratch = Scratch::default();
     let pass = linearised_pass_observed(model, meas, nominal, x0, p0, false, |v: &StepView<'_>| {
         let nu_w = v.chol_l.solve_lower_triangular(&v.nu).unwrap_or(v.nu);
         nu_whitened.extend_from_slice(nu_w.as_slice());
-        chunk.push(KeptStep::of(v, nu_w));
-        if chunk.len() == CHUNK {
-            follow(&mut trackers, &chunk, nominal, n);
-            chunk.clear();
+        for (m, tk) in trackers.iter_mut().flatten() {
+            let jac = candidate_jacobians(m, v, n, &mut scratch);
+            tk.step(v, &jac, &nu_w);
         }
     });
-    follow(&mut trackers, &chunk, nominal, n);
     let pass = pass?;
     let sigs = trackers
         .into_iter()
         .map(|tk| tk.map(|(_, t)| t.into_signature()))
         .collect();
     Ok((pass, sigs, nu_whitened))
-}
-
-/// Steps the trackers follow the pass by at a time: ~1 MB of kept steps at 18 states.
-const CHUNK: usize = 256;
-
-/// A forward step kept for the trackers (the pass reuses its buffers), with its whitened
-/// innovation.
-struct KeptStep {
-    j: usize,
-    t_prev_s: f64,
-    t_s: f64,
-    temp_prev: f64,
-    temp: f64,
-    time_var_s2: f64,
-    phi: DMatrix<f64>,
-    h: DMatrix<f64>,
-    k: DMatrix<f64>,
-    nu: Vector3<f64>,
-    chol_l: nalgebra::Matrix3<f64>,
-    s_inv: nalgebra::Matrix3<f64>,
-    nu_w: Vector3<f64>,
-}
-
-impl KeptStep {
-    fn of(v: &StepView<'_>, nu_w: Vector3<f64>) -> Self {
-        KeptStep {
-            j: v.j,
-            t_prev_s: v.t_prev_s,
-            t_s: v.t_s,
-            temp_prev: v.temp_prev,
-            temp: v.temp,
-            time_var_s2: v.time_var_s2,
-            phi: v.phi.clone(),
-            h: v.h.clone(),
-            k: v.k.clone(),
-            nu: v.nu,
-            chol_l: v.chol_l,
-            s_inv: v.s_inv,
-            nu_w,
-        }
-    }
-
-    /// The step as the pass showed it (`nominal`: the pass's).
-    fn view<'a>(&'a self, nominal: &'a [DVector<f64>]) -> StepView<'a> {
-        StepView {
-            j: self.j,
-            t_prev_s: self.t_prev_s,
-            t_s: self.t_s,
-            temp_prev: self.temp_prev,
-            temp: self.temp,
-            time_var_s2: self.time_var_s2,
-            nominal_prev: &nominal[self.j],
-            nominal: &nominal[self.j + 1],
-            phi: &self.phi,
-            h: &self.h,
-            k: &self.k,
-            nu: self.nu,
-            chol_l: self.chol_l,
-            s_inv: self.s_inv,
-        }
-    }
-}
-
-/// Each tracker through `chunk`, the trackers on all cores (each one's steps in order: the
-/// same operations as stepping them with the pass).
-fn follow(
-    trackers: &mut [Option<(&Model<'_>, Tracker)>],
-    chunk: &[KeptStep],
-    nominal: &[DVector<f64>],
-    n: usize,
-) {
-    trackers
-        .par_iter_mut()
-        .flatten()
-        .for_each_init(Scratch::default, |scratch, (m, tk)| {
-            for st in chunk {
-                let v = st.view(nominal);
-                let jac = candidate_jacobians(m, &v, n, scratch);
-                tk.step(&v, &jac, &st.nu_w);
-            }
-        });
 }
 
 /// Orthonormal basis of the column space of `w` (directions with singular value above 1e-6 of

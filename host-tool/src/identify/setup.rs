@@ -34,7 +34,7 @@ use serde::Serialize;
 
 use super::knob_signature::{knob_signature, Offset};
 use super::slow_drift::{marginalised, SlowDrift};
-use super::smoother::linearised_pass;
+use super::smoother::final_covariance;
 use super::{
     build_model, gauss_newton, neg2_log_evidence, start_prior, Config, Identification, Prepared,
 };
@@ -829,17 +829,18 @@ pub fn uncertainty(
     let n = model.dim() - ANGLES;
     let f0 = neg2_log_evidence(&id.innovations);
     // Noise only: the same pass with the start attitude known to 0.2″.
-    let noise_cov = {
+    let noise_only = || {
         let (x0, p0) = start_prior(&model, prep, &prep.initial_angle_sigma);
-        let pass = linearised_pass(&model, &prep.measurements, &id.trajectory, &x0, &p0, true)?;
-        pass.final_cov.view((ANGLES, ANGLES), (n, n)).into_owned()
+        final_covariance(&model, &prep.measurements, &id.trajectory, &x0, &p0)
+            .map(|cov| cov.view((ANGLES, ANGLES), (n, n)).into_owned())
     };
     let knobs = knobs(prep, &priors);
     let offsets = vertical_tilt_offsets(prep, id, &priors);
-    let (signature, drifts) = rayon::join(
+    let (signature, (drifts, noise_cov)) = rayon::join(
         || knob_signature(prep, effects, cfg, &id.trajectory, (live(&knobs), &offsets)),
-        || slow_drifts(effects, prep, cfg, id),
+        || rayon::join(|| slow_drifts(effects, prep, cfg, id), noise_only),
     );
+    let noise_cov = noise_cov?;
     let (_, sig) = signature?;
     let mut marginal = marginalise(&knobs, f0, &sig, n)?;
     let tilt = vertical_tilt(&sig, n, &priors);
