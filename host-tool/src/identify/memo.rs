@@ -13,6 +13,7 @@ use estimator_core::effects::Effect;
 use estimator_core::model::Model;
 
 use super::{Config, Identification, Prepared};
+use crate::diagnose::alternatives::Alternative;
 
 /// Filter steps of the fits kept, at most (the least recently used forgotten first): ~250 bytes
 /// a step (a fit's trajectory and innovations), 50 MB. A 60-h run at the 60-s period has 3 600
@@ -24,9 +25,16 @@ const MAX_HELD_STEPS: usize = 200_000;
 const MAX_STEPS: usize = 20_000;
 
 /// The fits of one command, shared by every copy of its [`Config`] (a new `Config` starts
-/// empty).
+/// empty), and the alternatives weighed about them ([`FitMemo::weighed_or`]).
 #[derive(Clone, Default)]
-pub struct FitMemo(Arc<Mutex<VecDeque<(u64, Identification)>>>);
+pub struct FitMemo(Held<Identification>, Held<Vec<Alternative>>);
+
+/// Values under their keys, shared by the copies of a memo, the most recently used last.
+type Held<T> = Arc<Mutex<VecDeque<(u64, T)>>>;
+
+/// Weighings of the catalog's alternatives kept, at most (the oldest forgotten first): a few
+/// kilobytes each.
+const MAX_WEIGHED: usize = 16;
 
 impl std::fmt::Debug for FitMemo {
     /// Nothing of the contents: a `Config`'s debug text is part of [`fit_key`].
@@ -68,6 +76,45 @@ impl FitMemo {
         }
         Ok(id)
     }
+}
+
+impl FitMemo {
+    /// The catalog's alternatives remembered under `key`, else `weigh()`'s (remembered when
+    /// it succeeds). `identify` weighs them about its final fit in the assessment and again,
+    /// on a misfit, as the rivals of a wrong latitude (0.07 s of a 60-h run).
+    pub(crate) fn weighed_or(
+        &self,
+        key: u64,
+        weigh: impl FnOnce() -> anyhow::Result<Vec<Alternative>>,
+    ) -> anyhow::Result<Vec<Alternative>> {
+        let lock = || self.1.lock().unwrap_or_else(|e| e.into_inner());
+        if let Some((_, alts)) = lock().iter().find(|(k, _)| *k == key) {
+            return Ok(alts.clone());
+        }
+        let alts = weigh()?;
+        let mut memo = lock();
+        if memo.len() >= MAX_WEIGHED {
+            memo.pop_front();
+        }
+        memo.push_back((key, alts.clone()));
+        Ok(alts)
+    }
+}
+
+/// Feeds a fit to `h`: its parameters' names, estimate and covariance, every node of its
+/// trajectory and its innovations' count (what a replay about it reads).
+pub(crate) fn hash_fit(h: &mut impl Hasher, id: &Identification) {
+    let mut put = |vs: &[f64]| vs.iter().for_each(|v| v.to_bits().hash(h));
+    let est = id.best();
+    put(&est.value);
+    put(est.cov.as_slice());
+    for x in &id.trajectory {
+        put(x.as_slice());
+    }
+    for p in &id.params {
+        p.name.hash(h);
+    }
+    id.innovations.len().hash(h);
 }
 
 /// Feeds `prep` to `h`: the site, the start and its priors, every measurement, the noise floor.
@@ -153,5 +200,42 @@ mod tests {
         assert_ne!(fit_key(&model, &prep, &slower), key, "another setting");
         // A fresh Config starts with an empty memo: nothing is shared between commands.
         assert_eq!(Config::default().memo.0.lock().unwrap().len(), 0);
+    }
+
+    /// The catalog's alternatives weighed about a fit are handed back when the same fit is
+    /// weighed again, wherever its progress is noted (`identify` weighs them in the assessment
+    /// and again as a misfit's rivals), and weighed anew about another fit.
+    #[test]
+    fn alternatives_are_weighed_once_per_fit() {
+        use crate::diagnose::{alternatives, DiagnoseConfig};
+        use crate::simulate::Scenario;
+        use estimator_core::{Sample, Site};
+        let mut sc = Scenario::paper();
+        sc.hours = 6.0;
+        sc.rate_s = 60.0;
+        let sim = crate::simulate::simulate(&sc);
+        let samples: Vec<Sample> = sim.samples.iter().map(Sample::from).collect();
+        let cfg = DiagnoseConfig::default();
+        let site = Site::new(sim.meta.latitude_deg.unwrap(), sim.meta.gravity_mps2);
+        let prep = prepare(site, &samples, &cfg.identify).unwrap();
+        let catalog = crate::catalog::Catalog::builtin();
+        let paper = [crate::catalog::paper()];
+        let model = build_model(prep.site, &paper, &cfg.identify).unwrap();
+        let id = identify(&model, &prep, &cfg.identify).unwrap();
+        let first = alternatives::weigh(&prep, catalog, &paper, &cfg, &id).unwrap();
+        let noted = DiagnoseConfig {
+            progress: cfg.progress.within("the model does not fit"),
+            ..cfg.clone()
+        };
+        let again = alternatives::weigh(&prep, catalog, &paper, &noted, &id).unwrap();
+        let gains = |a: &[Alternative]| a.iter().map(|x| x.evidence_gain).collect::<Vec<_>>();
+        assert_eq!(gains(&first), gains(&again));
+        assert_eq!(cfg.identify.memo.1.lock().unwrap().len(), 1, "weighed once");
+        let mut other = id.clone();
+        if let Some(est) = other.refined.as_mut() {
+            est.value[0] += 1e-6;
+        }
+        alternatives::weigh(&prep, catalog, &paper, &cfg, &other).unwrap();
+        assert_eq!(cfg.identify.memo.1.lock().unwrap().len(), 2, "another fit");
     }
 }
