@@ -829,18 +829,20 @@ pub fn uncertainty(
     let n = model.dim() - ANGLES;
     let f0 = neg2_log_evidence(&id.innovations);
     // Noise only: the same pass with the start attitude known to 0.2″.
-    let noise_only = || {
+    // Before the others, not beside them: three passes at once held 25 MB more at their peak
+    // (a 3-h run at `--period-s 1`), past what the memory budget's slack allows.
+    let noise_cov = {
         let (x0, p0) = start_prior(&model, prep, &prep.initial_angle_sigma);
-        final_covariance(&model, &prep.measurements, &id.trajectory, &x0, &p0)
-            .map(|cov| cov.view((ANGLES, ANGLES), (n, n)).into_owned())
+        final_covariance(&model, &prep.measurements, &id.trajectory, &x0, &p0)?
+            .view((ANGLES, ANGLES), (n, n))
+            .into_owned()
     };
     let knobs = knobs(prep, &priors);
     let offsets = vertical_tilt_offsets(prep, id, &priors);
-    let (signature, (drifts, noise_cov)) = rayon::join(
+    let (signature, drifts) = rayon::join(
         || knob_signature(prep, effects, cfg, &id.trajectory, (live(&knobs), &offsets)),
-        || rayon::join(|| slow_drifts(effects, prep, cfg, id), noise_only),
+        || slow_drifts(effects, prep, cfg, id),
     );
-    let noise_cov = noise_cov?;
     let (_, sig) = signature?;
     let mut marginal = marginalise(&knobs, f0, &sig, n)?;
     let tilt = vertical_tilt(&sig, n, &priors);
