@@ -75,6 +75,7 @@ fn main() {
     let cli = Cli::parse();
     if let Some(bytes) = cli.max_memory_mib {
         host_tool::heap::set_budget(bytes);
+        cli::common::return_freed_memory();
     }
     let result = match &cli.command {
         Command::Demo(a) => cli::demo::run(a),

@@ -628,11 +628,6 @@ pub(crate) fn print_findings(findings: &[crate::quality::Finding]) {
 /// Blocks up to 256 MB now come from the heap, and freed memory is kept for the next pass
 /// instead of being trimmed; the peak is unchanged (the same blocks, reused).
 ///
-/// Kept memory stays in the arena of the thread that freed it, and glibc gives threads arenas
-/// of their own (up to eight per core): after the set-up's passes on rayon's workers each arena
-/// held its own peak, and a 3-h run at `--period-s 1` refused at a 48-MiB heap budget was
-/// resident 78–93 MB (the bound promises the budget plus ~30 MB). Two arenas (this machine's
-/// cores): 63–67 MB, the speed unchanged.
 pub fn keep_freed_memory() {
     #[cfg(all(target_os = "linux", target_env = "gnu"))]
     // SAFETY: mallopt only sets allocator parameters (glibc serialises it with allocation); it is
@@ -640,7 +635,6 @@ pub fn keep_freed_memory() {
     unsafe {
         libc::mallopt(libc::M_MMAP_THRESHOLD, 256 << 20);
         libc::mallopt(libc::M_TRIM_THRESHOLD, 512 << 20);
-        libc::mallopt(libc::M_ARENA_MAX, 2);
     }
     // The heap's next 64 MB advised for huge pages once, as a large block is
     // ([`crate::heap::HugePages`]), and handed back: freed, it joins the top of the heap, which
@@ -652,6 +646,24 @@ pub fn keep_freed_memory() {
     drop(std::hint::black_box(Vec::<u8>::with_capacity(
         PREADVISED_HEAP_BYTES,
     )));
+}
+
+/// The allocator's set-up under a memory budget the user gave (`--max-memory-mib`): freed memory
+/// goes back to the system and the threads share one arena. Kept memory ([`keep_freed_memory`])
+/// stays in the arena of the thread that freed it, and glibc gives threads arenas of their own:
+/// after the set-up's passes on rayon's workers each arena held its own peak, and a 3-h run at
+/// `--period-s 1` refused at a 48-MiB budget was resident 78–102 MB, past the bound's promise
+/// (the budget plus ~30 MB). Under a budget the resident peak follows the heap's; the passes
+/// fault their buffers in anew (about a tenth more time).
+pub fn return_freed_memory() {
+    #[cfg(all(target_os = "linux", target_env = "gnu"))]
+    // SAFETY: as in keep_freed_memory; malloc_trim only returns free memory to the system.
+    unsafe {
+        libc::mallopt(libc::M_ARENA_MAX, 1);
+        libc::mallopt(libc::M_MMAP_THRESHOLD, 128 << 10);
+        libc::mallopt(libc::M_TRIM_THRESHOLD, 128 << 10);
+        libc::malloc_trim(0);
+    }
 }
 
 /// Heap advised for huge pages at start-up ([`keep_freed_memory`]).
