@@ -223,42 +223,10 @@ pub(crate) fn weigh(
     let run_s = prep.measurements.last().map_or(0.0, |m| m.t_s);
     let has_temp = super::temp_varies(&prep.measurements);
     let setups = setups(catalog, effects, model.dim(), run_s, has_temp, cfg);
-    let key = weigh_key(prep, effects, &setups, cfg, id);
-    cfg.identify.memo.weighed_or(key, || {
-        weigh_setups(prep, &model, effects, &setups, cfg, id)
-    })
+    weigh_setups(prep, &model, effects, &setups, cfg, id)
 }
 
-/// A hash of everything [`weigh`] reads: the measurements, the model's effects, the
-/// candidates (the catalog grows during a run), the settings (not where progress is noted) and
-/// the fit.
-fn weigh_key(
-    prep: &Prepared,
-    effects: &[&dyn Effect],
-    setups: &[Setup],
-    cfg: &DiagnoseConfig,
-    id: &Identification,
-) -> u64 {
-    use crate::identify::memo::{hash_effects, hash_fit, hash_prep};
-    use std::hash::{Hash, Hasher};
-    let mut h = std::collections::hash_map::DefaultHasher::new();
-    hash_prep(&mut h, prep);
-    hash_effects(&mut h, effects);
-    for s in setups {
-        s.name.hash(&mut h);
-        hash_effects(&mut h, &[s.scored()]);
-    }
-    let c = cfg;
-    format!(
-        "{:?} {} {} {} {}",
-        c.identify, c.alpha, c.lags, c.max_rungs, c.markov_block_h
-    )
-    .hash(&mut h);
-    hash_fit(&mut h, id);
-    h.finish()
-}
-
-/// [`weigh`] without its memo: the candidates `setups` from one replay of `model`'s fit.
+/// The candidates `setups` from one replay of `model`'s fit ([`super::replay`], remembered).
 fn weigh_setups(
     prep: &Prepared,
     model: &estimator_core::model::Model<'_>,
@@ -267,11 +235,12 @@ fn weigh_setups(
     cfg: &DiagnoseConfig,
     id: &Identification,
 ) -> anyhow::Result<Vec<Alternative>> {
-    let (_, sigs, _) = super::replay(prep, model, effects, setups, id, cfg)?;
+    let replayed = super::replay(prep, model, effects, setups, id, cfg)?;
+    let sigs = &replayed.1;
     let n = model.dim() - estimator_core::model::ANGLES;
     let mut out: Vec<Alternative> = setups
         .iter()
-        .zip(&sigs)
+        .zip(sigs)
         .filter_map(|(setup, sig)| Some(alternative(setup, sig.as_ref()?, n)))
         .collect();
     weight(&mut out);

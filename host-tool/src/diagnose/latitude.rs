@@ -11,9 +11,10 @@ use estimator_core::frames::normal_gravity;
 use crate::consistency::{assess, Thresholds};
 use crate::diagnose::select::{fit_stats, neg2_log_evidence};
 use crate::identify::setup::at_latitude;
-use crate::identify::{build_model, identify, Config, Identification, Prepared};
+use crate::identify::{build_model, identify, identify_from, Config, Identification, Prepared};
 use crate::quality::{Action, Finding, Kind};
 use rayon::prelude::*;
+use std::sync::{Arc, Mutex};
 
 /// Half-width of each searched interval ([`search_grid`]), deg.
 pub(crate) const SEARCH_HALF_WIDTH_DEG: f64 = 12.0;
@@ -34,23 +35,94 @@ pub(crate) struct LatitudeFit {
     pub consistent: bool,
 }
 
-/// The model fitted at latitude `lat`: −2 ln p(y) and the identification (`None` when it
-/// cannot be fitted there).
-pub(crate) fn fit_at(
-    prep: &Prepared,
-    effects: &[&dyn Effect],
-    cfg: &Config,
-    lat: f64,
-) -> Option<(f64, Identification, Prepared)> {
-    let p = at_latitude(prep, lat);
-    let model = build_model(p.site, effects, cfg).ok()?;
-    let id = identify(&model, &p, cfg).ok()?;
-    Some((neg2_log_evidence(&id), id, p))
+/// A full fit of the model at a latitude: −2 ln p(y), the identification and the measurements
+/// at that site.
+pub(crate) struct Fitted {
+    pub latitude_deg: f64,
+    pub evidence: f64,
+    pub id: Identification,
+    pub prep: Prepared,
 }
 
-/// −2 ln p(y) at latitude `lat`, +∞ where the model cannot be fitted.
-fn evidence_at(prep: &Prepared, effects: &[&dyn Effect], cfg: &Config, lat: f64) -> f64 {
-    fit_at(prep, effects, cfg, lat).map_or(f64::INFINITY, |(e, _, _)| e)
+/// The measurements at another latitude: [`at_latitude`] (gravity moves with the latitude where
+/// it is the normal gravity), or one that keeps the stated gravity.
+pub(crate) type SiteAt = fn(&Prepared, f64) -> Prepared;
+
+/// Farthest a profile fit is warm-started from, deg: the refinement's and the stencil's points
+/// lie within a fraction of a degree of the lowest fit; the bracket's walk, 2° apart, starts cold.
+const WARM_DEG: f64 = 0.5;
+
+/// Full fits of a model over latitude (the profiles here and in
+/// [`crate::diagnose::misstated`]). Each is warm-started ([`identify_from`]: two smoother passes where a
+/// cold fit takes five — the single pass, the second, three Gauss–Newton iterations) from the
+/// lowest fit so far when that lies within [`WARM_DEG`] in the same chart, and fitted cold when
+/// there is none or the warm start does not converge. Both converge to the same tolerance
+/// ([`crate::identify::GN_TOLERANCE_SIGMA`]). Only the lowest fit is kept (a 60-h run at 1 s
+/// holds ~50 MB in one).
+pub(crate) struct Fits<'a> {
+    prep: &'a Prepared,
+    effects: &'a [&'a dyn Effect],
+    cfg: &'a Config,
+    site_at: SiteAt,
+    lowest: Mutex<Option<Arc<Fitted>>>,
+}
+
+impl<'a> Fits<'a> {
+    pub(crate) fn new(
+        prep: &'a Prepared,
+        effects: &'a [&'a dyn Effect],
+        cfg: &'a Config,
+        site_at: SiteAt,
+    ) -> Self {
+        Fits {
+            prep,
+            effects,
+            cfg,
+            site_at,
+            lowest: Mutex::new(None),
+        }
+    }
+
+    /// The lowest fit so far.
+    fn lowest(&self) -> Option<Arc<Fitted>> {
+        self.lowest
+            .lock()
+            .unwrap_or_else(|e| e.into_inner())
+            .clone()
+    }
+
+    /// The model fitted at latitude `lat` (`None` when it cannot be fitted there).
+    pub(crate) fn fit(&self, lat: f64) -> Option<Arc<Fitted>> {
+        let p = (self.site_at)(self.prep, lat);
+        let model = build_model(p.site, self.effects, self.cfg).ok()?;
+        let warm = self
+            .lowest()
+            .filter(|s| {
+                s.prep.site.chart == p.site.chart && (s.latitude_deg - lat).abs() <= WARM_DEG
+            })
+            .and_then(|s| identify_from(&model, &p, self.cfg, &s.id).ok())
+            .filter(|id| id.convergence.is_some_and(|c| c.converged));
+        let id = match warm {
+            Some(id) => id,
+            None => identify(&model, &p, self.cfg).ok()?,
+        };
+        let fitted = Arc::new(Fitted {
+            latitude_deg: lat,
+            evidence: neg2_log_evidence(&id),
+            id,
+            prep: p,
+        });
+        let mut lowest = self.lowest.lock().unwrap_or_else(|e| e.into_inner());
+        if lowest.as_ref().is_none_or(|l| fitted.evidence < l.evidence) {
+            *lowest = Some(Arc::clone(&fitted));
+        }
+        Some(fitted)
+    }
+
+    /// −2 ln p(y) at latitude `lat`, +∞ where the model cannot be fitted.
+    fn evidence(&self, lat: f64) -> f64 {
+        self.fit(lat).map_or(f64::INFINITY, |f| f.evidence)
+    }
 }
 
 /// The coarse grid of the profile, 2° apart, within ±89°, in increasing order: windows of
@@ -112,31 +184,53 @@ fn screened(
     l0: f64,
     f: &(impl Fn(f64) -> f64 + Sync),
 ) -> (f64, Vec<f64>) {
-    let screen = |l: f64| {
-        let p = at_latitude(prep, l);
-        build_model(p.site, effects, cfg)
-            .ok()
-            .and_then(|m| crate::identify::two_pass_evidence(&m, &p, cfg))
-            .unwrap_or(f64::INFINITY)
-    };
+    let screen = |l: f64| screen(prep, effects, cfg, at_latitude, l);
     rayon::join(|| f(l0), || grid.par_iter().map(|&l| screen(l)).collect())
 }
 
+/// The screen's −2 ln p(y) at latitude `lat` ([`crate::identify::two_pass_evidence`]), +∞ where
+/// the passes fail.
+pub(crate) fn screen(
+    prep: &Prepared,
+    effects: &[&dyn Effect],
+    cfg: &Config,
+    site_at: SiteAt,
+    lat: f64,
+) -> f64 {
+    let p = site_at(prep, lat);
+    build_model(p.site, effects, cfg)
+        .ok()
+        .and_then(|m| crate::identify::two_pass_evidence(&m, &p, cfg))
+        .unwrap_or(f64::INFINITY)
+}
+
 /// The bracket of the minimum of `f` about the grid's point `k` (the screen's best): the full
-/// fits at it and at its neighbours 2° away (or 2° beyond where there is none), walked 2° at a
+/// fit at it and at its neighbours 2° away (or 2° beyond where there is none), walked 2° at a
 /// time towards a lower end until the middle is the lowest (the screen only approximates `f`),
-/// at most [`MAX_WALK`] steps.
-fn bracket(grid: &[f64], k: usize, f: &(impl Fn(f64) -> f64 + Sync)) -> [(f64, f64); 3] {
+/// at most [`MAX_WALK`] steps. A neighbour the screen (`scores`) puts clearly above the middle
+/// ([`clearly_above`]) keeps the screen's value: its fit, 2° from the data's latitude, is the
+/// slowest of the profile (~80 ms of a 60-h run: the continuation fit) and would only confirm
+/// the bracket; the refinement replaces the ends with fits as it narrows.
+fn bracket(
+    grid: &[f64],
+    scores: &[f64],
+    k: usize,
+    f: &(impl Fn(f64) -> f64 + Sync),
+) -> [(f64, f64); 3] {
     let side = |j: Option<usize>, l: f64| match j.filter(|&j| j < grid.len()) {
-        Some(j) if (grid[j] - grid[k]).abs() <= 2.5 => grid[j],
-        _ => l.clamp(-89.0, 89.0),
+        Some(j) if (grid[j] - grid[k]).abs() <= 2.5 => (grid[j], Some(scores[j])),
+        _ => (l.clamp(-89.0, 89.0), None),
+    };
+    let end = |(l, screen): (f64, Option<f64>)| match screen {
+        Some(s) if clearly_above(s, scores[k]) => (l, s),
+        _ => (l, f(l)),
     };
     let (lo, hi) = (
         side(k.checked_sub(1), grid[k] - 2.0),
         side(Some(k + 1), grid[k] + 2.0),
     );
-    let ((flo, fm), fhi) = rayon::join(|| rayon::join(|| f(lo), || f(grid[k])), || f(hi));
-    let mut pts = [(lo, flo), (grid[k], fm), (hi, fhi)];
+    let ((lo, fm), hi) = rayon::join(|| rayon::join(|| end(lo), || f(grid[k])), || end(hi));
+    let mut pts = [lo, (grid[k], fm), hi];
     for _ in 0..MAX_WALK {
         let [a, m, b] = pts;
         if a.1 < m.1 && a.1 <= b.1 && a.0 > -89.0 {
@@ -150,6 +244,15 @@ fn bracket(grid: &[f64], k: usize, f: &(impl Fn(f64) -> f64 + Sync)) -> [(f64, f
         }
     }
     pts
+}
+
+/// Relative error the screen's ranking is trusted to: 10× the largest measured (0.5 %).
+const SCREEN_TRUST: f64 = 0.05;
+
+/// Whether the screen's `end` lies above its `middle` by more than the screen's error on
+/// either ([`SCREEN_TRUST`] of each value's size): the full fits would then order them alike.
+fn clearly_above(end: f64, middle: f64) -> bool {
+    end - middle > SCREEN_TRUST * (end.abs() + middle.abs())
 }
 
 /// Most 2° steps of [`bracket`]'s walk.
@@ -227,16 +330,17 @@ fn parabolic_minimum(
 }
 
 /// Profiles the evidence over latitude: a grid of 2° ([`search_grid`]) then a parabolic
-/// refinement ([`parabolic_minimum`]). Also returns the fit at the best latitude.
+/// refinement ([`parabolic_minimum`]).
 pub(crate) fn profile(
     prep: &Prepared,
     effects: &[&dyn Effect],
     cfg: &Config,
-) -> Option<(LatitudeFit, Identification)> {
+) -> Option<LatitudeFit> {
     let l0 = prep.site.latitude_rad.to_degrees();
     // A model that cannot even be fitted at the metadata latitude (the smoother fails) leaves
     // any latitude where it fits, and fits consistently, the better one.
-    let f = |l: f64| evidence_at(prep, effects, cfg, l);
+    let fits = Fits::new(prep, effects, cfg, at_latitude);
+    let f = |l: f64| fits.evidence(l);
     let forces: Vec<[f64; 3]> = prep.measurements.iter().map(|m| m.specific_force).collect();
     let confirmed = crate::quality::hemisphere::latitude_from_forces(&forces)
         .is_some_and(|seen| crate::quality::hemisphere::confirms(l0, seen));
@@ -245,23 +349,22 @@ pub(crate) fn profile(
     let k = (0..grid.len()).min_by(|&a, &b| scores[a].total_cmp(&scores[b]))?;
     // The metadata latitude's fit once.
     let f = |l: f64| if (l - l0).abs() < 1e-9 { f0 } else { f(l) };
-    let [lo, mid, hi] = bracket(&grid, k, &f);
+    let [lo, mid, hi] = bracket(&grid, &scores, k, &f);
     let (best, _) = parabolic_minimum(&f, [lo, mid, hi], REFINE_TOL_DEG, REFINE_MAX);
     // Curvature from a symmetric three-point stencil: −2 ln p ≈ const + (L − L̂)²/σ²; the fit at
     // the best latitude also says whether the model is consistent there.
+    // The lowest fit is the refinement's best: every point but a screened end (higher) was fitted.
+    let at_best = fits.lowest().filter(|l| l.latitude_deg == best)?;
     let h = STENCIL_DEG;
-    let ((fm, fp), at_best) = rayon::join(
-        || rayon::join(|| f(best - h), || f(best + h)),
-        || fit_at(prep, effects, cfg, best),
-    );
-    let (fb, id, p) = at_best?;
+    let (fm, fp) = rayon::join(|| f(best - h), || f(best + h));
+    let (fb, id, p) = (at_best.evidence, &at_best.id, &at_best.prep);
     let curv = (fp - 2.0 * fb + fm) / (h * h);
     let sigma_deg = if curv > 0.0 {
         (2.0 / curv).sqrt()
     } else {
         f64::INFINITY
     };
-    let (rms, nis, white) = fit_stats(&id, &p, 20);
+    let (rms, nis, white) = fit_stats(id, p, 20);
     let consistent = assess(
         nis,
         id.innovations.len(),
@@ -271,15 +374,12 @@ pub(crate) fn profile(
         &Thresholds::default(),
     )
     .is_consistent();
-    Some((
-        LatitudeFit {
-            latitude_deg: best,
-            sigma_deg,
-            gain: f0 - fb,
-            consistent,
-        },
-        id,
-    ))
+    Some(LatitudeFit {
+        latitude_deg: best,
+        sigma_deg,
+        gain: f0 - fb,
+        consistent,
+    })
 }
 
 /// Evidence a wrong latitude pays for being a free parameter (−2 ln units): the Occam factor of
@@ -301,7 +401,7 @@ pub fn check(
     cfg: &Config,
     rivals: &[(String, f64)],
 ) -> Option<Finding> {
-    let (fit, _) = profile(prep, effects, cfg)?;
+    let fit = profile(prep, effects, cfg)?;
     let l0 = prep.site.latitude_rad.to_degrees();
     if !(fit.gain > MIN_GAIN
         && fit.consistent
@@ -359,6 +459,56 @@ pub fn check(
 mod tests {
     use super::*;
 
+    /// The screen ranks the misstated latitude's 0.1° grid ([`crate::diagnose::misstated`]) as
+    /// the full fits do: its best point is the fits' best or a neighbour (from where that
+    /// profile's Newton steps start), over latitudes 0.5° and 0.8° off as stated, 24 and 60 h
+    /// at 10 s, a level and a tilted start.
+    #[test]
+    fn the_screen_ranks_a_misstated_latitudes_grid_as_the_fits_do() {
+        use estimator_core::{Sample, Site};
+        for (truth, stated, hours, tilt, seed) in [
+            (38.6, 39.1, 60.0, [0.0; 3], 1),
+            (46.32, 45.52, 24.0, [30.0, 20.0, 90.0], 2),
+        ] {
+            let mut sc = crate::simulate::Scenario::paper();
+            sc.latitude_deg = truth;
+            sc.hours = hours;
+            sc.rate_s = 10.0;
+            sc.seed = seed;
+            sc.initial_orientation_deg = tilt;
+            let sim = crate::simulate::simulate(&sc);
+            let samples: Vec<Sample> = sim.samples.iter().map(Sample::from).collect();
+            let cfg = Config::default();
+            let theta0 = tilt.map(f64::to_radians);
+            let prep =
+                crate::identify::prepare_oriented(Site::new(stated, None), &samples, &cfg, theta0)
+                    .unwrap();
+            let effects = [crate::catalog::paper()];
+            let keep: SiteAt = |p, l| crate::identify::setup::at_latitude_with(p, l, false);
+            let grid: Vec<f64> = (-10..=10).map(|k| stated + 0.1 * k as f64).collect();
+            let screened: Vec<f64> = grid
+                .iter()
+                .map(|&l| screen(&prep, &effects, &cfg, keep, l))
+                .collect();
+            let fitted: Vec<f64> = grid
+                .iter()
+                .map(|&l| {
+                    let p = keep(&prep, l);
+                    let m = build_model(p.site, &effects, &cfg).unwrap();
+                    neg2_log_evidence(&identify(&m, &p, &cfg).unwrap())
+                })
+                .collect();
+            let argmin = |v: &[f64]| (0..v.len()).min_by(|&a, &b| v[a].total_cmp(&v[b])).unwrap();
+            let (s, f) = (argmin(&screened), argmin(&fitted));
+            assert!(
+                s.abs_diff(f) <= 1,
+                "{truth}: screen's best {} against the fits' {}",
+                grid[s],
+                grid[f]
+            );
+        }
+    }
+
     /// The refinement finds the minimum of a near-quadratic (−2 ln p(y) about the data's
     /// latitude) and of a skewed one to within its tolerance, in fewer evaluations than the 14
     /// golden-section steps it replaced; and an end of the bracket lower than its middle is
@@ -393,22 +543,44 @@ mod tests {
     }
 
     /// The bracket starts at the screen's best and walks to the full fits' minimum when the
-    /// screen was wrong by a cell or two (here the minimum at 43.4°, the screen's pick 39.1°),
-    /// and stays where the screen was right: the middle is the lowest of the three either way.
+    /// screen was wrong by a cell or two (here the minimum at 43.4°, the screen's pick 39.1°, its
+    /// scores flat), and stays where the screen was right: the middle is the lowest of the three
+    /// either way. Ends the screen puts clearly above the middle keep its values, unfitted; one
+    /// within the screen's error of the middle is fitted.
     #[test]
     fn the_bracket_walks_from_the_screens_pick_to_the_minimum() {
         let grid = search_grid(39.1, 40.0, true);
-        let f = |l: f64| (l - 43.4).powi(2);
+        let fitted = std::sync::Mutex::new(Vec::new());
+        let f = |l: f64| {
+            fitted.lock().unwrap().push(l);
+            (l - 43.4).powi(2)
+        };
         let k = grid.iter().position(|l| (l - 39.1).abs() < 1e-9).unwrap();
-        let [a, m, b] = bracket(&grid, k, &f);
+        let flat = vec![0.0; grid.len()];
+        let [a, m, b] = bracket(&grid, &flat, k, &f);
         assert!(m.1 <= a.1 && m.1 <= b.1, "{a:?} {m:?} {b:?}");
         assert!(
             (m.0 - 43.1).abs() < 1e-9 && a.0 < 43.4 && b.0 > 43.4,
             "{a:?} {m:?} {b:?}"
         );
-        let g = |l: f64| (l - 39.3).powi(2);
-        let [a, m, b] = bracket(&grid, k, &g);
+        let g = |l: f64| {
+            fitted.lock().unwrap().push(l);
+            (l - 39.3).powi(2)
+        };
+        let screen: Vec<f64> = grid.iter().map(|l| (l - 39.3).powi(2) * 1.004).collect();
+        fitted.lock().unwrap().clear();
+        let [a, m, b] = bracket(&grid, &screen, k, &g);
         assert_eq!([a.0, m.0, b.0], [grid[k - 1], grid[k], grid[k + 1]]);
+        assert_eq!(
+            *fitted.lock().unwrap(),
+            vec![grid[k]],
+            "only the middle is fitted"
+        );
+        // The minimum between two cells: the screen cannot tell them apart, both ends are fitted.
+        let screen: Vec<f64> = grid.iter().map(|l| (l - 40.1).powi(2)).collect();
+        fitted.lock().unwrap().clear();
+        bracket(&grid, &screen, k + 1, &g);
+        assert_eq!(fitted.lock().unwrap().len(), 3);
     }
 
     /// The mirrored window is searched only where the data have not confirmed the hemisphere;

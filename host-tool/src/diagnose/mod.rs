@@ -114,7 +114,8 @@ pub(crate) fn diagnose_identified(
     let setups = candidates::setups(catalog, effects, model.dim(), run_s, temp_varies(meas), cfg);
     cfg.progress
         .note(|| format!("score tests of {} candidates", setups.len()));
-    let (pass, sigs, _) = replay(prep, &model, effects, &setups, &id, cfg)?;
+    let replayed = replay(prep, &model, effects, &setups, &id, cfg)?;
+    let (pass, sigs) = (&replayed.0, &replayed.1);
     // Series and residual statistics.
     let series = series(&model, meas, &id, &pass.innovations);
     let fit = statistics::fit(
@@ -167,7 +168,7 @@ pub(crate) fn diagnose_identified(
 }
 
 /// One replay of the model's final forward pass carrying every testable candidate's signature
-/// ([`score::signatures`]).
+/// ([`score::signatures`]), remembered for the command ([`crate::identify::memo::FitMemo`]).
 pub(crate) fn replay(
     prep: &Prepared,
     model: &Model<'_>,
@@ -175,25 +176,57 @@ pub(crate) fn replay(
     setups: &[candidates::Setup],
     id: &Identification,
     cfg: &DiagnoseConfig,
-) -> anyhow::Result<score::Replay> {
-    let lists = candidates::extended_lists(effects, setups);
-    let extended: Vec<Option<Model<'_>>> = lists
-        .iter()
-        .map(|l| {
-            l.as_ref()
-                .and_then(|l| build_model(prep.site, l, &cfg.identify).ok())
-        })
-        .collect();
-    let (x0, p0) = start_prior(model, prep, &prep.start_sigma());
-    let meas = &prep.measurements;
-    Ok(signatures(
-        model,
-        &extended,
-        meas,
-        &id.trajectory,
-        &x0,
-        &p0,
-    )?)
+) -> anyhow::Result<std::sync::Arc<score::Replay>> {
+    let key = replay_key(prep, effects, setups, cfg, id);
+    let steps = prep.measurements.len();
+    cfg.identify.memo.replayed_or(key, steps, || {
+        let lists = candidates::extended_lists(effects, setups);
+        let extended: Vec<Option<Model<'_>>> = lists
+            .iter()
+            .map(|l| {
+                l.as_ref()
+                    .and_then(|l| build_model(prep.site, l, &cfg.identify).ok())
+            })
+            .collect();
+        let (x0, p0) = start_prior(model, prep, &prep.start_sigma());
+        Ok(signatures(
+            model,
+            &extended,
+            &prep.measurements,
+            &id.trajectory,
+            &x0,
+            &p0,
+        )?)
+    })
+}
+
+/// A hash of everything [`replay`] reads: the measurements, the model's effects, the
+/// candidates (the catalog grows during a run), the settings (not where progress is noted) and
+/// the fit.
+fn replay_key(
+    prep: &Prepared,
+    effects: &[&dyn Effect],
+    setups: &[candidates::Setup],
+    cfg: &DiagnoseConfig,
+    id: &Identification,
+) -> u64 {
+    use crate::identify::memo::{hash_effects, hash_fit, hash_prep};
+    use std::hash::{Hash, Hasher};
+    let mut h = std::collections::hash_map::DefaultHasher::new();
+    hash_prep(&mut h, prep);
+    hash_effects(&mut h, effects);
+    for s in setups {
+        s.name.hash(&mut h);
+        hash_effects(&mut h, &[s.scored()]);
+    }
+    let c = cfg;
+    format!(
+        "{:?} {} {} {} {}",
+        c.identify, c.alpha, c.lags, c.max_rungs, c.markov_block_h
+    )
+    .hash(&mut h);
+    hash_fit(&mut h, id);
+    h.finish()
 }
 
 /// Whether the recording's temperature varies (more than 1e-6 °C over at least two values).

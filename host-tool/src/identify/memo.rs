@@ -13,7 +13,7 @@ use estimator_core::effects::Effect;
 use estimator_core::model::Model;
 
 use super::{Config, Identification, Prepared};
-use crate::diagnose::alternatives::Alternative;
+use crate::diagnose::score::Replay;
 
 /// Filter steps of the fits kept, at most (the least recently used forgotten first): ~250 bytes
 /// a step (a fit's trajectory and innovations), 50 MB. A 60-h run at the 60-s period has 3 600
@@ -25,16 +25,18 @@ const MAX_HELD_STEPS: usize = 200_000;
 const MAX_STEPS: usize = 20_000;
 
 /// The fits of one command, shared by every copy of its [`Config`] (a new `Config` starts
-/// empty), and the alternatives weighed about them ([`FitMemo::weighed_or`]).
+/// empty), and the candidates' replays about them ([`FitMemo::replayed_or`]).
 #[derive(Clone, Default)]
-pub struct FitMemo(Held<Identification>, Held<Vec<Alternative>>);
+pub struct FitMemo(Held<Identification>, Held<Arc<Replay>>);
 
 /// Values under their keys, shared by the copies of a memo, the most recently used last.
 type Held<T> = Arc<Mutex<VecDeque<(u64, T)>>>;
 
-/// Weighings of the catalog's alternatives kept, at most (the oldest forgotten first): a few
-/// kilobytes each.
-const MAX_WEIGHED: usize = 16;
+/// Filter steps of the replays kept, at most (the oldest forgotten first): ~1.6 kB a step (the
+/// candidates' whitened signatures, the pass's states and innovations), 13 MB. A 60-h run at
+/// the 60-s period keeps two: the replay a weighing and the next rung (or the final assessment)
+/// share.
+const MAX_REPLAY_STEPS: usize = 8_000;
 
 impl std::fmt::Debug for FitMemo {
     /// Nothing of the contents: a `Config`'s debug text is part of [`fit_key`].
@@ -79,25 +81,34 @@ impl FitMemo {
 }
 
 impl FitMemo {
-    /// The catalog's alternatives remembered under `key`, else `weigh()`'s (remembered when
-    /// it succeeds). `identify` weighs them about its final fit in the assessment and again,
-    /// on a misfit, as the rivals of a wrong latitude (0.07 s of a 60-h run).
-    pub(crate) fn weighed_or(
+    /// The candidates' replay remembered under `key`, else `replay()`'s (remembered when it
+    /// succeeds, within [`MAX_REPLAY_STEPS`]). The same fit is replayed by the weighing of the
+    /// catalog's alternatives and by the ladder's rung on it: `diagnose` on a misfit weighs the
+    /// starting fit's alternatives (the rivals of a wrong latitude) before rung 0 scores the
+    /// same candidates, and the final assessment weighs the last rung's (80 ms each on a 60-h
+    /// run); `identify` weighs its final fit in the assessment and again as a misfit's rivals.
+    pub(crate) fn replayed_or(
         &self,
         key: u64,
-        weigh: impl FnOnce() -> anyhow::Result<Vec<Alternative>>,
-    ) -> anyhow::Result<Vec<Alternative>> {
+        steps: usize,
+        replay: impl FnOnce() -> anyhow::Result<Replay>,
+    ) -> anyhow::Result<Arc<Replay>> {
         let lock = || self.1.lock().unwrap_or_else(|e| e.into_inner());
-        if let Some((_, alts)) = lock().iter().find(|(k, _)| *k == key) {
-            return Ok(alts.clone());
+        if let Some((_, r)) = lock().iter().find(|(k, _)| *k == key) {
+            return Ok(Arc::clone(r));
         }
-        let alts = weigh()?;
-        let mut memo = lock();
-        if memo.len() >= MAX_WEIGHED {
-            memo.pop_front();
+        let r = Arc::new(replay()?);
+        if steps <= MAX_REPLAY_STEPS {
+            let mut memo = lock();
+            let held = |m: &VecDeque<(u64, Arc<Replay>)>| {
+                m.iter().map(|(_, r)| r.0.innovations.len()).sum::<usize>()
+            };
+            while !memo.is_empty() && held(&memo) + steps > MAX_REPLAY_STEPS {
+                memo.pop_front();
+            }
+            memo.push_back((key, Arc::clone(&r)));
         }
-        memo.push_back((key, alts.clone()));
-        Ok(alts)
+        Ok(r)
     }
 }
 
@@ -202,12 +213,14 @@ mod tests {
         assert_eq!(Config::default().memo.0.lock().unwrap().len(), 0);
     }
 
-    /// The catalog's alternatives weighed about a fit are handed back when the same fit is
-    /// weighed again, wherever its progress is noted (`identify` weighs them in the assessment
-    /// and again as a misfit's rivals), and weighed anew about another fit.
+    /// A fit's replay is handed back when the same fit is weighed again, wherever its progress
+    /// is noted (`identify` weighs the alternatives in the assessment and again as a misfit's
+    /// rivals) and when the ladder scores the same candidates on it; another fit is replayed
+    /// anew.
     #[test]
-    fn alternatives_are_weighed_once_per_fit() {
-        use crate::diagnose::{alternatives, DiagnoseConfig};
+    fn a_fit_is_replayed_once() {
+        use crate::diagnose::alternatives::{self, Alternative};
+        use crate::diagnose::DiagnoseConfig;
         use crate::simulate::Scenario;
         use estimator_core::{Sample, Site};
         let mut sc = Scenario::paper();
@@ -230,7 +243,18 @@ mod tests {
         let again = alternatives::weigh(&prep, catalog, &paper, &noted, &id).unwrap();
         let gains = |a: &[Alternative]| a.iter().map(|x| x.evidence_gain).collect::<Vec<_>>();
         assert_eq!(gains(&first), gains(&again));
-        assert_eq!(cfg.identify.memo.1.lock().unwrap().len(), 1, "weighed once");
+        assert_eq!(
+            cfg.identify.memo.1.lock().unwrap().len(),
+            1,
+            "replayed once"
+        );
+        let (d, _) = crate::diagnose::diagnose(&prep, catalog, &paper, &cfg).unwrap();
+        assert_eq!(
+            cfg.identify.memo.1.lock().unwrap().len(),
+            1,
+            "and scored from it"
+        );
+        assert!(!d.ranking.is_empty());
         let mut other = id.clone();
         if let Some(est) = other.refined.as_mut() {
             est.value[0] += 1e-6;
