@@ -133,7 +133,7 @@ pub(crate) fn diagnose_identified(
         &Thresholds::default(),
     );
     // Ranking, confounding, and the evidence's choice among the refitted leaders.
-    let ranked = candidates::rank(&setups, &sigs, cfg.alpha);
+    let ranked = candidates::rank(&setups, sigs, cfg.alpha);
     let confounding = candidates::confounding(&ranked, cfg.alpha);
     let mut ranking: Vec<Candidate> = ranked.into_iter().map(|(c, _)| c).collect();
     let choice = choose(
