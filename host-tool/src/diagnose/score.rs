@@ -358,10 +358,15 @@ fn basis(w: &DMatrix<f64>) -> DMatrix<f64> {
     DMatrix::from_fn(u.nrows(), keep.len(), |i, j| u[(i, keep[j])])
 }
 
-/// Largest canonical correlation between two whitened signatures: how alike their footprints
-/// in the innovations are (1 = indistinguishable on this run).
-pub(crate) fn canonical_correlation(a: &Signature, b: &Signature) -> f64 {
-    let (qa, qb) = (basis(&a.whitened), basis(&b.whitened));
+/// Orthonormal basis of a signature's footprint in the innovations: the span of its whitened
+/// columns ([`canonical_correlation`] compares two).
+pub(crate) fn footprint(s: &Signature) -> DMatrix<f64> {
+    basis(&s.whitened)
+}
+
+/// Largest canonical correlation between two signatures' footprints ([`footprint`]): how alike
+/// they are in the innovations (1 = indistinguishable on this run).
+pub(crate) fn canonical_correlation(qa: &DMatrix<f64>, qb: &DMatrix<f64>) -> f64 {
     if qa.ncols() == 0 || qb.ncols() == 0 {
         return 0.0;
     }
