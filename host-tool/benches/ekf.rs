@@ -8,7 +8,8 @@
 //! process, the whole command: reading, screening, the fit, the set-up's uncertainty, the
 //! alternatives) on 60-h recordings at 1 s that the model fits and that it does not: clean, a
 //! hidden catalog effect (an accelerometer bias), an uncatalogued drift (a 30-h sine), a bias
-//! step (a fault). Issue 31's table; its CPU time is the child's (`RUSAGE_CHILDREN`).
+//! step (a fault), a metadata latitude 0.5° off (repaired). Issue 31's table; its CPU time is
+//! the child's (`RUSAGE_CHILDREN`).
 //!
 //! Run: `cargo bench -p host-tool --bench ekf` (one group: `… --bench ekf -- read`).
 //!
@@ -278,6 +279,10 @@ fn commands(c: &mut Criterion) {
         (
             "bias_step",
             simulated_60h("bias_step", &["--fault", "step=y,4e-4,30"]),
+        ),
+        (
+            "latitude_half_degree_off",
+            simulated_60h("lat05", &["--latitude-error-deg", "0.5"]),
         ),
     ];
     let mut group = c.benchmark_group("commands");
