@@ -325,7 +325,7 @@ def main():
     ref = np.array([coefs[n]["value"] for n in NAMES])
     ref_sigma = np.array([coefs[n]["sigma"] for n in NAMES])
 
-    rows = [("driftid identify (converged: 2 passes + smoother)", t_conv, None)]
+    rows = [("driftid identify (fit + the honest-uncertainty checks)", t_conv, None)]
     rows.append(("driftid identify --single-pass", t_single, None))
     t_np, x_np = best_of(max(1, args.repeat - 1), lambda: python_run(rec, numpy_pass))
     rows.append(("numpy, the same 2 EKF passes", t_np, x_np))
