@@ -459,6 +459,45 @@ pub fn check(
 mod tests {
     use super::*;
 
+    /// A profile fit warm-started from the lowest fit 0.3° away (`Fits`: two smoother passes
+    /// from its trajectory) is the cold fit there (the single pass, the second, three
+    /// Gauss–Newton passes): −2 ln p(y) within 0.01 and every parameter within 0.02 of its 1σ.
+    /// Both stop when a pass moves no state by 0.01σ ([`crate::identify::GN_TOLERANCE_SIGMA`]),
+    /// so the two may differ by about that much; a wrong chart or a warm start about another
+    /// model would differ by many σ.
+    #[test]
+    fn a_warm_started_profile_fit_is_the_cold_fit() {
+        use estimator_core::{Sample, Site};
+        let mut sc = crate::simulate::Scenario::paper();
+        sc.hours = 24.0;
+        sc.rate_s = 10.0;
+        sc.initial_orientation_deg = [30.0, 20.0, 90.0];
+        let sim = crate::simulate::simulate(&sc);
+        let samples: Vec<Sample> = sim.samples.iter().map(Sample::from).collect();
+        let cfg = Config::default();
+        let theta0 = sc.initial_orientation_deg.map(f64::to_radians);
+        let prep = crate::identify::prepare_oriented(Site::new(39.1, None), &samples, &cfg, theta0)
+            .unwrap();
+        let effects = [crate::catalog::paper()];
+        let fits = Fits::new(&prep, &effects, &cfg, at_latitude);
+        let first = fits.fit(39.1).unwrap();
+        let warm = fits.fit(39.4).unwrap();
+        // Warm-started, not refitted cold: a warm start keeps the fit it started from's single
+        // pass (`identify_from`), a cold fit makes its own.
+        let single = |f: &Fitted| f.id.single_pass.as_ref().map(|e| e.value.clone());
+        assert_eq!(single(&warm), single(&first), "not warm-started");
+        let p = at_latitude(&prep, 39.4);
+        let model = build_model(p.site, &effects, &cfg).unwrap();
+        let cold = identify(&model, &p, &Config::default()).unwrap();
+        let de = (warm.evidence - neg2_log_evidence(&cold)).abs();
+        assert!(de < 0.01, "−2 ln p(y) differs by {de}");
+        let (w, c) = (warm.id.best(), cold.best());
+        for k in 0..c.value.len() {
+            let z = (w.value[k] - c.value[k]).abs() / c.sigma(k);
+            assert!(z < 0.02, "{}: {z:.4}σ apart", cold.params[k].name);
+        }
+    }
+
     /// The screen ranks the misstated latitude's 0.1° grid ([`crate::diagnose::misstated`]) as
     /// the full fits do: its best point is the fits' best or a neighbour (from where that
     /// profile's Newton steps start), over latitudes 0.5° and 0.8° off as stated, 24 and 60 h
