@@ -353,8 +353,12 @@ pub(crate) fn profile(
     let (best, _) = parabolic_minimum(&f, [lo, mid, hi], REFINE_TOL_DEG, REFINE_MAX);
     // Curvature from a symmetric three-point stencil: −2 ln p ≈ const + (L − L̂)²/σ²; the fit at
     // the best latitude also says whether the model is consistent there.
-    // The lowest fit is the refinement's best: every point but a screened end (higher) was fitted.
-    let at_best = fits.lowest().filter(|l| l.latitude_deg == best)?;
+    // The lowest fit is the refinement's best: every point but a screened end was fitted. (A
+    // screened end is the best only where the middle could not be fitted: it is fitted then.)
+    let at_best = match fits.lowest().filter(|l| l.latitude_deg == best) {
+        Some(fit) => fit,
+        None => fits.fit(best)?,
+    };
     let h = STENCIL_DEG;
     let (fm, fp) = rayon::join(|| f(best - h), || f(best + h));
     let (fb, id, p) = (at_best.evidence, &at_best.id, &at_best.prep);
