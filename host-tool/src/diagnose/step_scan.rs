@@ -237,9 +237,8 @@ mod tests {
     /// change, 1e-6 of each coefficient's 1σ.
     #[test]
     fn the_scan_equals_the_extended_filter_at_every_time() {
-        use crate::identify::{identify, prepare};
+        use crate::identify::identify;
         use crate::simulate::{InjectedEffect, Scenario};
-        use estimator_core::{Sample, Site};
         // 24 h at 60 s with a drift step at 9 h the model lacks: the fit bends, the scan's gains
         // are large (the comparison is then a relative one) and the step's Γ is exercised.
         let mut sc = Scenario::paper();
@@ -249,11 +248,8 @@ mod tests {
             a_deg_h: [0.002, -0.001, 0.0015],
             t0_h: 9.0,
         }];
-        let sim = crate::simulate::simulate(&sc);
-        let samples: Vec<Sample> = sim.samples.iter().map(Sample::from).collect();
         let cfg = Config::default();
-        let site = Site::new(sim.meta.latitude_deg.unwrap(), sim.meta.gravity_mps2);
-        let prep = prepare(site, &samples, &cfg).unwrap();
+        let prep = crate::simulate::prepared(&sc, &cfg);
         let effects = [crate::catalog::paper()];
         let model = build_model(prep.site, &effects, &cfg).unwrap();
         let id = identify(&model, &prep, &cfg).unwrap();

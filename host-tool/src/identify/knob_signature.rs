@@ -189,8 +189,7 @@ mod tests {
     use super::*;
     use crate::identify::setup::moved;
     use crate::identify::smoother::linearised_pass;
-    use crate::identify::{identify, neg2_log_evidence, prepare};
-    use estimator_core::{Sample, Site};
+    use crate::identify::{identify, neg2_log_evidence};
 
     /// The signature's gradient, curvature and the coefficients' sensitivity against central
     /// differences of the linearised filter's −2 ln p(y) and final state at the set-up moved by
@@ -210,11 +209,8 @@ mod tests {
         sc.hours = 24.0;
         sc.rate_s = 10.0;
         sc.latitude_deg = 21.7;
-        let sim = crate::simulate::simulate(&sc);
-        let samples: Vec<Sample> = sim.samples.iter().map(Sample::from).collect();
         let cfg = Config::default();
-        let site = Site::new(sim.meta.latitude_deg.unwrap(), sim.meta.gravity_mps2);
-        let prep = prepare(site, &samples, &cfg).unwrap();
+        let prep = crate::simulate::prepared(&sc, &cfg);
         let effects = [crate::catalog::paper()];
         let model = build_model(prep.site, &effects, &cfg).unwrap();
         let id = identify(&model, &prep, &cfg).unwrap();

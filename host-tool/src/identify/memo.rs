@@ -173,22 +173,18 @@ pub(crate) fn fit_key(model: &Model<'_>, prep: &Prepared, cfg: &Config) -> u64 {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::identify::{build_model, identify, prepare};
+    use crate::identify::{build_model, identify};
 
     /// The memo hands back the fit made for the same model, data and settings — and only for
     /// them: another effect, another latitude or another setting is fitted anew.
     #[test]
     fn a_fit_is_reused_only_for_the_same_model_data_and_settings() {
         use crate::simulate::Scenario;
-        use estimator_core::{Sample, Site};
         let mut sc = Scenario::paper();
         sc.hours = 6.0;
         sc.rate_s = 60.0;
-        let sim = crate::simulate::simulate(&sc);
-        let samples: Vec<Sample> = sim.samples.iter().map(Sample::from).collect();
         let cfg = Config::default();
-        let site = Site::new(sim.meta.latitude_deg.unwrap(), sim.meta.gravity_mps2);
-        let prep = prepare(site, &samples, &cfg).unwrap();
+        let prep = crate::simulate::prepared(&sc, &cfg);
         let paper = [crate::catalog::paper()];
         let with_bias = [
             crate::catalog::paper(),
@@ -222,15 +218,11 @@ mod tests {
         use crate::diagnose::alternatives::{self, Alternative};
         use crate::diagnose::DiagnoseConfig;
         use crate::simulate::Scenario;
-        use estimator_core::{Sample, Site};
         let mut sc = Scenario::paper();
         sc.hours = 6.0;
         sc.rate_s = 60.0;
-        let sim = crate::simulate::simulate(&sc);
-        let samples: Vec<Sample> = sim.samples.iter().map(Sample::from).collect();
         let cfg = DiagnoseConfig::default();
-        let site = Site::new(sim.meta.latitude_deg.unwrap(), sim.meta.gravity_mps2);
-        let prep = prepare(site, &samples, &cfg.identify).unwrap();
+        let prep = crate::simulate::prepared(&sc, &cfg.identify);
         let catalog = crate::catalog::Catalog::builtin();
         let paper = [crate::catalog::paper()];
         let model = build_model(prep.site, &paper, &cfg.identify).unwrap();

@@ -323,8 +323,7 @@ pub(crate) fn knobs_with_drifts(
 mod tests {
     use super::*;
     use crate::identify::setup::{moved, uncertainty};
-    use crate::identify::{identify, neg2_log_evidence, prepare};
-    use estimator_core::{Sample, Site};
+    use crate::identify::{identify, neg2_log_evidence};
 
     /// The knobs' Hessian with the trend integrated out, `H − 2 Jᵀ P_dd⁻¹ J`, against the second
     /// difference of −2 ln p(y) of the model with the trend itself (linearised passes at the
@@ -337,11 +336,8 @@ mod tests {
         let mut sc = crate::simulate::Scenario::paper();
         sc.hours = 60.0;
         sc.rate_s = 10.0;
-        let sim = crate::simulate::simulate(&sc);
-        let samples: Vec<Sample> = sim.samples.iter().map(Sample::from).collect();
         let cfg = Config::default();
-        let site = Site::new(sim.meta.latitude_deg.unwrap(), sim.meta.gravity_mps2);
-        let prep = prepare(site, &samples, &cfg).unwrap();
+        let prep = crate::simulate::prepared(&sc, &cfg);
         let effects = [crate::catalog::paper()];
         let model = build_model(prep.site, &effects, &cfg).unwrap();
         let id = identify(&model, &prep, &cfg).unwrap();

@@ -647,6 +647,25 @@ pub(crate) fn describe(s: &Scenario) -> String {
     d
 }
 
+/// `sc` simulated and prepared as `identify` prepares it, at the recording's latitude and
+/// gravity with a level start: the fixture of the host's unit tests.
+#[cfg(test)]
+pub(crate) fn prepared(sc: &Scenario, cfg: &crate::identify::Config) -> crate::identify::Prepared {
+    let sim = simulate(sc);
+    let samples: Vec<estimator_core::Sample> = sim
+        .samples
+        .iter()
+        .map(estimator_core::Sample::from)
+        .collect();
+    let site = estimator_core::Site::new(
+        sim.meta
+            .latitude_deg
+            .expect("a simulated recording states its latitude"),
+        sim.meta.gravity_mps2,
+    );
+    crate::identify::prepare(site, &samples, cfg).expect("a simulated recording prepares")
+}
+
 /// Simulates the scenario. Panics if [`Scenario::validate`] fails.
 pub fn simulate(s: &Scenario) -> Simulation {
     if let Err(e) = s.validate() {
