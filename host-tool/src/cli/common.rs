@@ -417,18 +417,19 @@ fn load_with(
 pub use crate::identify::build_model;
 
 /// Asks whether the metadata latitude is why a model does not fit ([`crate::diagnose::latitude`]),
-/// against `rivals` (the catalog effects' evidence gains on the same scale): the profile's
+/// against the catalog effects' evidence gains on the same scale (`rivals` of the measurements,
+/// called only when the profile finds a latitude worth weighing against them): the profile's
 /// finding, if any, joins `prep.findings`, where it is a fault (the result is not trusted, and no
 /// physical effect is added to explain it). Call it once a fit is inconsistent.
 pub(crate) fn name_a_wrong_latitude(
     prep: &mut Prepared,
     effects: &[&dyn estimator_core::effects::Effect],
     cfg: &Config,
-    rivals: &[(String, f64)],
+    rivals: impl FnOnce(&Prepared) -> Vec<(String, f64)>,
     progress: &Progress,
 ) {
     progress.note(|| "the model does not fit: profiling the latitude".into());
-    let found = crate::diagnose::latitude::check(prep, effects, cfg, rivals);
+    let found = crate::diagnose::latitude::check_with(prep, effects, cfg, || rivals(prep));
     prep.findings.extend(found);
 }
 
@@ -563,7 +564,7 @@ pub(crate) fn starting_fit(
         misstated: mis,
         about,
     };
-    name_a_wrong_latitude(prep, effects, cfg, &rivals, progress);
+    name_a_wrong_latitude(prep, effects, cfg, |_| rivals, progress);
     Ok(Some(id))
 }
 

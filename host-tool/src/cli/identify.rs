@@ -410,8 +410,9 @@ fn run_one(args: &IdentifyArgs, catalog: &Catalog) -> anyhow::Result<()> {
         let spin = crate::progress::spinner("the model does not fit");
         let progress = crate::progress::follow(&spin);
         let (prep, id) = (&mut assessed.prep, &assessed.id);
-        let rivals = super::common::rivals(prep, catalog, &effects, &cfg, id, &progress);
-        super::common::name_a_wrong_latitude(prep, &effects, &cfg, &rivals, &progress);
+        let rivals =
+            |p: &Prepared| super::common::rivals(p, catalog, &effects, &cfg, id, &progress);
+        super::common::name_a_wrong_latitude(prep, &effects, &cfg, rivals, &progress);
         spin.finish_and_clear();
     }
     let (reasons, step) = untrusted(&mut assessed, step, check.as_ref());

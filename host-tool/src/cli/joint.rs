@@ -373,8 +373,8 @@ fn refuse_wrong_latitudes(
         if let Some(id) = misfit {
             let spin = crate::progress::spinner("the model does not fit");
             let progress = crate::progress::follow(&spin);
-            let rivals = super::common::rivals(&r.prep, catalog, effects, cfg, id, &progress);
-            super::common::name_a_wrong_latitude(&mut r.prep, effects, cfg, &rivals, &progress);
+            let rivals = |p: &_| super::common::rivals(p, catalog, effects, cfg, id, &progress);
+            super::common::name_a_wrong_latitude(&mut r.prep, effects, cfg, rivals, &progress);
             spin.finish_and_clear();
         }
         named.extend(

@@ -405,6 +405,18 @@ pub fn check(
     cfg: &Config,
     rivals: &[(String, f64)],
 ) -> Option<Finding> {
+    check_with(prep, effects, cfg, || rivals.to_vec())
+}
+
+/// [`check`], the rivals computed by `rivals` only when the profile finds a latitude worth
+/// weighing against them (refitting the catalog's leaders is most of a misfit's check, and the
+/// profile rarely finds one).
+pub(crate) fn check_with(
+    prep: &Prepared,
+    effects: &[&dyn Effect],
+    cfg: &Config,
+    rivals: impl FnOnce() -> Vec<(String, f64)>,
+) -> Option<Finding> {
     let fit = profile(prep, effects, cfg)?;
     let l0 = prep.site.latitude_rad.to_degrees();
     if !(fit.gain > MIN_GAIN
@@ -414,6 +426,7 @@ pub fn check(
         return None;
     }
     let evidence = fit.gain - occam(fit.sigma_deg);
+    let rivals = rivals();
     let rival = rivals
         .iter()
         .max_by(|a, b| a.1.total_cmp(&b.1))
