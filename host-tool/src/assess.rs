@@ -203,10 +203,19 @@ fn assess_as_stated(
         progress: progress.clone(),
         ..Default::default()
     };
-    progress.note(|| "weighing the catalog effects not in the model".into());
-    let mut alts = alternatives::weigh(&out.prep, catalog, effects, &dcfg, &out.id)?;
-    progress.note(|| "weighing a misstated latitude, clock rate or gravity".into());
-    let weighed = misstated::weigh(effects, &stated.0, cfg, &stated.1, &unc)?;
+    // Side by side: the catalog's replay is one thread's work (its candidates step with the
+    // pass), and the misstatements' refits are few.
+    let (alts, weighed) = rayon::join(
+        || {
+            progress.note(|| "weighing the catalog effects not in the model".into());
+            alternatives::weigh(&out.prep, catalog, effects, &dcfg, &out.id)
+        },
+        || {
+            progress.note(|| "weighing a misstated latitude, clock rate or gravity".into());
+            misstated::weigh(effects, &stated.0, cfg, &stated.1, &unc)
+        },
+    );
+    let (mut alts, weighed) = (alts?, weighed?);
     // The data prefer the set-up moved within its priors to the set-up as stated.
     let moved = weighed.stated_gain.filter(|g| *g > 0.0);
     let within_priors = weighed.within_priors;

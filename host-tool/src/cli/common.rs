@@ -502,7 +502,6 @@ pub(crate) fn starting_fit(
     if consistent && weighed.stated_gain.is_none_or(|g| g <= 0.0) {
         return Ok(Some(id));
     }
-    let mut rivals = rivals(prep, catalog, effects, cfg, &id, progress);
     let moved_within = weighed.within_priors;
     let about: Vec<(&'static str, f64)> = id
         .params
@@ -513,6 +512,18 @@ pub(crate) fn starting_fit(
     // On the scale of the rivals, refitted at the stated set-up: the misstatements' gains over
     // that fit, and the stated set-up within its priors as one more rival.
     let (mis, within_priors) = weighed.on_the_stated_fit();
+    // The catalog's rivals (refits, most of this check) are weighed now only where the set-up
+    // could win without them: more rivals never make a repair, a confounded set-up or the
+    // set-up within its priors win (`to_repair`, `confounded`: the best against the rest).
+    // Otherwise only the latitude's profile may need them.
+    let set_up_may_win = misstated::to_repair(&mis, &[]).is_some()
+        || misstated::confounded(&mis, &[]).is_some()
+        || within_priors.as_ref().is_some_and(|(_, g)| *g > 0.0);
+    let catalog_rivals = |p: &Prepared| rivals(p, catalog, effects, cfg, &id, progress);
+    let mut rivals = match set_up_may_win {
+        true => catalog_rivals(prep),
+        false => vec![],
+    };
     // Contradicted or moved within its priors, a repair must beat the catalog's effects with
     // the set-up within its priors (crate::assess's rule).
     if let Some(w) = moved_within {
@@ -564,7 +575,11 @@ pub(crate) fn starting_fit(
         misstated: mis,
         about,
     };
-    name_a_wrong_latitude(prep, effects, cfg, |_| rivals, progress);
+    let all_rivals = |p: &Prepared| match set_up_may_win {
+        true => rivals,
+        false => [catalog_rivals(p), rivals].concat(),
+    };
+    name_a_wrong_latitude(prep, effects, cfg, all_rivals, progress);
     Ok(Some(id))
 }
 

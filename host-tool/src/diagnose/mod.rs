@@ -313,16 +313,31 @@ fn choose(
         .map(|c| c.effect.clone())
         .collect();
     let base_evidence = select::neg2_log_evidence(id);
-    let mut refits = select::refit(prep, catalog, effects, base_evidence, &leaders, cfg);
     // Whenever an effect is to be added (the model misfits, or a catalog effect is significant
     // though it fits), the profiled explanations compete with the catalog's: a consistent start
     // whose score test named `drift-daily` took it for a 30-h periodic drift (36 h at 10 s) and
     // was trusted with DY0 4.1σ off.
-    if !consistent || !leaders.is_empty() {
-        refits.extend(drift_step::candidate(prep, effects, id, base_evidence, cfg));
-        refits.extend(warmup::candidate(prep, effects, id, base_evidence, cfg));
-        refits.extend(periodic::candidate(prep, effects, id, base_evidence, cfg));
-    }
+    let profiled = !consistent || !leaders.is_empty();
+    // The refits and the three profiles are independent: side by side on the pool (each is a
+    // few fits or passes, some one after another).
+    let (mut refits, (step, (warmup, periodic))) = rayon::join(
+        || select::refit(prep, catalog, effects, base_evidence, &leaders, cfg),
+        || match profiled {
+            false => (None, (None, None)),
+            true => rayon::join(
+                || drift_step::candidate(prep, effects, id, base_evidence, cfg),
+                || {
+                    rayon::join(
+                        || warmup::candidate(prep, effects, id, base_evidence, cfg),
+                        || periodic::candidate(prep, effects, id, base_evidence, cfg),
+                    )
+                },
+            ),
+        },
+    );
+    refits.extend(step);
+    refits.extend(warmup);
+    refits.extend(periodic);
     for r in &refits {
         if let Some(c) = ranking.iter_mut().find(|c| c.effect == r.effect) {
             c.refit = Some(r.clone());

@@ -105,6 +105,11 @@ pub(crate) struct Tracker {
     info: DMatrix<f64>,
     /// The whitened signature's rows, 3 per update, q values each (when kept).
     whitened: Option<Vec<f64>>,
+    /// Buffers of one step (Ψ⁻, D, D̃), reused: a replay steps every candidate at every update,
+    /// and allocating them anew was a fifth of its time.
+    psi_pred: DMatrix<f64>,
+    d: DMatrix<f64>,
+    dw: DMatrix<f64>,
 }
 
 /// The candidate's Jacobians over one step: Γ (n × q, ∂x_j/∂β over the interval), A (q × q, β's
@@ -183,7 +188,7 @@ impl Tracker {
         own: Vec<usize>,
         keep_whitened: Option<usize>,
     ) -> Self {
-        let q = psi0.ncols();
+        let (psi0_rows, q) = psi0.shape();
         let mut rows: Vec<usize> = dynamic.iter().chain(gamma_rows).copied().collect();
         rows.sort_unstable();
         rows.dedup();
@@ -196,6 +201,9 @@ impl Tracker {
             score: DVector::zeros(q),
             info: DMatrix::zeros(q, q),
             whitened: keep_whitened.map(|updates| Vec::with_capacity(3 * q * updates)),
+            psi_pred: DMatrix::zeros(psi0_rows, q),
+            d: DMatrix::zeros(3, q),
+            dw: DMatrix::zeros(3, q),
         }
     }
 
@@ -218,19 +226,22 @@ impl Tracker {
     /// One update of the replay: the signature D_j of this step from its Jacobians `jac`, then
     /// Ψ and the score and information with the whitened innovation `nu_w`.
     pub(crate) fn step(&mut self, v: &StepView<'_>, jac: &StepJacobians, nu_w: &Vector3<f64>) {
-        let psi_pred = self.predicted_psi(v, &jac.gamma);
+        self.predict_psi(v, &jac.gamma);
         self.advance_own_dynamics(&jac.a);
-        let d = v.h * &psi_pred + &jac.h_beta * &self.t;
-        self.psi = psi_pred - v.k * &d;
-        self.accumulate(&d, &v.chol_l, nu_w);
+        // D = H Ψ⁻ + H_β T; Ψ = Ψ⁻ − K D.
+        self.d.gemm(1.0, v.h, &self.psi_pred, 0.0);
+        self.d.gemm(1.0, &jac.h_beta, &self.t, 1.0);
+        std::mem::swap(&mut self.psi, &mut self.psi_pred);
+        self.psi.gemm(-1.0, v.k, &self.d, 1.0);
+        self.accumulate(&v.chol_l, nu_w);
     }
 
-    /// Ψ⁻ = Φ Ψ + Γ T: Φ is the identity outside the current model's dynamic rows and Γ zero
-    /// outside its own rows: only those rows change.
-    fn predicted_psi(&self, v: &StepView<'_>, gamma: &DMatrix<f64>) -> DMatrix<f64> {
+    /// Ψ⁻ = Φ Ψ + Γ T into `psi_pred`: Φ is the identity outside the current model's dynamic
+    /// rows and Γ zero outside its own rows: only those rows change.
+    fn predict_psi(&mut self, v: &StepView<'_>, gamma: &DMatrix<f64>) {
         let q = self.q;
         let n = self.psi.nrows();
-        let mut psi_pred = self.psi.clone();
+        self.psi_pred.copy_from(&self.psi);
         for &d in &self.rows {
             for b in 0..q {
                 let mut acc = 0.0;
@@ -240,10 +251,9 @@ impl Tracker {
                 for c in 0..q {
                     acc += gamma[(d, c)] * self.t[(c, b)];
                 }
-                psi_pred[(d, b)] = acc;
+                self.psi_pred[(d, b)] = acc;
             }
         }
-        psi_pred
     }
 
     /// T ← A T: A is the identity outside the candidate's Gauss–Markov rows.
@@ -266,18 +276,17 @@ impl Tracker {
         }
     }
 
-    /// Whitens the signature `d` (D̃ = L⁻¹ D column by column, L the 3×3 lower-triangular
+    /// Whitens the signature D (D̃ = L⁻¹ D column by column, L the 3×3 lower-triangular
     /// factor of S) and adds it to the score, the information and the whitened rows.
-    fn accumulate(&mut self, d: &DMatrix<f64>, l: &nalgebra::Matrix3<f64>, nu_w: &Vector3<f64>) {
-        let q = self.q;
-        let mut dw = DMatrix::zeros(3, q);
-        for b in 0..q {
+    fn accumulate(&mut self, l: &nalgebra::Matrix3<f64>, nu_w: &Vector3<f64>) {
+        let (d, dw) = (&self.d, &mut self.dw);
+        for b in 0..self.q {
             let c = Vector3::new(d[(0, b)], d[(1, b)], d[(2, b)]);
             let w = l.solve_lower_triangular(&c).unwrap_or(c);
             dw.set_column(b, &w);
         }
-        self.score += dw.transpose() * DVector::from_row_slice(nu_w.as_slice());
-        self.info += dw.transpose() * &dw;
+        self.score.gemv_tr(1.0, dw, nu_w, 1.0);
+        self.info.gemm_tr(1.0, dw, dw, 1.0);
         if let Some(rows) = self.whitened.as_mut() {
             for i in 0..3 {
                 rows.extend(dw.row(i).iter());
