@@ -225,34 +225,77 @@ impl Tracker {
 
     /// One update of the replay: the signature D_j of this step from its Jacobians `jac`, then
     /// Ψ and the score and information with the whitened innovation `nu_w`.
+    ///
+    /// Written out on slices rather than with nalgebra's general products: a replay steps every
+    /// candidate at every update, and on these small shapes (3 × n times n × q) the general
+    /// code's dispatch and bounds checks were most of a replay's time.
     pub(crate) fn step(&mut self, v: &StepView<'_>, jac: &StepJacobians, nu_w: &Vector3<f64>) {
         self.predict_psi(v, &jac.gamma);
         self.advance_own_dynamics(&jac.a);
-        // D = H Ψ⁻ + H_β T; Ψ = Ψ⁻ − K D.
-        self.d.gemm(1.0, v.h, &self.psi_pred, 0.0);
-        self.d.gemm(1.0, &jac.h_beta, &self.t, 1.0);
-        std::mem::swap(&mut self.psi, &mut self.psi_pred);
-        self.psi.gemm(-1.0, v.k, &self.d, 1.0);
+        self.signature(v, &jac.h_beta);
+        // Ψ = Ψ⁻ − K D, column by column.
+        let n = self.psi.nrows();
+        let k = v.k.as_slice();
+        let (k0, k1, k2) = (&k[..n], &k[n..2 * n], &k[2 * n..3 * n]);
+        for b in 0..self.q {
+            let db = self.d.column(b);
+            let (d0, d1, d2) = (db[0], db[1], db[2]);
+            let pred = &self.psi_pred.as_slice()[b * n..(b + 1) * n];
+            let out = &mut self.psi.as_mut_slice()[b * n..(b + 1) * n];
+            for i in 0..n {
+                out[i] = pred[i] - (k0[i] * d0 + k1[i] * d1 + k2[i] * d2);
+            }
+        }
         self.accumulate(&v.chol_l, nu_w);
+    }
+
+    /// Whether β's own dynamics are the identity (no Gauss–Markov rows): then T stays I.
+    fn constant(&self) -> bool {
+        self.own.is_empty()
     }
 
     /// Ψ⁻ = Φ Ψ + Γ T into `psi_pred`: Φ is the identity outside the current model's dynamic
     /// rows and Γ zero outside its own rows: only those rows change.
     fn predict_psi(&mut self, v: &StepView<'_>, gamma: &DMatrix<f64>) {
-        let q = self.q;
-        let n = self.psi.nrows();
+        let (n, q) = self.psi.shape();
         self.psi_pred.copy_from(&self.psi);
+        let constant = self.constant();
+        let mut phi_row = [0.0; MAX_STATES];
         for &d in &self.rows {
+            for (k, x) in phi_row[..n].iter_mut().enumerate() {
+                *x = v.phi[(d, k)];
+            }
             for b in 0..q {
-                let mut acc = 0.0;
-                for k in 0..n {
-                    acc += v.phi[(d, k)] * self.psi[(k, b)];
-                }
-                for c in 0..q {
-                    acc += gamma[(d, c)] * self.t[(c, b)];
+                let col = &self.psi.as_slice()[b * n..(b + 1) * n];
+                let mut acc: f64 = phi_row[..n].iter().zip(col).map(|(a, b)| a * b).sum();
+                if constant {
+                    acc += gamma[(d, b)];
+                } else {
+                    for c in 0..q {
+                        acc += gamma[(d, c)] * self.t[(c, b)];
+                    }
                 }
                 self.psi_pred[(d, b)] = acc;
             }
+        }
+    }
+
+    /// D = H Ψ⁻ + H_β T into `d` (3 × q).
+    fn signature(&mut self, v: &StepView<'_>, h_beta: &DMatrix<f64>) {
+        let (n, q) = self.psi.shape();
+        let h = v.h.as_slice();
+        for b in 0..q {
+            let col = &self.psi_pred.as_slice()[b * n..(b + 1) * n];
+            let mut acc = Vector3::zeros();
+            for (k, &p) in col.iter().enumerate() {
+                acc += Vector3::new(h[3 * k], h[3 * k + 1], h[3 * k + 2]) * p;
+            }
+            if self.constant() {
+                acc += h_beta.column(b);
+            } else {
+                acc += h_beta * self.t.column(b);
+            }
+            self.d.set_column(b, &acc);
         }
     }
 
@@ -277,16 +320,27 @@ impl Tracker {
     }
 
     /// Whitens the signature D (D̃ = L⁻¹ D column by column, L the 3×3 lower-triangular
-    /// factor of S) and adds it to the score, the information and the whitened rows.
+    /// factor of S) and adds it to the score, the information (both triangles from one
+    /// product each: it stays exactly symmetric) and the whitened rows.
     fn accumulate(&mut self, l: &nalgebra::Matrix3<f64>, nu_w: &Vector3<f64>) {
-        let (d, dw) = (&self.d, &mut self.dw);
-        for b in 0..self.q {
-            let c = Vector3::new(d[(0, b)], d[(1, b)], d[(2, b)]);
+        let q = self.q;
+        for b in 0..q {
+            let c = Vector3::new(self.d[(0, b)], self.d[(1, b)], self.d[(2, b)]);
             let w = l.solve_lower_triangular(&c).unwrap_or(c);
-            dw.set_column(b, &w);
+            self.dw.set_column(b, &w);
         }
-        self.score.gemv_tr(1.0, dw, nu_w, 1.0);
-        self.info.gemm_tr(1.0, dw, dw, 1.0);
+        let dw = &self.dw;
+        for b in 0..q {
+            let wb = dw.fixed_view::<3, 1>(0, b);
+            self.score[b] += wb.dot(nu_w);
+            for a in 0..=b {
+                let x = dw.fixed_view::<3, 1>(0, a).dot(&wb);
+                self.info[(a, b)] += x;
+                if a != b {
+                    self.info[(b, a)] += x;
+                }
+            }
+        }
         if let Some(rows) = self.whitened.as_mut() {
             for i in 0..3 {
                 rows.extend(dw.row(i).iter());
@@ -385,4 +439,87 @@ pub(crate) fn canonical_correlation(qa: &DMatrix<f64>, qb: &DMatrix<f64>) -> f64
         .cloned()
         .fold(0.0, f64::max)
         .min(1.0)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::diagnose::drift_step::with_extra;
+    use crate::diagnose::step_scan::marginal;
+    use crate::identify::{build_model, identify, neg2_log_evidence, start_prior, Config};
+
+    /// Each constant candidate's signature, carried through one replay of the current filter,
+    /// gives what the filter extended by the candidate gives on its own pass linearised about
+    /// the same fit (the exact linear-Gaussian identity of [`super::super::step_scan`]'s docs):
+    /// −2 ln p(y) to 1e-6 of its change, every drift coefficient and 1σ to 1e-6 of the 1σ.
+    /// Candidates through the measurement (acc-bias), the dynamics (drift-trend) and many
+    /// columns at once (g2, q = 18) — the tracker's three paths. The same quantities by two
+    /// routes, so only rounding separates them.
+    #[test]
+    fn a_signature_gives_the_extended_filters_evidence_and_coefficients() {
+        use crate::simulate::{InjectedEffect, Scenario};
+        let mut sc = Scenario::paper();
+        sc.hours = 24.0;
+        sc.rate_s = 60.0;
+        sc.effects = vec![InjectedEffect::AccBias {
+            b_mps2: [1e-4, -5e-5, 8e-5],
+        }];
+        let cfg = Config::default();
+        let prep = crate::simulate::prepared(&sc, &cfg);
+        let effects = [crate::catalog::paper()];
+        let model = build_model(prep.site, &effects, &cfg).unwrap();
+        let id = identify(&model, &prep, &cfg).unwrap();
+        let names = ["acc-bias", "drift-trend", "g2"];
+        let candidates: Vec<&dyn estimator_core::effects::Effect> = names
+            .iter()
+            .map(|n| crate::catalog::builtin(n).unwrap())
+            .collect();
+        let lists: Vec<[&dyn estimator_core::effects::Effect; 2]> =
+            candidates.iter().map(|&c| [effects[0], c]).collect();
+        let extended: Vec<Option<Model<'_>>> = lists
+            .iter()
+            .map(|l| Some(build_model(prep.site, l, &cfg).unwrap()))
+            .collect();
+        let (x0, p0) = start_prior(&model, &prep, &prep.start_sigma());
+        let (pass, sigs, _) = signatures(
+            &model,
+            &extended,
+            &prep.measurements,
+            &id.trajectory,
+            &x0,
+            &p0,
+        )
+        .unwrap();
+        let base = neg2_log_evidence(&pass.innovations);
+        let last = pass.states.last().unwrap();
+        let n = model.dim();
+        for ((name, c), sig) in names.iter().zip(&candidates).zip(&sigs) {
+            let sig = sig.as_ref().unwrap();
+            let prior: Vec<f64> = c.params().iter().map(|p| p.prior_sigma.powi(2)).collect();
+            let (gain, beta, sigma) = marginal(&sig.score, &sig.info, &prior);
+            let direct = with_extra(&prep, &effects, &cfg, &id, *c).unwrap();
+            let change = base - direct.neg2_log_evidence;
+            eprintln!(
+                "{name}: gain {change:.3}, signature − extended {:.2e}",
+                gain - change
+            );
+            assert!(
+                (gain - change).abs() < 1e-6 * change.abs() + 1e-6,
+                "{name}: signature gain {gain} vs extended {change}"
+            );
+            let moved = &sig.psi_final * &beta;
+            let spread = &sig.psi_final * &sigma * sig.psi_final.transpose();
+            for (k, (pname, value, sd)) in direct.drift.iter().enumerate() {
+                let i = estimator_core::model::ANGLES + k;
+                assert!(i < n);
+                let v = last[i] + moved[i];
+                let s = (pass.final_cov[(i, i)] + spread[(i, i)]).max(0.0).sqrt();
+                assert!(
+                    (v - value).abs() < 1e-6 * sd,
+                    "{name} {pname}: {v} vs {value} (1σ {sd})"
+                );
+                assert!((s - sd).abs() < 1e-6 * sd, "{name} {pname}: σ {s} vs {sd}");
+            }
+        }
+    }
 }

@@ -204,7 +204,7 @@ fn backward(
 /// The evidence gain (decrease of −2 ln p(y)) of parameters with prior variances `prior` whose
 /// score is `s` and information `info` in a linear Gaussian model, their estimate and its
 /// covariance: `sᵀ Σ s − ln det(I + P I)`, `Σ s`, `Σ = (P⁻¹ + I)⁻¹`.
-fn marginal(
+pub(crate) fn marginal(
     s: &DVector<f64>,
     info: &DMatrix<f64>,
     prior: &[f64],
