@@ -7,7 +7,8 @@
 //! The `commands` group runs `driftid identify` and `driftid diagnose` as a user does (a
 //! process, the whole command: reading, screening, the fit, the set-up's uncertainty, the
 //! alternatives) on 60-h recordings at 1 s that the model fits and that it does not: clean, a
-//! hidden catalog effect (an accelerometer bias), an uncatalogued drift (a 30-h sine), a bias
+//! hidden catalog effect (an accelerometer bias), two (g² drift and an accelerometer bias), an
+//! uncatalogued drift (a 30-h sine), a bias
 //! step (a fault), a metadata latitude 0.5° off (repaired). Issue 31's table; its CPU time is
 //! the child's (`RUSAGE_CHILDREN`).
 //!
@@ -271,6 +272,18 @@ fn commands(c: &mut Criterion) {
         (
             "acc_bias",
             simulated_60h("acc_bias", &["--effect", "acc-bias=1e-4,-1e-4,1e-4"]),
+        ),
+        (
+            "g2_and_acc_bias",
+            simulated_60h(
+                "g2_acc_bias",
+                &[
+                    "--effect",
+                    "g2=5e-5,0,0,0,0,0,0,5e-5,0,0,0,0,0,0,5e-5,0,0,0",
+                    "--effect",
+                    "acc-bias=1e-4,-1e-4,1e-4",
+                ],
+            ),
         ),
         (
             "uncatalogued_sine",
