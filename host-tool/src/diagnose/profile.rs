@@ -71,12 +71,18 @@ pub(crate) fn over(
     };
     let mut tried = eval(grid.coarse_s.to_vec());
     let (coarse, _) = best(&tried)?;
-    let fine = eval(
-        (-grid.steps..=grid.steps)
-            .map(|k| coarse * grid.ratio.powi(k))
-            .filter(|v| keep(*v))
-            .collect(),
-    );
+    let values: Vec<f64> = (-grid.steps..=grid.steps)
+        .map(|k| coarse * grid.ratio.powi(k))
+        .filter(|v| keep(*v))
+        .collect();
+    // The fine grid's middle is the coarse best: its member again, not a pass of its own.
+    let mut fine = eval(values.iter().copied().filter(|v| *v != coarse).collect());
+    if values.contains(&coarse) {
+        if let Some(middle) = tried.iter().find(|(v, _)| *v == coarse).cloned() {
+            let at = fine.partition_point(|(v, _)| *v < coarse);
+            fine.insert(at, middle);
+        }
+    }
     let (value_s, evidence_gain) = best(&fine)?;
     tried.extend(fine);
     Some(Fit {
