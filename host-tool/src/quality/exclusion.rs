@@ -151,24 +151,45 @@ pub(crate) fn saturated(
     period_s: f64,
 ) -> Vec<(usize, f64, Vec<Stretch>, usize)> {
     let mut out = vec![];
+    let (hi, lo) = extremes(samples);
+    // The readings at each axis' extremes, all axes in one pass (the run is read once, not six
+    // times: ~4 ms of a 60-h run at 1 s).
+    let mut pinned = [[0usize; 2]; 3];
+    for s in samples {
+        for a in 0..3 {
+            let x = s.specific_force[a];
+            pinned[a][0] += usize::from(x == hi[a]);
+            pinned[a][1] += usize::from(x == lo[a]);
+        }
+    }
     for a in 0..3 {
-        let v = |s: &Sample| s.specific_force[a];
-        let finite = || samples.iter().map(v).filter(|x| x.is_finite());
-        let hi = finite().fold(f64::NEG_INFINITY, f64::max);
-        let lo = finite().fold(f64::INFINITY, f64::min);
         // No finite reading (hi = −∞), or a dead axis (its own finding).
-        if hi <= lo || !hi.is_finite() {
+        if hi[a] <= lo[a] || !hi[a].is_finite() {
             continue;
         }
-        for rail in [hi, lo] {
-            let pinned = samples.iter().filter(|s| v(s) == rail).count();
-            if pinned < SAT_MIN_SAMPLES || !is_rail(samples, a, rail, [hi, lo], pinned) {
+        for (rail, pinned) in [(hi[a], pinned[a][0]), (lo[a], pinned[a][1])] {
+            if pinned < SAT_MIN_SAMPLES || !is_rail(samples, a, rail, [hi[a], lo[a]], pinned) {
                 continue;
             }
             out.push((a, rail, stretches(samples, a, rail, period_s), pinned));
         }
     }
     out
+}
+
+/// Each axis' largest and smallest finite reading (−∞ and +∞ where it has none).
+fn extremes(samples: &[Sample]) -> ([f64; 3], [f64; 3]) {
+    let (mut hi, mut lo) = ([f64::NEG_INFINITY; 3], [f64::INFINITY; 3]);
+    for s in samples {
+        for a in 0..3 {
+            let x = s.specific_force[a];
+            if x.is_finite() {
+                hi[a] = hi[a].max(x);
+                lo[a] = lo[a].min(x);
+            }
+        }
+    }
+    (hi, lo)
 }
 
 /// The tests of the module's doc on a candidate rail held by `pinned` readings; `extremes` are
