@@ -168,7 +168,7 @@ pub struct Contribution {
     pub posterior_sigma: f64,
     /// For a knob, its posterior 1σ with the slow drifts free, where that is wider (a trend the
     /// data cannot rule out bends the latitude's signature): what its share of the coefficients'
-    /// 1σ is computed with ([`super::slow_drift::knobs_with_drifts`]).
+    /// 1σ is computed with ([`super::slow_drift::DriftReplay::knobs_with_drifts`]).
     #[serde(skip_serializing_if = "Option::is_none")]
     pub sigma_drifts_free: Option<f64>,
     /// Where prior and data together put the parameter against the stated value, in the prior's
@@ -839,15 +839,30 @@ pub fn uncertainty(
     };
     let knobs = knobs(prep, &priors);
     let offsets = vertical_tilt_offsets(prep, id, &priors);
+    // The knobs' replay beside the slow drifts and then their replay with the knobs (which
+    // needs only which knobs are live, not the knobs' model).
     let (signature, drifts) = rayon::join(
         || knob_signature(prep, effects, cfg, &id.trajectory, (live(&knobs), &offsets)),
-        || slow_drifts(effects, prep, cfg, id),
+        || -> anyhow::Result<_> {
+            let drifts = slow_drifts(effects, prep, cfg, id)?;
+            let replay = super::slow_drift::drift_replay(
+                &drifts.carried,
+                effects,
+                prep,
+                cfg,
+                id,
+                live(&knobs),
+            )?;
+            Ok((drifts, replay))
+        },
     );
     let (_, sig) = signature?;
     let mut marginal = marginalise(&knobs, f0, &sig, n)?;
     let tilt = vertical_tilt(&sig, n, &priors);
-    let drifts = drifts?;
-    with_drift_path(&mut marginal, &drifts.carried, effects, prep, cfg, id)?;
+    let (drifts, replay) = drifts?;
+    if let Some(r) = replay {
+        with_drift_path(&mut marginal, &r);
+    }
     // The start attitude is estimated in the fit: what it adds is the fit's covariance less the
     // noise-only one.
     let start = Contribution::new(
@@ -883,24 +898,15 @@ pub fn uncertainty(
 }
 
 /// The knobs' covariance and shares with the carried slow drifts free
-/// ([`super::slow_drift::knobs_with_drifts`]): the path of a drift through the latitude, clock
+/// ([`super::slow_drift::DriftReplay::knobs_with_drifts`]): the path of a drift through the latitude, clock
 /// rate and gravity into the coefficients, which each term alone misses. Their estimate, the
 /// check and the quadratic model the misstated set-up is weighed with stay the stated model's.
-fn with_drift_path(
-    marginal: &mut Marginal,
-    carried: &[(SlowDrift, f64)],
-    effects: &[&dyn Effect],
-    prep: &Prepared,
-    cfg: &Config,
-    id: &Identification,
-) -> anyhow::Result<()> {
-    let Some((hess, sens)) =
-        super::slow_drift::knobs_with_drifts(carried, effects, prep, cfg, id, &marginal.model)?
-    else {
-        return Ok(());
+fn with_drift_path(marginal: &mut Marginal, replay: &super::slow_drift::DriftReplay) {
+    let Some((hess, sens)) = replay.knobs_with_drifts(&marginal.model) else {
+        return;
     };
     let Some(a_inv) = (&hess + DMatrix::identity(3, 3) * 2.0).try_inverse() else {
-        return Ok(());
+        return;
     };
     let v = a_inv * 2.0;
     marginal.cov = &sens * &v * sens.transpose();
@@ -916,7 +922,6 @@ fn with_drift_path(
             c.sigma_drifts_free = Some(free);
         }
     }
-    Ok(())
 }
 
 /// The slow drifts marginalised about a fit ([`slow_drifts`]).

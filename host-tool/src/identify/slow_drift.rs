@@ -273,9 +273,11 @@ const SIZES: usize = 10;
 /// ```
 ///
 /// `J` (the drifts' estimate moved per prior 1σ of each knob) and `P` come from one replay of
-/// the model with the drifts carrying the knobs' signature ([`super::knob_signature`]: its
-/// final Ψ's drift rows). `km` is the knobs' model without the drifts; returns its Hessian and sensitivity with them, or `None` when no
-/// drift is carried.
+/// the model with the drifts carrying the knobs' signature ([`drift_replay`]). `km` is the
+/// knobs' model without the drifts; returns its Hessian and sensitivity with them, or `None`
+/// when no drift is carried. (The set-up's uncertainty runs the replay beside the knobs' own
+/// and applies [`DriftReplay::knobs_with_drifts`]; this is both in one, for the tests.)
+#[cfg(test)]
 pub(crate) fn knobs_with_drifts(
     carried: &[(SlowDrift, f64)],
     effects: &[&dyn Effect],
@@ -284,8 +286,24 @@ pub(crate) fn knobs_with_drifts(
     id: &Identification,
     km: &super::setup::KnobModel,
 ) -> anyhow::Result<Option<(DMatrix<f64>, DMatrix<f64>)>> {
-    let live: Vec<usize> = (0..3).filter(|&k| km.unit[k] > 0.0).collect();
-    if carried.is_empty() || live.is_empty() {
+    let mask = [0, 1, 2].map(|k| km.unit[k] > 0.0);
+    let replay = drift_replay(carried, effects, prep, cfg, id, mask)?;
+    Ok(replay.and_then(|r| r.knobs_with_drifts(km)))
+}
+
+/// The replay [`knobs_with_drifts`] reads `J` and `P` from: the model with the `carried` drifts,
+/// the knobs of `mask` (latitude, clock rate, gravity) carrying their signature. It needs no
+/// knob model, so it can run beside the replay that makes one. `None` when no drift is carried
+/// or no knob is live.
+pub(crate) fn drift_replay(
+    carried: &[(SlowDrift, f64)],
+    effects: &[&dyn Effect],
+    prep: &Prepared,
+    cfg: &Config,
+    id: &Identification,
+    mask: [bool; 3],
+) -> anyhow::Result<Option<DriftReplay>> {
+    if carried.is_empty() || !mask.contains(&true) {
         return Ok(None);
     }
     let drifts: Vec<Box<dyn Effect>> = carried.iter().map(|&(k, s)| k.effect(s)).collect();
@@ -294,29 +312,47 @@ pub(crate) fn knobs_with_drifts(
     let n = id.best().value.len();
     let q: usize = drifts.iter().map(|d| d.params().len()).sum();
     let nominal = widened(&id.trajectory, q);
-    // The drifts' response to each knob per prior 1σ, from the knobs' signature through the
-    // filter with the drifts (one replay, [`super::knob_signature`]).
-    let mask = [0, 1, 2].map(|k| km.unit[k] > 0.0);
     let (pass, sig) =
         super::knob_signature::knob_signature(prep, &with, cfg, &nominal, (mask, &[]))?;
-    let (first, p_all) = (ANGLES + n, &pass.final_cov);
-    let p_dd = p_all.view((first, first), (q, q)).into_owned();
-    let p_cd = p_all.view((ANGLES, first), (n, q)).into_owned();
-    let Some(p_dd_inv) = p_dd.try_inverse() else {
-        return Ok(None);
-    };
-    let mut j = DMatrix::zeros(q, 3);
-    for &k in &live {
-        j.set_column(k, &(sig.psi_final.column(k).rows(first, q) * km.unit[k]));
+    let first = ANGLES + n;
+    Ok(Some(DriftReplay {
+        p_dd: pass.final_cov.view((first, first), (q, q)).into_owned(),
+        p_cd: pass.final_cov.view((ANGLES, first), (n, q)).into_owned(),
+        psi_drifts: sig.psi_final.rows(first, q).into_owned(),
+        mask,
+    }))
+}
+
+/// What [`drift_replay`] keeps: the drifts' posterior blocks and their rows of the knobs'
+/// signature (per unit of each knob).
+pub(crate) struct DriftReplay {
+    p_dd: DMatrix<f64>,
+    p_cd: DMatrix<f64>,
+    psi_drifts: DMatrix<f64>,
+    mask: [bool; 3],
+}
+
+impl DriftReplay {
+    /// The knobs' Hessian and sensitivity with the drifts free (the formulas of
+    /// [`knobs_with_drifts`]), from the knobs' model `km` without them; `None` where `P_dd` is singular or a result not finite.
+    pub(crate) fn knobs_with_drifts(
+        &self,
+        km: &super::setup::KnobModel,
+    ) -> Option<(DMatrix<f64>, DMatrix<f64>)> {
+        let p_dd_inv = self.p_dd.clone().try_inverse()?;
+        let mut j = DMatrix::zeros(self.p_dd.nrows(), 3);
+        for k in (0..3).filter(|&k| self.mask[k] && km.unit[k] > 0.0) {
+            j.set_column(k, &(self.psi_drifts.column(k) * km.unit[k]));
+        }
+        let hess = &km.hess - (j.transpose() * &p_dd_inv * &j) * 2.0;
+        let sens = &km.sens + &self.p_cd * &p_dd_inv * &j;
+        if hess.iter().chain(sens.iter()).any(|v| !v.is_finite()) {
+            return None;
+        }
+        // Clamped positive semi-definite, as the knobs' own Hessian is.
+        let hess = super::setup::psd_part(&nalgebra::SymmetricEigen::new(hess));
+        Some((hess, sens))
     }
-    let hess = &km.hess - (j.transpose() * &p_dd_inv * &j) * 2.0;
-    let sens = &km.sens + p_cd * &p_dd_inv * &j;
-    if hess.iter().chain(sens.iter()).any(|v| !v.is_finite()) {
-        return Ok(None);
-    }
-    // Clamped positive semi-definite, as the knobs' own Hessian is.
-    let hess = super::setup::psd_part(&nalgebra::SymmetricEigen::new(hess));
-    Ok(Some((hess, sens)))
 }
 
 #[cfg(test)]

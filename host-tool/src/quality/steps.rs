@@ -476,7 +476,6 @@ pub(crate) fn find_bias_steps(
     out
 }
 
-
 /// A cubic in time fitted to means `idx` of axis `a` (weights their counts), evaluated at `t`.
 fn local_fit(means: &[Measurement], a: usize, idx: &[usize], t: f64) -> f64 {
     if idx.len() < 4 {
@@ -661,12 +660,7 @@ impl StepSums {
 
     /// AᵀWA and AᵀWy, the slow function uᵖ·f at index 3p + f, the step last.
     #[allow(clippy::type_complexity)]
-    fn normal_equations(
-        &self,
-    ) -> (
-        nalgebra::SMatrix<f64, 13, 13>,
-        nalgebra::SVector<f64, 13>,
-    ) {
+    fn normal_equations(&self) -> (nalgebra::SMatrix<f64, 13, 13>, nalgebra::SVector<f64, 13>) {
         let ata = nalgebra::SMatrix::<f64, 13, 13>::from_fn(|i, k| match (i, k) {
             (12, 12) => self.after[0][0],
             (12, k) | (k, 12) => self.after[k / 3][k % 3],
@@ -768,7 +762,10 @@ mod refine_tests {
             let (ata_ref, atb_ref) = (a.transpose() * &a, a.transpose() * &y);
             let scale = ata_ref.amax();
             for i in 0..13 {
-                assert!((atb[i] - atb_ref[i]).abs() < 1e-12 * atb_ref.amax(), "c {c} b{i}");
+                assert!(
+                    (atb[i] - atb_ref[i]).abs() < 1e-12 * atb_ref.amax(),
+                    "c {c} b{i}"
+                );
                 for k in 0..13 {
                     let d = (ata[(i, k)] - ata_ref[(i, k)]).abs();
                     assert!(d < 1e-12 * scale, "c {c} ({i},{k}): {d:e}");
