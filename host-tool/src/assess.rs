@@ -277,18 +277,38 @@ impl Assessment {
     /// the final estimate to the starting fit's under the misstatement (an added effect's
     /// parameters have no counterpart there and are not moved). Then averaged and judged with the
     /// other alternatives: one scale, one verdict.
+    ///
+    /// The catch-alls a rung preferred less than the data did (`overruled`) are weighed the same
+    /// way: each in place of the law chosen there and what followed, its shift taken from its
+    /// refit's drift coefficients.
     pub(crate) fn weigh_instead_of_the_ladder(
         &mut self,
         start: &AtTheStart,
-        added: &[String],
-        ladder_gain: f64,
+        (added, ladder_gain): (&[String], f64),
+        overruled: &[crate::diagnose::ladder::Overruled],
     ) {
-        if added.is_empty() || start.misstated.is_empty() {
+        let misstated = if added.is_empty() {
+            &[][..]
+        } else {
+            &start.misstated[..]
+        };
+        if misstated.is_empty() && overruled.is_empty() {
             return;
         }
         let value = &self.id.best().value;
         let n = self.id.params.len();
-        for m in &start.misstated {
+        for o in overruled {
+            let (mut shift, sigma) = (vec![0.0; n], vec![0.0; n]);
+            for (i, p) in self.id.params.iter().enumerate() {
+                if let Some((_, v, _)) = o.drift.iter().find(|(name, _, _)| *name == p.name) {
+                    shift[i] = v - value[i];
+                }
+            }
+            let mut a = Alternative::new(o.effect.clone(), o.evidence_gain, shift, sigma, None);
+            a.instead_of = Some(o.instead_of.join(" + "));
+            self.alternatives.push(a);
+        }
+        for m in misstated {
             let (mut shift, mut sigma) = (vec![0.0; n], vec![0.0; n]);
             for (i, p) in self.id.params.iter().enumerate() {
                 if let Some(j) = start.about.iter().position(|(name, _)| *name == p.name) {
@@ -601,6 +621,11 @@ pub(crate) fn alternatives_untrusted(
                     None => stated,
                 }
             }
+            None if a.instead_of.is_some() => format!(
+                "`{}` instead of `{}`",
+                a.effect,
+                a.instead_of.as_deref().unwrap_or_default()
+            ),
             None if a.instead_of_setup => format!(
                 "adding `{}` with the set-up as stated (instead of the set-up the data moved within its priors)",
                 a.effect
@@ -614,6 +639,10 @@ pub(crate) fn alternatives_untrusted(
                     "{}a second run from another orientation (`driftid plan`) or the {} known better would tell them apart",
                     longer(id),
                     m.knob
+                ),
+                (Some(added), None) => format!(
+                    "{}a second run from another orientation (`driftid plan`) or a bench value of `{added}` would tell them apart",
+                    longer(id),
                 ),
                 _ => "run `driftid diagnose`".into(),
             };

@@ -447,7 +447,8 @@ pub(crate) fn climb<'c>(
         &crate::progress::follow(&spin),
     )?;
     let (added, ladder_gain) = crate::diagnose::ladder::additions(&diagnoses);
-    assessed.weigh_instead_of_the_ladder(&at_start, &added, ladder_gain);
+    let overruled = crate::diagnose::ladder::overruled(&diagnoses);
+    assessed.weigh_instead_of_the_ladder(&at_start, (&added, ladder_gain), &overruled);
     spin.finish_and_clear();
     Ok(Climbed {
         prep,

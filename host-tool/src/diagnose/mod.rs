@@ -136,7 +136,7 @@ pub(crate) fn diagnose_identified(
     let ranked = candidates::rank(&setups, sigs, cfg.alpha);
     let confounding = candidates::confounding(&ranked, cfg.alpha);
     let mut ranking: Vec<Candidate> = ranked.into_iter().map(|(c, _)| c).collect();
-    let choice = choose(
+    let (choice, profiled_refits) = choose(
         prep,
         catalog,
         effects,
@@ -162,6 +162,7 @@ pub(crate) fn diagnose_identified(
         verdict: String::new(),
         convergence: id.convergence,
         series,
+        profiled_refits,
     };
     d.verdict = verdict::verdict(&d, cfg.alpha);
     Ok((d, id))
@@ -305,7 +306,7 @@ fn choose(
     ranking: &mut [Candidate],
     consistent: bool,
     cfg: &DiagnoseConfig,
-) -> Option<select::Choice> {
+) -> (Option<select::Choice>, Vec<select::Refit>) {
     let leaders: Vec<String> = ranking
         .iter()
         .filter(|c| c.untestable.is_none() && c.p_adjusted < cfg.alpha)
@@ -338,12 +339,14 @@ fn choose(
     refits.extend(step);
     refits.extend(warmup);
     refits.extend(periodic);
+    let mut profiled_refits = vec![];
     for r in &refits {
-        if let Some(c) = ranking.iter_mut().find(|c| c.effect == r.effect) {
-            c.refit = Some(r.clone());
+        match ranking.iter_mut().find(|c| c.effect == r.effect) {
+            Some(c) => c.refit = Some(r.clone()),
+            None => profiled_refits.push(r.clone()),
         }
     }
-    select::choose(&refits)
+    (select::choose(&refits), profiled_refits)
 }
 
 /// One run of a joint fit ([`crate::identify::joint`]) as a [`Diagnosis`], for the joint report:
@@ -400,5 +403,6 @@ pub(crate) fn of_joint_run(
         verdict,
         convergence: fit.alone.convergence,
         series,
+        profiled_refits: vec![],
     }
 }

@@ -180,6 +180,25 @@ pub struct Diagnosis {
     /// The time series (for plots).
     #[serde(skip)]
     pub series: Series,
+    /// The refits of the candidates made for this run (drift step, warm-up, periodic drift),
+    /// which have no place in the catalog's ranking: the choice may be one of them.
+    #[serde(skip)]
+    pub profiled_refits: Vec<super::select::Refit>,
+}
+
+impl Diagnosis {
+    /// The refit of `effect` at this rung: a ranked candidate's or a profiled one's.
+    pub(crate) fn refit_of(&self, effect: &str) -> Option<&super::select::Refit> {
+        self.refits().find(|r| r.effect == effect)
+    }
+
+    /// Every refit of this rung: the ranked candidates' and the profiled ones'.
+    pub(crate) fn refits(&self) -> impl Iterator<Item = &super::select::Refit> {
+        self.ranking
+            .iter()
+            .filter_map(|c| c.refit.as_ref())
+            .chain(&self.profiled_refits)
+    }
 }
 
 /// One model of the ladder and how it fits.

@@ -145,6 +145,7 @@ mod tests {
             verdict: String::new(),
             convergence: None,
             series: Series::default(),
+            profiled_refits: vec![],
         }
     }
 

@@ -63,6 +63,7 @@ fn input() -> ReportInput {
         verdict: String::new(),
         convergence: None,
         series: series.clone(),
+        profiled_refits: vec![],
     };
     let rung = |model: Vec<String>, params: Vec<(String, String, f64, f64)>| Rung {
         model,
