@@ -317,6 +317,30 @@ fn a_wander_the_ladder_took_for_g2_is_weighed_in_its_place() {
     );
 }
 
+/// Found by the random recordings above (seed 9793): a wander of ~1e-3 deg/h (τ 10 h; 36 h at
+/// 10 s, latitude 45.52°). The ladder took `g2` over `drift-markov` (640.0 against 701.9), then a
+/// drift step over it (22.2 against 37.3). A drift step is a candidate made for the run, with no
+/// refit in the catalog's ranking, so the ladder's additions were weighed against nothing and
+/// `diagnose` trusted a coefficient 5.1 total σ off. Now exit 3: the data prefer `drift-markov`
+/// instead of `g2 + drift-step`.
+#[test]
+fn a_wander_taken_for_g2_and_a_drift_step_is_weighed_in_their_place() {
+    not_confidently_wrong(
+        "wander-g2-step",
+        &[
+            "--seed",
+            "9793",
+            "--hours",
+            "36",
+            "--rate-s",
+            "10",
+            "--latitude-deg=45.52",
+            "--effect",
+            "drift-markov=5.280e-04,1.366e-03,5.626e-04:10,10,10",
+        ],
+    );
+}
+
 /// `diagnose` of the recording `args` simulate: deterministic (fixed seed), it must end in
 /// exit 3 or with every drift coefficient within 3 total σ of the truth.
 fn not_confidently_wrong(tag: &str, args: &[&str]) {
