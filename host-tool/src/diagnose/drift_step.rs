@@ -118,6 +118,93 @@ pub(crate) struct Extra {
     pub drift: Vec<(&'static str, f64, f64)>,
 }
 
+/// [`with_extra`] of each of `extras` (`None` where its model cannot be built), from one replay
+/// of the current filter carrying every extra's signature ([`super::score::signatures_kept`])
+/// instead of one extended pass each. The model is linear in an extra's parameters about the
+/// fit, so the two routes give the same numbers to rounding (tested): the evidence from the
+/// score and information ([`super::step_scan::marginal`]), the coefficients moved by Ψ_N β̂ and
+/// their variance grown by Ψ_N Σ Ψ_Nᵀ. A pass of the filter extended by a warm-up or a cycle
+/// costs ~2× an extra's step in the replay, and a profile tries ~25 values. The extras are split
+/// among the pool's threads, a replay each.
+pub(crate) fn with_each(
+    prep: &Prepared,
+    effects: &[&dyn Effect],
+    cfg: &Config,
+    id: &Identification,
+    extras: &[&(dyn Effect + Sync)],
+) -> Vec<Option<Extra>> {
+    use rayon::prelude::*;
+    let per_thread = extras.len().div_ceil(rayon::current_num_threads()).max(1);
+    extras
+        .par_chunks(per_thread)
+        .flat_map_iter(|part| {
+            let part: Vec<&dyn Effect> = part.iter().map(|x| *x as &dyn Effect).collect();
+            with_each_replayed(prep, effects, cfg, id, &part)
+        })
+        .collect()
+}
+
+/// [`with_each`] from one replay.
+fn with_each_replayed(
+    prep: &Prepared,
+    effects: &[&dyn Effect],
+    cfg: &Config,
+    id: &Identification,
+    extras: &[&dyn Effect],
+) -> Vec<Option<Extra>> {
+    let none = || extras.iter().map(|_| None).collect();
+    let Ok(model) = build_model(prep.site, effects, cfg) else {
+        return none();
+    };
+    let lists: Vec<Vec<&dyn Effect>> = extras
+        .iter()
+        .map(|x| effects.iter().copied().chain([*x]).collect())
+        .collect();
+    let extended: Vec<Option<estimator_core::model::Model<'_>>> = lists
+        .iter()
+        .map(|l| build_model(prep.site, l, cfg).ok())
+        .collect();
+    let (x0, p0) = start_prior(&model, prep, &prep.start_sigma());
+    let nominal = (&id.trajectory[..], &x0, &p0);
+    let replay =
+        super::score::signatures_kept(&model, &extended, &prep.measurements, nominal, false);
+    let Ok((pass, sigs, _)) = replay else {
+        return none();
+    };
+    let Some(last) = pass.states.last() else {
+        return none();
+    };
+    let base = neg2_log_evidence(&pass.innovations);
+    let a = estimator_core::model::ANGLES;
+    let n = model.dim();
+    let rows: Vec<usize> = (0..12.min(id.params.len())).map(|k| a + k).collect();
+    extended
+        .iter()
+        .zip(sigs)
+        .map(|(m, sig)| {
+            let (m, sig) = (m.as_ref()?, sig?);
+            let prior: Vec<f64> = (n..m.dim())
+                .map(|i| m.param(i).prior_sigma.powi(2))
+                .collect();
+            let (gain, beta, sigma) = super::step_scan::marginal(&sig.score, &sig.info, &prior);
+            let psi = sig.psi_final.select_rows(&rows);
+            let moved = &psi * &beta;
+            let spread = &psi * &sigma * psi.transpose();
+            Some(Extra {
+                neg2_log_evidence: base - gain,
+                drift: rows
+                    .iter()
+                    .enumerate()
+                    .map(|(k, &i)| {
+                        let var = pass.final_cov[(i, i)] + spread[(k, k)];
+                        (id.params[k].name, last[i] + moved[k], var.max(0.0).sqrt())
+                    })
+                    .collect(),
+            })
+        })
+        .collect()
+}
+
 /// `extra`, appended to the model, estimated with the rest in one forward pass linearised about
 /// `id`'s trajectory (the parameters enter linearly and are small; the last filtered state is
 /// their estimate from the whole run).

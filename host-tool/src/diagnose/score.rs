@@ -208,19 +208,19 @@ impl Tracker {
     }
 
     /// The recursion of candidate `extended` (the current model of `n` states, dynamic rows
-    /// `dynamic`, extended by the candidate) over `updates` measurement updates.
-    fn for_candidate(extended: &Model<'_>, n: usize, dynamic: &[usize], updates: usize) -> Self {
+    /// `dynamic`, extended by the candidate) over `updates` measurement updates (`None`: its
+    /// whitened signature is not kept).
+    fn for_candidate(
+        extended: &Model<'_>,
+        n: usize,
+        dynamic: &[usize],
+        updates: Option<usize>,
+    ) -> Self {
         let ext = extended.dynamic_states();
         let gamma_rows: Vec<usize> = ext.iter().copied().filter(|&d| d < n).collect();
         let own = ext.iter().filter(|&&d| d >= n).map(|&d| d - n).collect();
         let q = extended.dim() - n;
-        Tracker::new(
-            DMatrix::zeros(n, q),
-            dynamic,
-            &gamma_rows,
-            own,
-            Some(updates),
-        )
+        Tracker::new(DMatrix::zeros(n, q), dynamic, &gamma_rows, own, updates)
     }
 
     /// One update of the replay: the signature D_j of this step from its Jacobians `jac`, then
@@ -379,13 +379,26 @@ pub(crate) fn signatures(
     x0: &DVector<f64>,
     p0: &DMatrix<f64>,
 ) -> Result<Replay, SmootherError> {
+    signatures_kept(model, extended, meas, (nominal, x0, p0), true)
+}
+
+/// [`signatures`], the whitened signatures kept only when `keep_whitened` (a profile needs only
+/// each candidate's score, information and final Ψ).
+pub(crate) fn signatures_kept(
+    model: &Model<'_>,
+    extended: &[Option<Model<'_>>],
+    meas: &[Measurement],
+    (nominal, x0, p0): (&[DVector<f64>], &DVector<f64>, &DMatrix<f64>),
+    keep_whitened: bool,
+) -> Result<Replay, SmootherError> {
     let n = model.dim();
     let dynamic = model.dynamic_states();
+    let kept = keep_whitened.then_some(meas.len());
     let mut trackers: Vec<Option<(&Model<'_>, Tracker)>> = extended
         .iter()
         .map(|m| {
             m.as_ref()
-                .map(|m| (m, Tracker::for_candidate(m, n, dynamic, meas.len())))
+                .map(|m| (m, Tracker::for_candidate(m, n, dynamic, kept)))
         })
         .collect();
     let mut nu_whitened = Vec::with_capacity(3 * meas.len());
