@@ -124,6 +124,8 @@ pub(crate) struct StepJacobians {
 pub(crate) struct Scratch {
     pub(crate) tr: Transition<MAX_STATES>,
     pub(crate) cols: [Vector3<f64>; MAX_STATES],
+    /// The extended state at a node (the nominal, the candidate's parameters zero).
+    x: Vec<f64>,
 }
 
 impl Default for Scratch {
@@ -131,6 +133,7 @@ impl Default for Scratch {
         Scratch {
             tr: Transition::<MAX_STATES>::default(),
             cols: [Vector3::zeros(); MAX_STATES],
+            x: Vec::with_capacity(MAX_STATES),
         }
     }
 }
@@ -145,35 +148,58 @@ pub(crate) fn candidate_jacobians(
     scratch: &mut Scratch,
 ) -> StepJacobians {
     let q = extended.dim() - n;
-    let tr = &mut scratch.tr;
-    let mut x = v.nominal_prev.as_slice().to_vec();
-    x.resize(n + q, 0.0);
+    let mut jac = StepJacobians {
+        gamma: DMatrix::zeros(n, q),
+        a: DMatrix::identity(q, q),
+        h_beta: DMatrix::zeros(3, q),
+    };
+    candidate_jacobians_into(extended, v, n, scratch, &mut jac);
+    jac
+}
+
+/// [`candidate_jacobians`] into `jac` (shaped n × q, q × q and 3 × q): a replay steps every
+/// candidate at every update, and five fresh buffers a step were ~a tenth of a profile's replay.
+pub(crate) fn candidate_jacobians_into(
+    extended: &Model<'_>,
+    v: &StepView<'_>,
+    n: usize,
+    scratch: &mut Scratch,
+    jac: &mut StepJacobians,
+) {
+    let q = extended.dim() - n;
+    let (tr, x) = (&mut scratch.tr, &mut scratch.x);
+    let at = |x: &mut Vec<f64>, nominal: &DVector<f64>| {
+        x.clear();
+        x.extend_from_slice(nominal.as_slice());
+        x.resize(n + q, 0.0);
+    };
+    at(x, v.nominal_prev);
     propagate(
         extended,
-        &mut x,
+        x,
         v.t_prev_s,
         v.t_s - v.t_prev_s,
         v.temp_prev,
         v.temp,
         tr,
     );
-    let mut gamma = DMatrix::zeros(n, q);
-    let mut a = DMatrix::identity(q, q);
+    jac.gamma.fill(0.0);
+    jac.a.fill_with_identity();
     for (r, &d) in extended.dynamic_states().iter().enumerate() {
         for b in 0..q {
             if d < n {
-                gamma[(d, b)] = tr.rows[r][n + b];
+                jac.gamma[(d, b)] = tr.rows[r][n + b];
             } else {
-                a[(d - n, b)] = tr.rows[r][n + b];
+                jac.a[(d - n, b)] = tr.rows[r][n + b];
             }
         }
     }
-    let mut xj = v.nominal.as_slice().to_vec();
-    xj.resize(n + q, 0.0);
+    at(x, v.nominal);
     let cols = &mut scratch.cols;
-    extended.measurement(&xj, v.t_s, v.temp, v.time_var_s2, cols);
-    let h_beta = DMatrix::from_fn(3, q, |i, b| cols[n + b][i]);
-    StepJacobians { gamma, a, h_beta }
+    extended.measurement(x, v.t_s, v.temp, v.time_var_s2, cols);
+    for b in 0..q {
+        jac.h_beta.set_column(b, &cols[n + b]);
+    }
 }
 
 impl Tracker {
@@ -394,11 +420,18 @@ pub(crate) fn signatures_kept(
     let n = model.dim();
     let dynamic = model.dynamic_states();
     let kept = keep_whitened.then_some(meas.len());
-    let mut trackers: Vec<Option<(&Model<'_>, Tracker)>> = extended
+    let mut trackers: Vec<Option<(&Model<'_>, Tracker, StepJacobians)>> = extended
         .iter()
         .map(|m| {
-            m.as_ref()
-                .map(|m| (m, Tracker::for_candidate(m, n, dynamic, kept)))
+            m.as_ref().map(|m| {
+                let q = m.dim() - n;
+                let jac = StepJacobians {
+                    gamma: DMatrix::zeros(n, q),
+                    a: DMatrix::identity(q, q),
+                    h_beta: DMatrix::zeros(3, q),
+                };
+                (m, Tracker::for_candidate(m, n, dynamic, kept), jac)
+            })
         })
         .collect();
     let mut nu_whitened = Vec::with_capacity(3 * meas.len());
@@ -409,15 +442,15 @@ pub(crate) fn signatures_kept(
     let pass = linearised_pass_observed(model, meas, nominal, x0, p0, false, |v: &StepView<'_>| {
         let nu_w = v.chol_l.solve_lower_triangular(&v.nu).unwrap_or(v.nu);
         nu_whitened.extend_from_slice(nu_w.as_slice());
-        for (m, tk) in trackers.iter_mut().flatten() {
-            let jac = candidate_jacobians(m, v, n, &mut scratch);
-            tk.step(v, &jac, &nu_w);
+        for (m, tk, jac) in trackers.iter_mut().flatten() {
+            candidate_jacobians_into(m, v, n, &mut scratch, jac);
+            tk.step(v, jac, &nu_w);
         }
     });
     let pass = pass?;
     let sigs = trackers
         .into_iter()
-        .map(|tk| tk.map(|(_, t)| t.into_signature()))
+        .map(|tk| tk.map(|(_, t, _)| t.into_signature()))
         .collect();
     Ok((pass, sigs, nu_whitened))
 }
