@@ -1,10 +1,10 @@
 //! A periodic gyro drift of a period the run must find: `w_i += C_i cos(2πt/P) + S_i sin(2πt/P)`
 //! (deg/h) — a thermal or electrical cycle other than the solar day (`drift-daily` fixes
 //! P = 24 h): an air-conditioning or heating cycle, a half-day tide of the building. Found like
-//! the warm-up ([`super::warmup`]): the six amplitudes enter linearly, so each period costs one
-//! forward pass linearised about the current fit; P runs over [`PERIODS_H`] and then every ×1.03
-//! within the best cell, and the best is refitted and charged the look-elsewhere penalty 2 ln N
-//! of the N coarse periods tried. Outside the catalog a 12-h sine was absorbed by `drift-daily`
+//! the warm-up ([`super::warmup`]): the six amplitudes enter linearly, so every period is weighed
+//! linearised about the current fit, from one replay a stage; P runs over [`PERIODS_H`] and then
+//! every ×1.03 within the best cell, and the best is refitted and charged the look-elsewhere
+//! penalty 2 ln N of the N coarse periods tried. Outside the catalog a 12-h sine was absorbed by `drift-daily`
 //! and the coefficients trusted 7–11σ off (diagnose, 36 h at 1–10 s).
 
 use core::f64::consts::TAU;

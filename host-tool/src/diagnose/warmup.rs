@@ -1,8 +1,9 @@
 //! A gyro warm-up transient: after turn-on a gyro's drift settles exponentially,
 //! `w_i += A_i e^{−t/τ}` (deg/h), as its rotor, suspension and electronics reach their working
 //! temperatures. Without a temperature column (`temp-drift` needs one) it is a candidate of its
-//! own, found like the drift step ([`super::drift_step`]): the amplitudes enter linearly, so each
-//! time constant τ costs one forward pass linearised about the current fit, τ runs over
+//! own, found like the drift step ([`super::drift_step`]): the amplitudes enter linearly, so every
+//! time constant τ is weighed linearised about the current fit, from one replay a stage
+//! ([`super::profile`]); τ runs over
 //! [`TAUS_H`] and then every ×1.05 within the best cell, and the best is refitted and charged the
 //! look-elsewhere penalty 2 ln N of the N coarse values tried.
 
