@@ -673,11 +673,6 @@ pub(crate) const KEEP_NODES_BYTES: usize = 32 << 20;
 /// Covariances of consecutive nodes in one flat buffer: every node's (`keep`, the backward
 /// pass reads them) or two slots used in turn. A step reads node j's slot and writes node j+1's:
 /// P is never copied.
-///
-/// The buffer is reserved whole but a slot is zeroed only when first written to
-/// ([`CovSlots::reach`]), in cache just before the step fills it: every slot is written before
-/// it is read (node 0's by the pass's start, node j+1's by step j). Zeroed whole up front, each
-/// pass cleared up to tens of MB in one sweep before writing them again (~3 % of a `diagnose`).
 struct CovSlots {
     buf: Vec<f64>,
     nn: usize,
@@ -689,16 +684,9 @@ impl CovSlots {
     fn new(n: usize, nodes: usize, keep: bool) -> Self {
         let slots = if keep { nodes } else { 2 };
         CovSlots {
-            buf: Vec::with_capacity(slots * n * n),
+            buf: vec![0.0; slots * n * n],
             nn: n * n,
             keep,
-        }
-    }
-    /// Slots up to `s` in the buffer (zeroed where new; within the reserved capacity).
-    fn reach(&mut self, s: usize) {
-        let end = (s + 1) * self.nn;
-        if self.buf.len() < end {
-            self.buf.resize(end, 0.0);
         }
     }
     fn slot(&self, j: usize) -> usize {
@@ -714,13 +702,11 @@ impl CovSlots {
     }
     fn get_mut(&mut self, j: usize) -> &mut [f64] {
         let s = self.slot(j);
-        self.reach(s);
         &mut self.buf[s * self.nn..(s + 1) * self.nn]
     }
     /// Node j's covariance to read and node j+1's to write.
     fn pair(&mut self, j: usize) -> (&[f64], &mut [f64]) {
         let (a, b) = (self.slot(j), self.slot(j + 1));
-        self.reach(a.max(b));
         let nn = self.nn;
         if a < b {
             let (lo, hi) = self.buf.split_at_mut(b * nn);
