@@ -174,10 +174,16 @@ fn with_each_replayed(
     let Some(last) = pass.states.last() else {
         return none();
     };
-    let base = neg2_log_evidence(&pass.innovations);
     let a = estimator_core::model::ANGLES;
     let n = model.dim();
     let rows: Vec<usize> = (0..12.min(id.params.len())).map(|k| a + k).collect();
+    let on = super::step_scan::Final {
+        base: neg2_log_evidence(&pass.innovations),
+        last,
+        cov: &pass.final_cov,
+        id,
+        rows: &rows,
+    };
     extended
         .iter()
         .zip(sigs)
@@ -186,21 +192,8 @@ fn with_each_replayed(
             let prior: Vec<f64> = (n..m.dim())
                 .map(|i| m.param(i).prior_sigma.powi(2))
                 .collect();
-            let (gain, beta, sigma) = super::step_scan::marginal(&sig.score, &sig.info, &prior);
             let psi = sig.psi_final.select_rows(&rows);
-            let moved = &psi * &beta;
-            let spread = &psi * &sigma * psi.transpose();
-            Some(Extra {
-                neg2_log_evidence: base - gain,
-                drift: rows
-                    .iter()
-                    .enumerate()
-                    .map(|(k, &i)| {
-                        let var = pass.final_cov[(i, i)] + spread[(k, k)];
-                        (id.params[k].name, last[i] + moved[k], var.max(0.0).sqrt())
-                    })
-                    .collect(),
-            })
+            Some(on.with(&sig.score, &sig.info, &prior, &psi))
         })
         .collect()
 }

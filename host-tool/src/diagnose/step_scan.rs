@@ -126,31 +126,64 @@ pub(crate) fn every_update(
         .collect();
     let drift_rows: Vec<usize> = (0..12.min(id.params.len())).map(|k| ANGLES + k).collect();
     let sweep = backward(&updates, &dynamic, n, q, &drift_rows);
+    let on = Final {
+        base,
+        last,
+        cov: &pass.final_cov,
+        id,
+        rows: &drift_rows,
+    };
     Some(
         updates
             .iter()
             .zip(sweep)
-            .map(|(u, (s, info, psi))| {
-                let (gain, beta, sigma) = marginal(&s, &info, &prior);
-                let moved = &psi * &beta;
-                let spread = &psi * &sigma * psi.transpose();
-                AtUpdate {
-                    t_prev_s: u.t_prev_s,
-                    extra: super::drift_step::Extra {
-                        neg2_log_evidence: base - gain,
-                        drift: drift_rows
-                            .iter()
-                            .enumerate()
-                            .map(|(k, &i)| {
-                                let var = pass.final_cov[(i, i)] + spread[(k, k)];
-                                (id.params[k].name, last[i] + moved[k], var.max(0.0).sqrt())
-                            })
-                            .collect(),
-                    },
-                }
+            .map(|(u, (s, info, psi))| AtUpdate {
+                t_prev_s: u.t_prev_s,
+                extra: on.with(&s, &info, &prior, &psi),
             })
             .collect(),
     )
+}
+
+/// The end of the current filter's pass an extra's signature is read against: its −2 ln p(y)
+/// `base`, final state `last` and covariance `cov`, the fit `id` (the coefficients' names) and the
+/// drift coefficients' rows `rows`.
+pub(crate) struct Final<'a> {
+    pub base: f64,
+    pub last: &'a DVector<f64>,
+    pub cov: &'a DMatrix<f64>,
+    pub id: &'a Identification,
+    pub rows: &'a [usize],
+}
+
+impl Final<'_> {
+    /// The model plus an extra of prior variances `prior` whose signature has score `s`,
+    /// information `info` and final sensitivity `psi` (Ψ_N's drift rows): −2 ln p(y) by
+    /// [`marginal`], the coefficients moved by Ψ_N β̂, their variance grown by Ψ_N Σ Ψ_Nᵀ.
+    pub(crate) fn with(
+        &self,
+        s: &DVector<f64>,
+        info: &DMatrix<f64>,
+        prior: &[f64],
+        psi: &DMatrix<f64>,
+    ) -> super::drift_step::Extra {
+        let (gain, beta, sigma) = marginal(s, info, prior);
+        let moved = psi * &beta;
+        let spread = psi * &sigma * psi.transpose();
+        super::drift_step::Extra {
+            neg2_log_evidence: self.base - gain,
+            drift: self
+                .rows
+                .iter()
+                .enumerate()
+                .map(|(k, &i)| {
+                    let var = self.cov[(i, i)] + spread[(k, k)];
+                    let value = self.last[i] + moved[k];
+                    (self.id.params[k].name, value, var.max(0.0).sqrt())
+                })
+                .collect(),
+        }
+    }
 }
 
 /// The backward sweep: for every update j₀ (in order), the score s(j₀), the information I(j₀)
