@@ -123,9 +123,10 @@ pub(crate) struct Extra {
 /// instead of one extended pass each. The model is linear in an extra's parameters about the
 /// fit, so the two routes give the same numbers to rounding (tested): the evidence from the
 /// score and information ([`super::step_scan::marginal`]), the coefficients moved by Ψ_N β̂ and
-/// their variance grown by Ψ_N Σ Ψ_Nᵀ. A pass of the filter extended by a warm-up or a cycle
-/// costs ~2× an extra's step in the replay, and a profile tries ~25 values. The extras are split
-/// among the pool's threads, a replay each.
+/// their variance grown by Ψ_N Σ Ψ_Nᵀ ([`super::step_scan::Final`]). Each extra still costs the
+/// extended model's propagation at every update; what is saved is the extended covariance's
+/// algebra (a misfitting 60-h `diagnose`: ~4 % of its CPU time). The extras are split among the
+/// pool's threads, a replay each.
 pub(crate) fn with_each(
     prep: &Prepared,
     effects: &[&dyn Effect],
