@@ -420,16 +420,21 @@ pub use crate::identify::build_model;
 /// against the catalog effects' evidence gains on the same scale (`rivals` of the measurements,
 /// called only when the profile finds a latitude worth weighing against them): the profile's
 /// finding, if any, joins `prep.findings`, where it is a fault (the result is not trusted, and no
-/// physical effect is added to explain it). Call it once a fit is inconsistent.
+/// physical effect is added to explain it). Call it once the fit `fitted` of `effects` on `prep`
+/// is inconsistent.
 pub(crate) fn name_a_wrong_latitude(
     prep: &mut Prepared,
-    effects: &[&dyn estimator_core::effects::Effect],
+    (effects, fitted): (
+        &[&dyn estimator_core::effects::Effect],
+        &crate::identify::Identification,
+    ),
     cfg: &Config,
     rivals: impl FnOnce(&Prepared) -> Vec<(String, f64)>,
     progress: &Progress,
 ) {
     progress.note(|| "the model does not fit: profiling the latitude".into());
-    let found = crate::diagnose::latitude::check_with(prep, effects, cfg, || rivals(prep));
+    let fitted = Some(fitted);
+    let found = crate::diagnose::latitude::check_with(prep, effects, cfg, fitted, || rivals(prep));
     prep.findings.extend(found);
 }
 
@@ -579,7 +584,7 @@ pub(crate) fn starting_fit(
         true => rivals,
         false => [catalog_rivals(p), rivals].concat(),
     };
-    name_a_wrong_latitude(prep, effects, cfg, all_rivals, progress);
+    name_a_wrong_latitude(prep, (effects, &id), cfg, all_rivals, progress);
     Ok(Some(id))
 }
 

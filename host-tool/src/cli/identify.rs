@@ -412,7 +412,7 @@ fn run_one(args: &IdentifyArgs, catalog: &Catalog) -> anyhow::Result<()> {
         let (prep, id) = (&mut assessed.prep, &assessed.id);
         let rivals =
             |p: &Prepared| super::common::rivals(p, catalog, &effects, &cfg, id, &progress);
-        super::common::name_a_wrong_latitude(prep, &effects, &cfg, rivals, &progress);
+        super::common::name_a_wrong_latitude(prep, (&effects, id), &cfg, rivals, &progress);
         spin.finish_and_clear();
     }
     let (reasons, step) = untrusted(&mut assessed, step, check.as_ref());

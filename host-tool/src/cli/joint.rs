@@ -374,7 +374,8 @@ fn refuse_wrong_latitudes(
             let spin = crate::progress::spinner("the model does not fit");
             let progress = crate::progress::follow(&spin);
             let rivals = |p: &_| super::common::rivals(p, catalog, effects, cfg, id, &progress);
-            super::common::name_a_wrong_latitude(&mut r.prep, effects, cfg, rivals, &progress);
+            let fitted = (effects, id);
+            super::common::name_a_wrong_latitude(&mut r.prep, fitted, cfg, rivals, &progress);
             spin.finish_and_clear();
         }
         named.extend(
