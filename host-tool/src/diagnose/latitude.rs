@@ -185,19 +185,23 @@ fn latitude_of_gravity(g: f64) -> f64 {
 
 /// The two-pass screen of the grid ([`crate::identify::two_pass_evidence`]: −2 ln p(y) of the
 /// EKF passes without the smoother, ~8 ms a latitude where a full fit far off takes ~100 ms) and,
-/// beside it, `f` at the metadata latitude `l0`, all on every core. Measured on misfitting 60-h
-/// runs (an accelerometer bias, a drift trend, latitudes 3° and 6° off): the screen ranks the
-/// grid as the full fits do, within 0.5 % of their values 2° and more from the best.
+/// beside it, `f` at the metadata latitude `l0` (`known`: its value, when the fit there is at
+/// hand), all on every core. Measured on misfitting 60-h runs (an accelerometer bias, a drift
+/// trend, latitudes 3° and 6° off): the screen ranks the grid as the full fits do, within 0.5 %
+/// of their values 2° and more from the best.
 fn screened(
     prep: &Prepared,
     effects: &[&dyn Effect],
     cfg: &Config,
     grid: &[f64],
     l0: f64,
-    f: &(impl Fn(f64) -> f64 + Sync),
+    (f, known): (&(impl Fn(f64) -> f64 + Sync), Option<f64>),
 ) -> (f64, Vec<f64>) {
     let screen = |l: f64| screen(prep, effects, cfg, at_latitude, l);
-    rayon::join(|| f(l0), || grid.par_iter().map(|&l| screen(l)).collect())
+    rayon::join(
+        || known.unwrap_or_else(|| f(l0)),
+        || grid.par_iter().map(|&l| screen(l)).collect(),
+    )
 }
 
 /// The screen's −2 ln p(y) at latitude `lat` ([`crate::identify::two_pass_evidence`]), +∞ where
@@ -360,17 +364,11 @@ pub(crate) fn profile(
     let confirmed = crate::quality::hemisphere::latitude_from_forces(&forces)
         .is_some_and(|seen| crate::quality::hemisphere::confirms(l0, seen));
     let grid = search_grid(l0, latitude_of_gravity(prep.site.gravity_mps2), confirmed);
-    let (f0, scores) = match fitted {
-        Some(id) => {
-            fits.seed(l0, id);
-            let screen = |l: f64| screen(prep, effects, cfg, at_latitude, l);
-            (
-                neg2_log_evidence(id),
-                grid.par_iter().map(|&l| screen(l)).collect(),
-            )
-        }
-        None => screened(prep, effects, cfg, &grid, l0, &f),
-    };
+    if let Some(id) = fitted {
+        fits.seed(l0, id);
+    }
+    let known = fitted.map(neg2_log_evidence);
+    let (f0, scores) = screened(prep, effects, cfg, &grid, l0, (&f, known));
     let k = (0..grid.len()).min_by(|&a, &b| scores[a].total_cmp(&scores[b]))?;
     // The metadata latitude's fit once.
     let f = |l: f64| if (l - l0).abs() < 1e-9 { f0 } else { f(l) };
@@ -541,10 +539,6 @@ mod tests {
         }
     }
 
-    /// The screen ranks the misstated latitude's 0.1° grid ([`crate::diagnose::misstated`]) as
-    /// the full fits do: its best point is the fits' best or a neighbour (from where that
-    /// profile's Newton steps start), over latitudes 0.5° and 0.8° off as stated, 24 and 60 h
-    /// at 10 s, a level and a tilted start.
     /// The profile started from the model's fit at the metadata latitude (the fit a command has
     /// already) finds what the profile that fits there itself finds: the data's latitude within
     /// a tenth of its 1σ, its 1σ within 1 %, the gain within 0.05. Here the two fits at the
@@ -584,6 +578,10 @@ mod tests {
         assert!(own.gain > 1000.0, "{own:?}");
     }
 
+    /// The screen ranks the misstated latitude's 0.1° grid ([`crate::diagnose::misstated`]) as
+    /// the full fits do: its best point is the fits' best or a neighbour (from where that
+    /// profile's Newton steps start), over latitudes 0.5° and 0.8° off as stated, 24 and 60 h
+    /// at 10 s, a level and a tilted start.
     #[test]
     fn the_screen_ranks_a_misstated_latitudes_grid_as_the_fits_do() {
         use estimator_core::{Sample, Site};
