@@ -58,7 +58,9 @@ const WARM_DEG: f64 = 0.5;
 /// lowest fit so far when that lies within [`WARM_DEG`] in the same chart, and fitted cold when
 /// there is none or the warm start does not converge. Both converge to the same tolerance
 /// ([`crate::identify::GN_TOLERANCE_SIGMA`]). Only the lowest fit is kept (a 60-h run at 1 s
-/// holds ~50 MB in one).
+/// holds ~50 MB in one). Fits made side by side ([`Fits::side_by_side`]) all start from the
+/// lowest before them, not from one another: which finishes first must not change the answer
+/// (it did, by ~1e-7 of the evidence, with the machine's load).
 pub(crate) struct Fits<'a> {
     prep: &'a Prepared,
     effects: &'a [&'a dyn Effect],
@@ -105,10 +107,23 @@ impl<'a> Fits<'a> {
 
     /// The model fitted at latitude `lat` (`None` when it cannot be fitted there).
     pub(crate) fn fit(&self, lat: f64) -> Option<Arc<Fitted>> {
+        self.fit_from(lat, self.lowest())
+    }
+
+    /// The model fitted at each of `lats`, on every core, each warm-started from the lowest fit
+    /// before them all (`None` where it cannot be fitted).
+    pub(crate) fn side_by_side(&self, lats: &[f64]) -> Vec<Option<Arc<Fitted>>> {
+        let from = self.lowest();
+        lats.par_iter()
+            .map(|&l| self.fit_from(l, from.clone()))
+            .collect()
+    }
+
+    /// The model fitted at latitude `lat`, warm-started from `from` where it is near.
+    fn fit_from(&self, lat: f64, from: Option<Arc<Fitted>>) -> Option<Arc<Fitted>> {
         let p = (self.site_at)(self.prep, lat);
         let model = build_model(p.site, self.effects, self.cfg).ok()?;
-        let warm = self
-            .lowest()
+        let warm = from
             .filter(|s| {
                 s.prep.site.chart == p.site.chart && (s.latitude_deg - lat).abs() <= WARM_DEG
             })
@@ -131,9 +146,13 @@ impl<'a> Fits<'a> {
         Some(fitted)
     }
 
-    /// −2 ln p(y) at latitude `lat`, +∞ where the model cannot be fitted.
-    fn evidence(&self, lat: f64) -> f64 {
-        self.fit(lat).map_or(f64::INFINITY, |f| f.evidence)
+    /// −2 ln p(y) at each of `lats`, fitted side by side ([`Fits::side_by_side`]), +∞ where
+    /// the model cannot be fitted.
+    fn evidences(&self, lats: &[f64]) -> Vec<f64> {
+        self.side_by_side(lats)
+            .into_iter()
+            .map(|f| f.map_or(f64::INFINITY, |f| f.evidence))
+            .collect()
     }
 }
 
@@ -195,11 +214,11 @@ fn screened(
     cfg: &Config,
     grid: &[f64],
     l0: f64,
-    (f, known): (&(impl Fn(f64) -> f64 + Sync), Option<f64>),
+    (f, known): (&(impl Fn(&[f64]) -> Vec<f64> + Sync), Option<f64>),
 ) -> (f64, Vec<f64>) {
     let screen = |l: f64| screen(prep, effects, cfg, at_latitude, l);
     rayon::join(
-        || known.unwrap_or_else(|| f(l0)),
+        || known.unwrap_or_else(|| f(&[l0])[0]),
         || grid.par_iter().map(|&l| screen(l)).collect(),
     )
 }
@@ -220,10 +239,10 @@ pub(crate) fn screen(
         .unwrap_or(f64::INFINITY)
 }
 
-/// The bracket of the minimum of `f` about the grid's point `k` (the screen's best): the full
-/// fit at it and at its neighbours 2° away (or 2° beyond where there is none), walked 2° at a
-/// time towards a lower end until the middle is the lowest (the screen only approximates `f`),
-/// at most [`MAX_WALK`] steps. A neighbour the screen (`scores`) puts clearly above the middle
+/// The bracket of the minimum of `f` (values at latitudes fitted side by side) about the grid's
+/// point `k` (the screen's best): the full fit at it and at its neighbours 2° away (or 2° beyond
+/// where there is none), walked 2° at a time towards a lower end until the middle is the lowest
+/// (the screen only approximates `f`), at most [`MAX_WALK`] steps. A neighbour the screen (`scores`) puts clearly above the middle
 /// ([`clearly_above`]) keeps the screen's value: its fit, 2° from the data's latitude, is the
 /// slowest of the profile (~80 ms of a 60-h run: the continuation fit) and would only confirm
 /// the bracket; the refinement replaces the ends with fits as it narrows.
@@ -231,22 +250,25 @@ fn bracket(
     grid: &[f64],
     scores: &[f64],
     k: usize,
-    f: &(impl Fn(f64) -> f64 + Sync),
+    f: &impl Fn(&[f64]) -> Vec<f64>,
 ) -> [(f64, f64); 3] {
     let side = |j: Option<usize>, l: f64| match j.filter(|&j| j < grid.len()) {
         Some(j) if (grid[j] - grid[k]).abs() <= 2.5 => (grid[j], Some(scores[j])),
         _ => (l.clamp(-89.0, 89.0), None),
     };
-    let end = |(l, screen): (f64, Option<f64>)| match screen {
-        Some(s) if clearly_above(s, scores[k]) => (l, s),
-        _ => (l, f(l)),
-    };
-    let (lo, hi) = (
+    // An end the screen puts clearly above the middle keeps the screen's value; the rest are
+    // fitted side by side.
+    let pts = [
         side(k.checked_sub(1), grid[k] - 2.0),
+        (grid[k], None),
         side(Some(k + 1), grid[k] + 2.0),
-    );
-    let ((lo, fm), hi) = rayon::join(|| rayon::join(|| end(lo), || f(grid[k])), || end(hi));
-    let mut pts = [lo, (grid[k], fm), hi];
+    ]
+    .map(|(l, screen)| (l, screen.filter(|&s| clearly_above(s, scores[k]))));
+    let to_fit: Vec<f64> = pts.iter().filter(|p| p.1.is_none()).map(|p| p.0).collect();
+    let mut fitted = f(&to_fit).into_iter();
+    let mut pts =
+        pts.map(|(l, screen)| (l, screen.or_else(|| fitted.next()).unwrap_or(f64::INFINITY)));
+    let f = |l: f64| f(&[l])[0];
     for _ in 0..MAX_WALK {
         let [a, m, b] = pts;
         if a.1 < m.1 && a.1 <= b.1 && a.0 > -89.0 {
@@ -359,7 +381,7 @@ pub(crate) fn profile(
     // A model that cannot even be fitted at the metadata latitude (the smoother fails) leaves
     // any latitude where it fits, and fits consistently, the better one.
     let fits = Fits::new(prep, effects, cfg, at_latitude);
-    let f = |l: f64| fits.evidence(l);
+    let f = |ls: &[f64]| fits.evidences(ls);
     let forces: Vec<[f64; 3]> = prep.measurements.iter().map(|m| m.specific_force).collect();
     let confirmed = crate::quality::hemisphere::latitude_from_forces(&forces)
         .is_some_and(|seen| crate::quality::hemisphere::confirms(l0, seen));
@@ -371,9 +393,19 @@ pub(crate) fn profile(
     let (f0, scores) = screened(prep, effects, cfg, &grid, l0, (&f, known));
     let k = (0..grid.len()).min_by(|&a, &b| scores[a].total_cmp(&scores[b]))?;
     // The metadata latitude's fit once.
-    let f = |l: f64| if (l - l0).abs() < 1e-9 { f0 } else { f(l) };
+    let f = |ls: &[f64]| -> Vec<f64> {
+        let at_l0 = |l: &f64| (l - l0).abs() < 1e-9;
+        let others: Vec<f64> = ls.iter().filter(|l| !at_l0(l)).copied().collect();
+        let mut fitted = f(&others).into_iter();
+        ls.iter()
+            .map(|l| match at_l0(l) {
+                true => f0,
+                false => fitted.next().unwrap_or(f64::INFINITY),
+            })
+            .collect()
+    };
     let [lo, mid, hi] = bracket(&grid, &scores, k, &f);
-    let (best, _) = parabolic_minimum(&f, [lo, mid, hi], REFINE_TOL_DEG, REFINE_MAX);
+    let (best, _) = parabolic_minimum(&|l| f(&[l])[0], [lo, mid, hi], REFINE_TOL_DEG, REFINE_MAX);
     // Curvature from a symmetric three-point stencil: −2 ln p ≈ const + (L − L̂)²/σ²; the fit at
     // the best latitude also says whether the model is consistent there.
     // The lowest fit is the refinement's best: every point but a screened end was fitted. (A
@@ -383,7 +415,9 @@ pub(crate) fn profile(
         None => fits.fit(best)?,
     };
     let h = STENCIL_DEG;
-    let (fm, fp) = rayon::join(|| f(best - h), || f(best + h));
+    let [fm, fp] = f(&[best - h, best + h])[..] else {
+        return None;
+    };
     let (fb, id, p) = (at_best.evidence, &at_best.id, &at_best.prep);
     let curv = (fp - 2.0 * fb + fm) / (h * h);
     let sigma_deg = if curv > 0.0 {
@@ -539,6 +573,62 @@ mod tests {
         }
     }
 
+    /// Fits made side by side each start from the lowest fit before them all, whichever finishes
+    /// first: on one thread (one after the other) and on two, each is bit for bit the fit made
+    /// alone after the same fits. Before, the later of two warm-started from the earlier when
+    /// that was lower, so the answer moved (by ~1e-7 of the evidence) with the machine's load.
+    /// The site at 39.5°, stated 39.1°: the fit at 39.3° is lower than the metadata's and lies
+    /// within the warm start's reach of 39.4°.
+    #[test]
+    fn fits_side_by_side_do_not_depend_on_which_finishes_first() {
+        use estimator_core::{Sample, Site};
+        let mut sc = crate::simulate::Scenario::paper();
+        sc.latitude_deg = 39.5;
+        sc.hours = 24.0;
+        sc.rate_s = 10.0;
+        let sim = crate::simulate::simulate(&sc);
+        let samples: Vec<Sample> = sim.samples.iter().map(Sample::from).collect();
+        let cfg = Config::default();
+        let prep =
+            crate::identify::prepare_oriented(Site::new(39.1, None), &samples, &cfg, [0.0; 3])
+                .unwrap();
+        let effects = [crate::catalog::paper()];
+        let bits = |threads: usize| -> Vec<Vec<u64>> {
+            let pool = rayon::ThreadPoolBuilder::new()
+                .num_threads(threads)
+                .build()
+                .unwrap();
+            pool.install(|| {
+                let fits = Fits::new(&prep, &effects, &cfg, at_latitude);
+                fits.fit(39.1).unwrap();
+                fits.side_by_side(&[39.3, 39.4])
+                    .into_iter()
+                    .map(|f| {
+                        let f = f.unwrap();
+                        let mut b = vec![f.evidence.to_bits()];
+                        b.extend(f.id.best().value.iter().map(|v| v.to_bits()));
+                        b
+                    })
+                    .collect()
+            })
+        };
+        let alone = |l: f64| -> Vec<u64> {
+            let fits = Fits::new(&prep, &effects, &cfg, at_latitude);
+            fits.fit(39.1).unwrap();
+            let f = fits.fit(l).unwrap();
+            let mut b = vec![f.evidence.to_bits()];
+            b.extend(f.id.best().value.iter().map(|v| v.to_bits()));
+            b
+        };
+        let (one, two) = (bits(1), bits(2));
+        assert_eq!(one, two, "one thread and two differ");
+        assert_eq!(
+            one,
+            vec![alone(39.3), alone(39.4)],
+            "not the fits made alone"
+        );
+    }
+
     /// The profile started from the model's fit at the metadata latitude (the fit a command has
     /// already) finds what the profile that fits there itself finds: the data's latitude within
     /// a tenth of its 1σ, its 1σ within 1 %, the gain within 0.05. Here the two fits at the
@@ -676,7 +766,9 @@ mod tests {
         };
         let k = grid.iter().position(|l| (l - 39.1).abs() < 1e-9).unwrap();
         let flat = vec![0.0; grid.len()];
-        let [a, m, b] = bracket(&grid, &flat, k, &f);
+        // Side by side is one by one here: the test's `f` holds no fits.
+        let each = |f: &dyn Fn(f64) -> f64, ls: &[f64]| ls.iter().map(|&l| f(l)).collect();
+        let [a, m, b] = bracket(&grid, &flat, k, &|ls| each(&f, ls));
         assert!(m.1 <= a.1 && m.1 <= b.1, "{a:?} {m:?} {b:?}");
         assert!(
             (m.0 - 43.1).abs() < 1e-9 && a.0 < 43.4 && b.0 > 43.4,
@@ -688,7 +780,7 @@ mod tests {
         };
         let screen: Vec<f64> = grid.iter().map(|l| (l - 39.3).powi(2) * 1.004).collect();
         fitted.lock().unwrap().clear();
-        let [a, m, b] = bracket(&grid, &screen, k, &g);
+        let [a, m, b] = bracket(&grid, &screen, k, &|ls| each(&g, ls));
         assert_eq!([a.0, m.0, b.0], [grid[k - 1], grid[k], grid[k + 1]]);
         assert_eq!(
             *fitted.lock().unwrap(),
@@ -698,7 +790,7 @@ mod tests {
         // The minimum between two cells: the screen cannot tell them apart, both ends are fitted.
         let screen: Vec<f64> = grid.iter().map(|l| (l - 40.1).powi(2)).collect();
         fitted.lock().unwrap().clear();
-        bracket(&grid, &screen, k + 1, &g);
+        bracket(&grid, &screen, k + 1, &|ls| each(&g, ls));
         assert_eq!(fitted.lock().unwrap().len(), 3);
     }
 

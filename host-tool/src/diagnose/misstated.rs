@@ -388,8 +388,10 @@ fn profiled_latitude(
     for _ in 0..4 {
         // The centre first: the stencil's fits are warm-started from it.
         let c = fits.fit(l)?;
-        let (m, p) = rayon::join(|| fits.fit(l - STEP_DEG), || fits.fit(l + STEP_DEG));
-        let (m, p) = (m?, p?);
+        let [m, p] = &fits.side_by_side(&[l - STEP_DEG, l + STEP_DEG])[..] else {
+            return None;
+        };
+        let (m, p) = (m.clone()?, p.clone()?);
         let g = (p.evidence - m.evidence) / (2.0 * STEP_DEG);
         let h = (p.evidence - 2.0 * c.evidence + m.evidence) / (STEP_DEG * STEP_DEG);
         if h <= 0.0 {
