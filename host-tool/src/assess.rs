@@ -154,83 +154,18 @@ pub(crate) fn assess_with(
     known: Option<&Computed>,
     progress: &Progress,
 ) -> anyhow::Result<Assessment> {
-    assess_beside::<()>(catalog, effects, (prep, id), cfg, known, progress, None).map(|(a, _)| a)
-}
-
-/// Work on the settled fit that stands only if the fit does (no misstated set-up is repaired):
-/// `beside(prep, id, weighing)`, run beside the weighing of the alternatives on the cores it
-/// leaves idle (a misfitting `identify`'s drift-step and latitude profiles: a third of its CPU,
-/// one profile after the other). It may give up (`None`) once `weighing` tells it how the
-/// weighing ended; its answer is returned only when it did not and the fit stands.
-pub(crate) type Beside<'a, T> =
-    dyn Fn(&Prepared, &Identification, &Weighing) -> Option<T> + Sync + 'a;
-
-/// How the weighing of the alternatives beside [`Beside`]'s work ended, once it has.
-#[derive(Default)]
-pub(crate) struct Weighing(std::sync::Mutex<Option<Weighed>>);
-
-/// The end of a weighing ([`Weighing`]).
-#[derive(Clone, Copy, Debug, PartialEq)]
-pub(crate) enum Weighed {
-    /// A misstated set-up may be repaired: the fit beside which the work ran may not stand.
-    MayRepair,
-    /// The fit stands; the best alternative's evidence gain (−2 ln units).
-    Stands { best_gain: f64 },
-}
-
-impl Weighing {
-    /// How the weighing ended (`None`: not yet).
-    pub(crate) fn get(&self) -> Option<Weighed> {
-        *self.0.lock().unwrap_or_else(|e| e.into_inner())
-    }
-
-    /// Records how it ended; a repair once in view stays in view (work that gave up on it
-    /// stays given up).
-    fn set(&self, w: Weighed) {
-        let mut end = self.0.lock().unwrap_or_else(|e| e.into_inner());
-        if *end != Some(Weighed::MayRepair) {
-            *end = Some(w);
-        }
-    }
-}
-
-/// [`assess_with`] of the fit `(prep, id)`, with `beside`'s answer on the settled fit when that
-/// fit stands ([`Beside`]).
-pub(crate) fn assess_beside<T: Send>(
-    catalog: &Catalog,
-    effects: &[&dyn Effect],
-    (prep, id): (Prepared, Identification),
-    cfg: &Config,
-    known: Option<&Computed>,
-    progress: &Progress,
-    beside: Option<&Beside<'_, T>>,
-) -> anyhow::Result<(Assessment, Option<T>)> {
-    let (first, repair, answer) = assess_as_stated(
-        catalog,
-        effects,
-        (prep, id),
-        cfg,
-        (true, known),
-        progress,
-        beside,
-    )?;
+    let (first, repair) =
+        assess_as_stated(catalog, effects, (prep, id), cfg, (true, known), progress)?;
     let Some((prep, cfg, start)) = repair else {
-        return Ok((first, answer));
+        return Ok(first);
     };
     progress.note(|| "refitting at the repaired set-up".into());
     let model = build_model(prep.site, effects, &cfg)?;
     let id = identify_from(&model, &prep, &cfg, &start)?;
-    let (mut again, _, _) = assess_as_stated::<T>(
-        catalog,
-        effects,
-        (prep, id),
-        &cfg,
-        (false, None),
-        progress,
-        None,
-    )?;
+    let (mut again, _) =
+        assess_as_stated(catalog, effects, (prep, id), &cfg, (false, None), progress)?;
     again.cfg = cfg;
-    Ok((again, None))
+    Ok(again)
 }
 
 /// A misstated set-up to repair: the repaired measurements and settings, and the fit to start
@@ -238,17 +173,15 @@ pub(crate) fn assess_beside<T: Send>(
 type Repair = (Prepared, Config, Identification);
 
 /// [`assess`] with the set-up as `prep` and `cfg` state it; with the repaired set-up and the
-/// fit to start from where a misstatement is to be repaired (and `may_repair`); and `beside`'s
-/// answer where there is none.
-fn assess_as_stated<T: Send>(
+/// fit to start from where a misstatement is to be repaired (and `may_repair`).
+fn assess_as_stated(
     catalog: &Catalog,
     effects: &[&dyn Effect],
     (prep, id): (Prepared, Identification),
     cfg: &Config,
     (may_repair, known): (bool, Option<&Computed>),
     progress: &Progress,
-    beside: Option<&Beside<'_, T>>,
-) -> anyhow::Result<(Assessment, Option<Repair>, Option<T>)> {
+) -> anyhow::Result<(Assessment, Option<Repair>)> {
     let stated = (prep.clone(), id.clone());
     progress.note(|| "the set-up's uncertainty".into());
     let Settled { prep, id, mut unc } = settle(effects, prep, cfg, id, known)?;
@@ -263,75 +196,8 @@ fn assess_as_stated<T: Send>(
     };
     if out.id.refined.is_none() {
         out.unc = unc;
-        return Ok((out, None, None));
+        return Ok((out, None));
     }
-    let weighing = Weighing::default();
-    let weigh_all = || {
-        let w = weigh(
-            catalog,
-            effects,
-            (&out, &stated),
-            cfg,
-            (may_repair, &unc),
-            (progress, &weighing),
-        );
-        weighing.set(match &w {
-            Ok((alts, _, None)) => Weighed::Stands {
-                best_gain: alts
-                    .iter()
-                    .map(|a| a.evidence_gain)
-                    .fold(f64::NEG_INFINITY, f64::max),
-            },
-            _ => Weighed::MayRepair,
-        });
-        w
-    };
-    let (weighed, answer) = match beside {
-        None => (weigh_all(), None),
-        // The work beside waits on a thread of its own for the spare cores' pool, so the
-        // weighing keeps this thread and rayon's pool as it has them without it.
-        Some(beside) => std::thread::scope(|s| {
-            let spare =
-                s.spawn(|| crate::pool::on_spare_cores(|| beside(&out.prep, &out.id, &weighing)));
-            let weighed = weigh_all();
-            let answer = spare
-                .join()
-                .unwrap_or_else(|panic| std::panic::resume_unwind(panic));
-            (weighed, answer)
-        }),
-    };
-    let (alts, moved, repair) = weighed?;
-    if let Some(m) = repair {
-        let (p, c) = misstated::repair(&stated.0, cfg, &m, &alts, &[]);
-        return Ok((out, Some((p, c, stated.1)), None));
-    }
-    unc.add_model_spread(&alternatives::averaging_spread(&alts, out.id.params.len()));
-    out.unc = unc;
-    out.alternatives = alts;
-    out.moved = moved;
-    out.reasons = out.reasons_on(&Scale {
-        weight: None,
-        total_sigma: &out.unc.total_sigma,
-    });
-    Ok((out, None, answer))
-}
-
-/// The alternatives to the settled fit `out` (of `stated`, the fit at the set-up as stated),
-/// weighted; the evidence gain of the set-up moved within its priors over the set-up as stated
-/// (`None`: the data did not move it); and the misstatement to repair, if one beats every
-/// other explanation (and `may_repair`).
-fn weigh(
-    catalog: &Catalog,
-    effects: &[&dyn Effect],
-    (out, stated): (&Assessment, &(Prepared, Identification)),
-    cfg: &Config,
-    (may_repair, unc): (bool, &Uncertainty),
-    (progress, weighing): (&Progress, &Weighing),
-) -> anyhow::Result<(
-    Vec<Alternative>,
-    Option<f64>,
-    Option<alternatives::Misstated>,
-)> {
     let dcfg = DiagnoseConfig {
         identify: cfg.clone(),
         progress: progress.clone(),
@@ -346,7 +212,7 @@ fn weigh(
         },
         || {
             progress.note(|| "weighing a misstated latitude, clock rate or gravity".into());
-            misstated::weigh(effects, &stated.0, cfg, &stated.1, unc)
+            misstated::weigh(effects, &stated.0, cfg, &stated.1, &unc)
         },
     );
     let (mut alts, weighed) = (alts?, weighed?);
@@ -359,7 +225,7 @@ fn weigh(
     if let Some(g0) = moved {
         let to_final = offset(&stated.1, &out.id);
         alts.extend(rivals_of_the_move(
-            catalog, effects, stated, &dcfg, g0, &to_final,
+            catalog, effects, &stated, &dcfg, g0, &to_final,
         )?);
     }
     alternatives::weight(&mut alts);
@@ -369,15 +235,25 @@ fn weigh(
     // and a trend with it moved explained more).
     let rivals = match within_priors {
         Some(w) if may_repair && misstated::to_repair(&alts, &[]).is_some() => {
-            weighing.set(Weighed::MayRepair);
             progress
                 .note(|| "weighing the catalog effects with the set-up within its priors".into());
-            rivals_within_priors(catalog, effects, stated, &dcfg, w)?
+            rivals_within_priors(catalog, effects, &stated, &dcfg, w)?
         }
         _ => vec![],
     };
-    let repair = misstated::to_repair(&alts, &rivals).filter(|_| may_repair);
-    Ok((alts, moved, repair))
+    if let Some(m) = misstated::to_repair(&alts, &rivals).filter(|_| may_repair) {
+        let (p, c) = misstated::repair(&stated.0, cfg, &m, &alts, &[]);
+        return Ok((out, Some((p, c, stated.1))));
+    }
+    unc.add_model_spread(&alternatives::averaging_spread(&alts, out.id.params.len()));
+    out.unc = unc;
+    out.alternatives = alts;
+    out.moved = moved;
+    out.reasons = out.reasons_on(&Scale {
+        weight: None,
+        total_sigma: &out.unc.total_sigma,
+    });
+    Ok((out, None))
 }
 
 /// The misstated set-ups weighed on the starting fit where the ladder then climbed from the
@@ -794,146 +670,40 @@ pub(crate) fn alternatives_untrusted(
 }
 
 /// `identify`'s answer to a misfit at the settled set-up of `assessed`: a drift step profiled on
-/// the fit the alternatives were weighed against (so its evidence is on their scale; `profiled`:
-/// that profile when it ran already, beside the weighing); when it beats every alternative and a
-/// warm-up transient (which a step also follows) by the plausible margin, it is repaired —
-/// modelled from its time on, the model refitted at the `stated` set-up and assessed again (the
-/// set-up settles with the step in the model: settled first, the latitude had bent to absorb the
-/// step).
+/// the fit the alternatives were weighed against (so its evidence is on their scale); when it
+/// beats every alternative and a warm-up transient (which a step also follows) by the plausible
+/// margin, it is repaired — modelled from its time on, the model refitted at the `stated`
+/// set-up and assessed again (the set-up settles with the step in the model: settled first, the
+/// latitude had bent to absorb the step). Returns the effects and assessment to report and the
+/// step when it is only named (it explains the misfit but is not repaired: no rival beats it).
 pub(crate) fn repaired_if_it_wins<'c>(
     catalog: &'c crate::catalog::Catalog,
     stated: Prepared,
     effects: Vec<&'c dyn Effect>,
     cfg: &Config,
-    (assessed, profiled): (Assessment, Option<Option<DriftStepFit>>),
+    assessed: Assessment,
     progress: &crate::steps::Progress,
-) -> anyhow::Result<AfterStep<'c>> {
-    let stands = |assessed, named| AfterStep {
-        effects: effects.clone(),
-        assessed,
-        named,
-        repaired: false,
-    };
+) -> anyhow::Result<(Vec<&'c dyn Effect>, Assessment, Option<DriftStepFit>)> {
     let misfit = crate::consistency::consistency_of(&assessed.id, &assessed.prep)
         .is_some_and(|c| !c.is_consistent());
     if !misfit {
-        return Ok(stands(assessed, None));
+        return Ok((effects, assessed, None));
     }
-    let step = profiled.unwrap_or_else(|| {
-        progress.note(|| "profiling a gyro drift step".into());
-        drift_step::profile(&assessed.prep, &effects, cfg, &assessed.id)
-    });
-    let Some(step) = step else {
-        return Ok(stands(assessed, None));
+    progress.note(|| "profiling a gyro drift step".into());
+    let Some(step) = drift_step::profile(&assessed.prep, &effects, cfg, &assessed.id) else {
+        return Ok((effects, assessed, None));
     };
     if !step.beats(&assessed.alternatives) {
-        return Ok(stands(assessed, Some(step)));
+        return Ok((effects, assessed, Some(step)));
     }
     let warmup = crate::diagnose::warmup::profile(&assessed.prep, &effects, cfg, &assessed.id);
     if warmup.is_some_and(|w| w.evidence_gain + PLAUSIBLE_MARGIN >= step.evidence_gain) {
         // The warm-up explains it as well or better: the misfit stands; `diagnose` weighs both.
-        return Ok(stands(assessed, None));
+        return Ok((effects, assessed, None));
     }
     let (with_step, id) = drift_step::repair(catalog, &stated, &effects, cfg, &step)?;
     let mut prep = stated;
     prep.findings.push(step.repaired());
     let a = assess_with(catalog, &with_step, prep, cfg, id, None, progress)?;
-    Ok(AfterStep {
-        effects: with_step,
-        assessed: a,
-        named: None,
-        repaired: true,
-    })
-}
-
-/// What [`repaired_if_it_wins`] leaves.
-pub(crate) struct AfterStep<'c> {
-    /// The model's effects (with the step when it was repaired).
-    pub effects: Vec<&'c dyn Effect>,
-    /// The assessment to report.
-    pub assessed: Assessment,
-    /// The step when it is only named (it explains the misfit but is not repaired: no rival
-    /// beats it).
-    pub named: Option<DriftStepFit>,
-    /// Whether the step was repaired (the fit assessed is not the one profiled).
-    pub repaired: bool,
-}
-
-#[cfg(test)]
-mod tests {
-    use super::*;
-
-    /// A paper run of 60 h at 10 s, the site `error_deg` from its metadata latitude 39.1° (as
-    /// `driftid simulate --latitude-error-deg`): prepared, and the paper model's fit on it.
-    fn fitted(error_deg: f64) -> (Prepared, Identification, Config) {
-        let mut sc = crate::simulate::Scenario::paper();
-        sc.hours = 60.0;
-        sc.rate_s = 10.0;
-        sc.setup_errors.latitude_deg = error_deg;
-        let cfg = Config::default();
-        let prep = crate::simulate::prepared(&sc, &cfg);
-        let effects = [crate::catalog::paper()];
-        let model = build_model(prep.site, &effects, &cfg).unwrap();
-        let id = crate::identify::identify(&model, &prep, &cfg).unwrap();
-        (prep, id, cfg)
-    }
-
-    /// The work run beside the weighing ([`Beside`]) is answered only when the fit it saw is
-    /// the one assessed: on a run whose stated latitude is right, its answer is of the final
-    /// fit (the same latitude and −2 ln p(y), to the bit); on one stated 0.5° off, where the
-    /// misstated latitude is repaired and the model refitted, there is no answer (the work saw
-    /// the fit the repair replaced).
-    #[test]
-    fn work_beside_the_weighing_is_answered_only_when_the_fit_stands() {
-        let catalog = crate::catalog::Catalog::builtin();
-        let effects = [crate::catalog::paper()];
-        let seen = |p: &Prepared, id: &Identification, _: &Weighing| {
-            Some((
-                p.site.latitude_rad,
-                crate::identify::neg2_log_evidence(&id.innovations),
-            ))
-        };
-        let run = |stated_deg: f64| {
-            let (prep, id, cfg) = fitted(stated_deg);
-            let progress = Progress::default();
-            assess_beside(
-                catalog,
-                &effects,
-                (prep, id),
-                &cfg,
-                None,
-                &progress,
-                Some(&seen),
-            )
-            .unwrap()
-        };
-        let (a, answer) = run(0.0);
-        let final_fit = (
-            a.prep.site.latitude_rad,
-            crate::identify::neg2_log_evidence(&a.id.innovations),
-        );
-        assert_eq!(answer, Some(final_fit), "the answer is not the final fit's");
-        // The metadata says 39.1°; the site is at 38.6°.
-        let (a, answer) = run(0.5);
-        assert!(
-            (a.prep.site.latitude_rad.to_degrees() - 38.6).abs() < 0.01,
-            "not repaired: {}",
-            a.prep.site.latitude_rad.to_degrees()
-        );
-        assert_eq!(answer, None, "an answer about the replaced fit");
-    }
-
-    /// A repair once in view stays in view: work that gave up on it is not told later that the
-    /// fit stands.
-    #[test]
-    fn a_weighing_that_may_repair_stays_so() {
-        let w = Weighing::default();
-        assert_eq!(w.get(), None);
-        w.set(Weighed::MayRepair);
-        w.set(Weighed::Stands { best_gain: 3.0 });
-        assert_eq!(w.get(), Some(Weighed::MayRepair));
-        let w = Weighing::default();
-        w.set(Weighed::Stands { best_gain: 3.0 });
-        assert_eq!(w.get(), Some(Weighed::Stands { best_gain: 3.0 }));
-    }
+    Ok((with_step, a, None))
 }

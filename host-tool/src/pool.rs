@@ -27,39 +27,6 @@ where
     });
 }
 
-/// Runs `f` on the spare cores: a pool of its own whose threads run at the lowest priority
-/// (Linux: nice 19, a weight of 15 against a normal thread's 1024), so work that may be thrown
-/// away takes only the cores the work that counts leaves idle, and all of them once it is done.
-/// Elsewhere the threads run at the normal priority (the answer is the same, only slower).
-/// `f` may use rayon inside: its jobs stay on this pool.
-pub(crate) fn on_spare_cores<T: Send>(f: impl FnOnce() -> T + Send) -> T {
-    static SPARE: std::sync::OnceLock<Option<rayon::ThreadPool>> = std::sync::OnceLock::new();
-    let pool = SPARE.get_or_init(|| {
-        rayon::ThreadPoolBuilder::new()
-            .num_threads(rayon::current_num_threads())
-            .thread_name(|k| format!("spare-{k}"))
-            .start_handler(|_| lowest_priority())
-            .build()
-            .ok()
-    });
-    match pool {
-        Some(pool) => pool.install(f),
-        // No threads to be had: on the caller's pool.
-        None => f(),
-    }
-}
-
-/// This thread at the lowest scheduling priority (best effort: a thread left at the normal one
-/// only competes for the cores).
-fn lowest_priority() {
-    #[cfg(target_os = "linux")]
-    // SAFETY: gettid has no preconditions; setpriority reads its plain arguments. PRIO_PROCESS
-    // with a thread id sets that thread's nice value on Linux (setpriority(2), BUGS).
-    unsafe {
-        libc::setpriority(libc::PRIO_PROCESS, libc::gettid() as libc::id_t, 19);
-    }
-}
-
 #[cfg(test)]
 mod tests {
     /// Every item is run once, whatever the count (none, one, several).

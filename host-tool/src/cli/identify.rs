@@ -5,12 +5,11 @@ use std::path::PathBuf;
 use serde_json::{json, Map, Value};
 
 use super::common::{build_model, load, print_findings, trusted_or, ModelArgs};
-use crate::assess::{Weighed, Weighing};
 use crate::catalog::Catalog;
 use crate::consistency::Consistency;
 use crate::format::{sci, with_sigma};
 use crate::identify::setup::Uncertainty;
-use crate::identify::{identify, try_cramer_rao_bound, Config, Identification, Prepared};
+use crate::identify::{identify, try_cramer_rao_bound, Identification, Prepared};
 use crate::simulate::read_truth;
 
 /// Arguments of `driftid identify`.
@@ -386,34 +385,10 @@ fn run_one(args: &IdentifyArgs, catalog: &Catalog) -> anyhow::Result<()> {
     let progress = crate::progress::follow(&spin);
     // The measurements at the stated set-up: a repair starts again from them.
     let stated = prep.clone();
-    let beside = |p: &Prepared, id: &Identification, w: &Weighing| {
-        misfit_profiles(catalog, &effects, &cfg, (p, id), w, &progress)
-    };
-    let (assessed, early) = crate::assess::assess_beside(
-        catalog,
-        &effects,
-        (prep, id),
-        &cfg,
-        None,
-        &progress,
-        Some(&beside),
-    )?;
-    let (step, latitude) = match early {
-        Some(m) => (Some(m.step), m.latitude),
-        None => (None, None),
-    };
+    let assessed = crate::assess::assess_with(catalog, &effects, prep, &cfg, id, None, &progress)?;
     // A misfit a drift step explains better than anything else is repaired.
-    let after = crate::assess::repaired_if_it_wins(
-        catalog,
-        stated,
-        effects.clone(),
-        &cfg,
-        (assessed, step),
-        &progress,
-    )?;
-    let (effects, assessed, step) = (after.effects, after.assessed, after.named);
-    // The latitude's profile beside the weighing was of the fit a repaired step replaced.
-    let latitude = latitude.filter(|_| !after.repaired);
+    let (effects, assessed, step) =
+        crate::assess::repaired_if_it_wins(catalog, stated, effects, &cfg, assessed, &progress)?;
     spin.finish_and_clear();
     let truth = match &args.truth {
         Some(p) => Some(truth_of(&read_truth(p)?, &assessed.id.params)),
@@ -430,11 +405,7 @@ fn run_one(args: &IdentifyArgs, catalog: &Catalog) -> anyhow::Result<()> {
     );
     let check = consistency_of(&assessed.id, &assessed.prep);
     let mut assessed = assessed;
-    let misfit = check.as_ref().is_some_and(|c| !c.is_consistent());
-    if let Some(found) = latitude.filter(|_| misfit) {
-        // Asked beside the weighing, of this fit.
-        assessed.prep.findings.extend(found);
-    } else if misfit {
+    if check.as_ref().is_some_and(|c| !c.is_consistent()) {
         // A model that does not fit: first ask whether the metadata latitude is the culprit.
         let spin = crate::progress::spinner("the model does not fit");
         let progress = crate::progress::follow(&spin);
@@ -453,58 +424,6 @@ fn run_one(args: &IdentifyArgs, catalog: &Catalog) -> anyhow::Result<()> {
         print_text(recording, a, &rows, &reasons);
     }
     trusted_or(reasons)
-}
-
-/// What `identify` asks of a misfit, beside the weighing of its alternatives
-/// ([`crate::assess::Beside`]): whether a drift step explains it
-/// ([`crate::diagnose::drift_step::profile`]), then whether the metadata latitude is the culprit
-/// ([`super::common::name_a_wrong_latitude`]'s question), given up once the weighing shows a
-/// misstated set-up that may be repaired or a step that wins (either replaces the fit).
-struct MisfitProfiles {
-    /// The step's profile (`None`: no step found).
-    step: Option<crate::diagnose::drift_step::DriftStepFit>,
-    /// The latitude's finding, if it was asked (`None`: given up, or the fit is consistent).
-    latitude: Option<Option<crate::quality::Finding>>,
-}
-
-/// [`MisfitProfiles`] of the fit `id` on `prep` (`None`: given up).
-fn misfit_profiles(
-    catalog: &Catalog,
-    effects: &[&dyn estimator_core::effects::Effect],
-    cfg: &Config,
-    (prep, id): (&Prepared, &Identification),
-    weighing: &Weighing,
-    progress: &crate::steps::Progress,
-) -> Option<MisfitProfiles> {
-    let misfit = consistency_of(id, prep).is_some_and(|c| !c.is_consistent());
-    if !misfit {
-        return Some(MisfitProfiles {
-            step: None,
-            latitude: None,
-        });
-    }
-    progress.note(|| "profiling a gyro drift step".into());
-    let step = crate::diagnose::drift_step::profile(prep, effects, cfg, id);
-    // Once it says so, it keeps saying so: a repair in view stays in view, and the best
-    // alternative's gain is final.
-    let stop = || match weighing.get() {
-        Some(Weighed::MayRepair) => true,
-        Some(Weighed::Stands { best_gain }) => {
-            step.as_ref().is_some_and(|s| s.beats_best(best_gain))
-        }
-        None => false,
-    };
-    if stop() {
-        return None;
-    }
-    progress.note(|| "the model does not fit: profiling the latitude".into());
-    let rivals = || super::common::rivals(prep, catalog, effects, cfg, id, progress);
-    let latitude =
-        crate::diagnose::latitude::check_unless(prep, effects, cfg, Some(id), (rivals, &stop))?;
-    Some(MisfitProfiles {
-        step,
-        latitude: Some(latitude),
-    })
 }
 
 /// Why the estimate is not trusted (empty: trusted): the data's faults, convergence, the

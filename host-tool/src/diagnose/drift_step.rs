@@ -447,11 +447,6 @@ impl DriftStepFit {
             .iter()
             .map(|a| a.evidence_gain)
             .fold(f64::NEG_INFINITY, f64::max);
-        self.beats_best(best)
-    }
-
-    /// [`DriftStepFit::beats`], the best alternative's evidence gain `best` given.
-    pub(crate) fn beats_best(&self, best: f64) -> bool {
         self.evidence_gain > crate::diagnose::select::MIN_EVIDENCE_GAIN
             && self.evidence_gain > best + crate::diagnose::alternatives::PLAUSIBLE_MARGIN
     }

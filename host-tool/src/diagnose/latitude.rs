@@ -67,17 +67,6 @@ pub(crate) struct Fits<'a> {
     cfg: &'a Config,
     site_at: SiteAt,
     lowest: Mutex<Option<Arc<Fitted>>>,
-    /// Whether to give up: every fit after it says so is `None` ([`Fits::until`]).
-    stop: &'a Stop<'a>,
-}
-
-/// Whether a profile is to give up (work whose answer is no longer wanted,
-/// [`crate::assess::Beside`]); once it says so, it keeps saying so.
-pub(crate) type Stop<'s> = dyn Fn() -> bool + Sync + 's;
-
-/// A profile that never gives up.
-fn never() -> bool {
-    false
 }
 
 impl<'a> Fits<'a> {
@@ -93,13 +82,7 @@ impl<'a> Fits<'a> {
             cfg,
             site_at,
             lowest: Mutex::new(None),
-            stop: &never,
         }
-    }
-
-    /// The fits give up (`None`) once `stop` says so.
-    fn until(self, stop: &'a Stop<'a>) -> Self {
-        Fits { stop, ..self }
     }
 
     /// Takes `id`, the model's fit on `prep` itself (at its latitude `lat`), as fitted there: the
@@ -138,9 +121,6 @@ impl<'a> Fits<'a> {
 
     /// The model fitted at latitude `lat`, warm-started from `from` where it is near.
     fn fit_from(&self, lat: f64, from: Option<Arc<Fitted>>) -> Option<Arc<Fitted>> {
-        if (self.stop)() {
-            return None;
-        }
         let p = (self.site_at)(self.prep, lat);
         let model = build_model(p.site, self.effects, self.cfg).ok()?;
         let warm = from
@@ -235,12 +215,8 @@ fn screened(
     grid: &[f64],
     l0: f64,
     (f, known): (&(impl Fn(&[f64]) -> Vec<f64> + Sync), Option<f64>),
-    stop: &Stop<'_>,
 ) -> (f64, Vec<f64>) {
-    let screen = |l: f64| match stop() {
-        true => f64::INFINITY,
-        false => screen(prep, effects, cfg, at_latitude, l),
-    };
+    let screen = |l: f64| screen(prep, effects, cfg, at_latitude, l);
     rayon::join(
         || known.unwrap_or_else(|| f(&[l0])[0]),
         || grid.par_iter().map(|&l| screen(l)).collect(),
@@ -401,22 +377,10 @@ pub(crate) fn profile(
     cfg: &Config,
     fitted: Option<&Identification>,
 ) -> Option<LatitudeFit> {
-    profile_unless(prep, effects, cfg, fitted, &never)
-}
-
-/// [`profile`], given up (`None`, or a value to discard) once `stop` says so: the caller asks
-/// `stop` again after it.
-fn profile_unless(
-    prep: &Prepared,
-    effects: &[&dyn Effect],
-    cfg: &Config,
-    fitted: Option<&Identification>,
-    stop: &Stop<'_>,
-) -> Option<LatitudeFit> {
     let l0 = prep.site.latitude_rad.to_degrees();
     // A model that cannot even be fitted at the metadata latitude (the smoother fails) leaves
     // any latitude where it fits, and fits consistently, the better one.
-    let fits = Fits::new(prep, effects, cfg, at_latitude).until(stop);
+    let fits = Fits::new(prep, effects, cfg, at_latitude);
     let f = |ls: &[f64]| fits.evidences(ls);
     let forces: Vec<[f64; 3]> = prep.measurements.iter().map(|m| m.specific_force).collect();
     let confirmed = crate::quality::hemisphere::latitude_from_forces(&forces)
@@ -426,7 +390,7 @@ fn profile_unless(
         fits.seed(l0, id);
     }
     let known = fitted.map(neg2_log_evidence);
-    let (f0, scores) = screened(prep, effects, cfg, &grid, l0, (&f, known), stop);
+    let (f0, scores) = screened(prep, effects, cfg, &grid, l0, (&f, known));
     let k = (0..grid.len()).min_by(|&a, &b| scores[a].total_cmp(&scores[b]))?;
     // The metadata latitude's fit once.
     let f = |ls: &[f64]| -> Vec<f64> {
@@ -511,30 +475,7 @@ pub(crate) fn check_with(
     fitted: Option<&Identification>,
     rivals: impl FnOnce() -> Vec<(String, f64)>,
 ) -> Option<Finding> {
-    finding(prep, profile(prep, effects, cfg, fitted)?, rivals)
-}
-
-/// [`check_with`], given up (`None`) once `stop` says so.
-pub(crate) fn check_unless(
-    prep: &Prepared,
-    effects: &[&dyn Effect],
-    cfg: &Config,
-    fitted: Option<&Identification>,
-    (rivals, stop): (impl FnOnce() -> Vec<(String, f64)>, &Stop<'_>),
-) -> Option<Option<Finding>> {
-    let fit = profile_unless(prep, effects, cfg, fitted, stop);
-    match stop() {
-        true => None,
-        false => Some(fit.and_then(|fit| finding(prep, fit, rivals))),
-    }
-}
-
-/// The finding of the profile's `fit` against `rivals` ([`check`]).
-fn finding(
-    prep: &Prepared,
-    fit: LatitudeFit,
-    rivals: impl FnOnce() -> Vec<(String, f64)>,
-) -> Option<Finding> {
+    let fit = profile(prep, effects, cfg, fitted)?;
     let l0 = prep.site.latitude_rad.to_degrees();
     if !(fit.gain > MIN_GAIN
         && fit.consistent
