@@ -573,6 +573,23 @@ mod tests {
         }
     }
 
+    /// A paper run of `hours` at 10 s from a level start, the site at `site_deg`, its metadata
+    /// latitude 39.1°: prepared (normal gravity at 39.1°), with the settings.
+    fn stated_39_1(site_deg: f64, hours: f64) -> (Prepared, Config) {
+        use estimator_core::{Sample, Site};
+        let mut sc = crate::simulate::Scenario::paper();
+        sc.latitude_deg = site_deg;
+        sc.hours = hours;
+        sc.rate_s = 10.0;
+        let sim = crate::simulate::simulate(&sc);
+        let samples: Vec<Sample> = sim.samples.iter().map(Sample::from).collect();
+        let cfg = Config::default();
+        let prep =
+            crate::identify::prepare_oriented(Site::new(39.1, None), &samples, &cfg, [0.0; 3])
+                .unwrap();
+        (prep, cfg)
+    }
+
     /// Fits made side by side each start from the lowest fit before them all, whichever finishes
     /// first: on one thread (one after the other) and on two, each is bit for bit the fit made
     /// alone after the same fits. Before, the later of two warm-started from the earlier when
@@ -581,19 +598,15 @@ mod tests {
     /// within the warm start's reach of 39.4°.
     #[test]
     fn fits_side_by_side_do_not_depend_on_which_finishes_first() {
-        use estimator_core::{Sample, Site};
-        let mut sc = crate::simulate::Scenario::paper();
-        sc.latitude_deg = 39.5;
-        sc.hours = 24.0;
-        sc.rate_s = 10.0;
-        let sim = crate::simulate::simulate(&sc);
-        let samples: Vec<Sample> = sim.samples.iter().map(Sample::from).collect();
-        let cfg = Config::default();
-        let prep =
-            crate::identify::prepare_oriented(Site::new(39.1, None), &samples, &cfg, [0.0; 3])
-                .unwrap();
+        let (prep, cfg) = stated_39_1(39.5, 24.0);
         let effects = [crate::catalog::paper()];
-        let bits = |threads: usize| -> Vec<Vec<u64>> {
+        // A fit's −2 ln p(y) and estimate, as bits.
+        let bits = |f: &Fitted| -> Vec<u64> {
+            let mut b = vec![f.evidence.to_bits()];
+            b.extend(f.id.best().value.iter().map(|v| v.to_bits()));
+            b
+        };
+        let on = |threads: usize| -> Vec<Vec<u64>> {
             let pool = rayon::ThreadPoolBuilder::new()
                 .num_threads(threads)
                 .build()
@@ -603,24 +616,16 @@ mod tests {
                 fits.fit(39.1).unwrap();
                 fits.side_by_side(&[39.3, 39.4])
                     .into_iter()
-                    .map(|f| {
-                        let f = f.unwrap();
-                        let mut b = vec![f.evidence.to_bits()];
-                        b.extend(f.id.best().value.iter().map(|v| v.to_bits()));
-                        b
-                    })
+                    .map(|f| bits(&f.unwrap()))
                     .collect()
             })
         };
         let alone = |l: f64| -> Vec<u64> {
             let fits = Fits::new(&prep, &effects, &cfg, at_latitude);
             fits.fit(39.1).unwrap();
-            let f = fits.fit(l).unwrap();
-            let mut b = vec![f.evidence.to_bits()];
-            b.extend(f.id.best().value.iter().map(|v| v.to_bits()));
-            b
+            bits(&fits.fit(l).unwrap())
         };
-        let (one, two) = (bits(1), bits(2));
+        let (one, two) = (on(1), on(2));
         assert_eq!(one, two, "one thread and two differ");
         assert_eq!(
             one,
@@ -638,17 +643,7 @@ mod tests {
     /// and a seed taken at another latitude would move it by thousands.
     #[test]
     fn a_profile_started_from_the_fit_at_hand_is_the_profile() {
-        use estimator_core::{Sample, Site};
-        let mut sc = crate::simulate::Scenario::paper();
-        sc.latitude_deg = 38.6;
-        sc.hours = 36.0;
-        sc.rate_s = 10.0;
-        let sim = crate::simulate::simulate(&sc);
-        let samples: Vec<Sample> = sim.samples.iter().map(Sample::from).collect();
-        let cfg = Config::default();
-        let prep =
-            crate::identify::prepare_oriented(Site::new(39.1, None), &samples, &cfg, [0.0; 3])
-                .unwrap();
+        let (prep, cfg) = stated_39_1(38.6, 36.0);
         let effects = [crate::catalog::paper()];
         let model = build_model(prep.site, &effects, &cfg).unwrap();
         let id = identify(&model, &prep, &cfg).unwrap();
