@@ -242,10 +242,11 @@ pub(crate) fn screen(
 /// The bracket of the minimum of `f` (values at latitudes fitted side by side) about the grid's
 /// point `k` (the screen's best): the full fit at it and at its neighbours 2° away (or 2° beyond
 /// where there is none), walked 2° at a time towards a lower end until the middle is the lowest
-/// (the screen only approximates `f`), at most [`MAX_WALK`] steps. A neighbour the screen (`scores`) puts clearly above the middle
-/// ([`clearly_above`]) keeps the screen's value: its fit, 2° from the data's latitude, is the
-/// slowest of the profile (~80 ms of a 60-h run: the continuation fit) and would only confirm
-/// the bracket; the refinement replaces the ends with fits as it narrows.
+/// (the screen only approximates `f`), at most [`MAX_WALK`] steps. A neighbour the screen
+/// (`scores`) puts clearly above the middle ([`clearly_above`]) keeps the screen's value: its
+/// fit, 2° from the data's latitude, is the slowest of the profile (~80 ms of a 60-h run: the
+/// continuation fit) and would only confirm the bracket; the refinement replaces the ends with
+/// fits as it narrows.
 fn bracket(
     grid: &[f64],
     scores: &[f64],
