@@ -581,64 +581,64 @@ pub(crate) fn refine_step(
     {
         return None;
     }
-    let (ata, atb) = normal_equations(means, a, c, &idx, typical, rows);
-    let ata = nalgebra::SMatrix::<f64, REFINE_N, REFINE_N>::from(ata);
-    let inv = ata.try_inverse()?;
-    let p = inv * nalgebra::SVector::<f64, REFINE_N>::from(atb);
+    let inv = rows.design_inverse(means, c, &idx, typical)?;
+    // AᵀWb summed as (w·rᵢ)·b, as nalgebra's `w * r * b` did.
+    let mut atb = nalgebra::SVector::<f64, REFINE_N>::zeros();
+    for &j in &idx {
+        let r = rows.row(j as isize - c as isize, means[j].t_s - tc);
+        let w = f64::from(means[j].count.max(1)) / typical;
+        for (x, ri) in atb.iter_mut().zip(r) {
+            *x += w * ri * means[j].specific_force[a];
+        }
+    }
+    let p = inv * atb;
     Some((p[12], inv[(12, 12)].sqrt() * sigma_full))
 }
 
-/// [`refine_step`]'s normal equations: AᵀWA (columns) and AᵀWb over the means `idx` of axis
-/// `a` about the candidate `c`.
-type Normal = ([[f64; REFINE_N]; REFINE_N], [f64; REFINE_N]);
-
-/// [`Normal`], on the AVX2 build where the CPU has it (the same bits).
-fn normal_equations(
+/// [`refine_step`]'s AᵀWA (columns) over the means `idx` about the candidate `c`, on the AVX2
+/// build where the CPU has it (the same bits).
+fn design(
     means: &[Measurement],
-    a: usize,
     c: usize,
     idx: &[usize],
     typical: f64,
     rows: &mut RefineRows,
-) -> Normal {
+) -> [[f64; REFINE_N]; REFINE_N] {
     #[cfg(target_arch = "x86_64")]
     if estimator_core::cpu::has_avx2() {
-        // SAFETY: `normal_equations_avx2` needs AVX2, which the CPU was just found to have.
-        return unsafe { normal_equations_avx2(means, a, c, idx, typical, rows) };
+        // SAFETY: `design_avx2` needs AVX2, which the CPU was just found to have.
+        return unsafe { design_avx2(means, c, idx, typical, rows) };
     }
-    normal_equations_body(means, a, c, idx, typical, rows)
+    design_body(means, c, idx, typical, rows)
 }
 
-/// [`normal_equations`] compiled for AVX2 ([`estimator_core::cpu`]): no fused multiply-add, so
-/// the same bits; the bias-step search of a clean 60-h run at 1 s took 38 ms, not 53 (2 cores).
+/// [`design`] compiled for AVX2 ([`estimator_core::cpu`]): no fused multiply-add, so the same
+/// bits (a design summed afresh: 53 → 38 ms of the search of a clean 60-h run at 1 s).
 #[cfg(target_arch = "x86_64")]
 #[target_feature(enable = "avx2")]
-fn normal_equations_avx2(
+fn design_avx2(
     means: &[Measurement],
-    a: usize,
     c: usize,
     idx: &[usize],
     typical: f64,
     rows: &mut RefineRows,
-) -> Normal {
-    normal_equations_body(means, a, c, idx, typical, rows)
+) -> [[f64; REFINE_N]; REFINE_N] {
+    design_body(means, c, idx, typical, rows)
 }
 
-/// [`normal_equations`]: element (i, k) summed as (w·rᵢ)·rₖ, a rank-one update written out
-/// (nalgebra's `w * r * r.transpose()` makes the same products and sums, through a 13 × 13
-/// temporary that took half the search's time).
+/// [`design`]: element (i, k) summed as (w·rᵢ)·rₖ, a rank-one update written out (nalgebra's
+/// `w * r * r.transpose()` makes the same products and sums, through a 13 × 13 temporary that
+/// took half the search's time).
 #[inline(always)]
-fn normal_equations_body(
+fn design_body(
     means: &[Measurement],
-    a: usize,
     c: usize,
     idx: &[usize],
     typical: f64,
     rows: &mut RefineRows,
-) -> Normal {
+) -> [[f64; REFINE_N]; REFINE_N] {
     let tc = means[c].t_s;
     let mut ata = [[0.0; REFINE_N]; REFINE_N];
-    let mut atb = [0.0; REFINE_N];
     for &j in idx {
         let r = rows.row(j as isize - c as isize, means[j].t_s - tc);
         let w = f64::from(means[j].count.max(1)) / typical;
@@ -648,28 +648,60 @@ fn normal_equations_body(
                 *x += wri * rk;
             }
         }
-        for (x, wri) in atb.iter_mut().zip(&wr) {
-            *x += wri * means[j].specific_force[a];
-        }
     }
-    (ata, atb)
+    ata
 }
 
 /// The functions [`refine_step`] fits: {1, cos Ωτ, sin Ωτ} × {1, u, u², u³} and the step.
 const REFINE_N: usize = 13;
 
-/// [`refine_step`]'s rows by their offset from the candidate mean, each kept with the τ it was
-/// made for and made anew where τ differs: on the even grid of a recording's means the same
-/// offset is the same τ for every candidate, and the ±6 h of sines and cosines each candidate
-/// made afresh were a quarter of the search's time. The rows are the ones made afresh, bit
-/// for bit. One per worker of the search (`map_init`).
+/// What [`refine_step`] reuses from one candidate to the next, bit for bit what it would make
+/// afresh. One per worker of the search (`map_init`).
+///
+/// - The rows by their offset from the candidate mean, each kept with the τ it was made for and
+///   made anew where τ differs: on the even grid of a recording's means the same offset is the
+///   same τ for every candidate, and the ±6 h of sines and cosines each candidate made afresh
+///   were a quarter of the search's time.
+/// - The design's inverse (AᵀWA)⁻¹, kept with the τ and weight of each of its means: on that
+///   grid it is the same for every candidate away from the run's ends, a gap or a step already
+///   found, and summing it was 13 times the work of the data's side, AᵀWb.
 #[derive(Default)]
 pub(crate) struct RefineRows {
     before: Vec<Option<(f64, [f64; REFINE_N])>>,
     after: Vec<Option<(f64, [f64; REFINE_N])>>,
+    /// The (τ, weight) bits of the last design's means, in order, and its inverse.
+    design: (
+        Vec<(u64, u64)>,
+        Option<nalgebra::SMatrix<f64, REFINE_N, REFINE_N>>,
+    ),
+    /// The candidate's (τ, weight) bits, compared with `design`'s.
+    key: Vec<(u64, u64)>,
 }
 
 impl RefineRows {
+    /// (AᵀWA)⁻¹ of the means `idx` about the candidate `c` ([`design`]); `None` where singular.
+    fn design_inverse(
+        &mut self,
+        means: &[Measurement],
+        c: usize,
+        idx: &[usize],
+        typical: f64,
+    ) -> Option<nalgebra::SMatrix<f64, REFINE_N, REFINE_N>> {
+        let tc = means[c].t_s;
+        self.key.clear();
+        self.key.extend(idx.iter().map(|&j| {
+            let w = f64::from(means[j].count.max(1)) / typical;
+            ((means[j].t_s - tc).to_bits(), w.to_bits())
+        }));
+        if self.key != self.design.0 {
+            let ata: nalgebra::SMatrix<f64, REFINE_N, REFINE_N> =
+                nalgebra::SMatrix::from(design(means, c, idx, typical, self));
+            self.design.1 = ata.try_inverse();
+            std::mem::swap(&mut self.design.0, &mut self.key);
+        }
+        self.design.1
+    }
+
     /// The row of the mean `offset` means from the candidate, `tau` seconds from it.
     fn row(&mut self, offset: isize, tau: f64) -> [f64; REFINE_N] {
         let (side, k) = if offset < 0 {
@@ -717,12 +749,13 @@ mod tests {
         means: &[Measurement],
         a: usize,
         c: usize,
+        other: &[usize],
         (sigma_full, typical): (f64, f64),
     ) -> Option<(f64, f64)> {
         let tc = means[c].t_s;
         let mut ata = nalgebra::SMatrix::<f64, REFINE_N, REFINE_N>::zeros();
         let mut atb = nalgebra::SVector::<f64, REFINE_N>::zeros();
-        for j in refine_window(means, c, &[]) {
+        for j in refine_window(means, c, other) {
             let r = nalgebra::SVector::<f64, REFINE_N>::from(refine_row(means[j].t_s - tc));
             let w = f64::from(means[j].count.max(1)) / typical;
             ata += w * r * r.transpose();
@@ -761,18 +794,20 @@ mod tests {
             .collect()
     }
 
-    /// Rows kept by offset and reused across candidates give the fit made afresh bit for bit —
-    /// on the even grid, where every row is reused, and across the shifted stretch, where an
-    /// offset's τ changes and its row must be made anew (a row reused at the wrong τ, or the
-    /// normal equations summed transposed, changes the bits).
+    /// Rows and designs reused across candidates give the fit made afresh bit for bit — on the
+    /// even grid, where every row and the design are reused; across the shifted stretch and
+    /// the short mean, where an offset's τ or a weight changes; and where a step found before
+    /// (`other`) leaves a mean out. A row or design reused where it differs, or the normal
+    /// equations summed transposed, changes the bits.
     #[test]
     fn rows_reused_across_candidates_give_the_fit_made_afresh() {
         let means = means();
         let mut rows = RefineRows::default();
         let mut sized = 0;
         for c in (360..1440).step_by(7) {
-            let reused = refine_step(&means, 0, c, &[], (1e-5, 60.0), &mut rows);
-            let afresh = refine_step_afresh(&means, 0, c, (1e-5, 60.0));
+            let other: &[usize] = if c % 3 == 0 { &[c - 200] } else { &[] };
+            let reused = refine_step(&means, 0, c, other, (1e-5, 60.0), &mut rows);
+            let afresh = refine_step_afresh(&means, 0, c, other, (1e-5, 60.0));
             let bits = |r: Option<(f64, f64)>| r.map(|(s, d)| (s.to_bits(), d.to_bits()));
             assert_eq!(bits(reused), bits(afresh), "candidate {c}");
             sized += usize::from(reused.is_some());
