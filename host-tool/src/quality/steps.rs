@@ -581,13 +581,18 @@ pub(crate) fn refine_step(
     {
         return None;
     }
-    let inv = rows.design_inverse(means, c, &idx, typical)?;
+    let window = Window {
+        means,
+        c,
+        idx: &idx,
+        typical,
+    };
+    let inv = rows.design_inverse(&window)?;
     // AᵀWb summed as (w·rᵢ)·b, as nalgebra's `w * r * b` did.
     let mut atb = nalgebra::SVector::<f64, REFINE_N>::zeros();
     for &j in &idx {
-        let r = rows.row(j as isize - c as isize, means[j].t_s - tc);
-        let w = f64::from(means[j].count.max(1)) / typical;
-        for (x, ri) in atb.iter_mut().zip(r) {
+        let (tau, w) = window.tau_weight(j);
+        for (x, ri) in atb.iter_mut().zip(rows.row(j as isize - c as isize, tau)) {
             *x += w * ri * means[j].specific_force[a];
         }
     }
@@ -595,61 +600,62 @@ pub(crate) fn refine_step(
     Some((p[12], inv[(12, 12)].sqrt() * sigma_full))
 }
 
-/// [`refine_step`]'s AᵀWA (columns) over the means `idx` about the candidate `c`, on the AVX2
-/// build where the CPU has it (the same bits).
-fn design(
-    means: &[Measurement],
+/// The means [`refine_step`] fits about the candidate `c`: `idx` ([`refine_window`]), weighed
+/// by their counts over the `typical` one.
+struct Window<'a> {
+    means: &'a [Measurement],
     c: usize,
-    idx: &[usize],
+    idx: &'a [usize],
     typical: f64,
-    rows: &mut RefineRows,
-) -> [[f64; REFINE_N]; REFINE_N] {
-    #[cfg(target_arch = "x86_64")]
-    if estimator_core::cpu::has_avx2() {
-        // SAFETY: `design_avx2` needs AVX2, which the CPU was just found to have.
-        return unsafe { design_avx2(means, c, idx, typical, rows) };
+}
+
+impl Window<'_> {
+    /// τ of mean `j` from the candidate, s, and its weight.
+    fn tau_weight(&self, j: usize) -> (f64, f64) {
+        let m = &self.means[j];
+        (
+            m.t_s - self.means[self.c].t_s,
+            f64::from(m.count.max(1)) / self.typical,
+        )
     }
-    design_body(means, c, idx, typical, rows)
-}
 
-/// [`design`] compiled for AVX2 ([`estimator_core::cpu`]): no fused multiply-add, so the same
-/// bits (a design summed afresh: 53 → 38 ms of the search of a clean 60-h run at 1 s).
-#[cfg(target_arch = "x86_64")]
-#[target_feature(enable = "avx2")]
-fn design_avx2(
-    means: &[Measurement],
-    c: usize,
-    idx: &[usize],
-    typical: f64,
-    rows: &mut RefineRows,
-) -> [[f64; REFINE_N]; REFINE_N] {
-    design_body(means, c, idx, typical, rows)
-}
+    /// AᵀWA (columns), on the AVX2 build where the CPU has it (the same bits).
+    fn design(&self, rows: &mut RefineRows) -> [[f64; REFINE_N]; REFINE_N] {
+        #[cfg(target_arch = "x86_64")]
+        if estimator_core::cpu::has_avx2() {
+            // SAFETY: `design_avx2` needs AVX2, which the CPU was just found to have.
+            return unsafe { self.design_avx2(rows) };
+        }
+        self.design_body(rows)
+    }
 
-/// [`design`]: element (i, k) summed as (w·rᵢ)·rₖ, a rank-one update written out (nalgebra's
-/// `w * r * r.transpose()` makes the same products and sums, through a 13 × 13 temporary that
-/// took half the search's time).
-#[inline(always)]
-fn design_body(
-    means: &[Measurement],
-    c: usize,
-    idx: &[usize],
-    typical: f64,
-    rows: &mut RefineRows,
-) -> [[f64; REFINE_N]; REFINE_N] {
-    let tc = means[c].t_s;
-    let mut ata = [[0.0; REFINE_N]; REFINE_N];
-    for &j in idx {
-        let r = rows.row(j as isize - c as isize, means[j].t_s - tc);
-        let w = f64::from(means[j].count.max(1)) / typical;
-        let wr: [f64; REFINE_N] = std::array::from_fn(|i| w * r[i]);
-        for (col, rk) in ata.iter_mut().zip(r) {
-            for (x, wri) in col.iter_mut().zip(&wr) {
-                *x += wri * rk;
+    /// [`Window::design`] compiled for AVX2 ([`estimator_core::cpu`]): no fused multiply-add,
+    /// so the same bits (a design summed afresh: 53 → 38 ms of the search of a clean 60-h run
+    /// at 1 s).
+    #[cfg(target_arch = "x86_64")]
+    #[target_feature(enable = "avx2")]
+    fn design_avx2(&self, rows: &mut RefineRows) -> [[f64; REFINE_N]; REFINE_N] {
+        self.design_body(rows)
+    }
+
+    /// [`Window::design`]: element (i, k) summed as (w·rᵢ)·rₖ, a rank-one update written out
+    /// (nalgebra's `w * r * r.transpose()` makes the same products and sums, through a 13 × 13
+    /// temporary that took half the search's time).
+    #[inline(always)]
+    fn design_body(&self, rows: &mut RefineRows) -> [[f64; REFINE_N]; REFINE_N] {
+        let mut ata = [[0.0; REFINE_N]; REFINE_N];
+        for &j in self.idx {
+            let (tau, w) = self.tau_weight(j);
+            let r = rows.row(j as isize - self.c as isize, tau);
+            let wr: [f64; REFINE_N] = std::array::from_fn(|i| w * r[i]);
+            for (col, rk) in ata.iter_mut().zip(r) {
+                for (x, wri) in col.iter_mut().zip(&wr) {
+                    *x += wri * rk;
+                }
             }
         }
+        ata
     }
-    ata
 }
 
 /// The functions [`refine_step`] fits: {1, cos Ωτ, sin Ωτ} × {1, u, u², u³} and the step.
@@ -679,23 +685,19 @@ pub(crate) struct RefineRows {
 }
 
 impl RefineRows {
-    /// (AᵀWA)⁻¹ of the means `idx` about the candidate `c` ([`design`]); `None` where singular.
+    /// (AᵀWA)⁻¹ of `window` ([`Window::design`]); `None` where singular.
     fn design_inverse(
         &mut self,
-        means: &[Measurement],
-        c: usize,
-        idx: &[usize],
-        typical: f64,
+        window: &Window<'_>,
     ) -> Option<nalgebra::SMatrix<f64, REFINE_N, REFINE_N>> {
-        let tc = means[c].t_s;
         self.key.clear();
-        self.key.extend(idx.iter().map(|&j| {
-            let w = f64::from(means[j].count.max(1)) / typical;
-            ((means[j].t_s - tc).to_bits(), w.to_bits())
+        self.key.extend(window.idx.iter().map(|&j| {
+            let (tau, w) = window.tau_weight(j);
+            (tau.to_bits(), w.to_bits())
         }));
         if self.key != self.design.0 {
             let ata: nalgebra::SMatrix<f64, REFINE_N, REFINE_N> =
-                nalgebra::SMatrix::from(design(means, c, idx, typical, self));
+                nalgebra::SMatrix::from(window.design(self));
             self.design.1 = ata.try_inverse();
             std::mem::swap(&mut self.design.0, &mut self.key);
         }
