@@ -420,12 +420,12 @@ pub(crate) fn rivals_within_priors(
                     };
                     let mut with: Vec<&dyn Effect> = effects.to_vec();
                     with.push(effect);
-                    with_set_up_marginalised(&with, &stated.0, cfg)
+                    with_set_up_marginalised(&with, stated, cfg)
                 })
                 .collect::<anyhow::Result<Vec<Option<f64>>>>()
         },
         || match ranked.first() {
-            Some(first) => best_pair(catalog, effects, &prep, stated, dcfg, &first.effect),
+            Some(first) => best_pair(catalog, effects, (&prep, &id), stated, dcfg, &first.effect),
             None => Ok(None),
         },
     );
@@ -452,11 +452,13 @@ pub(crate) fn rivals_within_priors(
 /// one rung of the ladder. A misstatement must beat the combination too: a turn-on transient
 /// with set-up errors (24 h at 30 s) was repaired as a clock 4367 ppm fast (gain 1616, against
 /// 1590 for the best single rival) although acc-bias and a trend together explained more, and
-/// the run was trusted with DZ0 5.1σ off. Its name and −2 ln Z; `None` where a fit fails.
+/// the run was trusted with DZ0 5.1σ off. `moved`: the model's own fit at `prep`, where the
+/// fit with `first` starts ([`crate::identify::identify_widened`]). Its name and −2 ln Z; `None`
+/// where a fit fails.
 fn best_pair(
     catalog: &Catalog,
     effects: &[&dyn Effect],
-    prep: &Prepared,
+    (prep, moved): (&Prepared, &Identification),
     stated: &(Prepared, Identification),
     dcfg: &DiagnoseConfig,
     first: &str,
@@ -468,7 +470,7 @@ fn best_pair(
     let mut with: Vec<&dyn Effect> = effects.to_vec();
     with.push(first);
     let model = build_model(prep.site, &with, cfg)?;
-    let Ok(id) = crate::identify::identify(&model, prep, cfg) else {
+    let Ok(id) = crate::identify::identify_widened(&model, prep, cfg, moved) else {
         return Ok(None);
     };
     let next = alternatives::weigh(prep, catalog, &with, dcfg, &id)?
@@ -484,21 +486,22 @@ fn best_pair(
         first.name(),
         second.name()
     );
-    Ok(with_set_up_marginalised(&with, &stated.0, cfg)?.map(|g| (name, g)))
+    Ok(with_set_up_marginalised(&with, stated, cfg)?.map(|g| (name, g)))
 }
 
 /// Catalog effects refitted with the set-up marginalised in [`rivals_within_priors`].
 const RIVALS_WITH_SET_UP: usize = 2;
 
-/// −2 ln Z of the model of `effects` on `prep` with the set-up within its priors (its fit at the
-/// stated set-up, the knobs weighed about it); `None` where the fit or the knobs fail.
+/// −2 ln Z of the model of `effects` with the set-up within its priors (its fit at the stated
+/// set-up, warm-started from the stated fit of the effects it adds to, the knobs weighed about
+/// it); `None` where the fit or the knobs fail.
 fn with_set_up_marginalised(
     effects: &[&dyn Effect],
-    prep: &Prepared,
+    (prep, nested): &(Prepared, Identification),
     cfg: &Config,
 ) -> anyhow::Result<Option<f64>> {
     let model = build_model(prep.site, effects, cfg)?;
-    let Ok(id) = crate::identify::identify(&model, prep, cfg) else {
+    let Ok(id) = crate::identify::identify_widened(&model, prep, cfg, nested) else {
         return Ok(None);
     };
     // The knobs' model alone: the other set-up terms do not enter the move within the priors.

@@ -465,7 +465,7 @@ pub(crate) fn rivals(
         .map(|a| a.effect.clone())
         .collect();
     let base = crate::diagnose::select::neg2_log_evidence(id);
-    crate::diagnose::select::refit(prep, catalog, effects, base, &leaders, &dcfg)
+    crate::diagnose::select::refit(prep, catalog, (effects, id), base, &leaders, &dcfg)
         .into_iter()
         .map(|r| (r.effect, r.evidence_gain))
         .collect()

@@ -384,8 +384,14 @@ pub fn candidate(
     let penalty = 2.0 * (fit.times_tried.max(1) as f64).ln();
     // Weighed with a step of its own; the catalog owns the one a rung adopts (`Profiled::effect`).
     let step = DriftStep { t0_s: fit.t0_s };
-    let mut r =
-        crate::diagnose::select::refit_effect(prep, effects, base_evidence, &step, penalty, cfg)?;
+    let mut r = crate::diagnose::select::refit_effect(
+        prep,
+        (effects, id),
+        base_evidence,
+        &step,
+        penalty,
+        cfg,
+    )?;
     r.profiled = Some(Profiled::StepAtS(fit.t0_s));
     r.members = fit.members;
     Some(r)

@@ -7,7 +7,7 @@ use super::types::{Diagnosis, Rung};
 use super::verdict::is_consistent;
 use super::{diagnose_identified, model_label, DiagnoseConfig};
 use crate::catalog::Catalog;
-use crate::identify::{build_model, identify, markov, Identification, Prepared};
+use crate::identify::{build_model, identify, identify_widened, markov, Identification, Prepared};
 
 /// The 12 drift coefficients of the paper's model come first among the parameters.
 const DRIFT_COEFFICIENTS: usize = 12;
@@ -48,6 +48,9 @@ pub fn ladder_from<'c>(
     let mut diagnoses = vec![];
     let mut rungs: Vec<Rung> = vec![];
     let mut first = first;
+    // The rung below's fit: the next rung's model is it with one effect more, fitted from it
+    // (as its candidate's refit was, so the memo hands that refit back).
+    let mut below: Option<Identification> = None;
     loop {
         // The steps of this rung are noted as `rung k: …`.
         let at = DiagnoseConfig {
@@ -60,7 +63,10 @@ pub fn ladder_from<'c>(
                 let model = build_model(prep.site, &effects, &cfg.identify)?;
                 at.progress
                     .note(|| format!("fitting {}", model_label(&effects)));
-                identify(&model, prep, &cfg.identify)?
+                match &below {
+                    Some(b) => identify_widened(&model, prep, &cfg.identify, b)?,
+                    None => identify(&model, prep, &cfg.identify)?,
+                }
             }
         };
         // A rung with `drift-markov`: its σ and τ from the data before it is diagnosed (the
@@ -88,6 +94,7 @@ pub fn ladder_from<'c>(
             last.next_reason = Some(reason);
         }
         effects.push(e);
+        below = Some(id);
     }
 }
 

@@ -322,7 +322,7 @@ fn choose(
     // The refits and the three profiles are independent: side by side on the pool (each is a
     // few fits or passes, some one after another).
     let (mut refits, (step, (warmup, periodic))) = rayon::join(
-        || select::refit(prep, catalog, effects, base_evidence, &leaders, cfg),
+        || select::refit(prep, catalog, (effects, id), base_evidence, &leaders, cfg),
         || match profiled {
             false => (None, (None, None)),
             true => rayon::join(

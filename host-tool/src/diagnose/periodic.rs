@@ -142,7 +142,7 @@ pub fn candidate(
     let periodic = DriftPeriodic {
         period_s: fit.value_s,
     };
-    let mut r = refit_effect(prep, effects, base_evidence, &periodic, penalty, cfg)?;
+    let mut r = refit_effect(prep, (effects, id), base_evidence, &periodic, penalty, cfg)?;
     r.profiled = Some(Profiled::PeriodS(fit.value_s));
     r.members = fit.members;
     Some(r)

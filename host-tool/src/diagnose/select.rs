@@ -20,7 +20,7 @@ use serde::Serialize;
 use super::DiagnoseConfig;
 use crate::catalog::Catalog;
 use crate::consistency::{assess, Thresholds};
-use crate::identify::{build_model, identify, Identification, Prepared};
+use crate::identify::{build_model, identify_widened, Identification, Prepared};
 
 /// Evidence gain (in −2 ln units) a candidate must bring to be adopted.
 pub(crate) const MIN_EVIDENCE_GAIN: f64 = 10.0;
@@ -179,7 +179,7 @@ pub(crate) fn fit_stats(id: &Identification, prep: &Prepared, lags: usize) -> ([
 pub(crate) fn refit(
     prep: &Prepared,
     catalog: &Catalog,
-    effects: &[&dyn Effect],
+    (effects, nested): (&[&dyn Effect], &Identification),
     base_evidence: f64,
     names: &[String],
     cfg: &DiagnoseConfig,
@@ -196,7 +196,14 @@ pub(crate) fn refit(
         let name = &names[i];
         cfg.progress
             .note(|| format!("refitting {name} ({}/{})", k + 1, names.len()));
-        let _ = done[i].set(refit_one(prep, catalog, effects, base_evidence, name, cfg));
+        let _ = done[i].set(refit_one(
+            prep,
+            catalog,
+            (effects, nested),
+            base_evidence,
+            name,
+            cfg,
+        ));
     };
     rayon::scope(|s| {
         for _ in 1..rayon::current_num_threads().min(names.len()) {
@@ -222,20 +229,20 @@ fn expected_cost(catalog: &Catalog, name: &str) -> usize {
 fn refit_one(
     prep: &Prepared,
     catalog: &Catalog,
-    effects: &[&dyn Effect],
+    (effects, nested): (&[&dyn Effect], &Identification),
     base_evidence: f64,
     name: &str,
     cfg: &DiagnoseConfig,
 ) -> Option<Refit> {
     let e = catalog.by_name(name)?;
-    let (r, id) = refit_with_fit(prep, effects, base_evidence, e, 0.0, cfg)?;
+    let (r, id) = refit_with_fit(prep, (effects, nested), base_evidence, e, 0.0, cfg)?;
     if name != crate::identify::markov::NAME {
         return Some(r);
     }
     Some(markov_at_its_best(
         prep,
         catalog,
-        effects,
+        (effects, nested),
         base_evidence,
         cfg,
         (r, &id),
@@ -254,7 +261,7 @@ fn refit_one(
 fn markov_at_its_best(
     prep: &Prepared,
     catalog: &Catalog,
-    effects: &[&dyn Effect],
+    (effects, nested): (&[&dyn Effect], &Identification),
     base_evidence: f64,
     cfg: &DiagnoseConfig,
     (r, id): (Refit, &Identification),
@@ -282,7 +289,7 @@ fn markov_at_its_best(
         return r;
     }
     let tuned = catalog.tuned_markov(sigma, tau);
-    match refit_effect(prep, effects, base_evidence, tuned, penalty, cfg) {
+    match refit_effect(prep, (effects, nested), base_evidence, tuned, penalty, cfg) {
         Some(t) if t.evidence_gain > r.evidence_gain => t,
         _ => r,
     }
@@ -293,19 +300,19 @@ fn markov_at_its_best(
 /// times its profile tried).
 pub fn refit_effect<'c>(
     prep: &Prepared,
-    effects: &[&'c dyn Effect],
+    (effects, nested): (&[&'c dyn Effect], &Identification),
     base_evidence: f64,
     e: &'c dyn Effect,
     penalty: f64,
     cfg: &DiagnoseConfig,
 ) -> Option<Refit> {
-    refit_with_fit(prep, effects, base_evidence, e, penalty, cfg).map(|(r, _)| r)
+    refit_with_fit(prep, (effects, nested), base_evidence, e, penalty, cfg).map(|(r, _)| r)
 }
 
 /// [`refit_effect`] and the fit it made.
 fn refit_with_fit<'c>(
     prep: &Prepared,
-    effects: &[&'c dyn Effect],
+    (effects, nested): (&[&'c dyn Effect], &Identification),
     base_evidence: f64,
     e: &'c dyn Effect,
     penalty: f64,
@@ -314,7 +321,7 @@ fn refit_with_fit<'c>(
     let mut list = effects.to_vec();
     list.push(e);
     let model = build_model(prep.site, &list, &cfg.identify).ok()?;
-    let id = identify(&model, prep, &cfg.identify).ok()?;
+    let id = identify_widened(&model, prep, &cfg.identify, nested).ok()?;
     let (rms, nis, white) = fit_stats(&id, prep, cfg.lags);
     let c = assess(
         nis,

@@ -18,6 +18,9 @@ pub mod memo;
 pub mod setup;
 pub(crate) mod slow_drift;
 pub mod smoother;
+mod widened;
+
+pub(crate) use widened::identify_widened;
 
 use anyhow::{bail, Context as _};
 use estimator_core::effects::Param;
