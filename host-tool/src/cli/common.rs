@@ -464,8 +464,7 @@ pub(crate) fn rivals(
         .take(crate::diagnose::select::REFIT_LEADERS)
         .map(|a| a.effect.clone())
         .collect();
-    let base = crate::diagnose::select::neg2_log_evidence(id);
-    crate::diagnose::select::refit(prep, catalog, (effects, id), base, &leaders, &dcfg)
+    crate::diagnose::select::refit(prep, catalog, (effects, id), &leaders, &dcfg)
         .into_iter()
         .map(|r| (r.effect, r.evidence_gain))
         .collect()

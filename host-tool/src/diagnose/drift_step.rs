@@ -370,7 +370,6 @@ pub fn candidate(
     prep: &Prepared,
     effects: &[&dyn Effect],
     id: &Identification,
-    base_evidence: f64,
     cfg: &crate::diagnose::DiagnoseConfig,
 ) -> Option<crate::diagnose::select::Refit> {
     if effects.iter().any(|e| e.name() == "drift-step") {
@@ -384,14 +383,7 @@ pub fn candidate(
     let penalty = 2.0 * (fit.times_tried.max(1) as f64).ln();
     // Weighed with a step of its own; the catalog owns the one a rung adopts (`Profiled::effect`).
     let step = DriftStep { t0_s: fit.t0_s };
-    let mut r = crate::diagnose::select::refit_effect(
-        prep,
-        (effects, id),
-        base_evidence,
-        &step,
-        penalty,
-        cfg,
-    )?;
+    let mut r = crate::diagnose::select::refit_effect(prep, (effects, id), &step, penalty, cfg)?;
     r.profiled = Some(Profiled::StepAtS(fit.t0_s));
     r.members = fit.members;
     Some(r)

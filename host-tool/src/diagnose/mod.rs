@@ -313,7 +313,6 @@ fn choose(
         .take(select::REFIT_LEADERS)
         .map(|c| c.effect.clone())
         .collect();
-    let base_evidence = select::neg2_log_evidence(id);
     // Whenever an effect is to be added (the model misfits, or a catalog effect is significant
     // though it fits), the profiled explanations compete with the catalog's: a consistent start
     // whose score test named `drift-daily` took it for a 30-h periodic drift (36 h at 10 s) and
@@ -322,15 +321,15 @@ fn choose(
     // The refits and the three profiles are independent: side by side on the pool (each is a
     // few fits or passes, some one after another).
     let (mut refits, (step, (warmup, periodic))) = rayon::join(
-        || select::refit(prep, catalog, (effects, id), base_evidence, &leaders, cfg),
+        || select::refit(prep, catalog, (effects, id), &leaders, cfg),
         || match profiled {
             false => (None, (None, None)),
             true => rayon::join(
-                || drift_step::candidate(prep, effects, id, base_evidence, cfg),
+                || drift_step::candidate(prep, effects, id, cfg),
                 || {
                     rayon::join(
-                        || warmup::candidate(prep, effects, id, base_evidence, cfg),
-                        || periodic::candidate(prep, effects, id, base_evidence, cfg),
+                        || warmup::candidate(prep, effects, id, cfg),
+                        || periodic::candidate(prep, effects, id, cfg),
                     )
                 },
             ),

@@ -126,7 +126,6 @@ pub fn candidate(
     prep: &Prepared,
     effects: &[&dyn Effect],
     id: &Identification,
-    base_evidence: f64,
     cfg: &DiagnoseConfig,
 ) -> Option<Refit> {
     if effects.iter().any(|e| e.name() == "drift-periodic") {
@@ -142,7 +141,7 @@ pub fn candidate(
     let periodic = DriftPeriodic {
         period_s: fit.value_s,
     };
-    let mut r = refit_effect(prep, (effects, id), base_evidence, &periodic, penalty, cfg)?;
+    let mut r = refit_effect(prep, (effects, id), &periodic, penalty, cfg)?;
     r.profiled = Some(Profiled::PeriodS(fit.value_s));
     r.members = fit.members;
     Some(r)

@@ -180,7 +180,6 @@ pub(crate) fn refit(
     prep: &Prepared,
     catalog: &Catalog,
     (effects, nested): (&[&dyn Effect], &Identification),
-    base_evidence: f64,
     names: &[String],
     cfg: &DiagnoseConfig,
 ) -> Vec<Refit> {
@@ -196,14 +195,7 @@ pub(crate) fn refit(
         let name = &names[i];
         cfg.progress
             .note(|| format!("refitting {name} ({}/{})", k + 1, names.len()));
-        let _ = done[i].set(refit_one(
-            prep,
-            catalog,
-            (effects, nested),
-            base_evidence,
-            name,
-            cfg,
-        ));
+        let _ = done[i].set(refit_one(prep, catalog, (effects, nested), name, cfg));
     };
     rayon::scope(|s| {
         for _ in 1..rayon::current_num_threads().min(names.len()) {
@@ -230,12 +222,11 @@ fn refit_one(
     prep: &Prepared,
     catalog: &Catalog,
     (effects, nested): (&[&dyn Effect], &Identification),
-    base_evidence: f64,
     name: &str,
     cfg: &DiagnoseConfig,
 ) -> Option<Refit> {
     let e = catalog.by_name(name)?;
-    let (r, id) = refit_with_fit(prep, (effects, nested), base_evidence, e, 0.0, cfg)?;
+    let (r, id) = refit_with_fit(prep, (effects, nested), e, 0.0, cfg)?;
     if name != crate::identify::markov::NAME {
         return Some(r);
     }
@@ -243,7 +234,6 @@ fn refit_one(
         prep,
         catalog,
         (effects, nested),
-        base_evidence,
         cfg,
         (r, &id),
     ))
@@ -262,7 +252,6 @@ fn markov_at_its_best(
     prep: &Prepared,
     catalog: &Catalog,
     (effects, nested): (&[&dyn Effect], &Identification),
-    base_evidence: f64,
     cfg: &DiagnoseConfig,
     (r, id): (Refit, &Identification),
 ) -> Refit {
@@ -289,7 +278,7 @@ fn markov_at_its_best(
         return r;
     }
     let tuned = catalog.tuned_markov(sigma, tau);
-    match refit_effect(prep, (effects, nested), base_evidence, tuned, penalty, cfg) {
+    match refit_effect(prep, (effects, nested), tuned, penalty, cfg) {
         Some(t) if t.evidence_gain > r.evidence_gain => t,
         _ => r,
     }
@@ -301,19 +290,17 @@ fn markov_at_its_best(
 pub fn refit_effect<'c>(
     prep: &Prepared,
     (effects, nested): (&[&'c dyn Effect], &Identification),
-    base_evidence: f64,
     e: &'c dyn Effect,
     penalty: f64,
     cfg: &DiagnoseConfig,
 ) -> Option<Refit> {
-    refit_with_fit(prep, (effects, nested), base_evidence, e, penalty, cfg).map(|(r, _)| r)
+    refit_with_fit(prep, (effects, nested), e, penalty, cfg).map(|(r, _)| r)
 }
 
 /// [`refit_effect`] and the fit it made.
 fn refit_with_fit<'c>(
     prep: &Prepared,
     (effects, nested): (&[&'c dyn Effect], &Identification),
-    base_evidence: f64,
     e: &'c dyn Effect,
     penalty: f64,
     cfg: &DiagnoseConfig,
@@ -337,7 +324,7 @@ fn refit_with_fit<'c>(
     let r = Refit {
         effect: e.name().to_string(),
         neg2_log_evidence: ev,
-        evidence_gain: base_evidence - ev - penalty,
+        evidence_gain: neg2_log_evidence(nested) - ev - penalty,
         rms_over_floor: rms,
         nis_mean: nis,
         whiteness_p: white,

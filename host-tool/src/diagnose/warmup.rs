@@ -113,7 +113,6 @@ pub fn candidate(
     prep: &Prepared,
     effects: &[&dyn Effect],
     id: &Identification,
-    base_evidence: f64,
     cfg: &DiagnoseConfig,
 ) -> Option<Refit> {
     if effects.iter().any(|e| e.name() == "drift-warmup") {
@@ -127,7 +126,7 @@ pub fn candidate(
     let tau_s = fit.value_s;
     // Weighed with a warm-up of its own; the catalog owns the one a rung adopts.
     let warmup = DriftWarmup { tau_s };
-    let mut r = refit_effect(prep, (effects, id), base_evidence, &warmup, penalty(), cfg)?;
+    let mut r = refit_effect(prep, (effects, id), &warmup, penalty(), cfg)?;
     r.profiled = Some(Profiled::WarmupTauS(tau_s));
     r.members = fit.members;
     Some(r)
