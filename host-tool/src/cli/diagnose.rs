@@ -150,8 +150,13 @@ fn print_ranking(ranking: &[crate::diagnose::Candidate]) {
             })
             .unwrap_or_default();
         let (ev, after) = match &c.refit {
+            // `≈`: a refit that did not converge, its evidence approximate and not ranked.
             Some(r) => (
-                format!("{:+.1}", r.evidence_gain),
+                format!(
+                    "{}{:+.1}",
+                    if r.converged() { "" } else { "≈" },
+                    r.evidence_gain
+                ),
                 format!(
                     "[{:.2}, {:.2}, {:.2}]",
                     r.rms_over_floor[0], r.rms_over_floor[1], r.rms_over_floor[2]
@@ -168,6 +173,17 @@ fn print_ranking(ranking: &[crate::diagnose::Candidate]) {
             p_value(c.p_adjusted, c.ln_p_adjusted),
             ev,
             after
+        );
+    }
+    let unconverged: Vec<&str> = ranking
+        .iter()
+        .filter(|c| c.refit.as_ref().is_some_and(|r| !r.converged()))
+        .map(|c| c.effect.as_str())
+        .collect();
+    if !unconverged.is_empty() {
+        println!(
+            "  ≈ refit did not converge ({}): its evidence is that of a trajectory still moving, approximate, and not ranked",
+            unconverged.join(", ")
         );
     }
 }
@@ -308,6 +324,7 @@ pub(crate) fn ladder_untrusted(faults: &[String], diagnoses: &[Diagnosis]) -> Ve
             .iter()
             .filter_map(|d| d.choice.as_ref()?.confounded.clone()),
     );
+    reasons.extend(diagnoses.iter().filter_map(|d| d.unconverged_rival.clone()));
     if let Some(d) = diagnoses.last() {
         reasons.extend(d.convergence.and_then(|c| c.untrusted_reason()));
         if !d.consistency.is_consistent() {

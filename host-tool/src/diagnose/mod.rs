@@ -136,7 +136,7 @@ pub(crate) fn diagnose_identified(
     let ranked = candidates::rank(&setups, sigs, cfg.alpha);
     let confounding = candidates::confounding(&ranked, cfg.alpha);
     let mut ranking: Vec<Candidate> = ranked.into_iter().map(|(c, _)| c).collect();
-    let (choice, profiled_refits) = choose(
+    let (choice, unconverged_rival, profiled_refits) = choose(
         prep,
         catalog,
         effects,
@@ -159,6 +159,7 @@ pub(crate) fn diagnose_identified(
         confounding,
         consistency,
         choice,
+        unconverged_rival,
         verdict: String::new(),
         convergence: id.convergence,
         series,
@@ -306,7 +307,7 @@ fn choose(
     ranking: &mut [Candidate],
     consistent: bool,
     cfg: &DiagnoseConfig,
-) -> (Option<select::Choice>, Vec<select::Refit>) {
+) -> (Option<select::Choice>, Option<String>, Vec<select::Refit>) {
     let leaders: Vec<String> = ranking
         .iter()
         .filter(|c| c.untestable.is_none() && c.p_adjusted < cfg.alpha)
@@ -345,7 +346,9 @@ fn choose(
             None => profiled_refits.push(r.clone()),
         }
     }
-    (select::choose(&refits), profiled_refits)
+    let choice = select::choose(&refits);
+    let rival = select::unconverged_rival(choice.as_ref(), &refits);
+    (choice, rival, profiled_refits)
 }
 
 /// One run of a joint fit ([`crate::identify::joint`]) as a [`Diagnosis`], for the joint report:
@@ -399,6 +402,7 @@ pub(crate) fn of_joint_run(
         confounding: vec![],
         consistency,
         choice: None,
+        unconverged_rival: None,
         verdict,
         convergence: fit.alone.convergence,
         series,

@@ -46,6 +46,10 @@ pub struct Refit {
     pub whiteness_p: f64,
     /// Whether the extended model is consistent (one definition: [`crate::consistency`]).
     pub consistent: bool,
+    /// How the refit's Gauss–Newton iterations ended. One that did not converge is not a fit:
+    /// its evidence is that of a linearisation about a trajectory still moving, approximate,
+    /// and is not ranked ([`choose`]).
+    pub convergence: Option<crate::identify::Convergence>,
     /// Estimated parameters of the added effect: (name, unit, value, 1σ).
     pub params: Vec<(String, String, f64, f64)>,
     /// A candidate made for this run, not a catalog effect: its profiled parameter.
@@ -329,6 +333,7 @@ fn refit_with_fit<'c>(
         nis_mean: nis,
         whiteness_p: white,
         consistent: c.is_consistent(),
+        convergence: id.convergence,
         params: e
             .params()
             .iter()
@@ -401,8 +406,51 @@ fn confounded(chosen: &Refit, refits: &[Refit]) -> Option<String> {
     ))
 }
 
+impl Refit {
+    /// Whether the refit is a fit: its Gauss–Newton iterations converged (or it had none).
+    pub fn converged(&self) -> bool {
+        self.convergence.is_none_or(|c| c.converged)
+    }
+}
+
+/// A refit that did not converge whose evidence gain — approximate, that of a linearisation
+/// about a trajectory still moving — earns its place and comes within [`CONFOUNDED_MARGIN`] of
+/// the chosen refit's (or earns its place where none was chosen): a rival the evidence cannot
+/// rule out, in words. acc-misalign beside an unmodelled g² and accelerometer bias swings
+/// between Mxy and Myx by 35–40σ a pass to the last; its last pass's evidence was ranked as a
+/// fit's.
+pub(crate) fn unconverged_rival(chosen: Option<&Choice>, refits: &[Refit]) -> Option<String> {
+    let best = chosen.and_then(|c| {
+        refits
+            .iter()
+            .find(|r| r.effect == c.effect && r.profiled == c.profiled)
+    });
+    let bar = best.map_or(MIN_EVIDENCE_GAIN, |b| {
+        MIN_EVIDENCE_GAIN.max(b.evidence_gain - CONFOUNDED_MARGIN)
+    });
+    let (r, c) = refits
+        .iter()
+        .filter(|r| r.evidence_gain > bar)
+        .filter_map(|r| Some((r, r.convergence.filter(|c| !c.converged)?)))
+        .max_by(|a, b| a.0.evidence_gain.total_cmp(&b.0.evidence_gain))?;
+    let against = match best {
+        Some(b) => format!(
+            "comes within {CONFOUNDED_MARGIN} of `{}`'s {:.1} or beats it",
+            b.effect, b.evidence_gain
+        ),
+        None => format!("would earn its place (more than {MIN_EVIDENCE_GAIN})"),
+    };
+    Some(format!(
+        "`{}`'s refit did not converge (after {} Gauss–Newton iterations it still moves by {:.1}σ a pass): its evidence gain, about {:.1}, is not a fit's and {against} — this run cannot rule it out; a longer run, or the effect's value from a bench calibration, settles it",
+        r.effect, c.iterations, c.last_step_sigma, r.evidence_gain
+    ))
+}
+
 /// Chooses the next effect among refits (see the module docs); `None`: nothing earns its place.
+/// A refit that did not converge is not ranked ([`Refit::converged`]; [`unconverged_rival`]).
 pub(crate) fn choose(refits: &[Refit]) -> Option<Choice> {
+    let fits: Vec<Refit> = refits.iter().filter(|r| r.converged()).cloned().collect();
+    let refits = &fits[..];
     let is_stochastic = |r: &Refit| STOCHASTIC.contains(&r.effect.as_str());
     let best = refits
         .iter()
@@ -467,6 +515,7 @@ mod tests {
             nis_mean: 1.0,
             whiteness_p: 0.5,
             consistent,
+            convergence: None,
             params: vec![],
             profiled: None,
             drift: vec![],
@@ -487,5 +536,45 @@ mod tests {
         assert_eq!(c.unwrap().effect, "drift-markov");
         // Nothing gains enough: no choice.
         assert!(choose(&[r("g2", 3.0, false)]).is_none());
+    }
+
+    /// A refit still moving by 39.6σ a pass after 11 passes, as acc-misalign's beside an
+    /// unmodelled g² and accelerometer bias.
+    fn unconverged(effect: &str, gain: f64) -> Refit {
+        let mut u = r(effect, gain, false);
+        u.convergence = Some(crate::identify::Convergence {
+            iterations: 11,
+            last_step_sigma: 39.6,
+            converged: false,
+        });
+        u
+    }
+
+    /// An unconverged refit is never chosen, however large its evidence claims to be, and it
+    /// leaves the choice unsettled exactly when it could rival it: within the confounding margin
+    /// of the chosen gain (or above it), or earning its place where nothing else does. The
+    /// gains straddle each bound by 1, far less than the margins themselves (20 and 10).
+    #[test]
+    fn an_unconverged_refit_is_not_ranked_but_not_ruled_out() {
+        let bias = r("acc-bias", 3000.0, true);
+        let chose = |refits: &[Refit]| {
+            let c = choose(refits);
+            let rival = unconverged_rival(c.as_ref(), refits);
+            (c.map(|c| c.effect), rival)
+        };
+        let (c, rival) = chose(&[bias.clone(), unconverged("acc-misalign", 5000.0)]);
+        assert_eq!(c.as_deref(), Some("acc-bias"));
+        assert!(rival.is_some_and(|w| w.contains("`acc-misalign`'s refit did not converge")));
+        let near = 3000.0 - CONFOUNDED_MARGIN + 1.0;
+        let (_, rival) = chose(&[bias.clone(), unconverged("acc-misalign", near)]);
+        assert!(rival.is_some(), "a rival within the margin was ruled out");
+        let far = 3000.0 - CONFOUNDED_MARGIN - 1.0;
+        let (c, rival) = chose(&[bias.clone(), unconverged("acc-misalign", far)]);
+        assert_eq!((c.as_deref(), rival), (Some("acc-bias"), None));
+        let (c, rival) = chose(&[unconverged("acc-misalign", MIN_EVIDENCE_GAIN + 1.0)]);
+        assert_eq!(c, None);
+        assert!(rival.is_some_and(|w| w.contains("would earn its place")));
+        let (_, rival) = chose(&[unconverged("acc-misalign", MIN_EVIDENCE_GAIN - 1.0)]);
+        assert_eq!(rival, None);
     }
 }

@@ -173,6 +173,10 @@ pub struct Diagnosis {
     pub consistency: crate::consistency::Consistency,
     /// The effect the evidence adds next, and why (`None`: nothing earns its place).
     pub choice: Option<super::select::Choice>,
+    /// A candidate whose refit did not converge and which the evidence cannot rule out
+    /// ([`super::select::unconverged_rival`]), in words.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub unconverged_rival: Option<String>,
     /// One-paragraph verdict in plain words.
     pub verdict: String,
     /// How the model's smoother iterations ended (`None` where no fit ran, e.g. in tests).

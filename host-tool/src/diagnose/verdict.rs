@@ -14,6 +14,15 @@ pub fn is_consistent(d: &Diagnosis) -> bool {
 
 /// The verdict of diagnosis `d` whose candidates were tested at level `alpha`.
 pub(crate) fn verdict(d: &Diagnosis, alpha: f64) -> String {
+    let said = chosen_or_not(d, alpha);
+    match &d.unconverged_rival {
+        Some(rival) => format!("{said} Not settled: {rival}."),
+        None => said,
+    }
+}
+
+/// The verdict without the rival a refit that did not converge leaves open.
+fn chosen_or_not(d: &Diagnosis, alpha: f64) -> String {
     let state = state(d);
     if d.choice.is_some() {
         return missing_effect(d, &state);
@@ -142,6 +151,7 @@ mod tests {
             confounding: vec![],
             consistency: assess(nis, 3600, p, [rms; 3], 0.0, &Thresholds::default()),
             choice: None,
+            unconverged_rival: None,
             verdict: String::new(),
             convergence: None,
             series: Series::default(),

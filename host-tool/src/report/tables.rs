@@ -111,7 +111,7 @@ pub(super) fn ranking_table(h: &mut String, d: &Diagnosis) {
             if c.p_adjusted < 0.01 { "bad" } else { "ok" },
             esc(&crate::format::p_value(c.p_adjusted, c.ln_p_adjusted)),
             sizes,
-            c.refit.as_ref().map(|r| format!("{:+.1}", r.evidence_gain)).unwrap_or_else(|| "—".into()),
+            c.refit.as_ref().map(|r| format!("{}{:+.1}", if r.converged() { "" } else { "≈" }, r.evidence_gain)).unwrap_or_else(|| "—".into()),
             c.refit
                 .as_ref()
                 .map(|r| format!("{:.3}, {:.3}, {:.3}", r.rms_over_floor[0], r.rms_over_floor[1], r.rms_over_floor[2]))
@@ -119,6 +119,15 @@ pub(super) fn ranking_table(h: &mut String, d: &Diagnosis) {
         );
     }
     let _ = writeln!(h, "</table>");
+    if d.ranking
+        .iter()
+        .any(|c| c.refit.as_ref().is_some_and(|r| !r.converged()))
+    {
+        let _ = writeln!(
+            h,
+            "<p>≈: the refit did not converge; its evidence gain is that of a trajectory still moving, approximate, and not ranked.</p>"
+        );
+    }
 }
 
 pub(super) fn ladder_table(h: &mut String, rungs: &[Rung]) {

@@ -60,6 +60,7 @@ fn input() -> ReportInput {
         confounding: vec![],
         consistency: assess(1.0, n, 0.8, [0.7; 3], 0.0, &Thresholds::default()),
         choice: None,
+        unconverged_rival: None,
         verdict: String::new(),
         convergence: None,
         series: series.clone(),
