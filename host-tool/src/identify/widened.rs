@@ -227,9 +227,8 @@ mod tests {
 
     /// A fit that stops contracting is given up before the budget, not run to it: acc-misalign
     /// beside an unmodelled g² (a day at 60 s) moves its states more at the third pass than at
-    /// the second, and its cold fit, run to its budget of 11, still moved by ~100σ a pass. The
-    /// warm start hands over to it after at most 4 of the 6 passes it may take; the cold fit
-    /// stops where its steps diverge.
+    /// the second, and its cold fit ends 11 passes later still moving by ~100σ a pass. The warm
+    /// start hands over to it after at most 4 of the 6 passes it may take.
     #[test]
     fn a_fit_that_stops_contracting_is_given_up_early() {
         let mut sc = Scenario::paper();
@@ -265,14 +264,6 @@ mod tests {
         assert!(
             cold.convergence.is_some_and(|c| !c.converged),
             "the cold fit converged"
-        );
-        // Nor does the cold fit run to its budget of 11: its steps grow twice in a row from the
-        // third pass on ([`super::super::DIVERGING_STEP_SIGMA`]).
-        let budget = cfg.smoother_iterations + super::super::GN_EXTRA_ITERATIONS;
-        assert!(
-            cold.convergence.is_some_and(|c| c.iterations < budget),
-            "{:?}",
-            cold.convergence
         );
     }
 }
