@@ -585,22 +585,7 @@ mod tests {
     /// than the margin), so it leaves the choice settled.
     #[test]
     fn an_unconverged_refit_beside_an_accelerometer_bias_is_not_ranked() {
-        use crate::simulate::{InjectedEffect, Scenario};
-        let mut sc = Scenario::paper();
-        sc.hours = 24.0;
-        sc.rate_s = 60.0;
-        sc.effects = vec![
-            InjectedEffect::G2 {
-                d_deg_h_per_mps2_sq: [
-                    [5e-5, 0.0, 0.0, 0.0, 0.0, 0.0],
-                    [0.0, 5e-5, 0.0, 0.0, 0.0, 0.0],
-                    [0.0, 0.0, 5e-5, 0.0, 0.0, 0.0],
-                ],
-            },
-            InjectedEffect::AccBias {
-                b_mps2: [5e-4, -3e-4, 4e-4],
-            },
-        ];
+        let sc = crate::simulate::g2_and_acc_bias_day();
         let cfg = crate::diagnose::DiagnoseConfig::default();
         let prep = crate::simulate::prepared(&sc, &cfg.identify);
         let paper = [crate::catalog::paper()];

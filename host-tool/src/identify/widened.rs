@@ -231,21 +231,7 @@ mod tests {
     /// start hands over to it after at most 4 of the 6 passes it may take.
     #[test]
     fn a_fit_that_stops_contracting_is_given_up_early() {
-        let mut sc = Scenario::paper();
-        sc.hours = 24.0;
-        sc.rate_s = 60.0;
-        sc.effects = vec![
-            InjectedEffect::G2 {
-                d_deg_h_per_mps2_sq: [
-                    [5e-5, 0.0, 0.0, 0.0, 0.0, 0.0],
-                    [0.0, 5e-5, 0.0, 0.0, 0.0, 0.0],
-                    [0.0, 0.0, 5e-5, 0.0, 0.0, 0.0],
-                ],
-            },
-            InjectedEffect::AccBias {
-                b_mps2: [5e-4, -3e-4, 4e-4],
-            },
-        ];
+        let sc = crate::simulate::g2_and_acc_bias_day();
         let cfg = Config::default();
         let prep = crate::simulate::prepared(&sc, &cfg);
         let paper = [crate::catalog::paper()];
