@@ -63,6 +63,13 @@ pub struct Refit {
     pub members: Vec<Member>,
 }
 
+impl Refit {
+    /// Whether the refit is a fit: its Gauss–Newton iterations converged (or it had none).
+    pub fn converged(&self) -> bool {
+        self.convergence.is_none_or(|c| c.converged)
+    }
+}
+
 /// One value a profiled candidate tried ([`Profiled`]), its fit linearised about the rung's: a
 /// rival of the value chosen where the run does not settle it.
 #[derive(Clone, Debug)]
@@ -404,13 +411,6 @@ fn confounded(chosen: &Refit, refits: &[Refit]) -> Option<String> {
         named(&chosen.effect, chosen.profiled),
         chosen.evidence_gain,
     ))
-}
-
-impl Refit {
-    /// Whether the refit is a fit: its Gauss–Newton iterations converged (or it had none).
-    pub fn converged(&self) -> bool {
-        self.convergence.is_none_or(|c| c.converged)
-    }
 }
 
 /// A refit that did not converge whose evidence gain — approximate, that of a linearisation
