@@ -448,42 +448,85 @@ fn params_of(model: &Model<'_>) -> Vec<Param> {
     (ANGLES..model.dim()).map(|i| model.param(i)).collect()
 }
 
-/// Runs the core EKF over all measurements from `x0`/`sigma0`.
+/// Runs the core EKF over all measurements from `x0`/`sigma0`: its final estimate, every
+/// residual and every state (the first is `x0`).
 pub fn ekf_pass(
     model: &Model<'_>,
     meas: &[Measurement],
     x0: &[f64],
     sigma0: &[f64],
 ) -> anyhow::Result<(Estimate, Vec<Residual>, Vec<DVector<f64>>)> {
-    // The filter sized to the model (the core clears its per-step scratch whole, so a capacity
-    // of 64 for 15 states costs 4× the clearing); the same operations, so the same bits.
-    match model.dim() {
-        0..=16 => ekf_pass_cap::<16>(model, meas, x0, sigma0),
-        17..=32 => ekf_pass_cap::<32>(model, meas, x0, sigma0),
-        _ => ekf_pass_cap::<MAX_STATES>(model, meas, x0, sigma0),
-    }
+    let mut residuals = Vec::with_capacity(meas.len());
+    let mut states = Vec::with_capacity(meas.len() + 1);
+    states.push(DVector::from_row_slice(x0));
+    let est = ekf_run(model, meas, x0, sigma0, |r, x| {
+        residuals.push(r);
+        states.push(DVector::from_row_slice(x));
+    })?;
+    Ok((est, residuals, states))
 }
 
-fn ekf_pass_cap<const CAP: usize>(
+/// [`ekf_pass`] keeping the residuals only (the single pass, whose states nothing reads).
+fn ekf_pass_residuals(
     model: &Model<'_>,
     meas: &[Measurement],
     x0: &[f64],
     sigma0: &[f64],
-) -> anyhow::Result<(Estimate, Vec<Residual>, Vec<DVector<f64>>)> {
+) -> anyhow::Result<(Estimate, Vec<Residual>)> {
+    let mut residuals = Vec::with_capacity(meas.len());
+    let est = ekf_run(model, meas, x0, sigma0, |r, _| residuals.push(r))?;
+    Ok((est, residuals))
+}
+
+/// [`ekf_pass`]'s final estimate and −2 ln p(y) ([`neg2_log_evidence`], the same sum in the same
+/// order), nothing stored: the screens' pass.
+fn ekf_pass_evidence(
+    model: &Model<'_>,
+    meas: &[Measurement],
+    x0: &[f64],
+    sigma0: &[f64],
+) -> anyhow::Result<(Estimate, f64)> {
+    let mut f = -0.0;
+    let est = ekf_run(model, meas, x0, sigma0, |r, _| f += evidence_term(&r))?;
+    Ok((est, f))
+}
+
+/// The core EKF over all measurements from `x0`/`sigma0`, each residual and the state after it
+/// handed to `each`; the final estimate of the parameters.
+fn ekf_run(
+    model: &Model<'_>,
+    meas: &[Measurement],
+    x0: &[f64],
+    sigma0: &[f64],
+    each: impl FnMut(Residual, &[f64]),
+) -> anyhow::Result<Estimate> {
+    // The filter sized to the model (the core clears its per-step scratch whole, so a capacity
+    // of 64 for 15 states costs 4× the clearing); the same operations, so the same bits.
+    match model.dim() {
+        0..=16 => ekf_run_cap::<16>(model, meas, x0, sigma0, each),
+        17..=32 => ekf_run_cap::<32>(model, meas, x0, sigma0, each),
+        _ => ekf_run_cap::<MAX_STATES>(model, meas, x0, sigma0, each),
+    }
+}
+
+fn ekf_run_cap<const CAP: usize>(
+    model: &Model<'_>,
+    meas: &[Measurement],
+    x0: &[f64],
+    sigma0: &[f64],
+    mut each: impl FnMut(Residual, &[f64]),
+) -> anyhow::Result<Estimate> {
     let n = model.dim();
     let mut ekf = Ekf::<CAP>::new(*model, x0, sigma0).map_err(|e| anyhow::anyhow!("{e}"))?;
-    let mut residuals = Vec::with_capacity(meas.len());
-    let mut states = Vec::with_capacity(meas.len() + 1);
-    states.push(DVector::from_row_slice(x0));
     for m in meas {
-        residuals.push(ekf.step(m).map_err(|e| anyhow::anyhow!("filter: {e}"))?);
-        states.push(DVector::from_row_slice(ekf.state()));
+        let r = ekf.step(m).map_err(|e| anyhow::anyhow!("filter: {e}"))?;
+        each(r, ekf.state());
     }
     let value = ekf.state()[ANGLES..].to_vec();
     let cov = DMatrix::from_fn(n - ANGLES, n - ANGLES, |i, j| {
         ekf.cov(i + ANGLES, j + ANGLES)
     });
-    Ok((Estimate { value, cov }, residuals, states))
+    Ok(Estimate { value, cov })
 }
 
 /// The single EKF pass's start: the angles at the prepared start with its 1σ, the parameters at
@@ -509,13 +552,14 @@ fn single_pass_prior(model: &Model<'_>, prep: &Prepared) -> (Vec<f64>, Vec<f64>)
 pub(crate) fn two_pass_evidence(model: &Model<'_>, prep: &Prepared, cfg: &Config) -> Option<f64> {
     let meas = &prep.measurements;
     let (mut x0, mut sigma0) = single_pass_prior(model, prep);
-    let (single, _, _) = ekf_pass(model, meas, &x0, &sigma0).ok()?;
+    let (single, _) = ekf_pass_evidence(model, meas, &x0, &sigma0).ok()?;
     x0[ANGLES..].copy_from_slice(&single.value);
     for s in sigma0.iter_mut().skip(ANGLES) {
         *s /= cfg.pass2_prior_shrink;
     }
-    let (_, res, _) = ekf_pass(model, meas, &x0, &sigma0).ok()?;
-    Some(neg2_log_evidence(&res))
+    ekf_pass_evidence(model, meas, &x0, &sigma0)
+        .ok()
+        .map(|(_, f)| f)
 }
 
 /// The wide prior of every identification: the initial angles with `angle_sigma` (1e-6 rad for a
@@ -618,9 +662,9 @@ fn identify_anew(
         bail!("no measurements to identify from");
     }
     let (zeros, mut sigma0) = single_pass_prior(model, prep);
-    let single = ekf_pass(model, meas, &zeros, &sigma0).context("single EKF pass");
+    let single = ekf_pass_residuals(model, meas, &zeros, &sigma0).context("single EKF pass");
     let (x0w, p0w) = wide_prior(model, &zeros, &prep.start_sigma());
-    let (single_pass, single_res, _) = match single {
+    let (single_pass, single_res) = match single {
         Ok(pass) => pass,
         Err(e) if cfg.smoother_iterations == 0 => return Err(e),
         Err(e) => {
@@ -925,14 +969,14 @@ pub(crate) fn mean_nis(innovations: &[Residual]) -> f64 {
 /// −2 ln p(y) of a pass's innovations (the filter's prediction-error decomposition):
 /// Σ (νᵀS⁻¹ν + ln det S + 3 ln 2π).
 pub(crate) fn neg2_log_evidence(innovations: &[Residual]) -> f64 {
-    innovations
-        .iter()
-        .map(|r| {
-            let s = nalgebra::Matrix3::from_fn(|a, b| r.s[a][b]);
-            let det = s.determinant().max(1e-300);
-            r.nis + det.ln() + 3.0 * (2.0 * std::f64::consts::PI).ln()
-        })
-        .sum()
+    innovations.iter().map(evidence_term).sum()
+}
+
+/// One update's share of −2 ln p(y): νᵀS⁻¹ν + ln det S + 3 ln 2π.
+fn evidence_term(r: &Residual) -> f64 {
+    let s = nalgebra::Matrix3::from_fn(|a, b| r.s[a][b]);
+    let det = s.determinant().max(1e-300);
+    r.nis + det.ln() + 3.0 * (2.0 * std::f64::consts::PI).ln()
 }
 
 /// Measured minus h(smoothed state) at every measurement, m/s².
