@@ -7,15 +7,19 @@ fn driftid() -> Command {
     Command::new(env!("CARGO_BIN_EXE_driftid"))
 }
 
-fn temp_dir(name: &str) -> PathBuf {
-    let d = std::env::temp_dir().join(format!("driftid-cli-{}-{name}", std::process::id()));
-    std::fs::create_dir_all(&d).unwrap();
-    d
+/// A fresh directory for one test, removed with what is in it when the test ends, passed or
+/// failed (the suite left ~10 MB of recordings in the temp directory on every run).
+fn temp_dir(name: &str) -> tempfile::TempDir {
+    tempfile::Builder::new()
+        .prefix(&format!("driftid-cli-{name}-"))
+        .tempdir()
+        .unwrap()
 }
 
 #[test]
 fn simulate_then_identify_json_has_the_documented_fields() {
-    let dir = temp_dir("json");
+    let tmp = temp_dir("json");
+    let dir = tmp.path();
     let csv = dir.join("run.csv");
     let out = driftid()
         .args([
@@ -127,12 +131,12 @@ fn simulate_then_identify_json_has_the_documented_fields() {
         .unwrap();
     assert_eq!(out.status.code(), Some(2));
     assert!(String::from_utf8_lossy(&out.stderr).contains("--truth takes one recording"));
-    let _ = std::fs::remove_dir_all(&dir);
 }
 
 #[test]
 fn a_broken_recording_is_a_located_error_not_a_panic() {
-    let dir = temp_dir("broken");
+    let tmp = temp_dir("broken");
+    let dir = tmp.path();
     let cases: [(&str, &str, &[&str]); 5] = [
         (
             "missing.csv",
@@ -176,7 +180,6 @@ fn a_broken_recording_is_a_located_error_not_a_panic() {
             );
         }
     }
-    let _ = std::fs::remove_dir_all(&dir);
 }
 
 #[test]
@@ -204,7 +207,8 @@ fn demo_runs_without_arguments() {
 /// falls to the floor), plus the PNG of every plot.
 #[test]
 fn report_is_one_self_contained_page_that_tells_the_story() {
-    let dir = temp_dir("report");
+    let tmp = temp_dir("report");
+    let dir = tmp.path();
     let csv = dir.join("run.csv");
     let out = driftid()
         .args([
@@ -322,7 +326,6 @@ fn report_is_one_self_contained_page_that_tells_the_story() {
             f.display()
         );
     }
-    let _ = std::fs::remove_dir_all(&dir);
 }
 
 /// `driftid simulate ARGS --out DIR/NAME`, which must succeed: the recording's path.
@@ -363,7 +366,8 @@ fn several_runs_are_identified_diagnosed_and_planned_together() {
     // accept the same runs; every result within 3 of its total 1σ (the joint estimate has each
     // run's set-up marginalised, so its error is judged against the total: it was 0.02–2 of the
     // noise-only 1σ when the stated set-up was taken as exact, and DZz is 7 of it now).
-    let dir = temp_dir("joint");
+    let tmp = temp_dir("joint");
+    let dir = tmp.path();
     let bias = ["--effect", "acc-bias=2e-4,-1e-4,3e-4"];
     let a = simulate_run(&dir, "a.csv", "21", "0,0,0", &bias);
     let b = simulate_run(&dir, "b.csv", "22", "90,0,90", &bias);
@@ -437,7 +441,6 @@ fn several_runs_are_identified_diagnosed_and_planned_together() {
         "{now_noise} -> {after_noise}"
     );
     assert!(after < now / 2.0, "{now} -> {after}");
-    let _ = std::fs::remove_dir_all(&dir);
 }
 
 /// A recording whose metadata latitude is wrong (45° for a run at 39.1°, with no gravity line,
@@ -449,7 +452,8 @@ fn several_runs_are_identified_diagnosed_and_planned_together() {
 /// covariance not positive definite" — all from the same data `diagnose` got right.
 #[test]
 fn a_wrong_latitude_is_named_by_every_command() {
-    let dir = temp_dir("wrong-latitude");
+    let tmp = temp_dir("wrong-latitude");
+    let dir = tmp.path();
     let csv = simulate_to(
         &dir,
         "run.csv",
@@ -528,7 +532,8 @@ fn a_wrong_latitude_is_named_by_every_command() {
 /// from that fit. It once exited 0. With the missing effect in the model the plan is trusted.
 #[test]
 fn a_plan_from_a_run_the_model_does_not_explain_is_not_trusted() {
-    let dir = temp_dir("plan-misfit");
+    let tmp = temp_dir("plan-misfit");
+    let dir = tmp.path();
     let csv = simulate_to(
         &dir,
         "run.csv",
@@ -596,7 +601,8 @@ fn run_driftid(args: &[std::ffi::OsString]) -> (Option<i32>, String) {
 /// `excluded` finding with its range and exit 0 (before: no such option, exit 2).
 #[test]
 fn a_window_is_excluded_by_every_command_and_an_unrepaired_step_suggests_it() {
-    let dir = temp_dir("exclude");
+    let tmp = temp_dir("exclude");
+    let dir = tmp.path();
     let csv = simulate_to(
         &dir,
         "run.csv",
@@ -660,7 +666,8 @@ fn a_window_is_excluded_by_every_command_and_an_unrepaired_step_suggests_it() {
 /// and the run is rightly not trusted for that.
 #[test]
 fn a_saturated_recording_from_simulate_is_named_and_trusted() {
-    let dir = temp_dir("saturate");
+    let tmp = temp_dir("saturate");
+    let dir = tmp.path();
     let csv = simulate_to(
         &dir,
         "run.csv",
@@ -686,7 +693,8 @@ fn a_saturated_recording_from_simulate_is_named_and_trusted() {
 /// what the written digits allow) makes the joint result untrusted, naming that run alone.
 #[test]
 fn a_joint_fit_is_not_trusted_when_one_runs_set_up_is_contradicted() {
-    let dir = temp_dir("joint-setup");
+    let tmp = temp_dir("joint-setup");
+    let dir = tmp.path();
     let a = simulate_to(&dir, "a.csv", &["--rate-s", "10", "--seed", "1"]);
     let b = simulate_to(
         &dir,
@@ -705,7 +713,6 @@ fn a_joint_fit_is_not_trusted_when_one_runs_set_up_is_contradicted() {
     let (code, all) = run_driftid(&["identify".into(), a.into(), b.into()]);
     assert_eq!(code, Some(3), "{all}");
     assert!(all.contains("b.csv alone:"), "{all}");
-    let _ = std::fs::remove_dir_all(&dir);
 }
 
 /// Issue 26 through a joint fit: the joint 1σ carries each run's set-up (latitude, clock rate,
@@ -715,7 +722,8 @@ fn a_joint_fit_is_not_trusted_when_one_runs_set_up_is_contradicted() {
 /// the latitude alone gives — and no total may be below the fit's.
 #[test]
 fn a_joint_fits_total_sigma_carries_the_runs_set_up() {
-    let dir = temp_dir("joint-total");
+    let tmp = temp_dir("joint-total");
+    let dir = tmp.path();
     let a = simulate_to(
         &dir,
         "a.csv",
@@ -759,7 +767,6 @@ fn a_joint_fits_total_sigma_carries_the_runs_set_up() {
     let dxx = &c["DXx"];
     let ratio = dxx["sigma_total"].as_f64().unwrap() / dxx["sigma"].as_f64().unwrap();
     assert!(ratio > 5.0, "DXx total / fit 1σ = {ratio:.2}");
-    let _ = std::fs::remove_dir_all(&dir);
 }
 
 /// Issue 26 through `diagnose`: a clock 300 ppm fast on a latitude written "39.1" fits within
@@ -769,7 +776,8 @@ fn a_joint_fits_total_sigma_carries_the_runs_set_up() {
 /// `identify` says).
 #[test]
 fn diagnose_does_not_hide_a_fast_clock_behind_an_effect() {
-    let dir = temp_dir("diagnose-clock");
+    let tmp = temp_dir("diagnose-clock");
+    let dir = tmp.path();
     let csv = simulate_to(
         &dir,
         "run.csv",
@@ -781,7 +789,6 @@ fn diagnose_does_not_hide_a_fast_clock_behind_an_effect() {
         all.contains("misstated clock rate") && all.contains("rests on the assumed"),
         "{all}"
     );
-    let _ = std::fs::remove_dir_all(&dir);
 }
 
 /// Issue 26: a day's run at 1 s with its set-up drawn from the default priors (gravity a prior σ
@@ -796,7 +803,8 @@ fn diagnose_does_not_hide_a_fast_clock_behind_an_effect() {
 /// σ (99.9 % of honest 1σ; measured ≤ 3.4).
 #[test]
 fn a_day_with_its_set_up_drawn_from_the_priors_rests_on_the_priors_the_user_states() {
-    let dir = temp_dir("setup-priors-day");
+    let tmp = temp_dir("setup-priors-day");
+    let dir = tmp.path();
     let mut distrusted = vec![];
     for seed in 1..=8 {
         let csv = simulate_to(
@@ -838,7 +846,6 @@ fn a_day_with_its_set_up_drawn_from_the_priors_rests_on_the_priors_the_user_stat
         }
     }
     assert!(distrusted.len() <= 1, "{distrusted:#?}");
-    let _ = std::fs::remove_dir_all(&dir);
 }
 
 /// A recorder clock 1000 ppm fast on 60 h at 1 s: the data know the clock to ~±300 ppm, so at
@@ -849,7 +856,8 @@ fn a_day_with_its_set_up_drawn_from_the_priors_rests_on_the_priors_the_user_stat
 /// the ladder added, and the reason say so. Deterministic (fixed seeds).
 #[test]
 fn a_clock_misstatement_stays_a_rival_of_what_the_ladder_adds() {
-    let dir = temp_dir("clock-vs-ladder");
+    let tmp = temp_dir("clock-vs-ladder");
+    let dir = tmp.path();
     for seed in 1..=3 {
         let csv = simulate_to(
             &dir,
@@ -865,7 +873,6 @@ fn a_clock_misstatement_stays_a_rival_of_what_the_ladder_adds() {
             );
         }
     }
-    let _ = std::fs::remove_dir_all(&dir);
 }
 
 /// The page's structure (issue 29): the verdict as its own block before everything else, a table
@@ -943,7 +950,8 @@ fn page_structure(page: &str) {
 /// provenance; it exits as `identify` does on the same runs.
 #[test]
 fn a_joint_report_shows_each_run_and_the_shared_coefficients() {
-    let dir = temp_dir("joint-report");
+    let tmp = temp_dir("joint-report");
+    let dir = tmp.path();
     let args = |o: &'static str, seed: &'static str| {
         [
             "--hours",
@@ -1040,7 +1048,6 @@ fn a_joint_report_shows_each_run_and_the_shared_coefficients() {
         page.matches("<div class=\"scroll\"><table>").count(),
         page.matches("<table>").count()
     );
-    let _ = std::fs::remove_dir_all(&dir);
 }
 
 /// Issue 28 item 6: time stamps no clock's jitter explains (intervals of 1.25, 1, 1.5, 0.7 s
@@ -1050,7 +1057,8 @@ fn a_joint_report_shows_each_run_and_the_shared_coefficients() {
 /// that prepares the recording.
 #[test]
 fn irregular_time_stamps_are_refused_naming_the_line() {
-    let dir = temp_dir("irregular");
+    let tmp = temp_dir("irregular");
+    let dir = tmp.path();
     let csv = dir.join("irregular.csv");
     let mut text =
         String::from("# latitude_deg: 39.1\n# a logger's file\nt_s,ax_mps2,ay_mps2,az_mps2\n");
@@ -1081,7 +1089,6 @@ fn irregular_time_stamps_are_refused_naming_the_line() {
             "{cmd}: {all}"
         );
     }
-    let _ = std::fs::remove_dir_all(&dir);
 }
 
 /// `driftid COMMAND CSV --truth CSV's truth --json`: its exit status, its JSON and all it
@@ -1127,7 +1134,8 @@ fn within_total_sigma(v: &serde_json::Value, bound: f64, what: &str) -> usize {
 /// probability ≈ 0.7 % for an honest 1σ, and an unrepaired step puts DXx ~40σ off.
 #[test]
 fn a_drift_step_is_repaired_by_name_when_it_beats_every_explanation() {
-    let dir = temp_dir("drift-step");
+    let tmp = temp_dir("drift-step");
+    let dir = tmp.path();
     let csv = simulate_to(
         &dir,
         "run.csv",
@@ -1155,7 +1163,6 @@ fn a_drift_step_is_repaired_by_name_when_it_beats_every_explanation() {
     let (code, all) = run_driftid(&["diagnose".into(), csv.into()]);
     assert_eq!(code, Some(0), "{all}");
     assert!(all.contains("paper + drift-step "), "{all}");
-    let _ = std::fs::remove_dir_all(&dir);
 }
 
 /// A gyro warm-up transient, 0.004 deg/h per axis decaying with τ = 3 h (60 h at 10 s, seed 5):
@@ -1166,7 +1173,8 @@ fn a_drift_step_is_repaired_by_name_when_it_beats_every_explanation() {
 /// probability ≈ 0.7 % for an honest 1σ; the step's answer put DZ0 3.45σ off.
 #[test]
 fn a_warm_up_transient_is_named_and_its_coefficients_hold() {
-    let dir = temp_dir("warmup");
+    let tmp = temp_dir("warmup");
+    let dir = tmp.path();
     let csv = simulate_to(
         &dir,
         "run.csv",
@@ -1184,7 +1192,6 @@ fn a_warm_up_transient_is_named_and_its_coefficients_hold() {
     let last = v["ladder"].as_array().unwrap().last().unwrap();
     assert_eq!(last["model"], serde_json::json!(["drift-warmup"]), "{all}");
     assert_eq!(within_total_sigma(&v, 3.5, "diagnose"), 15);
-    let _ = std::fs::remove_dir_all(&dir);
 }
 
 /// Clean 24-h runs at 10 s (issue 26's false-alarm sweep): 3 of 8 seeds (101, 106, 108) exited
@@ -1195,7 +1202,8 @@ fn a_warm_up_transient_is_named_and_its_coefficients_hold() {
 /// seeds, 40/40 trusted; 12 at 3.5σ fail together with probability ≈ 0.6 % per run).
 #[test]
 fn clean_day_long_runs_are_not_distrusted_for_slow_drifts_they_carry() {
-    let dir = temp_dir("clean-24h");
+    let tmp = temp_dir("clean-24h");
+    let dir = tmp.path();
     // Seed 1079: the data moved the latitude by noise (evidence gain 2.8) and the run was
     // distrusted as "resting on the assumed latitude prior" (1 of 100 clean runs); a move the
     // data do not establish (gain < 10) is no such reason.
@@ -1212,7 +1220,6 @@ fn clean_day_long_runs_are_not_distrusted_for_slow_drifts_they_carry() {
         assert_eq!(code, Some(0), "seed {seed}: {all}");
         within_total_sigma(&v, 3.5, &format!("seed {seed}"));
     }
-    let _ = std::fs::remove_dir_all(&dir);
 }
 
 /// Issue 26 item 2: explanations that compete. A drift trend (1e-5 deg/h/h per axis) with a
@@ -1222,7 +1229,8 @@ fn clean_day_long_runs_are_not_distrusted_for_slow_drifts_they_carry() {
 /// choice is not settled: exit 3, naming both.
 #[test]
 fn explanations_within_the_margin_that_disagree_are_not_trusted() {
-    let dir = temp_dir("confounded");
+    let tmp = temp_dir("confounded");
+    let dir = tmp.path();
     let csv = simulate_to(
         &dir,
         "run.csv",
@@ -1244,7 +1252,6 @@ fn explanations_within_the_margin_that_disagree_are_not_trusted() {
         reasons.contains("both explain the data") && reasons.contains("`drift-trend`"),
         "{all}"
     );
-    let _ = std::fs::remove_dir_all(&dir);
 }
 
 /// Issue 26: each run's set-up is a nuisance of the joint fit. Two runs (36 h at 10 s) whose
@@ -1258,7 +1265,8 @@ fn explanations_within_the_margin_that_disagree_are_not_trusted() {
 /// probability ≈ 1 % for an honest 1σ). The noise-only 1σ stays the smaller one.
 #[test]
 fn each_runs_set_up_is_marginalised_in_a_joint_fit() {
-    let dir = temp_dir("joint-nuisance");
+    let tmp = temp_dir("joint-nuisance");
+    let dir = tmp.path();
     for seed in [45u32, 47] {
         let run = |name: &str, s: u32| {
             let s = s.to_string();
@@ -1303,7 +1311,6 @@ fn each_runs_set_up_is_marginalised_in_a_joint_fit() {
             );
         }
     }
-    let _ = std::fs::remove_dir_all(&dir);
 }
 
 /// Runs of two different systems are not fused silently: the same seeds as a clean pair, but the
@@ -1313,7 +1320,8 @@ fn each_runs_set_up_is_marginalised_in_a_joint_fit() {
 /// measured; p < 1e-3 fails). The clean pair agrees (p 0.45–0.57) and is trusted.
 #[test]
 fn runs_whose_coefficients_disagree_are_not_trusted() {
-    let dir = temp_dir("joint-disagree");
+    let tmp = temp_dir("joint-disagree");
+    let dir = tmp.path();
     let common = ["--rate-s", "10", "--hours", "36"];
     let a = simulate_to(&dir, "a.csv", &[&common[..], &["--seed", "2"]].concat());
     let level = ["--seed", "3", "--initial-orientation-deg", "0,0,90"];
@@ -1332,7 +1340,6 @@ fn runs_whose_coefficients_disagree_are_not_trusted() {
             "named exactly when it is so:\n{all}"
         );
     }
-    let _ = std::fs::remove_dir_all(&dir);
 }
 
 /// `identify --single-pass` (the paper's one EKF pass, no smoother) panicked (exit 101) once the
@@ -1341,7 +1348,8 @@ fn runs_whose_coefficients_disagree_are_not_trusted() {
 /// result (0 or 3), never a crash.
 #[test]
 fn a_single_pass_identifies_without_a_crash() {
-    let dir = temp_dir("single-pass");
+    let tmp = temp_dir("single-pass");
+    let dir = tmp.path();
     let csv = simulate_to(
         &dir,
         "run.csv",
@@ -1350,7 +1358,6 @@ fn a_single_pass_identifies_without_a_crash() {
     let (code, all) = run_driftid(&["identify".into(), csv.into(), "--single-pass".into()]);
     assert!(matches!(code, Some(0 | 3)), "{all}");
     assert!(all.contains("DXx") && !all.contains("panicked"), "{all}");
-    let _ = std::fs::remove_dir_all(&dir);
 }
 
 /// The truth of a parameter, one rule for every command (issue 30): the simulator knows the
@@ -1360,7 +1367,8 @@ fn a_single_pass_identifies_without_a_crash() {
 /// unknown: no truth or error for KN, and the paper's coefficients keep theirs.
 #[test]
 fn an_effects_file_parameter_has_no_truth_the_simulator_cannot_know() {
-    let dir = temp_dir("file-truth");
+    let tmp = temp_dir("file-truth");
+    let dir = tmp.path();
     let csv = simulate_to(
         &dir,
         "north.csv",
@@ -1397,7 +1405,6 @@ fn an_effects_file_parameter_has_no_truth_the_simulator_cannot_know() {
         );
     }
     assert_eq!(c["DXx"]["truth"], serde_json::json!(-0.1));
-    let _ = std::fs::remove_dir_all(&dir);
 }
 
 /// Latitudes written without decimals (a prior of 0.29°) away from 39°: the data measure the
@@ -1421,7 +1428,8 @@ fn runs_at_low_latitudes_are_never_confidently_wrong() {
 /// 24-h runs at 10 s of `seed` at each latitude of `lats` (written as given): `identify` ends in
 /// exit 0 or 3, and a trusted answer lies within 3.5 of its total 1σ.
 fn never_confidently_wrong_at(tag: &str, seed: &str, lats: &[&str]) {
-    let dir = temp_dir(tag);
+    let tmp = temp_dir(tag);
+    let dir = tmp.path();
     for lat in lats {
         let csv = simulate_to(
             &dir,
@@ -1442,7 +1450,6 @@ fn never_confidently_wrong_at(tag: &str, seed: &str, lats: &[&str]) {
             within_total_sigma(&v, 3.5, &format!("latitude {lat}"));
         }
     }
-    let _ = std::fs::remove_dir_all(&dir);
 }
 
 /// A drift trend (2.3e-5 deg/h per h on X) with set-up errors drawn from the priors, 36 h at 10 s
@@ -1456,7 +1463,8 @@ fn never_confidently_wrong_at(tag: &str, seed: &str, lats: &[&str]) {
 /// Tolerance: a trusted answer within 3.5 total σ, as in the tests above.
 #[test]
 fn a_trend_with_a_moved_set_up_is_not_repaired_as_a_fast_clock() {
-    let dir = temp_dir("trend-clock");
+    let tmp = temp_dir("trend-clock");
+    let dir = tmp.path();
     let csv = simulate_to(
         &dir,
         "run.csv",
@@ -1489,7 +1497,6 @@ fn a_trend_with_a_moved_set_up_is_not_repaired_as_a_fast_clock() {
             "{command}: {all}"
         );
     }
-    let _ = std::fs::remove_dir_all(&dir);
 }
 
 /// A level start at exactly 30° S sits on the border of the two charts of the platform angles
@@ -1509,7 +1516,8 @@ fn a_start_on_the_charts_border_is_identified() {
 /// an eigen-decomposition of an empty matrix panicked (exit 101).
 #[test]
 fn a_set_up_taken_as_exact_identifies_without_a_crash() {
-    let dir = temp_dir("exact-setup");
+    let tmp = temp_dir("exact-setup");
+    let dir = tmp.path();
     let csv = simulate_to(
         &dir,
         "run.csv",
@@ -1528,7 +1536,6 @@ fn a_set_up_taken_as_exact_identifies_without_a_crash() {
     let (code, all) = run_driftid(&args);
     assert!(matches!(code, Some(0 | 3)), "{all}");
     assert!(all.contains("DXx") && !all.contains("panicked"), "{all}");
-    let _ = std::fs::remove_dir_all(&dir);
 }
 
 /// Found by a sweep of random recordings: a turn-on transient with set-up errors from the priors
@@ -1539,7 +1546,8 @@ fn a_set_up_taken_as_exact_identifies_without_a_crash() {
 /// best pair, whether or not the set-up is contradicted.
 #[test]
 fn a_transient_is_not_repaired_as_a_clock_thousands_of_ppm_fast() {
-    let dir = temp_dir("transient-clock");
+    let tmp = temp_dir("transient-clock");
+    let dir = tmp.path();
     let csv = simulate_to(
         &dir,
         "run.csv",
@@ -1572,7 +1580,6 @@ fn a_transient_is_not_repaired_as_a_clock_thousands_of_ppm_fast() {
     if code == Some(0) {
         drift_within_total_sigma(&v, 3.0, "transient");
     }
-    let _ = std::fs::remove_dir_all(&dir);
 }
 
 /// The paper's 12 drift coefficients of `v` within `bound` of their total 1σ.
@@ -1595,7 +1602,8 @@ fn drift_within_total_sigma(v: &serde_json::Value, bound: f64, what: &str) {
 /// only with every drift coefficient within 3 total σ (measured: g2 chosen, 1.4σ).
 #[test]
 fn a_small_g2_drift_is_named_g2_not_a_daily_drift() {
-    let dir = temp_dir("g2-small");
+    let tmp = temp_dir("g2-small");
+    let dir = tmp.path();
     let csv = simulate_to(
         &dir,
         "run.csv",
@@ -1625,7 +1633,6 @@ fn a_small_g2_drift_is_named_g2_not_a_daily_drift() {
     if code == Some(0) {
         drift_within_total_sigma(&v, 3.0, "g2");
     }
-    let _ = std::fs::remove_dir_all(&dir);
 }
 
 /// A 12-h periodic gyro drift is outside the fixed catalog (`drift-daily` is the solar day's):
@@ -1638,7 +1645,8 @@ fn a_small_g2_drift_is_named_g2_not_a_daily_drift() {
 /// `drift-daily`; and it is trusted only with every drift coefficient within 3 total σ.
 #[test]
 fn a_twelve_hour_drift_cycle_is_named_with_its_period() {
-    let dir = temp_dir("cycle-12h");
+    let tmp = temp_dir("cycle-12h");
+    let dir = tmp.path();
     for (seed, lat, amplitudes) in [
         ("1211", "-30.3", "0.000638,-0.000465,-0.000757"),
         ("1203", "51.5", "0.000586,-0.000478,-0.000484"),
@@ -1674,7 +1682,6 @@ fn a_twelve_hour_drift_cycle_is_named_with_its_period() {
             drift_within_total_sigma(&v, 3.0, &format!("seed {seed}"));
         }
     }
-    let _ = std::fs::remove_dir_all(&dir);
 }
 
 /// Issue 26, found by two-effect random recordings: a g² drift of ~2e-5 deg/h/(m/s²)² per term
@@ -1688,7 +1695,8 @@ fn a_twelve_hour_drift_cycle_is_named_with_its_period() {
 /// text "could move, at a size this run cannot rule out").
 #[test]
 fn a_small_g2_drift_under_an_accelerometer_bias_is_distrusted_or_marked_conditional() {
-    let dir = temp_dir("g2-under-bias");
+    let tmp = temp_dir("g2-under-bias");
+    let dir = tmp.path();
     let csv = simulate_to(
         &dir,
         "run.csv",
@@ -1723,5 +1731,4 @@ fn a_small_g2_drift_under_an_accelerometer_bias_is_distrusted_or_marked_conditio
             );
         }
     }
-    let _ = std::fs::remove_dir_all(&dir);
 }

@@ -1,22 +1,40 @@
 //! The recording reader on real files: every defect is reported with the file, the line (and the
 //! column where it applies) and the reason; good files round-trip exactly.
 
-use std::path::PathBuf;
+use std::path::{Path, PathBuf};
 
 use host_tool::recording::{
     read_recording, write_recording, Metadata, RawSample, RecordingError, RecordingWriter,
 };
 
-/// A fresh directory for this test process.
-fn dir() -> PathBuf {
-    let d = std::env::temp_dir().join(format!("driftid-recording-errors-{}", std::process::id()));
-    std::fs::create_dir_all(&d).unwrap();
-    d
+/// The path `name` in a fresh directory that is removed with what is in it when this is dropped,
+/// passed or failed (the suite left its files in the temp directory on every run).
+struct Scratch {
+    _dir: tempfile::TempDir,
+    path: PathBuf,
 }
 
-fn write(name: &str, bytes: &[u8]) -> PathBuf {
-    let p = dir().join(name);
-    std::fs::write(&p, bytes).unwrap();
+impl std::ops::Deref for Scratch {
+    type Target = Path;
+    fn deref(&self) -> &Path {
+        &self.path
+    }
+}
+
+fn scratch(name: &str) -> Scratch {
+    let dir = tempfile::Builder::new()
+        .prefix("driftid-recording-errors-")
+        .tempdir()
+        .unwrap();
+    Scratch {
+        path: dir.path().join(name),
+        _dir: dir,
+    }
+}
+
+fn write(name: &str, bytes: &[u8]) -> Scratch {
+    let p = scratch(name);
+    std::fs::write(&*p, bytes).unwrap();
     p
 }
 
@@ -138,10 +156,8 @@ fn non_utf8() {
 #[test]
 fn truncated_last_line_is_dropped_and_reported() {
     let text = format!("{HDR}{}3.0,0.001", rows(3));
-    let path = std::env::temp_dir().join(format!("cut-{}.csv", std::process::id()));
-    std::fs::write(&path, text.as_bytes()).unwrap();
+    let path = write("cut.csv", text.as_bytes());
     let r = host_tool::recording::read_recording(&path).unwrap();
-    let _ = std::fs::remove_file(&path);
     assert_eq!(r.samples.len(), 3, "the complete lines are kept");
     assert!(
         r.repairs
@@ -186,7 +202,7 @@ fn absurd_magnitude() {
 
 #[test]
 fn missing_file() {
-    let p = dir().join("does-not-exist.csv");
+    let p = scratch("does-not-exist.csv");
     let e = read_recording(&p).unwrap_err();
     let msg = e.to_string();
     assert!(
@@ -235,7 +251,7 @@ fn round_trip_is_exact() {
     };
     for temp in [false, true] {
         let samples = awkward_samples(2000, temp);
-        let p = dir().join(format!("roundtrip-{temp}.csv"));
+        let p = scratch(&format!("roundtrip-{temp}.csv"));
         write_recording(&p, &meta, &samples).unwrap();
         let r = read_recording(&p).unwrap();
         assert_eq!(r.meta, meta);
@@ -251,7 +267,7 @@ fn streaming_writer_flushes_readable_prefix() {
         latitude_deg: Some(39.1),
         ..Default::default()
     };
-    let p = dir().join("stream.csv");
+    let p = scratch("stream.csv");
     let samples = awkward_samples(100, true);
     let mut w = RecordingWriter::create(&p, &meta, true).unwrap();
     for s in &samples[..40] {
