@@ -369,8 +369,8 @@ fn several_runs_are_identified_diagnosed_and_planned_together() {
     let tmp = temp_dir("joint");
     let dir = tmp.path();
     let bias = ["--effect", "acc-bias=2e-4,-1e-4,3e-4"];
-    let a = simulate_run(&dir, "a.csv", "21", "0,0,0", &bias);
-    let b = simulate_run(&dir, "b.csv", "22", "90,0,90", &bias);
+    let a = simulate_run(dir, "a.csv", "21", "0,0,0", &bias);
+    let b = simulate_run(dir, "b.csv", "22", "90,0,90", &bias);
     let out = driftid()
         .arg("diagnose")
         .args([&a, &b])
@@ -455,14 +455,14 @@ fn a_wrong_latitude_is_named_by_every_command() {
     let tmp = temp_dir("wrong-latitude");
     let dir = tmp.path();
     let csv = simulate_to(
-        &dir,
+        dir,
         "run.csv",
         &["--hours", "10", "--rate-s", "10", "--seed", "2"],
     );
     // The wrong-latitude run is another run (seed 3): the same samples as run.csv would be
     // refused as the same data twice by the joint fit (issue 28), before the latitude.
     let other = simulate_to(
-        &dir,
+        dir,
         "other.csv",
         &["--hours", "10", "--rate-s", "10", "--seed", "3"],
     );
@@ -535,7 +535,7 @@ fn a_plan_from_a_run_the_model_does_not_explain_is_not_trusted() {
     let tmp = temp_dir("plan-misfit");
     let dir = tmp.path();
     let csv = simulate_to(
-        &dir,
+        dir,
         "run.csv",
         &[
             "--hours",
@@ -604,7 +604,7 @@ fn a_window_is_excluded_by_every_command_and_an_unrepaired_step_suggests_it() {
     let tmp = temp_dir("exclude");
     let dir = tmp.path();
     let csv = simulate_to(
-        &dir,
+        dir,
         "run.csv",
         &["--hours", "8", "--seed", "3", "--fault", "step=y,5e-3,7.9"],
     );
@@ -669,7 +669,7 @@ fn a_saturated_recording_from_simulate_is_named_and_trusted() {
     let tmp = temp_dir("saturate");
     let dir = tmp.path();
     let csv = simulate_to(
-        &dir,
+        dir,
         "run.csv",
         &[
             "--hours",
@@ -695,9 +695,9 @@ fn a_saturated_recording_from_simulate_is_named_and_trusted() {
 fn a_joint_fit_is_not_trusted_when_one_runs_set_up_is_contradicted() {
     let tmp = temp_dir("joint-setup");
     let dir = tmp.path();
-    let a = simulate_to(&dir, "a.csv", &["--rate-s", "10", "--seed", "1"]);
+    let a = simulate_to(dir, "a.csv", &["--rate-s", "10", "--seed", "1"]);
     let b = simulate_to(
-        &dir,
+        dir,
         "b.csv",
         &[
             "--rate-s",
@@ -725,12 +725,12 @@ fn a_joint_fits_total_sigma_carries_the_runs_set_up() {
     let tmp = temp_dir("joint-total");
     let dir = tmp.path();
     let a = simulate_to(
-        &dir,
+        dir,
         "a.csv",
         &["--rate-s", "10", "--hours", "36", "--seed", "2"],
     );
     let b = simulate_to(
-        &dir,
+        dir,
         "b.csv",
         &[
             "--rate-s",
@@ -779,7 +779,7 @@ fn diagnose_does_not_hide_a_fast_clock_behind_an_effect() {
     let tmp = temp_dir("diagnose-clock");
     let dir = tmp.path();
     let csv = simulate_to(
-        &dir,
+        dir,
         "run.csv",
         &["--seed", "11", "--clock-error-ppm", "300"],
     );
@@ -808,7 +808,7 @@ fn a_day_with_its_set_up_drawn_from_the_priors_rests_on_the_priors_the_user_stat
     let mut distrusted = vec![];
     for seed in 1..=8 {
         let csv = simulate_to(
-            &dir,
+            dir,
             &format!("run{seed}.csv"),
             &[
                 "--seed",
@@ -860,7 +860,7 @@ fn a_clock_misstatement_stays_a_rival_of_what_the_ladder_adds() {
     let dir = tmp.path();
     for seed in 1..=3 {
         let csv = simulate_to(
-            &dir,
+            dir,
             &format!("run{seed}.csv"),
             &["--seed", &seed.to_string(), "--clock-error-ppm", "1000"],
         );
@@ -964,8 +964,8 @@ fn a_joint_report_shows_each_run_and_the_shared_coefficients() {
             o,
         ]
     };
-    let a = simulate_to(&dir, "a.csv", &args("0,0,0", "21"));
-    let b = simulate_to(&dir, "b.csv", &args("90,0,90", "22"));
+    let a = simulate_to(dir, "a.csv", &args("0,0,0", "21"));
+    let b = simulate_to(dir, "b.csv", &args("90,0,90", "22"));
     let id = driftid()
         .arg("identify")
         .args([&a, &b])
@@ -1137,7 +1137,7 @@ fn a_drift_step_is_repaired_by_name_when_it_beats_every_explanation() {
     let tmp = temp_dir("drift-step");
     let dir = tmp.path();
     let csv = simulate_to(
-        &dir,
+        dir,
         "run.csv",
         &[
             "--seed",
@@ -1176,7 +1176,7 @@ fn a_warm_up_transient_is_named_and_its_coefficients_hold() {
     let tmp = temp_dir("warmup");
     let dir = tmp.path();
     let csv = simulate_to(
-        &dir,
+        dir,
         "run.csv",
         &[
             "--seed",
@@ -1212,7 +1212,7 @@ fn clean_day_long_runs_are_not_distrusted_for_slow_drifts_they_carry() {
     // 1.9–3.3 total σ (4 of 100 clean runs exit 3); the trend is now carried as a set-up drift.
     for seed in ["101", "106", "108", "1079", "28", "63", "72", "96"] {
         let csv = simulate_to(
-            &dir,
+            dir,
             &format!("c{seed}.csv"),
             &["--seed", seed, "--hours", "24", "--rate-s", "10"],
         );
@@ -1232,7 +1232,7 @@ fn explanations_within_the_margin_that_disagree_are_not_trusted() {
     let tmp = temp_dir("confounded");
     let dir = tmp.path();
     let csv = simulate_to(
-        &dir,
+        dir,
         "run.csv",
         &[
             "--seed",
@@ -1279,7 +1279,7 @@ fn each_runs_set_up_is_marginalised_in_a_joint_fit() {
                 "--drift-trend-error-deg-h-per-h",
                 "0,0,0",
             ]);
-            simulate_to(&dir, name, &args)
+            simulate_to(dir, name, &args)
         };
         let a = run(&format!("a{seed}.csv"), seed);
         let b = run(&format!("b{seed}.csv"), seed + 1000);
@@ -1323,11 +1323,11 @@ fn runs_whose_coefficients_disagree_are_not_trusted() {
     let tmp = temp_dir("joint-disagree");
     let dir = tmp.path();
     let common = ["--rate-s", "10", "--hours", "36"];
-    let a = simulate_to(&dir, "a.csv", &[&common[..], &["--seed", "2"]].concat());
+    let a = simulate_to(dir, "a.csv", &[&common[..], &["--seed", "2"]].concat());
     let level = ["--seed", "3", "--initial-orientation-deg", "0,0,90"];
-    let b = simulate_to(&dir, "b.csv", &[&common[..], &level].concat());
+    let b = simulate_to(dir, "b.csv", &[&common[..], &level].concat());
     let c = simulate_to(
-        &dir,
+        dir,
         "c.csv",
         &[&common[..], &level, &["--effect", "drift-step=0.003,0,0:0"]].concat(),
     );
@@ -1351,7 +1351,7 @@ fn a_single_pass_identifies_without_a_crash() {
     let tmp = temp_dir("single-pass");
     let dir = tmp.path();
     let csv = simulate_to(
-        &dir,
+        dir,
         "run.csv",
         &["--hours", "12", "--rate-s", "10", "--seed", "3"],
     );
@@ -1370,7 +1370,7 @@ fn an_effects_file_parameter_has_no_truth_the_simulator_cannot_know() {
     let tmp = temp_dir("file-truth");
     let dir = tmp.path();
     let csv = simulate_to(
-        &dir,
+        dir,
         "north.csv",
         &[
             "--hours",
@@ -1432,7 +1432,7 @@ fn never_confidently_wrong_at(tag: &str, seed: &str, lats: &[&str]) {
     let dir = tmp.path();
     for lat in lats {
         let csv = simulate_to(
-            &dir,
+            dir,
             &format!("lat{lat}.csv"),
             &[
                 "--hours",
@@ -1466,7 +1466,7 @@ fn a_trend_with_a_moved_set_up_is_not_repaired_as_a_fast_clock() {
     let tmp = temp_dir("trend-clock");
     let dir = tmp.path();
     let csv = simulate_to(
-        &dir,
+        dir,
         "run.csv",
         &[
             "--seed",
@@ -1519,7 +1519,7 @@ fn a_set_up_taken_as_exact_identifies_without_a_crash() {
     let tmp = temp_dir("exact-setup");
     let dir = tmp.path();
     let csv = simulate_to(
-        &dir,
+        dir,
         "run.csv",
         &["--hours", "12", "--rate-s", "10", "--seed", "8"],
     );
@@ -1549,7 +1549,7 @@ fn a_transient_is_not_repaired_as_a_clock_thousands_of_ppm_fast() {
     let tmp = temp_dir("transient-clock");
     let dir = tmp.path();
     let csv = simulate_to(
-        &dir,
+        dir,
         "run.csv",
         &[
             "--seed",
@@ -1605,7 +1605,7 @@ fn a_small_g2_drift_is_named_g2_not_a_daily_drift() {
     let tmp = temp_dir("g2-small");
     let dir = tmp.path();
     let csv = simulate_to(
-        &dir,
+        dir,
         "run.csv",
         &[
             "--seed",
@@ -1652,7 +1652,7 @@ fn a_twelve_hour_drift_cycle_is_named_with_its_period() {
         ("1203", "51.5", "0.000586,-0.000478,-0.000484"),
     ] {
         let csv = simulate_to(
-            &dir,
+            dir,
             &format!("run{seed}.csv"),
             &[
                 "--seed",
@@ -1698,7 +1698,7 @@ fn a_small_g2_drift_under_an_accelerometer_bias_is_distrusted_or_marked_conditio
     let tmp = temp_dir("g2-under-bias");
     let dir = tmp.path();
     let csv = simulate_to(
-        &dir,
+        dir,
         "run.csv",
         &[
             "--seed",
