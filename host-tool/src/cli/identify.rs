@@ -292,17 +292,24 @@ pub(crate) fn print_setup(unc: &Uncertainty, id: &Identification) {
             .unwrap_or((0, 0.0));
         let data = match (c.offset, c.stated) {
             (Some(o), Some((v, unit))) => {
+                // The estimate with the 1σ the run supports (the slow drifts free where that is
+                // wider), the narrower ones beside it.
                 format!(
-                    "; estimated {} {unit} (stated {}{})",
-                    crate::format::pm(v + o, c.posterior_sigma),
+                    "; estimated {} {unit}{} (stated {}{}{})",
+                    crate::format::pm(v + o, c.knob_sigma()),
+                    if c.sigma_drifts_free.is_some() {
+                        " with the slow drifts free"
+                    } else {
+                        ""
+                    },
                     crate::format::sig(v, 9),
+                    c.sigma_drifts_free
+                        .map(|_| format!("; ± {} were they absent", sci(c.posterior_sigma)))
+                        .unwrap_or_default(),
                     c.data_sigma
                         .map(|s| format!("; the data alone ± {}", sci(s)))
                         .unwrap_or_default()
-                ) + &c
-                    .sigma_drifts_free
-                    .map(|s| format!("; ± {} with the slow drifts free", sci(s)))
-                    .unwrap_or_default()
+                )
             }
             _ => String::new(),
         };
