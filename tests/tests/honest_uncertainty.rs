@@ -210,10 +210,9 @@ fn the_latitude_is_estimated_with_a_1sigma_that_covers_the_truth() {
             .flat_map(|h| h.join().unwrap())
             .collect()
     });
-    let rms = |z: &dyn Fn(&(f64, f64, Vec<String>)) -> f64| {
-        (runs.iter().map(|r| z(r).powi(2)).sum::<f64>() / runs.len() as f64).sqrt()
-    };
-    let (with_drifts, posterior) = (rms(&|r| r.0), rms(&|r| r.1));
+    let rms = |z: &[f64]| (z.iter().map(|z| z * z).sum::<f64>() / z.len() as f64).sqrt();
+    let with_drifts = rms(&runs.iter().map(|r| r.0).collect::<Vec<_>>());
+    let posterior = rms(&runs.iter().map(|r| r.1).collect::<Vec<_>>());
     let worst = runs.iter().fold(0.0f64, |m, r| m.max(r.0.abs()));
     println!("latitude error / its 1σ: RMS {with_drifts:.2} (worst {worst:.2}); / the posterior alone: RMS {posterior:.2}");
     assert!(with_drifts <= 1.6, "RMS {with_drifts:.2}");
