@@ -321,7 +321,10 @@ impl Uncertainty {
                 Some(format!(
                     "{} {} {unit} (stated {})",
                     k.source,
-                    crate::format::pm(v + k.offset?, k.posterior_sigma),
+                    // With the 1σ the knob is printed with everywhere ([`Contribution::knob_sigma`]):
+                    // the same run printed the latitude "40.723 ± 0.021" in the digits check
+                    // above and "40.7231 ± 0.0019" here.
+                    crate::format::pm(v + k.offset?, k.knob_sigma()),
                     crate::format::sig(v, 9)
                 ))
             })
@@ -1117,7 +1120,43 @@ fn follows_linear(unc: &Uncertainty, from: &Identification, to: &Identification)
 
 #[cfg(test)]
 mod tests {
-    use super::written_precision;
+    use super::{written_precision, Contribution, SetupCheck, Uncertainty};
+    use nalgebra::DMatrix;
+
+    #[test]
+    fn a_contradicted_set_up_states_each_knob_with_the_1sigma_the_run_supports() {
+        // The drift-trend recording of the speed set: the latitude's posterior 1σ with the slow
+        // drifts held at zero was 0.0019°, with them free 0.021°. The digits check printed
+        // "40.723 ± 0.021 deg" and, in the same run, the χ² check "40.7231 ± 0.0019 deg".
+        let knob = |source, stated: (f64, &'static str), offset, held, free| {
+            let mut c = Contribution::new(source, String::new(), DMatrix::zeros(12, 12));
+            (c.stated, c.offset) = (Some(stated), Some(offset));
+            // Only a latitude has written digits (39.1: ±0.05°).
+            c.bound = (source == "latitude").then_some(0.05);
+            (c.posterior_sigma, c.sigma_drifts_free) = (held, free);
+            c
+        };
+        let mut unc = Uncertainty::exact(&DMatrix::identity(12, 12));
+        unc.contributions = vec![
+            Contribution::new("start attitude", String::new(), DMatrix::zeros(12, 12)),
+            knob("latitude", (39.1, "deg"), 1.6231, 0.0019, Some(0.021)),
+            knob("clock rate", (0.0, "ppm"), 56.0, 20.0, None),
+            knob("gravity", (0.0, "ppm"), -146.22, 0.24, None),
+        ];
+        unc.setup_check = Some(SetupCheck {
+            chi2: 3199.5,
+            dof: 2,
+            p_value: 0.0,
+        });
+        let reasons = unc.untrusted_reasons();
+        assert_eq!(reasons.len(), 2, "{reasons:?}");
+        for r in &reasons {
+            assert!(r.contains("40.723 ± 0.021 deg"), "{r}");
+            assert!(!r.contains("0.0019"), "{r}");
+        }
+        // A knob without a wider 1σ keeps its posterior's.
+        assert!(reasons[1].contains("56 ± 20 ppm"), "{}", reasons[1]);
+    }
 
     #[test]
     fn a_latitude_keeps_its_written_digits_through_radians() {
