@@ -410,7 +410,70 @@ pub(crate) fn signatures(
 
 /// [`signatures`], the whitened signatures kept only when `keep_whitened` (a profile needs only
 /// each candidate's score, information and final Ψ).
+///
+/// Called outside rayon's pool (the ladder's score tests, a misfit's catalog weighed before its
+/// refits: nothing else runs then) with [`SPLIT_FROM`] candidates or more, the candidates are
+/// shared between two passes, one on each core ([`two_shares`]): one pass more of CPU, and about
+/// half the trackers' time off the wall (a replay of 7–9 candidates on a 60-h run: 0.10–0.12 s
+/// on one core). A candidate's tracker reads only the pass and its own state, and the pass is
+/// the same on either core: the same bits.
 pub(crate) fn signatures_kept(
+    model: &Model<'_>,
+    extended: &[Option<Model<'_>>],
+    meas: &[Measurement],
+    around: (&[DVector<f64>], &DVector<f64>, &DMatrix<f64>),
+    keep_whitened: bool,
+) -> Result<Replay, SmootherError> {
+    let outside_pool = rayon::current_thread_index().is_none();
+    if !outside_pool || extended.iter().flatten().count() < SPLIT_FROM {
+        return signatures_of(model, extended, meas, around, keep_whitened);
+    }
+    let shares = two_shares(model.dim(), extended);
+    let of = |share: &[usize]| -> Vec<Option<Model<'_>>> {
+        share.iter().map(|&c| extended[c]).collect()
+    };
+    let (a, b) = rayon::join(
+        || signatures_of(model, &of(&shares[0]), meas, around, keep_whitened),
+        || signatures_of(model, &of(&shares[1]), meas, around, keep_whitened),
+    );
+    let (pass, sigs_a, nu_whitened) = a?;
+    let (_, sigs_b, _) = b?;
+    let mut sigs: Vec<Option<Signature>> = extended.iter().map(|_| None).collect();
+    for (&c, s) in shares[0]
+        .iter()
+        .chain(&shares[1])
+        .zip(sigs_a.into_iter().chain(sigs_b))
+    {
+        sigs[c] = s;
+    }
+    Ok((pass, sigs, nu_whitened))
+}
+
+/// Candidates from which a replay outside rayon's pool is shared between two passes
+/// ([`signatures_kept`]): each candidate's tracker costs at least what the pass itself does
+/// (60 h at 60 s: the pass ~8 ms, a candidate ~6 ms + 1 ms per added state).
+const SPLIT_FROM: usize = 3;
+
+/// The candidates (indices into `extended`; `n`: the current model's states) in two shares of
+/// about equal work, the largest first each to the lighter share. A tracker's time grows with
+/// the states its candidate adds, q: ~6 + q in ms on a 60-h run (measured one by one: q = 3,
+/// 6, 15, 36 took 9, 10–12, 20, 41 ms).
+fn two_shares(n: usize, extended: &[Option<Model<'_>>]) -> [Vec<usize>; 2] {
+    let cost = |c: usize| extended[c].as_ref().map_or(0, |m| 6 + m.dim() - n);
+    let mut order: Vec<usize> = (0..extended.len()).collect();
+    order.sort_by_key(|&c| std::cmp::Reverse(cost(c)));
+    let mut shares = [vec![], vec![]];
+    let mut load = [0, 0];
+    for c in order {
+        let s = usize::from(load[1] < load[0]);
+        load[s] += cost(c);
+        shares[s].push(c);
+    }
+    shares
+}
+
+/// [`signatures_kept`] on this thread: one pass, every candidate's tracker stepping with it.
+fn signatures_of(
     model: &Model<'_>,
     extended: &[Option<Model<'_>>],
     meas: &[Measurement],
@@ -493,6 +556,61 @@ mod tests {
     use crate::diagnose::drift_step::with_extra;
     use crate::diagnose::step_scan::marginal;
     use crate::identify::{build_model, identify, neg2_log_evidence, start_prior, Config};
+
+    /// A replay shared between two passes (outside rayon's pool, as the test thread is) hands
+    /// back every candidate's signature bit for bit as one pass carrying them all, in the
+    /// candidates' order (a candidate that does not fit stays `None` in its place), and the
+    /// same pass. Five candidates of 3–18 added states, so the shares are mixed.
+    #[test]
+    fn a_shared_replay_is_the_single_replay_bit_for_bit() {
+        use crate::simulate::{InjectedEffect, Scenario};
+        let mut sc = Scenario::paper();
+        (sc.hours, sc.rate_s) = (12.0, 60.0);
+        sc.effects = vec![InjectedEffect::AccBias {
+            b_mps2: [1e-4, -5e-5, 8e-5],
+        }];
+        let cfg = Config::default();
+        let prep = crate::simulate::prepared(&sc, &cfg);
+        let paper = crate::catalog::paper();
+        let current = [paper];
+        let model = build_model(prep.site, &current, &cfg).unwrap();
+        let id = identify(&model, &prep, &cfg).unwrap();
+        let names = ["g2", "acc-bias", "drift-trend", "acc-scale", "drift-daily"];
+        let lists: Vec<[&dyn estimator_core::effects::Effect; 2]> = names
+            .iter()
+            .map(|n| [paper, crate::catalog::builtin(n).unwrap()])
+            .collect();
+        let mut extended: Vec<Option<Model<'_>>> = lists
+            .iter()
+            .map(|l| Some(build_model(prep.site, l, &cfg).unwrap()))
+            .collect();
+        extended.insert(2, None);
+        let (x0, p0) = start_prior(&model, &prep, &prep.start_sigma());
+        let around = (&id.trajectory[..], &x0, &p0);
+        assert!(rayon::current_thread_index().is_none());
+        let shares = two_shares(model.dim(), &extended);
+        assert!(shares.iter().all(|s| !s.is_empty()), "{shares:?}");
+        let (one, one_sigs, one_nu) =
+            signatures_of(&model, &extended, &prep.measurements, around, true).unwrap();
+        let (two, two_sigs, two_nu) =
+            signatures_kept(&model, &extended, &prep.measurements, around, true).unwrap();
+        assert_eq!(one.states, two.states);
+        assert_eq!(one_nu, two_nu);
+        assert_eq!(one_sigs.len(), two_sigs.len());
+        for (k, (a, b)) in one_sigs.iter().zip(&two_sigs).enumerate() {
+            match (a, b) {
+                (Some(a), Some(b)) => {
+                    assert_eq!(a.q, b.q, "candidate {k}");
+                    assert_eq!(a.score, b.score, "candidate {k}");
+                    assert_eq!(a.info, b.info, "candidate {k}");
+                    assert_eq!(a.whitened, b.whitened, "candidate {k}");
+                    assert_eq!(a.psi_final, b.psi_final, "candidate {k}");
+                }
+                (None, None) => assert_eq!(k, 2),
+                _ => panic!("candidate {k}: one replay has its signature, the other not"),
+            }
+        }
+    }
 
     /// Each constant candidate's signature, carried through one replay of the current filter,
     /// gives what the filter extended by the candidate gives on its own pass linearised about
