@@ -671,7 +671,9 @@ fn identify_anew(
             // The paper's pass lost the trajectory (P no longer positive definite where a
             // warm-up's amplitude met a tilted start; seed 9207): the smoother fits by
             // continuation, short windows first, and the fit stands without that pass.
-            let fit = or_by_continuation(model, meas, &zeros, &x0w, &p0w, cfg, Err(e))?;
+            let fit = or_by_continuation(Err(e), None, || {
+                continuation(model, meas, &zeros, &x0w, &p0w, cfg.smoother_iterations)
+            })?;
             return converged(model, meas, None, fit);
         }
     };
@@ -700,7 +702,8 @@ fn identify_anew(
     }
     // Memory: the single pass's innovations are not returned on this path; each pass below
     // replaces the previous one (nominal in, states out), so at most one nominal, one pass's
-    // states and one set of innovations are alive at a time.
+    // states and one set of innovations are alive at a time in each of the direct fit and, on
+    // a misfit, the continuation fit beside it.
     drop(single_res);
     let pass2 = ekf_pass(model, meas, &x0, &sigma0).context("second EKF pass");
     let nis2 = pass2.as_ref().map_or(f64::INFINITY, |p| mean_nis(&p.1));
@@ -728,7 +731,7 @@ fn identify_anew(
     } else {
         (direct(), None)
     };
-    let fit = or_by_continuation_given(from_pass2, ahead, by_continuation)?;
+    let fit = or_by_continuation(from_pass2, ahead, by_continuation)?;
     converged(model, meas, Some(single_pass), fit)
 }
 
@@ -739,23 +742,10 @@ fn identify_anew(
 /// effect gives at most a few hundred. Whenever the fit is not clearly consistent, the
 /// record is also fitted by continuation (short windows first, see `continuation`), and the
 /// fit with the larger likelihood wins.
+///
+/// `ahead`: the continuation fit where it was made already, side by side with the direct fit
+/// (the same fit, so the same choice); else it is made here by `by_continuation`.
 fn or_by_continuation(
-    model: &Model<'_>,
-    meas: &[Measurement],
-    zeros: &[f64],
-    x0w: &DVector<f64>,
-    p0w: &DMatrix<f64>,
-    cfg: &Config,
-    from_pass2: anyhow::Result<GaussNewton>,
-) -> anyhow::Result<GaussNewton> {
-    or_by_continuation_given(from_pass2, None, || {
-        continuation(model, meas, zeros, x0w, p0w, cfg.smoother_iterations)
-    })
-}
-
-/// [`or_by_continuation`] with the continuation fit already made where `ahead` holds it (made
-/// side by side with the direct fit: the same fit, so the same choice), else by `by_continuation`.
-fn or_by_continuation_given(
     from_pass2: anyhow::Result<GaussNewton>,
     ahead: Option<anyhow::Result<GaussNewton>>,
     by_continuation: impl FnOnce() -> anyhow::Result<GaussNewton>,
