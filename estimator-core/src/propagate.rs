@@ -59,6 +59,27 @@ fn rate<const CAP: usize>(
     xdot
 }
 
+/// The dynamic rows of f at `x` as [`StepExp::at`] forms them, without F: the angle rate, then
+/// x·(−1/τ) of the Gauss–Markov states ([`propagate_state`]'s midpoint stage, the same bits as
+/// [`propagate`]'s).
+fn midpoint_rate<const CAP: usize>(
+    model: &Model<'_>,
+    x: &[f64],
+    t_s: f64,
+    temp_dev_c: f64,
+    scratch: &mut [Vector3<f64>; CAP],
+) -> [f64; MAX_DYNAMIC] {
+    let mut xdot = [0.0; MAX_DYNAMIC];
+    let rate = model.angle_rate_value(x, t_s, temp_dev_c, scratch);
+    xdot[..ANGLES].copy_from_slice(rate.as_slice());
+    let dynamic = model.dynamic_states();
+    for r in ANGLES..dynamic.len() {
+        let d = -1.0 / model.markov(r).tau_s;
+        xdot[r] = x[dynamic[r]] * d;
+    }
+    xdot
+}
+
 /// Gauss–Markov states at most (the dynamic states after the three angles).
 const MARKOV: usize = MAX_DYNAMIC - ANGLES;
 
@@ -198,12 +219,43 @@ pub fn propagate<const CAP: usize>(
     temp1: f64,
     tr: &mut Transition<CAP>,
 ) {
+    carry::<CAP, true>(model, x, (t0_s, dt_s), (temp0, temp1), tr);
+}
+
+/// [`propagate`]'s state alone, bit for bit, without Φ and Q: where only the state is wanted
+/// (a trajectory, central differences of the one-step map) F's angle rows, the φ₁ series and
+/// Φ's columns were most of a step's work.
+pub fn propagate_state<const CAP: usize>(
+    model: &Model<'_>,
+    x: &mut [f64],
+    t0_s: f64,
+    dt_s: f64,
+    temp0: f64,
+    temp1: f64,
+) {
+    let mut unused = Transition::<CAP>::default();
+    carry::<CAP, false>(model, x, (t0_s, dt_s), (temp0, temp1), &mut unused);
+}
+
+/// [`propagate`] (`PHI`) or [`propagate_state`]: one body, so the two carry the state by the
+/// same operations. Without `PHI` the midpoint stage takes f alone, as [`StepExp::at`] forms it
+/// (the Gauss–Markov rows as x·(−1/τ), not −x/τ: the same bits).
+#[inline(always)]
+fn carry<const CAP: usize, const PHI: bool>(
+    model: &Model<'_>,
+    x: &mut [f64],
+    (t0_s, dt_s): (f64, f64),
+    (temp0, temp1): (f64, f64),
+    tr: &mut Transition<CAP>,
+) {
     let n = model.dim();
     let dynamic = model.dynamic_states();
     let nd = dynamic.len();
-    for (r, &d) in dynamic.iter().enumerate() {
-        tr.rows[r][..n].iter_mut().for_each(|v| *v = 0.0);
-        tr.rows[r][d] = 1.0;
+    if PHI {
+        for (r, &d) in dynamic.iter().enumerate() {
+            tr.rows[r][..n].iter_mut().for_each(|v| *v = 0.0);
+            tr.rows[r][d] = 1.0;
+        }
     }
     let theta0 = Vector3::new(x[0], x[1], x[2]);
     let mut jac = [Vector3::zeros(); CAP];
@@ -216,11 +268,16 @@ pub fn propagate<const CAP: usize>(
     };
     match model.propagation() {
         Propagation::Euler => {
-            let (xdot, step) = StepExp::at(model, x, t0_s, temp0, &mut jac, dt_s, false);
+            let xdot = if PHI {
+                let (xdot, step) = StepExp::at(model, x, t0_s, temp0, &mut jac, dt_s, false);
+                step.apply(tr, nd - ANGLES, n, &jac);
+                xdot
+            } else {
+                midpoint_rate(model, x, t0_s, temp0, &mut jac)
+            };
             for r in 0..nd {
                 x[dynamic[r]] += xdot[r] * dt_s;
             }
-            step.apply(tr, nd - ANGLES, n, &jac);
         }
         Propagation::Rk4 { max_step_s } => {
             // Sub-steps of at most `max_step_s`, and of at most τ/8 of the fastest Gauss–Markov
@@ -245,8 +302,13 @@ pub fn propagate<const CAP: usize>(
                     xs[dynamic[r]] = x[dynamic[r]] + 0.5 * h * k1[r];
                 }
                 let temp_mid = temp_at(mid);
-                let (k2, step) = StepExp::at(model, &xs[..n], mid, temp_mid, &mut jac, h, true);
-                step.apply(tr, nd - ANGLES, n, &jac);
+                let k2 = if PHI {
+                    let (k2, step) = StepExp::at(model, &xs[..n], mid, temp_mid, &mut jac, h, true);
+                    step.apply(tr, nd - ANGLES, n, &jac);
+                    k2
+                } else {
+                    midpoint_rate(model, &xs[..n], mid, temp_mid, &mut jac)
+                };
                 for r in 0..nd {
                     xs[dynamic[r]] = x[dynamic[r]] + 0.5 * h * k2[r];
                 }
@@ -261,7 +323,9 @@ pub fn propagate<const CAP: usize>(
             }
         }
     }
-    process_noise(model, theta0, Vector3::new(x[0], x[1], x[2]), dt_s, tr);
+    if PHI {
+        process_noise(model, theta0, Vector3::new(x[0], x[1], x[2]), dt_s, tr);
+    }
 }
 
 /// Q of an interval of `dt_s` from attitude `theta0` to `theta1` into `tr`: gyro rate noise
@@ -329,6 +393,35 @@ mod tests {
             );
             let phi = tr.phi_entry(&model, i, i);
             assert!((phi / decay - 1.0).abs() < 1e-14, "Φ[{i}][{i}] = {phi}");
+        }
+    }
+
+    /// The state alone is the state [`propagate`] carries, to the bit: with a Gauss–Markov
+    /// state (its own rows, the sub-steps it forces), with a temperature ramp, by RK4 and by
+    /// Euler. Every user of `propagate_state` (a trajectory, the knobs' central differences)
+    /// relies on that: a difference of the last bit would change their outputs.
+    #[test]
+    fn the_state_alone_is_propagates_state_bit_for_bit() {
+        static SLOW: DriftMarkov = DriftMarkov {
+            sigma_degph: 0.01,
+            tau_h: 0.004,
+        };
+        static EFFECTS: [&dyn Effect; 2] = [&PaperDrift, &SLOW];
+        for propagation in [Propagation::default(), Propagation::Euler] {
+            let model = Model::new(Site::new(39.1, None), &EFFECTS, 1e-9, propagation).unwrap();
+            let mut x = [0.0; 18];
+            for (i, v) in x.iter_mut().enumerate() {
+                *v = 1e-4 * (i as f64 + 1.0).sin();
+            }
+            let mut y = x;
+            let mut tr = Transition::<18>::default();
+            for k in 0..50 {
+                let t0 = 37.5 + 60.0 * k as f64;
+                propagate(&model, &mut x, t0, 60.0, 0.1, 0.4, &mut tr);
+                propagate_state::<18>(&model, &mut y, t0, 60.0, 0.1, 0.4);
+                let bits = |v: &[f64; 18]| v.map(f64::to_bits);
+                assert_eq!(bits(&x), bits(&y), "{propagation:?}, step {k}");
+            }
         }
     }
 }

@@ -29,8 +29,9 @@
 //! Earth rate's components by 1e-5 of themselves to second order).
 
 use estimator_core::effects::Effect;
+use estimator_core::model::MAX_STATES;
 use estimator_core::model::{Model, ANGLES};
-use estimator_core::propagate::propagate;
+use estimator_core::propagate::propagate_state;
 use nalgebra::{DMatrix, DVector, Vector3};
 use rayon::prelude::*;
 
@@ -141,14 +142,13 @@ fn step_jacobians(
             let mut at = |side: &Side<'_>| -> (Vec<f64>, Vector3<f64>) {
                 let c = side.time_scale;
                 let mut x = nominal[j].as_slice().to_vec();
-                propagate(
+                propagate_state::<MAX_STATES>(
                     &side.model,
                     &mut x,
                     t_prev * c,
                     (z.t_s - t_prev) * c,
                     temp_prev,
                     temps[j],
-                    &mut scratch.tr,
                 );
                 let y = side.model.measurement(
                     nominal[j + 1].as_slice(),

@@ -26,7 +26,7 @@ use anyhow::{bail, Context as _};
 use estimator_core::effects::Param;
 use estimator_core::filter::ANGLE_PRIOR_SIGMA_RAD;
 use estimator_core::model::{Model, ANGLES, MAX_STATES};
-use estimator_core::propagate::{propagate, Transition};
+use estimator_core::propagate::propagate_state;
 use estimator_core::robust;
 use estimator_core::{Ekf, Measurement, Propagation, Residual, Sample, Site};
 use nalgebra::{DMatrix, DVector, SymmetricEigen};
@@ -606,7 +606,6 @@ pub fn nominal_trajectory(
     x[..ANGLES].copy_from_slice(angles0);
     x[ANGLES..].copy_from_slice(params);
     let mut out = vec![DVector::from_row_slice(&x)];
-    let mut tr = Transition::<MAX_STATES>::default();
     let mut t = 0.0;
     // The measured temperature deviations drive temperature-sensitive effects along the nominal
     // exactly as in the smoother (without them the bound of a temperature-drift model was taken
@@ -614,7 +613,7 @@ pub fn nominal_trajectory(
     let temps = smoother::temp_devs(meas);
     let mut temp_prev = temps.first().copied().unwrap_or(0.0);
     for (m, &temp) in meas.iter().zip(&temps) {
-        propagate(model, &mut x, t, m.t_s - t, temp_prev, temp, &mut tr);
+        propagate_state::<MAX_STATES>(model, &mut x, t, m.t_s - t, temp_prev, temp);
         t = m.t_s;
         temp_prev = temp;
         out.push(DVector::from_row_slice(&x));

@@ -2,7 +2,7 @@
 //! start (a level platform sees +g on z; an inverted or swapped axis does not).
 
 use estimator_core::model::ANGLES;
-use estimator_core::propagate::{propagate, Transition};
+use estimator_core::propagate::propagate_state;
 use estimator_core::units::RAD_PER_DEG;
 use estimator_core::{Model, Propagation, Sample, Site, PAPER_EFFECTS};
 use nalgebra::Vector3;
@@ -162,8 +162,7 @@ fn stated_start(
     let model = Model::new(*site, &PAPER_EFFECTS, 0.0, Propagation::default()).ok()?;
     let mut x = vec![0.0; model.dim()];
     x[..ANGLES].copy_from_slice(&theta0);
-    let mut tr = Transition::<{ estimator_core::model::MAX_STATES }>::default();
-    propagate(&model, &mut x, 0.0, t_mid, 0.0, 0.0, &mut tr);
+    propagate_state::<{ estimator_core::model::MAX_STATES }>(&model, &mut x, 0.0, t_mid, 0.0, 0.0);
     let mut jac = [Vector3::zeros(); estimator_core::model::MAX_STATES];
     let pred = model.measurement(&x, t_mid, 0.0, 0.0, &mut jac);
     Some((pred, jac, model.param(ANGLES).prior_sigma))
