@@ -15,8 +15,11 @@
 //! `I⁺ s` is the one-step estimate of β and `I⁺` its covariance. Γ, A and H_β come from the
 //! core's own propagation and measurement Jacobians of the model extended by the candidate,
 //! evaluated on the nominal (smoothed) trajectory with β = 0: no model code is duplicated here.
+//! The constant candidates of a replay share one linearisation, of the model extended by all of
+//! them ([`combinable`]): the same bits as each one's own.
 
-use estimator_core::model::{Model, MAX_STATES};
+use estimator_core::effects::Effect;
+use estimator_core::model::{Model, MAX_EFFECTS, MAX_STATES};
 use estimator_core::propagate::{propagate, Transition};
 use estimator_core::Measurement;
 use nalgebra::{DMatrix, DVector, SymmetricEigen, Vector3};
@@ -166,12 +169,20 @@ pub(crate) fn candidate_jacobians_into(
     scratch: &mut Scratch,
     jac: &mut StepJacobians,
 ) {
-    let q = extended.dim() - n;
+    linearise_into(extended, v, scratch);
+    columns_into(extended, scratch, n, n, jac);
+}
+
+/// The core's propagation (Φ's rows in `scratch.tr`) and measurement Jacobian (`scratch.cols`)
+/// of `extended` over the step `v`, on the nominal trajectory with every parameter it adds to
+/// the nominal's zero.
+fn linearise_into(extended: &Model<'_>, v: &StepView<'_>, scratch: &mut Scratch) {
+    let dim = extended.dim();
     let (tr, x) = (&mut scratch.tr, &mut scratch.x);
     let at = |x: &mut Vec<f64>, nominal: &DVector<f64>| {
         x.clear();
         x.extend_from_slice(nominal.as_slice());
-        x.resize(n + q, 0.0);
+        x.resize(dim, 0.0);
     };
     at(x, v.nominal_prev);
     propagate(
@@ -183,23 +194,80 @@ pub(crate) fn candidate_jacobians_into(
         v.temp,
         tr,
     );
+    at(x, v.nominal);
+    extended.measurement(x, v.t_s, v.temp, v.time_var_s2, &mut scratch.cols);
+}
+
+/// Γ, A and H_β of the `jac.h_beta.ncols()` states of `extended` from `off` (one candidate's
+/// parameters), read off its linearisation in `scratch` ([`linearise_into`]).
+fn columns_into(
+    extended: &Model<'_>,
+    scratch: &Scratch,
+    n: usize,
+    off: usize,
+    jac: &mut StepJacobians,
+) {
+    let q = jac.h_beta.ncols();
     jac.gamma.fill(0.0);
     jac.a.fill_with_identity();
     for (r, &d) in extended.dynamic_states().iter().enumerate() {
         for b in 0..q {
             if d < n {
-                jac.gamma[(d, b)] = tr.rows[r][n + b];
-            } else {
-                jac.a[(d - n, b)] = tr.rows[r][n + b];
+                jac.gamma[(d, b)] = scratch.tr.rows[r][off + b];
+            } else if (off..off + q).contains(&d) {
+                jac.a[(d - off, b)] = scratch.tr.rows[r][off + b];
             }
         }
     }
-    at(x, v.nominal);
-    let cols = &mut scratch.cols;
-    extended.measurement(x, v.t_s, v.temp, v.time_var_s2, cols);
     for b in 0..q {
-        jac.h_beta.set_column(b, &cols[n + b]);
+        jac.h_beta.set_column(b, &scratch.cols[off + b]);
     }
+}
+
+/// A model whose one linearisation gives several candidates' Jacobians: the current model's
+/// effects followed by every member's ([`combinable`]), each member's columns from its offset
+/// there. At β = 0 a candidate's columns
+/// of Φ and H are the same products and sums in the combined model as in its own extended
+/// model (the other members add exact zeros to f, to F's angle rows and to h), so its
+/// Jacobians come out bit for bit as its own linearisation gives them
+/// (`a_combined_linearisation_gives_each_candidates_jacobians_bit_for_bit`); one linearisation
+/// instead of one per candidate was most of a replay's time beside the trackers.
+struct Combined<'m> {
+    model: Model<'m>,
+    scratch: Scratch,
+}
+
+/// The candidates of `extended` a combined linearisation may carry, in groups that fit the
+/// state and effect capacities: those that add one effect to the current model's, with no
+/// Gauss–Markov state of their own (the sub-steps and Φ's dynamic rows stay the current
+/// model's) and not using north (its chain adds to F's angle columns). Groups of one are left
+/// to their own linearisation.
+fn combinable(model: &Model<'_>, extended: &[Option<Model<'_>>]) -> Vec<Vec<usize>> {
+    let base = model.effects();
+    let mut groups: Vec<Vec<usize>> = vec![];
+    // The open group's states and effects.
+    let (mut states, mut effects) = (model.dim(), base.len());
+    for (c, m) in extended.iter().enumerate() {
+        let Some(m) = m else { continue };
+        let own = m.effects();
+        let adds_one = own.len() == base.len() + 1
+            && own.iter().zip(base).all(|(a, b)| std::ptr::addr_eq(*a, *b));
+        if !adds_one || m.dynamic_states() != model.dynamic_states() || own[base.len()].uses_north()
+        {
+            continue;
+        }
+        let q = m.dim() - model.dim();
+        if groups.is_empty() || states + q > MAX_STATES || effects + 1 > MAX_EFFECTS {
+            groups.push(vec![]);
+            (states, effects) = (model.dim(), base.len());
+        }
+        if let Some(g) = groups.last_mut() {
+            g.push(c);
+        }
+        (states, effects) = (states + q, effects + 1);
+    }
+    groups.retain(|g| g.len() > 1);
+    groups
 }
 
 impl Tracker {
@@ -497,6 +565,34 @@ fn signatures_of(
             })
         })
         .collect();
+    let groups = combinable(model, extended);
+    let lists: Vec<Vec<&dyn Effect>> = groups
+        .iter()
+        .map(|g| {
+            let added = g.iter().flat_map(|&c| extended[c].as_ref()).map(|m| {
+                let own = m.effects();
+                own[own.len() - 1]
+            });
+            model.effects().iter().copied().chain(added).collect()
+        })
+        .collect();
+    // Per candidate: its combined model and first column there (`None`: its own).
+    let mut combined: Vec<Combined<'_>> = vec![];
+    let mut member_of = vec![None; extended.len()];
+    for (g, list) in groups.iter().zip(&lists) {
+        let Ok(m) = Model::new(*model.site(), list, model.arw_rad2ps(), model.propagation()) else {
+            continue;
+        };
+        let mut off = n;
+        for &c in g {
+            member_of[c] = Some((combined.len(), off));
+            off += extended[c].as_ref().map_or(0, |e| e.dim() - n);
+        }
+        combined.push(Combined {
+            model: m,
+            scratch: Scratch::default(),
+        });
+    }
     let mut nu_whitened = Vec::with_capacity(3 * meas.len());
     // The trackers step with the pass, on its thread: the pass may hold rayon's workers (its
     // linearisation ahead), and work handed to the pool from here waited for them forever
@@ -505,8 +601,17 @@ fn signatures_of(
     let pass = linearised_pass_observed(model, meas, nominal, x0, p0, false, |v: &StepView<'_>| {
         let nu_w = v.chol_l.solve_lower_triangular(&v.nu).unwrap_or(v.nu);
         nu_whitened.extend_from_slice(nu_w.as_slice());
-        for (m, tk, jac) in trackers.iter_mut().flatten() {
-            candidate_jacobians_into(m, v, n, &mut scratch, jac);
+        for c in &mut combined {
+            linearise_into(&c.model, v, &mut c.scratch);
+        }
+        for (entry, member) in trackers.iter_mut().zip(&member_of) {
+            let Some((m, tk, jac)) = entry else { continue };
+            match *member {
+                Some((g, off)) => {
+                    columns_into(&combined[g].model, &combined[g].scratch, n, off, jac)
+                }
+                None => candidate_jacobians_into(m, v, n, &mut scratch, jac),
+            }
             tk.step(v, jac, &nu_w);
         }
     });
@@ -684,6 +789,49 @@ mod tests {
                 );
                 assert!((s - sd).abs() < 1e-6 * sd, "{name} {pname}: σ {s} vs {sd}");
             }
+        }
+    }
+
+    /// Every candidate of the built-in catalog replayed together (the constant ones linearised
+    /// in one combined model) gets the signature it gets replayed alone, bit for bit: the
+    /// combined linearisation adds only exact zeros to each candidate's columns. A recording
+    /// with a temperature column, so the temperature effects' columns are not zero; drift-markov
+    /// (a state of its own) is linearised on its own beside the group.
+    #[test]
+    fn a_combined_linearisation_gives_each_candidates_jacobians_bit_for_bit() {
+        use crate::simulate::{InjectedEffect, Scenario};
+        let mut sc = Scenario::paper();
+        (sc.hours, sc.rate_s, sc.write_temp) = (8.0, 60.0, true);
+        sc.effects = vec![InjectedEffect::AccBias {
+            b_mps2: [1e-4, -5e-5, 8e-5],
+        }];
+        let cfg = Config::default();
+        let prep = crate::simulate::prepared(&sc, &cfg);
+        let current = [crate::catalog::paper()];
+        let model = build_model(prep.site, &current, &cfg).unwrap();
+        let id = identify(&model, &prep, &cfg).unwrap();
+        let candidates = crate::catalog::builtin_candidates();
+        let lists: Vec<[&dyn Effect; 2]> = candidates.iter().map(|&c| [current[0], c]).collect();
+        let extended: Vec<Option<Model<'_>>> = lists
+            .iter()
+            .map(|l| Some(build_model(prep.site, l, &cfg).unwrap()))
+            .collect();
+        let groups = combinable(&model, &extended);
+        assert_eq!(groups.len(), 1, "{groups:?}");
+        assert_eq!(groups[0].len(), candidates.len() - 1, "{groups:?}");
+        let (x0, p0) = start_prior(&model, &prep, &prep.start_sigma());
+        let around = (&id.trajectory[..], &x0, &p0);
+        let (_, together, _) =
+            signatures_of(&model, &extended, &prep.measurements, around, true).unwrap();
+        for (k, one) in extended.iter().enumerate() {
+            let (_, alone, _) =
+                signatures_of(&model, &[*one], &prep.measurements, around, true).unwrap();
+            let (a, b) = (alone[0].as_ref().unwrap(), together[k].as_ref().unwrap());
+            let name = candidates[k].name();
+            assert_eq!(a.score, b.score, "{name}");
+            assert_eq!(a.info, b.info, "{name}");
+            assert_eq!(a.whitened, b.whitened, "{name}");
+            assert_eq!(a.psi_final, b.psi_final, "{name}");
         }
     }
 }
