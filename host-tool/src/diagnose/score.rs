@@ -98,6 +98,8 @@ pub(crate) struct Tracker {
     rows: Vec<usize>,
     /// β's own Gauss–Markov rows (A is the identity elsewhere), counted from 0.
     own: Vec<usize>,
+    /// The current model's measured states: H is zero in every other column.
+    measured: Vec<usize>,
     /// Ψ: the sensitivity of the current model's filtered state to β (n × q).
     psi: DMatrix<f64>,
     /// T: the sensitivity of β's own states to their start (q × q; identity for constants).
@@ -160,8 +162,10 @@ pub(crate) fn candidate_jacobians(
     jac
 }
 
-/// [`candidate_jacobians`] into `jac` (shaped n × q, q × q and 3 × q): a replay steps every
-/// candidate at every update, and five fresh buffers a step were ~a tenth of a profile's replay.
+/// [`candidate_jacobians`] into `jac` (shaped n × q, q × q and 3 × q; made as
+/// [`candidate_jacobians`] makes it, or filled last for the same `extended`: see
+/// [`columns_into`]): a replay steps every candidate at every update, and five fresh buffers a
+/// step were ~a tenth of a profile's replay.
 pub(crate) fn candidate_jacobians_into(
     extended: &Model<'_>,
     v: &StepView<'_>,
@@ -199,7 +203,10 @@ fn linearise_into(extended: &Model<'_>, v: &StepView<'_>, scratch: &mut Scratch)
 }
 
 /// Γ, A and H_β of the `jac.h_beta.ncols()` states of `extended` from `off` (one candidate's
-/// parameters), read off its linearisation in `scratch` ([`linearise_into`]).
+/// parameters), read off its linearisation in `scratch` ([`linearise_into`]). Only Γ's and A's
+/// entries in `extended`'s dynamic rows are written, the same ones at every step: the rest keep
+/// the zeros and the identity `jac` was made with (clearing them at every step was a third of
+/// this function's time in a replay).
 fn columns_into(
     extended: &Model<'_>,
     scratch: &Scratch,
@@ -208,8 +215,6 @@ fn columns_into(
     jac: &mut StepJacobians,
 ) {
     let q = jac.h_beta.ncols();
-    jac.gamma.fill(0.0);
-    jac.a.fill_with_identity();
     for (r, &d) in extended.dynamic_states().iter().enumerate() {
         for b in 0..q {
             if d < n {
@@ -271,25 +276,33 @@ fn combinable(model: &Model<'_>, extended: &[Option<Model<'_>>]) -> Vec<Vec<usiz
 }
 
 impl Tracker {
-    /// The recursion's start for `q` parameters on a current model of `n` states whose dynamic
-    /// rows are `dynamic`: Ψ = `psi0` (n × q, the start's sensitivity to β), Γ nonzero only in
-    /// `dynamic` and `gamma_rows`, β's own dynamics in its rows `own`; `keep_whitened` keeps the
-    /// whitened signature (3 rows per update) for comparing footprints.
+    /// The recursion's start for `q` parameters on the `current` model: Ψ = `psi0` (n × q, the
+    /// start's sensitivity to β), Γ nonzero only in the current model's dynamic rows and
+    /// `gamma_rows`, β's own dynamics in its rows `own`; `keep_whitened` keeps the whitened
+    /// signature (3 rows per update) for comparing footprints.
     pub(crate) fn new(
         psi0: DMatrix<f64>,
-        dynamic: &[usize],
+        current: &Model<'_>,
         gamma_rows: &[usize],
         own: Vec<usize>,
         keep_whitened: Option<usize>,
     ) -> Self {
         let (psi0_rows, q) = psi0.shape();
-        let mut rows: Vec<usize> = dynamic.iter().chain(gamma_rows).copied().collect();
+        let mut rows: Vec<usize> = current
+            .dynamic_states()
+            .iter()
+            .chain(gamma_rows)
+            .copied()
+            .collect();
         rows.sort_unstable();
         rows.dedup();
         Tracker {
             q,
             rows,
             own,
+            measured: (0..current.dim())
+                .filter(|&i| current.is_measured(i))
+                .collect(),
             psi: psi0,
             t: DMatrix::identity(q, q),
             score: DVector::zeros(q),
@@ -301,20 +314,15 @@ impl Tracker {
         }
     }
 
-    /// The recursion of candidate `extended` (the current model of `n` states, dynamic rows
-    /// `dynamic`, extended by the candidate) over `updates` measurement updates (`None`: its
-    /// whitened signature is not kept).
-    fn for_candidate(
-        extended: &Model<'_>,
-        n: usize,
-        dynamic: &[usize],
-        updates: Option<usize>,
-    ) -> Self {
+    /// The recursion of candidate `extended` (the `current` model extended by the candidate)
+    /// over `updates` measurement updates (`None`: its whitened signature is not kept).
+    fn for_candidate(extended: &Model<'_>, current: &Model<'_>, updates: Option<usize>) -> Self {
+        let n = current.dim();
         let ext = extended.dynamic_states();
         let gamma_rows: Vec<usize> = ext.iter().copied().filter(|&d| d < n).collect();
         let own = ext.iter().filter(|&&d| d >= n).map(|&d| d - n).collect();
         let q = extended.dim() - n;
-        Tracker::new(DMatrix::zeros(n, q), dynamic, &gamma_rows, own, updates)
+        Tracker::new(DMatrix::zeros(n, q), current, &gamma_rows, own, updates)
     }
 
     /// One update of the replay: the signature D_j of this step from its Jacobians `jac`, then
@@ -374,15 +382,17 @@ impl Tracker {
         }
     }
 
-    /// D = H Ψ⁻ + H_β T into `d` (3 × q).
+    /// D = H Ψ⁻ + H_β T into `d` (3 × q). H's columns outside the measured states are zero and
+    /// are skipped: their products are ±0, which leave a sum started at +0 as it is (the same
+    /// bits), and on the paper's model only the 3 angles of 15 states are measured.
     fn signature(&mut self, v: &StepView<'_>, h_beta: &DMatrix<f64>) {
         let (n, q) = self.psi.shape();
         let h = v.h.as_slice();
         for b in 0..q {
             let col = &self.psi_pred.as_slice()[b * n..(b + 1) * n];
             let mut acc = Vector3::zeros();
-            for (k, &p) in col.iter().enumerate() {
-                acc += Vector3::new(h[3 * k], h[3 * k + 1], h[3 * k + 2]) * p;
+            for &k in &self.measured {
+                acc += Vector3::new(h[3 * k], h[3 * k + 1], h[3 * k + 2]) * col[k];
             }
             if self.constant() {
                 acc += h_beta.column(b);
@@ -549,7 +559,6 @@ fn signatures_of(
     keep_whitened: bool,
 ) -> Result<Replay, SmootherError> {
     let n = model.dim();
-    let dynamic = model.dynamic_states();
     let kept = keep_whitened.then_some(meas.len());
     let mut trackers: Vec<Option<(&Model<'_>, Tracker, StepJacobians)>> = extended
         .iter()
@@ -561,7 +570,7 @@ fn signatures_of(
                     a: DMatrix::identity(q, q),
                     h_beta: DMatrix::zeros(3, q),
                 };
-                (m, Tracker::for_candidate(m, n, dynamic, kept), jac)
+                (m, Tracker::for_candidate(m, model, kept), jac)
             })
         })
         .collect();

@@ -104,8 +104,7 @@ pub(crate) fn knob_signature(
         sides.push(Some((plus, minus)));
     }
     let jacobians = step_jacobians(&prep.measurements, nominal, &model, (&sides, offsets));
-    let dynamic = model.dynamic_states();
-    let mut tracker = Tracker::new(psi0, dynamic, &[], vec![], None);
+    let mut tracker = Tracker::new(psi0, &model, &[], vec![], None);
     let pass = linearised_pass_observed(
         &model,
         &prep.measurements,
