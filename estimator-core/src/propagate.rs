@@ -39,43 +39,29 @@ impl<const CAP: usize> Transition<CAP> {
     }
 }
 
-/// The dynamic rows of f at `x`: the angle rates, then −x/τ of the Gauss–Markov states
-/// (`scratch` receives the effects' partials, unused). Out of line: three stages call it.
+/// The dynamic rows of f at `x`: the angle rates, then the Gauss–Markov states' decay, −x/τ —
+/// or, `as_midpoint`, x·(−1/τ) as [`StepExp::at`] forms it (a different last bit: the midpoint
+/// stage of [`propagate_state`] must give [`propagate`]'s). `scratch` receives the effects'
+/// partials, unused. Out of line: three stages call it.
 #[inline(never)]
 fn rate<const CAP: usize>(
     model: &Model<'_>,
     x: &[f64],
-    t_s: f64,
-    temp_dev_c: f64,
+    (t_s, temp_dev_c): (f64, f64),
     scratch: &mut [Vector3<f64>; CAP],
+    as_midpoint: bool,
 ) -> [f64; MAX_DYNAMIC] {
     let mut xdot = [0.0; MAX_DYNAMIC];
     let rate = model.angle_rate_value(x, t_s, temp_dev_c, scratch);
     xdot[..ANGLES].copy_from_slice(rate.as_slice());
     let dynamic = model.dynamic_states();
     for r in ANGLES..dynamic.len() {
-        xdot[r] = -x[dynamic[r]] / model.markov(r).tau_s;
-    }
-    xdot
-}
-
-/// The dynamic rows of f at `x` as [`StepExp::at`] forms them, without F: the angle rate, then
-/// x·(−1/τ) of the Gauss–Markov states ([`propagate_state`]'s midpoint stage, the same bits as
-/// [`propagate`]'s).
-fn midpoint_rate<const CAP: usize>(
-    model: &Model<'_>,
-    x: &[f64],
-    t_s: f64,
-    temp_dev_c: f64,
-    scratch: &mut [Vector3<f64>; CAP],
-) -> [f64; MAX_DYNAMIC] {
-    let mut xdot = [0.0; MAX_DYNAMIC];
-    let rate = model.angle_rate_value(x, t_s, temp_dev_c, scratch);
-    xdot[..ANGLES].copy_from_slice(rate.as_slice());
-    let dynamic = model.dynamic_states();
-    for r in ANGLES..dynamic.len() {
-        let d = -1.0 / model.markov(r).tau_s;
-        xdot[r] = x[dynamic[r]] * d;
+        let tau = model.markov(r).tau_s;
+        xdot[r] = if as_midpoint {
+            x[dynamic[r]] * (-1.0 / tau)
+        } else {
+            -x[dynamic[r]] / tau
+        };
     }
     xdot
 }
@@ -239,7 +225,7 @@ pub fn propagate_state<const CAP: usize>(
 
 /// [`propagate`] (`PHI`) or [`propagate_state`]: one body, so the two carry the state by the
 /// same operations. Without `PHI` the midpoint stage takes f alone, as [`StepExp::at`] forms it
-/// (the Gauss–Markov rows as x·(−1/τ), not −x/τ: the same bits).
+/// ([`rate`] `as_midpoint`: the same bits).
 #[inline(always)]
 fn carry<const CAP: usize, const PHI: bool>(
     model: &Model<'_>,
@@ -273,7 +259,7 @@ fn carry<const CAP: usize, const PHI: bool>(
                 step.apply(tr, nd - ANGLES, n, &jac);
                 xdot
             } else {
-                midpoint_rate(model, x, t0_s, temp0, &mut jac)
+                rate(model, x, (t0_s, temp0), &mut jac, true)
             };
             for r in 0..nd {
                 x[dynamic[r]] += xdot[r] * dt_s;
@@ -297,7 +283,7 @@ fn carry<const CAP: usize, const PHI: bool>(
             for s in 0..steps {
                 let t = t0_s + s as f64 * h;
                 let mid = t + 0.5 * h;
-                let k1 = rate(model, &x[..n], t, temp_at(t), &mut jac);
+                let k1 = rate(model, &x[..n], (t, temp_at(t)), &mut jac, false);
                 for r in 0..nd {
                     xs[dynamic[r]] = x[dynamic[r]] + 0.5 * h * k1[r];
                 }
@@ -307,16 +293,16 @@ fn carry<const CAP: usize, const PHI: bool>(
                     step.apply(tr, nd - ANGLES, n, &jac);
                     k2
                 } else {
-                    midpoint_rate(model, &xs[..n], mid, temp_mid, &mut jac)
+                    rate(model, &xs[..n], (mid, temp_mid), &mut jac, true)
                 };
                 for r in 0..nd {
                     xs[dynamic[r]] = x[dynamic[r]] + 0.5 * h * k2[r];
                 }
-                let k3 = rate(model, &xs[..n], mid, temp_mid, &mut jac);
+                let k3 = rate(model, &xs[..n], (mid, temp_mid), &mut jac, false);
                 for r in 0..nd {
                     xs[dynamic[r]] = x[dynamic[r]] + h * k3[r];
                 }
-                let k4 = rate(model, &xs[..n], t + h, temp_at(t + h), &mut jac);
+                let k4 = rate(model, &xs[..n], (t + h, temp_at(t + h)), &mut jac, false);
                 for r in 0..nd {
                     x[dynamic[r]] += h / 6.0 * (k1[r] + 2.0 * (k2[r] + k3[r]) + k4[r]);
                 }
