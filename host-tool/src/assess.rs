@@ -19,7 +19,9 @@ use crate::diagnose::drift_step::{self, DriftStepFit};
 use crate::diagnose::misstated;
 use crate::diagnose::select::{CONFOUNDED_MARGIN, MIN_EVIDENCE_GAIN};
 use crate::diagnose::DiagnoseConfig;
-use crate::identify::setup::{settle, Computed, Settled, SetupPriors, Uncertainty};
+use crate::identify::setup::{
+    settle_about, uncertainty_reusing, Computed, Settled, SetupPriors, Uncertainty,
+};
 use crate::identify::slow_drift::SlowDrift;
 use crate::identify::{build_model, identify_from, Config, Identification, Prepared};
 
@@ -184,7 +186,31 @@ fn assess_as_stated(
 ) -> anyhow::Result<(Assessment, Option<Repair>)> {
     let stated = (prep.clone(), id.clone());
     progress.note(|| "the set-up's uncertainty".into());
-    let Settled { prep, id, mut unc } = settle(effects, prep, cfg, id, known)?;
+    let about = uncertainty_reusing(effects, &prep, cfg, &id, known)?;
+    let dcfg = DiagnoseConfig {
+        identify: cfg.clone(),
+        progress: progress.clone(),
+        ..Default::default()
+    };
+    // Side by side: the misstatements are weighed about the stated set-up (with `about` alone),
+    // beside the refit at the set-up's posterior and the catalog's replay on that refit (one
+    // thread's work: its candidates step with the pass); the misstatements' refits are few.
+    let (settled, weighed) = rayon::join(
+        || -> anyhow::Result<_> {
+            let settled = settle_about(effects, prep, cfg, id, about.clone())?;
+            if settled.id.refined.is_none() {
+                return Ok((settled, None));
+            }
+            progress.note(|| "weighing the catalog effects not in the model".into());
+            let alts = alternatives::weigh(&settled.prep, catalog, effects, &dcfg, &settled.id)?;
+            Ok((settled, Some(alts)))
+        },
+        || {
+            progress.note(|| "weighing a misstated latitude, clock rate or gravity".into());
+            misstated::weigh(effects, &stated.0, cfg, &stated.1, &about)
+        },
+    );
+    let (Settled { prep, id, mut unc }, alts) = settled?;
     let mut out = Assessment {
         prep,
         id,
@@ -194,28 +220,12 @@ fn assess_as_stated(
         cfg: cfg.clone(),
         moved: None,
     };
-    if out.id.refined.is_none() {
+    // A single pass: its own covariance, nothing weighed.
+    let Some(alts) = alts else {
         out.unc = unc;
         return Ok((out, None));
-    }
-    let dcfg = DiagnoseConfig {
-        identify: cfg.clone(),
-        progress: progress.clone(),
-        ..Default::default()
     };
-    // Side by side: the catalog's replay is one thread's work (its candidates step with the
-    // pass), and the misstatements' refits are few.
-    let (alts, weighed) = rayon::join(
-        || {
-            progress.note(|| "weighing the catalog effects not in the model".into());
-            alternatives::weigh(&out.prep, catalog, effects, &dcfg, &out.id)
-        },
-        || {
-            progress.note(|| "weighing a misstated latitude, clock rate or gravity".into());
-            misstated::weigh(effects, &stated.0, cfg, &stated.1, &unc)
-        },
-    );
-    let (mut alts, weighed) = (alts?, weighed?);
+    let (mut alts, weighed) = (alts, weighed?);
     // The data prefer the set-up moved within its priors to the set-up as stated.
     let moved = weighed.stated_gain.filter(|g| *g > 0.0);
     let within_priors = weighed.within_priors;

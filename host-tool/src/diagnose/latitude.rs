@@ -383,9 +383,9 @@ pub(crate) fn profile(
     // any latitude where it fits, and fits consistently, the better one.
     let fits = Fits::new(prep, effects, cfg, at_latitude);
     let f = |ls: &[f64]| fits.evidences(ls);
-    let forces: Vec<[f64; 3]> = prep.measurements.iter().map(|m| m.specific_force).collect();
-    let confirmed = crate::quality::hemisphere::latitude_from_forces(&forces)
-        .is_some_and(|seen| crate::quality::hemisphere::confirms(l0, seen));
+    let confirmed =
+        crate::quality::hemisphere::latitude_from_forces(&prep.measurements, |m| m.specific_force)
+            .is_some_and(|seen| crate::quality::hemisphere::confirms(l0, seen));
     let grid = search_grid(l0, latitude_of_gravity(prep.site.gravity_mps2), confirmed);
     if let Some(id) = fitted {
         fits.seed(l0, id);

@@ -22,21 +22,23 @@ const MIN_LATITUDE_DEG: f64 = 10.0;
 
 /// The latitude the data's turn gives, deg (`None` when the run sweeps too little).
 pub(crate) fn latitude_from_turn(samples: &[Sample]) -> Option<f64> {
-    latitude_from_forces(&samples.iter().map(|s| s.specific_force).collect::<Vec<_>>())
+    latitude_from_forces(samples, |s| s.specific_force)
 }
 
-/// [`latitude_from_turn`] of specific forces in time order (samples or filter-period means).
-pub(crate) fn latitude_from_forces(forces: &[[f64; 3]]) -> Option<f64> {
-    if forces.len() < 16 {
+/// [`latitude_from_turn`] of the specific forces `force` reads from `items` in time order
+/// (samples or filter-period means); read in place: a copy of a 60-h run's forces was 5 MB of
+/// fresh memory, most of this check's time.
+pub(crate) fn latitude_from_forces<T>(items: &[T], force: impl Fn(&T) -> [f64; 3]) -> Option<f64> {
+    if items.len() < 16 {
         return None;
     }
-    let blocks = 200.min(forces.len() / 4).max(3);
-    let per = forces.len() / blocks;
+    let blocks = 200.min(items.len() / 4).max(3);
+    let per = items.len() / blocks;
     let u: Vec<Vector3<f64>> = (0..blocks)
         .map(|k| {
-            forces[k * per..(k + 1) * per]
+            items[k * per..(k + 1) * per]
                 .iter()
-                .fold(Vector3::zeros(), |acc, f| acc + Vector3::from(*f))
+                .fold(Vector3::zeros(), |acc, f| acc + Vector3::from(force(f)))
                 .normalize()
         })
         .collect();
