@@ -330,7 +330,7 @@ fn refit(
     let model = build_model(prep.site, &list, cfg).ok()?;
     let n = model.dim();
     let (x0, p0) = start_prior(&model, prep, &prep.start_sigma());
-    let fit = crate::identify::gauss_newton(
+    let fit = crate::identify::gauss_newton_final(
         &model,
         &prep.measurements,
         extended(id, n),

@@ -36,7 +36,8 @@ use super::knob_signature::{knob_signature, Offset};
 use super::slow_drift::{marginalised, SlowDrift};
 use super::smoother::final_covariance;
 use super::{
-    build_model, gauss_newton, neg2_log_evidence, start_prior, Config, Identification, Prepared,
+    build_model, gauss_newton_final, neg2_log_evidence, start_prior, Config, Identification,
+    Prepared,
 };
 use crate::diagnose::score::Signature;
 
@@ -453,7 +454,7 @@ pub(crate) fn refit(
     let model = build_model(p.site, effects, cfg)?;
     let (x0, p0) = start_prior(&model, p, &p.start_sigma());
     let passes = |max: usize| {
-        gauss_newton(
+        gauss_newton_final(
             &model,
             &p.measurements,
             id.trajectory.clone(),

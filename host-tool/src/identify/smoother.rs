@@ -832,6 +832,25 @@ pub fn linearised_pass(
     )
 }
 
+/// [`linearised_pass`] smoothing only where `smooth_if` asks for it, of the filter's final mean
+/// and covariance: elsewhere its `states` are the final mean alone (what a Gauss–Newton pass that
+/// ends there needs; its backward pass was ~⅓ of the pass).
+pub fn linearised_pass_smoothing_if(
+    model: &Model<'_>,
+    meas: &[Measurement],
+    nominal: &[DVector<f64>],
+    (x0, p0): (&DVector<f64>, &DMatrix<f64>),
+    smooth_if: &SmoothIf<'_>,
+) -> Result<Smoothed, SmootherError> {
+    run(
+        Pass {
+            smooth_if: Some(smooth_if),
+            ..Pass::new(model, meas, Nominal::Given(nominal), x0, p0, Mode::Smooth)
+        },
+        None::<fn(&StepView<'_>)>,
+    )
+}
+
 /// [`linearised_pass`] calling `observer` at every forward step.
 pub fn linearised_pass_observed(
     model: &Model<'_>,
@@ -937,7 +956,14 @@ struct Pass<'a, 'm> {
     keep_nodes_bytes: usize,
     /// Whether a long pass over a given nominal linearises ahead on another core.
     linearise_ahead: bool,
+    /// In [`Mode::Smooth`], whether to run the backward pass, asked of the filter's final mean
+    /// and covariance (`None`: always); where it says no, the states are the final mean alone.
+    smooth_if: Option<&'a SmoothIf<'a>>,
 }
+
+/// Whether to smooth, asked of a pass's final mean and covariance
+/// ([`linearised_pass_smoothing_if`]).
+pub type SmoothIf<'f> = dyn Fn(&[f64], &DMatrix<f64>) -> bool + 'f;
 
 impl<'a, 'm> Pass<'a, 'm> {
     /// A pass keeping its nodes up to [`KEEP_NODES_BYTES`].
@@ -958,6 +984,7 @@ impl<'a, 'm> Pass<'a, 'm> {
             mode,
             keep_nodes_bytes: KEEP_NODES_BYTES,
             linearise_ahead: true,
+            smooth_if: None,
         }
     }
 }
@@ -996,6 +1023,7 @@ fn run_cap<const CAP: usize>(
         mode,
         keep_nodes_bytes,
         linearise_ahead,
+        smooth_if,
     } = pass;
     let n = model.dim();
     // Only a given nominal has nodes an observer can be shown; the noise-free one is only
@@ -1022,7 +1050,13 @@ fn run_cap<const CAP: usize>(
     for_each_linearisation(Linearisations::new(&fwd, &nominal), updates, ahead, visit)?;
     let final_cov = DMatrix::from_row_slice(n, n, run.cov.get(updates));
     if mode == Mode::Smooth {
-        run.states = run.smooth_back(&fwd, given)?;
+        run.states = if smooth_if.is_none_or(|wanted| wanted(&run.m, &final_cov)) {
+            run.smooth_back(&fwd, given)?
+        } else {
+            // The smoothed trajectory's last state is the filter's final mean (the backward
+            // pass starts there): the same bits.
+            vec![DVector::from_column_slice(&run.m)]
+        };
     }
     Ok(Smoothed {
         states: run.states,
