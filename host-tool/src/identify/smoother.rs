@@ -834,7 +834,7 @@ pub fn linearised_pass(
 
 /// [`linearised_pass`] smoothing only where `smooth_if` asks for it, of the filter's final mean
 /// and covariance: elsewhere its `states` are the final mean alone (what a Gauss–Newton pass that
-/// ends there needs; its backward pass was ~⅓ of the pass).
+/// ends there needs; the backward pass was ~a fifth of a pass's CPU in perf on a 60-h run).
 pub fn linearised_pass_smoothing_if(
     model: &Model<'_>,
     meas: &[Measurement],
