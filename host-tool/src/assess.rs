@@ -192,10 +192,18 @@ fn assess_as_stated(
         progress: progress.clone(),
         ..Default::default()
     };
-    // Side by side: the misstatements are weighed about the stated set-up (with `about` alone),
-    // beside the refit at the set-up's posterior and the catalog's replay on that refit (one
-    // thread's work: its candidates step with the pass); the misstatements' refits are few.
-    let (settled, weighed) = rayon::join(
+    // Side by side: the misstatements' refits about the stated set-up (they need `about`
+    // alone), beside the refit at the set-up's posterior and the catalog's replay on that refit
+    // (one thread's work: its candidates step with the pass). The stated set-up with its priors
+    // is refitted where the set-up's posterior puts it — where `settle` refits: that refit
+    // then serves both (the same passes from the same nominal: the same bits).
+    // Weighed before about this fit (`diagnose`'s starting fit, when the ladder added nothing).
+    let reused = known
+        .and_then(|k| k.misstated_for(effects, &stated.0, cfg, &stated.1))
+        .cloned();
+    let shared = crate::identify::setup::settling_refit(&about)
+        .is_some_and(|d| Some(d) == misstated::priors_refit_at(&about));
+    let (settled, refits) = rayon::join(
         || -> anyhow::Result<_> {
             let settled = settle_about(effects, prep, cfg, id, about.clone())?;
             if settled.id.refined.is_none() {
@@ -207,10 +215,27 @@ fn assess_as_stated(
         },
         || {
             progress.note(|| "weighing a misstated latitude, clock rate or gravity".into());
-            misstated::weigh(effects, &stated.0, cfg, &stated.1, &about)
+            match reused {
+                Some(_) => Ok(None),
+                None => misstated::refits(effects, &stated.0, cfg, &stated.1, &about, shared),
+            }
         },
     );
-    let (Settled { prep, id, mut unc }, alts) = settled?;
+    let (settled, alts) = settled?;
+    let weighed = refits.and_then(|r| match (r, reused) {
+        (_, Some(w)) => Ok(w),
+        (Some(r), None) => r.weigh(
+            effects,
+            &stated.0,
+            cfg,
+            (&stated.1, &about),
+            settled.at_posterior.clone().filter(|_| shared),
+        ),
+        (None, None) => Ok(misstated::Weighed::none()),
+    });
+    let Settled {
+        prep, id, mut unc, ..
+    } = settled;
     let mut out = Assessment {
         prep,
         id,

@@ -499,6 +499,10 @@ pub(crate) fn starting_fit(
     *known = Some(setup::Computed::new(effects, prep, cfg, &id, unc.clone()));
     progress.note(|| "the starting model: weighing a misstated set-up".into());
     let weighed = misstated::weigh(effects, prep, cfg, &id, &unc)?;
+    if let Some(k) = known.as_mut() {
+        // Where the ladder adds nothing, the final assessment weighs them about this fit again.
+        k.keep_misstated(weighed.clone());
+    }
     // A fit within its noise may still rest on a set-up the data move within its priors (a
     // clock 300 ppm fast reads as a latitude within its digits): the ladder would then add an
     // effect that absorbs the move (a daily drift, 8σ off, trusted) where the set-up is one more

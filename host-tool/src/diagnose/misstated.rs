@@ -57,6 +57,7 @@ pub(crate) const KNOBS: [(&str, &str); 3] = [
 ];
 
 /// The misstatements weighed ([`weigh`]).
+#[derive(Clone)]
 pub(crate) struct Weighed {
     /// Each knob misstated, its evidence gain over the stated set-up with its priors (or over
     /// the stated set-up's own fit when the data contradict those priors).
@@ -77,6 +78,16 @@ pub(crate) struct Weighed {
 }
 
 impl Weighed {
+    /// Nothing weighed (a single pass).
+    pub(crate) fn none() -> Self {
+        Weighed {
+            alternatives: vec![],
+            stated_gain: None,
+            within_priors: None,
+            about: vec![],
+        }
+    }
+
     /// The alternatives with gains over the stated set-up's own fit, and the stated set-up with
     /// its priors as one more rival (what the catalog's refits at the stated set-up compare to).
     pub(crate) fn on_the_stated_fit(mut self) -> (Vec<Alternative>, Option<(String, f64)>) {
@@ -100,21 +111,104 @@ pub(crate) fn weigh(
     id: &Identification,
     unc: &Uncertainty,
 ) -> anyhow::Result<Weighed> {
+    match refits(effects, prep, cfg, id, unc, false)? {
+        Some(r) => r.weigh(effects, prep, cfg, (id, unc), None),
+        None => Ok(Weighed::none()),
+    }
+}
+
+/// Where the stated set-up with its priors is refitted (the first hypothesis' mode: latitude
+/// deg, clock ppm, gravity ppm); `None` for a single pass. Where it is where
+/// [`crate::identify::setup::settle`] refits, that refit serves both
+/// ([`Refitted::weigh`]).
+pub(crate) fn priors_refit_at(unc: &Uncertainty) -> Option<[f64; 3]> {
+    let km = unc.knobs.as_ref()?;
+    Some(hypotheses(km, &[], latitude_bound(unc))[0].delta(km))
+}
+
+/// The misstatements' refits ([`refits`]): what [`Refitted::weigh`] weighs them with.
+pub(crate) struct Refitted {
+    /// The live knobs, in the order of the hypotheses after the first.
+    live: Vec<usize>,
+    /// The hypotheses: the priors as stated, then each live knob broad.
+    laplace: Vec<Laplace>,
+    /// Their refits (−2 ln p(y), the parameters), the first missing where it is awaited.
+    fits: Vec<Option<(f64, DVector<f64>)>>,
+}
+
+/// The refits of each hypothesis of [`weigh`] about the fit `id` (`None` for a single pass),
+/// all but the priors' own when `priors_elsewhere` (it is [`crate::identify::setup::settle`]'s:
+/// [`priors_refit_at`]), on every core.
+pub(crate) fn refits(
+    effects: &[&dyn Effect],
+    prep: &Prepared,
+    cfg: &Config,
+    id: &Identification,
+    unc: &Uncertainty,
+    priors_elsewhere: bool,
+) -> anyhow::Result<Option<Refitted>> {
     let Some(km) = &unc.knobs else {
-        return Ok(Weighed {
-            alternatives: vec![],
-            stated_gain: None,
-            within_priors: None,
-            about: vec![],
-        });
+        return Ok(None);
     };
     let live = live_knobs(prep, km);
     let laplace = hypotheses(km, &live, latitude_bound(unc));
-    let fits: Vec<anyhow::Result<(f64, DVector<f64>)>> = laplace
+    let skip = usize::from(priors_elsewhere);
+    let fits: Vec<anyhow::Result<(f64, DVector<f64>)>> = laplace[skip..]
         .par_iter()
         .map(|l| refit(&moved(prep, l.delta(km)), effects, cfg, id))
         .collect();
-    let fits = fits.into_iter().collect::<anyhow::Result<Vec<_>>>()?;
+    let mut out: Vec<Option<(f64, DVector<f64>)>> = vec![None; skip];
+    for f in fits {
+        out.push(Some(f?));
+    }
+    Ok(Some(Refitted {
+        live,
+        laplace,
+        fits: out,
+    }))
+}
+
+impl Refitted {
+    /// The knobs misstated, weighed on their refits; `at_priors`: the priors' refit where
+    /// [`refits`] left it to another (refitted here where that other is `None`: it failed).
+    pub(crate) fn weigh(
+        self,
+        effects: &[&dyn Effect],
+        prep: &Prepared,
+        cfg: &Config,
+        (id, unc): (&Identification, &Uncertainty),
+        at_priors: Option<(f64, DVector<f64>)>,
+    ) -> anyhow::Result<Weighed> {
+        let Some(km) = &unc.knobs else {
+            // `refits` returns no `Refitted` without knobs.
+            return Ok(Weighed::none());
+        };
+        let Refitted {
+            live,
+            laplace,
+            mut fits,
+        } = self;
+        if fits[0].is_none() {
+            fits[0] = Some(match at_priors {
+                Some(f) => f,
+                None => refit(&moved(prep, laplace[0].delta(km)), effects, cfg, id)?,
+            });
+        }
+        let fits: Vec<(f64, DVector<f64>)> = fits.into_iter().flatten().collect();
+        weigh_fitted(km, (&live, &laplace, &fits), effects, prep, cfg, unc)
+    }
+}
+
+/// [`weigh`]'s judgement of the refits `fits` of the hypotheses `laplace` (the priors as
+/// stated, then each of the `live` knobs broad).
+fn weigh_fitted(
+    km: &KnobModel,
+    (live, laplace, fits): (&[usize], &[Laplace], &[(f64, DVector<f64>)]),
+    effects: &[&dyn Effect],
+    prep: &Prepared,
+    cfg: &Config,
+    unc: &Uncertainty,
+) -> anyhow::Result<Weighed> {
     // Against the stated set-up with its priors — unless the data contradict those (the
     // χ² check or the latitude's digits): then that hypothesis is out, and the stated set-up's
     // own fit is the reference, as it is for the catalog's alternatives weighed on it.
@@ -148,7 +242,6 @@ pub(crate) fn weigh(
         about: fits[0].1.iter().copied().collect(),
     })
 }
-
 /// [`Weighed::within_priors`] alone: the set-up moved within its priors and that hypothesis'
 /// gain, without the misstatements' refits and the far latitude's profile — all a rival weighed
 /// with the set-up marginalised needs (`crate::assess`; the far latitude's profile, 21 fits and

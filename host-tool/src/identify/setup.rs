@@ -770,10 +770,13 @@ pub(crate) fn knob_model(
 /// same effects, set-up, settings and fit, [`uncertainty_reusing`] hands it back instead of
 /// refitting (`diagnose` assesses its starting model a second time when the ladder adds nothing:
 /// 0.2 s of a clean 60-h run).
-#[derive(Clone, Debug)]
+#[derive(Clone)]
 pub struct Computed {
     key: u64,
     unc: Uncertainty,
+    /// The misstatements weighed about the same fit with `unc`
+    /// ([`crate::diagnose::misstated::weigh`]), where they were.
+    misstated: Option<crate::diagnose::misstated::Weighed>,
 }
 
 impl Computed {
@@ -788,7 +791,29 @@ impl Computed {
         Computed {
             key: key(effects, prep, cfg, id),
             unc,
+            misstated: None,
         }
+    }
+
+    /// Keeps the misstatements weighed from these arguments and the uncertainty
+    /// ([`crate::diagnose::misstated::weigh`]): the refits of three set-ups and, where the
+    /// latitude lies far, its profile.
+    pub(crate) fn keep_misstated(&mut self, weighed: crate::diagnose::misstated::Weighed) {
+        self.misstated = Some(weighed);
+    }
+
+    /// The misstatements kept ([`Self::keep_misstated`]) if they were weighed from these
+    /// arguments.
+    pub(crate) fn misstated_for(
+        &self,
+        effects: &[&dyn Effect],
+        prep: &Prepared,
+        cfg: &Config,
+        id: &Identification,
+    ) -> Option<&crate::diagnose::misstated::Weighed> {
+        self.misstated
+            .as_ref()
+            .filter(|_| self.key == key(effects, prep, cfg, id))
     }
 }
 
@@ -1016,6 +1041,12 @@ pub struct Settled {
     pub id: Identification,
     /// The uncertainty (computed about the stated set-up: the covariances barely move).
     pub unc: Uncertainty,
+    /// The refit at the set-up's posterior ([`settling_refit`]) as [`refit`] returns one —
+    /// −2 ln p(y) and the parameters after the angles — also where it was not adopted (it did
+    /// not follow the knobs' linear model); `None` where none was made or it failed. The
+    /// misstatements weigh the stated set-up with its priors on it
+    /// ([`crate::diagnose::misstated::Refitted::weigh`]).
+    pub at_posterior: Option<(f64, DVector<f64>)>,
 }
 
 /// Where the knobs' posterior lies more than this many posterior 1σ from the stated set-up, the
@@ -1059,6 +1090,23 @@ pub fn settle_about(
     Ok(settled)
 }
 
+/// Where [`settle`] refits, as offsets from the stated set-up (latitude deg, clock ppm, gravity
+/// ppm): the knobs' posterior ([`Uncertainty::setup_shift`]) when it lies more than
+/// [`SETTLE_SHIFT_SIGMA`] of a knob's posterior 1σ from the stated set-up; `None` where the
+/// data contradict the stated set-up (the linearised posterior is then no place to refit), for
+/// a single pass (no knobs weighed) or when it lies closer.
+pub(crate) fn settling_refit(unc: &Uncertainty) -> Option<[f64; 3]> {
+    if !unc.untrusted_reasons().is_empty() {
+        return None;
+    }
+    let knobs = unc.contributions.get(1..4)?;
+    let far = knobs
+        .iter()
+        .zip(unc.setup_shift)
+        .any(|(c, d)| c.posterior_sigma > 0.0 && d.abs() > SETTLE_SHIFT_SIGMA * c.posterior_sigma);
+    far.then_some(unc.setup_shift)
+}
+
 /// The set-up's part of [`settle`], and whether it refitted: with `unc`, [`uncertainty`] about
 /// the stated set-up, if the knobs' posterior lies away from it (gravity 50 ppm off a value the
 /// data measure to 0.2 ppm), the model refitted there. The estimate is then the posterior's, not
@@ -1070,22 +1118,19 @@ fn settle_setup(
     id: Identification,
     unc: Uncertainty,
 ) -> anyhow::Result<(Settled, bool)> {
-    if !unc.untrusted_reasons().is_empty() {
-        // The stated set-up is contradicted: the linearised posterior is no place to refit.
-        return Ok((Settled { prep, id, unc }, false));
-    }
-    // A single pass has no knobs weighed (its contributions are empty): nothing to settle.
-    let Some(knobs) = unc.contributions.get(1..4) else {
-        return Ok((Settled { prep, id, unc }, false));
+    let Some(shift) = settling_refit(&unc) else {
+        return Ok((
+            Settled {
+                prep,
+                id,
+                unc,
+                at_posterior: None,
+            },
+            false,
+        ));
     };
-    let far = knobs
-        .iter()
-        .zip(unc.setup_shift)
-        .any(|(c, d)| c.posterior_sigma > 0.0 && d.abs() > SETTLE_SHIFT_SIGMA * c.posterior_sigma);
-    if !far {
-        return Ok((Settled { prep, id, unc }, false));
-    }
-    let mut p = moved(&prep, unc.setup_shift);
+    let knobs = &unc.contributions[1..4];
+    let mut p = moved(&prep, shift);
     for c in knobs {
         if let (Some(o), Some((v, unit))) = (c.offset, c.stated) {
             if o.abs() > 3.0 * c.posterior_sigma {
@@ -1108,7 +1153,17 @@ fn settle_setup(
         }
     }
     let model = build_model(p.site, effects, cfg)?;
-    match super::identify_from(&model, &p, cfg, &id) {
+    let refitted = super::identify_from(&model, &p, cfg, &id);
+    // What `refit` would return there: the same Gauss–Newton passes from the same nominal, so
+    // the same −2 ln p(y) and last state.
+    let at_posterior = refitted.as_ref().ok().and_then(|id2| {
+        let last = id2.trajectory.last()?;
+        Some((
+            neg2_log_evidence(&id2.innovations),
+            last.rows(ANGLES, model.dim() - ANGLES).into_owned(),
+        ))
+    });
+    match refitted {
         Ok(id2) if follows_linear(&unc, &id, &id2) => {
             let mut unc = unc;
             // The fit's own covariance at the new point; the set-up's terms as computed.
@@ -1123,13 +1178,22 @@ fn settle_setup(
                     prep: p,
                     id: id2,
                     unc,
+                    at_posterior,
                 },
                 true,
             ))
         }
         // The refit failed, or is no estimate: the stated set-up's fit stands, with its
         // uncertainty.
-        _ => Ok((Settled { prep, id, unc }, false)),
+        _ => Ok((
+            Settled {
+                prep,
+                id,
+                unc,
+                at_posterior,
+            },
+            false,
+        )),
     }
 }
 
@@ -1218,6 +1282,54 @@ mod tests {
     /// The shift a settled fit takes from the daily drift alone is the one the full
     /// marginalisation gives, bit for bit (the trend's and temperature's passes, skipped, add
     /// exact zeros), and it is no zero vector (the check could not fail on one). 30 h at 10 s.
+    /// `settle`'s refit at the set-up's posterior is the misstatements' refit of the stated
+    /// set-up with its priors: the same place, bit for bit, and the same fit, so `assess` makes
+    /// it once (crate::assess). Gravity stated 40 ppm off (prior 30 ppm; the run measures it to
+    /// a fraction of a ppm): the posterior lies far from the stated set-up, and settle refits.
+    /// Bit-equal, not within a tolerance: the two are the same passes from the same nominal.
+    #[test]
+    fn the_settling_refit_is_the_misstatements_refit_with_the_priors() {
+        use crate::diagnose::misstated;
+        use crate::identify::{build_model, identify, Config};
+        let mut sc = crate::simulate::Scenario::paper();
+        sc.hours = 30.0;
+        sc.rate_s = 10.0;
+        sc.setup_errors.gravity_ppm = 40.0;
+        let cfg = Config::default();
+        let prep = crate::simulate::prepared(&sc, &cfg);
+        let effects = [crate::catalog::paper()];
+        let model = build_model(prep.site, &effects, &cfg).unwrap();
+        let id = identify(&model, &prep, &cfg).unwrap();
+        let unc = super::uncertainty(&effects, &prep, &cfg, &id).unwrap();
+        let at = super::settling_refit(&unc).expect("the posterior lies far: settle refits");
+        assert_eq!(Some(at), misstated::priors_refit_at(&unc));
+        let settled = super::settle_about(&effects, prep.clone(), &cfg, id.clone(), unc.clone());
+        let (f, c) = settled.unwrap().at_posterior.expect("settle's refit");
+        let (f_own, c_own) = super::refit(&super::moved(&prep, at), &effects, &cfg, &id).unwrap();
+        let bits = |v: &[f64]| v.iter().map(|x| x.to_bits()).collect::<Vec<_>>();
+        assert_eq!(f.to_bits(), f_own.to_bits());
+        assert_eq!(bits(c.as_slice()), bits(c_own.as_slice()));
+        // The misstatements weighed on it are those weighed on their own refit.
+        let own = misstated::weigh(&effects, &prep, &cfg, &id, &unc).unwrap();
+        let shared = misstated::refits(&effects, &prep, &cfg, &id, &unc, true)
+            .unwrap()
+            .expect("knobs weighed")
+            .weigh(&effects, &prep, &cfg, (&id, &unc), Some((f, c)))
+            .unwrap();
+        assert!(!own.alternatives.is_empty());
+        assert_eq!(own.alternatives.len(), shared.alternatives.len());
+        for (a, b) in own.alternatives.iter().zip(&shared.alternatives) {
+            assert_eq!(
+                a.evidence_gain.to_bits(),
+                b.evidence_gain.to_bits(),
+                "{}",
+                a.effect
+            );
+            assert_eq!(bits(&a.shift), bits(&b.shift), "{}", a.effect);
+        }
+        assert_eq!(bits(&own.about), bits(&shared.about));
+    }
+
     #[test]
     fn the_slow_drifts_shift_alone_is_the_full_marginalisations() {
         use crate::identify::{build_model, identify, Config};
