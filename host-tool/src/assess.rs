@@ -197,15 +197,19 @@ fn assess_as_stated(
     // (one thread's work: its candidates step with the pass). The stated set-up with its priors
     // is refitted where the set-up's posterior puts it — where `settle` refits: that refit
     // then serves both (the same passes from the same nominal: the same bits).
-    // Weighed before about this fit (`diagnose`'s starting fit, when the ladder added nothing).
+    // Weighed and settled before about this fit (`diagnose`'s starting fit, when the ladder
+    // added nothing).
     let reused = known
         .and_then(|k| k.misstated_for(effects, &stated.0, cfg, &stated.1))
+        .cloned();
+    let kept_fit = known
+        .and_then(|k| k.settling_for(effects, &stated.0, cfg, &stated.1))
         .cloned();
     let shared = crate::identify::setup::settling_refit(&about)
         .is_some_and(|d| Some(d) == misstated::priors_refit_at(&about));
     let (settled, refits) = rayon::join(
         || -> anyhow::Result<_> {
-            let settled = settle_about(effects, prep, cfg, id, about.clone())?;
+            let settled = settle_about(effects, prep, cfg, id, about.clone(), kept_fit)?;
             if settled.id.refined.is_none() {
                 return Ok((settled, None));
             }

@@ -496,13 +496,12 @@ pub(crate) fn starting_fit(
     let consistent = super::identify::consistency_of(&id, prep).is_none_or(|c| c.is_consistent());
     progress.note(|| "the starting model: the set-up's uncertainty".into());
     let unc = setup::uncertainty(effects, prep, cfg, &id)?;
-    *known = Some(setup::Computed::new(effects, prep, cfg, &id, unc.clone()));
+    let mut computed = setup::Computed::new(effects, prep, cfg, &id, unc.clone());
     progress.note(|| "the starting model: weighing a misstated set-up".into());
-    let weighed = misstated::weigh(effects, prep, cfg, &id, &unc)?;
-    if let Some(k) = known.as_mut() {
-        // Where the ladder adds nothing, the final assessment weighs them about this fit again.
-        k.keep_misstated(weighed.clone());
-    }
+    // Where the ladder adds nothing, the final assessment settles and weighs them about this
+    // fit again: kept for it.
+    let weighed = misstated::weigh(effects, prep, cfg, (&id, &unc), Some(&mut computed))?;
+    *known = Some(computed);
     // A fit within its noise may still rest on a set-up the data move within its priors (a
     // clock 300 ppm fast reads as a latitude within its digits): the ladder would then add an
     // effect that absorbs the move (a daily drift, 8σ off, trusted) where the set-up is one more

@@ -104,17 +104,47 @@ impl Weighed {
 
 /// Each knob misstated, as an alternative explanation of the fit `id` of `effects` on `prep` (the
 /// stated set-up, the one `unc` was computed about). Empty for a single pass.
+///
+/// `keep`: where to keep them (with the uncertainty `unc` about the same fit) for a later
+/// assessment of the same fit ([`crate::assess`]), with the model refitted where
+/// [`crate::identify::setup::settle`] would settle: that refit is then made beside the
+/// misstatements' where it is the stated set-up with its priors, and serves as that
+/// hypothesis' refit ([`Refitted::weigh`]).
 pub(crate) fn weigh(
     effects: &[&dyn Effect],
     prep: &Prepared,
     cfg: &Config,
-    id: &Identification,
-    unc: &Uncertainty,
+    (id, unc): (&Identification, &Uncertainty),
+    keep: Option<&mut crate::identify::setup::Computed>,
 ) -> anyhow::Result<Weighed> {
-    match refits(effects, prep, cfg, id, unc, false)? {
-        Some(r) => r.weigh(effects, prep, cfg, (id, unc), None),
-        None => Ok(Weighed::none()),
+    use crate::identify::setup::{as_refit, settling_fit, settling_refit};
+    let at = keep
+        .is_some()
+        .then(|| settling_refit(unc))
+        .flatten()
+        .filter(|d| Some(*d) == priors_refit_at(unc));
+    let (settling, refitted) = rayon::join(
+        || at.map(|d| settling_fit(effects, prep, cfg, id, d)),
+        || refits(effects, prep, cfg, id, unc, at.is_some()),
+    );
+    let settling = settling.and_then(Result::ok);
+    let weighed = match refitted? {
+        Some(r) => r.weigh(
+            effects,
+            prep,
+            cfg,
+            (id, unc),
+            settling.as_ref().and_then(as_refit),
+        )?,
+        None => Weighed::none(),
+    };
+    if let Some(k) = keep {
+        if let Some(fit) = settling {
+            k.keep_settling(fit);
+        }
+        k.keep_misstated(weighed.clone());
     }
+    Ok(weighed)
 }
 
 /// Where the stated set-up with its priors is refitted (the first hypothesis' mode: latitude

@@ -777,6 +777,9 @@ pub struct Computed {
     /// The misstatements weighed about the same fit with `unc`
     /// ([`crate::diagnose::misstated::weigh`]), where they were.
     misstated: Option<crate::diagnose::misstated::Weighed>,
+    /// The model refitted where [`settle`] refits from the same fit ([`settling_fit`]), where
+    /// it was.
+    settling: Option<Identification>,
 }
 
 impl Computed {
@@ -792,6 +795,7 @@ impl Computed {
             key: key(effects, prep, cfg, id),
             unc,
             misstated: None,
+            settling: None,
         }
     }
 
@@ -800,6 +804,24 @@ impl Computed {
     /// latitude lies far, its profile.
     pub(crate) fn keep_misstated(&mut self, weighed: crate::diagnose::misstated::Weighed) {
         self.misstated = Some(weighed);
+    }
+
+    /// Keeps the model refitted where [`settle`] refits from these arguments ([`settling_fit`]).
+    pub(crate) fn keep_settling(&mut self, fit: Identification) {
+        self.settling = Some(fit);
+    }
+
+    /// The settling fit kept ([`Self::keep_settling`]) if it was made from these arguments.
+    pub(crate) fn settling_for(
+        &self,
+        effects: &[&dyn Effect],
+        prep: &Prepared,
+        cfg: &Config,
+        id: &Identification,
+    ) -> Option<&Identification> {
+        self.settling
+            .as_ref()
+            .filter(|_| self.key == key(effects, prep, cfg, id))
     }
 
     /// The misstatements kept ([`Self::keep_misstated`]) if they were weighed from these
@@ -1064,19 +1086,25 @@ pub fn settle(
     known: Option<&Computed>,
 ) -> anyhow::Result<Settled> {
     let unc = uncertainty_reusing(effects, &prep, cfg, &id, known)?;
-    settle_about(effects, prep, cfg, id, unc)
+    let fitted = known
+        .and_then(|k| k.settling_for(effects, &prep, cfg, &id))
+        .cloned();
+    settle_about(effects, prep, cfg, id, unc, fitted)
 }
 
 /// [`settle`] with the uncertainty about the stated set-up, `unc`, computed already (what a
-/// misstated set-up is weighed with, [`crate::diagnose::misstated::weigh`], beside the refit).
+/// misstated set-up is weighed with, [`crate::diagnose::misstated::weigh`], beside the refit);
+/// `fitted`: the model refitted where it settles, when that was made before ([`settling_fit`]
+/// from the same arguments).
 pub fn settle_about(
     effects: &[&dyn Effect],
     prep: Prepared,
     cfg: &Config,
     id: Identification,
     unc: Uncertainty,
+    fitted: Option<Identification>,
 ) -> anyhow::Result<Settled> {
-    let (mut settled, moved) = settle_setup(effects, prep, cfg, id, unc)?;
+    let (mut settled, moved) = settle_setup(effects, prep, cfg, id, unc, fitted)?;
     if moved {
         // The shift is the slow drifts' reach from the fit it is taken about: about the stated
         // set-up's misfit it would also soak up the set-up's error the refit has repaired.
@@ -1107,6 +1135,31 @@ pub(crate) fn settling_refit(unc: &Uncertainty) -> Option<[f64; 3]> {
     far.then_some(unc.setup_shift)
 }
 
+/// The model of `effects` refitted from the fit `id` with the set-up moved by `shift` (latitude
+/// deg, clock ppm, gravity ppm): what [`settle`] refits at [`settling_refit`].
+pub(crate) fn settling_fit(
+    effects: &[&dyn Effect],
+    prep: &Prepared,
+    cfg: &Config,
+    id: &Identification,
+    shift: [f64; 3],
+) -> anyhow::Result<Identification> {
+    let p = moved(prep, shift);
+    let model = build_model(p.site, effects, cfg)?;
+    super::identify_from(&model, &p, cfg, id)
+}
+
+/// A fit as [`refit`] returns one: −2 ln p(y) and the parameters after the angles at the last
+/// node. A settling fit ([`settling_fit`]) is the same Gauss–Newton passes from the same nominal
+/// as a refit there, so the same numbers.
+pub(crate) fn as_refit(fit: &Identification) -> Option<(f64, DVector<f64>)> {
+    let last = fit.trajectory.last()?;
+    Some((
+        neg2_log_evidence(&fit.innovations),
+        last.rows(ANGLES, last.len() - ANGLES).into_owned(),
+    ))
+}
+
 /// The set-up's part of [`settle`], and whether it refitted: with `unc`, [`uncertainty`] about
 /// the stated set-up, if the knobs' posterior lies away from it (gravity 50 ppm off a value the
 /// data measure to 0.2 ppm), the model refitted there. The estimate is then the posterior's, not
@@ -1117,6 +1170,7 @@ fn settle_setup(
     cfg: &Config,
     id: Identification,
     unc: Uncertainty,
+    fitted: Option<Identification>,
 ) -> anyhow::Result<(Settled, bool)> {
     let Some(shift) = settling_refit(&unc) else {
         return Ok((
@@ -1152,17 +1206,11 @@ fn settle_setup(
             }
         }
     }
-    let model = build_model(p.site, effects, cfg)?;
-    let refitted = super::identify_from(&model, &p, cfg, &id);
-    // What `refit` would return there: the same Gauss–Newton passes from the same nominal, so
-    // the same −2 ln p(y) and last state.
-    let at_posterior = refitted.as_ref().ok().and_then(|id2| {
-        let last = id2.trajectory.last()?;
-        Some((
-            neg2_log_evidence(&id2.innovations),
-            last.rows(ANGLES, model.dim() - ANGLES).into_owned(),
-        ))
-    });
+    let refitted = match fitted {
+        Some(f) => Ok(f),
+        None => settling_fit(effects, &prep, cfg, &id, shift),
+    };
+    let at_posterior = refitted.as_ref().ok().and_then(as_refit);
     match refitted {
         Ok(id2) if follows_linear(&unc, &id, &id2) => {
             let mut unc = unc;
@@ -1303,14 +1351,15 @@ mod tests {
         let unc = super::uncertainty(&effects, &prep, &cfg, &id).unwrap();
         let at = super::settling_refit(&unc).expect("the posterior lies far: settle refits");
         assert_eq!(Some(at), misstated::priors_refit_at(&unc));
-        let settled = super::settle_about(&effects, prep.clone(), &cfg, id.clone(), unc.clone());
+        let settled =
+            super::settle_about(&effects, prep.clone(), &cfg, id.clone(), unc.clone(), None);
         let (f, c) = settled.unwrap().at_posterior.expect("settle's refit");
         let (f_own, c_own) = super::refit(&super::moved(&prep, at), &effects, &cfg, &id).unwrap();
         let bits = |v: &[f64]| v.iter().map(|x| x.to_bits()).collect::<Vec<_>>();
         assert_eq!(f.to_bits(), f_own.to_bits());
         assert_eq!(bits(c.as_slice()), bits(c_own.as_slice()));
         // The misstatements weighed on it are those weighed on their own refit.
-        let own = misstated::weigh(&effects, &prep, &cfg, &id, &unc).unwrap();
+        let own = misstated::weigh(&effects, &prep, &cfg, (&id, &unc), None).unwrap();
         let shared = misstated::refits(&effects, &prep, &cfg, &id, &unc, true)
             .unwrap()
             .expect("knobs weighed")
@@ -1328,6 +1377,25 @@ mod tests {
             assert_eq!(bits(&a.shift), bits(&b.shift), "{}", a.effect);
         }
         assert_eq!(bits(&own.about), bits(&shared.about));
+        // Kept for a later assessment of the same fit (diagnose's starting fit): the same
+        // misstatements, and settle there takes the kept refit — the same fit as its own.
+        let mut kept = super::Computed::new(&effects, &prep, &cfg, &id, unc.clone());
+        let weighed = misstated::weigh(&effects, &prep, &cfg, (&id, &unc), Some(&mut kept));
+        let weighed = weighed.unwrap();
+        for (a, b) in own.alternatives.iter().zip(&weighed.alternatives) {
+            assert_eq!(
+                a.evidence_gain.to_bits(),
+                b.evidence_gain.to_bits(),
+                "{}",
+                a.effect
+            );
+        }
+        assert!(kept.settling_for(&effects, &prep, &cfg, &id).is_some());
+        let with = super::settle(&effects, prep.clone(), &cfg, id.clone(), Some(&kept)).unwrap();
+        let without = super::settle(&effects, prep.clone(), &cfg, id.clone(), None).unwrap();
+        let value = |s: &super::Settled| bits(&s.id.best().value);
+        assert_eq!(value(&with), value(&without));
+        assert_ne!(value(&without), bits(&id.best().value), "settle refitted");
     }
 
     #[test]
