@@ -711,41 +711,71 @@ pub(crate) fn alternatives_untrusted(
     out
 }
 
-/// `identify`'s answer to a misfit at the settled set-up of `assessed`: a drift step profiled on
-/// the fit the alternatives were weighed against (so its evidence is on their scale); when it
-/// beats every alternative and a warm-up transient (which a step also follows) by the plausible
-/// margin, it is repaired — modelled from its time on, the model refitted at the `stated`
-/// set-up and assessed again (the set-up settles with the step in the model: settled first, the
-/// latitude had bent to absorb the step). Returns the effects and assessment to report and the
-/// step when it is only named (it explains the misfit but is not repaired: no rival beats it).
+/// `identify`'s drift step on a misfit at the settled set-up of `assessed`: profiled on the fit
+/// the alternatives were weighed against, so its evidence is on their scale (`None` when the
+/// fit is consistent, or no step was found). [`repaired_if_it_wins`] then judges it.
+pub(crate) fn drift_step_on_a_misfit(
+    effects: &[&dyn Effect],
+    cfg: &Config,
+    assessed: &Assessment,
+    progress: &crate::steps::Progress,
+) -> Option<DriftStepFit> {
+    let misfit = crate::consistency::consistency_of(&assessed.id, &assessed.prep)
+        .is_some_and(|c| !c.is_consistent());
+    if !misfit {
+        return None;
+    }
+    progress.note(|| "profiling a gyro drift step".into());
+    drift_step::profile(&assessed.prep, effects, cfg, &assessed.id)
+}
+
+/// `identify`'s answer to a misfit at the settled set-up of `assessed`: its drift step
+/// ([`drift_step_on_a_misfit`]), when it beats every alternative and a warm-up transient (which
+/// a step also follows) by the plausible margin, is repaired — modelled from its time on, the
+/// model refitted at the `stated` set-up and assessed again (the set-up settles with the step in
+/// the model: settled first, the latitude had bent to absorb the step). Returns the effects and
+/// assessment to report, the step when it is only named (it explains the misfit but is not
+/// repaired: no rival beats it), and whether it was repaired.
 pub(crate) fn repaired_if_it_wins<'c>(
     catalog: &'c crate::catalog::Catalog,
     stated: Prepared,
     effects: Vec<&'c dyn Effect>,
     cfg: &Config,
-    assessed: Assessment,
+    (assessed, step): (Assessment, Option<DriftStepFit>),
     progress: &crate::steps::Progress,
-) -> anyhow::Result<(Vec<&'c dyn Effect>, Assessment, Option<DriftStepFit>)> {
-    let misfit = crate::consistency::consistency_of(&assessed.id, &assessed.prep)
-        .is_some_and(|c| !c.is_consistent());
-    if !misfit {
-        return Ok((effects, assessed, None));
-    }
-    progress.note(|| "profiling a gyro drift step".into());
-    let Some(step) = drift_step::profile(&assessed.prep, &effects, cfg, &assessed.id) else {
-        return Ok((effects, assessed, None));
+) -> anyhow::Result<StepJudged<'c>> {
+    let judged = |effects, assessed, step, repaired| StepJudged {
+        effects,
+        assessed,
+        step,
+        repaired,
+    };
+    let Some(step) = step else {
+        return Ok(judged(effects, assessed, None, false));
     };
     if !step.beats(&assessed.alternatives) {
-        return Ok((effects, assessed, Some(step)));
+        return Ok(judged(effects, assessed, Some(step), false));
     }
     let warmup = crate::diagnose::warmup::profile(&assessed.prep, &effects, cfg, &assessed.id);
     if warmup.is_some_and(|w| w.evidence_gain + PLAUSIBLE_MARGIN >= step.evidence_gain) {
         // The warm-up explains it as well or better: the misfit stands; `diagnose` weighs both.
-        return Ok((effects, assessed, None));
+        return Ok(judged(effects, assessed, None, false));
     }
     let (with_step, id) = drift_step::repair(catalog, &stated, &effects, cfg, &step)?;
     let mut prep = stated;
     prep.findings.push(step.repaired());
     let a = assess_with(catalog, &with_step, prep, cfg, id, None, progress)?;
-    Ok((with_step, a, None))
+    Ok(judged(with_step, a, None, true))
+}
+
+/// What `identify` reports after its drift step is judged ([`repaired_if_it_wins`]).
+pub(crate) struct StepJudged<'c> {
+    /// The model's effects (with the step, if repaired).
+    pub effects: Vec<&'c dyn Effect>,
+    /// The assessment to report.
+    pub assessed: Assessment,
+    /// The step when it is only named.
+    pub step: Option<DriftStepFit>,
+    /// Whether the step was repaired.
+    pub repaired: bool,
 }

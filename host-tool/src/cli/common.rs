@@ -432,10 +432,23 @@ pub(crate) fn name_a_wrong_latitude(
     rivals: impl FnOnce(&Prepared) -> Vec<(String, f64)>,
     progress: &Progress,
 ) {
-    progress.note(|| "the model does not fit: profiling the latitude".into());
-    let fitted = Some(fitted);
-    let found = crate::diagnose::latitude::check_with(prep, effects, cfg, fitted, || rivals(prep));
+    let found = wrong_latitude(prep, (effects, fitted), cfg, rivals, progress);
     prep.findings.extend(found);
+}
+
+/// [`name_a_wrong_latitude`]'s finding, without adding it to the findings.
+pub(crate) fn wrong_latitude(
+    prep: &Prepared,
+    (effects, fitted): (
+        &[&dyn estimator_core::effects::Effect],
+        &crate::identify::Identification,
+    ),
+    cfg: &Config,
+    rivals: impl FnOnce(&Prepared) -> Vec<(String, f64)>,
+    progress: &Progress,
+) -> Option<crate::quality::Finding> {
+    progress.note(|| "the model does not fit: profiling the latitude".into());
+    crate::diagnose::latitude::check_with(prep, effects, cfg, Some(fitted), || rivals(prep))
 }
 
 /// The catalog effects' evidence gains for the model `effects` fitted as `id` on `prep`: the

@@ -393,9 +393,26 @@ fn run_one(args: &IdentifyArgs, catalog: &Catalog) -> anyhow::Result<()> {
     // The measurements at the stated set-up: a repair starts again from them.
     let stated = prep.clone();
     let assessed = crate::assess::assess_with(catalog, &effects, prep, &cfg, id, None, &progress)?;
-    // A misfit a drift step explains better than anything else is repaired.
-    let (effects, assessed, step) =
-        crate::assess::repaired_if_it_wins(catalog, stated, effects, &cfg, assessed, &progress)?;
+    // A misfit: a drift step profiled, and beside it the latitude (on this fit; again on the
+    // repaired one should the step be repaired). The step is repaired when it explains the
+    // misfit better than anything else.
+    let (step, latitude) = rayon::join(
+        || crate::assess::drift_step_on_a_misfit(&effects, &cfg, &assessed, &progress),
+        || wrong_latitude_on_a_misfit(catalog, &effects, &cfg, &assessed, &progress),
+    );
+    let crate::assess::StepJudged {
+        effects,
+        assessed,
+        step,
+        repaired,
+    } = crate::assess::repaired_if_it_wins(
+        catalog,
+        stated,
+        effects,
+        &cfg,
+        (assessed, step),
+        &progress,
+    )?;
     spin.finish_and_clear();
     let truth = match &args.truth {
         Some(p) => Some(truth_of(&read_truth(p)?, &assessed.id.params)),
@@ -412,15 +429,12 @@ fn run_one(args: &IdentifyArgs, catalog: &Catalog) -> anyhow::Result<()> {
     );
     let check = consistency_of(&assessed.id, &assessed.prep);
     let mut assessed = assessed;
-    if check.as_ref().is_some_and(|c| !c.is_consistent()) {
-        // A model that does not fit: first ask whether the metadata latitude is the culprit.
-        let spin = crate::progress::spinner("the model does not fit");
-        let progress = crate::progress::follow(&spin);
-        let (prep, id) = (&mut assessed.prep, &assessed.id);
-        let rivals =
-            |p: &Prepared| super::common::rivals(p, catalog, &effects, &cfg, id, &progress);
-        super::common::name_a_wrong_latitude(prep, (&effects, id), &cfg, rivals, &progress);
-        spin.finish_and_clear();
+    if repaired {
+        // The repaired model still does not fit: is the metadata latitude the culprit?
+        let found = wrong_latitude_on_a_misfit(catalog, &effects, &cfg, &assessed, &progress);
+        assessed.prep.findings.extend(found);
+    } else {
+        assessed.prep.findings.extend(latitude);
     }
     let (reasons, step) = untrusted(&mut assessed, step, check.as_ref());
     let a = &assessed;
@@ -431,6 +445,25 @@ fn run_one(args: &IdentifyArgs, catalog: &Catalog) -> anyhow::Result<()> {
         print_text(recording, a, &rows, &reasons);
     }
     trusted_or(reasons)
+}
+
+/// Whether the metadata latitude is why the assessed fit does not fit
+/// ([`super::common::wrong_latitude`], against the catalog's refitted rivals); `None` when it
+/// fits.
+fn wrong_latitude_on_a_misfit(
+    catalog: &Catalog,
+    effects: &[&dyn estimator_core::effects::Effect],
+    cfg: &crate::identify::Config,
+    assessed: &crate::assess::Assessment,
+    progress: &crate::steps::Progress,
+) -> Option<crate::quality::Finding> {
+    let misfit = consistency_of(&assessed.id, &assessed.prep).is_some_and(|c| !c.is_consistent());
+    if !misfit {
+        return None;
+    }
+    let (prep, id) = (&assessed.prep, &assessed.id);
+    let rivals = |p: &Prepared| super::common::rivals(p, catalog, effects, cfg, id, progress);
+    super::common::wrong_latitude(prep, (effects, id), cfg, rivals, progress)
 }
 
 /// Why the estimate is not trusted (empty: trusted): the data's faults, convergence, the

@@ -156,6 +156,10 @@ pub(crate) fn priors_refit_at(unc: &Uncertainty) -> Option<[f64; 3]> {
     Some(hypotheses(km, &[], latitude_bound(unc))[0].delta(km))
 }
 
+/// A hypothesis' refit: −2 ln p(y) and the parameters after the angles
+/// ([`crate::identify::setup::refit`]).
+type Fit = (f64, DVector<f64>);
+
 /// The misstatements' refits ([`refits`]): what [`Refitted::weigh`] weighs them with.
 pub(crate) struct Refitted {
     /// The live knobs, in the order of the hypotheses after the first.
@@ -163,7 +167,7 @@ pub(crate) struct Refitted {
     /// The hypotheses: the priors as stated, then each live knob broad.
     laplace: Vec<Laplace>,
     /// Their refits (−2 ln p(y), the parameters), the first missing where it is awaited.
-    fits: Vec<Option<(f64, DVector<f64>)>>,
+    fits: Vec<Option<Fit>>,
 }
 
 /// The refits of each hypothesis of [`weigh`] about the fit `id` (`None` for a single pass),
@@ -183,11 +187,11 @@ pub(crate) fn refits(
     let live = live_knobs(prep, km);
     let laplace = hypotheses(km, &live, latitude_bound(unc));
     let skip = usize::from(priors_elsewhere);
-    let fits: Vec<anyhow::Result<(f64, DVector<f64>)>> = laplace[skip..]
+    let fits: Vec<anyhow::Result<Fit>> = laplace[skip..]
         .par_iter()
         .map(|l| refit(&moved(prep, l.delta(km)), effects, cfg, id))
         .collect();
-    let mut out: Vec<Option<(f64, DVector<f64>)>> = vec![None; skip];
+    let mut out: Vec<Option<Fit>> = vec![None; skip];
     for f in fits {
         out.push(Some(f?));
     }
@@ -207,7 +211,7 @@ impl Refitted {
         prep: &Prepared,
         cfg: &Config,
         (id, unc): (&Identification, &Uncertainty),
-        at_priors: Option<(f64, DVector<f64>)>,
+        at_priors: Option<Fit>,
     ) -> anyhow::Result<Weighed> {
         let Some(km) = &unc.knobs else {
             // `refits` returns no `Refitted` without knobs.
@@ -224,7 +228,7 @@ impl Refitted {
                 None => refit(&moved(prep, laplace[0].delta(km)), effects, cfg, id)?,
             });
         }
-        let fits: Vec<(f64, DVector<f64>)> = fits.into_iter().flatten().collect();
+        let fits: Vec<Fit> = fits.into_iter().flatten().collect();
         weigh_fitted(km, (&live, &laplace, &fits), effects, prep, cfg, unc)
     }
 }
@@ -233,7 +237,7 @@ impl Refitted {
 /// stated, then each of the `live` knobs broad).
 fn weigh_fitted(
     km: &KnobModel,
-    (live, laplace, fits): (&[usize], &[Laplace], &[(f64, DVector<f64>)]),
+    (live, laplace, fits): (&[usize], &[Laplace], &[Fit]),
     effects: &[&dyn Effect],
     prep: &Prepared,
     cfg: &Config,
