@@ -419,25 +419,10 @@ pub use crate::identify::build_model;
 /// Asks whether the metadata latitude is why a model does not fit ([`crate::diagnose::latitude`]),
 /// against the catalog effects' evidence gains on the same scale (`rivals` of the measurements,
 /// called only when the profile finds a latitude worth weighing against them): the profile's
-/// finding, if any, joins `prep.findings`, where it is a fault (the result is not trusted, and no
+/// finding, if any, for `prep.findings`, where it is a fault (the result is not trusted, and no
 /// physical effect is added to explain it). Call it once the fit `fitted` of `effects` on `prep`
 /// is inconsistent.
 pub(crate) fn name_a_wrong_latitude(
-    prep: &mut Prepared,
-    (effects, fitted): (
-        &[&dyn estimator_core::effects::Effect],
-        &crate::identify::Identification,
-    ),
-    cfg: &Config,
-    rivals: impl FnOnce(&Prepared) -> Vec<(String, f64)>,
-    progress: &Progress,
-) {
-    let found = wrong_latitude(prep, (effects, fitted), cfg, rivals, progress);
-    prep.findings.extend(found);
-}
-
-/// [`name_a_wrong_latitude`]'s finding, without adding it to the findings.
-pub(crate) fn wrong_latitude(
     prep: &Prepared,
     (effects, fitted): (
         &[&dyn estimator_core::effects::Effect],
@@ -599,7 +584,8 @@ pub(crate) fn starting_fit(
         true => rivals,
         false => [catalog_rivals(p), rivals].concat(),
     };
-    name_a_wrong_latitude(prep, (effects, &id), cfg, all_rivals, progress);
+    let found = name_a_wrong_latitude(prep, (effects, &id), cfg, all_rivals, progress);
+    prep.findings.extend(found);
     Ok(Some(id))
 }
 

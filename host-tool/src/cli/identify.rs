@@ -448,7 +448,7 @@ fn run_one(args: &IdentifyArgs, catalog: &Catalog) -> anyhow::Result<()> {
 }
 
 /// Whether the metadata latitude is why the assessed fit does not fit
-/// ([`super::common::wrong_latitude`], against the catalog's refitted rivals); `None` when it
+/// ([`super::common::name_a_wrong_latitude`], against the catalog's refitted rivals); `None` when it
 /// fits.
 fn wrong_latitude_on_a_misfit(
     catalog: &Catalog,
@@ -463,7 +463,7 @@ fn wrong_latitude_on_a_misfit(
     }
     let (prep, id) = (&assessed.prep, &assessed.id);
     let rivals = |p: &Prepared| super::common::rivals(p, catalog, effects, cfg, id, progress);
-    super::common::wrong_latitude(prep, (effects, id), cfg, rivals, progress)
+    super::common::name_a_wrong_latitude(prep, (effects, id), cfg, rivals, progress)
 }
 
 /// Why the estimate is not trusted (empty: trusted): the data's faults, convergence, the

@@ -375,7 +375,9 @@ fn refuse_wrong_latitudes(
             let progress = crate::progress::follow(&spin);
             let rivals = |p: &_| super::common::rivals(p, catalog, effects, cfg, id, &progress);
             let fitted = (effects, id);
-            super::common::name_a_wrong_latitude(&mut r.prep, fitted, cfg, rivals, &progress);
+            let found =
+                super::common::name_a_wrong_latitude(&r.prep, fitted, cfg, rivals, &progress);
+            r.prep.findings.extend(found);
             spin.finish_and_clear();
         }
         named.extend(
