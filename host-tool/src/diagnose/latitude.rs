@@ -313,15 +313,16 @@ const REFINE_MAX: usize = 12;
 /// successive parabolic interpolation with Brent's safeguard: a vertex outside the bracket, or
 /// one that does not move less than half as far as the step before last, is replaced by the
 /// midpoint of the larger side, and a vertex within `tol` of the middle by a probe `tol` into
-/// the larger side. Stops when the bracket is within 4 `tol` or after `max_evals`; returns the
-/// lowest point seen and its value. −2 ln p(y) is near-quadratic in the latitude about its minimum,
+/// the larger side. Stops when the bracket is within 4 `tol`, when `done` says the bracket
+/// settles what the caller asks, or after `max_evals`; returns the lowest point seen and its
+/// value. −2 ln p(y) is near-quadratic in the latitude about its minimum,
 /// so this takes a few fits where 14 golden-section steps took 14, one after the other (a fit
 /// each: ~60 ms of a 60-h run at 1 s).
 fn parabolic_minimum(
     f: &impl Fn(f64) -> f64,
     pts: [(f64, f64); 3],
-    tol: f64,
-    max_evals: usize,
+    (tol, max_evals): (f64, usize),
+    done: &impl Fn(&[(f64, f64); 3]) -> bool,
 ) -> (f64, f64) {
     let [(mut a, mut fa), (mut m, mut fm), (mut b, mut fb)] = pts;
     // The lowest point seen: an end below the middle (the minimum beyond the bracket) is kept.
@@ -331,7 +332,7 @@ fn parabolic_minimum(
         .unwrap_or((m, fm));
     let (mut step, mut step_before) = (b - a, b - a);
     for _ in 0..max_evals {
-        if b - a <= 4.0 * tol {
+        if b - a <= 4.0 * tol || done(&[(a, fa), (m, fm), (b, fb)]) {
             break;
         }
         let (p, q) = (
@@ -371,12 +372,17 @@ fn parabolic_minimum(
 /// Profiles the evidence over latitude: a grid of 2° ([`search_grid`]) then a parabolic
 /// refinement ([`parabolic_minimum`]). `fitted`: the model's fit on `prep` itself when there is
 /// one, taken as the metadata latitude's (a cold fit there was ~35 ms of CPU of a misfitting
-/// 60-h `identify`; the two converge to the same tolerance).
+/// 60-h `identify`; the two converge to the same tolerance). `None` also where the best latitude
+/// gains no more than `worth` over the metadata's: the refinement then stops once its bracket
+/// says so ([`gains_less_than`]), and the 1σ and the consistency there (two fits and the
+/// whiteness test) are not computed. Most misfits are not the latitude's: on a 60-h run with a
+/// periodic drift this was three of the profile's five fits.
 pub(crate) fn profile(
     prep: &Prepared,
     effects: &[&dyn Effect],
     cfg: &Config,
     fitted: Option<&Identification>,
+    worth: f64,
 ) -> Option<LatitudeFit> {
     let l0 = prep.site.latitude_rad.to_degrees();
     // A model that cannot even be fitted at the metadata latitude (the smoother fails) leaves
@@ -393,11 +399,17 @@ pub(crate) fn profile(
     let known = fitted.map(neg2_log_evidence);
     let (f0, scores) = screened(prep, effects, cfg, &grid, l0, (&f, known));
     let k = (0..grid.len()).min_by(|&a, &b| scores[a].total_cmp(&scores[b]))?;
+    // The latitudes fitted (the bracket's ends may keep the screen's values).
+    let fitted_at = Mutex::new(vec![l0]);
     // The metadata latitude's fit once.
     let f = |ls: &[f64]| -> Vec<f64> {
         let at_l0 = |l: &f64| (l - l0).abs() < 1e-9;
         let others: Vec<f64> = ls.iter().filter(|l| !at_l0(l)).copied().collect();
         let mut fitted = f(&others).into_iter();
+        fitted_at
+            .lock()
+            .unwrap_or_else(|e| e.into_inner())
+            .extend_from_slice(&others);
         ls.iter()
             .map(|l| match at_l0(l) {
                 true => f0,
@@ -406,7 +418,22 @@ pub(crate) fn profile(
             .collect()
     };
     let [lo, mid, hi] = bracket(&grid, &scores, k, &f);
-    let (best, _) = parabolic_minimum(&|l| f(&[l])[0], [lo, mid, hi], REFINE_TOL_DEG, REFINE_MAX);
+    let was_fitted = |l: f64| {
+        let fitted = fitted_at.lock().unwrap_or_else(|e| e.into_inner());
+        fitted.iter().any(|x| (x - l).abs() < 1e-9)
+    };
+    let settled = |pts: &[(f64, f64); 3]| {
+        pts.iter().all(|p| was_fitted(p.0)) && gains_less_than(pts, f0, worth)
+    };
+    let (best, fb) = parabolic_minimum(
+        &|l| f(&[l])[0],
+        [lo, mid, hi],
+        (REFINE_TOL_DEG, REFINE_MAX),
+        &settled,
+    );
+    if f0 - fb <= worth && was_fitted(best) {
+        return None;
+    }
     // Curvature from a symmetric three-point stencil: −2 ln p ≈ const + (L − L̂)²/σ²; the fit at
     // the best latitude also says whether the model is consistent there.
     // The lowest fit is the refinement's best: every point but a screened end was fitted. (A
@@ -444,6 +471,20 @@ pub(crate) fn profile(
     })
 }
 
+/// Whether a bracket of fits (three points, the middle lowest) shows that the minimum within it
+/// gains less than `worth` over `f0` (the metadata latitude's −2 ln p(y)): the parabola through
+/// the three, convex, bottoms out above `f0 − worth / 4`. The refinement takes −2 ln p(y) as
+/// near-quadratic about its minimum already; the factor 4 leaves the true minimum room to lie
+/// 3× the parabola's whole gain below it before a finding is missed.
+fn gains_less_than(pts: &[(f64, f64); 3], f0: f64, worth: f64) -> bool {
+    let [(a, fa), (m, fm), (b, fb)] = *pts;
+    let (left, right) = ((fm - fa) / (m - a), (fb - fm) / (b - m));
+    let c2 = (right - left) / (b - a);
+    // The slope at the middle: the divided differences weighed by the other side's width.
+    let d1 = (left * (b - m) + right * (m - a)) / (b - a);
+    c2 > 0.0 && f0 - (fm - d1 * d1 / (4.0 * c2)) < worth / 4.0
+}
+
 /// Evidence a wrong latitude pays for being a free parameter (−2 ln units): the Occam factor of
 /// a latitude anywhere in the profile's search windows (4 × [`SEARCH_HALF_WIDTH_DEG`]) against
 /// the data's 1σ, `2 ln(W / (√(2π) σ))` — the scale on which catalog effects are weighed
@@ -476,7 +517,7 @@ pub(crate) fn check_with(
     fitted: Option<&Identification>,
     rivals: impl FnOnce() -> Vec<(String, f64)>,
 ) -> Option<Finding> {
-    let fit = profile(prep, effects, cfg, fitted)?;
+    let fit = profile(prep, effects, cfg, fitted, MIN_GAIN)?;
     let l0 = prep.site.latitude_rad.to_degrees();
     if !(fit.gain > MIN_GAIN
         && fit.consistent
@@ -648,8 +689,9 @@ mod tests {
         let effects = [crate::catalog::paper()];
         let model = build_model(prep.site, &effects, &cfg).unwrap();
         let id = identify(&model, &prep, &cfg).unwrap();
-        let own = profile(&prep, &effects, &cfg, None).expect("profiled");
-        let seeded = profile(&prep, &effects, &cfg, Some(&id)).expect("profiled");
+        let own = profile(&prep, &effects, &cfg, None, f64::NEG_INFINITY).expect("profiled");
+        let seeded =
+            profile(&prep, &effects, &cfg, Some(&id), f64::NEG_INFINITY).expect("profiled");
         assert!((own.latitude_deg - 38.6).abs() < 0.05, "{own:?}");
         let dl = (seeded.latitude_deg - own.latitude_deg).abs();
         assert!(dl < 0.1 * own.sigma_deg, "{seeded:?} against {own:?}");
@@ -662,6 +704,55 @@ mod tests {
             "{seeded:?} against {own:?}"
         );
         assert!(own.gain > 1000.0, "{own:?}");
+    }
+
+    /// A profile told what gain is worth reporting returns what the full profile returns where
+    /// the data's latitude gains more (a metadata latitude 0.5° off, 36 h at 10 s: the same
+    /// fit, bit for bit — the early stop never fires there), and nothing where the full
+    /// profile's best gains less: a misfit that is not the latitude's (a 12-h periodic drift at
+    /// the stated latitude, 30 h at 10 s), whose full profile gains 6.5 (the best latitude 2.6σ
+    /// from the stated one) — below the quarter of the threshold the stop asks of the bracket.
+    #[test]
+    fn a_profile_told_what_is_worth_reporting_stops_early_only_below_it() {
+        let effects = [crate::catalog::paper()];
+        let (prep, cfg) = stated_39_1(38.6, 36.0);
+        let full = profile(&prep, &effects, &cfg, None, f64::NEG_INFINITY).expect("profiled");
+        let told = profile(&prep, &effects, &cfg, None, MIN_GAIN).expect("profiled");
+        assert!(full.gain > MIN_GAIN, "{full:?}");
+        assert_eq!(told, full);
+
+        use estimator_core::{Sample, Site};
+        let mut sc = crate::simulate::Scenario::paper();
+        sc.hours = 30.0;
+        sc.rate_s = 10.0;
+        sc.effects = vec![crate::simulate::InjectedEffect::DriftSine {
+            a_deg_h: [3e-3, -2e-3, 2e-3],
+            period_h: 12.0,
+        }];
+        let sim = crate::simulate::simulate(&sc);
+        let samples: Vec<Sample> = sim.samples.iter().map(Sample::from).collect();
+        let prep =
+            crate::identify::prepare_oriented(Site::new(39.1, None), &samples, &cfg, [0.0; 3])
+                .unwrap();
+        let model = build_model(prep.site, &effects, &cfg).unwrap();
+        let id = identify(&model, &prep, &cfg).unwrap();
+        let full = profile(&prep, &effects, &cfg, Some(&id), f64::NEG_INFINITY).expect("profiled");
+        assert!(full.gain < 0.25 * MIN_GAIN, "{full:?}");
+        assert!(!full.consistent, "the periodic drift is a misfit: {full:?}");
+        assert_eq!(profile(&prep, &effects, &cfg, Some(&id), MIN_GAIN), None);
+    }
+
+    /// The parabola's bottom through three points of −2 ln p = F + ((L − L̂)/σ)² is F exactly:
+    /// a gain f0 − F below a quarter of `worth` settles the bracket, one above does not, and
+    /// neither does a bracket that is not convex.
+    #[test]
+    fn a_bracket_settles_when_its_parabola_gains_less_than_a_quarter() {
+        let q = |x: f64| -100.0 + ((x - 39.03) / 0.002).powi(2);
+        let pts = [39.0, 39.04, 39.05].map(|x| (x, q(x)));
+        assert!(gains_less_than(&pts, -100.0 + 24.9, 100.0));
+        assert!(!gains_less_than(&pts, -100.0 + 25.1, 100.0));
+        let flat = [(39.0, 1.0), (39.04, 0.0), (39.05, -1.0)];
+        assert!(!gains_less_than(&flat, 0.0, 100.0));
     }
 
     /// The screen ranks the misstated latitude's 0.1° grid ([`crate::diagnose::misstated`]) as
@@ -728,7 +819,7 @@ mod tests {
         };
         let pts = [38.0, 40.0, 42.0].map(|x| (x, quad(x)));
         count.set(0);
-        let (x, _) = parabolic_minimum(&quad, pts, REFINE_TOL_DEG, REFINE_MAX);
+        let (x, _) = parabolic_minimum(&quad, pts, (REFINE_TOL_DEG, REFINE_MAX), &|_| false);
         assert!((x - 40.37).abs() < REFINE_TOL_DEG, "{x}");
         assert!(count.get() <= 6, "{} evaluations", count.get());
         let skew = |x: f64| {
@@ -738,12 +829,12 @@ mod tests {
         };
         let pts = [38.0, 40.0, 42.0].map(|x| (x, skew(x)));
         count.set(0);
-        let (x, _) = parabolic_minimum(&skew, pts, REFINE_TOL_DEG, REFINE_MAX);
+        let (x, _) = parabolic_minimum(&skew, pts, (REFINE_TOL_DEG, REFINE_MAX), &|_| false);
         assert!((x - 39.64).abs() < 2.0 * REFINE_TOL_DEG, "{x}");
         assert!(count.get() < 14, "{} evaluations", count.get());
         let falling = |x: f64| -x;
         let pts = [38.0, 40.0, 42.0].map(|x| (x, falling(x)));
-        let (x, _) = parabolic_minimum(&falling, pts, REFINE_TOL_DEG, REFINE_MAX);
+        let (x, _) = parabolic_minimum(&falling, pts, (REFINE_TOL_DEG, REFINE_MAX), &|_| false);
         assert!(x >= 42.0, "{x}");
     }
 
