@@ -399,17 +399,15 @@ pub(crate) fn profile(
     let known = fitted.map(neg2_log_evidence);
     let (f0, scores) = screened(prep, effects, cfg, &grid, l0, (&f, known));
     let k = (0..grid.len()).min_by(|&a, &b| scores[a].total_cmp(&scores[b]))?;
-    // The latitudes fitted (the bracket's ends may keep the screen's values).
-    let fitted_at = Mutex::new(vec![l0]);
+    // The latitudes fitted (the bracket's ends may keep the screen's values); one thread
+    // refines, so a `RefCell`.
+    let fitted_at = std::cell::RefCell::new(vec![l0]);
     // The metadata latitude's fit once.
     let f = |ls: &[f64]| -> Vec<f64> {
         let at_l0 = |l: &f64| (l - l0).abs() < 1e-9;
         let others: Vec<f64> = ls.iter().filter(|l| !at_l0(l)).copied().collect();
         let mut fitted = f(&others).into_iter();
-        fitted_at
-            .lock()
-            .unwrap_or_else(|e| e.into_inner())
-            .extend_from_slice(&others);
+        fitted_at.borrow_mut().extend_from_slice(&others);
         ls.iter()
             .map(|l| match at_l0(l) {
                 true => f0,
@@ -418,10 +416,7 @@ pub(crate) fn profile(
             .collect()
     };
     let [lo, mid, hi] = bracket(&grid, &scores, k, &f);
-    let was_fitted = |l: f64| {
-        let fitted = fitted_at.lock().unwrap_or_else(|e| e.into_inner());
-        fitted.iter().any(|x| (x - l).abs() < 1e-9)
-    };
+    let was_fitted = |l: f64| fitted_at.borrow().iter().any(|x| (x - l).abs() < 1e-9);
     let settled = |pts: &[(f64, f64); 3]| {
         pts.iter().all(|p| was_fitted(p.0)) && gains_less_than(pts, f0, worth)
     };
