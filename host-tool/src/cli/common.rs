@@ -468,6 +468,45 @@ pub(crate) fn rivals(
         .collect()
 }
 
+/// The rivals of a wrong latitude on a fit `id` of `effects` on `prep` that does not fit: the
+/// catalog's effects refitted ([`rivals`]) and the set-up misstated or moved within its priors,
+/// weighed on the same fit ([`crate::diagnose::misstated::weigh`]): a wrong latitude is one
+/// misstatement among them. Without them a clock 1000 ppm fast was named a latitude 0.07° off
+/// (the profile then free to fit the data's gravity at every latitude), and its run refused by
+/// a joint fit.
+pub(crate) fn latitude_rivals(
+    prep: &Prepared,
+    catalog: &Catalog,
+    effects: &[&dyn estimator_core::effects::Effect],
+    cfg: &Config,
+    id: &crate::identify::Identification,
+    progress: &Progress,
+) -> Vec<(String, f64)> {
+    use crate::diagnose::misstated;
+    let (catalog_rivals, set_up) = rayon::join(
+        || rivals(prep, catalog, effects, cfg, id, progress),
+        || {
+            let unc = crate::identify::setup::uncertainty(effects, prep, cfg, id).ok()?;
+            let (mis, within) = misstated::weigh(effects, prep, cfg, (id, &unc), None)
+                .ok()?
+                .on_the_stated_fit();
+            let mis = &mis;
+            let mis = not_the_latitude(mis).map(|a| (a.effect.clone(), a.evidence_gain));
+            Some(mis.chain(within).collect::<Vec<_>>())
+        },
+    );
+    [catalog_rivals, set_up.unwrap_or_default()].concat()
+}
+
+/// The misstatements but the latitude's: the rivals of the latitude's profile, which weighs that
+/// one itself (a latitude 0.5° off was "not told from `latitude misstated`", itself).
+fn not_the_latitude<'a>(
+    mis: impl IntoIterator<Item = &'a crate::diagnose::alternatives::Alternative>,
+) -> impl Iterator<Item = &'a crate::diagnose::alternatives::Alternative> {
+    mis.into_iter()
+        .filter(|a| a.misstated.as_ref().is_none_or(|m| m.index != 0))
+}
+
 /// The starting model fitted on `prep` when its data are trusted (else `None`). A misfit is
 /// first weighed against a misstated set-up ([`crate::diagnose::misstated`]; one that beats every
 /// explanation is repaired in `prep` and `cfg` and the model refitted there), then against the
@@ -574,7 +613,7 @@ pub(crate) fn starting_fit(
         *stated = Some(std::mem::replace(prep, settled.prep));
         return Ok(Some(settled.id));
     }
-    rivals.extend(mis.iter().map(|a| (a.effect.clone(), a.evidence_gain)));
+    rivals.extend(not_the_latitude(&mis).map(|a| (a.effect.clone(), a.evidence_gain)));
     // The ladder climbs from the set-up as stated: each misstatement is a rival of what it adds.
     *at_start = crate::assess::AtTheStart {
         misstated: mis,

@@ -448,7 +448,8 @@ fn run_one(args: &IdentifyArgs, catalog: &Catalog) -> anyhow::Result<()> {
 }
 
 /// Whether the metadata latitude is why the assessed fit does not fit
-/// ([`super::common::name_a_wrong_latitude`], against the catalog's refitted rivals); `None` when it
+/// ([`super::common::name_a_wrong_latitude`], against the catalog's refitted rivals and the
+/// misstated set-ups, [`super::common::latitude_rivals`]); `None` when it
 /// fits.
 fn wrong_latitude_on_a_misfit(
     catalog: &Catalog,
@@ -462,7 +463,8 @@ fn wrong_latitude_on_a_misfit(
         return None;
     }
     let (prep, id) = (&assessed.prep, &assessed.id);
-    let rivals = |p: &Prepared| super::common::rivals(p, catalog, effects, cfg, id, progress);
+    let rivals =
+        |p: &Prepared| super::common::latitude_rivals(p, catalog, effects, cfg, id, progress);
     super::common::name_a_wrong_latitude(prep, (effects, id), cfg, rivals, progress)
 }
 

@@ -373,7 +373,8 @@ fn refuse_wrong_latitudes(
         if let Some(id) = misfit {
             let spin = crate::progress::spinner("the model does not fit");
             let progress = crate::progress::follow(&spin);
-            let rivals = |p: &_| super::common::rivals(p, catalog, effects, cfg, id, &progress);
+            let rivals =
+                |p: &_| super::common::latitude_rivals(p, catalog, effects, cfg, id, &progress);
             let fitted = (effects, id);
             let found =
                 super::common::name_a_wrong_latitude(&r.prep, fitted, cfg, rivals, &progress);

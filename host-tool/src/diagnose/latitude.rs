@@ -10,7 +10,9 @@ use estimator_core::frames::normal_gravity;
 
 use crate::consistency::{assess, Thresholds};
 use crate::diagnose::select::{fit_stats, neg2_log_evidence};
-use crate::identify::setup::at_latitude;
+use crate::identify::setup::{
+    at_latitude, at_latitude_measured, at_latitude_with, measured_gravity, normal_gravity_at_site,
+};
 use crate::identify::{build_model, identify, identify_from, Config, Identification, Prepared};
 use crate::quality::{Action, Finding, Kind};
 use rayon::prelude::*;
@@ -44,8 +46,7 @@ pub(crate) struct Fitted {
     pub prep: Prepared,
 }
 
-/// The measurements at another latitude: [`at_latitude`] (gravity moves with the latitude where
-/// it is the normal gravity), or one that keeps the stated gravity.
+/// The measurements at another latitude ([`ProfileSites`], or one that keeps the stated gravity).
 pub(crate) type SiteAt = fn(&Prepared, f64) -> Prepared;
 
 /// Farthest a profile fit is warm-started from, deg: the refinement's and the stencil's points
@@ -85,12 +86,18 @@ impl<'a> Fits<'a> {
         }
     }
 
-    /// Takes `id`, the model's fit on `prep` itself (at its latitude `lat`), as fitted there: the
-    /// profile then starts from it instead of fitting the metadata latitude again.
-    fn seed(&self, lat: f64, id: &Identification) {
+    /// Takes `id`, the model's fit on `prep` itself (at its latitude `lat`): as fitted there when
+    /// it lies `on_profile` (the profile then starts from it instead of fitting the metadata
+    /// latitude again), and else only as the warm start of the fits near it (its evidence, at
+    /// another gravity, is no point of the profile's: +∞ here, so the first fit replaces it).
+    fn seed(&self, lat: f64, id: &Identification, on_profile: bool) {
         let fitted = Arc::new(Fitted {
             latitude_deg: lat,
-            evidence: neg2_log_evidence(id),
+            evidence: if on_profile {
+                neg2_log_evidence(id)
+            } else {
+                f64::INFINITY
+            },
             id: id.clone(),
             prep: self.prep.clone(),
         });
@@ -203,24 +210,19 @@ fn latitude_of_gravity(g: f64) -> f64 {
 }
 
 /// The two-pass screen of the grid ([`crate::identify::two_pass_evidence`]: −2 ln p(y) of the
-/// EKF passes without the smoother, ~8 ms a latitude where a full fit far off takes ~100 ms) and,
-/// beside it, `f` at the metadata latitude `l0` (`known`: its value, when the fit there is at
-/// hand), all on every core. Measured on misfitting 60-h runs (an accelerometer bias, a drift
+/// EKF passes without the smoother, ~8 ms a latitude where a full fit far off takes ~100 ms) at
+/// the sites `site_at` gives and, beside it, `f0` (the metadata's −2 ln p(y), when it must be
+/// fitted), all on every core. Measured on misfitting 60-h runs (an accelerometer bias, a drift
 /// trend, latitudes 3° and 6° off): the screen ranks the grid as the full fits do, within 0.5 %
 /// of their values 2° and more from the best.
 fn screened(
-    prep: &Prepared,
-    effects: &[&dyn Effect],
-    cfg: &Config,
+    (prep, effects, cfg): (&Prepared, &[&dyn Effect], &Config),
+    site_at: SiteAt,
     grid: &[f64],
-    l0: f64,
-    (f, known): (&(impl Fn(&[f64]) -> Vec<f64> + Sync), Option<f64>),
+    f0: impl FnOnce() -> f64 + Send,
 ) -> (f64, Vec<f64>) {
-    let screen = |l: f64| screen(prep, effects, cfg, at_latitude, l);
-    rayon::join(
-        || known.unwrap_or_else(|| f(&[l0])[0]),
-        || grid.par_iter().map(|&l| screen(l)).collect(),
-    )
+    let screen = |l: f64| screen(prep, effects, cfg, site_at, l);
+    rayon::join(f0, || grid.par_iter().map(|&l| screen(l)).collect())
 }
 
 /// The screen's −2 ln p(y) at latitude `lat` ([`crate::identify::two_pass_evidence`]), +∞ where
@@ -369,10 +371,55 @@ fn parabolic_minimum(
     lowest
 }
 
+/// The sites a latitude profile fits at, and the −2 ln prior of each one's gravity. Where the
+/// metadata gave a gravity (one measured on site, or the data's after a repair) it is kept.
+/// Where it gave only the normal gravity of its latitude, the site's gravity is that normal
+/// gravity within the set-up's gravity prior (`--gravity-sigma-ppm`): the profile then fits the
+/// gravity the data show ([`at_latitude_measured`]; the data fix it ~1000× tighter than the
+/// prior) and a latitude pays the prior's k² where its normal gravity misses that by k prior σ.
+/// A gravity taken as exact (prior 0) moves with the latitude as its normal gravity. Moving it
+/// so always, the profile did not reach a site whose gravity is not the normal gravity of its
+/// latitude (a latitude written 2° off with the site's own gravity: ~180 ppm, six prior σ, a
+/// misfit of thousands), and it was told as a drift trend and a daily drift, trusted, 56σ off.
+struct ProfileSites<'a> {
+    site_at: SiteAt,
+    prep: &'a Prepared,
+    /// The gravity prior's 1σ, relative, where the profile takes the data's gravity.
+    gravity_sigma: Option<f64>,
+}
+
+impl<'a> ProfileSites<'a> {
+    fn new(prep: &'a Prepared, cfg: &Config) -> Self {
+        let sigma = cfg.setup.gravity_sigma_ppm * 1e-6;
+        let (site_at, gravity_sigma): (SiteAt, _) = if !normal_gravity_at_site(prep) {
+            (|p, l| at_latitude_with(p, l, false), None)
+        } else if sigma > 0.0 {
+            (at_latitude_measured, Some(sigma))
+        } else {
+            (at_latitude, None)
+        };
+        ProfileSites {
+            site_at,
+            prep,
+            gravity_sigma,
+        }
+    }
+
+    /// −2 ln of the gravity prior at latitude `lat` (deg).
+    fn gravity_cost(&self, lat: f64) -> f64 {
+        self.gravity_sigma.map_or(0.0, |s| {
+            let g = measured_gravity(self.prep, lat);
+            ((g / normal_gravity(lat.to_radians()) - 1.0) / s).powi(2)
+        })
+    }
+}
+
 /// Profiles the evidence over latitude: a grid of 2° ([`search_grid`]) then a parabolic
-/// refinement ([`parabolic_minimum`]). `fitted`: the model's fit on `prep` itself when there is
-/// one, taken as the metadata latitude's (a cold fit there was ~35 ms of CPU of a misfitting
-/// 60-h `identify`; the two converge to the same tolerance). `None` also where the best latitude
+/// refinement ([`parabolic_minimum`]), at the sites [`ProfileSites`] gives, each with its
+/// gravity's prior. The gain is over `fitted`, the model's fit on `prep` itself (fitted here when
+/// `None`); that is also the profile's point at the metadata latitude where the profile's site
+/// there is the metadata's (a cold fit there was ~35 ms of CPU of a misfitting 60-h `identify`;
+/// the two converge to the same tolerance). `None` also where the best latitude
 /// gains no more than `worth` over the metadata's: the refinement then stops once its bracket
 /// says so ([`gains_less_than`]), and the 1σ and the consistency there (two fits and the
 /// whiteness test) are not computed. Most misfits are not the latitude's: on a 60-h run with a
@@ -385,26 +432,51 @@ pub(crate) fn profile(
     worth: f64,
 ) -> Option<LatitudeFit> {
     let l0 = prep.site.latitude_rad.to_degrees();
-    // A model that cannot even be fitted at the metadata latitude (the smoother fails) leaves
-    // any latitude where it fits, and fits consistently, the better one.
-    let fits = Fits::new(prep, effects, cfg, at_latitude);
-    let f = |ls: &[f64]| fits.evidences(ls);
+    let sites = ProfileSites::new(prep, cfg);
+    let site_at = sites.site_at;
+    let cost = |l: f64| sites.gravity_cost(l);
+    // The metadata's own fit lies on the profile only when the profile's site there is the
+    // metadata's.
+    let on_profile = site_at(prep, l0).site == prep.site;
+    let fits = Fits::new(prep, effects, cfg, site_at);
+    let f = |ls: &[f64]| {
+        let e = fits.evidences(ls);
+        e.iter()
+            .zip(ls)
+            .map(|(e, &l)| e + cost(l))
+            .collect::<Vec<f64>>()
+    };
     let confirmed =
         crate::quality::hemisphere::latitude_from_forces(&prep.measurements, |m| m.specific_force)
             .is_some_and(|seen| crate::quality::hemisphere::confirms(l0, seen));
-    let grid = search_grid(l0, latitude_of_gravity(prep.site.gravity_mps2), confirmed);
+    let g = site_at(prep, l0).site.gravity_mps2;
+    let grid = search_grid(l0, latitude_of_gravity(g), confirmed);
     if let Some(id) = fitted {
-        fits.seed(l0, id);
+        fits.seed(l0, id, on_profile);
     }
-    let known = fitted.map(neg2_log_evidence);
-    let (f0, scores) = screened(prep, effects, cfg, &grid, l0, (&f, known));
+    // The gain's reference: the metadata's −2 ln p(y), as fitted or fitted here. A model that
+    // cannot even be fitted there leaves any latitude where it fits, and fits consistently,
+    // the better one.
+    let stated = || {
+        build_model(prep.site, effects, cfg)
+            .ok()
+            .and_then(|m| identify(&m, prep, cfg).ok())
+            .map_or(f64::INFINITY, |id| neg2_log_evidence(&id))
+    };
+    let (f0, mut scores) = match fitted.map(neg2_log_evidence) {
+        Some(known) => screened((prep, effects, cfg), site_at, &grid, || known),
+        None => screened((prep, effects, cfg), site_at, &grid, stated),
+    };
+    for (s, &l) in scores.iter_mut().zip(&grid) {
+        *s += cost(l);
+    }
     let k = (0..grid.len()).min_by(|&a, &b| scores[a].total_cmp(&scores[b]))?;
     // The latitudes fitted (the bracket's ends may keep the screen's values); one thread
     // refines, so a `RefCell`.
-    let fitted_at = std::cell::RefCell::new(vec![l0]);
-    // The metadata latitude's fit once.
+    let fitted_at = std::cell::RefCell::new(if on_profile { vec![l0] } else { vec![] });
+    // The metadata latitude's fit once, where it lies on the profile.
     let f = |ls: &[f64]| -> Vec<f64> {
-        let at_l0 = |l: &f64| (l - l0).abs() < 1e-9;
+        let at_l0 = |l: &f64| on_profile && (l - l0).abs() < 1e-9;
         let others: Vec<f64> = ls.iter().filter(|l| !at_l0(l)).copied().collect();
         let mut fitted = f(&others).into_iter();
         fitted_at.borrow_mut().extend_from_slice(&others);
@@ -433,7 +505,10 @@ pub(crate) fn profile(
     // the best latitude also says whether the model is consistent there.
     // The lowest fit is the refinement's best: every point but a screened end was fitted. (A
     // screened end is the best only where the middle could not be fitted: it is fitted then.)
-    let at_best = match fits.lowest().filter(|l| l.latitude_deg == best) {
+    let at_best = match fits
+        .lowest()
+        .filter(|l| l.latitude_deg == best && l.evidence.is_finite())
+    {
         Some(fit) => fit,
         None => fits.fit(best)?,
     };
@@ -441,7 +516,7 @@ pub(crate) fn profile(
     let [fm, fp] = f(&[best - h, best + h])[..] else {
         return None;
     };
-    let (fb, id, p) = (at_best.evidence, &at_best.id, &at_best.prep);
+    let (fb, id, p) = (at_best.evidence + cost(best), &at_best.id, &at_best.prep);
     let curv = (fp - 2.0 * fb + fm) / (h * h);
     let sigma_deg = if curv > 0.0 {
         (2.0 / curv).sqrt()
@@ -491,8 +566,10 @@ pub(crate) fn occam(sigma_deg: f64) -> f64 {
 
 /// A finding when the data clearly put the site at another latitude, the model fits there, and
 /// a wrong latitude explains the data better than every rival (`rivals`: the catalog effects'
-/// evidence gains on the same scale) by [`crate::diagnose::alternatives::PLAUSIBLE_MARGIN`]. A
-/// rival as good makes it a confounded finding without advice; a better rival, no finding.
+/// and the other misstatements' evidence gains on the same scale) by
+/// [`crate::diagnose::alternatives::PLAUSIBLE_MARGIN`]: its gain less its Occam factor and, as
+/// for every misstatement, the prior odds. A rival as good makes it a confounded finding
+/// without advice; a better rival, no finding.
 pub fn check(
     prep: &Prepared,
     effects: &[&dyn Effect],
@@ -520,7 +597,9 @@ pub(crate) fn check_with(
     {
         return None;
     }
-    let evidence = fit.gain - occam(fit.sigma_deg);
+    // A wrong latitude is a misstatement: it pays their prior odds, as each misstated set-up
+    // does ([`crate::diagnose::misstated::PRIOR_ODDS`]).
+    let evidence = fit.gain - occam(fit.sigma_deg) - crate::diagnose::misstated::PRIOR_ODDS;
     let rivals = rivals();
     let rival = rivals
         .iter()
@@ -535,22 +614,29 @@ pub(crate) fn check_with(
             let _ = (name, g);
             return None;
         }
-        Some((name, g)) => format!(
-            "the data do not tell a wrong metadata latitude from `{name}`: at latitude {at} deg (the metadata says {given}) the same model \
-             explains the measurements (evidence gain {evidence:.1} after the latitude's Occam factor), and adding `{name}` gains {g:.1} \
-             on the same scale; the coefficients differ under the two — check the latitude against the site's survey, or make a second \
-             run from another orientation (`driftid plan`)"
-        ),
+        Some((name, g)) => {
+            // A rival's name is an effect's, or names its effects in backticks already.
+            let name = match name.contains('`') {
+                true => name.clone(),
+                false => format!("`{name}`"),
+            };
+            format!(
+                "the data do not tell a wrong metadata latitude from {name}: at latitude {at} deg (the metadata says {given}) the same model \
+                 explains the measurements (evidence gain {evidence:.1} after the latitude's Occam factor and the prior odds of a misstatement), and {name} gains {g:.1} \
+                 on the same scale; the coefficients differ under the two — check the latitude against the site's survey, or make a second \
+                 run from another orientation (`driftid plan`)"
+            )
+        }
         None => format!(
             "the data put the site at latitude {at} deg; the metadata says {given} deg. At the data's latitude the same model explains the measurements\
-             {}, better than any catalog effect by more than {} on the same scale. The metadata latitude is wrong: rerun with --latitude-deg {:.4}",
+             {}, better than any catalog effect or other misstatement by more than {} on the same scale. The metadata latitude is wrong: rerun with {}",
             if fit.gain.is_finite() {
-                format!(" (−2 ln p(y) lower by {:.1}; evidence gain {evidence:.1} after the latitude's Occam factor); at the metadata's it does not", fit.gain)
+                format!(" (−2 ln p(y) lower by {:.1}; evidence gain {evidence:.1} after the latitude's Occam factor and the prior odds of a misstatement); at the metadata's it does not", fit.gain)
             } else {
                 "; at the metadata's it cannot even be fitted".to_string()
             },
             crate::diagnose::alternatives::PLAUSIBLE_MARGIN,
-            fit.latitude_deg
+            rerun_options(&fit)
         ),
     };
     Some(Finding {
@@ -565,6 +651,18 @@ pub(crate) fn check_with(
         samples: 0,
         action: Action::NotRepaired,
     })
+}
+
+/// The options of the rerun the finding advises: the data's latitude and its 1σ. Without the
+/// 1σ the rerun took the latitude as written to its last digit (±5e-5°), and a latitude the
+/// data put 1σ (0.02°) from the site's moved the drifts by 24–28σ, trusted (30-h runs, the
+/// latitude 0.3°–2° off).
+fn rerun_options(fit: &LatitudeFit) -> String {
+    format!(
+        "--latitude-deg {:.4} --latitude-sigma-deg {}",
+        fit.latitude_deg,
+        crate::format::sig(fit.sigma_deg, 2)
+    )
 }
 
 #[cfg(test)]
@@ -707,6 +805,8 @@ mod tests {
     /// profile's best gains less: a misfit that is not the latitude's (a 12-h periodic drift at
     /// the stated latitude, 30 h at 10 s), whose full profile gains 6.5 (the best latitude 2.6σ
     /// from the stated one) — below the quarter of the threshold the stop asks of the bracket.
+    /// That with gravity taken as exact: with gravity free within its 30-ppm prior, a latitude
+    /// 0.9° south explains this drift consistently (gain ~1000), a rival the catalog weighs.
     #[test]
     fn a_profile_told_what_is_worth_reporting_stops_early_only_below_it() {
         let effects = [crate::catalog::paper()];
@@ -726,6 +826,8 @@ mod tests {
         }];
         let sim = crate::simulate::simulate(&sc);
         let samples: Vec<Sample> = sim.samples.iter().map(Sample::from).collect();
+        let mut cfg = cfg;
+        cfg.setup.gravity_sigma_ppm = 0.0;
         let prep =
             crate::identify::prepare_oriented(Site::new(39.1, None), &samples, &cfg, [0.0; 3])
                 .unwrap();
@@ -892,5 +994,74 @@ mod tests {
         let far = search_grid(-10.5, 60.0, true);
         assert!(far.iter().any(|l| (l + 60.0).abs() < 1.0));
         assert!(far.iter().all(|l| *l < 2.0), "{far:?}");
+    }
+
+    /// The profile reaches the site whatever its gravity: the platform 2° south of the
+    /// metadata's 39.1° (30 h at 10 s), its gravity the normal gravity of 37.1° (as the metadata
+    /// would give it, the data following the latitude) or of 39.1° (the site's own gravity in
+    /// the metadata, ~180 ppm from 37.1°'s normal gravity). Either way it names 37.1° within 3
+    /// of its 1σ (`diagnose` on 25 runs that name it, 0.3°–5° off, both kinds: −1.2σ to +2.2σ).
+    /// With gravity taken as exact it moves with the latitude as its normal gravity, and the
+    /// site whose gravity is not that is out of reach: its best lies at 39.07°, where the model
+    /// does not fit — the profile before, which let a drift trend and a daily drift tell the
+    /// misfit, trusted.
+    #[test]
+    fn the_profile_reaches_a_site_whose_gravity_is_not_its_latitudes_normal_gravity() {
+        use estimator_core::{Sample, Site};
+        let effects = [crate::catalog::paper()];
+        let run = |gravity: Option<f64>, exact: bool| {
+            let mut sc = crate::simulate::Scenario::paper();
+            sc.latitude_deg = 37.1;
+            sc.gravity_mps2 = gravity;
+            sc.hours = 30.0;
+            sc.rate_s = 10.0;
+            sc.seed = 7;
+            let sim = crate::simulate::simulate(&sc);
+            let samples: Vec<Sample> = sim.samples.iter().map(Sample::from).collect();
+            let mut cfg = Config::default();
+            if exact {
+                cfg.setup.gravity_sigma_ppm = 0.0;
+            }
+            let prep =
+                crate::identify::prepare_oriented(Site::new(39.1, None), &samples, &cfg, [0.0; 3])
+                    .unwrap();
+            profile(&prep, &effects, &cfg, None, MIN_GAIN)
+        };
+        let own_gravity = Some(normal_gravity(39.1f64.to_radians()));
+        for gravity in [None, own_gravity] {
+            let fit = run(gravity, false).expect("a latitude named");
+            assert!(
+                (fit.latitude_deg - 37.1).abs() < 3.0 * fit.sigma_deg && fit.consistent,
+                "{gravity:?}: {fit:?}"
+            );
+            assert!(fit.gain > MIN_GAIN, "{gravity:?}: {fit:?}");
+        }
+        let exact = run(own_gravity, true);
+        assert!(
+            exact.is_none_or(|f| !f.consistent && (f.latitude_deg - 37.1).abs() > 1.0),
+            "{exact:?}"
+        );
+    }
+
+    /// A latitude whose normal gravity misses the data's by k of the gravity prior's 1σ pays k²;
+    /// a gravity the metadata gave, or one taken as exact, pays nothing (it is not the data's).
+    #[test]
+    fn a_latitude_pays_its_normal_gravitys_distance_from_the_datas_in_prior_sigmas() {
+        let (prep, cfg) = stated_39_1(39.1, 6.0);
+        let sites = ProfileSites::new(&prep, &cfg);
+        let g = |l: f64| measured_gravity(&prep, l);
+        let k = |l: f64| (g(l) / normal_gravity(f64::to_radians(l)) - 1.0) / 30e-6;
+        for l in [39.1, 38.0, 41.5] {
+            assert!((sites.gravity_cost(l) - k(l).powi(2)).abs() < 1e-9 * k(l).powi(2).max(1.0));
+        }
+        // 1.1° of latitude at 39° move normal gravity by ~100 ppm: 3.3 prior σ.
+        assert!((3.0..3.6).contains(&k(38.0).abs()), "{}", k(38.0));
+        let mut exact = cfg.clone();
+        exact.setup.gravity_sigma_ppm = 0.0;
+        assert_eq!(ProfileSites::new(&prep, &exact).gravity_cost(38.0), 0.0);
+        let given = at_latitude_with(&prep, 39.1, false);
+        let mut given = given;
+        given.site.gravity_mps2 += 1e-3;
+        assert_eq!(ProfileSites::new(&given, &cfg).gravity_cost(38.0), 0.0);
     }
 }

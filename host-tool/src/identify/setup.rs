@@ -383,9 +383,32 @@ pub fn at_latitude(prep: &Prepared, lat_deg: f64) -> Prepared {
 }
 
 /// Whether `prep`'s gravity is the normal gravity of its latitude (and so moves with it).
-fn normal_gravity_at_site(prep: &Prepared) -> bool {
+pub(crate) fn normal_gravity_at_site(prep: &Prepared) -> bool {
     (prep.site.gravity_mps2 - estimator_core::frames::normal_gravity(prep.site.latitude_rad)).abs()
         < 1e-12
+}
+
+/// The gravity `prep`'s measurements show, the site at latitude `lat_deg`: the mean over the
+/// filter-period means of |A|, each lifted by the curvature of its window that the model adds
+/// (the mean of the turning A is shorter than g by ½·Var(t)·ω_e²·cos²L·g,
+/// [`estimator_core::Model::measurement`]). At rest |A| is g whatever the attitude, so this is
+/// the gravity a fit without accelerometer effects asks for, to ~0.02 ppm on a 60-h run.
+pub fn measured_gravity(prep: &Prepared, lat_deg: f64) -> f64 {
+    let w2_cos2 = (estimator_core::units::EARTH_RATE_RADPS * lat_deg.to_radians().cos()).powi(2);
+    let n = prep.measurements.len().max(1) as f64;
+    prep.measurements
+        .iter()
+        .map(|m| Vector3::from(m.specific_force).norm() / (1.0 - 0.5 * m.time_var_s2 * w2_cos2))
+        .sum::<f64>()
+        / n
+}
+
+/// `prep` at latitude `lat_deg` with the gravity its measurements show ([`measured_gravity`]).
+pub fn at_latitude_measured(prep: &Prepared, lat_deg: f64) -> Prepared {
+    let enu = prep.site.angles_to_enu(&prep.initial_angles);
+    let mut site = Site::new(lat_deg, Some(measured_gravity(prep, lat_deg)));
+    site.chart = site.chart_for_start(&enu);
+    in_site(prep, site, &enu)
 }
 
 /// [`at_latitude`], gravity moving with the latitude (`derived`) or kept.
