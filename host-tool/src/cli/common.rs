@@ -490,9 +490,8 @@ pub(crate) fn latitude_rivals(
             let (mis, within) = misstated::weigh(effects, prep, cfg, (id, &unc), None)
                 .ok()?
                 .on_the_stated_fit();
-            let mis = &mis;
-            let mis = not_the_latitude(mis).map(|a| (a.effect.clone(), a.evidence_gain));
-            Some(mis.chain(within).collect::<Vec<_>>())
+            let named = not_the_latitude(&mis).map(|a| (a.effect.clone(), a.evidence_gain));
+            Some(named.chain(within).collect::<Vec<_>>())
         },
     );
     [catalog_rivals, set_up.unwrap_or_default()].concat()
