@@ -437,7 +437,8 @@ pub(crate) fn profile(
     let cost = |l: f64| sites.gravity_cost(l);
     // The metadata's own fit lies on the profile only when the profile's site there is the
     // metadata's.
-    let on_profile = site_at(prep, l0).site == prep.site;
+    let at_l0 = site_at(prep, l0).site;
+    let on_profile = at_l0 == prep.site;
     let fits = Fits::new(prep, effects, cfg, site_at);
     let f = |ls: &[f64]| {
         let e = fits.evidences(ls);
@@ -449,8 +450,7 @@ pub(crate) fn profile(
     let confirmed =
         crate::quality::hemisphere::latitude_from_forces(&prep.measurements, |m| m.specific_force)
             .is_some_and(|seen| crate::quality::hemisphere::confirms(l0, seen));
-    let g = site_at(prep, l0).site.gravity_mps2;
-    let grid = search_grid(l0, latitude_of_gravity(g), confirmed);
+    let grid = search_grid(l0, latitude_of_gravity(at_l0.gravity_mps2), confirmed);
     if let Some(id) = fitted {
         fits.seed(l0, id, on_profile);
     }
