@@ -69,6 +69,7 @@ fn main() {
         eprintln!("driftid: warning: {e:#}");
     }
     cli::common::keep_freed_memory();
+    host_tool::pool::start();
     if let Some(bytes) = host_tool::heap::default_budget() {
         host_tool::heap::set_budget(bytes);
     }
