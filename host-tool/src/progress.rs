@@ -29,15 +29,17 @@ pub(crate) fn bar(len: u64, msg: &str) -> ProgressBar {
 /// `pb` is hidden (stderr not a terminal), so a redirected run formats no message at all.
 ///
 /// With `DRIFTID_TIMING` set in the environment each note is also written to stderr with the
-/// seconds since the process started (where the time of a run goes: docs/measurements.md).
+/// seconds since the process started, the CPU time and the passes over the measurements so far
+/// ([`crate::identify::work`]; where the time of a run goes: docs/measurements.md).
 pub(crate) fn follow(pb: &ProgressBar) -> crate::steps::Progress {
     if std::env::var_os("DRIFTID_TIMING").is_some() {
         let start = *START;
         return crate::steps::Progress::new(move |m| {
             eprintln!(
-                "[{:7.3} s, CPU {:7.3} s] {m}",
+                "[{:7.3} s, CPU {:7.3} s; {}] {m}",
                 start.elapsed().as_secs_f64(),
-                process_cpu_s()
+                process_cpu_s(),
+                crate::identify::work::so_far()
             )
         });
     }

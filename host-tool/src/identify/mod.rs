@@ -19,6 +19,7 @@ pub mod setup;
 pub(crate) mod slow_drift;
 pub mod smoother;
 mod widened;
+pub mod work;
 
 pub(crate) use widened::identify_widened;
 
@@ -517,6 +518,7 @@ fn ekf_run_cap<const CAP: usize>(
     mut each: impl FnMut(Residual, &[f64]),
 ) -> anyhow::Result<Estimate> {
     let n = model.dim();
+    work::count(false, n, meas.len());
     let mut ekf = Ekf::<CAP>::new(*model, x0, sigma0).map_err(|e| anyhow::anyhow!("{e}"))?;
     for m in meas {
         let r = ekf.step(m).map_err(|e| anyhow::anyhow!("filter: {e}"))?;

@@ -1035,6 +1035,7 @@ fn run_cap<const CAP: usize>(
     debug_assert!(observer.is_none() || !given.is_empty());
     let fwd = Forward::<CAP>::new(model, meas, &nominal)?;
     let updates = meas.len();
+    super::work::count(true, n, updates);
     let mut run = ForwardRun::new(model, meas, x0, p0, mode, updates, keep_nodes_bytes);
     // Dense Φ, H and K for an observer (the score tests), built only when there is one.
     let mut view = observer.as_ref().map(|_| ObserverMats::new(n));
