@@ -213,8 +213,8 @@ fn latitude_of_gravity(g: f64) -> f64 {
 /// EKF passes without the smoother, ~8 ms a latitude where a full fit far off takes ~100 ms) at
 /// the sites `site_at` gives and, beside it, `f0` (the metadata's −2 ln p(y), when it must be
 /// fitted), all on every core. Measured on misfitting 60-h runs (an accelerometer bias, a drift
-/// trend, latitudes 3° and 6° off): the screen ranks the grid as the full fits do, within 0.5 %
-/// of their values 2° and more from the best.
+/// trend, a 30-h sine, latitudes 1°, 3° and 6° off): the screen ranks the grid as the full fits
+/// do, within 0.3–0.9 % of their values 2° and more from the best.
 fn screened(
     (prep, effects, cfg): (&Prepared, &[&dyn Effect], &Config),
     site_at: SiteAt,
@@ -287,7 +287,8 @@ fn bracket(
     pts
 }
 
-/// Relative error the screen's ranking is trusted to: 10× the largest measured (0.5 %).
+/// Relative error the screen's ranking is trusted to: 10× the 0.5 % measured when it was set (since
+/// measured up to 0.9 %: a latitude 3° off, 60 h at 10 s, see [`screened`]).
 const SCREEN_TRUST: f64 = 0.05;
 
 /// Whether the screen's `end` lies above its `middle` by more than the screen's error on
@@ -850,6 +851,46 @@ mod tests {
         assert!(!gains_less_than(&pts, -100.0 + 25.1, 100.0));
         let flat = [(39.0, 1.0), (39.04, 0.0), (39.05, -1.0)];
         assert!(!gains_less_than(&flat, 0.0, 100.0));
+    }
+
+    /// The screen holds where the model is wrong and the run is southern: an accelerometer bias
+    /// outside the model, 36 h at 5 s, 35° S as stated. Its two full EKF passes diverged there
+    /// (4e10 at the data's own latitude, where the fit reads −1e5) and ranked 33° S best; the
+    /// screen must rank the 2° grid about the site as the full fits do and lie within 0.5 % of
+    /// each (the screen's measured error, `SCREEN_TRUST / 10`; measured here: ≤ 0.42 %).
+    #[test]
+    fn the_screen_holds_where_the_model_is_wrong_in_the_south() {
+        use crate::simulate::InjectedEffect;
+        use estimator_core::{Sample, Site};
+        let mut sc = crate::simulate::Scenario::paper();
+        sc.latitude_deg = -35.0;
+        sc.hours = 36.0;
+        sc.rate_s = 5.0;
+        sc.seed = 3;
+        sc.effects = vec![InjectedEffect::AccBias {
+            b_mps2: [2e-4, -1e-4, 1e-4],
+        }];
+        let sim = crate::simulate::simulate(&sc);
+        let samples: Vec<Sample> = sim.samples.iter().map(Sample::from).collect();
+        let cfg = Config::default();
+        let prep = crate::identify::prepare(Site::new(-35.0, None), &samples, &cfg).unwrap();
+        let effects = [crate::catalog::paper()];
+        let site_at = ProfileSites::new(&prep, &cfg).site_at;
+        let grid = [-39.0, -37.0, -35.0, -33.0, -31.0];
+        let screened: Vec<f64> = grid
+            .par_iter()
+            .map(|&l| screen(&prep, &effects, &cfg, site_at, l))
+            .collect();
+        let fitted = Fits::new(&prep, &effects, &cfg, site_at).evidences(&grid);
+        let argmin = |v: &[f64]| (0..v.len()).min_by(|&a, &b| v[a].total_cmp(&v[b])).unwrap();
+        assert_eq!(argmin(&fitted), 2, "the fits' best: {fitted:?}");
+        assert_eq!(argmin(&screened), 2, "the screen's best: {screened:?}");
+        for ((l, s), f) in grid.iter().zip(&screened).zip(&fitted) {
+            assert!(
+                (s - f).abs() <= SCREEN_TRUST / 10.0 * (s.abs() + f.abs()),
+                "at {l}°: screen {s}, fit {f}"
+            );
+        }
     }
 
     /// The screen ranks the misstated latitude's 0.1° grid ([`crate::diagnose::misstated`]) as
