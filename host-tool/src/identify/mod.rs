@@ -552,34 +552,64 @@ fn single_pass_prior(model: &Model<'_>, prep: &Prepared) -> (Vec<f64>, Vec<f64>)
 /// from its estimate with the prior shrunk, as [`identify`] starts): no smoother. A cheap ranking
 /// of set-ups far apart (latitudes 2° apart differ by 1e5–1e7 here); not the fit's evidence.
 ///
-/// The first pass only sets the second's start, and it runs on every [`screen_stride`]-th
-/// measurement. Over every measurement it diverged where the model is wrong (an accelerometer
-/// bias, 36 h at 35° S: 4e10 at the data's own latitude, the full fit −1e5), and the second pass,
-/// held near its estimate, could not recover: the screen then ranked the wrong latitude best.
-/// On the stride its estimate is looser and the second pass recovers (−98 898 there, the fit's
-/// −98 825); on 60-h runs its values lie within 0.3–0.9 % of the full fits 2° and more from the
-/// best (the full passes': 0.4–1.4 %), at a little over half the cost.
+/// Where the model is wrong the single pass can diverge, and the second, held near its estimate,
+/// cannot recover: 1e7 per measurement at the data's own latitude where the fit reads −46 (36 h
+/// at 35° S, a latitude 3° off or an accelerometer bias), and the screen ranked the wrong latitude
+/// best. A single pass that reads over [`DIVERGED_PER_MEASUREMENT`] is tried again on every
+/// [`screen_stride`]-th measurement, looser, which recovered there (but diverged where the full
+/// one held: 24 h, a latitude 6° off with gravity kept); the lower of the two second passes is
+/// kept (a diverged pass only reads high; where both hold they agree to ~1e-4, measured at 18
+/// latitudes of three runs).
 pub(crate) fn two_pass_evidence(model: &Model<'_>, prep: &Prepared, cfg: &Config) -> Option<f64> {
     let meas = &prep.measurements;
     let stride = screen_stride(meas.len());
+    let full = second_pass_evidence(model, prep, cfg, meas);
+    let diverged = full.is_none_or(|(single, _)| single > DIVERGED_PER_MEASUREMENT);
+    if stride == 1 || !diverged {
+        return full.map(|(_, f)| f);
+    }
     let sparse: Vec<Measurement> = meas.iter().step_by(stride).copied().collect();
+    let loose = second_pass_evidence(model, prep, cfg, &sparse);
+    [full, loose]
+        .into_iter()
+        .flatten()
+        .map(|(_, f)| f)
+        .min_by(f64::total_cmp)
+}
+
+/// A single EKF pass reading more than this (−2 ln p(y) per measurement; an rms innovation of
+/// ~180σ) may have diverged: over every measurement, those that held read at most ~5e4 (60 h,
+/// a latitude 12° off), those that diverged 5e7 and more (30 latitudes of three 24–36-h runs).
+/// A pass that held but reads more only costs the looser pass beside it; one that diverged but
+/// reads less is kept, as before the looser pass.
+const DIVERGED_PER_MEASUREMENT: f64 = 1e5;
+
+/// The single EKF pass over `first` (its −2 ln p(y) per measurement), then the second over every
+/// measurement from its estimate (its −2 ln p(y)).
+fn second_pass_evidence(
+    model: &Model<'_>,
+    prep: &Prepared,
+    cfg: &Config,
+    first: &[Measurement],
+) -> Option<(f64, f64)> {
     let (mut x0, mut sigma0) = single_pass_prior(model, prep);
-    let (single, _) = ekf_pass_evidence(model, &sparse, &x0, &sigma0).ok()?;
+    let (single, f1) = ekf_pass_evidence(model, first, &x0, &sigma0).ok()?;
     x0[ANGLES..].copy_from_slice(&single.value);
     for s in sigma0.iter_mut().skip(ANGLES) {
         *s /= cfg.pass2_prior_shrink;
     }
-    ekf_pass_evidence(model, meas, &x0, &sigma0)
+    ekf_pass_evidence(model, &prep.measurements, &x0, &sigma0)
         .ok()
-        .map(|(_, f)| f)
+        .map(|(_, f)| (f1 / first.len() as f64, f))
 }
 
-/// Fewest measurements [`two_pass_evidence`]'s first pass keeps (6 h at the 60-s filter period).
+/// Fewest measurements the looser single pass of [`two_pass_evidence`] keeps (6 h at the 60-s
+/// filter period).
 const SCREEN_FIRST_PASS_MIN: usize = 360;
 
-/// The stride of [`two_pass_evidence`]'s first pass over `n` measurements: at most every 10th
-/// (10 min apart at the 60-s filter period, 2.5° of the Earth's turn), keeping at least
-/// [`SCREEN_FIRST_PASS_MIN`]; every one on a run shorter than twice that.
+/// The stride of [`two_pass_evidence`]'s looser single pass over `n` measurements: at most every
+/// 10th (10 min apart at the 60-s filter period, 2.5° of the Earth's turn), keeping at least
+/// [`SCREEN_FIRST_PASS_MIN`]; 1 (no second start) on a run shorter than twice that.
 fn screen_stride(n: usize) -> usize {
     (n / SCREEN_FIRST_PASS_MIN).clamp(1, 10)
 }
