@@ -1816,3 +1816,82 @@ fn a_latitude_degrees_off_is_named_and_its_advised_rerun_is_right() {
         drift_within_total_sigma(&v, 3.0, "the advised rerun");
     }
 }
+
+/// A latitude 3° off whose repair the warm refit cannot fit (60 h at 10 s, 29° N stated as 32°:
+/// the smoother's innovation covariance not positive definite from the stated set-up's fit) is
+/// refitted cold at the repaired latitude, not refused: exit 0 with the latitude repaired and
+/// named. Before, exit 2 with the filter's error pointing at the columns. The latitude must lie
+/// within 5σ of the truth (measured: 28.9989 ± 0.0011).
+#[test]
+fn a_repair_the_warm_refit_cannot_fit_is_refitted_cold() {
+    let tmp = temp_dir("repair-cold");
+    let csv = simulate_to(
+        tmp.path(),
+        "run.csv",
+        &[
+            "--hours",
+            "60",
+            "--rate-s",
+            "10",
+            "--seed",
+            "3",
+            "--latitude-deg",
+            "32",
+            "--latitude-error-deg",
+            "3",
+        ],
+    );
+    let out = driftid()
+        .args(["identify".as_ref(), csv.as_os_str(), "--json".as_ref()])
+        .output()
+        .unwrap();
+    let stdout = String::from_utf8_lossy(&out.stdout);
+    let stderr = String::from_utf8_lossy(&out.stderr);
+    assert_eq!(out.status.code(), Some(0), "{stderr}\n{stdout}");
+    let json: serde_json::Value = serde_json::from_str(&stdout).unwrap();
+    let message = json["data_quality"]["findings"][0]["message"]
+        .as_str()
+        .unwrap_or_default();
+    let at = message
+        .split("the data put it at ")
+        .nth(1)
+        .and_then(|r| r.split(" deg").next())
+        .unwrap_or_default();
+    let (l, s) = at.split_once(" ± ").unwrap_or(("nan", "nan"));
+    let (l, s): (f64, f64) = (l.parse().unwrap_or(f64::NAN), s.parse().unwrap_or(f64::NAN));
+    assert!(
+        message.starts_with("the latitude is misstated") && (l - 29.0).abs() <= 5.0 * s,
+        "{message}"
+    );
+}
+
+/// A model that cannot be fitted at all at the stated latitude (36 h at 5 s, 35° S stated as
+/// 45° S: the single EKF pass unhealthy) is refused, exit 2, with the latitude the data put the
+/// site at named, not only the filter's error (which points at the columns).
+#[test]
+fn a_fit_that_fails_at_a_wrong_latitude_names_the_latitude() {
+    let tmp = temp_dir("fit-fails-latitude");
+    let csv = simulate_to(
+        tmp.path(),
+        "run.csv",
+        &[
+            "--hours",
+            "36",
+            "--rate-s",
+            "5",
+            "--seed",
+            "3",
+            "--latitude-deg",
+            "-45",
+            "--latitude-error-deg",
+            "-10",
+        ],
+    );
+    let out = driftid().arg("identify").arg(&csv).output().unwrap();
+    let stderr = String::from_utf8_lossy(&out.stderr);
+    assert_eq!(out.status.code(), Some(2), "{stderr}");
+    assert!(
+        stderr.contains("the model cannot be fitted at the stated latitude -45 deg, but the data put the site at latitude -35.00"),
+        "{stderr}"
+    );
+}

@@ -527,8 +527,7 @@ pub(crate) fn starting_fit(
         return Ok(None);
     }
     progress.note(|| "fitting the starting model".into());
-    let model = build_model(prep.site, effects, cfg)?;
-    let id = crate::identify::identify(&model, prep, cfg)?;
+    let id = crate::diagnose::latitude::fit_or_name_the_latitude(prep, effects, cfg)?;
     let consistent = super::identify::consistency_of(&id, prep).is_none_or(|c| c.is_consistent());
     progress.note(|| "the starting model: the set-up's uncertainty".into());
     let unc = setup::uncertainty(effects, prep, cfg, &id)?;

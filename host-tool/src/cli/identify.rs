@@ -9,7 +9,7 @@ use crate::catalog::Catalog;
 use crate::consistency::Consistency;
 use crate::format::{sci, with_sigma};
 use crate::identify::setup::Uncertainty;
-use crate::identify::{identify, try_cramer_rao_bound, Identification, Prepared};
+use crate::identify::{try_cramer_rao_bound, Identification, Prepared};
 use crate::simulate::read_truth;
 
 /// Arguments of `driftid identify`.
@@ -381,9 +381,8 @@ fn run_one(args: &IdentifyArgs, catalog: &Catalog) -> anyhow::Result<()> {
     // The raw samples are done with (the measurements are their means): freed now, their
     // ~10 MB (60 h at 1 s) serve the smoother's buffers instead of fresh pages faulted in.
     drop(loaded);
-    let model = build_model(prep.site, &effects, &cfg)?;
     let spin = crate::progress::spinner("identifying (2 EKF passes + iterated smoother)");
-    let id = identify(&model, &prep, &cfg)?;
+    let id = crate::diagnose::latitude::fit_or_name_the_latitude(&prep, &effects, &cfg)?;
     spin.finish_and_clear();
     // drift-markov in the model: its σ and τ from the data, the model refitted there.
     let (effects, id) = crate::identify::markov::tune(catalog, &prep, &effects, &cfg, id)?;
