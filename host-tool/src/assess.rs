@@ -166,13 +166,14 @@ pub(crate) fn assess_with(
     // Warm, else cold; where neither converges (a 60-h run at 29° N stated as 32°: the smoother's
     // innovation covariance not positive definite at the repaired latitude) the stated set-up's
     // numbers stand, not trusted, with the misstatement named — not a refusal.
-    let refit = identify_from(&model, &prep, &cfg, &start)
-        .or_else(|_| crate::identify::identify(&model, &prep, &cfg));
-    let id = match refit {
+    let id = match refit_repaired(&model, &prep, &cfg, &start) {
         Ok(id) => id,
         Err(e) => {
             let mut first = first;
-            first.reasons.push(unfitted_repair(&first.prep, &prep, &e));
+            first.reasons.push(format!(
+                "{}: the estimate is the stated set-up's — correct the metadata and run again",
+                unfitted_repair(&first.prep, &prep, &e)
+            ));
             return Ok(first);
         }
     };
@@ -182,9 +183,24 @@ pub(crate) fn assess_with(
     Ok(again)
 }
 
-/// Why a result stands at the stated set-up: the data put it elsewhere (`repaired`), and the
-/// model could not be fitted there (`err`).
-fn unfitted_repair(stated: &Prepared, repaired: &Prepared, err: &anyhow::Error) -> String {
+/// The model refitted at a repaired set-up `prep`: warm from `start`, else cold (the warm start,
+/// a fit at the stated set-up, can lie where the smoother diverges: 60 h at 29° N stated as 32°).
+pub(crate) fn refit_repaired(
+    model: &estimator_core::model::Model<'_>,
+    prep: &Prepared,
+    cfg: &Config,
+    start: &Identification,
+) -> anyhow::Result<Identification> {
+    identify_from(model, prep, cfg, start).or_else(|_| crate::identify::identify(model, prep, cfg))
+}
+
+/// The data put the set-up elsewhere (`repaired`, `stated` as given), and the model could not
+/// be fitted there (`err`).
+pub(crate) fn unfitted_repair(
+    stated: &Prepared,
+    repaired: &Prepared,
+    err: &anyhow::Error,
+) -> String {
     let (l0, l1) = (
         stated.site.latitude_rad.to_degrees(),
         repaired.site.latitude_rad.to_degrees(),
@@ -199,7 +215,7 @@ fn unfitted_repair(stated: &Prepared, repaired: &Prepared, err: &anyhow::Error) 
     };
     format!(
         "the data put the set-up elsewhere{at}, but the model could not be fitted there \
-         ({err:#}): the estimate is the stated set-up's — correct the metadata and run again"
+         ({err:#})"
     )
 }
 

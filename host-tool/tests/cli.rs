@@ -1820,7 +1820,8 @@ fn a_latitude_degrees_off_is_named_and_its_advised_rerun_is_right() {
 /// A latitude 3° off whose repair the warm refit cannot fit (60 h at 10 s, 29° N stated as 32°:
 /// the smoother's innovation covariance not positive definite from the stated set-up's fit) is
 /// refitted cold at the repaired latitude, not refused: exit 0 with the latitude repaired and
-/// named. Before, exit 2 with the filter's error pointing at the columns. The latitude must lie
+/// named, by `identify` and `diagnose`. Before, exit 2 with the filter's error pointing at the
+/// columns. The latitude must lie
 /// within 5σ of the truth (measured: 28.9989 ± 0.0011).
 #[test]
 fn a_repair_the_warm_refit_cannot_fit_is_refitted_cold() {
@@ -1841,28 +1842,30 @@ fn a_repair_the_warm_refit_cannot_fit_is_refitted_cold() {
             "3",
         ],
     );
-    let out = driftid()
-        .args(["identify".as_ref(), csv.as_os_str(), "--json".as_ref()])
-        .output()
-        .unwrap();
-    let stdout = String::from_utf8_lossy(&out.stdout);
-    let stderr = String::from_utf8_lossy(&out.stderr);
-    assert_eq!(out.status.code(), Some(0), "{stderr}\n{stdout}");
-    let json: serde_json::Value = serde_json::from_str(&stdout).unwrap();
-    let message = json["data_quality"]["findings"][0]["message"]
-        .as_str()
-        .unwrap_or_default();
-    let at = message
-        .split("the data put it at ")
-        .nth(1)
-        .and_then(|r| r.split(" deg").next())
-        .unwrap_or_default();
-    let (l, s) = at.split_once(" ± ").unwrap_or(("nan", "nan"));
-    let (l, s): (f64, f64) = (l.parse().unwrap_or(f64::NAN), s.parse().unwrap_or(f64::NAN));
-    assert!(
-        message.starts_with("the latitude is misstated") && (l - 29.0).abs() <= 5.0 * s,
-        "{message}"
-    );
+    for command in ["identify", "diagnose"] {
+        let out = driftid()
+            .args([command.as_ref(), csv.as_os_str(), "--json".as_ref()])
+            .output()
+            .unwrap();
+        let stdout = String::from_utf8_lossy(&out.stdout);
+        let stderr = String::from_utf8_lossy(&out.stderr);
+        assert_eq!(out.status.code(), Some(0), "{command}: {stderr}\n{stdout}");
+        let json: serde_json::Value = serde_json::from_str(&stdout).unwrap();
+        let message = json["data_quality"]["findings"][0]["message"]
+            .as_str()
+            .unwrap_or_default();
+        let at = message
+            .split("the data put it at ")
+            .nth(1)
+            .and_then(|r| r.split(" deg").next())
+            .unwrap_or_default();
+        let (l, s) = at.split_once(" ± ").unwrap_or(("nan", "nan"));
+        let (l, s): (f64, f64) = (l.parse().unwrap_or(f64::NAN), s.parse().unwrap_or(f64::NAN));
+        assert!(
+            message.starts_with("the latitude is misstated") && (l - 29.0).abs() <= 5.0 * s,
+            "{command}: {message}"
+        );
+    }
 }
 
 /// A model that cannot be fitted at all at the stated latitude (36 h at 5 s, 35° S stated as

@@ -592,8 +592,11 @@ pub(crate) fn starting_fit(
     rivals.extend(within_priors.clone());
     if let Some(m) = misstated::to_repair(&mis, &rivals) {
         let (p, c) = misstated::repair(prep, cfg, &m, &mis, &rivals);
-        let refitted =
-            crate::identify::identify_from(&build_model(p.site, effects, &c)?, &p, &c, &id)?;
+        let model = build_model(p.site, effects, &c)?;
+        let refitted = crate::assess::refit_repaired(&model, &p, &c, &id).map_err(|e| {
+            let why = crate::assess::unfitted_repair(prep, &p, &e);
+            anyhow::anyhow!("{why}: correct the metadata and run again")
+        })?;
         *prep = p;
         *cfg = c;
         return Ok(Some(refitted));
