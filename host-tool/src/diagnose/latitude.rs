@@ -214,7 +214,7 @@ fn latitude_of_gravity(g: f64) -> f64 {
 /// the sites `site_at` gives and, beside it, `f0` (the metadata's −2 ln p(y), when it must be
 /// fitted), all on every core. Measured on misfitting 60-h runs (an accelerometer bias, a drift
 /// trend, a 30-h sine, latitudes 1°, 3° and 6° off): the screen ranks the grid as the full fits
-/// do, within 0.3–0.9 % of their values 2° and more from the best.
+/// do, within 0.4–1.4 % of their values 2° and more from the best.
 fn screened(
     (prep, effects, cfg): (&Prepared, &[&dyn Effect], &Config),
     site_at: SiteAt,
@@ -288,7 +288,7 @@ fn bracket(
 }
 
 /// Relative error the screen's ranking is trusted to: 10× the 0.5 % measured when it was set (since
-/// measured up to 0.9 %: a latitude 3° off, 60 h at 10 s, see [`screened`]).
+/// measured up to 1.4 %: a latitude 3° off, 60 h at 10 s, see [`screened`]).
 const SCREEN_TRUST: f64 = 0.05;
 
 /// Whether the screen's `end` lies above its `middle` by more than the screen's error on
