@@ -317,8 +317,13 @@ pub(crate) struct OneDiagnosis {
 /// choice the evidence did not settle ([`crate::diagnose::select::Choice::confounded`]), then
 /// its final model's fit — not converged, or not explaining the measurements. `diagnose` and
 /// `report` both.
-pub(crate) fn ladder_untrusted(faults: &[String], diagnoses: &[Diagnosis]) -> Vec<String> {
+pub(crate) fn ladder_untrusted(
+    faults: &[String],
+    diagnoses: &[Diagnosis],
+    (recording, max_rungs): (&std::path::Path, usize),
+) -> Vec<String> {
     let mut reasons = faults.to_vec();
+    reasons.extend(stopped_at_the_cap(diagnoses, recording, max_rungs));
     reasons.extend(
         diagnoses
             .iter()
@@ -337,6 +342,28 @@ pub(crate) fn ladder_untrusted(faults: &[String], diagnoses: &[Diagnosis]) -> Ve
     reasons
 }
 
+/// Why a ladder of `recording` cut short by its cap (`max_rungs`, more than one rung) is not
+/// trusted: its last model still misses an effect that earns its place; and how to go on from
+/// there (the ladder started from the last model's effects, `--with`).
+fn stopped_at_the_cap(
+    diagnoses: &[Diagnosis],
+    recording: &std::path::Path,
+    max_rungs: usize,
+) -> Option<String> {
+    let last = diagnoses.last()?;
+    let choice = last.choice.as_ref()?;
+    if max_rungs < 2 || diagnoses.len() < max_rungs {
+        return None;
+    }
+    Some(format!(
+        "the model ladder stopped at its {max_rungs} models, the last still missing an effect: {}; \
+         `driftid diagnose {} --with {}` goes on from that model",
+        choice.reason,
+        recording.display(),
+        last.model.join(",")
+    ))
+}
+
 /// Diagnoses one recording: prints the text unless `--json`, returns the JSON and the reasons.
 pub(crate) fn diagnose_one(
     catalog: &Catalog,
@@ -346,7 +373,11 @@ pub(crate) fn diagnose_one(
 ) -> anyhow::Result<OneDiagnosis> {
     let mut cfg = DiagnoseConfig {
         identify: args.model.config()?,
-        max_rungs: if args.no_ladder { 1 } else { 4 },
+        max_rungs: if args.no_ladder {
+            1
+        } else {
+            crate::diagnose::DEFAULT_MAX_RUNGS
+        },
         ..Default::default()
     };
     anyhow::ensure!(
@@ -354,7 +385,7 @@ pub(crate) fn diagnose_one(
         "diagnose needs the converged identification; drop --single-pass"
     );
     let c = climb(catalog, recording, &args.model, &mut cfg)?;
-    let mut reasons = ladder_untrusted(&c.faults, &c.diagnoses);
+    let mut reasons = ladder_untrusted(&c.faults, &c.diagnoses, (recording, cfg.max_rungs));
     reasons.extend(c.assessed.reasons.iter().cloned());
     let truth = match &args.truth {
         Some(p) => Some(super::identify::truth_of(
@@ -698,4 +729,60 @@ pub(crate) fn export(
         dir.display()
     );
     Ok(())
+}
+
+#[cfg(test)]
+mod tests {
+    use super::stopped_at_the_cap;
+    use crate::diagnose::select::Choice;
+    use crate::diagnose::verdict::tests::diagnosis;
+    use std::path::Path;
+
+    /// A rung of model `model` whose evidence still chooses `next`.
+    fn rung(model: &[&str], next: Option<&str>) -> crate::diagnose::Diagnosis {
+        let mut d = diagnosis(1.0, 0.5, 1.0);
+        d.model = model.iter().map(|m| m.to_string()).collect();
+        d.choice = next.map(|e| Choice {
+            effect: e.into(),
+            reason: format!("`{e}` is the only candidate whose refit gains evidence (159.5)"),
+            profiled: None,
+            confounded: None,
+        });
+        d
+    }
+
+    /// A ladder cut by its cap with an effect still chosen is a reason not to trust it, naming the
+    /// effect and the command that goes on from the last model; a ladder that stopped by itself,
+    /// or one kept to a single rung (`--no-ladder`, a fault), is not.
+    #[test]
+    fn a_ladder_cut_short_by_its_cap_says_how_to_go_on() {
+        let run = Path::new("q1_2.csv");
+        let cut = [
+            rung(&[], Some("acc-bias")),
+            rung(&["acc-bias"], Some("acc-scale")),
+            rung(&["acc-bias", "acc-scale"], Some("acc-misalign")),
+        ];
+        let why = stopped_at_the_cap(&cut, run, 3).expect("cut by the cap");
+        assert!(why.contains("stopped at its 3 models"), "{why}");
+        assert!(
+            why.contains("`acc-misalign` is the only candidate"),
+            "{why}"
+        );
+        assert!(
+            why.contains("`driftid diagnose q1_2.csv --with acc-bias,acc-scale`"),
+            "{why}"
+        );
+        assert_eq!(
+            stopped_at_the_cap(&cut, run, 4),
+            None,
+            "the cap not reached"
+        );
+        let done = [rung(&[], Some("acc-bias")), rung(&["acc-bias"], None)];
+        assert_eq!(stopped_at_the_cap(&done, run, 2), None, "stopped by itself");
+        assert_eq!(
+            stopped_at_the_cap(&cut[..1], run, 1),
+            None,
+            "one rung asked for"
+        );
+    }
 }

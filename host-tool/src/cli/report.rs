@@ -61,7 +61,8 @@ fn run_one(args: &ReportArgs, catalog: &Catalog) -> anyhow::Result<()> {
     let c = super::diagnose::climb(catalog, recording, &args.model, &mut cfg)?;
     super::common::print_findings(&c.prep.findings);
     let model = super::common::build_model(c.prep.site, &c.final_effects, &cfg.identify)?;
-    let mut untrusted = super::diagnose::ladder_untrusted(&c.faults, &c.diagnoses);
+    let mut untrusted =
+        super::diagnose::ladder_untrusted(&c.faults, &c.diagnoses, (recording, cfg.max_rungs));
     let assessed = c.assessed;
     let truth = match &args.truth {
         Some(p) => Some(super::identify::truth_of(

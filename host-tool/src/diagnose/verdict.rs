@@ -123,12 +123,13 @@ fn outside_catalog(d: &Diagnosis, state: &str) -> String {
 }
 
 #[cfg(test)]
-mod tests {
+pub(crate) mod tests {
     use super::*;
     use crate::consistency::{assess, Thresholds};
     use crate::diagnose::types::{FailureWindow, Series, Whiteness};
 
-    fn diagnosis(nis: f64, p: f64, rms: f64) -> Diagnosis {
+    /// A diagnosis of NIS/3 `nis`, Ljung–Box p `p` and RMS/floor `rms`, nothing chosen.
+    pub(crate) fn diagnosis(nis: f64, p: f64, rms: f64) -> Diagnosis {
         Diagnosis {
             model: vec![],
             floor_mps2: [1e-4; 3],
