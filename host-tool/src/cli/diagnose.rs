@@ -350,18 +350,42 @@ fn stopped_at_the_cap(
     recording: &std::path::Path,
     max_rungs: usize,
 ) -> Option<String> {
-    let last = diagnoses.last()?;
+    let (last, below) = diagnoses.split_last()?;
     let choice = last.choice.as_ref()?;
     if max_rungs < 2 || diagnoses.len() < max_rungs {
         return None;
     }
-    Some(format!(
-        "the model ladder stopped at its {max_rungs} models, the last still missing an effect: {}; \
-         `driftid diagnose {} --with {}` goes on from that model",
-        choice.reason,
-        recording.display(),
-        last.model.join(",")
-    ))
+    let head = format!(
+        "the model ladder stopped at its {max_rungs} models, the last still missing an effect: {}",
+        choice.reason
+    );
+    // `--with` takes catalog effects; one made for this run (a drift step, a warm-up, a
+    // periodic drift: profiled) the ladder makes again.
+    let made: Vec<&str> = below
+        .iter()
+        .filter_map(|d| d.choice.as_ref().filter(|c| c.profiled.is_some()))
+        .map(|c| c.effect.as_str())
+        .collect();
+    let with: Vec<&str> = last
+        .model
+        .iter()
+        .map(String::as_str)
+        .filter(|m| !made.contains(m))
+        .collect();
+    let run = recording.display();
+    Some(match (with.is_empty(), made.is_empty()) {
+        (true, _) => head,
+        (false, true) => format!(
+            "{head}; `driftid diagnose {run} --with {}` goes on from that model",
+            with.join(",")
+        ),
+        (false, false) => format!(
+            "{head}; `driftid diagnose {run} --with {}` goes on from its catalog effects (the ladder \
+             makes {} for the run again)",
+            with.join(","),
+            made.join(", ")
+        ),
+    })
 }
 
 /// Diagnoses one recording: prints the text unless `--json`, returns the JSON and the reasons.
@@ -752,8 +776,9 @@ mod tests {
     }
 
     /// A ladder cut by its cap with an effect still chosen is a reason not to trust it, naming the
-    /// effect and the command that goes on from the last model; a ladder that stopped by itself,
-    /// or one kept to a single rung (`--no-ladder`, a fault), is not.
+    /// effect and the command that goes on from the last model (its catalog effects only: `--with`
+    /// refuses a warm-up made for the run); a ladder that stopped by itself, or one kept to a
+    /// single rung (`--no-ladder`, a fault), is not.
     #[test]
     fn a_ladder_cut_short_by_its_cap_says_how_to_go_on() {
         let run = Path::new("q1_2.csv");
@@ -776,6 +801,17 @@ mod tests {
             stopped_at_the_cap(&cut, run, 4),
             None,
             "the cap not reached"
+        );
+        // An effect made for the run (profiled) is not one `--with` takes: the ladder makes it again.
+        let mut made = cut.clone();
+        made[1].choice.as_mut().unwrap().profiled =
+            Some(crate::diagnose::select::Profiled::WarmupTauS(10_800.0));
+        made[2].model = vec!["acc-bias".into(), "drift-warmup".into()];
+        made[1].choice.as_mut().unwrap().effect = "drift-warmup".into();
+        let why = stopped_at_the_cap(&made, run, 3).expect("cut by the cap");
+        assert!(
+            why.contains("`driftid diagnose q1_2.csv --with acc-bias` goes on from its catalog effects (the ladder makes drift-warmup for the run again)"),
+            "{why}"
         );
         let done = [rung(&[], Some("acc-bias")), rung(&["acc-bias"], None)];
         assert_eq!(stopped_at_the_cap(&done, run, 2), None, "stopped by itself");
