@@ -168,19 +168,23 @@ pub(crate) fn assess_with(
     // numbers stand, not trusted, with the misstatement named — not a refusal.
     let id = match refit_repaired(&model, &prep, &cfg, &start) {
         Ok(id) => id,
-        Err(e) => {
-            let mut first = first;
-            first.reasons.push(format!(
-                "{}: the estimate is the stated set-up's — correct the metadata and run again",
-                unfitted_repair(&first.prep, &prep, &e)
-            ));
-            return Ok(first);
-        }
+        Err(e) => return Ok(unrepaired(first, &prep, &e)),
     };
     let (mut again, _) =
         assess_as_stated(catalog, effects, (prep, id), &cfg, (false, None), progress)?;
     again.cfg = cfg;
     Ok(again)
+}
+
+/// The stated set-up's assessment `first` where the model could not be fitted at the set-up
+/// the data put it at (`repaired`, `err`): its numbers stand, not trusted, with the misstatement
+/// named.
+fn unrepaired(mut first: Assessment, repaired: &Prepared, err: &anyhow::Error) -> Assessment {
+    first.reasons.push(format!(
+        "{}: the estimate is the stated set-up's — correct the metadata and run again",
+        unfitted_repair(&first.prep, repaired, err)
+    ));
+    first
 }
 
 /// The model refitted at a repaired set-up `prep`: warm from `start`, else cold (the warm start,
@@ -329,10 +333,10 @@ fn assess_as_stated(
         }
         _ => vec![],
     };
-    if let Some(m) = misstated::to_repair(&alts, &rivals).filter(|_| may_repair) {
-        let (p, c) = misstated::repair(&stated.0, cfg, &m, &alts, &[]);
-        return Ok((out, Some((p, c, stated.1))));
-    }
+    let repair = misstated::to_repair(&alts, &rivals).filter(|_| may_repair);
+    // Whole even where a repair follows: it is what stands, not trusted, where the model cannot
+    // be fitted at the repaired set-up ([`assess_with`]; an empty 1σ there ended `identify` in
+    // a panic printing it).
     unc.add_model_spread(&alternatives::averaging_spread(&alts, out.id.params.len()));
     out.unc = unc;
     out.alternatives = alts;
@@ -341,7 +345,11 @@ fn assess_as_stated(
         weight: None,
         total_sigma: &out.unc.total_sigma,
     });
-    Ok((out, None))
+    let repair = repair.map(|m| {
+        let (p, c) = misstated::repair(&stated.0, cfg, &m, &out.alternatives, &[]);
+        (p, c, stated.1)
+    });
+    Ok((out, repair))
 }
 
 /// The misstated set-ups weighed on the starting fit where the ladder then climbed from the
@@ -827,4 +835,53 @@ pub(crate) struct StepJudged<'c> {
     pub step: Option<DriftStepFit>,
     /// Whether the step was repaired.
     pub repaired: bool,
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::catalog::paper;
+
+    /// Where a misstated set-up is to be repaired, the stated set-up's assessment handed back
+    /// beside the repair is whole — a 1σ per coefficient, its alternatives and reasons — and,
+    /// where the model cannot be fitted at the repair, is what stands, not trusted, with the
+    /// misstatement named. Before, its 1σ was empty and `identify` panicked printing it (seen
+    /// by failing the refit on purpose on a 60-h run with the latitude 0.5° off). The case: 60 h
+    /// at 10 s, the metadata latitude 0.5° off (repaired; a day at 30 s leaves it a rival).
+    #[test]
+    fn the_stated_assessment_beside_a_repair_is_whole() {
+        let mut sc = crate::simulate::Scenario::paper();
+        (sc.hours, sc.rate_s) = (60.0, 10.0);
+        sc.setup_errors.latitude_deg = 0.5;
+        let cfg = Config::default();
+        let prep = crate::simulate::prepared(&sc, &cfg);
+        let effects = [paper()];
+        let model = build_model(prep.site, &effects, &cfg).unwrap();
+        let id = crate::identify::identify(&model, &prep, &cfg).unwrap();
+        let (first, repair) = assess_as_stated(
+            Catalog::builtin(),
+            &effects,
+            (prep, id),
+            &cfg,
+            (true, None),
+            &Progress::default(),
+        )
+        .unwrap();
+        let (repaired, _, _) = repair.expect("a latitude 0.5° off is repaired");
+        let n = first.id.params.len();
+        assert_eq!(first.unc.total_sigma.len(), n, "a 1σ per parameter");
+        assert!(first
+            .unc
+            .total_sigma
+            .iter()
+            .all(|s| s.is_finite() && *s > 0.0));
+        assert!(!first.alternatives.is_empty(), "the alternatives weighed");
+        let stood = unrepaired(first, &repaired, &anyhow::anyhow!("not positive definite"));
+        let said = stood.reasons.join("\n");
+        assert!(
+            said.contains("the data put the set-up elsewhere (latitude 38.6")
+                && said.contains("the estimate is the stated set-up's"),
+            "{said}"
+        );
+    }
 }
