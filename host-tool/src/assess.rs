@@ -147,9 +147,9 @@ pub fn assess(
 
 /// [`assess`], its steps noted to `progress` (the set-up, the alternatives, a repair); `known`:
 /// the set-up's uncertainty computed before, reused if it is this fit's ([`Computed`]).
-pub(crate) fn assess_with(
-    catalog: &Catalog,
-    effects: &[&dyn Effect],
+pub(crate) fn assess_with<'c>(
+    catalog: &'c Catalog,
+    effects: &[&'c dyn Effect],
     prep: Prepared,
     cfg: &Config,
     id: Identification,
@@ -170,8 +170,16 @@ pub(crate) fn assess_with(
         Ok(id) => id,
         Err(e) => return Ok(unrepaired(first, &prep, &e)),
     };
+    // A wander tuned at the stated set-up is tuned again at the repaired one, as the
+    // misstatement was weighed ([`misstated`]); where that fails the wander stays as tuned.
+    // Callers read the effects back with [`Catalog::as_tuned`].
+    let (effects, id) =
+        match crate::identify::markov::tune(catalog, &prep, effects, &cfg, id.clone()) {
+            Ok(tuned) => tuned,
+            Err(_) => (effects.to_vec(), id),
+        };
     let (mut again, _) =
-        assess_as_stated(catalog, effects, (prep, id), &cfg, (false, None), progress)?;
+        assess_as_stated(catalog, &effects, (prep, id), &cfg, (false, None), progress)?;
     again.cfg = cfg;
     Ok(again)
 }

@@ -139,6 +139,27 @@ impl Catalog {
         &self.tuned[k]
     }
 
+    /// `effects` with `drift-markov` at the σ and τ `id` was fitted with ([`Identification::markov`]):
+    /// an assessment that repairs a misstated set-up tunes them again there ([`crate::assess`]).
+    ///
+    /// [`Identification::markov`]: crate::identify::Identification::markov
+    pub(crate) fn as_tuned<'c>(
+        &'c self,
+        effects: &[&'c dyn Effect],
+        id: &crate::identify::Identification,
+    ) -> Vec<&'c dyn Effect> {
+        let name = crate::identify::markov::NAME;
+        effects
+            .iter()
+            .map(|&e| match &id.markov {
+                Some(gm) if e.name() == name => {
+                    self.tuned_markov(gm.sigma_degph, gm.tau_h) as &dyn Effect
+                }
+                _ => e,
+            })
+            .collect()
+    }
+
     /// The effect `make` builds for `key`, owned by the catalog: made once per distinct key (a
     /// run adopts a handful at most: one per rung or repair), lent for as long as the catalog
     /// lives. The catalog does not know the kinds (`diagnose::select::Profiled` does).

@@ -373,6 +373,31 @@ fn a_ladder_is_not_cut_short_while_an_effect_still_earns_its_place() {
     );
 }
 
+/// Found by a sweep of misstated latitudes under an uncatalogued wander (session 41's n4_4): a
+/// 5.7-h sine drift, 48 h at 5 s at 41.58° N written as 41.48. `diagnose` added `drift-markov`,
+/// whose σ and τ, tuned at the stated latitude, stretched (τ 19 h against 1.0 h at the true one)
+/// to absorb the latitude's signature; the misstated latitude, refitted with that wander held,
+/// lost by 11.6 and the run was trusted with DXx 29 total σ off. Each misstatement is now weighed
+/// with its own wander (`markov::retuned_refit`): exit 3, the latitude named.
+#[test]
+fn a_misstated_latitude_under_a_wander_is_weighed_with_its_own_wander() {
+    not_confidently_wrong(
+        "latitude-wander",
+        &[
+            "--seed",
+            "852064",
+            "--hours",
+            "48",
+            "--rate-s",
+            "5",
+            "--latitude-deg=41.480",
+            "--latitude-error-deg=-0.100",
+            "--effect",
+            "drift-sine=1.98e-04,-1.38e-04,-6.77e-04:5.7",
+        ],
+    );
+}
+
 /// `diagnose` of the recording `args` simulate: deterministic (fixed seed), it must end in
 /// exit 3 or with every drift coefficient within 3 total σ of the truth.
 fn not_confidently_wrong(tag: &str, args: &[&str]) -> String {

@@ -522,6 +522,8 @@ pub(crate) fn climb<'c>(
     let overruled = crate::diagnose::ladder::overruled(&diagnoses);
     assessed.weigh_instead_of_the_ladder(&at_start, (&added, ladder_gain), &overruled);
     spin.finish_and_clear();
+    // A repair tunes the wander again where it puts the set-up.
+    let final_effects = catalog.as_tuned(&final_effects, &assessed.id);
     Ok(Climbed {
         prep,
         description: loaded.description,

@@ -413,6 +413,8 @@ fn run_one(args: &IdentifyArgs, catalog: &Catalog) -> anyhow::Result<()> {
         &progress,
     )?;
     spin.finish_and_clear();
+    // A repair tunes the wander again where it puts the set-up.
+    let effects = catalog.as_tuned(&effects, &assessed.id);
     let truth = match &args.truth {
         Some(p) => Some(truth_of(&read_truth(p)?, &assessed.id.params)),
         None => None,

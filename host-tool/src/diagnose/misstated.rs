@@ -20,6 +20,11 @@
 //! factor of a broad prior the data then narrow; `2 ln 100` ([`PRIOR_ODDS`]) the prior odds of a
 //! stated set-up over a misstated one.
 //!
+//! Where the model holds a tuned `drift-markov`, each misstated knob is refitted with the
+//! wander's σ and τ tuned again at its set-up, credited with what that gains beyond tuning
+//! again at the stated set-up ([`crate::identify::markov::retune_gain`]): a wander tuned at a
+//! misstated latitude stretches to absorb it.
+//!
 //! A misstatement is *repaired* ([`to_repair`]) only when it beats every other explanation by
 //! [`PLAUSIBLE_MARGIN`] and the stated set-up by [`MIN_EVIDENCE_GAIN`]: the knob is then moved to
 //! the data's value with the data's 1σ as its prior, and the repair is named. Short of that it is
@@ -187,19 +192,56 @@ pub(crate) fn refits(
     let live = live_knobs(prep, km);
     let laplace = hypotheses(km, &live, latitude_bound(unc));
     let skip = usize::from(priors_elsewhere);
-    let fits: Vec<anyhow::Result<Fit>> = laplace[skip..]
-        .par_iter()
-        .map(|l| refit(&moved(prep, l.delta(km)), effects, cfg, id))
-        .collect();
+    // Beside them, what tuning the wander again gains at the stated set-up itself: each
+    // misstatement is credited only with what it gains beyond that.
+    let (reference, fits) = rayon::join(
+        || crate::identify::markov::retune_gain(prep, effects, cfg, id).map(|g| g.0),
+        || -> Vec<anyhow::Result<(Fit, Option<Fit>)>> {
+            (skip..laplace.len())
+                .into_par_iter()
+                .map(|j| {
+                    let at = moved(prep, laplace[j].delta(km));
+                    // The stated set-up within its priors keeps the wander as tuned: its
+                    // set-up moves within the priors alone.
+                    let held = refit(&at, effects, cfg, id)?;
+                    Ok((
+                        held,
+                        (j > 0).then(|| retuned(&at, effects, cfg, id)).flatten(),
+                    ))
+                })
+                .collect()
+        },
+    );
     let mut out: Vec<Option<Fit>> = vec![None; skip];
     for f in fits {
-        out.push(Some(f?));
+        let (held, retuned) = f?;
+        let bias = reference.unwrap_or(0.0);
+        out.push(Some(match retuned {
+            Some((f, c)) if f + bias < held.0 => (f + bias, c),
+            _ => held,
+        }));
     }
     Ok(Some(Refitted {
         live,
         laplace,
         fits: out,
     }))
+}
+
+/// A misstated knob's refit at `at` with the wander tuned again there, where the model holds a
+/// tuned `drift-markov` and that gains ([`crate::identify::markov::retune_gain`]); `None`
+/// otherwise, or where the refit fails (the wander held then stands).
+fn retuned(
+    at: &Prepared,
+    effects: &[&dyn Effect],
+    cfg: &Config,
+    id: &Identification,
+) -> Option<Fit> {
+    use crate::identify::markov::{refit_with, retune_gain};
+    let (gain, gm) = retune_gain(at, effects, cfg, id)?;
+    (gain > 0.0)
+        .then(|| refit_with(at, effects, cfg, id, &gm).ok())
+        .flatten()
 }
 
 impl Refitted {
