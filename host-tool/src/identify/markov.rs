@@ -16,12 +16,15 @@
 //! environment, and three axes pooled give √3 more correlation times for the same two numbers.
 //!
 //! **Search.** In ln σ and ln τ within [`SIGMA_RANGE_DEGPH`] and [`TAU_RANGE_H`]: a 6×6 lattice
-//! (steps of ×3, [`lattice`]) and then, from each of its two best local minima, Newton steps on
-//! a quadratic fitted to a 3×3 stencil, until a step moves less than a tenth of the 1σ. The
+//! (steps of ×3, [`lattice`]) and then, from its best local minimum, Newton steps on a
+//! quadratic fitted to a 3×3 stencil, until a step moves less than a tenth of the 1σ; from the
+//! second best too, unless −2 ln L falls all the way from it to the first's optimum
+//! ([`drains_into`]: the lattice sees one basin twice along the σ²/τ ridge). The
 //! curvature there gives a 1σ, `cov(ln σ, ln τ) = 2 H⁻¹` (H the Hessian of −2 ln L); the 1σ
 //! intervals printed are the profile likelihood's (−2 ln L minimised over the other parameter
-//! rises by 1), since the ridge between σ and τ bends. About 60–120 passes in all, 0.3–0.8 s on a
-//! 60-h run at the 60-s period (a forward pass is 6–12 ms); the optimum found about the refitted
+//! rises by 1), since the ridge between σ and τ bends. About 80–130 passes in all (each point
+//! once: [`Remembered`]), 0.3–0.6 s on a 60-h run at the 60-s period (a forward pass is 6–12
+//! ms, two at once); the optimum found about the refitted
 //! trajectory moved by < 1e-4 relative, so one round suffices.
 //!
 //! Only the model being fitted is tuned (`identify --with drift-markov`, a ladder rung that holds
@@ -128,8 +131,12 @@ type Seen = Vec<(Point, f64)>;
 /// Largest Newton iterations on the stencil before the search stops where it is.
 const MAX_NEWTON: usize = 12;
 /// A gain in −2 ln L below which a move to the stencil's best point is no move (a fiftieth of
-/// the rise of 1 that bounds a 1σ interval).
+/// the rise of 1 that bounds a 1σ interval): the fit's σ and τ, printed with their 1σ.
 const STALL: f64 = 0.02;
+/// The same for a retune's gain ([`retune_gain`]), which only weighs a misstatement: an
+/// optimum found to 0.1 in −2 ln L reads its gain 60× finer than the plausible margin, and the
+/// search took half its passes below that (a 60-h wander: 38 of 78 after the drop fell to 0.03).
+const RETUNE_STALL: f64 = 0.1;
 /// The stencil's least half-width (ln units) where it is looked at closer.
 const MIN_HALF_WIDTH: f64 = 0.1;
 /// Largest Newton step in ln σ or ln τ (the trust radius at the start).
@@ -154,6 +161,38 @@ fn clamp(p: Point, margin: f64) -> Point {
         p[0].clamp(lo[0] + margin, hi[0] - margin),
         p[1].clamp(lo[1] + margin, hi[1] - margin),
     )
+}
+
+/// −2 ln L remembered by (σ, τ): each pass costs 6–12 ms on a 60-h run, and the search asks
+/// for some points again (a stencil about the point a step gained at; the lattice point a
+/// Newton search starts from). A pass that fails counts as +∞, as in [`evaluate`].
+struct Remembered<'f, F> {
+    f: &'f F,
+    known: std::sync::Mutex<std::collections::HashMap<[u64; 2], f64>>,
+}
+
+impl<'f, F: Fn(f64, f64) -> anyhow::Result<f64> + Sync> Remembered<'f, F> {
+    fn new(f: &'f F) -> Self {
+        Self {
+            f,
+            known: Default::default(),
+        }
+    }
+
+    fn at(&self, s: f64, t: f64) -> anyhow::Result<f64> {
+        let key = [s.to_bits(), t.to_bits()];
+        if let Some(&v) = self.known.lock().expect("not poisoned").get(&key) {
+            return Ok(v);
+        }
+        let v = (self.f)(s, t).unwrap_or(f64::INFINITY);
+        self.known.lock().expect("not poisoned").insert(key, v);
+        Ok(v)
+    }
+
+    /// Passes run (each point once).
+    fn passes(&self) -> usize {
+        self.known.lock().expect("not poisoned").len()
+    }
 }
 
 /// −2 ln L at several points, on rayon's pool (the passes are independent); a pass that fails
@@ -207,11 +246,13 @@ fn best(seen: &[(Point, f64)]) -> Option<(Point, f64)> {
 }
 
 /// Newton steps on the 3×3 stencil from `c` (every point evaluated joins `seen`), until a step
-/// moves less than [`STOP_SIGMA`] of the 1σ or would gain less than [`STALL`]; returns the last
+/// moves less than [`STOP_SIGMA`] of the 1σ or would gain less than `stall` ([`STALL`] for a
+/// fit, [`RETUNE_STALL`] for a retune's gain); returns the last
 /// convex stencil's covariance of (ln σ, ln τ), 2 H⁻¹.
 fn newton(
     mut c: Point,
     f: &(impl Fn(f64, f64) -> anyhow::Result<f64> + Sync),
+    stall: f64,
     seen: &mut Seen,
 ) -> Option<Matrix2<f64>> {
     let mut h = 0.5;
@@ -227,12 +268,12 @@ fn newton(
         let Some(inv) = hess.try_inverse().filter(|_| convex) else {
             // Not convex here: move to the best point seen and look again; where the centre is
             // the best, look closer (a narrow bending ridge: a stencil of half-width 0.5 across
-            // it is a saddle). A move that gains less than [`STALL`] is no move (on a flat
+            // it is a saddle). A move that gains less than `stall` is no move (on a flat
             // ridge the best point wandered along it for every iteration allowed).
             cov = None;
             let here = seen[seen.len() - 5].1;
             match best(seen) {
-                Some((b, v)) if b != c && v < here - STALL => c = b,
+                Some((b, v)) if b != c && v < here - stall => c = b,
                 _ if h > MIN_HALF_WIDTH => h *= 0.5,
                 _ => break,
             }
@@ -242,10 +283,10 @@ fn newton(
         let sd = Point::new(cv[(0, 0)].sqrt(), cv[(1, 1)].sqrt());
         cov = Some(cv);
         let full = -(inv * g);
-        // The quadratic's own drop to its minimum, ½ gᵀH⁻¹g: below [`STALL`] the optimum is
+        // The quadratic's own drop to its minimum, ½ gᵀH⁻¹g: below `stall` the optimum is
         // found to the evidence scale's resolution (along a flat ridge a tenth of the 1σ is
         // a long way, and the steps went on for every iteration allowed).
-        if -0.5 * g.dot(&full) < STALL {
+        if -0.5 * g.dot(&full) < stall {
             break;
         }
         let moved = |next: Point| {
@@ -281,7 +322,7 @@ fn newton(
             // point off it; stopping there ended a 60-h run's τ at 40 h for 12).
             radius = MAX_STEP_LN;
             match best(seen) {
-                Some((b, v)) if b != c && v < here - STALL => c = b,
+                Some((b, v)) if b != c && v < here - stall => c = b,
                 _ if h > MIN_HALF_WIDTH => h *= 0.5,
                 _ => break,
             }
@@ -444,8 +485,15 @@ fn starts(values: &[Vec<f64>]) -> Vec<(usize, usize)> {
 }
 
 /// The lattice, then Newton on the stencil from each of its best basins (see the module docs),
-/// for the −2 ln L `f`.
-fn optimum(f: &(impl Fn(f64, f64) -> anyhow::Result<f64> + Sync)) -> anyhow::Result<Optimum> {
+/// for the −2 ln L `f`, each search ending once a step would gain less than `stall`. A second
+/// basin is searched only where the way from it to the first's optimum rises
+/// ([`drains_into`]).
+fn optimum(
+    f: &(impl Fn(f64, f64) -> anyhow::Result<f64> + Sync),
+    stall: f64,
+) -> anyhow::Result<Optimum> {
+    let remembered = Remembered::new(f);
+    let f = &|s: f64, t: f64| remembered.at(s, t);
     let catalog = DriftMarkov::default();
     let rows = lattice();
     let mut points: Vec<Point> = rows.iter().flatten().copied().collect();
@@ -471,8 +519,15 @@ fn optimum(f: &(impl Fn(f64, f64) -> anyhow::Result<f64> + Sync)) -> anyhow::Res
         if grid[i][j] > grid[first.0][first.1] + SECOND_BASIN {
             continue;
         }
+        if let Some(lowest) = best(&seen).filter(|_| !found.is_empty()) {
+            let (drains, way) = drains_into((rows[i][j], grid[i][j]), lowest, stall, f);
+            seen.extend(way);
+            if drains {
+                continue;
+            }
+        }
         let mut own: Seen = vec![];
-        let cov = newton(rows[i][j], f, &mut own);
+        let cov = newton(rows[i][j], f, stall, &mut own);
         let low = best(&own).map_or(grid[i][j], |b| b.1.min(grid[i][j]));
         found.push((low, cov));
         seen.extend(own);
@@ -489,8 +544,41 @@ fn optimum(f: &(impl Fn(f64, f64) -> anyhow::Result<f64> + Sync)) -> anyhow::Res
         f_best,
         cov,
         f_catalog,
-        passes: seen.len(),
+        passes: remembered.passes(),
     })
+}
+
+/// Points on the way from a second basin of the lattice to the first's optimum.
+const WAY_POINTS: usize = 4;
+
+/// Whether −2 ln L falls all the way (evenly spaced points in ln σ, ln τ) from the lattice's
+/// point `from` (with its value) towards `to` (the optimum found so far, with its value), and
+/// ends no lower than `to` less `stall` (the resolution `to` was found to): then `from` lies
+/// on that basin's slope, not in a basin of its own, and its Newton search would only walk down
+/// to the same optimum (a 60-h wander: 111 passes along the σ²/τ ridge from τ 73 h to the first
+/// search's 3.7 h). A rise on the way, or a point well below `to`, keeps the second search (two
+/// basins: a wander tuned in the wrong one left a misstated latitude's weight 0 and DXx 29σ
+/// off). The points evaluated are returned to join the search's.
+fn drains_into(
+    from: (Point, f64),
+    to: (Point, f64),
+    stall: f64,
+    f: &(impl Fn(f64, f64) -> anyhow::Result<f64> + Sync),
+) -> (bool, Seen) {
+    let way: Vec<Point> = (1..=WAY_POINTS)
+        .map(|k| from.0 + (to.0 - from.0) * (k as f64 / (WAY_POINTS + 1) as f64))
+        .collect();
+    let values = evaluate(&way, f);
+    let mut last = from.1;
+    let falls = values.iter().all(|&v| {
+        let lower = v <= last;
+        last = v;
+        lower
+    });
+    (
+        falls && last >= to.1 - stall,
+        way.into_iter().zip(values).collect(),
+    )
 }
 
 /// Maximises the marginal likelihood over σ and τ about the fit `id` of `effects` (which hold
@@ -508,7 +596,7 @@ pub(crate) fn fit(
         cov,
         f_catalog,
         passes,
-    } = optimum(&f)?;
+    } = optimum(&f, STALL)?;
     let (lo, hi) = bounds();
     let at_bound = (0..2).any(|i| p[i] <= lo[i] + 1e-6 || p[i] >= hi[i] - 1e-6);
     let (sigma, tau) = (p[0].exp(), p[1].exp());
@@ -590,7 +678,7 @@ pub(crate) fn retune_gain(
         return None;
     }
     let f = |s: f64, t: f64| neg2_ln_l(at, effects, cfg, id, s, t);
-    let (held, best) = rayon::join(|| f(gm.sigma_degph, gm.tau_h), || optimum(&f));
+    let (held, best) = rayon::join(|| f(gm.sigma_degph, gm.tau_h), || optimum(&f, RETUNE_STALL));
     let best = best.ok()?;
     let tuned = DriftMarkov {
         sigma_degph: best.p[0].exp(),
@@ -706,7 +794,7 @@ mod search_tests {
             let along = t.ln() - t0;
             Ok(-100.0 * (-(across / 0.6).powi(2)).exp() + 10.0 * along * along)
         };
-        let o = optimum(&f).unwrap();
+        let o = optimum(&f, STALL).unwrap();
         assert!(
             o.f_best < -100.0 + 0.5 && (o.p[1] - t0).abs() < 0.32,
             "ended at σ {:e}, τ {} ({} passes)",
@@ -729,9 +817,59 @@ mod search_tests {
             let (x, y) = (s.ln() - s0, t.ln() - t0);
             Ok(50.0 * (2.0 * x - y - 0.3 * y * y).powi(2) + 2.0 * y * y)
         };
-        let o = optimum(&f).unwrap();
+        let o = optimum(&f, STALL).unwrap();
         assert!(
             o.f_best < 0.5 && o.passes <= 37 + 2 * 60,
+            "ended at σ {:e}, τ {}, −2 ln L {} ({} passes)",
+            o.p[0].exp(),
+            o.p[1].exp(),
+            o.f_best,
+            o.passes
+        );
+    }
+
+    /// A single basin along the σ²/τ ridge that several lattice points lie near, each a local
+    /// minimum of the lattice (a 60-h wander's: τ 8.1 h and 73 h, and both searches walked to
+    /// the same optimum, 78 and 115 passes). The second lies on the first's slope: it must not be
+    /// searched again, and the optimum must be found as before (within 0.5, a twelfth of the
+    /// plausible margin). Budget: the lattice (37), one search — −2 ln L is exactly quadratic
+    /// here, so Newton's first step lands on the optimum and a second stencil confirms it (2 × 9)
+    /// — and the way's points; searching the second start as well took 84.
+    #[test]
+    fn a_basin_the_lattice_sees_twice_is_searched_once() {
+        let (s0, t0) = (8e-4f64.ln(), 3.7f64.ln());
+        let f = |s: f64, t: f64| -> anyhow::Result<f64> {
+            let (x, y) = (s.ln() - s0, t.ln() - t0);
+            Ok(200.0 * (2.0 * x - y).powi(2) + 1.5 * y * y)
+        };
+        let o = optimum(&f, STALL).unwrap();
+        assert!(
+            o.f_best < 0.5 && o.passes <= 37 + 2 * 9 + WAY_POINTS,
+            "ended at σ {:e}, τ {}, −2 ln L {} ({} passes)",
+            o.p[0].exp(),
+            o.p[1].exp(),
+            o.f_best,
+            o.passes
+        );
+    }
+
+    /// Two basins: a broad one the lattice reads lowest, and a narrow deeper one between
+    /// lattice points that the lattice reads 12 above it (within [`SECOND_BASIN`]). The way
+    /// between them rises, so the second must still be searched and the search must end in it
+    /// (within 0.5 of its bottom): a wander tuned in the wrong basin left a misstated latitude
+    /// weight 0 and DXx 29σ off.
+    #[test]
+    fn a_second_basin_behind_a_rise_is_still_searched() {
+        let a = Point::new(1.35e-3f64.ln(), 2.7f64.ln());
+        let b = Point::new(-4.90, 3.70);
+        let f = |s: f64, t: f64| -> anyhow::Result<f64> {
+            let p = Point::new(s.ln(), t.ln());
+            let well = |c: Point, w: f64| (-(p - c).norm_squared() / w).exp();
+            Ok(-30.0 * well(a, 1.3) - 50.0 * well(b, 0.5))
+        };
+        let o = optimum(&f, STALL).unwrap();
+        assert!(
+            o.f_best < -50.0 + 0.5 && (o.p - b).norm() < 0.3,
             "ended at σ {:e}, τ {}, −2 ln L {} ({} passes)",
             o.p[0].exp(),
             o.p[1].exp(),
