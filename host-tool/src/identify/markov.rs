@@ -121,7 +121,14 @@ pub struct MarkovFit {
     pub evidence_gain: f64,
     /// Forward passes spent.
     pub passes: usize,
+    /// −2 ln L on the search's lattice ([`lattice`], row by row), where a retune at a nearby
+    /// set-up looks again ([`retune_gain`]).
+    #[serde(skip)]
+    pub lattice: Lattice,
 }
+
+/// −2 ln L on the 6×6 lattice, τ by τ, σ within.
+pub type Lattice = [f64; LATTICE_POINTS];
 
 /// A point of the search: ln σ, ln τ.
 type Point = Vector2<f64>;
@@ -434,6 +441,7 @@ struct Optimum {
     cov: Option<Matrix2<f64>>,
     f_catalog: f64,
     passes: usize,
+    lattice: Lattice,
 }
 
 /// The lattice the search starts on: σ and τ each in steps of ×3 ([`LATTICE_SIGMA_DEGPH`] ×
@@ -457,6 +465,14 @@ fn lattice() -> Vec<Vec<Point>> {
 const LATTICE_SIGMA_DEGPH: [f64; 6] = [1.5e-4, 4.5e-4, 1.35e-3, 4e-3, 1.2e-2, 3.6e-2];
 /// The lattice's τ, h.
 const LATTICE_TAU_H: [f64; 6] = [0.3, 0.9, 2.7, 8.1, 24.0, 73.0];
+/// The lattice's points.
+pub const LATTICE_POINTS: usize = LATTICE_SIGMA_DEGPH.len() * LATTICE_TAU_H.len();
+/// How far above the lattice's best a point of an earlier search at a nearby set-up may lie and
+/// still be looked at again in a retune ([`retune_gain`]). A misstatement moves −2 ln L at a
+/// lattice point by about what it gains (at most 23 in the runs where retuning mattered: a
+/// latitude 0.1° off under a 5.7-h sine moved the wander's optimum from τ 19 h to 1.0 h); 100
+/// leaves four times that, and skips the points of the lattice that lie thousands above.
+const LATTICE_NEAR: f64 = 100.0;
 /// Basins searched at most: the lattice's best local minima, each a Newton search's start.
 const STARTS: usize = 2;
 /// How far above the best lattice value (−2 ln L) a second basin is still searched.
@@ -491,6 +507,7 @@ fn starts(values: &[Vec<f64>]) -> Vec<(usize, usize)> {
 fn optimum(
     f: &(impl Fn(f64, f64) -> anyhow::Result<f64> + Sync),
     stall: f64,
+    earlier: Option<&Lattice>,
 ) -> anyhow::Result<Optimum> {
     let remembered = Remembered::new(f);
     let f = &|s: f64, t: f64| remembered.at(s, t);
@@ -498,8 +515,35 @@ fn optimum(
     let rows = lattice();
     let mut points: Vec<Point> = rows.iter().flatten().copied().collect();
     points.push(Point::new(catalog.sigma_degph.ln(), catalog.tau_h.ln()));
-    let values = evaluate(&points, f);
+    // With an earlier search's lattice at a nearby set-up: only its points near its best (the
+    // rest count as +∞, never a start), and the catalog's.
+    let wanted: Vec<bool> = match earlier {
+        Some(e) => {
+            let low = e.iter().copied().fold(f64::INFINITY, f64::min);
+            e.iter()
+                .map(|&v| v <= low + LATTICE_NEAR)
+                .chain(std::iter::once(true))
+                .collect()
+        }
+        None => vec![true; points.len()],
+    };
+    let asked: Vec<Point> = points
+        .iter()
+        .zip(&wanted)
+        .filter(|(_, &w)| w)
+        .map(|(p, _)| *p)
+        .collect();
+    let mut got = evaluate(&asked, f).into_iter();
+    let values: Vec<f64> = wanted
+        .iter()
+        .map(|&w| match w {
+            true => got.next().unwrap_or(f64::INFINITY),
+            false => f64::INFINITY,
+        })
+        .collect();
     let f_catalog = values[points.len() - 1];
+    let mut lattice_values: Lattice = [f64::INFINITY; LATTICE_POINTS];
+    lattice_values.copy_from_slice(&values[..LATTICE_POINTS]);
     let cols = LATTICE_SIGMA_DEGPH.len();
     let grid: Vec<Vec<f64>> = values[..points.len() - 1]
         .chunks(cols)
@@ -509,7 +553,11 @@ fn optimum(
     if begin.is_empty() {
         anyhow::bail!("{NAME}: the filter fails at every σ, τ of the lattice");
     }
-    let mut seen: Seen = points.into_iter().zip(values).collect();
+    let mut seen: Seen = points
+        .into_iter()
+        .zip(values)
+        .filter(|(_, v)| v.is_finite())
+        .collect();
     // Each basin's search; the one whose best point is lowest gives the curvature.
     let mut found: Vec<(f64, Option<Matrix2<f64>>)> = vec![];
     let first = begin[0];
@@ -545,6 +593,7 @@ fn optimum(
         cov,
         f_catalog,
         passes: remembered.passes(),
+        lattice: lattice_values,
     })
 }
 
@@ -596,7 +645,8 @@ pub(crate) fn fit(
         cov,
         f_catalog,
         passes,
-    } = optimum(&f, STALL)?;
+        lattice,
+    } = optimum(&f, STALL, None)?;
     let (lo, hi) = bounds();
     let at_bound = (0..2).any(|i| p[i] <= lo[i] + 1e-6 || p[i] >= hi[i] - 1e-6);
     let (sigma, tau) = (p[0].exp(), p[1].exp());
@@ -628,6 +678,7 @@ pub(crate) fn fit(
             } else {
                 0
             },
+        lattice,
     })
 }
 
@@ -678,7 +729,10 @@ pub(crate) fn retune_gain(
         return None;
     }
     let f = |s: f64, t: f64| neg2_ln_l(at, effects, cfg, id, s, t);
-    let (held, best) = rayon::join(|| f(gm.sigma_degph, gm.tau_h), || optimum(&f, RETUNE_STALL));
+    let (held, best) = rayon::join(
+        || f(gm.sigma_degph, gm.tau_h),
+        || optimum(&f, RETUNE_STALL, Some(&gm.lattice)),
+    );
     let best = best.ok()?;
     let tuned = DriftMarkov {
         sigma_degph: best.p[0].exp(),
@@ -763,6 +817,7 @@ mod line_tests {
             at_bound: false,
             evidence_gain: 3.2,
             passes: 40,
+            lattice: [0.0; super::LATTICE_POINTS],
         };
         let line = gm.line();
         assert!(
@@ -794,7 +849,7 @@ mod search_tests {
             let along = t.ln() - t0;
             Ok(-100.0 * (-(across / 0.6).powi(2)).exp() + 10.0 * along * along)
         };
-        let o = optimum(&f, STALL).unwrap();
+        let o = optimum(&f, STALL, None).unwrap();
         assert!(
             o.f_best < -100.0 + 0.5 && (o.p[1] - t0).abs() < 0.32,
             "ended at σ {:e}, τ {} ({} passes)",
@@ -817,7 +872,7 @@ mod search_tests {
             let (x, y) = (s.ln() - s0, t.ln() - t0);
             Ok(50.0 * (2.0 * x - y - 0.3 * y * y).powi(2) + 2.0 * y * y)
         };
-        let o = optimum(&f, STALL).unwrap();
+        let o = optimum(&f, STALL, None).unwrap();
         assert!(
             o.f_best < 0.5 && o.passes <= 37 + 2 * 60,
             "ended at σ {:e}, τ {}, −2 ln L {} ({} passes)",
@@ -842,7 +897,7 @@ mod search_tests {
             let (x, y) = (s.ln() - s0, t.ln() - t0);
             Ok(200.0 * (2.0 * x - y).powi(2) + 1.5 * y * y)
         };
-        let o = optimum(&f, STALL).unwrap();
+        let o = optimum(&f, STALL, None).unwrap();
         assert!(
             o.f_best < 0.5 && o.passes <= 37 + 2 * 9 + WAY_POINTS,
             "ended at σ {:e}, τ {}, −2 ln L {} ({} passes)",
@@ -867,7 +922,7 @@ mod search_tests {
             let well = |c: Point, w: f64| (-(p - c).norm_squared() / w).exp();
             Ok(-30.0 * well(a, 1.3) - 50.0 * well(b, 0.5))
         };
-        let o = optimum(&f, STALL).unwrap();
+        let o = optimum(&f, STALL, None).unwrap();
         assert!(
             o.f_best < -50.0 + 0.5 && (o.p - b).norm() < 0.3,
             "ended at σ {:e}, τ {}, −2 ln L {} ({} passes)",
@@ -875,6 +930,62 @@ mod search_tests {
             o.p[1].exp(),
             o.f_best,
             o.passes
+        );
+    }
+
+    /// A retune at a nearby set-up looks again only at the lattice points the earlier search
+    /// found within [`LATTICE_NEAR`] of its best, and must still find a basin that was 18 above
+    /// there and is lowest now (the misstated latitude under a 5.7-h sine: τ 19 h at the stated
+    /// latitude, 1.0 h at the true one), within 0.5 of its bottom; the points thousands above
+    /// are not asked for again.
+    #[test]
+    fn a_retune_finds_the_basin_that_became_lowest_and_skips_the_far_points() {
+        let (a, b) = (
+            Point::new(1.35e-3f64.ln(), 24f64.ln()),
+            Point::new(4.5e-4f64.ln(), 0.9f64.ln()),
+        );
+        // Two wells, 18 apart, on a bowl that rises to hundreds away from them.
+        let surface = |deep_a: f64, deep_b: f64| {
+            move |s: f64, t: f64| -> anyhow::Result<f64> {
+                let p = Point::new(s.ln(), t.ln());
+                let well = |c: Point| (-(p - c).norm_squared() / 0.8).exp();
+                let centre = Point::new(7e-4f64.ln(), 4f64.ln());
+                Ok(10.0 * (p - centre).norm_squared() - deep_a * well(a) - deep_b * well(b))
+            }
+        };
+        let stated = optimum(&surface(400.0, 370.0), STALL, None).unwrap();
+        assert!((stated.p - a).norm() < 0.5, "the stated set-up's basin");
+        let asked = std::sync::Mutex::new(0usize);
+        let moved = surface(370.0, 400.0);
+        let counted = |s: f64, t: f64| {
+            *asked.lock().unwrap() += 1;
+            moved(s, t)
+        };
+        let o = optimum(&counted, RETUNE_STALL, Some(&stated.lattice)).unwrap();
+        let bottom = optimum(&moved, STALL, None).unwrap().f_best;
+        assert!(
+            (o.p - b).norm() < 0.5 && o.f_best < bottom + 0.5,
+            "ended at σ {:e}, τ {}, −2 ln L {} (the bottom {bottom})",
+            o.p[0].exp(),
+            o.p[1].exp(),
+            o.f_best
+        );
+        let far = stated
+            .lattice
+            .iter()
+            .filter(|v| {
+                **v > stated.lattice.iter().copied().fold(f64::INFINITY, f64::min) + LATTICE_NEAR
+            })
+            .count();
+        assert!(
+            far > LATTICE_POINTS / 2,
+            "the bowl leaves far points: {far}"
+        );
+        assert!(
+            *asked.lock().unwrap() <= o.passes && o.passes < stated.passes,
+            "{} passes, the full search {}",
+            o.passes,
+            stated.passes
         );
     }
 

@@ -387,5 +387,6 @@ fn markov_fit(at_bound: bool) -> crate::identify::markov::MarkovFit {
         at_bound,
         evidence_gain: 3.2,
         passes: 40,
+        lattice: [0.0; crate::identify::markov::LATTICE_POINTS],
     }
 }
