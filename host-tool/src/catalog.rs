@@ -148,16 +148,13 @@ impl Catalog {
         effects: &[&'c dyn Effect],
         id: &crate::identify::Identification,
     ) -> Vec<&'c dyn Effect> {
-        let name = crate::identify::markov::NAME;
-        effects
-            .iter()
-            .map(|&e| match &id.markov {
-                Some(gm) if e.name() == name => {
-                    self.tuned_markov(gm.sigma_degph, gm.tau_h) as &dyn Effect
-                }
-                _ => e,
-            })
-            .collect()
+        match &id.markov {
+            Some(gm) => crate::identify::markov::with_markov(
+                effects,
+                self.tuned_markov(gm.sigma_degph, gm.tau_h),
+            ),
+            None => effects.to_vec(),
+        }
     }
 
     /// The effect `make` builds for `key`, owned by the catalog: made once per distinct key (a

@@ -68,16 +68,7 @@ pub(crate) fn neg2_ln_l(
         "{NAME}: σ = {sigma_degph:e} deg/h, τ = {tau_h:e} h is outside the range searched"
     );
     let gm = DriftMarkov { sigma_degph, tau_h };
-    let list: Vec<&dyn Effect> = effects
-        .iter()
-        .map(|e| {
-            if e.name() == NAME {
-                &gm as &dyn Effect
-            } else {
-                *e
-            }
-        })
-        .collect();
+    let list = with_markov(effects, &gm);
     let model: Model<'_> = build_model(prep.site, &list, cfg)?;
     let (x0, p0) = start_prior(&model, prep, &prep.start_sigma());
     let pass = super::smoother::linearised_pass(
@@ -89,6 +80,18 @@ pub(crate) fn neg2_ln_l(
         false,
     )?;
     Ok(neg2_log_evidence(&pass.innovations))
+}
+
+/// `effects` with `drift-markov` replaced by `gm`: the step every σ and τ tried, tuned or
+/// retuned takes.
+pub(crate) fn with_markov<'a>(
+    effects: &[&'a dyn Effect],
+    gm: &'a dyn Effect,
+) -> Vec<&'a dyn Effect> {
+    effects
+        .iter()
+        .map(|&e| if e.name() == NAME { gm } else { e })
+        .collect()
 }
 
 /// Coarse grid of σ, deg/h: the catch-all's tries ([`crate::diagnose::select`]).
@@ -697,11 +700,7 @@ pub fn tune<'e>(
         return Ok((effects.to_vec(), id));
     }
     let gm = fit(prep, effects, cfg, &id)?;
-    let tuned: &'e dyn Effect = catalog.tuned_markov(gm.sigma_degph, gm.tau_h);
-    let list: Vec<&dyn Effect> = effects
-        .iter()
-        .map(|e| if e.name() == NAME { tuned } else { *e })
-        .collect();
+    let list = with_markov(effects, catalog.tuned_markov(gm.sigma_degph, gm.tau_h));
     let model = build_model(prep.site, &list, cfg)?;
     let mut refit = super::identify_from(&model, prep, cfg, &id)?;
     refit.markov = Some(gm);
@@ -749,17 +748,7 @@ pub(crate) fn refit_with(
     id: &Identification,
     gm: &DriftMarkov,
 ) -> anyhow::Result<(f64, nalgebra::DVector<f64>)> {
-    let list: Vec<&dyn Effect> = effects
-        .iter()
-        .map(|e| {
-            if e.name() == NAME {
-                gm as &dyn Effect
-            } else {
-                *e
-            }
-        })
-        .collect();
-    super::setup::refit(at, &list, cfg, id)
+    super::setup::refit(at, &with_markov(effects, gm), cfg, id)
 }
 
 impl MarkovFit {
