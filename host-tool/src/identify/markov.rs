@@ -824,6 +824,17 @@ mod line_tests {
 mod search_tests {
     use super::*;
 
+    /// Where a search ended, for a failed assertion.
+    fn ended(o: &Optimum) -> String {
+        format!(
+            "ended at σ {:e}, τ {}, −2 ln L {} ({} passes)",
+            o.p[0].exp(),
+            o.p[1].exp(),
+            o.f_best,
+            o.passes
+        )
+    }
+
     /// A narrow ridge along σ²/τ, narrower than the lattice's step, with its lowest point
     /// between lattice points: a stencil of half-width 0.5 across it is a saddle. The search
     /// stopped there (a 48-h run: σ 2e-3 deg/h, τ 8 h, 40 above the optimum at σ 6.8e-4,
@@ -862,14 +873,7 @@ mod search_tests {
             Ok(50.0 * (2.0 * x - y - 0.3 * y * y).powi(2) + 2.0 * y * y)
         };
         let o = optimum(&f, STALL, None).unwrap();
-        assert!(
-            o.f_best < 0.5 && o.passes <= 37 + 2 * 60,
-            "ended at σ {:e}, τ {}, −2 ln L {} ({} passes)",
-            o.p[0].exp(),
-            o.p[1].exp(),
-            o.f_best,
-            o.passes
-        );
+        assert!(o.f_best < 0.5 && o.passes <= 37 + 2 * 60, "{}", ended(&o));
     }
 
     /// A single basin along the σ²/τ ridge that several lattice points lie near, each a local
@@ -889,11 +893,8 @@ mod search_tests {
         let o = optimum(&f, STALL, None).unwrap();
         assert!(
             o.f_best < 0.5 && o.passes <= 37 + 2 * 9 + WAY_POINTS,
-            "ended at σ {:e}, τ {}, −2 ln L {} ({} passes)",
-            o.p[0].exp(),
-            o.p[1].exp(),
-            o.f_best,
-            o.passes
+            "{}",
+            ended(&o)
         );
     }
 
@@ -914,11 +915,8 @@ mod search_tests {
         let o = optimum(&f, STALL, None).unwrap();
         assert!(
             o.f_best < -50.0 + 0.5 && (o.p - b).norm() < 0.3,
-            "ended at σ {:e}, τ {}, −2 ln L {} ({} passes)",
-            o.p[0].exp(),
-            o.p[1].exp(),
-            o.f_best,
-            o.passes
+            "{}",
+            ended(&o)
         );
     }
 
