@@ -378,6 +378,8 @@ CASES = [
     ("uncatalogued_sine", ["--effect", "drift-sine=7e-4,-5e-4,6e-4:30"], None),
     ("bias_step", ["--fault", "step=y,4e-4,30"], None),
     ("latitude_half_degree_off", ["--latitude-error-deg", "0.5"], None),
+    # A Gauss–Markov wander: one catalog effect whose σ and τ the ladder tunes.
+    ("gauss_markov_wander", ["--seed", "7", "--effect", "drift-markov=8e-4,8e-4,8e-4:5,5,5"], 1),
 ]
 
 # Issue 31's targets, wall s: identify on any recording; diagnose with one or two hidden

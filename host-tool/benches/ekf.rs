@@ -297,6 +297,18 @@ fn commands(c: &mut Criterion) {
             "latitude_half_degree_off",
             simulated_60h("lat05", &["--latitude-error-deg", "0.5"]),
         ),
+        (
+            "gauss_markov_wander",
+            simulated_60h(
+                "wander",
+                &[
+                    "--seed",
+                    "7",
+                    "--effect",
+                    "drift-markov=8e-4,8e-4,8e-4:5,5,5",
+                ],
+            ),
+        ),
     ];
     let mut group = c.benchmark_group("commands");
     group.sample_size(10);
